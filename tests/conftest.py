@@ -1,0 +1,47 @@
+"""Shared fixtures: dtypes, devices, batch shapes and the per-dtype tolerance table."""
+
+import os
+
+import pytest
+import torch
+from hypothesis import HealthCheck, settings
+
+settings.register_profile(
+    "ci", max_examples=40, deadline=None, derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.register_profile("long", max_examples=2000, deadline=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+torch.set_num_threads(min(2, torch.get_num_threads()))
+
+DTYPES = (torch.float32, torch.float64)
+DEVICES = ("cpu", "cuda") if torch.cuda.is_available() else ("cpu",)
+BATCH_SHAPES = ((), (1,), (3, 1, 2))
+
+# One tolerance table for the whole suite: absolute tolerances for quantities of unit scale.
+TOL = {
+    torch.float32: 2e-6,
+    torch.float64: 1e-12,
+}
+
+
+@pytest.fixture(params=DTYPES, ids=lambda d: str(d).replace("torch.", ""))
+def dtype(request):
+    return request.param
+
+
+@pytest.fixture(params=DEVICES)
+def device(request):
+    return torch.device(request.param)
+
+
+@pytest.fixture(params=BATCH_SHAPES, ids=lambda s: "x".join(map(str, s)) or "scalar")
+def batch_shape(request):
+    return request.param
+
+
+@pytest.fixture
+def gen():
+    """A seeded generator so every test draws the same samples run to run."""
+    return torch.Generator().manual_seed(20261121)

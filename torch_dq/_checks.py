@@ -1,0 +1,102 @@
+"""Argument validation shared by every public function (private).
+
+Every check raises ``TypeError`` (not a tensor, not floating point, mixed dtypes or
+devices) or ``ValueError`` (wrong shape, shapes that do not broadcast, bad values) with a
+message of the form ``"<function>: <argument> <expected>, got <actual>"``.
+These checks only read shapes and dtypes: they never synchronise with a device.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "as_float_tensor",
+    "broadcast_batch",
+    "fail",
+    "same_dtype_device",
+    "shape_str",
+    "tensor",
+]
+
+
+def shape_str(shape) -> str:
+    """Format a shape as ``(5, 7)``; ``()`` for a scalar."""
+    dims = tuple(shape)
+    return "(" + ", ".join(str(d) for d in dims) + ("," if len(dims) == 1 else "") + ")"
+
+
+def fail(fn: str, message: str, kind: type[Exception] = ValueError):
+    """Raise ``kind`` with the message prefixed by the function name."""
+    raise kind(f"{fn}: {message}")
+
+
+def tensor(fn: str, name: str, x, last: int | tuple[int, ...] | None = None) -> Tensor:
+    """Check that ``x`` is a floating-point tensor whose trailing dims equal ``last``.
+
+    Args:
+        fn: public name of the calling function, e.g. ``"dualquat.mul"``.
+        name: argument name as the user wrote it.
+        x: the value to check.
+        last: required trailing size (``8``), trailing shape (``(4, 4)``) or ``None``.
+
+    Returns:
+        ``x`` unchanged.
+    """
+    if not isinstance(x, Tensor):
+        fail(fn, f"expected a torch.Tensor for {name}, got {type(x).__name__}", TypeError)
+    if not x.is_floating_point():
+        fail(fn, f"expected a floating-point tensor for {name}, got dtype {x.dtype}", TypeError)
+    if last is not None:
+        event = (last,) if isinstance(last, int) else tuple(last)
+        if x.dim() < len(event) or tuple(x.shape[x.dim() - len(event):]) != event:
+            expected = "(..., " + ", ".join(str(d) for d in event) + ")"
+            fail(fn, f"expected a {expected} tensor for {name}, got shape {shape_str(x.shape)}")
+    return x
+
+
+def same_dtype_device(fn: str, **named: Tensor) -> None:
+    """Check that all tensors share one dtype and one device."""
+    items = list(named.items())
+    first_name, first = items[0]
+    for name, x in items[1:]:
+        if x.dtype != first.dtype:
+            fail(fn, f"{name} has dtype {x.dtype} but {first_name} has dtype {first.dtype}",
+                 TypeError)
+        if x.device != first.device:
+            fail(fn, f"{name} is on {x.device} but {first_name} is on {first.device}", TypeError)
+
+
+def broadcast_batch(fn: str, **named: tuple[Tensor, int]) -> torch.Size:
+    """Broadcast the batch shapes of several arguments.
+
+    Args:
+        fn: public name of the calling function.
+        **named: ``name=(tensor, event_ndim)``: the last ``event_ndim`` dims of each tensor
+            are its event (8 for a dual quaternion, 0 for a scalar) and are not broadcast.
+
+    Returns:
+        The broadcast batch shape.
+    """
+    shapes = {name: x.shape[: x.dim() - nd] for name, (x, nd) in named.items()}
+    try:
+        return torch.broadcast_shapes(*shapes.values())
+    except RuntimeError:
+        listed = ", ".join(f"{n} {shape_str(s)}" for n, s in shapes.items())
+        fail(fn, f"batch shapes do not broadcast: {listed}")
+
+
+def as_float_tensor(fn: str, name: str, t, like: Tensor, like_name: str) -> Tensor:
+    """Turn a Python number or a tensor into a floating tensor matching ``like``.
+
+    Python numbers become 0-d tensors of ``like``'s dtype and device; tensors must be
+    floating point and share ``like``'s dtype and device (``like_name`` names ``like``).
+    """
+    if isinstance(t, numbers.Real) and not isinstance(t, bool):
+        return torch.tensor(float(t), dtype=like.dtype, device=like.device)
+    tensor(fn, name, t)
+    same_dtype_device(fn, **{like_name: like, name: t})
+    return t

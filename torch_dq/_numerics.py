@@ -1,0 +1,53 @@
+"""Per-dtype thresholds and helpers for removable singularities (private).
+
+The pattern used everywhere (jaxlie's "safe where"): for a function with a removable
+singularity at ``x = 0`` (``sin(x) / x`` and friends), compute a mask ``small``, replace the
+unsafe inputs by a harmless constant *before* evaluating the exact formula, and select the
+Taylor branch where ``small`` holds. Reverse mode then never differentiates through an
+unselected ``0 / 0`` (pytorch issue 52248).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+__all__ = ["compute_dtype", "safe_denominator", "sinc", "taylor_threshold"]
+
+
+def compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The dtype used for internal arithmetic: float16/bfloat16 compute in float32."""
+    return torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
+
+
+def taylor_threshold(dtype: torch.dtype, order: int) -> float:
+    r"""Switch point between a Taylor branch and the exact formula.
+
+    A truncated series with first neglected term of degree ``order`` has relative error
+    ``x**order``; the exact formula of a function whose numerator cancels to second order
+    has relative error ``eps / x**2``. Balancing the two gives
+    ``x0 = eps ** (1 / (order + 2))``.
+
+    Args:
+        dtype: the compute dtype.
+        order: degree of the first neglected Taylor term.
+    """
+    eps = torch.finfo(compute_dtype(dtype)).eps
+    return float(eps ** (1.0 / (order + 2)))
+
+
+def safe_denominator(x: Tensor, small: Tensor) -> Tensor:
+    """``x`` with the entries where ``small`` holds replaced by 1 (to divide safely)."""
+    return torch.where(small, torch.ones_like(x), x)
+
+
+def sinc(x: Tensor) -> Tensor:
+    r"""Unnormalised :math:`\sin(x) / x`, exact and smooth at 0 in value and gradient.
+
+    Taylor branch :math:`1 - x^2/6 + x^4/120 - x^6/5040` below the threshold.
+    """
+    small = x.abs() < taylor_threshold(x.dtype, 8)
+    xs = safe_denominator(x, small)
+    x2 = x * x
+    series = 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
+    return torch.where(small, series, torch.sin(xs) / xs)
