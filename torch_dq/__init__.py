@@ -1,6 +1,13 @@
-"""torch_dq: differentiable unit dual quaternions for PyTorch."""
+"""torch_dq: differentiable unit dual quaternions for PyTorch.
 
-from . import quat
+Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions),
+:mod:`torch_dq.dualquat` (dual quaternions, dual angle, screw interpolation).
+"""
 
-__all__ = ["quat"]
+from . import dual, dualquat, quat
+from .dual import Dual
+from .dualquat import angle as dual_angle
+from .dualquat import sclerp
+
+__all__ = ["Dual", "dual", "dual_angle", "dualquat", "quat", "sclerp"]
 __version__ = "0.1.0"

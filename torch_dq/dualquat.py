@@ -1,0 +1,653 @@
+r"""Dual quaternions on plain ``(..., 8)`` tensors (``import torch_dq.dualquat as dq``).
+
+Layout ``(rw, rx, ry, rz, dw, dx, dy, dz)``: real part then dual part, each a
+``(w, x, y, z)`` Hamilton quaternion. The rigid transform :math:`x \mapsto R x + t` is
+``real = r`` (the rotation quaternion) and ``dual = 0.5 * (0, t) * r``, the layout of
+pytransform3d. A unit dual quaternion and its negative are the same transform.
+Products compose like matrices: ``mul(a, b)`` applies ``b`` first.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from . import _checks, _interp, quat
+from ._numerics import compute_dtype, safe_denominator, taylor_threshold
+from .dual import Dual
+from .quat import _conj as _qconj
+from .quat import _mul as _qmul
+from .quat import _rotate
+
+__all__ = [
+    "angle",
+    "apply",
+    "apply_line",
+    "conj",
+    "conj_dual",
+    "conj_full",
+    "dlb",
+    "dot",
+    "exp",
+    "from_matrix",
+    "from_pose7",
+    "from_rt",
+    "from_screw",
+    "identity",
+    "inv",
+    "is_unit",
+    "log",
+    "mul",
+    "norm",
+    "normalize",
+    "sclerp",
+    "to_matrix",
+    "to_pose7",
+    "to_rt",
+    "to_screw",
+]
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _dq(fn: str, name: str, x: Tensor) -> Tensor:
+    return _checks.tensor(fn, name, x, 8)
+
+
+def _pair(fn: str, a: Tensor, b: Tensor) -> None:
+    _dq(fn, "a", a)
+    _dq(fn, "b", b)
+    _checks.same_dtype_device(fn, a=a, b=b)
+    _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1))
+
+
+def _split(x: Tensor) -> tuple[Tensor, Tensor]:
+    """Real and dual quaternion halves as views."""
+    return x[..., :4], x[..., 4:]
+
+
+def _join(r: Tensor, d: Tensor) -> Tensor:
+    r, d = torch.broadcast_tensors(r, d)
+    return torch.cat((r, d), dim=-1)
+
+
+def _mul(a: Tensor, b: Tensor) -> Tensor:
+    """Unchecked product :math:`(r_a r_b, r_a d_b + d_a r_b)`."""
+    ra, da = _split(a)
+    rb, db = _split(b)
+    return _join(_qmul(ra, rb), _qmul(ra, db) + _qmul(da, rb))
+
+
+def _normalize(x: Tensor) -> Tensor:
+    """Unchecked projection onto unit dual quaternions (see :func:`normalize`)."""
+    r, d = _split(x)
+    n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
+    n = torch.where(n > 0, n, torch.nan)
+    r = r / n
+    d = d / n
+    return _join(r, d - r * (r * d).sum(-1, keepdim=True))
+
+
+def _translation(r: Tensor, d: Tensor) -> Tensor:
+    """Translation ``t = 2 vec(d r*)`` of a unit dual quaternion."""
+    return 2.0 * _qmul(d, _qconj(r))[..., 1:]
+
+
+def _from_rt(r: Tensor, t: Tensor) -> Tensor:
+    """Unchecked ``(r, 0.5 (0, t) r)``."""
+    t0 = torch.cat((torch.zeros_like(t[..., :1]), t), dim=-1)
+    return _join(r, 0.5 * _qmul(t0, r))
+
+
+# ----------------------------------------------------------------------------- algebra
+
+def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
+    """Identity transforms ``(1, 0, 0, 0, 0, 0, 0, 0)`` of batch shape ``shape``.
+
+    Example:
+        >>> identity()
+        tensor([1., 0., 0., 0., 0., 0., 0., 0.])
+    """
+    r = quat.identity(shape, dtype=dtype, device=device)
+    return torch.cat((r, torch.zeros_like(r)), dim=-1)
+
+
+def mul(a: Tensor, b: Tensor) -> Tensor:
+    r"""Dual-quaternion product :math:`(r_a + \epsilon d_a)(r_b + \epsilon d_b)`.
+
+    Args:
+        a: ``(..., 8)``.
+        b: ``(..., 8)``, batch broadcastable with ``a``.
+
+    Returns:
+        ``(..., 8)``: for unit inputs, the transform ``b`` followed by ``a``
+        (``to_matrix(mul(a, b)) == to_matrix(a) @ to_matrix(b)``).
+    """
+    _pair("dualquat.mul", a, b)
+    return _mul(a, b)
+
+
+def conj(x: Tensor) -> Tensor:
+    r"""Quaternion conjugate of both parts, :math:`r^* + \epsilon d^*` (the inverse of a unit x)."""
+    _dq("dualquat.conj", "x", x)
+    return x * x.new_tensor([1.0, -1.0, -1.0, -1.0, 1.0, -1.0, -1.0, -1.0])
+
+
+def conj_dual(x: Tensor) -> Tensor:
+    r"""Dual-number conjugate :math:`r - \epsilon d`."""
+    _dq("dualquat.conj_dual", "x", x)
+    return x * x.new_tensor([1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0])
+
+
+def conj_full(x: Tensor) -> Tensor:
+    r"""Both conjugates, :math:`r^* - \epsilon d^*` (used to act on points as dual quaternions)."""
+    _dq("dualquat.conj_full", "x", x)
+    return x * x.new_tensor([1.0, -1.0, -1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+
+
+def inv(x: Tensor) -> Tensor:
+    r"""Multiplicative inverse :math:`r^{-1} - \epsilon\, r^{-1} d\, r^{-1}`.
+
+    Valid for any dual quaternion with a non-zero real part (zero real part: non-finite
+    values in that element); for a unit dual quaternion it equals :func:`conj`.
+
+    Args:
+        x: ``(..., 8)``.
+    """
+    _dq("dualquat.inv", "x", x)
+    r, d = _split(x)
+    r_inv = _qconj(r) / (r * r).sum(-1, keepdim=True)
+    return _join(r_inv, -_qmul(_qmul(r_inv, d), r_inv))
+
+
+def norm(x: Tensor) -> Dual:
+    r"""Dual norm :math:`\|x\| = \sqrt{x x^*} = |r| + \epsilon\, (r \cdot d) / |r|`.
+
+    Args:
+        x: ``(..., 8)``.
+
+    Returns:
+        ``Dual`` of batch shape ``(...)``; ``1 + eps 0`` for a unit dual quaternion.
+    """
+    _dq("dualquat.norm", "x", x)
+    r, d = _split(x)
+    n = torch.linalg.vector_norm(r, dim=-1)
+    return Dual(n, (r * d).sum(-1) / n)
+
+
+def dot(a: Tensor, b: Tensor) -> Dual:
+    r"""The paper's dual scalar product (eq. 1).
+
+    :math:`a \cdot b = \tfrac12 (a b^* + b a^*) = r_a \cdot r_b
+    + \epsilon\, (r_a \cdot d_b + r_b \cdot d_a)`. For unit inputs it is
+    :math:`\cos \bar\theta` of their dual angle (eq. 7).
+
+    Args:
+        a: ``(..., 8)``.
+        b: ``(..., 8)``, batch broadcastable with ``a``.
+
+    Returns:
+        ``Dual`` of the broadcast batch shape.
+    """
+    _pair("dualquat.dot", a, b)
+    ra, da = _split(a)
+    rb, db = _split(b)
+    return Dual((ra * rb).sum(-1), (ra * db + rb * da).sum(-1))
+
+
+def normalize(x: Tensor, check: bool = False) -> Tensor:
+    r"""Project onto unit dual quaternions: :math:`x / \|x\|` in dual arithmetic.
+
+    With :math:`n = |r|`: :math:`r' = r / n` and
+    :math:`d' = d / n - r' \, (r' \cdot d) / n`, so :math:`|r'| = 1` and
+    :math:`r' \cdot d' = 0`. The translation :math:`2\,\mathrm{vec}(d r^*)/|r|^2` is kept
+    exactly; only the non-rigid scalar part of :math:`d r^*` is removed. Idempotent.
+
+    Args:
+        x: ``(..., 8)`` with non-zero real part.
+        check: if True, raise ``ValueError`` when some real part is zero or non-finite
+            (synchronises with the device). Otherwise such an element gives NaN in its own
+            output only.
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions.
+    """
+    _dq("dualquat.normalize", "x", x)
+    if check:
+        n = torch.linalg.vector_norm(x[..., :4], dim=-1)
+        if not bool(torch.all(torch.isfinite(n) & (n > 0))):
+            _checks.fail("dualquat.normalize", "x contains zero or non-finite real parts")
+    return _normalize(x)
+
+
+def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
+    r"""Per-element test :math:`\big||r| - 1\big| \le atol` and :math:`|r \cdot d| \le atol`.
+
+    Args:
+        x: ``(..., 8)``.
+        atol: tolerance; default ``1e-5`` for 32-bit and lower, ``1e-10`` for float64.
+
+    Returns:
+        ``(...)`` bool tensor; False where ``x`` has a non-finite component.
+    """
+    _dq("dualquat.is_unit", "x", x)
+    if atol is None:
+        atol = 1e-10 if x.dtype == torch.float64 else 1e-5
+    r, d = _split(x)
+    finite = torch.isfinite(x).all(-1)
+    rr = (r * r).sum(-1)
+    return finite & ((rr.sqrt() - 1.0).abs() <= atol) & ((r * d).sum(-1).abs() <= atol)
+
+
+# ----------------------------------------------------------------------------- conversions
+
+def from_rt(q: Tensor, t: Tensor) -> Tensor:
+    r"""Rigid transform :math:`x \mapsto R(q) x + t` as a dual quaternion.
+
+    Args:
+        q: ``(..., 4)`` unit rotation quaternions ``(w, x, y, z)``.
+        t: ``(..., 3)`` translations, batch broadcastable with ``q``.
+
+    Returns:
+        ``(..., 8)``: ``real = q``, ``dual = 0.5 (0, t) q``.
+
+    Example:
+        >>> from_rt(torch.tensor([1., 0., 0., 0.]), torch.tensor([2., 0., 0.]))
+        tensor([1., 0., 0., 0., 0., 1., 0., 0.])
+    """
+    fn = "dualquat.from_rt"
+    _checks.tensor(fn, "q", q, 4)
+    _checks.tensor(fn, "t", t, 3)
+    _checks.same_dtype_device(fn, q=q, t=t)
+    _checks.broadcast_batch(fn, q=(q, 1), t=(t, 1))
+    return _from_rt(q, t)
+
+
+def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
+    r"""Rotation quaternion and translation of a unit dual quaternion.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions.
+
+    Returns:
+        ``(q, t)``: ``(..., 4)`` (the real part, sign as given) and
+        ``(..., 3)`` translation :math:`t = 2\,\mathrm{vec}(d r^*)`.
+    """
+    _dq("dualquat.to_rt", "x", x)
+    r, d = _split(x)
+    return r, _translation(r, d)
+
+
+def from_matrix(T: Tensor) -> Tensor:
+    """Dual quaternion of ``(..., 4, 4)`` homogeneous rigid transforms.
+
+    The rotation block is converted with :func:`torch_dq.quat.from_matrix` (robust at every
+    angle, real part ``w >= 0``); the bottom row is not read.
+
+    Args:
+        T: ``(..., 4, 4)`` homogeneous matrices ``[[R, t], [0, 1]]``.
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions.
+    """
+    _checks.tensor("dualquat.from_matrix", "T", T, (4, 4))
+    return _from_rt(quat.from_matrix(T[..., :3, :3]), T[..., :3, 3])
+
+
+def to_matrix(x: Tensor) -> Tensor:
+    """Homogeneous ``(..., 4, 4)`` matrices ``[[R, t], [0, 1]]`` of unit dual quaternions.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions (``x`` and ``-x`` give the same matrix).
+    """
+    _dq("dualquat.to_matrix", "x", x)
+    r, d = _split(x)
+    top = torch.cat((quat.to_matrix(r), _translation(r, d)[..., None]), dim=-1)
+    bottom = torch.zeros_like(top[..., :1, :])
+    bottom[..., 3] = 1.0
+    return torch.cat((top, bottom), dim=-2)
+
+
+def from_pose7(p: Tensor) -> Tensor:
+    """From the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
+
+    Args:
+        p: ``(..., 7)``: translation then a unit quaternion in scalar-last order.
+    """
+    _checks.tensor("dualquat.from_pose7", "p", p, 7)
+    return _from_rt(p[..., [6, 3, 4, 5]], p[..., :3])
+
+
+def to_pose7(x: Tensor) -> Tensor:
+    """To the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions; the quaternion keeps the sign of the real part.
+    """
+    _dq("dualquat.to_pose7", "x", x)
+    r, d = _split(x)
+    return torch.cat((_translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1)
+
+
+def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
+    r"""Screw motion as a dual quaternion (the paper's eq. 2 with its typos fixed).
+
+    :math:`\cos\frac{\theta + \epsilon d}{2} + \sin\frac{\theta + \epsilon d}{2}
+    (l + \epsilon m)`, i.e. real part :math:`(\cos\frac\theta2, \sin\frac\theta2 l)` and dual
+    part :math:`(-\frac d2 \sin\frac\theta2,\ \sin\frac\theta2 m + \frac d2\cos\frac\theta2 l)`:
+    a rotation by ``theta`` about the line with Plücker coordinates ``(l, m)`` followed by a
+    translation ``d`` along it. ``theta = 0`` is a pure translation by ``d l``.
+
+    Args:
+        axis: ``(..., 3)`` unit direction ``l`` of the screw axis.
+        moment: ``(..., 3)`` moment ``m = p x l`` for any point ``p`` on the axis
+            (orthogonal to ``l``).
+        theta: ``(...)`` rotation angle in radians (tensor or float).
+        d: ``(...)`` translation along the axis (tensor or float).
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions.
+    """
+    fn = "dualquat.from_screw"
+    _checks.tensor(fn, "axis", axis, 3)
+    _checks.tensor(fn, "moment", moment, 3)
+    theta = _checks.as_float_tensor(fn, "theta", theta, axis, "axis")
+    d = _checks.as_float_tensor(fn, "d", d, axis, "axis")
+    _checks.same_dtype_device(fn, axis=axis, moment=moment)
+    _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0), d=(d, 0))
+    s, c = torch.sin(0.5 * theta)[..., None], torch.cos(0.5 * theta)[..., None]
+    h = 0.5 * d[..., None]
+    real = torch.cat((c, s * axis), dim=-1)
+    dual = torch.cat((-h * s, s * moment + h * c * axis), dim=-1)
+    return _join(real, dual)
+
+
+def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    r"""Screw parameters ``(axis, moment, theta, d)`` of unit dual quaternions.
+
+    The representative with :math:`r_w \ge 0` is used, so ``theta`` is in ``[0, pi]``.
+    With :math:`t` the translation and :math:`l` the rotation axis: :math:`d = t \cdot l` and
+    :math:`m = \frac12 (t \times l + (t - d l) \cot\frac\theta2)` (pytransform3d's formula).
+    A pure translation (``sin(theta / 2)`` below machine epsilon) gives ``axis = t / |t|``,
+    ``moment = 0``, ``theta = 0``, ``d = |t|``; the identity gives axis ``(1, 0, 0)`` and
+    zeros. Inverse of :func:`from_screw` up to the sign of (axis, theta, d).
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions.
+
+    Returns:
+        ``axis (..., 3)``, ``moment (..., 3)``, ``theta (...)``, ``d (...)``.
+    """
+    _dq("dualquat.to_screw", "x", x)
+    r, dq_ = _split(x)
+    t = _translation(r, dq_)
+    sign = torch.where(r[..., :1] < 0, -1.0, 1.0).to(r.dtype)
+    w, v = (r[..., :1] * sign), r[..., 1:] * sign
+    sin_half = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+    theta = 2.0 * torch.atan2(sin_half, w)
+    eps = torch.finfo(x.dtype).eps
+    translation_only = sin_half <= eps
+    t_norm = torch.linalg.vector_norm(t, dim=-1, keepdim=True)
+    fallback = torch.zeros_like(t)
+    fallback[..., 0] = 1.0
+    t_dir = torch.where(t_norm > eps, t / safe_denominator(t_norm, t_norm <= eps), fallback)
+    l = torch.where(translation_only, t_dir, v / safe_denominator(sin_half, translation_only))
+    d = (t * l).sum(-1, keepdim=True)
+    cot_half = w / safe_denominator(sin_half, translation_only)
+    m = 0.5 * (torch.linalg.cross(t, l, dim=-1) + (t - d * l) * cot_half)
+    m = torch.where(translation_only, torch.zeros_like(m), m)
+    theta = torch.where(translation_only, torch.zeros_like(theta), theta)
+    return l, m, theta[..., 0], d[..., 0]
+
+
+# ----------------------------------------------------------------------------- exp / log
+
+def _se3_coefficients(theta: Tensor) -> tuple[Tensor, Tensor]:
+    r"""``c1 = (1 - cos θ)/θ²`` and ``c2 = (θ - sin θ)/θ³`` with Taylor branches at 0."""
+    small = theta < taylor_threshold(theta.dtype, 6)
+    th = safe_denominator(theta, small)
+    t2 = theta * theta
+    c1 = torch.where(small, 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0), (1.0 - torch.cos(th)) / th**2)
+    c2 = torch.where(small, (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)) / 6.0,
+                     (th - torch.sin(th)) / th**3)
+    return c1, c2
+
+
+def exp(xi: Tensor) -> Tensor:
+    r"""Rigid-motion exponential of twists :math:`\xi = (\omega, v)`.
+
+    The matrix exponential of :math:`\begin{pmatrix}[\omega]_\times & v\\0&0\end{pmatrix}`
+    (pytransform3d's exponential coordinates; no factor 1/2): rotation by
+    :math:`|\omega|` about :math:`\omega`, translation
+    :math:`t = v + c_1\,\omega\times v + c_2\,\omega\times(\omega\times v)` with
+    :math:`c_1 = (1-\cos\theta)/\theta^2`, :math:`c_2 = (\theta-\sin\theta)/\theta^3`
+    (Taylor branches near 0, so a pure translation ``omega = 0`` is exact and has finite
+    gradients).
+
+    Args:
+        xi: ``(..., 6)`` twists ``(omega_x, omega_y, omega_z, v_x, v_y, v_z)``.
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions.
+    """
+    _checks.tensor("dualquat.exp", "xi", xi, 6)
+    omega, v = xi[..., :3], xi[..., 3:]
+    theta = torch.linalg.vector_norm(omega, dim=-1)
+    c1, c2 = _se3_coefficients(theta)
+    wxv = torch.linalg.cross(omega, v, dim=-1)
+    t = v + c1[..., None] * wxv + c2[..., None] * torch.linalg.cross(omega, wxv, dim=-1)
+    return _from_rt(quat.from_rotvec(omega), t)
+
+
+def log(x: Tensor) -> Tensor:
+    r"""Twist :math:`(\omega, v)` with :math:`\exp(\xi) = x`; inverse of :func:`exp`.
+
+    :math:`\omega` is the rotation vector with angle in ``[0, pi]`` (``x`` and ``-x`` give the
+    same twist) and :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)`
+    with :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
+    At exactly 180 degrees the sign of :math:`\omega` is that of the input's vector part.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions.
+
+    Returns:
+        ``(..., 6)`` twists.
+    """
+    _dq("dualquat.log", "x", x)
+    r, d = _split(x)
+    t = _translation(r, d)
+    omega = quat.to_rotvec(r)
+    theta = torch.linalg.vector_norm(omega, dim=-1)
+    small = theta < taylor_threshold(theta.dtype, 6)
+    th = safe_denominator(theta, small)
+    t2 = theta * theta
+    c3 = torch.where(small, (1.0 + t2 / 60.0 * (1.0 + t2 / 42.0)) / 12.0,
+                     (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
+    wxt = torch.linalg.cross(omega, t, dim=-1)
+    v = t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
+    return torch.cat((omega, v), dim=-1)
+
+
+# ----------------------------------------------------------------------------- actions
+
+def apply(x: Tensor, points: Tensor) -> Tensor:
+    r"""Transform points, :math:`p \mapsto R p + t`.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions.
+        points: ``(..., 3)``, batch broadcastable with ``x``.
+
+    Returns:
+        ``(..., 3)`` transformed points.
+
+    Example:
+        >>> x = from_rt(torch.tensor([1., 0., 0., 0.]), torch.tensor([1., 2., 3.]))
+        >>> apply(x, torch.zeros(3))
+        tensor([1., 2., 3.])
+    """
+    fn = "dualquat.apply"
+    _dq(fn, "x", x)
+    _checks.tensor(fn, "points", points, 3)
+    _checks.same_dtype_device(fn, x=x, points=points)
+    _checks.broadcast_batch(fn, x=(x, 1), points=(points, 1))
+    r, d = _split(x)
+    return _rotate(r, points) + _translation(r, d)
+
+
+def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Tensor]:
+    r"""Transform Plücker lines :math:`(l, m)`: :math:`l' = R l`, :math:`m' = R m + t \times R l`.
+
+    Equivalent to the dual-vector product :math:`x (l + \epsilon m) x^*` of the paper.
+
+    Args:
+        x: ``(..., 8)`` unit dual quaternions.
+        direction: ``(..., 3)`` line directions ``l``.
+        moment: ``(..., 3)`` line moments ``m = p x l``.
+
+    Returns:
+        ``(direction', moment')``, both ``(..., 3)``.
+    """
+    fn = "dualquat.apply_line"
+    _dq(fn, "x", x)
+    _checks.tensor(fn, "direction", direction, 3)
+    _checks.tensor(fn, "moment", moment, 3)
+    _checks.same_dtype_device(fn, x=x, direction=direction, moment=moment)
+    batch = _checks.broadcast_batch(fn, x=(x, 1), direction=(direction, 1), moment=(moment, 1))
+    r, d = _split(x)
+    l2 = _rotate(r, direction)
+    m2 = _rotate(r, moment) + torch.linalg.cross(_translation(r, d), l2.expand(*batch, 3), dim=-1)
+    return l2.expand(*batch, 3), m2
+
+
+# ----------------------------------------------------------------------------- dual angle
+
+def angle(a: Tensor, b: Tensor) -> Dual:
+    r"""Dual angle :math:`\bar\theta = \theta + \epsilon\hat\theta` between unit dual quaternions.
+
+    The paper's eqs. 4-7, with no sign flip, so that ``dual.cos(angle(a, b)) == dot(a, b)``:
+
+    - real part (eq. 4): :math:`\theta = \arccos(q_0 \cdot q_1) \in [0, \pi]`, evaluated as
+      :math:`2\,\mathrm{atan2}(|q_1 - q_0|, |q_1 + q_0|)`, accurate near 0 and pi. It is half
+      the relative rotation angle (or pi minus it when the signs disagree).
+    - dual part (eq. 5): :math:`\hat\theta = -(q_0 \cdot \hat q_1 + q_1 \cdot \hat q_0)
+      / \sin\theta`, half the translation along the relative screw axis (signed).
+    - degenerate branch (eq. 6), taken where :math:`\sin\theta \le \sqrt{\epsilon}` of the
+      dtype (equal or opposite rotations to working precision): :math:`|d_1 - d_0|` with
+      :math:`d_i` the translation of pose ``i`` along its own screw axis, i.e.
+      :math:`|(t_1 - t_0)\cdot u|` for the common rotation axis ``u``, and
+      :math:`|t_1 - t_0|` when the rotations are the identity. As written in the paper this
+      is the full axial distance, while eq. 5 tends to half of it (signed) as
+      :math:`\theta \to 0`: the value jumps by a factor 2 at the branch switch.
+
+    Gradients are analytic (a custom autograd op) and finite everywhere; at
+    :math:`\theta \in \{0, \pi\}` the kink of :math:`\theta` gets the zero subgradient.
+
+    Args:
+        a: ``(..., 8)`` unit dual quaternions.
+        b: ``(..., 8)`` unit dual quaternions, batch broadcastable with ``a``.
+
+    Returns:
+        ``Dual`` of the broadcast batch shape.
+
+    Example:
+        >>> a = identity()
+        >>> b = from_screw(torch.tensor([0., 0., 1.]), torch.zeros(3), 1.0, 2.0)
+        >>> angle(a, b)  # half the screw: (theta + eps d) / 2
+        Dual(real=tensor(0.5000), dual=tensor(1.))
+    """
+    fn = "dualquat.angle"
+    _pair(fn, a, b)
+    a, b = torch.broadcast_tensors(a, b)
+    theta, theta_hat = _interp.dual_angle(a, b)
+    P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
+    degenerate = _interp._angle_frame(a, b)[-1]
+    # eq. 6: |(t1 - t0) . u| with u the common axis, |t1 - t0| for identity rotations.
+    dt = _translation(R, S) - _translation(P, Q)
+    axis = P[..., 1:]
+    axis_norm = torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
+    no_axis = axis_norm <= _interp.degenerate_threshold(a.dtype)
+    along = (dt * axis / safe_denominator(axis_norm, no_axis)).sum(-1)
+    dt2 = (dt * dt).sum(-1)
+    dist = torch.sqrt(torch.where(dt2 > 0, dt2, 1.0)) * (dt2 > 0)
+    eq6 = torch.where(no_axis[..., 0], dist, along.abs())
+    return Dual(theta, torch.where(degenerate, eq6, theta_hat))
+
+
+def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
+    r"""Screw linear interpolation, the paper's eq. 11: :math:`a\,(a^{-1} b)^t`.
+
+    .. math::
+        q(t) = \frac{\sin((1 - t)\bar\theta)}{\sin\bar\theta}\, a
+             + \frac{\sin(t\bar\theta)}{\sin\bar\theta}\, b
+
+    with :math:`\bar\theta` the dual angle (:func:`angle`). The dual weights are evaluated
+    without forming :math:`\hat\theta = -\delta / \sin\theta` (see ``torch_dq._interp``),
+    so the result is exact to rounding at every degenerate point (equal rotations, pure
+    translations, tiny relative rotations with large translations), where it reduces to the
+    paper's linear branch :math:`(1 - t) a + t b`. ``t`` may be any real number
+    (extrapolation); ``t = 0`` and ``t = 1`` return ``a`` and ``b`` (``b`` sign-aligned).
+
+    With ``shortest=True`` (default) ``b`` is replaced by ``-b`` when the real parts' dot is
+    negative (same transform, shorter path). The paper's linear branch is wrong for opposite
+    rotations: :math:`(1 - t) q + t (-q)` passes through zero; the sign choice avoids it.
+    With ``shortest=False`` the path from ``a`` to ``b`` as given is followed; it is
+    ill-conditioned when the real parts are nearly opposite and non-finite for exactly
+    opposite real parts (no unique great circle).
+
+    Gradients with respect to ``a``, ``b`` and ``t`` come from an analytic custom autograd
+    op (also forward mode and ``vmap``); they are finite at every degenerate point.
+    float16/bfloat16 inputs are computed in float32.
+
+    Args:
+        a: ``(..., 8)`` unit dual quaternions (start, ``t = 0``).
+        b: ``(..., 8)`` unit dual quaternions (end, ``t = 1``).
+        t: ``(...)`` tensor or Python float; ``a``, ``b`` and ``t`` broadcast together.
+        shortest: flip ``b`` to the representative nearest to ``a``.
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions of the broadcast batch shape.
+
+    Example:
+        >>> a = identity()
+        >>> b = from_rt(torch.tensor([1., 0., 0., 0.]), torch.tensor([2., 0., 0.]))
+        >>> sclerp(a, b, 0.5)
+        tensor([1.0000, 0.0000, 0.0000, 0.0000, 0.0000, 0.5000, 0.0000, 0.0000])
+    """
+    fn = "dualquat.sclerp"
+    _pair(fn, a, b)
+    t = _checks.as_float_tensor(fn, "t", t, a, "a")
+    batch = _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1), t=(t, 0))
+    dtype = compute_dtype(a.dtype)
+    out = _interp.sclerp(a.to(dtype).expand(*batch, 8), b.to(dtype).expand(*batch, 8),
+                               t.to(dtype).expand(batch), bool(shortest))
+    return out.to(a.dtype)
+
+
+def dlb(weights: Tensor, xs: Tensor) -> Tensor:
+    r"""Dual-quaternion linear blending (Kavan et al.): normalised weighted sum.
+
+    :math:`\mathrm{normalize}(\sum_k w_k \sigma_k x_k)` with
+    :math:`\sigma_k = \pm 1` aligning each ``xs[k]`` with ``xs[0]`` (the sign of the real
+    parts' dot; 0 counts as +). Fast and smooth but not geodesic: it differs from
+    :func:`sclerp` except at the endpoints and for a common screw axis. Weights need not sum
+    to one (normalisation removes the scale); a blend whose real part vanishes has no
+    direction and gives NaN in that element.
+
+    Args:
+        weights: ``(..., K)`` blend weights.
+        xs: ``(..., K, 8)`` unit dual quaternions, batch broadcastable with ``weights``.
+
+    Returns:
+        ``(..., 8)`` unit dual quaternions.
+    """
+    fn = "dualquat.dlb"
+    _checks.tensor(fn, "xs", xs, 8)
+    _checks.tensor(fn, "weights", weights)
+    _checks.same_dtype_device(fn, xs=xs, weights=weights)
+    if xs.dim() < 2 or weights.dim() < 1 or weights.shape[-1] != xs.shape[-2]:
+        _checks.fail(fn, f"expected weights (..., K) and xs (..., K, 8) with the same K, got "
+                         f"weights {_checks.shape_str(weights.shape)} and xs "
+                         f"{_checks.shape_str(xs.shape)}")
+    _checks.broadcast_batch(fn, weights=(weights, 1), xs=(xs, 2))
+    sign = torch.where((xs[..., :4] * xs[..., :1, :4]).sum(-1) < 0, -1.0, 1.0).to(xs.dtype)
+    return _normalize(((weights * sign)[..., None] * xs).sum(-2))
