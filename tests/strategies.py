@@ -43,3 +43,42 @@ def quats(draw, allow_special=True):
     q = torch.tensor(comps, dtype=torch.float64)
     n = q.norm()
     return q / n if n > 1e-3 else torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+
+
+def _axis_angle_quat(axis, angle):
+    n = math.sqrt(sum(a * a for a in axis))
+    s = math.sin(angle / 2) / n
+    return (math.cos(angle / 2), axis[0] * s, axis[1] * s, axis[2] * s)
+
+
+_AXES = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (0, 1, 1), (1, 0, -1), (1, 1, 1), (-1, 2, 3)]
+
+
+def adversarial_quats(dtype=torch.float64):
+    """``(N, 4)`` unit quaternions at and near the singular points of the conversions.
+
+    ``SPECIAL_QUATS`` plus, about each axis and several diagonals: half turns, angles
+    1e-9 and 1e-6, and half turns missed by 1e-9 and 1e-6 on either side.
+    """
+    angles = (math.pi, 1e-9, 1e-6, math.pi - 1e-9, math.pi - 1e-6, math.pi + 1e-9)
+    extra = [_axis_angle_quat(ax, a) for ax in _AXES for a in angles]
+    return torch.tensor(SPECIAL_QUATS + extra, dtype=torch.float64).to(dtype)
+
+
+def unit_dq(shape, gen, scale=1.0, dtype=torch.float64):
+    """Random unit dual quaternions ``(*shape, 8)``: uniform rotations, Gaussian translations."""
+    from torch_dq.dualquat import from_rt
+
+    t = torch.randn((*shape, 3), generator=gen, dtype=torch.float64) * scale
+    return from_rt(unit_quat(shape, gen), t).to(dtype)
+
+
+def screw(shape, gen, theta, d, moment_scale=1.0):
+    """Random screw parameters ``(axis, moment, theta, d)`` with the given angle and distance."""
+    axis = torch.randn((*shape, 3), generator=gen, dtype=torch.float64)
+    axis = axis / axis.norm(dim=-1, keepdim=True)
+    point = torch.randn((*shape, 3), generator=gen, dtype=torch.float64) * moment_scale
+    moment = torch.linalg.cross(point, axis, dim=-1)
+    full = torch.broadcast_shapes(tuple(shape))
+    return (axis, moment, torch.full(full, float(theta), dtype=torch.float64),
+            torch.full(full, float(d), dtype=torch.float64))

@@ -8,20 +8,33 @@ torch ops; dtype and device follow the inputs.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
-from . import _checks
+from . import _checks, _numerics
 
 __all__ = [
     "conj",
     "dot",
+    "exp",
+    "from_axis_angle",
+    "from_euler",
+    "from_matrix",
+    "from_rotvec",
     "identity",
     "inv",
+    "log",
     "mul",
     "norm",
     "normalize",
     "rotate",
+    "slerp",
+    "to_axis_angle",
+    "to_euler",
+    "to_matrix",
+    "to_rotvec",
 ]
 
 
@@ -57,6 +70,88 @@ def _pair(fn: str, a: Tensor, b: Tensor, names: tuple[str, str] = ("a", "b")) ->
     _checks.tensor(fn, names[1], b, 4)
     _checks.same_dtype_device(fn, **{names[0]: a, names[1]: b})
     _checks.broadcast_batch(fn, **{names[0]: (a, 1), names[1]: (b, 1)})
+
+
+def _lift(x: Tensor) -> Tensor:
+    """``x`` in its compute dtype (float16/bfloat16 compute in float32)."""
+    return x.to(_numerics.compute_dtype(x.dtype))
+
+
+def _safe_norm(x: Tensor) -> Tensor:
+    """Euclidean norm over the last dim whose gradient at ``x = 0`` is 0, not NaN."""
+    zero = (x == 0).all(-1, keepdim=True)
+    n = torch.linalg.vector_norm(torch.where(zero, torch.ones_like(x), x), dim=-1)
+    return torch.where(zero.squeeze(-1), torch.zeros_like(n), n)
+
+
+def _safe_hypot(x: Tensor, y: Tensor) -> Tensor:
+    """``hypot(x, y)`` (scipy's rounding) whose gradient at ``x = y = 0`` is 0, not NaN."""
+    zero = (x == 0) & (y == 0)
+    return torch.where(zero, 0.0, torch.hypot(torch.where(zero, 1.0, x), y))
+
+
+def _canonical(q: Tensor) -> Tensor:
+    """``q`` or ``-q``, whichever has its first non-zero component (w, x, y, z) positive.
+
+    This is scipy's canonical form: ``w >= 0``, ties at ``w = 0`` broken by x, then y, z.
+    """
+    flip = torch.zeros_like(q[..., 0], dtype=torch.bool)
+    undecided = torch.ones_like(flip)
+    for c in q.unbind(-1):
+        flip = flip | (undecided & (c < 0))
+        undecided = undecided & (c == 0)
+    return torch.where(flip[..., None], -q, q)
+
+
+def _exp(q: Tensor) -> Tensor:
+    r"""Unchecked :math:`e^w (\cos|v|, \operatorname{sinc}|v| \, v)`."""
+    theta = _safe_norm(q[..., 1:])[..., None]
+    return torch.exp(q[..., :1]) * torch.cat(
+        (torch.cos(theta), _numerics.sinc(theta) * q[..., 1:]), dim=-1)
+
+
+def _log(q: Tensor) -> Tensor:
+    r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`."""
+    w, v = q[..., 0], q[..., 1:]
+    s = _safe_norm(v)
+    n = torch.linalg.vector_norm(q, dim=-1)
+    theta = torch.atan2(s, w)
+    # theta / s, the scale of v. For w > 0 (theta < pi/2), s = n sin(theta) gives
+    # theta / s = 1 / (n sinc(theta)), smooth through s = 0. For w <= 0, theta >= pi/2 and
+    # theta / s is exact for s > 0 (sin of a theta near pi would lose relative accuracy).
+    pos = w > 0
+    theta_pos = torch.where(pos, theta, torch.zeros_like(theta))
+    s_safe = _numerics.safe_denominator(s, pos | (s == 0))
+    scale = torch.where(pos, 1.0 / (n * _numerics.sinc(theta_pos)), theta / s_safe)
+    # On the negative real axis (v = 0, w < 0) the direction of v is undefined: use x.
+    neg_real = (s == 0) & ~pos
+    vec = torch.where(neg_real[..., None], theta[..., None] * q.new_tensor([1.0, 0.0, 0.0]),
+                      v * scale[..., None])
+    return torch.cat((torch.log(n)[..., None], vec), dim=-1)
+
+
+def _wrap(angle: Tensor) -> Tensor:
+    """Map angles in [-2 pi, 2 pi] into [-pi, pi] (keeping pi and -pi as they are)."""
+    two_pi = 2.0 * math.pi
+    return torch.where(angle > math.pi, angle - two_pi,
+                       torch.where(angle < -math.pi, angle + two_pi, angle))
+
+
+def _parse_seq(fn: str, seq) -> tuple[list[int], bool]:
+    """Axis indices of an Euler sequence and whether it is extrinsic (lower case)."""
+    if not isinstance(seq, str):
+        _checks.fail(fn, f"expected seq to be a str, got {type(seq).__name__}", TypeError)
+    low = seq.lower()
+    valid = (len(seq) == 3 and set(low) <= set("xyz")
+             and low[0] != low[1] and low[1] != low[2])
+    if valid and seq not in (low, seq.upper()):
+        _checks.fail(fn, f"seq mixes lower case (extrinsic) and upper case (intrinsic) "
+                         f"axes, got {seq!r}")
+    if not valid:
+        _checks.fail(fn, f"expected seq to be 3 axes from 'xyz' (extrinsic) or 'XYZ' "
+                         f"(intrinsic), no two consecutive equal, e.g. 'xyz' or 'ZXZ', "
+                         f"got {seq!r}")
+    return ["xyz".index(c) for c in low], seq == low
 
 
 def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
@@ -175,7 +270,8 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     r"""Rotate vectors actively, :math:`v' = q v q^*`.
 
     Args:
-        q: ``(..., 4)`` unit quaternions (not checked; a non-unit ``q`` also scales).
+        q: ``(..., 4)`` unit quaternions (not checked; for a non-unit ``q`` the result is
+            ``v + |q|^2 (R - I) v``, not a rotation: normalise first).
         v: ``(..., 3)`` vectors, batch broadcastable with ``q``.
 
     Returns:
@@ -191,3 +287,351 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     _checks.same_dtype_device("quat.rotate", q=q, v=v)
     _checks.broadcast_batch("quat.rotate", q=(q, 1), v=(v, 1))
     return _rotate(q, v)
+
+
+def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
+    r"""Spherical linear interpolation :math:`q_0 (q_0^{-1} q_1)^t`.
+
+    Travels the great circle from ``q0`` (``t = 0``) to ``q1`` (``t = 1``) at constant
+    angular speed; any real ``t`` is allowed (``t < 0`` or ``t > 1`` extrapolates).
+
+    Args:
+        q0: ``(..., 4)`` unit quaternions (not checked).
+        q1: ``(..., 4)`` unit quaternions, batch broadcastable with ``q0``.
+        t: Python float or tensor whose shape broadcasts against the batch shape (it is
+            not an extra trailing axis: use ``t[:, None]`` with ``q0[None]`` for a sweep).
+        shortest: if True, use ``-q1`` when ``dot(q0, q1) < 0`` so that the path is the
+            shorter rotation (at most 180 degrees). If False, interpolate the given
+            quaternions (the path turns by up to 360 degrees).
+
+    Returns:
+        ``(..., 4)`` quaternions, batch shape broadcast of ``q0``, ``q1`` and ``t``.
+
+    Singular points: at ``q0 == q1`` the value and the gradients are finite (``sinc``
+    Taylor branch). With ``shortest=False`` and ``q1`` close to ``-q0`` the great circle
+    is ill-conditioned (the path is still a unit great circle through ``q0``, but its
+    direction has error about ``eps / (pi - angle)``). For ``q1 == -q0`` (within ``eps``)
+    every great circle is a geodesic and the one through ``q0 (0, 1, 0, 0)`` is returned,
+    ``cos(pi t) q0 + sin(pi t) q0 (0, 1, 0, 0)``, consistent with ``log(-1) = (0, pi, 0, 0)``.
+
+    Example:
+        >>> q = from_axis_angle(torch.tensor([0., 0., 1.]), torch.pi / 2)
+        >>> to_axis_angle(slerp(identity(), q, 0.5))[1]
+        tensor(0.7854)
+    """
+    fn = "quat.slerp"
+    _pair(fn, q0, q1, ("q0", "q1"))
+    t = _checks.as_float_tensor(fn, "t", t, q0, "q0")
+    _checks.broadcast_batch(fn, q0=(q0, 1), q1=(q1, 1), t=(t, 0))
+    dtype = q0.dtype
+    q0, q1, t = _lift(q0), _lift(q1), _lift(t)[..., None]
+    d = (q0 * q1).sum(-1, keepdim=True)
+    if shortest:
+        flip = d < 0
+        q1, d = torch.where(flip, -q1, q1), torch.where(flip, -d, d)
+    # omega, the angle between q0 and q1 in R^4, without acos's loss of accuracy near 0.
+    omega = 2.0 * torch.atan2(_safe_norm(q1 - q0), _safe_norm(q1 + q0))[..., None]
+    # The result is cos(t omega) q0 + sin(t omega) r / |r|, with r the part of q1
+    # orthogonal to q0 (|r| = sin(omega)); projecting twice keeps r orthogonal to q0 to
+    # rounding even when q1 is nearly -q0 and r is all cancellation.
+    r = q1 - d * q0
+    r = r - (r * q0).sum(-1, keepdim=True) * q0
+    r_norm = _safe_norm(r)[..., None]
+    near = d >= 0
+    antipodal = ~near & (r_norm <= torch.finfo(r.dtype).eps)
+    r = torch.where(antipodal, _mul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
+    # sin(t omega) / sin(omega): through sinc for omega <= pi/2 (0 / 0 at omega = 0), through
+    # |r| beyond, where sin of the rounded omega loses the relative accuracy |r| keeps.
+    omega_near = torch.where(near, omega, torch.zeros_like(omega))
+    scale = torch.where(
+        near,
+        t * _numerics.sinc(t * omega_near) / _numerics.sinc(omega_near),
+        torch.sin(t * omega) / _numerics.safe_denominator(r_norm, near | antipodal),
+    )
+    return (torch.cos(t * omega) * q0 + scale * r).to(dtype)
+
+
+def exp(q: Tensor) -> Tensor:
+    r"""Quaternion exponential :math:`e^{w + v} = e^w (\cos|v|, \frac{v}{|v|} \sin|v|)`.
+
+    Args:
+        q: ``(..., 4)`` quaternions (any norm). For a pure quaternion ``(0, v)`` the result
+            is the unit quaternion of the rotation by ``2 |v|`` about ``v``.
+
+    Returns:
+        ``(..., 4)`` quaternions. Value and gradient are finite at ``v = 0`` (``sinc``).
+
+    Example:
+        >>> exp(torch.tensor([0., torch.pi / 4, 0., 0.]))  # 90 degrees about x
+        tensor([0.7071, 0.7071, 0.0000, 0.0000])
+    """
+    _checks.tensor("quat.exp", "q", q, 4)
+    return _exp(_lift(q)).to(q.dtype)
+
+
+def log(q: Tensor) -> Tensor:
+    r"""Quaternion logarithm :math:`(\log|q|, \frac{v}{|v|} \operatorname{atan2}(|v|, w))`.
+
+    The principal branch, inverse of :func:`exp` for vector parts of norm below pi.
+    For a unit ``q`` the real part is 0 and the vector part is half the rotation vector
+    of the rotation by ``2 atan2(|v|, w)`` in [0, 2 pi] (no sign canonicalisation).
+
+    Args:
+        q: ``(..., 4)`` non-zero quaternions.
+
+    Returns:
+        ``(..., 4)``. Value and gradient are finite at ``v = 0`` for ``w > 0``. On the
+        negative real axis (``v = 0``, ``w < 0``) the direction is undefined and
+        ``(log|w|, pi, 0, 0)`` is returned; ``q = 0`` gives ``(-inf, 0, 0, 0)``.
+
+    Example:
+        >>> log(torch.tensor([0., 0., 1., 0.]))  # 180 degrees about y
+        tensor([0.0000, 0.0000, 1.5708, 0.0000])
+    """
+    _checks.tensor("quat.log", "q", q, 4)
+    return _log(_lift(q)).to(q.dtype)
+
+
+def from_matrix(R: Tensor) -> Tensor:
+    r"""Quaternion of a rotation matrix (Shepperd 1978, Markley 2008), scipy's canonical sign.
+
+    Every entry of :math:`4 q q^T` is a sum of matrix entries; the row with the largest
+    diagonal entry :math:`4 q_k^2 \ge 1` is normalised, so no division by a small number
+    happens for any rotation, 180 degrees included.
+
+    Args:
+        R: ``(..., 3, 3)`` rotation matrices (orthogonality is not checked; a nearly
+            orthogonal matrix gives a nearby unit quaternion, not the nearest rotation).
+
+    Returns:
+        ``(..., 4)`` unit quaternions with ``w >= 0``; for ``w == 0`` the first non-zero of
+        ``x, y, z`` is positive (scipy's ``canonical=True``).
+
+    Example:
+        >>> from_matrix(torch.diag(torch.tensor([1., -1., -1.])))  # 180 degrees about x
+        tensor([0., 1., 0., 0.])
+    """
+    _checks.tensor("quat.from_matrix", "R", R, (3, 3))
+    dtype = R.dtype
+    r = _lift(R)
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (row.unbind(-1) for row in r.unbind(-2))
+    tr = r00 + r11 + r22
+    k = torch.stack((
+        1.0 + tr, r21 - r12, r02 - r20, r10 - r01,
+        r21 - r12, 1.0 + 2.0 * r00 - tr, r01 + r10, r02 + r20,
+        r02 - r20, r01 + r10, 1.0 + 2.0 * r11 - tr, r12 + r21,
+        r10 - r01, r02 + r20, r12 + r21, 1.0 + 2.0 * r22 - tr,
+    ), dim=-1).unflatten(-1, (4, 4))
+    pick = k.diagonal(dim1=-2, dim2=-1).argmax(-1)
+    row = torch.gather(k, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
+    return _canonical(row / torch.linalg.vector_norm(row, dim=-1, keepdim=True)).to(dtype)
+
+
+def to_matrix(q: Tensor) -> Tensor:
+    """Rotation matrix of ``q``: ``to_matrix(q) @ v == rotate(q, v)`` for a unit ``q``.
+
+    The result is the rotation matrix of ``q / |q|`` for any non-zero ``q`` (the factor
+    ``2 / |q|^2`` replaces 2), so it is always orthogonal; ``to_matrix(q) == to_matrix(-q)``.
+
+    Args:
+        q: ``(..., 4)`` non-zero quaternions; ``q = 0`` gives NaN.
+
+    Returns:
+        ``(..., 3, 3)`` rotation matrices.
+
+    Example:
+        >>> to_matrix(torch.tensor([0., 0., 0., 2.]))  # 180 degrees about z
+        tensor([[-1.,  0.,  0.],
+                [ 0., -1.,  0.],
+                [ 0.,  0.,  1.]])
+    """
+    _checks.tensor("quat.to_matrix", "q", q, 4)
+    ql = _lift(q)
+    w, x, y, z = ql.unbind(-1)
+    s = 2.0 / (ql * ql).sum(-1)
+    xx, yy, zz = s * x * x, s * y * y, s * z * z
+    wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
+    return torch.stack((
+        1.0 - yy - zz, xy - wz, xz + wy,
+        xy + wz, 1.0 - xx - zz, yz - wx,
+        xz - wy, yz + wx, 1.0 - xx - yy,
+    ), dim=-1).unflatten(-1, (3, 3)).to(q.dtype)
+
+
+def from_axis_angle(axis: Tensor, angle) -> Tensor:
+    r"""Rotation by ``angle`` about ``axis``: :math:`(\cos\frac{a}{2}, \sin\frac{a}{2} u)`.
+
+    Args:
+        axis: ``(..., 3)`` axes, normalised internally. A zero axis gives the identity
+            (whatever the angle), with finite gradients.
+        angle: ``(...)`` angles in radians (any real) or a Python float, broadcastable
+            with the batch shape of ``axis``.
+
+    Returns:
+        ``(..., 4)`` unit quaternions (``w < 0`` for angles beyond pi: not canonicalised).
+
+    Example:
+        >>> from_axis_angle(torch.tensor([0., 2., 0.]), torch.pi / 2)
+        tensor([0.7071, 0.0000, 0.7071, 0.0000])
+    """
+    fn = "quat.from_axis_angle"
+    _checks.tensor(fn, "axis", axis, 3)
+    angle = _checks.as_float_tensor(fn, "angle", angle, axis, "axis")
+    shape = _checks.broadcast_batch(fn, axis=(axis, 1), angle=(angle, 0))
+    dtype = axis.dtype
+    axis, half = _lift(axis).expand(*shape, 3), _lift(angle).expand(shape)[..., None] / 2.0
+    n = _safe_norm(axis)[..., None]
+    zero = n == 0
+    q = torch.cat((torch.cos(half), torch.sin(half) * axis / torch.where(zero, 1.0, n)), dim=-1)
+    return torch.where(zero, q.new_tensor([1.0, 0.0, 0.0, 0.0]), q).to(dtype)
+
+
+def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
+    """Axis and angle in [0, pi] of the rotation ``q`` (the sign with ``w >= 0`` is used).
+
+    Args:
+        q: ``(..., 4)`` non-zero quaternions (need not be unit).
+
+    Returns:
+        ``(axis, angle)``: ``(..., 3)`` unit axes and ``(...)`` angles in [0, pi]. For
+        the identity (angle 0) the axis is undefined and ``(1, 0, 0)`` is returned, with
+        finite gradients. At 180 degrees the axis follows scipy's canonical sign.
+
+    Example:
+        >>> to_axis_angle(torch.tensor([0., 0., 0., 1.]))
+        (tensor([0., 0., 1.]), tensor(3.1416))
+    """
+    _checks.tensor("quat.to_axis_angle", "q", q, 4)
+    qc = _canonical(_lift(q))
+    w, v = qc[..., 0], qc[..., 1:]
+    s = _safe_norm(v)
+    zero = (s == 0)[..., None]
+    axis = torch.where(zero, v.new_tensor([1.0, 0.0, 0.0]),
+                       v / _numerics.safe_denominator(s[..., None], zero))
+    return axis.to(q.dtype), (2.0 * torch.atan2(s, w)).to(q.dtype)
+
+
+def from_rotvec(rotvec: Tensor) -> Tensor:
+    r"""Unit quaternion of a rotation vector, :math:`\exp((0, \theta u / 2))`.
+
+    Args:
+        rotvec: ``(..., 3)`` rotation vectors ``angle * axis`` (radians, any length).
+
+    Returns:
+        ``(..., 4)`` unit quaternions; value and gradient are finite at ``rotvec = 0``.
+
+    Example:
+        >>> from_rotvec(torch.tensor([0., 0., torch.pi / 2]))
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
+    """
+    _checks.tensor("quat.from_rotvec", "rotvec", rotvec, 3)
+    rv = _lift(rotvec)
+    return _exp(torch.cat((torch.zeros_like(rv[..., :1]), rv / 2.0), dim=-1)).to(rotvec.dtype)
+
+
+def to_rotvec(q: Tensor) -> Tensor:
+    """Rotation vector ``angle * axis`` with angle in [0, pi]: twice the log of ``+-q``.
+
+    Args:
+        q: ``(..., 4)`` non-zero quaternions (need not be unit).
+
+    Returns:
+        ``(..., 3)`` rotation vectors. Value and gradient are finite at the identity and
+        at 180 degrees, where the sign follows scipy's canonical form (``as_rotvec``).
+
+    Example:
+        >>> to_rotvec(torch.tensor([0., 0., 1., 0.]))
+        tensor([0.0000, 3.1416, 0.0000])
+    """
+    _checks.tensor("quat.to_rotvec", "q", q, 4)
+    return (2.0 * _log(_canonical(_lift(q)))[..., 1:]).to(q.dtype)
+
+
+def from_euler(angles: Tensor, seq: str) -> Tensor:
+    """Quaternion of Euler / Tait-Bryan angles, scipy's ``Rotation.from_euler`` convention.
+
+    Args:
+        angles: ``(..., 3)`` angles in radians, in the order of ``seq``.
+        seq: 3 axes from ``'xyz'`` (extrinsic: rotations about the fixed frame's axes) or
+            ``'XYZ'`` (intrinsic: about the moving frame's axes), no two consecutive
+            equal: the 6 Tait-Bryan (``'xyz'``, ...) and 6 proper Euler (``'zxz'``, ...)
+            sequences. ``'XYZ'`` with ``(a, b, c)`` equals ``'zyx'`` with ``(c, b, a)``.
+
+    Returns:
+        ``(..., 4)`` unit quaternions (the product of the three elementary rotations,
+        sign not canonicalised).
+
+    Raises:
+        ValueError: ``seq`` is not one of the 24 sequences or mixes cases.
+        TypeError: ``seq`` is not a str.
+
+    Example:
+        >>> from_euler(torch.tensor([0., 0., torch.pi / 2]), "xyz").round(decimals=4)
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
+    """
+    fn = "quat.from_euler"
+    _checks.tensor(fn, "angles", angles, 3)
+    axes, extrinsic = _parse_seq(fn, seq)
+    half = _lift(angles)[..., None] / 2.0
+    basis = torch.eye(3, dtype=half.dtype, device=half.device)
+    q = None
+    for n, ax in enumerate(axes):
+        e = torch.cat((torch.cos(half[..., n, :]), torch.sin(half[..., n, :]) * basis[ax]), -1)
+        q = e if q is None else (_mul(e, q) if extrinsic else _mul(q, e))
+    return q.to(angles.dtype)
+
+
+def to_euler(q: Tensor, seq: str) -> Tensor:
+    """Euler / Tait-Bryan angles of a rotation, scipy's ``Rotation.as_euler`` convention.
+
+    Quaternion-based method of Bernardes & Viollet (2022), "Quaternion to Euler angles
+    conversion: a direct, general and computationally efficient method", vectorised.
+
+    Args:
+        q: ``(..., 4)`` non-zero quaternions (need not be unit).
+        seq: as in :func:`from_euler`.
+
+    Returns:
+        ``(..., 3)`` angles in radians, in scipy's ranges: first and third in [-pi, pi],
+        second in [-pi/2, pi/2] (Tait-Bryan) or [0, pi] (proper Euler).
+
+    Gimbal lock (second angle within 1e-7 of 0 or pi for proper Euler, of -pi/2 or pi/2
+    for Tait-Bryan, scipy's threshold): only the sum or difference of the first and third
+    angles is defined; like scipy the third angle is set to 0 (silently, no warning).
+    Gradients stay finite there.
+
+    Example:
+        >>> to_euler(from_euler(torch.tensor([0.1, 0.2, 0.3]), "ZYX"), "ZYX")
+        tensor([0.1000, 0.2000, 0.3000])
+    """
+    fn = "quat.to_euler"
+    _checks.tensor(fn, "q", q, 4)
+    axes, extrinsic = _parse_seq(fn, seq)
+    i, j, k = axes if extrinsic else axes[::-1]
+    symmetric = i == k
+    if symmetric:
+        k = 3 - i - j
+    sign = (i - j) * (j - k) * (k - i) // 2  # +1 if (i, j, k) is a cyclic permutation
+    ql = _lift(q)
+    w, qi, qj, qk = ql[..., 0], ql[..., 1 + i], ql[..., 1 + j], sign * ql[..., 1 + k]
+    # Step 1: rotate the problem onto a proper Euler sequence (i, j, i).
+    a, b, c, d = (w, qi, qj, qk) if symmetric else (w - qj, qi + qk, qj + w, qk - qi)
+    # Step 2: the second angle, then the half sum and half difference of the
+    # other two, each undefined at one gimbal lock: safe-where their atan2.
+    theta = 2.0 * torch.atan2(_safe_hypot(c, d), _safe_hypot(a, b))
+    lock0 = theta <= 1e-7
+    lock_pi = (theta - math.pi).abs() <= 1e-7
+    free = ~(lock0 | lock_pi)
+    half_sum = torch.atan2(torch.where(lock_pi, 0.0, b), torch.where(lock_pi, 1.0, a))
+    half_diff = torch.atan2(torch.where(lock0, 0.0, d), torch.where(lock0, 1.0, c))
+    # Step 3: in gimbal lock angle 0 takes the whole rotation and angle 2 is zero.
+    locked = torch.where(lock0, 2.0 * half_sum, (-2.0 if extrinsic else 2.0) * half_diff)
+    out = [None, None, None]
+    first, third = (0, 2) if extrinsic else (2, 0)
+    out[first] = torch.where(free, half_sum - half_diff, locked if first == 0 else 0.0)
+    out[third] = torch.where(free, half_sum + half_diff, locked if third == 0 else 0.0)
+    out[1] = theta
+    if not symmetric:
+        out[third] = sign * out[third]
+        out[1] = theta - math.pi / 2
+    return torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1).to(q.dtype)
