@@ -82,3 +82,41 @@ def screw(shape, gen, theta, d, moment_scale=1.0):
     full = torch.broadcast_shapes(tuple(shape))
     return (axis, moment, torch.full(full, float(theta), dtype=torch.float64),
             torch.full(full, float(d), dtype=torch.float64))
+
+
+# Translations for adversarial poses: none, unit scale, large (1e3), and huge along one axis.
+ADVERSARIAL_TRANSLATIONS = [
+    (0.0, 0.0, 0.0),
+    (0.3, -1.2, 2.0),
+    (1e3, -2e3, 5e2),
+    (0.0, 0.0, 1e3),
+]
+
+
+def adversarial_dqs(dtype=torch.float64):
+    """``(N, 8)`` unit dual quaternions at and near the singular points of the conversions.
+
+    Every rotation of :func:`adversarial_quats` (identity, half turns about axes and
+    diagonals, angles 1e-9 and 1e-6, half turns missed by 1e-9 and 1e-6) combined with each
+    of ``ADVERSARIAL_TRANSLATIONS`` (so pure translations, tiny rotations with translations
+    of size 1e3, and half turns with large translations are all included).
+    """
+    from torch_dq.dualquat import from_rt
+
+    q = adversarial_quats()
+    t = torch.tensor(ADVERSARIAL_TRANSLATIONS, dtype=torch.float64)
+    qq = q[:, None].expand(-1, t.shape[0], 4).reshape(-1, 4)
+    tt = t[None].expand(q.shape[0], -1, 3).reshape(-1, 3)
+    return from_rt(qq, tt).to(dtype)
+
+
+@st.composite
+def dual_quats(draw, allow_special=True):
+    """A unit dual quaternion as a float64 tensor ``(8,)``: random or adversarial rotation,
+    translation of scale 0, 1 or 100."""
+    from torch_dq.dualquat import from_rt
+
+    q = draw(quats(allow_special=allow_special))
+    scale = draw(st.sampled_from([0.0, 1.0, 100.0]))
+    t = draw(st.lists(st.floats(-1, 1, allow_nan=False), min_size=3, max_size=3))
+    return from_rt(q, torch.tensor(t, dtype=torch.float64) * scale)

@@ -526,3 +526,42 @@ def test_finite_gradients_at_singular_points(point):
 def test_bad_arguments(call, exc, match):
     with pytest.raises(exc, match=match):
         call()
+
+
+# ------------------------------------------------------------------ scalar-last conversion
+
+def test_xyzw_matches_scipy_and_round_trips(rots, batch_shape, gen):
+    # scipy renormalises in from_quat: equal to rounding (max error 2.2e-16)
+    xyzw = torch.from_numpy(to_scipy(rots).as_quat(canonical=False))
+    assert maxabs(quat.from_xyzw(xyzw), rots) < 1e-15
+    mat = torch.from_numpy(Rotation.from_quat(quat.to_xyzw(rots).numpy()).as_matrix())
+    assert maxabs(mat, quat.to_matrix(rots)) < 1e-15
+    assert torch.equal(quat.to_xyzw(rots), rots[:, [1, 2, 3, 0]])
+    q = unit_quat(batch_shape, gen)
+    assert quat.to_xyzw(q).shape == q.shape
+    assert torch.equal(quat.from_xyzw(quat.to_xyzw(q)), q)
+    assert torch.equal(quat.to_xyzw(q)[..., 3], q[..., 0])
+    x = torch.tensor([1.0, 2.0, 3.0, 4.0], dtype=torch.float32)
+    assert torch.equal(quat.from_xyzw(x), torch.tensor([4.0, 1.0, 2.0, 3.0]))
+
+
+def test_xyzw_gradients_are_permutations():
+    q = torch.randn(3, 4, dtype=F64, requires_grad=True)
+    w = torch.randn(3, 4, dtype=F64)
+    (quat.from_xyzw(q) * w).sum().backward()
+    assert torch.equal(q.grad, quat.to_xyzw(w))
+
+
+@pytest.mark.parametrize(
+    ("call", "exc", "match"),
+    [
+        (lambda: quat.from_xyzw(torch.zeros(3)), ValueError,
+         r"quat\.from_xyzw: expected a \(\.\.\., 4\) tensor for q, got shape \(3,\)"),
+        (lambda: quat.to_xyzw(torch.zeros(2, 5)), ValueError, r"quat\.to_xyzw.*q.*\(2, 5\)"),
+        (lambda: quat.from_xyzw(torch.zeros(4, dtype=torch.int64)), TypeError, r"from_xyzw.*q"),
+        (lambda: quat.to_xyzw([0.0, 0.0, 0.0, 1.0]), TypeError, r"to_xyzw.*q.*list"),
+    ],
+)
+def test_xyzw_bad_arguments(call, exc, match):
+    with pytest.raises(exc, match=match):
+        call()

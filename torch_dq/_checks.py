@@ -16,6 +16,7 @@ from torch import Tensor
 __all__ = [
     "as_float_tensor",
     "broadcast_batch",
+    "factory_args",
     "fail",
     "same_dtype_device",
     "shape_str",
@@ -100,3 +101,21 @@ def as_float_tensor(fn: str, name: str, t, like: Tensor, like_name: str) -> Tens
     tensor(fn, name, t)
     same_dtype_device(fn, **{like_name: like, name: t})
     return t
+
+
+def factory_args(fn: str, shape, dtype) -> tuple[tuple[int, ...], torch.dtype]:
+    """Validate a factory's ``shape`` (int or tuple of non-negative ints) and ``dtype``.
+
+    Returns:
+        The shape as a tuple and the dtype (torch's default dtype when ``None``).
+    """
+    try:
+        dims = (shape,) if isinstance(shape, int) else tuple(shape)
+    except TypeError:
+        dims = None
+    if dims is None or any(isinstance(n, bool) or not isinstance(n, int) or n < 0 for n in dims):
+        fail(fn, f"expected shape to be an int or a tuple of non-negative ints, got {shape!r}")
+    dtype = torch.get_default_dtype() if dtype is None else dtype
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        fail(fn, f"expected a floating dtype, got {dtype}", TypeError)
+    return dims, dtype

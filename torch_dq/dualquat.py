@@ -108,7 +108,8 @@ def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
         >>> identity()
         tensor([1., 0., 0., 0., 0., 0., 0., 0.])
     """
-    r = quat.identity(shape, dtype=dtype, device=device)
+    dims, dtype = _checks.factory_args("dualquat.identity", shape, dtype)
+    r = quat.identity(dims, dtype=dtype, device=device)
     return torch.cat((r, torch.zeros_like(r)), dim=-1)
 
 
@@ -221,7 +222,12 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
 
 
 def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
-    r"""Per-element test :math:`\big||r| - 1\big| \le atol` and :math:`|r \cdot d| \le atol`.
+    r"""Per-element test that ``x`` is a unit dual quaternion, to ``atol``.
+
+    Checks :math:`\big||r| - 1\big| \le atol` and
+    :math:`|r \cdot d| \le atol \max(1, |d|)`: the orthogonality defect is measured relative
+    to the dual part, whose size is half the translation, so that rounding of a pose far from
+    the origin (``|t| = 1e3`` in float32) still counts as unit.
 
     Args:
         x: ``(..., 8)``.
@@ -235,8 +241,9 @@ def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
         atol = 1e-10 if x.dtype == torch.float64 else 1e-5
     r, d = _split(x)
     finite = torch.isfinite(x).all(-1)
-    rr = (r * r).sum(-1)
-    return finite & ((rr.sqrt() - 1.0).abs() <= atol) & ((r * d).sum(-1).abs() <= atol)
+    scale = torch.linalg.vector_norm(d, dim=-1).clamp(min=1.0)
+    unit_real = (torch.linalg.vector_norm(r, dim=-1) - 1.0).abs() <= atol
+    return finite & unit_real & ((r * d).sum(-1).abs() <= atol * scale)
 
 
 # ----------------------------------------------------------------------------- conversions
@@ -270,12 +277,12 @@ def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
         x: ``(..., 8)`` unit dual quaternions.
 
     Returns:
-        ``(q, t)``: ``(..., 4)`` (the real part, sign as given) and
+        ``(q, t)``: ``(..., 4)`` (a copy of the real part, sign as given) and
         ``(..., 3)`` translation :math:`t = 2\,\mathrm{vec}(d r^*)`.
     """
     _dq("dualquat.to_rt", "x", x)
     r, d = _split(x)
-    return r, _translation(r, d)
+    return r.clone(), _translation(r, d)
 
 
 def from_matrix(T: Tensor) -> Tensor:
@@ -354,7 +361,9 @@ def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
     theta = _checks.as_float_tensor(fn, "theta", theta, axis, "axis")
     d = _checks.as_float_tensor(fn, "d", d, axis, "axis")
     _checks.same_dtype_device(fn, axis=axis, moment=moment)
-    _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0), d=(d, 0))
+    batch = _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0),
+                                    d=(d, 0))
+    theta, d = theta.expand(batch), d.expand(batch)
     s, c = torch.sin(0.5 * theta)[..., None], torch.cos(0.5 * theta)[..., None]
     h = 0.5 * d[..., None]
     real = torch.cat((c, s * axis), dim=-1)
@@ -365,7 +374,9 @@ def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
 def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     r"""Screw parameters ``(axis, moment, theta, d)`` of unit dual quaternions.
 
-    The representative with :math:`r_w \ge 0` is used, so ``theta`` is in ``[0, pi]``.
+    The representative with :math:`r_w \ge 0` is used (at :math:`r_w = 0`, the one whose first
+    non-zero of x, y, z is positive, as in :func:`torch_dq.quat.to_axis_angle`), so ``theta``
+    is in ``[0, pi]`` and ``x``, ``-x`` give the same parameters.
     With :math:`t` the translation and :math:`l` the rotation axis: :math:`d = t \cdot l` and
     :math:`m = \frac12 (t \times l + (t - d l) \cot\frac\theta2)` (pytransform3d's formula).
     A pure translation (``sin(theta / 2)`` below machine epsilon) gives ``axis = t / |t|``,
@@ -381,8 +392,9 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     _dq("dualquat.to_screw", "x", x)
     r, dq_ = _split(x)
     t = _translation(r, dq_)
-    sign = torch.where(r[..., :1] < 0, -1.0, 1.0).to(r.dtype)
-    w, v = (r[..., :1] * sign), r[..., 1:] * sign
+    # scipy's canonical sign (w > 0, ties at w = 0 broken by x, y, z): x and -x agree at 180 deg
+    rc = quat._canonical(r)
+    w, v = rc[..., :1], rc[..., 1:]
     sin_half = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
     theta = 2.0 * torch.atan2(sin_half, w)
     eps = torch.finfo(x.dtype).eps
@@ -390,7 +402,9 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     t_norm = torch.linalg.vector_norm(t, dim=-1, keepdim=True)
     fallback = torch.zeros_like(t)
     fallback[..., 0] = 1.0
-    t_dir = torch.where(t_norm > eps, t / safe_denominator(t_norm, t_norm <= eps), fallback)
+    # A non-finite translation fails `t_norm <= eps` and gives a NaN axis (never the fallback).
+    no_dir = t_norm <= eps
+    t_dir = torch.where(no_dir, fallback, t / safe_denominator(t_norm, no_dir))
     l = torch.where(translation_only, t_dir, v / safe_denominator(sin_half, translation_only))
     d = (t * l).sum(-1, keepdim=True)
     cot_half = w / safe_denominator(sin_half, translation_only)
@@ -445,7 +459,8 @@ def log(x: Tensor) -> Tensor:
     :math:`\omega` is the rotation vector with angle in ``[0, pi]`` (``x`` and ``-x`` give the
     same twist) and :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)`
     with :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
-    At exactly 180 degrees the sign of :math:`\omega` is that of the input's vector part.
+    At exactly 180 degrees the sign of :math:`\omega` is scipy's canonical one (first non-zero
+    of its x, y, z positive, see :func:`torch_dq.quat.to_rotvec`), for ``x`` and ``-x`` alike.
 
     Args:
         x: ``(..., 8)`` unit dual quaternions.

@@ -23,6 +23,7 @@ __all__ = [
     "from_euler",
     "from_matrix",
     "from_rotvec",
+    "from_xyzw",
     "identity",
     "inv",
     "log",
@@ -35,6 +36,7 @@ __all__ = [
     "to_euler",
     "to_matrix",
     "to_rotvec",
+    "to_xyzw",
 ]
 
 
@@ -170,13 +172,7 @@ def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
         tensor([[1., 0., 0., 0.],
                 [1., 0., 0., 0.]])
     """
-    shape = (shape,) if isinstance(shape, int) else tuple(shape)
-    if any(not isinstance(d, int) or d < 0 for d in shape):
-        _checks.fail("quat.identity", f"expected shape to be a tuple of non-negative ints, "
-                     f"got {shape!r}")
-    dtype = dtype or torch.get_default_dtype()
-    if not dtype.is_floating_point:
-        _checks.fail("quat.identity", f"expected a floating dtype, got {dtype}", TypeError)
+    shape, dtype = _checks.factory_args("quat.identity", shape, dtype)
     q = torch.zeros((*shape, 4), dtype=dtype, device=device)
     q[..., 0] = 1.0
     return q
@@ -635,3 +631,43 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
         out[third] = sign * out[third]
         out[1] = theta - math.pi / 2
     return torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1).to(q.dtype)
+
+
+def from_xyzw(q: Tensor) -> Tensor:
+    """Quaternions from scipy's scalar-last order ``(x, y, z, w)`` to ``(w, x, y, z)``.
+
+    Scalar-last is the order of scipy's ``Rotation.from_quat``/``as_quat``, ROS messages,
+    Eigen's ``coeffs()`` and pypose. Components are only reordered: no normalisation and
+    the sign is kept.
+
+    Args:
+        q: ``(..., 4)`` quaternions ``(x, y, z, w)``.
+
+    Returns:
+        ``(..., 4)`` quaternions ``(w, x, y, z)`` (a new tensor).
+
+    Example:
+        >>> from_xyzw(torch.tensor([0., 0., 1., 0.]))  # scipy's 180 degrees about z
+        tensor([0., 0., 0., 1.])
+    """
+    _checks.tensor("quat.from_xyzw", "q", q, 4)
+    return torch.cat((q[..., 3:], q[..., :3]), dim=-1)
+
+
+def to_xyzw(q: Tensor) -> Tensor:
+    """Quaternions from ``(w, x, y, z)`` to scipy's scalar-last order ``(x, y, z, w)``.
+
+    The inverse of :func:`from_xyzw` (components reordered only).
+
+    Args:
+        q: ``(..., 4)`` quaternions ``(w, x, y, z)``.
+
+    Returns:
+        ``(..., 4)`` quaternions ``(x, y, z, w)`` (a new tensor).
+
+    Example:
+        >>> to_xyzw(torch.tensor([1., 0., 0., 0.]))  # identity
+        tensor([0., 0., 0., 1.])
+    """
+    _checks.tensor("quat.to_xyzw", "q", q, 4)
+    return torch.cat((q[..., 1:], q[..., :1]), dim=-1)
