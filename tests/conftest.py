@@ -13,7 +13,9 @@ settings.register_profile(
 settings.register_profile("long", max_examples=2000, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
-torch.set_num_threads(min(2, torch.get_num_threads()))
+# One intra-op thread per test process: the README runs `pytest -n 2` on 2-core machines, and
+# a second thread per worker only oversubscribes the cores (about 10x slower optimisation loops).
+torch.set_num_threads(1)
 
 DTYPES = (torch.float32, torch.float64)
 DEVICES = ("cpu", "cuda") if torch.cuda.is_available() else ("cpu",)
