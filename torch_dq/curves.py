@@ -125,8 +125,8 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
     if isinstance(n_ctrl, bool) or not isinstance(n_ctrl, numbers.Integral) or n_ctrl <= degree:
         _checks.fail(fn, f"n_ctrl must be an int > degree = {degree}, got {n_ctrl!r}")
     dtype = torch.get_default_dtype() if dtype is None else dtype
-    if not dtype.is_floating_point:
-        _checks.fail(fn, f"expected a floating dtype, got {dtype}", TypeError)
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        _checks.fail(fn, f"expected a floating dtype, got {dtype!r}", TypeError)
     n_ctrl = int(n_ctrl)
     inner = torch.linspace(0.0, 1.0, n_ctrl - degree + 1, dtype=dtype, device=device)
     return torch.cat((inner.new_zeros(degree), inner, inner.new_ones(degree)))
@@ -135,13 +135,16 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
 # ----------------------------------------------------------------------------- evaluation
 
 def _bezier(ctrl: Tensor, t: Tensor, batch: torch.Size) -> Tensor:
-    """Unchecked De Casteljau: all levels' adjacent pairs and all times at once."""
-    T, m = t.shape[-1], ctrl.shape[-2]
-    P = ctrl[..., None, :, :].expand(*batch, T, m, 8)
-    tt = t[..., :, None]
-    for k in range(m - 1, 0, -1):  # k = number of points on the next level
-        P = _interp.sclerp(P[..., :-1, :], P[..., 1:, :], tt.expand(*batch, T, k), True)
-    return P[..., 0, :]
+    """Unchecked De Casteljau: every curve's ``m`` control points are level 0 of the fused
+    scheme of :func:`torch_dq._interp.pyramid`, with ``alpha = t`` at every level."""
+    T, m, B = t.shape[-1], ctrl.shape[-2], batch.numel()
+    flat = ctrl.expand(*batch, m, 8).reshape(B * m, 8)
+    # idx[i, b T + k] = b m + i: the i-th control point of curve b, for each of its T times
+    idx = (torch.arange(B, device=t.device)[:, None] * m + torch.arange(m, device=t.device))
+    idx = idx.T[:, :, None].expand(m, B, T).reshape(m, B * T)
+    tt = t.expand(*batch, T).reshape(1, B * T)
+    out = _interp.pyramid(flat, idx, [tt.expand(m - j, B * T) for j in range(1, m)])
+    return out.view(*batch, T, 8)
 
 
 def bezier(ctrl: Tensor, t: Tensor, check: bool = True) -> Tensor:
@@ -160,7 +163,7 @@ def bezier(ctrl: Tensor, t: Tensor, check: bool = True) -> Tensor:
     Cost :math:`O(T n^2)` interpolations.
 
     Args:
-        ctrl: ``(..., n + 1, 8)`` unit dual quaternions, ``n + 1 >= 2``.
+        ctrl: ``(..., n + 1, 8)`` unit dual quaternions (not checked), ``n + 1 >= 2``.
         t: ``(T,)`` or ``(..., T)`` times in ``[0, 1]``, same dtype and device as ``ctrl``;
             its batch dims broadcast with those of ``ctrl``. NaN times give NaN poses.
         check: verify that ``t`` lies in ``[0, 1]`` up to a few ulps (one device
@@ -210,11 +213,11 @@ def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.S
     B = batch.numel()
     flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
     offsets = (torch.arange(B, device=t.device) * n).reshape(*batch, 1, 1)
-    idx = r[..., None] + torch.arange(-p, 1, device=t.device)
-    D = flat[idx + offsets]  # (*batch, T, p + 1, 8)
+    idx = r[..., None] + torch.arange(-p, 1, device=t.device) + offsets  # (*batch, T, p + 1)
     # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
     K = knots[r[..., None] + torch.arange(1 - p, p + 1, device=t.device)]
     te = t[..., None]
+    alphas = []
     for j in range(1, p + 1):
         # d_i^j = sclerp(d_{i-1}^{j-1}, d_i^{j-1}, alpha_i), i = r-p+j .. r (local k = j .. p)
         # alpha_i = (t - knots[i]) / (knots[i + p + 1 - j] - knots[i])
@@ -222,9 +225,11 @@ def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.S
         denom = right - left
         empty = denom <= 0  # never inside a non-empty span; guards 0 / 0 all the same
         alpha = torch.where(empty, 0.0, (te - left) / safe_denominator(denom, empty))
-        D = _interp.sclerp(D[..., :-1, :], D[..., 1:, :], alpha.expand(*batch, T, p + 1 - j),
-                           True)
-    return D[..., 0, :]
+        alphas.append(alpha.expand(*batch, T, p + 1 - j).reshape(B * T, p + 1 - j).T)
+    # The fused scheme gathers the degree + 1 points of each time itself and recomputes
+    # the levels in its backward (memory O(output), gradients accumulate into (B n, 8)).
+    out = _interp.pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, alphas)
+    return out.view(*batch, T, 8)
 
 
 def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = None,
@@ -256,7 +261,7 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     B-spline of the translations.
 
     Args:
-        ctrl: ``(..., n, 8)`` unit dual quaternions, ``n > degree``.
+        ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
         t: ``(T,)`` or ``(..., T)`` times in ``[knots[degree], knots[n]]``, same dtype and
             device as ``ctrl``; its batch dims broadcast with those of ``ctrl``.
         degree: polynomial degree ``p >= 1`` (1: piecewise sclerp, 3: cubic).
@@ -290,7 +295,7 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     fn = "curves.bspline"
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
     degree = _check_degree(fn, degree)
-    n = ctrl.shape[-2]
+    n = int(ctrl.shape[-2])  # a Python int even under torch.jit.trace
     if degree >= n:
         _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
                          f"got degree {degree}")
@@ -365,7 +370,7 @@ def twists(x: Tensor, dx: Tensor, frame: str = "body") -> Tensor:
     the same twist.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
         dx: ``(..., 8)`` their time derivatives (tangent to the unit dual quaternions),
             batch broadcastable with ``x``; see :func:`velocity`.
         frame: ``"body"`` or ``"spatial"``.
@@ -418,8 +423,8 @@ def screw_axis(omega: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     Pure translation (:math:`|\omega| \le \epsilon |v|` with :math:`\epsilon` the dtype's
     machine epsilon: the axis would lie beyond ``1 / eps`` lengths): direction
     :math:`v / |v|`, moment 0, pitch ``inf``. At rest (:math:`\omega = v = 0`) there is no
-    axis: all three outputs are NaN. Tracing the axis over the times of a curve (with the
-    spatial twists of :func:`twists`) gives the fixed axode.
+    axis: all three outputs are NaN, as for a non-finite twist. Tracing the axis over the
+    times of a curve (with the spatial twists of :func:`twists`) gives the fixed axode.
 
     Args:
         omega: ``(..., 3)`` angular velocity of a spatial twist.
@@ -444,7 +449,8 @@ def screw_axis(omega: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     v2 = (u * u).sum(-1, keepdim=True)
     eps = torch.finfo(dtype).eps
     translation = w2 <= (eps * eps) * v2  # includes rest (0 <= 0)
-    rest = translation & (v2 <= 0)
+    # At rest, and for a non-finite twist, there is no axis: NaN (never a finite limit).
+    rest = (translation & (v2 <= 0)) | ~(torch.isfinite(w2) & torch.isfinite(v2))
     # Safe where: the rotation branch divides by |omega|, the translation one by |v|.
     w2s = safe_denominator(w2, translation)
     wn = torch.sqrt(w2s)
