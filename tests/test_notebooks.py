@@ -1,0 +1,57 @@
+"""Execute every notebook in notebooks/ and check the figures each one writes.
+
+The notebooks read ``TORCH_DQ_FIGURES`` (default ``figures``) for their output folder, so the
+figures land in ``tmp_path`` and the repository stays clean. Skipped cleanly when nbclient,
+nbformat, ipykernel or matplotlib is missing.
+"""
+
+import pathlib
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("ipykernel")
+pytest.importorskip("matplotlib")
+
+NB_DIR = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
+
+# The figures each notebook must write into $TORCH_DQ_FIGURES.
+EXPECTED = {
+    "01_dual_numbers_and_quaternions": ["01_dual_functions.png", "01_euler_vs_slerp.png"],
+    "02_interpolation": ["02_norm_error.png", "02_screw_path.png"],
+    "03_bezier_vs_bspline": ["03_fig1_components.png", "03_local_control.png"],
+    "04_fitting_and_learning": ["04_fit_losses.png", "04_mlp_predictions.png"],
+    "05_knee_axode": ["05_knee_angles.png", "05_axode.png"],
+}
+
+
+def test_every_notebook_is_listed():
+    found = sorted(p.stem for p in NB_DIR.glob("*.ipynb"))
+    assert found == sorted(EXPECTED), "add new notebooks (and their figures) to EXPECTED"
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_notebook_stored_without_outputs(name):
+    nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
+    nbformat.validate(nb)
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            assert cell.outputs == [] and cell.execution_count is None, (
+                f"{name}: clear the outputs before committing")
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_notebook_executes_and_writes_figures(name, tmp_path, monkeypatch):
+    figures = tmp_path / "figures"
+    monkeypatch.setenv("TORCH_DQ_FIGURES", str(figures))
+    nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
+    client = nbclient.NotebookClient(nb, timeout=180, kernel_name="python3",
+                                     resources={"metadata": {"path": str(NB_DIR)}})
+    client.execute()  # raises CellExecutionError on the first failing cell
+    errors = [out for cell in nb.cells if cell.cell_type == "code"
+              for out in cell.get("outputs", []) if out.get("output_type") == "error"]
+    assert not errors
+    for fig in EXPECTED[name]:
+        path = figures / fig
+        assert path.is_file() and path.stat().st_size > 10_000, f"{name} did not write {fig}"
