@@ -6,6 +6,10 @@ import pytest
 import torch
 from hypothesis import HealthCheck, settings
 
+# Hypothesis profiles. "ci" (the default) is fixed and derandomized: 40 examples per
+# property, the same ones on every run, so CI stays fast and reproducible. "long" explores
+# 2000 fresh random examples per property; run it before a release or after touching the
+# numerics:  HYPOTHESIS_PROFILE=long pytest tests/test_reliability.py tests/test_dualquat.py
 settings.register_profile(
     "ci", max_examples=40, deadline=None, derandomize=True,
     suppress_health_check=[HealthCheck.too_slow],

@@ -93,8 +93,10 @@ def _weights(c: Tensor, t: Tensor, derivatives: bool) -> tuple[Tensor, ...]:
     G = a1 * _nested(u, 1)
 
     # Closed forms on safe inputs: the series elements see theta = pi / 2 instead. Using
-    # sin and cos of the same theta makes the endpoints exact (s = 1: F = 1, G = 0).
-    theta = torch.acos(torch.where(small, 0.0, c).clamp(-1.0, 1.0))
+    # sin and cos of the same theta makes the endpoints exact (s = 1: F = 1, G = 0). No
+    # clamp: c > 1 only occurs in the series branch, and c < -1 (opposite real parts with
+    # shortest=False, undefined) or an infinite c must give NaN, not a finite theta = pi.
+    theta = torch.acos(torch.where(small, 0.0, c))
     sin_t, cs = torch.sin(theta), torch.cos(theta)
     sin2 = sin_t * sin_t
     st = s * theta

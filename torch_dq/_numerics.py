@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["compute_dtype", "safe_denominator", "sinc", "taylor_threshold"]
+__all__ = ["compute_dtype", "nan_unless", "safe_denominator", "sinc", "taylor_threshold"]
 
 
 def compute_dtype(dtype: torch.dtype) -> torch.dtype:
@@ -39,6 +39,17 @@ def taylor_threshold(dtype: torch.dtype, order: int) -> float:
 def safe_denominator(x: Tensor, small: Tensor) -> Tensor:
     """``x`` with the entries where ``small`` holds replaced by 1 (to divide safely)."""
     return torch.where(small, torch.ones_like(x), x)
+
+
+def nan_unless(finite: Tensor, x: Tensor) -> Tensor:
+    """``x`` where ``finite`` holds, NaN elsewhere (``finite`` broadcasts against ``x``).
+
+    For results with a finite limit as an input component goes to infinity (``q / |q|``,
+    ``atan2(|v|, w)``, ``2 / |q|^2``): a non-finite input must come back as NaN, never as
+    a plausible finite number (API.md). Apply it to a reduced quantity (a norm) where
+    possible: the mask costs one pass over it.
+    """
+    return torch.where(finite, x, torch.nan)
 
 
 def sinc(x: Tensor) -> Tensor:

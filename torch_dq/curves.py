@@ -79,7 +79,11 @@ def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | No
         flags += [~torch.isfinite(knots).all(), (knots[1:] < knots[:-1]).any(), ~(lo < hi)]
     tol = _ULPS * torch.finfo(t.dtype).eps * torch.maximum(lo.abs(), hi.abs())
     flags.append(((t < lo - tol) | (t > hi + tol)).any())
-    bad = torch.stack(flags).tolist()
+    try:
+        bad = torch.stack(flags).tolist()
+    except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
+        raise RuntimeError(f"{fn}: the value checks read t (and knots) on the host, which "
+                           f"this transform does not allow; pass check=False") from e
     if knots is not None:
         if bad[0]:
             _checks.fail(fn, "knots must be finite")

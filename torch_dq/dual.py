@@ -23,6 +23,13 @@ dual component contributes exactly 0 to the dual part, never ``0 * inf = NaN``, 
 gradients of the dual part stay finite there; a non-zero dual component gives an infinite
 dual part with the sign of the limit (documented per function), a constant that carries no
 gradient. Elsewhere the dual parts are torch's own forward-mode (``jvp``) formulas.
+
+Non-finite values: these are elementwise functions with torch's IEEE semantics. A NaN
+makes every part that depends on it NaN, in its own element only; :math:`\pm\infty` gives
+the IEEE limits of the torch function and of its derivative (``exp(-inf) = 0``,
+``1 / inf = 0``, ``atan2(inf, x) = pi / 2``, ``d sqrt(a) = b / (2 sqrt a) -> 0``), exactly
+as ``torch.func.jvp`` of the torch function would. float16/bfloat16 parts are computed by
+the torch ops in their own dtype.
 """
 
 from __future__ import annotations

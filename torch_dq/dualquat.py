@@ -5,19 +5,28 @@ Layout ``(rw, rx, ry, rz, dw, dx, dy, dz)``: real part then dual part, each a
 ``real = r`` (the rotation quaternion) and ``dual = 0.5 * (0, t) * r``, the layout of
 pytransform3d. A unit dual quaternion and its negative are the same transform.
 Products compose like matrices: ``mul(a, b)`` applies ``b`` first.
+
+float16/bfloat16 inputs are computed in float32 and cast back. Inputs are never modified in
+place. Non-unit input: the algebra (``mul``, ``conj*``, ``inv``, ``norm``, ``dot``) takes any
+dual quaternion; ``normalize`` projects (``check=True`` raises on a zero or non-finite real
+part), ``is_unit`` tests; every other function assumes unit input and does not check it
+(call ``normalize`` first). Non-finite components give NaN (or inf) in their own batch
+element only, never a finite value.
 """
 
 from __future__ import annotations
+
+import numbers
 
 import torch
 from torch import Tensor
 
 from . import _checks, _interp, quat
-from ._numerics import compute_dtype, safe_denominator, taylor_threshold
+from ._numerics import compute_dtype, nan_unless, safe_denominator, taylor_threshold
 from .dual import Dual
 from .quat import _conj as _qconj
+from .quat import _lift, _rotate
 from .quat import _mul as _qmul
-from .quat import _rotate
 
 __all__ = [
     "angle",
@@ -82,7 +91,7 @@ def _normalize(x: Tensor) -> Tensor:
     """Unchecked projection onto unit dual quaternions (see :func:`normalize`)."""
     r, d = _split(x)
     n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
-    n = torch.where(n > 0, n, torch.nan)
+    n = nan_unless((n > 0) & torch.isfinite(n), n)
     r = r / n
     d = d / n
     return _join(r, d - r * (r * d).sum(-1, keepdim=True))
@@ -117,31 +126,43 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
     r"""Dual-quaternion product :math:`(r_a + \epsilon d_a)(r_b + \epsilon d_b)`.
 
     Args:
-        a: ``(..., 8)``.
-        b: ``(..., 8)``, batch broadcastable with ``a``.
+        a: ``(..., 8)`` dual quaternions (any, not necessarily unit).
+        b: ``(..., 8)`` dual quaternions, batch broadcastable with ``a``.
 
     Returns:
         ``(..., 8)``: for unit inputs, the transform ``b`` followed by ``a``
         (``to_matrix(mul(a, b)) == to_matrix(a) @ to_matrix(b)``).
     """
     _pair("dualquat.mul", a, b)
-    return _mul(a, b)
+    return _mul(_lift(a), _lift(b)).to(a.dtype)
 
 
 def conj(x: Tensor) -> Tensor:
-    r"""Quaternion conjugate of both parts, :math:`r^* + \epsilon d^*` (the inverse of a unit x)."""
+    r"""Quaternion conjugate of both parts, :math:`r^* + \epsilon d^*` (the inverse of a unit x).
+
+    Args:
+        x: ``(..., 8)`` dual quaternions (any norm).
+    """
     _dq("dualquat.conj", "x", x)
     return x * x.new_tensor([1.0, -1.0, -1.0, -1.0, 1.0, -1.0, -1.0, -1.0])
 
 
 def conj_dual(x: Tensor) -> Tensor:
-    r"""Dual-number conjugate :math:`r - \epsilon d`."""
+    r"""Dual-number conjugate :math:`r - \epsilon d`.
+
+    Args:
+        x: ``(..., 8)`` dual quaternions (any norm).
+    """
     _dq("dualquat.conj_dual", "x", x)
     return x * x.new_tensor([1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0])
 
 
 def conj_full(x: Tensor) -> Tensor:
-    r"""Both conjugates, :math:`r^* - \epsilon d^*` (used to act on points as dual quaternions)."""
+    r"""Both conjugates, :math:`r^* - \epsilon d^*` (used to act on points as dual quaternions).
+
+    Args:
+        x: ``(..., 8)`` dual quaternions (any norm).
+    """
     _dq("dualquat.conj_full", "x", x)
     return x * x.new_tensor([1.0, -1.0, -1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 
@@ -150,30 +171,33 @@ def inv(x: Tensor) -> Tensor:
     r"""Multiplicative inverse :math:`r^{-1} - \epsilon\, r^{-1} d\, r^{-1}`.
 
     Valid for any dual quaternion with a non-zero real part (zero real part: non-finite
-    values in that element); for a unit dual quaternion it equals :func:`conj`.
+    values in that element, a non-finite real part: NaN); for a unit dual quaternion it
+    equals :func:`conj` (non-unit input is inverted exactly, not normalised).
 
     Args:
-        x: ``(..., 8)``.
+        x: ``(..., 8)`` dual quaternions (any norm).
     """
     _dq("dualquat.inv", "x", x)
-    r, d = _split(x)
-    r_inv = _qconj(r) / (r * r).sum(-1, keepdim=True)
-    return _join(r_inv, -_qmul(_qmul(r_inv, d), r_inv))
+    dtype = x.dtype
+    r, d = _split(_lift(x))
+    n2 = (r * r).sum(-1, keepdim=True)
+    r_inv = _qconj(r) / nan_unless(torch.isfinite(n2), n2)
+    return _join(r_inv, -_qmul(_qmul(r_inv, d), r_inv)).to(dtype)
 
 
 def norm(x: Tensor) -> Dual:
     r"""Dual norm :math:`\|x\| = \sqrt{x x^*} = |r| + \epsilon\, (r \cdot d) / |r|`.
 
     Args:
-        x: ``(..., 8)``.
+        x: ``(..., 8)`` dual quaternions (any norm).
 
     Returns:
         ``Dual`` of batch shape ``(...)``; ``1 + eps 0`` for a unit dual quaternion.
     """
     _dq("dualquat.norm", "x", x)
-    r, d = _split(x)
+    r, d = _split(_lift(x))
     n = torch.linalg.vector_norm(r, dim=-1)
-    return Dual(n, (r * d).sum(-1) / n)
+    return Dual(n.to(x.dtype), ((r * d).sum(-1) / n).to(x.dtype))
 
 
 def dot(a: Tensor, b: Tensor) -> Dual:
@@ -184,16 +208,16 @@ def dot(a: Tensor, b: Tensor) -> Dual:
     :math:`\cos \bar\theta` of their dual angle (eq. 7).
 
     Args:
-        a: ``(..., 8)``.
-        b: ``(..., 8)``, batch broadcastable with ``a``.
+        a: ``(..., 8)`` dual quaternions (any norm).
+        b: ``(..., 8)`` dual quaternions, batch broadcastable with ``a``.
 
     Returns:
         ``Dual`` of the broadcast batch shape.
     """
     _pair("dualquat.dot", a, b)
-    ra, da = _split(a)
-    rb, db = _split(b)
-    return Dual((ra * rb).sum(-1), (ra * db + rb * da).sum(-1))
+    ra, da = _split(_lift(a))
+    rb, db = _split(_lift(b))
+    return Dual((ra * rb).sum(-1).to(a.dtype), (ra * db + rb * da).sum(-1).to(a.dtype))
 
 
 def normalize(x: Tensor, check: bool = False) -> Tensor:
@@ -214,11 +238,12 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _dq("dualquat.normalize", "x", x)
+    dtype, x = x.dtype, _lift(x)
     if check:
         n = torch.linalg.vector_norm(x[..., :4], dim=-1)
         if not bool(torch.all(torch.isfinite(n) & (n > 0))):
             _checks.fail("dualquat.normalize", "x contains zero or non-finite real parts")
-    return _normalize(x)
+    return _normalize(x).to(dtype)
 
 
 def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
@@ -230,15 +255,23 @@ def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
     the origin (``|t| = 1e3`` in float32) still counts as unit.
 
     Args:
-        x: ``(..., 8)``.
-        atol: tolerance; default ``1e-5`` for 32-bit and lower, ``1e-10`` for float64.
+        x: ``(..., 8)`` dual quaternions (any values).
+        atol: tolerance; default ``1e-10`` for float64, ``1e-5`` for float32 and 10 machine
+            epsilons for float16 (``9.8e-3``) and bfloat16 (``7.8e-2``), whose rounding of a
+            unit dual quaternion alone leaves defects up to one epsilon.
 
     Returns:
-        ``(...)`` bool tensor; False where ``x`` has a non-finite component.
+        ``(...)`` bool tensor; False where ``x`` has a non-finite component. float16/bfloat16
+        are tested in float32.
     """
     _dq("dualquat.is_unit", "x", x)
+    if atol is not None and (isinstance(atol, bool) or not isinstance(atol, numbers.Real)
+                             or not atol >= 0):
+        _checks.fail("dualquat.is_unit", f"expected atol to be a number >= 0, got {atol!r}")
     if atol is None:
-        atol = 1e-10 if x.dtype == torch.float64 else 1e-5
+        atol = {torch.float64: 1e-10, torch.float32: 1e-5}.get(
+            x.dtype, 10.0 * torch.finfo(x.dtype).eps)
+    x = _lift(x)
     r, d = _split(x)
     finite = torch.isfinite(x).all(-1)
     scale = torch.linalg.vector_norm(d, dim=-1).clamp(min=1.0)
@@ -252,7 +285,7 @@ def from_rt(q: Tensor, t: Tensor) -> Tensor:
     r"""Rigid transform :math:`x \mapsto R(q) x + t` as a dual quaternion.
 
     Args:
-        q: ``(..., 4)`` unit rotation quaternions ``(w, x, y, z)``.
+        q: ``(..., 4)`` unit rotation quaternions ``(w, x, y, z)`` (not checked).
         t: ``(..., 3)`` translations, batch broadcastable with ``q``.
 
     Returns:
@@ -267,22 +300,22 @@ def from_rt(q: Tensor, t: Tensor) -> Tensor:
     _checks.tensor(fn, "t", t, 3)
     _checks.same_dtype_device(fn, q=q, t=t)
     _checks.broadcast_batch(fn, q=(q, 1), t=(t, 1))
-    return _from_rt(q, t)
+    return _from_rt(_lift(q), _lift(t)).to(q.dtype)
 
 
 def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
     r"""Rotation quaternion and translation of a unit dual quaternion.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
 
     Returns:
         ``(q, t)``: ``(..., 4)`` (a copy of the real part, sign as given) and
         ``(..., 3)`` translation :math:`t = 2\,\mathrm{vec}(d r^*)`.
     """
     _dq("dualquat.to_rt", "x", x)
-    r, d = _split(x)
-    return r.clone(), _translation(r, d)
+    r, d = _split(_lift(x))
+    return x[..., :4].clone(), _translation(r, d).to(x.dtype)
 
 
 def from_matrix(T: Tensor) -> Tensor:
@@ -292,48 +325,53 @@ def from_matrix(T: Tensor) -> Tensor:
     angle, real part ``w >= 0``); the bottom row is not read.
 
     Args:
-        T: ``(..., 4, 4)`` homogeneous matrices ``[[R, t], [0, 1]]``.
+        T: ``(..., 4, 4)`` homogeneous matrices ``[[R, t], [0, 1]]`` (``R`` orthogonal, not
+            checked: see :func:`torch_dq.quat.from_matrix`).
 
     Returns:
         ``(..., 8)`` unit dual quaternions.
     """
     _checks.tensor("dualquat.from_matrix", "T", T, (4, 4))
-    return _from_rt(quat.from_matrix(T[..., :3, :3]), T[..., :3, 3])
+    Tl = _lift(T)
+    return _from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
 
 
 def to_matrix(x: Tensor) -> Tensor:
     """Homogeneous ``(..., 4, 4)`` matrices ``[[R, t], [0, 1]]`` of unit dual quaternions.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions (``x`` and ``-x`` give the same matrix).
+        x: unit dual quaternions, not checked (``x`` and ``-x`` give the same matrix).
     """
     _dq("dualquat.to_matrix", "x", x)
-    r, d = _split(x)
+    r, d = _split(_lift(x))
     top = torch.cat((quat.to_matrix(r), _translation(r, d)[..., None]), dim=-1)
     bottom = torch.zeros_like(top[..., :1, :])
     bottom[..., 3] = 1.0
-    return torch.cat((top, bottom), dim=-2)
+    return torch.cat((top, bottom), dim=-2).to(x.dtype)
 
 
 def from_pose7(p: Tensor) -> Tensor:
     """From the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
 
     Args:
-        p: ``(..., 7)``: translation then a unit quaternion in scalar-last order.
+        p: ``(..., 7)``: translation then a unit quaternion in scalar-last order
+            (not checked).
     """
     _checks.tensor("dualquat.from_pose7", "p", p, 7)
-    return _from_rt(p[..., [6, 3, 4, 5]], p[..., :3])
+    pl = _lift(p)
+    return _from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]).to(p.dtype)
 
 
 def to_pose7(x: Tensor) -> Tensor:
     """To the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions; the quaternion keeps the sign of the real part.
+        x: ``(..., 8)`` unit dual quaternions (not checked); the quaternion keeps the sign of
+            the real part.
     """
     _dq("dualquat.to_pose7", "x", x)
-    r, d = _split(x)
-    return torch.cat((_translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1)
+    r, d = _split(_lift(x))
+    return torch.cat((_translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
 
 
 def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
@@ -346,7 +384,7 @@ def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
     translation ``d`` along it. ``theta = 0`` is a pure translation by ``d l``.
 
     Args:
-        axis: ``(..., 3)`` unit direction ``l`` of the screw axis.
+        axis: ``(..., 3)`` unit direction ``l`` of the screw axis (not checked).
         moment: ``(..., 3)`` moment ``m = p x l`` for any point ``p`` on the axis
             (orthogonal to ``l``).
         theta: ``(...)`` rotation angle in radians (tensor or float).
@@ -363,12 +401,14 @@ def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
     _checks.same_dtype_device(fn, axis=axis, moment=moment)
     batch = _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0),
                                     d=(d, 0))
-    theta, d = theta.expand(batch), d.expand(batch)
+    dtype = axis.dtype
+    axis, moment = _lift(axis), _lift(moment)
+    theta, d = _lift(theta).expand(batch), _lift(d).expand(batch)
     s, c = torch.sin(0.5 * theta)[..., None], torch.cos(0.5 * theta)[..., None]
     h = 0.5 * d[..., None]
     real = torch.cat((c, s * axis), dim=-1)
     dual = torch.cat((-h * s, s * moment + h * c * axis), dim=-1)
-    return _join(real, dual)
+    return _join(real, dual).to(dtype)
 
 
 def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -384,12 +424,13 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     zeros. Inverse of :func:`from_screw` up to the sign of (axis, theta, d).
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
 
     Returns:
         ``axis (..., 3)``, ``moment (..., 3)``, ``theta (...)``, ``d (...)``.
     """
     _dq("dualquat.to_screw", "x", x)
+    dtype, x = x.dtype, _lift(x)
     r, dq_ = _split(x)
     t = _translation(r, dq_)
     # scipy's canonical sign (w > 0, ties at w = 0 broken by x, y, z): x and -x agree at 180 deg
@@ -411,6 +452,9 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     m = 0.5 * (torch.linalg.cross(t, l, dim=-1) + (t - d * l) * cot_half)
     m = torch.where(translation_only, torch.zeros_like(m), m)
     theta = torch.where(translation_only, torch.zeros_like(theta), theta)
+    # A non-finite x gives NaN everywhere, not the finite limits of atan2 or of the branches.
+    finite = torch.isfinite(x).all(-1, keepdim=True)
+    l, m, theta, d = (nan_unless(finite, y).to(dtype) for y in (l, m, theta, d))
     return l, m, theta[..., 0], d[..., 0]
 
 
@@ -445,12 +489,13 @@ def exp(xi: Tensor) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _checks.tensor("dualquat.exp", "xi", xi, 6)
-    omega, v = xi[..., :3], xi[..., 3:]
+    xl = _lift(xi)
+    omega, v = xl[..., :3], xl[..., 3:]
     theta = torch.linalg.vector_norm(omega, dim=-1)
     c1, c2 = _se3_coefficients(theta)
     wxv = torch.linalg.cross(omega, v, dim=-1)
     t = v + c1[..., None] * wxv + c2[..., None] * torch.linalg.cross(omega, wxv, dim=-1)
-    return _from_rt(quat.from_rotvec(omega), t)
+    return _from_rt(quat.from_rotvec(omega), t).to(xi.dtype)
 
 
 def log(x: Tensor) -> Tensor:
@@ -463,13 +508,13 @@ def log(x: Tensor) -> Tensor:
     of its x, y, z positive, see :func:`torch_dq.quat.to_rotvec`), for ``x`` and ``-x`` alike.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
 
     Returns:
         ``(..., 6)`` twists.
     """
     _dq("dualquat.log", "x", x)
-    r, d = _split(x)
+    r, d = _split(_lift(x))
     t = _translation(r, d)
     omega = quat.to_rotvec(r)
     theta = torch.linalg.vector_norm(omega, dim=-1)
@@ -480,7 +525,7 @@ def log(x: Tensor) -> Tensor:
                      (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
     wxt = torch.linalg.cross(omega, t, dim=-1)
     v = t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
-    return torch.cat((omega, v), dim=-1)
+    return torch.cat((omega, v), dim=-1).to(x.dtype)
 
 
 # ----------------------------------------------------------------------------- actions
@@ -489,7 +534,7 @@ def apply(x: Tensor, points: Tensor) -> Tensor:
     r"""Transform points, :math:`p \mapsto R p + t`.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
         points: ``(..., 3)``, batch broadcastable with ``x``.
 
     Returns:
@@ -505,8 +550,8 @@ def apply(x: Tensor, points: Tensor) -> Tensor:
     _checks.tensor(fn, "points", points, 3)
     _checks.same_dtype_device(fn, x=x, points=points)
     _checks.broadcast_batch(fn, x=(x, 1), points=(points, 1))
-    r, d = _split(x)
-    return _rotate(r, points) + _translation(r, d)
+    r, d = _split(_lift(x))
+    return (_rotate(r, _lift(points)) + _translation(r, d)).to(x.dtype)
 
 
 def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Tensor]:
@@ -515,7 +560,7 @@ def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Te
     Equivalent to the dual-vector product :math:`x (l + \epsilon m) x^*` of the paper.
 
     Args:
-        x: ``(..., 8)`` unit dual quaternions.
+        x: ``(..., 8)`` unit dual quaternions (not checked).
         direction: ``(..., 3)`` line directions ``l``.
         moment: ``(..., 3)`` line moments ``m = p x l``.
 
@@ -528,10 +573,11 @@ def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Te
     _checks.tensor(fn, "moment", moment, 3)
     _checks.same_dtype_device(fn, x=x, direction=direction, moment=moment)
     batch = _checks.broadcast_batch(fn, x=(x, 1), direction=(direction, 1), moment=(moment, 1))
-    r, d = _split(x)
-    l2 = _rotate(r, direction)
-    m2 = _rotate(r, moment) + torch.linalg.cross(_translation(r, d), l2.expand(*batch, 3), dim=-1)
-    return l2.expand(*batch, 3), m2
+    r, d = _split(_lift(x))
+    l2 = _rotate(r, _lift(direction))
+    m2 = (_rotate(r, _lift(moment))
+          + torch.linalg.cross(_translation(r, d), l2.expand(*batch, 3), dim=-1))
+    return l2.expand(*batch, 3).to(x.dtype), m2.to(x.dtype)
 
 
 # ----------------------------------------------------------------------------- dual angle
@@ -558,7 +604,7 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     :math:`\theta \in \{0, \pi\}` the kink of :math:`\theta` gets the zero subgradient.
 
     Args:
-        a: ``(..., 8)`` unit dual quaternions.
+        a: ``(..., 8)`` unit dual quaternions (not checked).
         b: ``(..., 8)`` unit dual quaternions, batch broadcastable with ``a``.
 
     Returns:
@@ -572,10 +618,13 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     """
     fn = "dualquat.angle"
     _pair(fn, a, b)
-    a, b = torch.broadcast_tensors(a, b)
+    dtype = a.dtype
+    a, b = torch.broadcast_tensors(_lift(a), _lift(b))
     theta, theta_hat = _interp.dual_angle(a, b)
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
-    degenerate = _interp._angle_frame(a, b)[-1]
+    *_, u, v, _, _, degenerate = _interp._angle_frame(a, b)
+    # Non-finite real parts: NaN, not atan2's finite limit (pi / 2) for the real part.
+    theta = nan_unless(torch.isfinite(u) & torch.isfinite(v), theta)
     # eq. 6: |(t1 - t0) . u| with u the common axis, |t1 - t0| for identity rotations.
     dt = _translation(R, S) - _translation(P, Q)
     axis = P[..., 1:]
@@ -585,7 +634,7 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     dt2 = (dt * dt).sum(-1)
     dist = torch.sqrt(torch.where(dt2 > 0, dt2, 1.0)) * (dt2 > 0)
     eq6 = torch.where(no_axis[..., 0], dist, along.abs())
-    return Dual(theta, torch.where(degenerate, eq6, theta_hat))
+    return Dual(theta.to(dtype), torch.where(degenerate, eq6, theta_hat).to(dtype))
 
 
 def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
@@ -605,6 +654,8 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     With ``shortest=True`` (default) ``b`` is replaced by ``-b`` when the real parts' dot is
     negative (same transform, shorter path). The paper's linear branch is wrong for opposite
     rotations: :math:`(1 - t) q + t (-q)` passes through zero; the sign choice avoids it.
+    At a tie (orthogonal real parts, a half-turn relative rotation) both paths are equally
+    short and the sign of the zero dot decides, so ``a`` and ``-a`` may take different ones.
     With ``shortest=False`` the path from ``a`` to ``b`` as given is followed; it is
     ill-conditioned when the real parts are nearly opposite and non-finite for exactly
     opposite real parts (no unique great circle).
@@ -614,8 +665,8 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     float16/bfloat16 inputs are computed in float32.
 
     Args:
-        a: ``(..., 8)`` unit dual quaternions (start, ``t = 0``).
-        b: ``(..., 8)`` unit dual quaternions (end, ``t = 1``).
+        a: ``(..., 8)`` unit dual quaternions (not checked; start, ``t = 0``).
+        b: ``(..., 8)`` unit dual quaternions (not checked; end, ``t = 1``).
         t: ``(...)`` tensor or Python float; ``a``, ``b`` and ``t`` broadcast together.
         shortest: flip ``b`` to the representative nearest to ``a``.
 
@@ -649,8 +700,9 @@ def dlb(weights: Tensor, xs: Tensor) -> Tensor:
     direction and gives NaN in that element.
 
     Args:
-        weights: ``(..., K)`` blend weights.
-        xs: ``(..., K, 8)`` unit dual quaternions, batch broadcastable with ``weights``.
+        weights: ``(..., K)`` blend weights, ``K >= 1``.
+        xs: ``(..., K, 8)`` unit dual quaternions (not checked), batch broadcastable with
+            ``weights``.
 
     Returns:
         ``(..., 8)`` unit dual quaternions.
@@ -663,6 +715,10 @@ def dlb(weights: Tensor, xs: Tensor) -> Tensor:
         _checks.fail(fn, f"expected weights (..., K) and xs (..., K, 8) with the same K, got "
                          f"weights {_checks.shape_str(weights.shape)} and xs "
                          f"{_checks.shape_str(xs.shape)}")
+    if xs.shape[-2] == 0:
+        _checks.fail(fn, f"expected at least one pose to blend (K >= 1), got xs "
+                         f"{_checks.shape_str(xs.shape)}")
     _checks.broadcast_batch(fn, weights=(weights, 1), xs=(xs, 2))
+    dtype, xs, weights = xs.dtype, _lift(xs), _lift(weights)
     sign = torch.where((xs[..., :4] * xs[..., :1, :4]).sum(-1) < 0, -1.0, 1.0).to(xs.dtype)
-    return _normalize(((weights * sign)[..., None] * xs).sum(-2))
+    return _normalize(((weights * sign)[..., None] * xs).sum(-2)).to(dtype)

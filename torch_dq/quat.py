@@ -3,7 +3,16 @@ r"""Quaternions on plain ``(..., 4)`` tensors.
 Conventions: components ``(w, x, y, z)`` (scalar first), Hamilton product
 (``i j = k``), and unit quaternions rotate vectors actively, :math:`v' = q v q^*`.
 ``q`` and ``-q`` are the same rotation. Batch dimensions come first and broadcast like
-torch ops; dtype and device follow the inputs.
+torch ops; dtype and device follow the inputs (float16/bfloat16 are computed in float32
+and cast back). Inputs are never modified in place and outputs are new tensors.
+
+Non-unit input, per function: ``mul``, ``conj``, ``inv``, ``norm``, ``normalize``, ``dot``,
+``exp``, ``log`` are plain quaternion algebra (any norm); ``to_matrix``, ``to_axis_angle``,
+``to_rotvec``, ``to_euler`` normalise implicitly (any non-zero ``q``); ``rotate`` and
+``slerp`` assume unit input (not checked); ``normalize(q, check=True)`` raises on zero or
+non-finite rows. Non-finite components give NaN (or inf) in their own row only, never a
+finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is 0, as
+``torch.exp``).
 """
 
 from __future__ import annotations
@@ -129,6 +138,8 @@ def _log(q: Tensor) -> Tensor:
     neg_real = (s == 0) & ~pos
     vec = torch.where(neg_real[..., None], theta[..., None] * q.new_tensor([1.0, 0.0, 0.0]),
                       v * scale[..., None])
+    # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
+    vec = _numerics.nan_unless(torch.isfinite(n)[..., None], vec)
     return torch.cat((torch.log(n)[..., None], vec), dim=-1)
 
 
@@ -182,7 +193,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton product ``a b``.
 
     Args:
-        a: ``(..., 4)`` quaternions.
+        a: ``(..., 4)`` quaternions (any norm).
         b: ``(..., 4)`` quaternions, batch broadcastable with ``a``.
 
     Returns:
@@ -193,14 +204,14 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         tensor([0., 0., 0., 1.])
     """
     _pair("quat.mul", a, b)
-    return _mul(a, b)
+    return _mul(_lift(a), _lift(b)).to(a.dtype)
 
 
 def conj(q: Tensor) -> Tensor:
     """Conjugate ``(w, -x, -y, -z)``; the inverse rotation for a unit ``q``.
 
     Args:
-        q: ``(..., 4)`` quaternions.
+        q: ``(..., 4)`` quaternions (any norm).
     """
     _checks.tensor("quat.conj", "q", q, 4)
     return _conj(q)
@@ -210,56 +221,60 @@ def norm(q: Tensor) -> Tensor:
     """Euclidean norm ``|q|``.
 
     Args:
-        q: ``(..., 4)`` quaternions.
+        q: ``(..., 4)`` quaternions (any norm).
 
     Returns:
         ``(...)`` tensor.
     """
     _checks.tensor("quat.norm", "q", q, 4)
-    return torch.linalg.vector_norm(q, dim=-1)
+    return torch.linalg.vector_norm(_lift(q), dim=-1).to(q.dtype)
 
 
 def inv(q: Tensor) -> Tensor:
     """Inverse ``q* / |q|^2``.
 
     Args:
-        q: ``(..., 4)`` non-zero quaternions; a zero quaternion gives non-finite values.
+        q: ``(..., 4)`` non-zero quaternions (any norm); a zero quaternion gives non-finite
+            values, a non-finite one NaN (in its own row only).
     """
     _checks.tensor("quat.inv", "q", q, 4)
-    return _conj(q) / (q * q).sum(-1, keepdim=True)
+    ql = _lift(q)
+    n2 = (ql * ql).sum(-1, keepdim=True)
+    return (_conj(ql) / _numerics.nan_unless(torch.isfinite(n2), n2)).to(q.dtype)
 
 
 def normalize(q: Tensor, check: bool = False) -> Tensor:
     """Project onto unit quaternions, ``q / |q|``.
 
     Args:
-        q: ``(..., 4)`` quaternions.
+        q: ``(..., 4)`` quaternions (any norm).
         check: if True, raise ``ValueError`` when some ``q`` is zero or non-finite (this
-            synchronises with the device). Otherwise a zero quaternion, which has no
-            direction, gives NaN in its own output row only.
+            synchronises with the device). Otherwise a zero or non-finite quaternion, which
+            has no direction, gives NaN in its own output row only. Idempotent.
 
     Returns:
         ``(..., 4)`` unit quaternions.
     """
     _checks.tensor("quat.normalize", "q", q, 4)
+    dtype, q = q.dtype, _lift(q)
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     if check and not bool(torch.all(torch.isfinite(n) & (n > 0))):
         _checks.fail("quat.normalize", "q contains zero or non-finite quaternions")
-    return q / torch.where(n > 0, n, torch.nan)
+    return (q / _numerics.nan_unless((n > 0) & torch.isfinite(n), n)).to(dtype)
 
 
 def dot(a: Tensor, b: Tensor) -> Tensor:
     """Euclidean scalar product of quaternions, ``cos`` of the half-angle between unit ones.
 
     Args:
-        a: ``(..., 4)``.
+        a: ``(..., 4)`` quaternions (any norm).
         b: ``(..., 4)``, broadcastable with ``a``.
 
     Returns:
         ``(...)`` tensor.
     """
     _pair("quat.dot", a, b)
-    return (a * b).sum(-1)
+    return (_lift(a) * _lift(b)).sum(-1).to(a.dtype)
 
 
 def rotate(q: Tensor, v: Tensor) -> Tensor:
@@ -282,7 +297,7 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     _checks.tensor("quat.rotate", "v", v, 3)
     _checks.same_dtype_device("quat.rotate", q=q, v=v)
     _checks.broadcast_batch("quat.rotate", q=(q, 1), v=(v, 1))
-    return _rotate(q, v)
+    return _rotate(_lift(q), _lift(v)).to(q.dtype)
 
 
 def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
@@ -293,7 +308,7 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
 
     Args:
         q0: ``(..., 4)`` unit quaternions (not checked).
-        q1: ``(..., 4)`` unit quaternions, batch broadcastable with ``q0``.
+        q1: ``(..., 4)`` unit quaternions (not checked), batch broadcastable with ``q0``.
         t: Python float or tensor whose shape broadcasts against the batch shape (it is
             not an extra trailing axis: use ``t[:, None]`` with ``q0[None]`` for a sweep).
         shortest: if True, use ``-q1`` when ``dot(q0, q1) < 0`` so that the path is the
@@ -356,6 +371,8 @@ def exp(q: Tensor) -> Tensor:
 
     Returns:
         ``(..., 4)`` quaternions. Value and gradient are finite at ``v = 0`` (``sinc``).
+        A real part ``-inf`` gives 0 (:math:`e^{-\infty}`, as ``torch.exp``); any other
+        non-finite component gives NaN or inf.
 
     Example:
         >>> exp(torch.tensor([0., torch.pi / 4, 0., 0.]))  # 90 degrees about x
@@ -420,7 +437,8 @@ def from_matrix(R: Tensor) -> Tensor:
     ), dim=-1).unflatten(-1, (4, 4))
     pick = k.diagonal(dim1=-2, dim2=-1).argmax(-1)
     row = torch.gather(k, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
-    return _canonical(row / torch.linalg.vector_norm(row, dim=-1, keepdim=True)).to(dtype)
+    n = torch.linalg.vector_norm(row, dim=-1, keepdim=True)
+    return _canonical(row / _numerics.nan_unless(torch.isfinite(n), n)).to(dtype)
 
 
 def to_matrix(q: Tensor) -> Tensor:
@@ -430,7 +448,8 @@ def to_matrix(q: Tensor) -> Tensor:
     ``2 / |q|^2`` replaces 2), so it is always orthogonal; ``to_matrix(q) == to_matrix(-q)``.
 
     Args:
-        q: ``(..., 4)`` non-zero quaternions; ``q = 0`` gives NaN.
+        q: ``(..., 4)`` non-zero quaternions (any norm); ``q = 0`` or a non-finite ``q`` gives
+            NaN.
 
     Returns:
         ``(..., 3, 3)`` rotation matrices.
@@ -444,7 +463,8 @@ def to_matrix(q: Tensor) -> Tensor:
     _checks.tensor("quat.to_matrix", "q", q, 4)
     ql = _lift(q)
     w, x, y, z = ql.unbind(-1)
-    s = 2.0 / (ql * ql).sum(-1)
+    n2 = (ql * ql).sum(-1)
+    s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
     xx, yy, zz = s * x * x, s * y * y, s * z * z
     wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
     return torch.stack((
@@ -478,7 +498,8 @@ def from_axis_angle(axis: Tensor, angle) -> Tensor:
     axis, half = _lift(axis).expand(*shape, 3), _lift(angle).expand(shape)[..., None] / 2.0
     n = _safe_norm(axis)[..., None]
     zero = n == 0
-    q = torch.cat((torch.cos(half), torch.sin(half) * axis / torch.where(zero, 1.0, n)), dim=-1)
+    n = _numerics.nan_unless(torch.isfinite(n), torch.where(zero, 1.0, n))
+    q = torch.cat((torch.cos(half), torch.sin(half) * axis / n), dim=-1)
     return torch.where(zero, q.new_tensor([1.0, 0.0, 0.0, 0.0]), q).to(dtype)
 
 
@@ -504,7 +525,10 @@ def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
     zero = (s == 0)[..., None]
     axis = torch.where(zero, v.new_tensor([1.0, 0.0, 0.0]),
                        v / _numerics.safe_denominator(s[..., None], zero))
-    return axis.to(q.dtype), (2.0 * torch.atan2(s, w)).to(q.dtype)
+    # Non-finite q: NaN, not the finite limits of atan2 (0 or pi) and of v / |v|.
+    finite = torch.isfinite(s) & torch.isfinite(w)
+    angle = _numerics.nan_unless(finite, 2.0 * torch.atan2(s, w))
+    return _numerics.nan_unless(finite[..., None], axis).to(q.dtype), angle.to(q.dtype)
 
 
 def from_rotvec(rotvec: Tensor) -> Tensor:
@@ -630,7 +654,9 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
     if not symmetric:
         out[third] = sign * out[third]
         out[1] = theta - math.pi / 2
-    return torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1).to(q.dtype)
+    out = torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1)
+    # Non-finite q: NaN, not the finite limits of the atan2s.
+    return _numerics.nan_unless(torch.isfinite(ql).all(-1, keepdim=True), out).to(q.dtype)
 
 
 def from_xyzw(q: Tensor) -> Tensor:
