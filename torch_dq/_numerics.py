@@ -12,7 +12,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["compute_dtype", "nan_unless", "safe_denominator", "sinc", "taylor_threshold"]
+__all__ = [
+    "compute_dtype", "nan_unless", "safe_denominator", "safe_norm", "sinc", "taylor_threshold",
+]
 
 
 def compute_dtype(dtype: torch.dtype) -> torch.dtype:
@@ -62,3 +64,14 @@ def sinc(x: Tensor) -> Tensor:
     x2 = x * x
     series = 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
     return torch.where(small, series, torch.sin(xs) / xs)
+
+
+def safe_norm(x: Tensor) -> Tensor:
+    """``|x|`` over the last dim, with the zero subgradient at ``x = 0`` (not NaN).
+
+    Safe where: ``sqrt`` is evaluated at 1 where ``|x|^2 == 0``, so its infinite derivative
+    never meets the zero upstream gradient; NaN and inf still propagate.
+    """
+    n2 = (x * x).sum(-1)
+    zero = n2 == 0
+    return torch.where(zero, 0.0, torch.sqrt(torch.where(zero, 1.0, n2)))

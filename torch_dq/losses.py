@@ -20,10 +20,8 @@ import numbers
 import torch
 from torch import Tensor
 
-from . import _checks
-from ._numerics import compute_dtype
-from .quat import _conj as _qconj
-from .quat import _mul as _qmul
+from . import _checks, dualquat
+from ._numerics import compute_dtype, safe_norm
 
 __all__ = ["pose_loss", "rotation_angle", "translation_error"]
 
@@ -37,17 +35,6 @@ def _pair(fn: str, a, b) -> None:
     _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1))
 
 
-def _safe_norm(x: Tensor) -> Tensor:
-    """``|x|`` over the last dim, with the zero subgradient at ``x = 0`` (not NaN).
-
-    Safe where: ``sqrt`` is evaluated at 1 where ``|x|^2 == 0``, so its infinite derivative
-    never meets the zero upstream gradient; NaN and inf still propagate.
-    """
-    n2 = (x * x).sum(-1)
-    zero = n2 == 0
-    return torch.where(zero, 0.0, torch.sqrt(torch.where(zero, 1.0, n2)))
-
-
 def _unit_real(x: Tensor) -> Tensor:
     r = x[..., :4]
     return r / torch.linalg.vector_norm(r, dim=-1, keepdim=True)
@@ -56,12 +43,12 @@ def _unit_real(x: Tensor) -> Tensor:
 def _translation(x: Tensor) -> Tensor:
     """``2 vec(d r*) / |r|^2``: the translation kept by ``dualquat.normalize``."""
     r, d = x[..., :4], x[..., 4:]
-    return 2.0 * _qmul(d, _qconj(r))[..., 1:] / (r * r).sum(-1, keepdim=True)
+    return dualquat._translation(r, d) / (r * r).sum(-1, keepdim=True)
 
 
 def _rotation_angle(a: Tensor, b: Tensor) -> Tensor:
     ra, rb = _unit_real(a), _unit_real(b)
-    minus, plus = _safe_norm(rb - ra), _safe_norm(rb + ra)
+    minus, plus = safe_norm(rb - ra), safe_norm(rb + ra)
     # |rb - ra| = 2 sin(phi / 2), |rb + ra| = 2 cos(phi / 2) with phi the angle between the
     # unit quaternions in R^4; the rotation angle is 2 min(phi, pi - phi) =
     # 4 atan2(min, max): accurate at 0 and at pi (no acos), and the same for -ra or -rb.
@@ -128,7 +115,7 @@ def translation_error(a: Tensor, b: Tensor) -> Tensor:
     """
     _pair("losses.translation_error", a, b)
     dtype = compute_dtype(a.dtype)
-    return _safe_norm(_translation(a.to(dtype)) - _translation(b.to(dtype))).to(a.dtype)
+    return safe_norm(_translation(a.to(dtype)) - _translation(b.to(dtype))).to(a.dtype)
 
 
 def _weight(fn: str, name: str, w) -> float:

@@ -88,13 +88,6 @@ def _lift(x: Tensor) -> Tensor:
     return x.to(_numerics.compute_dtype(x.dtype))
 
 
-def _safe_norm(x: Tensor) -> Tensor:
-    """Euclidean norm over the last dim whose gradient at ``x = 0`` is 0, not NaN."""
-    zero = (x == 0).all(-1, keepdim=True)
-    n = torch.linalg.vector_norm(torch.where(zero, torch.ones_like(x), x), dim=-1)
-    return torch.where(zero.squeeze(-1), torch.zeros_like(n), n)
-
-
 def _safe_hypot(x: Tensor, y: Tensor) -> Tensor:
     """``hypot(x, y)`` (scipy's rounding) whose gradient at ``x = y = 0`` is 0, not NaN."""
     zero = (x == 0) & (y == 0)
@@ -116,7 +109,7 @@ def _canonical(q: Tensor) -> Tensor:
 
 def _exp(q: Tensor) -> Tensor:
     r"""Unchecked :math:`e^w (\cos|v|, \operatorname{sinc}|v| \, v)`."""
-    theta = _safe_norm(q[..., 1:])[..., None]
+    theta = _numerics.safe_norm(q[..., 1:])[..., None]
     return torch.exp(q[..., :1]) * torch.cat(
         (torch.cos(theta), _numerics.sinc(theta) * q[..., 1:]), dim=-1)
 
@@ -124,7 +117,7 @@ def _exp(q: Tensor) -> Tensor:
 def _log(q: Tensor) -> Tensor:
     r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`."""
     w, v = q[..., 0], q[..., 1:]
-    s = _safe_norm(v)
+    s = _numerics.safe_norm(v)
     n = torch.linalg.vector_norm(q, dim=-1)
     theta = torch.atan2(s, w)
     # theta / s, the scale of v. For w > 0 (theta < pi/2), s = n sin(theta) gives
@@ -341,13 +334,13 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
         flip = d < 0
         q1, d = torch.where(flip, -q1, q1), torch.where(flip, -d, d)
     # omega, the angle between q0 and q1 in R^4, without acos's loss of accuracy near 0.
-    omega = 2.0 * torch.atan2(_safe_norm(q1 - q0), _safe_norm(q1 + q0))[..., None]
+    omega = 2.0 * torch.atan2(_numerics.safe_norm(q1 - q0), _numerics.safe_norm(q1 + q0))[..., None]
     # The result is cos(t omega) q0 + sin(t omega) r / |r|, with r the part of q1
     # orthogonal to q0 (|r| = sin(omega)); projecting twice keeps r orthogonal to q0 to
     # rounding even when q1 is nearly -q0 and r is all cancellation.
     r = q1 - d * q0
     r = r - (r * q0).sum(-1, keepdim=True) * q0
-    r_norm = _safe_norm(r)[..., None]
+    r_norm = _numerics.safe_norm(r)[..., None]
     near = d >= 0
     antipodal = ~near & (r_norm <= torch.finfo(r.dtype).eps)
     r = torch.where(antipodal, _mul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
@@ -496,7 +489,7 @@ def from_axis_angle(axis: Tensor, angle) -> Tensor:
     shape = _checks.broadcast_batch(fn, axis=(axis, 1), angle=(angle, 0))
     dtype = axis.dtype
     axis, half = _lift(axis).expand(*shape, 3), _lift(angle).expand(shape)[..., None] / 2.0
-    n = _safe_norm(axis)[..., None]
+    n = _numerics.safe_norm(axis)[..., None]
     zero = n == 0
     n = _numerics.nan_unless(torch.isfinite(n), torch.where(zero, 1.0, n))
     q = torch.cat((torch.cos(half), torch.sin(half) * axis / n), dim=-1)
@@ -521,7 +514,7 @@ def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
     _checks.tensor("quat.to_axis_angle", "q", q, 4)
     qc = _canonical(_lift(q))
     w, v = qc[..., 0], qc[..., 1:]
-    s = _safe_norm(v)
+    s = _numerics.safe_norm(v)
     zero = (s == 0)[..., None]
     axis = torch.where(zero, v.new_tensor([1.0, 0.0, 0.0]),
                        v / _numerics.safe_denominator(s[..., None], zero))
