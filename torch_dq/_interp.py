@@ -416,12 +416,13 @@ class _DualAngleVJP(torch.autograd.Function):
         a, b, theta_hat = ctx.saved_tensors
         P, Q, R, S, dm_hat, dp_hat, th_u, th_v, h_d, h_u, h_v = _DualAngleVJP._partials(
             a, b, theta_hat)
-        e = lambda x: x[..., None]  # noqa: E731
-        g_u, g_v, g_d = g_theta * th_u + g_hat * h_u, g_theta * th_v + g_hat * h_v, g_hat * h_d
-        # u = |R - P|, v = |R + P|, delta = P.S + R.Q
-        grad_P = -e(g_u) * dm_hat + e(g_v) * dp_hat + e(g_d) * S
-        grad_R = e(g_u) * dm_hat + e(g_v) * dp_hat + e(g_d) * Q
-        return torch.cat((grad_P, e(g_d) * R), -1), torch.cat((grad_R, e(g_d) * P), -1)
+        # Scalar sensitivities to u = |R - P|, v = |R + P| and delta = P.S + R.Q, as columns.
+        g_u = (g_theta * th_u + g_hat * h_u)[..., None]
+        g_v = (g_theta * th_v + g_hat * h_v)[..., None]
+        g_d = (g_hat * h_d)[..., None]
+        grad_P = -g_u * dm_hat + g_v * dp_hat + g_d * S
+        grad_R = g_u * dm_hat + g_v * dp_hat + g_d * Q
+        return torch.cat((grad_P, g_d * R), -1), torch.cat((grad_R, g_d * P), -1)
 
 
 class _DualAngle(_DualAngleVJP):
