@@ -20,6 +20,11 @@ times that map onto that domain (the first and last sample for ``from_poses``, t
 itself otherwise), and :meth:`normalize_time` applies that affine map; :func:`fit` takes
 raw times and applies it for you.
 
+Control polygons: every interpolation takes the shortest path, so the curve jumps where two
+neighbouring control points come to differ by a half turn of rotation. Keep neighbours
+closer than that: ``from_poses`` with enough control points does; an optimizer started far
+from the data (e.g. LBFGS from identity control points) can stall at such a jump.
+
 Example (a small network predicting trajectories, trained end to end):
     >>> import torch_dq.dualquat as dq
     >>> from torch_dq.losses import pose_loss
