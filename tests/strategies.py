@@ -120,3 +120,18 @@ def dual_quats(draw, allow_special=True):
     scale = draw(st.sampled_from([0.0, 1.0, 100.0]))
     t = draw(st.lists(st.floats(-1, 1, allow_nan=False), min_size=3, max_size=3))
     return from_rt(q, torch.tensor(t, dtype=torch.float64) * scale)
+
+
+def gradcheck_at(f, *args):
+    """``torch.autograd.gradcheck`` of ``f`` at fresh float64 leaves copied from ``args``."""
+    args = [a.detach().clone().requires_grad_(True) for a in args]
+    assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-7)
+
+
+def grads(f, *args):
+    """Gradients of the sum of ``f``'s output(s) at fresh leaves copied from ``args``."""
+    args = [a.detach().clone().requires_grad_(True) for a in args]
+    out = f(*args)
+    outs = out if isinstance(out, tuple) else (out,)
+    sum(o.sum() for o in outs).backward()
+    return [a.grad for a in args]

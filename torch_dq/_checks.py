@@ -18,6 +18,7 @@ __all__ = [
     "broadcast_batch",
     "factory_args",
     "fail",
+    "pair",
     "same_dtype_device",
     "shape_str",
     "tensor",
@@ -119,3 +120,11 @@ def factory_args(fn: str, shape, dtype) -> tuple[tuple[int, ...], torch.dtype]:
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         fail(fn, f"expected a floating dtype, got {dtype}", TypeError)
     return dims, dtype
+
+
+def pair(fn: str, a: Tensor, b: Tensor, last: int, names: tuple[str, str] = ("a", "b")) -> None:
+    """Check two ``(..., last)`` tensors of one dtype and device with broadcastable batches."""
+    tensor(fn, names[0], a, last)
+    tensor(fn, names[1], b, last)
+    same_dtype_device(fn, **{names[0]: a, names[1]: b})
+    broadcast_batch(fn, **{names[0]: (a, 1), names[1]: (b, 1)})

@@ -63,13 +63,6 @@ def _dq(fn: str, name: str, x: Tensor) -> Tensor:
     return _checks.tensor(fn, name, x, 8)
 
 
-def _pair(fn: str, a: Tensor, b: Tensor) -> None:
-    _dq(fn, "a", a)
-    _dq(fn, "b", b)
-    _checks.same_dtype_device(fn, a=a, b=b)
-    _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1))
-
-
 def _split(x: Tensor) -> tuple[Tensor, Tensor]:
     """Real and dual quaternion halves as views."""
     return x[..., :4], x[..., 4:]
@@ -133,7 +126,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         ``(..., 8)``: for unit inputs, the transform ``b`` followed by ``a``
         (``to_matrix(mul(a, b)) == to_matrix(a) @ to_matrix(b)``).
     """
-    _pair("dualquat.mul", a, b)
+    _checks.pair("dualquat.mul", a, b, 8)
     return _mul(_lift(a), _lift(b)).to(a.dtype)
 
 
@@ -214,7 +207,7 @@ def dot(a: Tensor, b: Tensor) -> Dual:
     Returns:
         ``Dual`` of the broadcast batch shape.
     """
-    _pair("dualquat.dot", a, b)
+    _checks.pair("dualquat.dot", a, b, 8)
     ra, da = _split(_lift(a))
     rb, db = _split(_lift(b))
     return Dual((ra * rb).sum(-1).to(a.dtype), (ra * db + rb * da).sum(-1).to(a.dtype))
@@ -617,7 +610,7 @@ def angle(a: Tensor, b: Tensor) -> Dual:
         Dual(real=tensor(0.5000), dual=tensor(1.))
     """
     fn = "dualquat.angle"
-    _pair(fn, a, b)
+    _checks.pair(fn, a, b, 8)
     dtype = a.dtype
     a, b = torch.broadcast_tensors(_lift(a), _lift(b))
     theta, theta_hat = _interp.dual_angle(a, b)
@@ -680,7 +673,7 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
         tensor([1.0000, 0.0000, 0.0000, 0.0000, 0.0000, 0.5000, 0.0000, 0.0000])
     """
     fn = "dualquat.sclerp"
-    _pair(fn, a, b)
+    _checks.pair(fn, a, b, 8)
     t = _checks.as_float_tensor(fn, "t", t, a, "a")
     batch = _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1), t=(t, 0))
     dtype = compute_dtype(a.dtype)

@@ -28,13 +28,6 @@ __all__ = ["pose_loss", "rotation_angle", "translation_error"]
 _REDUCTIONS = ("mean", "sum", "none")
 
 
-def _pair(fn: str, a, b) -> None:
-    _checks.tensor(fn, "a", a, 8)
-    _checks.tensor(fn, "b", b, 8)
-    _checks.same_dtype_device(fn, a=a, b=b)
-    _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1))
-
-
 def _unit_real(x: Tensor) -> Tensor:
     r = x[..., :4]
     return r / torch.linalg.vector_norm(r, dim=-1, keepdim=True)
@@ -83,7 +76,7 @@ def rotation_angle(a: Tensor, b: Tensor) -> Tensor:
         >>> rotation_angle(dq.identity(), dq.from_rt(q, torch.zeros(3)))
         tensor(3.1416)
     """
-    _pair("losses.rotation_angle", a, b)
+    _checks.pair("losses.rotation_angle", a, b, 8)
     dtype = compute_dtype(a.dtype)
     return _rotation_angle(a.to(dtype), b.to(dtype)).to(a.dtype)
 
@@ -113,7 +106,7 @@ def translation_error(a: Tensor, b: Tensor) -> Tensor:
         ...                   dq.from_rt(q, torch.tensor([0., 4, 0])))
         tensor(5.)
     """
-    _pair("losses.translation_error", a, b)
+    _checks.pair("losses.translation_error", a, b, 8)
     dtype = compute_dtype(a.dtype)
     return safe_norm(_translation(a.to(dtype)) - _translation(b.to(dtype))).to(a.dtype)
 
@@ -157,7 +150,7 @@ def pose_loss(a: Tensor, b: Tensor, rot_weight: float = 1.0, trans_weight: float
         tensor(4.)
     """
     fn = "losses.pose_loss"
-    _pair(fn, a, b)
+    _checks.pair(fn, a, b, 8)
     wr = _weight(fn, "rot_weight", rot_weight)
     wt = _weight(fn, "trans_weight", trans_weight)
     if reduction not in _REDUCTIONS:

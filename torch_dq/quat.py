@@ -76,13 +76,6 @@ def _rotate(q: Tensor, v: Tensor) -> Tensor:
     return v + w * t + torch.linalg.cross(u.expand_as(t), t, dim=-1)
 
 
-def _pair(fn: str, a: Tensor, b: Tensor, names: tuple[str, str] = ("a", "b")) -> None:
-    _checks.tensor(fn, names[0], a, 4)
-    _checks.tensor(fn, names[1], b, 4)
-    _checks.same_dtype_device(fn, **{names[0]: a, names[1]: b})
-    _checks.broadcast_batch(fn, **{names[0]: (a, 1), names[1]: (b, 1)})
-
-
 def _lift(x: Tensor) -> Tensor:
     """``x`` in its compute dtype (float16/bfloat16 compute in float32)."""
     return x.to(_numerics.compute_dtype(x.dtype))
@@ -196,7 +189,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         >>> mul(torch.tensor([0., 1., 0., 0.]), torch.tensor([0., 0., 1., 0.]))  # i j = k
         tensor([0., 0., 0., 1.])
     """
-    _pair("quat.mul", a, b)
+    _checks.pair("quat.mul", a, b, 4)
     return _mul(_lift(a), _lift(b)).to(a.dtype)
 
 
@@ -266,7 +259,7 @@ def dot(a: Tensor, b: Tensor) -> Tensor:
     Returns:
         ``(...)`` tensor.
     """
-    _pair("quat.dot", a, b)
+    _checks.pair("quat.dot", a, b, 4)
     return (_lift(a) * _lift(b)).sum(-1).to(a.dtype)
 
 
@@ -324,7 +317,7 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
         tensor(0.7854)
     """
     fn = "quat.slerp"
-    _pair(fn, q0, q1, ("q0", "q1"))
+    _checks.pair(fn, q0, q1, 4, ("q0", "q1"))
     t = _checks.as_float_tensor(fn, "t", t, q0, "q0")
     _checks.broadcast_batch(fn, q0=(q0, 1), q1=(q1, 1), t=(t, 0))
     dtype = q0.dtype
