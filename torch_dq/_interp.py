@@ -36,6 +36,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ._numerics import nan_unless
+
 _TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
 
 
@@ -393,7 +395,8 @@ class _DualAngleVJP(torch.autograd.Function):
     def forward(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
         P, Q, R, S, u, v, _, _, degenerate = _angle_frame(a, b)
         delta = (P * S).sum(-1) + (R * Q).sum(-1)
-        theta = 2.0 * torch.atan2(u, v)
+        # Infinite real parts: NaN, not atan2's finite limit pi / 2.
+        theta = nan_unless(torch.isfinite(u) & torch.isfinite(v), 2.0 * torch.atan2(u, v))
         theta_hat = torch.where(degenerate, 0.0, -2.0 * delta / torch.where(degenerate, 1.0, u * v))
         return theta, theta_hat
 

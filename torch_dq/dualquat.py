@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _interp, quat
-from ._numerics import compute_dtype, nan_unless, safe_denominator, taylor_threshold
+from ._numerics import compute_dtype, nan_unless, safe_denominator, safe_norm, taylor_threshold
 from .dual import Dual
 from .quat import _conj as _qconj
 from .quat import _lift, _rotate
@@ -615,18 +615,14 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     a, b = torch.broadcast_tensors(_lift(a), _lift(b))
     theta, theta_hat = _interp.dual_angle(a, b)
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
-    *_, u, v, _, _, degenerate = _interp._angle_frame(a, b)
-    # Non-finite real parts: NaN, not atan2's finite limit (pi / 2) for the real part.
-    theta = nan_unless(torch.isfinite(u) & torch.isfinite(v), theta)
+    degenerate = _interp._angle_frame(a, b)[-1]
     # eq. 6: |(t1 - t0) . u| with u the common axis, |t1 - t0| for identity rotations.
     dt = _translation(R, S) - _translation(P, Q)
     axis = P[..., 1:]
     axis_norm = torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
     no_axis = axis_norm <= _interp.degenerate_threshold(a.dtype)
     along = (dt * axis / safe_denominator(axis_norm, no_axis)).sum(-1)
-    dt2 = (dt * dt).sum(-1)
-    dist = torch.sqrt(torch.where(dt2 > 0, dt2, 1.0)) * (dt2 > 0)
-    eq6 = torch.where(no_axis[..., 0], dist, along.abs())
+    eq6 = torch.where(no_axis[..., 0], safe_norm(dt), along.abs())
     return Dual(theta.to(dtype), torch.where(degenerate, eq6, theta_hat).to(dtype))
 
 
