@@ -31,10 +31,8 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from . import _checks, _interp
+from . import _checks, _interp, dualquat
 from ._numerics import compute_dtype, safe_denominator
-from .quat import _conj as _qconj
-from .quat import _mul as _qmul
 
 __all__ = [
     "bezier",
@@ -399,15 +397,10 @@ def twists(x: Tensor, dx: Tensor, frame: str = "body") -> Tensor:
     if frame not in ("body", "spatial"):
         _checks.fail(fn, f"frame must be 'body' or 'spatial', got {frame!r}")
     dtype = compute_dtype(x.dtype)
-    r, d = x[..., :4].to(dtype), x[..., 4:].to(dtype)
-    dr, dd = dx[..., :4].to(dtype), dx[..., 4:].to(dtype)
-    if frame == "body":  # conj(x) dx = (r* dr, r* dd + d* dr)
-        rc = _qconj(r)
-        real, dual = _qmul(rc, dr), _qmul(rc, dd) + _qmul(_qconj(d), dr)
-    else:  # dx conj(x) = (dr r*, dr d* + dd r*)
-        rc = _qconj(r)
-        real, dual = _qmul(dr, rc), _qmul(dr, _qconj(d)) + _qmul(dd, rc)
-    return (2.0 * torch.cat((real[..., 1:], dual[..., 1:]), dim=-1)).to(x.dtype)
+    xc, dx = dualquat.conj(x.to(dtype)), dx.to(dtype)
+    # body: conj(x) dx; spatial: dx conj(x); both pure (zero scalar parts) for unit x.
+    prod = dualquat._mul(xc, dx) if frame == "body" else dualquat._mul(dx, xc)
+    return (2.0 * torch.cat((prod[..., 1:4], prod[..., 5:]), dim=-1)).to(x.dtype)
 
 
 def screw_axis(omega: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
