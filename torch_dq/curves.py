@@ -207,9 +207,7 @@ def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.S
     # Sign-align the control polygon (ctrl[i] nearest to ctrl[i - 1]): the motion is the
     # same (sclerp with shortest=True is sign-equivariant), but neighbouring spans then
     # start from representatives of one chain and the output sign does not jump at knots.
-    dots = (ctrl[..., 1:, :4] * ctrl[..., :-1, :4]).sum(-1)
-    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(ctrl.dtype), dim=-1)
-    ctrl = torch.cat((ctrl[..., :1, :], ctrl[..., 1:, :] * flips[..., None]), dim=-2)
+    ctrl = dualquat._align_chain(ctrl)
     # The degree + 1 control points of each time, through one flat index (the backward
     # accumulates into (batch, n, 8), never into (batch, T, n, 8)).
     B = batch.numel()

@@ -508,8 +508,16 @@ def log(x: Tensor) -> Tensor:
     """
     _dq("dualquat.log", "x", x)
     r, d = _split(_lift(x))
-    t = _translation(r, d)
     omega = quat.to_rotvec(r)
+    return torch.cat((omega, _twist_translation(omega, _translation(r, d))), -1).to(x.dtype)
+
+
+def _twist_translation(omega: Tensor, t: Tensor) -> Tensor:
+    r"""Linear part of the twist, :math:`v = V(\omega)^{-1} t`, for angles in ``[0, 2 pi)``.
+
+    :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)` with
+    :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
+    """
     theta = torch.linalg.vector_norm(omega, dim=-1)
     small = theta < taylor_threshold(theta.dtype, 6)
     th = safe_denominator(theta, small)
@@ -517,8 +525,15 @@ def log(x: Tensor) -> Tensor:
     c3 = torch.where(small, (1.0 + t2 / 60.0 * (1.0 + t2 / 42.0)) / 12.0,
                      (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
     wxt = torch.linalg.cross(omega, t, dim=-1)
-    v = t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
-    return torch.cat((omega, v), dim=-1).to(x.dtype)
+    return t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
+
+
+def _align_chain(x: Tensor) -> Tensor:
+    """Sign-align a sequence ``(..., N, 8)`` so that each element's real part has a
+    non-negative dot with its predecessor's (same poses, continuous representatives)."""
+    dots = (x[..., 1:, :4] * x[..., :-1, :4]).sum(-1)
+    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(x.dtype), dim=-1)
+    return torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
 
 
 # ----------------------------------------------------------------------------- actions

@@ -126,9 +126,7 @@ def _lifted_twists(x: Tensor, ref: int) -> tuple[Tensor, Tensor]:
 
     Returns ``(x_ref (..., 1, 8), xi (..., N, 6))`` in float64.
     """
-    dots = (x[..., 1:, :4] * x[..., :-1, :4]).sum(-1)
-    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(x.dtype), dim=-1)
-    x = torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
+    x = dualquat._align_chain(x)
     x_ref = x[..., ref:ref + 1, :]
     y = dualquat.mul(dualquat.conj(x_ref), x)
     r, t = dualquat.to_rt(y)
@@ -138,14 +136,7 @@ def _lifted_twists(x: Tensor, ref: int) -> tuple[Tensor, Tensor]:
     axis = v / torch.where(s > 0, s, 1.0)[..., None]
     theta = torch.where(theta > 2.0 * math.pi - 1e-6, theta - 2.0 * math.pi, theta)
     omega = theta[..., None] * axis
-    th = theta.abs()
-    small = th < 1e-4
-    ths = torch.where(small, 1.0, th)
-    # v = V(omega)^-1 t with c3 = (1 - (th / 2) cot(th / 2)) / th^2, valid on (0, 2 pi).
-    c3 = torch.where(small, 1.0 / 12.0 + th * th / 720.0,
-                     (1.0 - 0.5 * ths / torch.tan(0.5 * ths)) / (ths * ths))
-    wxt = torch.linalg.cross(omega, t, dim=-1)
-    lin = t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
+    lin = dualquat._twist_translation(omega, t)
     return x_ref, torch.cat((omega, lin), dim=-1)
 
 
