@@ -16,7 +16,7 @@ import torch_dq.losses as losses
 import torch_dq.quat as quat
 from torch_dq.__main__ import main
 from torch_dq.demo import FIGURES, PLOT_HINT
-from torch_dq.knee import KneeModel, sample_poses
+from torch_dq.demo.knee import KneeModel, sample_poses
 
 # Small, fast settings: the errors must still beat these bounds (noise: 1 deg, 1 mm per axis).
 FAST = ["--steps", "20", "--samples", "50", "--quiet"]

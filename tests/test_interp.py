@@ -372,7 +372,7 @@ def test_bad_input(call, kind, match):
 def test_chunked_evaluation_matches_one_chunk(gen, monkeypatch):
     """Values and gradients do not depend on the eager chunking (boundaries at odd sizes)."""
     import torch_dq.curves as curves
-    from torch_dq import _interp
+    from torch_dq._kernels import layout
 
     a, b = unit_dq((50,), gen), unit_dq((50,), gen)
     ctrl = unit_dq((2, 6), gen)
@@ -387,8 +387,8 @@ def test_chunked_evaluation_matches_one_chunk(gen, monkeypatch):
         return [*outs, *torch.autograd.grad(loss, leaves)]
 
     whole = run()
-    monkeypatch.setattr(_interp, "_CHUNK", 7)
-    monkeypatch.setattr(_interp, "_PYRAMID_CHUNK", 11)
+    monkeypatch.setattr(layout, "CHUNK", 7)
+    monkeypatch.setattr(layout, "PYRAMID_CHUNK", 11)
     chunked = run()
     for x, y in zip(whole[:3], chunked[:3], strict=True):  # values: bit-identical
         assert torch.equal(x, y)

@@ -29,8 +29,9 @@ import torch
 from strategies import unit_dq
 
 import torch_dq.dualquat as dq
-from torch_dq import _interp, curves
+from torch_dq import curves
 from torch_dq import nn as dqnn
+from torch_dq._kernels import layout
 
 F64 = torch.float64
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
@@ -282,7 +283,7 @@ def test_bitwise_deterministic(deterministic, gen):
 
 def test_chunking_is_bitwise_invisible(gen):
     """Eager sclerp evaluates large batches in chunks: no bit changes, values or grads."""
-    n = _interp._CHUNK + 1000
+    n = layout.CHUNK + 1000
     a, b = unit_dq((n,), gen), unit_dq((n,), gen)
     t = torch.rand(n, generator=gen, dtype=F64)
     out, grads = _grads(dq.sclerp, (a, b, t))

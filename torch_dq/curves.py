@@ -31,7 +31,9 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from . import _checks, _interp, dualquat
+from . import _checks, dualquat
+from ._core import align_chain, dq_mul
+from ._kernels.pyramid import pyramid
 from ._numerics import compute_dtype, safe_denominator
 
 __all__ = [
@@ -138,14 +140,14 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
 
 def _bezier(ctrl: Tensor, t: Tensor, batch: torch.Size) -> Tensor:
     """Unchecked De Casteljau: every curve's ``m`` control points are level 0 of the fused
-    scheme of :func:`torch_dq._interp.pyramid`, with ``alpha = t`` at every level."""
+    scheme of :func:`torch_dq._kernels.pyramid.pyramid`, with ``alpha = t`` at every level."""
     T, m, B = t.shape[-1], ctrl.shape[-2], batch.numel()
     flat = ctrl.expand(*batch, m, 8).reshape(B * m, 8)
     # idx[i, b T + k] = b m + i: the i-th control point of curve b, for each of its T times
     idx = (torch.arange(B, device=t.device)[:, None] * m + torch.arange(m, device=t.device))
     idx = idx.T[:, :, None].expand(m, B, T).reshape(m, B * T)
     tt = t.expand(*batch, T).reshape(1, B * T)
-    out = _interp.pyramid(flat, idx, [tt.expand(m - j, B * T) for j in range(1, m)])
+    out = pyramid(flat, idx, [tt.expand(m - j, B * T) for j in range(1, m)])
     return out.view(*batch, T, 8)
 
 
@@ -207,7 +209,7 @@ def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.S
     # Sign-align the control polygon (ctrl[i] nearest to ctrl[i - 1]): the motion is the
     # same (sclerp with shortest=True is sign-equivariant), but neighbouring spans then
     # start from representatives of one chain and the output sign does not jump at knots.
-    ctrl = dualquat._align_chain(ctrl)
+    ctrl = align_chain(ctrl)
     # The degree + 1 control points of each time, through one flat index (the backward
     # accumulates into (batch, n, 8), never into (batch, T, n, 8)).
     B = batch.numel()
@@ -228,7 +230,7 @@ def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.S
         alphas.append(alpha.expand(*batch, T, p + 1 - j).reshape(B * T, p + 1 - j).T)
     # The fused scheme gathers the degree + 1 points of each time itself and recomputes
     # the levels in its backward (memory O(output), gradients accumulate into (B n, 8)).
-    out = _interp.pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, alphas)
+    out = pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, alphas)
     return out.view(*batch, T, 8)
 
 
@@ -397,7 +399,7 @@ def twists(x: Tensor, dx: Tensor, frame: str = "body") -> Tensor:
     dtype = compute_dtype(x.dtype)
     xc, dx = dualquat.conj(x.to(dtype)), dx.to(dtype)
     # body: conj(x) dx; spatial: dx conj(x); both pure (zero scalar parts) for unit x.
-    prod = dualquat._mul(xc, dx) if frame == "body" else dualquat._mul(dx, xc)
+    prod = dq_mul(xc, dx) if frame == "body" else dq_mul(dx, xc)
     return (2.0 * torch.cat((prod[..., 1:4], prod[..., 5:]), dim=-1)).to(x.dtype)
 
 

@@ -21,12 +21,25 @@ import numbers
 import torch
 from torch import Tensor
 
-from . import _checks, _interp, quat
+from . import _checks, _kernels, quat
+from ._core import (
+    canonical,
+    dq_from_rt,
+    dq_mul,
+    join,
+    lift,
+    qconj,
+    qmul,
+    qrotate,
+    split,
+    translation,
+    twist_translation,
+)
+from ._kernels import dual_angle as _dual_angle_kernel
+from ._kernels import sclerp as _sclerp_kernel
+from ._kernels.weights import screw_weights
 from ._numerics import compute_dtype, nan_unless, safe_denominator, safe_norm, taylor_threshold
 from .dual import Dual
-from .quat import _conj as _qconj
-from .quat import _lift, _rotate
-from .quat import _mul as _qmul
 
 __all__ = [
     "angle",
@@ -63,42 +76,14 @@ def _dq(fn: str, name: str, x: Tensor) -> Tensor:
     return _checks.tensor(fn, name, x, 8)
 
 
-def _split(x: Tensor) -> tuple[Tensor, Tensor]:
-    """Real and dual quaternion halves as views."""
-    return x[..., :4], x[..., 4:]
-
-
-def _join(r: Tensor, d: Tensor) -> Tensor:
-    r, d = torch.broadcast_tensors(r, d)
-    return torch.cat((r, d), dim=-1)
-
-
-def _mul(a: Tensor, b: Tensor) -> Tensor:
-    """Unchecked product :math:`(r_a r_b, r_a d_b + d_a r_b)`."""
-    ra, da = _split(a)
-    rb, db = _split(b)
-    return _join(_qmul(ra, rb), _qmul(ra, db) + _qmul(da, rb))
-
-
 def _normalize(x: Tensor) -> Tensor:
     """Unchecked projection onto unit dual quaternions (see :func:`normalize`)."""
-    r, d = _split(x)
+    r, d = split(x)
     n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
     n = nan_unless((n > 0) & torch.isfinite(n), n)
     r = r / n
     d = d / n
-    return _join(r, d - r * (r * d).sum(-1, keepdim=True))
-
-
-def _translation(r: Tensor, d: Tensor) -> Tensor:
-    """Translation ``t = 2 vec(d r*)`` of a unit dual quaternion."""
-    return 2.0 * _qmul(d, _qconj(r))[..., 1:]
-
-
-def _from_rt(r: Tensor, t: Tensor) -> Tensor:
-    """Unchecked ``(r, 0.5 (0, t) r)``."""
-    t0 = torch.cat((torch.zeros_like(t[..., :1]), t), dim=-1)
-    return _join(r, 0.5 * _qmul(t0, r))
+    return join(r, d - r * (r * d).sum(-1, keepdim=True))
 
 
 # ----------------------------------------------------------------------------- algebra
@@ -127,7 +112,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         (``to_matrix(mul(a, b)) == to_matrix(a) @ to_matrix(b)``).
     """
     _checks.pair("dualquat.mul", a, b, 8)
-    return _mul(_lift(a), _lift(b)).to(a.dtype)
+    return dq_mul(lift(a), lift(b)).to(a.dtype)
 
 
 def conj(x: Tensor) -> Tensor:
@@ -172,10 +157,10 @@ def inv(x: Tensor) -> Tensor:
     """
     _dq("dualquat.inv", "x", x)
     dtype = x.dtype
-    r, d = _split(_lift(x))
+    r, d = split(lift(x))
     n2 = (r * r).sum(-1, keepdim=True)
-    r_inv = _qconj(r) / nan_unless(torch.isfinite(n2), n2)
-    return _join(r_inv, -_qmul(_qmul(r_inv, d), r_inv)).to(dtype)
+    r_inv = qconj(r) / nan_unless(torch.isfinite(n2), n2)
+    return join(r_inv, -qmul(qmul(r_inv, d), r_inv)).to(dtype)
 
 
 def norm(x: Tensor) -> Dual:
@@ -188,7 +173,7 @@ def norm(x: Tensor) -> Dual:
         ``Dual`` of batch shape ``(...)``; ``1 + eps 0`` for a unit dual quaternion.
     """
     _dq("dualquat.norm", "x", x)
-    r, d = _split(_lift(x))
+    r, d = split(lift(x))
     n = torch.linalg.vector_norm(r, dim=-1)
     return Dual(n.to(x.dtype), ((r * d).sum(-1) / n).to(x.dtype))
 
@@ -208,8 +193,8 @@ def dot(a: Tensor, b: Tensor) -> Dual:
         ``Dual`` of the broadcast batch shape.
     """
     _checks.pair("dualquat.dot", a, b, 8)
-    ra, da = _split(_lift(a))
-    rb, db = _split(_lift(b))
+    ra, da = split(lift(a))
+    rb, db = split(lift(b))
     return Dual((ra * rb).sum(-1).to(a.dtype), (ra * db + rb * da).sum(-1).to(a.dtype))
 
 
@@ -231,7 +216,7 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _dq("dualquat.normalize", "x", x)
-    dtype, x = x.dtype, _lift(x)
+    dtype, x = x.dtype, lift(x)
     if check:
         n = torch.linalg.vector_norm(x[..., :4], dim=-1)
         if not bool(torch.all(torch.isfinite(n) & (n > 0))):
@@ -264,8 +249,8 @@ def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
     if atol is None:
         atol = {torch.float64: 1e-10, torch.float32: 1e-5}.get(
             x.dtype, 10.0 * torch.finfo(x.dtype).eps)
-    x = _lift(x)
-    r, d = _split(x)
+    x = lift(x)
+    r, d = split(x)
     finite = torch.isfinite(x).all(-1)
     scale = torch.linalg.vector_norm(d, dim=-1).clamp(min=1.0)
     unit_real = (torch.linalg.vector_norm(r, dim=-1) - 1.0).abs() <= atol
@@ -293,7 +278,7 @@ def from_rt(q: Tensor, t: Tensor) -> Tensor:
     _checks.tensor(fn, "t", t, 3)
     _checks.same_dtype_device(fn, q=q, t=t)
     _checks.broadcast_batch(fn, q=(q, 1), t=(t, 1))
-    return _from_rt(_lift(q), _lift(t)).to(q.dtype)
+    return dq_from_rt(lift(q), lift(t)).to(q.dtype)
 
 
 def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
@@ -307,8 +292,8 @@ def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
         ``(..., 3)`` translation :math:`t = 2\,\mathrm{vec}(d r^*)`.
     """
     _dq("dualquat.to_rt", "x", x)
-    r, d = _split(_lift(x))
-    return x[..., :4].clone(), _translation(r, d).to(x.dtype)
+    r, d = split(lift(x))
+    return x[..., :4].clone(), translation(r, d).to(x.dtype)
 
 
 def from_matrix(T: Tensor) -> Tensor:
@@ -325,8 +310,8 @@ def from_matrix(T: Tensor) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _checks.tensor("dualquat.from_matrix", "T", T, (4, 4))
-    Tl = _lift(T)
-    return _from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
+    Tl = lift(T)
+    return dq_from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
 
 
 def to_matrix(x: Tensor) -> Tensor:
@@ -336,8 +321,8 @@ def to_matrix(x: Tensor) -> Tensor:
         x: unit dual quaternions, not checked (``x`` and ``-x`` give the same matrix).
     """
     _dq("dualquat.to_matrix", "x", x)
-    r, d = _split(_lift(x))
-    top = torch.cat((quat.to_matrix(r), _translation(r, d)[..., None]), dim=-1)
+    r, d = split(lift(x))
+    top = torch.cat((quat.to_matrix(r), translation(r, d)[..., None]), dim=-1)
     bottom = torch.zeros_like(top[..., :1, :])
     bottom[..., 3] = 1.0
     return torch.cat((top, bottom), dim=-2).to(x.dtype)
@@ -351,8 +336,8 @@ def from_pose7(p: Tensor) -> Tensor:
             (not checked).
     """
     _checks.tensor("dualquat.from_pose7", "p", p, 7)
-    pl = _lift(p)
-    return _from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]).to(p.dtype)
+    pl = lift(p)
+    return dq_from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]).to(p.dtype)
 
 
 def to_pose7(x: Tensor) -> Tensor:
@@ -363,8 +348,8 @@ def to_pose7(x: Tensor) -> Tensor:
             the real part.
     """
     _dq("dualquat.to_pose7", "x", x)
-    r, d = _split(_lift(x))
-    return torch.cat((_translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
+    r, d = split(lift(x))
+    return torch.cat((translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
 
 
 def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
@@ -395,13 +380,13 @@ def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
     batch = _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0),
                                     d=(d, 0))
     dtype = axis.dtype
-    axis, moment = _lift(axis), _lift(moment)
-    theta, d = _lift(theta).expand(batch), _lift(d).expand(batch)
+    axis, moment = lift(axis), lift(moment)
+    theta, d = lift(theta).expand(batch), lift(d).expand(batch)
     s, c = torch.sin(0.5 * theta)[..., None], torch.cos(0.5 * theta)[..., None]
     h = 0.5 * d[..., None]
     real = torch.cat((c, s * axis), dim=-1)
     dual = torch.cat((-h * s, s * moment + h * c * axis), dim=-1)
-    return _join(real, dual).to(dtype)
+    return join(real, dual).to(dtype)
 
 
 def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -423,11 +408,11 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         ``axis (..., 3)``, ``moment (..., 3)``, ``theta (...)``, ``d (...)``.
     """
     _dq("dualquat.to_screw", "x", x)
-    dtype, x = x.dtype, _lift(x)
-    r, dq_ = _split(x)
-    t = _translation(r, dq_)
+    dtype, x = x.dtype, lift(x)
+    r, dq_ = split(x)
+    t = translation(r, dq_)
     # scipy's canonical sign (w > 0, ties at w = 0 broken by x, y, z): x and -x agree at 180 deg
-    rc = quat._canonical(r)
+    rc = canonical(r)
     w, v = rc[..., :1], rc[..., 1:]
     sin_half = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
     theta = 2.0 * torch.atan2(sin_half, w)
@@ -482,13 +467,13 @@ def exp(xi: Tensor) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _checks.tensor("dualquat.exp", "xi", xi, 6)
-    xl = _lift(xi)
+    xl = lift(xi)
     omega, v = xl[..., :3], xl[..., 3:]
     theta = torch.linalg.vector_norm(omega, dim=-1)
     c1, c2 = _se3_coefficients(theta)
     wxv = torch.linalg.cross(omega, v, dim=-1)
     t = v + c1[..., None] * wxv + c2[..., None] * torch.linalg.cross(omega, wxv, dim=-1)
-    return _from_rt(quat.from_rotvec(omega), t).to(xi.dtype)
+    return dq_from_rt(quat.from_rotvec(omega), t).to(xi.dtype)
 
 
 def log(x: Tensor) -> Tensor:
@@ -507,33 +492,9 @@ def log(x: Tensor) -> Tensor:
         ``(..., 6)`` twists.
     """
     _dq("dualquat.log", "x", x)
-    r, d = _split(_lift(x))
+    r, d = split(lift(x))
     omega = quat.to_rotvec(r)
-    return torch.cat((omega, _twist_translation(omega, _translation(r, d))), -1).to(x.dtype)
-
-
-def _twist_translation(omega: Tensor, t: Tensor) -> Tensor:
-    r"""Linear part of the twist, :math:`v = V(\omega)^{-1} t`, for angles in ``[0, 2 pi)``.
-
-    :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)` with
-    :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
-    """
-    theta = torch.linalg.vector_norm(omega, dim=-1)
-    small = theta < taylor_threshold(theta.dtype, 6)
-    th = safe_denominator(theta, small)
-    t2 = theta * theta
-    c3 = torch.where(small, (1.0 + t2 / 60.0 * (1.0 + t2 / 42.0)) / 12.0,
-                     (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
-    wxt = torch.linalg.cross(omega, t, dim=-1)
-    return t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
-
-
-def _align_chain(x: Tensor) -> Tensor:
-    """Sign-align a sequence ``(..., N, 8)`` so that each element's real part has a
-    non-negative dot with its predecessor's (same poses, continuous representatives)."""
-    dots = (x[..., 1:, :4] * x[..., :-1, :4]).sum(-1)
-    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(x.dtype), dim=-1)
-    return torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
+    return torch.cat((omega, twist_translation(omega, translation(r, d))), -1).to(x.dtype)
 
 
 # ----------------------------------------------------------------------------- actions
@@ -558,8 +519,8 @@ def apply(x: Tensor, points: Tensor) -> Tensor:
     _checks.tensor(fn, "points", points, 3)
     _checks.same_dtype_device(fn, x=x, points=points)
     _checks.broadcast_batch(fn, x=(x, 1), points=(points, 1))
-    r, d = _split(_lift(x))
-    return (_rotate(r, _lift(points)) + _translation(r, d)).to(x.dtype)
+    r, d = split(lift(x))
+    return (qrotate(r, lift(points)) + translation(r, d)).to(x.dtype)
 
 
 def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Tensor]:
@@ -581,10 +542,10 @@ def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Te
     _checks.tensor(fn, "moment", moment, 3)
     _checks.same_dtype_device(fn, x=x, direction=direction, moment=moment)
     batch = _checks.broadcast_batch(fn, x=(x, 1), direction=(direction, 1), moment=(moment, 1))
-    r, d = _split(_lift(x))
-    l2 = _rotate(r, _lift(direction))
-    m2 = (_rotate(r, _lift(moment))
-          + torch.linalg.cross(_translation(r, d), l2.expand(*batch, 3), dim=-1))
+    r, d = split(lift(x))
+    l2 = qrotate(r, lift(direction))
+    m2 = (qrotate(r, lift(moment))
+          + torch.linalg.cross(translation(r, d), l2.expand(*batch, 3), dim=-1))
     return l2.expand(*batch, 3).to(x.dtype), m2.to(x.dtype)
 
 
@@ -627,15 +588,15 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     fn = "dualquat.angle"
     _checks.pair(fn, a, b, 8)
     dtype = a.dtype
-    a, b = torch.broadcast_tensors(_lift(a), _lift(b))
-    theta, theta_hat = _interp.dual_angle(a, b)
+    a, b = torch.broadcast_tensors(lift(a), lift(b))
+    theta, theta_hat = _dual_angle_kernel.dual_angle(a, b)
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
-    degenerate = _interp._angle_frame(a, b)[-1]
+    degenerate = _dual_angle_kernel.degenerate(a, b)
     # eq. 6: |(t1 - t0) . u| with u the common axis, |t1 - t0| for identity rotations.
-    dt = _translation(R, S) - _translation(P, Q)
+    dt = translation(R, S) - translation(P, Q)
     axis = P[..., 1:]
     axis_norm = torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
-    no_axis = axis_norm <= _interp.degenerate_threshold(a.dtype)
+    no_axis = axis_norm <= _dual_angle_kernel.degenerate_threshold(a.dtype)
     along = (dt * axis / safe_denominator(axis_norm, no_axis)).sum(-1)
     eq6 = torch.where(no_axis[..., 0], safe_norm(dt), along.abs())
     return Dual(theta.to(dtype), torch.where(degenerate, eq6, theta_hat).to(dtype))
@@ -649,7 +610,7 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
              + \frac{\sin(t\bar\theta)}{\sin\bar\theta}\, b
 
     with :math:`\bar\theta` the dual angle (:func:`angle`). The dual weights are evaluated
-    without forming :math:`\hat\theta = -\delta / \sin\theta` (see ``torch_dq._interp``),
+    without forming :math:`\hat\theta = -\delta / \sin\theta` (see :func:`_eq11`),
     so the result is exact to rounding at every degenerate point (equal rotations, pure
     translations, tiny relative rotations with large translations), where it reduces to the
     paper's linear branch :math:`(1 - t) a + t b`. ``t`` may be any real number
@@ -687,10 +648,39 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     _checks.pair(fn, a, b, 8)
     t = _checks.as_float_tensor(fn, "t", t, a, "a")
     batch = _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1), t=(t, 0))
-    dtype = compute_dtype(a.dtype)
-    out = _interp.sclerp(a.to(dtype).expand(*batch, 8), b.to(dtype).expand(*batch, 8),
-                               t.to(dtype).expand(batch), bool(shortest))
-    return out.to(a.dtype)
+    dtype = a.dtype
+    a, b, t = (x.to(compute_dtype(dtype)) for x in (a, b, t))
+    a, b, t = a.expand(*batch, 8), b.expand(*batch, 8), t.expand(batch)
+    if _kernels.fused_path(a, b, t):
+        return _sclerp_kernel.sclerp(a, b, t, bool(shortest)).to(dtype)
+    return _eq11(a, b, t, bool(shortest)).to(dtype)
+
+
+def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
+    r"""Eq. 11 on broadcast ``a, b (..., 8)`` and ``t (...)``, in plain torch ops.
+
+    With :math:`a = P + \epsilon Q`, :math:`b = R + \epsilon S` and the dual scalar product
+    :math:`\cos\bar\theta = c + \epsilon\delta` (eqs. 1, 7), each dual weight of eq. 11 is
+    :math:`F(s, \bar\theta) = F + \epsilon\hat\theta\,\partial_\theta F = F - \epsilon\delta G`
+    with :math:`F = \sin(s\theta)/\sin\theta`, :math:`G = \partial_\theta F/\sin\theta` and
+    :math:`\hat\theta = -\delta/\sin\theta` (eq. 5), so that
+
+    .. math::
+        q(t) = F_0 a + F_1 b - \epsilon\,\delta\,(G_0 P + G_1 R),\qquad s_0 = 1 - t,\ s_1 = t.
+
+    ``F`` and ``G`` are one power series in :math:`1 - \cos\theta` near 0 (no 0/0 at equal
+    rotations) and closed forms elsewhere: smooth to every order, so this runs under every
+    ``torch.func`` transform (the fused kernel is the same formula, faster).
+    """
+    P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
+    c = (P * R).sum(-1)
+    sigma = torch.where(c < 0, -1.0, 1.0).to(c.dtype) if shortest else torch.ones_like(c)
+    R, S = sigma[..., None] * R, sigma[..., None] * S  # b's representative nearest to a
+    c, delta = sigma * c, (P * S).sum(-1) + (R * Q).sum(-1)  # eq. 1: c + eps delta
+    (F0, F1), (G0, G1) = (w[..., None] for w in screw_weights(c, t, derivatives=False))
+    real = F0 * P + F1 * R
+    dual = F0 * Q + F1 * S - delta[..., None] * (G0 * P + G1 * R)
+    return torch.cat((real, dual), -1)
 
 
 def dlb(weights: Tensor, xs: Tensor) -> Tensor:
@@ -723,6 +713,6 @@ def dlb(weights: Tensor, xs: Tensor) -> Tensor:
         _checks.fail(fn, f"expected at least one pose to blend (K >= 1), got xs "
                          f"{_checks.shape_str(xs.shape)}")
     _checks.broadcast_batch(fn, weights=(weights, 1), xs=(xs, 2))
-    dtype, xs, weights = xs.dtype, _lift(xs), _lift(weights)
+    dtype, xs, weights = xs.dtype, lift(xs), lift(weights)
     sign = torch.where((xs[..., :4] * xs[..., :1, :4]).sum(-1) < 0, -1.0, 1.0).to(xs.dtype)
     return _normalize(((weights * sign)[..., None] * xs).sum(-2)).to(dtype)

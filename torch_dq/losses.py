@@ -20,7 +20,8 @@ import numbers
 import torch
 from torch import Tensor
 
-from . import _checks, dualquat
+from . import _checks
+from ._core import translation
 from ._numerics import compute_dtype, safe_norm
 
 __all__ = ["pose_loss", "rotation_angle", "translation_error"]
@@ -36,7 +37,7 @@ def _unit_real(x: Tensor) -> Tensor:
 def _translation(x: Tensor) -> Tensor:
     """``2 vec(d r*) / |r|^2``: the translation kept by ``dualquat.normalize``."""
     r, d = x[..., :4], x[..., 4:]
-    return dualquat._translation(r, d) / (r * r).sum(-1, keepdim=True)
+    return translation(r, d) / (r * r).sum(-1, keepdim=True)
 
 
 def _rotation_angle(a: Tensor, b: Tensor) -> Tensor:

@@ -51,6 +51,7 @@ from torch import Tensor
 from torch.nn.utils import parametrize
 
 from . import _checks, curves, dualquat, quat
+from ._core import align_chain, twist_translation
 from .losses import pose_loss
 
 __all__ = ["BSpline", "Bezier", "FitHistory", "UnitDualQuaternion", "fit"]
@@ -126,7 +127,7 @@ def _lifted_twists(x: Tensor, ref: int) -> tuple[Tensor, Tensor]:
 
     Returns ``(x_ref (..., 1, 8), xi (..., N, 6))`` in float64.
     """
-    x = dualquat._align_chain(x)
+    x = align_chain(x)
     x_ref = x[..., ref:ref + 1, :]
     y = dualquat.mul(dualquat.conj(x_ref), x)
     r, t = dualquat.to_rt(y)
@@ -136,7 +137,7 @@ def _lifted_twists(x: Tensor, ref: int) -> tuple[Tensor, Tensor]:
     axis = v / torch.where(s > 0, s, 1.0)[..., None]
     theta = torch.where(theta > 2.0 * math.pi - 1e-6, theta - 2.0 * math.pi, theta)
     omega = theta[..., None] * axis
-    lin = dualquat._twist_translation(omega, t)
+    lin = twist_translation(omega, t)
     return x_ref, torch.cat((omega, lin), dim=-1)
 
 

@@ -23,6 +23,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _numerics
+from ._core import canonical, lift, qconj, qmul, qrotate
 
 __all__ = [
     "conj",
@@ -49,55 +50,10 @@ __all__ = [
 ]
 
 
-def _mul(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product without argument checks (used by the hot paths)."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ),
-        dim=-1,
-    )
-
-
-def _conj(q: Tensor) -> Tensor:
-    """Conjugate without argument checks."""
-    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
-
-
-def _rotate(q: Tensor, v: Tensor) -> Tensor:
-    r"""Unchecked ``q v q*``: :math:`v + w t + u \times t` with :math:`t = 2 u \times v`."""
-    w, u = q[..., :1], q[..., 1:]
-    t = 2.0 * torch.linalg.cross(u, v.expand(torch.broadcast_shapes(u.shape, v.shape)), dim=-1)
-    return v + w * t + torch.linalg.cross(u.expand_as(t), t, dim=-1)
-
-
-def _lift(x: Tensor) -> Tensor:
-    """``x`` in its compute dtype (float16/bfloat16 compute in float32)."""
-    return x.to(_numerics.compute_dtype(x.dtype))
-
-
 def _safe_hypot(x: Tensor, y: Tensor) -> Tensor:
     """``hypot(x, y)`` (scipy's rounding) whose gradient at ``x = y = 0`` is 0, not NaN."""
     zero = (x == 0) & (y == 0)
     return torch.where(zero, 0.0, torch.hypot(torch.where(zero, 1.0, x), y))
-
-
-def _canonical(q: Tensor) -> Tensor:
-    """``q`` or ``-q``, whichever has its first non-zero component (w, x, y, z) positive.
-
-    This is scipy's canonical form: ``w >= 0``, ties at ``w = 0`` broken by x, then y, z.
-    """
-    flip = torch.zeros_like(q[..., 0], dtype=torch.bool)
-    undecided = torch.ones_like(flip)
-    for c in q.unbind(-1):
-        flip = flip | (undecided & (c < 0))
-        undecided = undecided & (c == 0)
-    return torch.where(flip[..., None], -q, q)
 
 
 def _exp(q: Tensor) -> Tensor:
@@ -190,7 +146,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         tensor([0., 0., 0., 1.])
     """
     _checks.pair("quat.mul", a, b, 4)
-    return _mul(_lift(a), _lift(b)).to(a.dtype)
+    return qmul(lift(a), lift(b)).to(a.dtype)
 
 
 def conj(q: Tensor) -> Tensor:
@@ -200,7 +156,7 @@ def conj(q: Tensor) -> Tensor:
         q: ``(..., 4)`` quaternions (any norm).
     """
     _checks.tensor("quat.conj", "q", q, 4)
-    return _conj(q)
+    return qconj(q)
 
 
 def norm(q: Tensor) -> Tensor:
@@ -213,7 +169,7 @@ def norm(q: Tensor) -> Tensor:
         ``(...)`` tensor.
     """
     _checks.tensor("quat.norm", "q", q, 4)
-    return torch.linalg.vector_norm(_lift(q), dim=-1).to(q.dtype)
+    return torch.linalg.vector_norm(lift(q), dim=-1).to(q.dtype)
 
 
 def inv(q: Tensor) -> Tensor:
@@ -224,9 +180,9 @@ def inv(q: Tensor) -> Tensor:
             values, a non-finite one NaN (in its own row only).
     """
     _checks.tensor("quat.inv", "q", q, 4)
-    ql = _lift(q)
+    ql = lift(q)
     n2 = (ql * ql).sum(-1, keepdim=True)
-    return (_conj(ql) / _numerics.nan_unless(torch.isfinite(n2), n2)).to(q.dtype)
+    return (qconj(ql) / _numerics.nan_unless(torch.isfinite(n2), n2)).to(q.dtype)
 
 
 def normalize(q: Tensor, check: bool = False) -> Tensor:
@@ -242,7 +198,7 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
         ``(..., 4)`` unit quaternions.
     """
     _checks.tensor("quat.normalize", "q", q, 4)
-    dtype, q = q.dtype, _lift(q)
+    dtype, q = q.dtype, lift(q)
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     if check and not bool(torch.all(torch.isfinite(n) & (n > 0))):
         _checks.fail("quat.normalize", "q contains zero or non-finite quaternions")
@@ -260,7 +216,7 @@ def dot(a: Tensor, b: Tensor) -> Tensor:
         ``(...)`` tensor.
     """
     _checks.pair("quat.dot", a, b, 4)
-    return (_lift(a) * _lift(b)).sum(-1).to(a.dtype)
+    return (lift(a) * lift(b)).sum(-1).to(a.dtype)
 
 
 def rotate(q: Tensor, v: Tensor) -> Tensor:
@@ -283,7 +239,7 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     _checks.tensor("quat.rotate", "v", v, 3)
     _checks.same_dtype_device("quat.rotate", q=q, v=v)
     _checks.broadcast_batch("quat.rotate", q=(q, 1), v=(v, 1))
-    return _rotate(_lift(q), _lift(v)).to(q.dtype)
+    return qrotate(lift(q), lift(v)).to(q.dtype)
 
 
 def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
@@ -321,7 +277,7 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
     t = _checks.as_float_tensor(fn, "t", t, q0, "q0")
     _checks.broadcast_batch(fn, q0=(q0, 1), q1=(q1, 1), t=(t, 0))
     dtype = q0.dtype
-    q0, q1, t = _lift(q0), _lift(q1), _lift(t)[..., None]
+    q0, q1, t = lift(q0), lift(q1), lift(t)[..., None]
     d = (q0 * q1).sum(-1, keepdim=True)
     if shortest:
         flip = d < 0
@@ -336,7 +292,7 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
     r_norm = _numerics.safe_norm(r)[..., None]
     near = d >= 0
     antipodal = ~near & (r_norm <= torch.finfo(r.dtype).eps)
-    r = torch.where(antipodal, _mul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
+    r = torch.where(antipodal, qmul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
     # sin(t omega) / sin(omega): through sinc for omega <= pi/2 (0 / 0 at omega = 0), through
     # |r| beyond, where sin of the rounded omega loses the relative accuracy |r| keeps.
     omega_near = torch.where(near, omega, torch.zeros_like(omega))
@@ -365,7 +321,7 @@ def exp(q: Tensor) -> Tensor:
         tensor([0.7071, 0.7071, 0.0000, 0.0000])
     """
     _checks.tensor("quat.exp", "q", q, 4)
-    return _exp(_lift(q)).to(q.dtype)
+    return _exp(lift(q)).to(q.dtype)
 
 
 def log(q: Tensor) -> Tensor:
@@ -388,7 +344,7 @@ def log(q: Tensor) -> Tensor:
         tensor([0.0000, 0.0000, 1.5708, 0.0000])
     """
     _checks.tensor("quat.log", "q", q, 4)
-    return _log(_lift(q)).to(q.dtype)
+    return _log(lift(q)).to(q.dtype)
 
 
 def from_matrix(R: Tensor) -> Tensor:
@@ -412,7 +368,7 @@ def from_matrix(R: Tensor) -> Tensor:
     """
     _checks.tensor("quat.from_matrix", "R", R, (3, 3))
     dtype = R.dtype
-    r = _lift(R)
+    r = lift(R)
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (row.unbind(-1) for row in r.unbind(-2))
     tr = r00 + r11 + r22
     k = torch.stack((
@@ -424,7 +380,7 @@ def from_matrix(R: Tensor) -> Tensor:
     pick = k.diagonal(dim1=-2, dim2=-1).argmax(-1)
     row = torch.gather(k, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
     n = torch.linalg.vector_norm(row, dim=-1, keepdim=True)
-    return _canonical(row / _numerics.nan_unless(torch.isfinite(n), n)).to(dtype)
+    return canonical(row / _numerics.nan_unless(torch.isfinite(n), n)).to(dtype)
 
 
 def to_matrix(q: Tensor) -> Tensor:
@@ -447,7 +403,7 @@ def to_matrix(q: Tensor) -> Tensor:
                 [ 0.,  0.,  1.]])
     """
     _checks.tensor("quat.to_matrix", "q", q, 4)
-    ql = _lift(q)
+    ql = lift(q)
     w, x, y, z = ql.unbind(-1)
     n2 = (ql * ql).sum(-1)
     s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
@@ -481,7 +437,7 @@ def from_axis_angle(axis: Tensor, angle) -> Tensor:
     angle = _checks.as_float_tensor(fn, "angle", angle, axis, "axis")
     shape = _checks.broadcast_batch(fn, axis=(axis, 1), angle=(angle, 0))
     dtype = axis.dtype
-    axis, half = _lift(axis).expand(*shape, 3), _lift(angle).expand(shape)[..., None] / 2.0
+    axis, half = lift(axis).expand(*shape, 3), lift(angle).expand(shape)[..., None] / 2.0
     n = _numerics.safe_norm(axis)[..., None]
     zero = n == 0
     n = _numerics.nan_unless(torch.isfinite(n), torch.where(zero, 1.0, n))
@@ -505,7 +461,7 @@ def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
         (tensor([0., 0., 1.]), tensor(3.1416))
     """
     _checks.tensor("quat.to_axis_angle", "q", q, 4)
-    qc = _canonical(_lift(q))
+    qc = canonical(lift(q))
     w, v = qc[..., 0], qc[..., 1:]
     s = _numerics.safe_norm(v)
     zero = (s == 0)[..., None]
@@ -531,7 +487,7 @@ def from_rotvec(rotvec: Tensor) -> Tensor:
         tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
     _checks.tensor("quat.from_rotvec", "rotvec", rotvec, 3)
-    rv = _lift(rotvec)
+    rv = lift(rotvec)
     return _exp(torch.cat((torch.zeros_like(rv[..., :1]), rv / 2.0), dim=-1)).to(rotvec.dtype)
 
 
@@ -550,7 +506,7 @@ def to_rotvec(q: Tensor) -> Tensor:
         tensor([0.0000, 3.1416, 0.0000])
     """
     _checks.tensor("quat.to_rotvec", "q", q, 4)
-    return (2.0 * _log(_canonical(_lift(q)))[..., 1:]).to(q.dtype)
+    return (2.0 * _log(canonical(lift(q)))[..., 1:]).to(q.dtype)
 
 
 def from_euler(angles: Tensor, seq: str) -> Tensor:
@@ -578,12 +534,12 @@ def from_euler(angles: Tensor, seq: str) -> Tensor:
     fn = "quat.from_euler"
     _checks.tensor(fn, "angles", angles, 3)
     axes, extrinsic = _parse_seq(fn, seq)
-    half = _lift(angles)[..., None] / 2.0
+    half = lift(angles)[..., None] / 2.0
     basis = torch.eye(3, dtype=half.dtype, device=half.device)
     q = None
     for n, ax in enumerate(axes):
         e = torch.cat((torch.cos(half[..., n, :]), torch.sin(half[..., n, :]) * basis[ax]), -1)
-        q = e if q is None else (_mul(e, q) if extrinsic else _mul(q, e))
+        q = e if q is None else (qmul(e, q) if extrinsic else qmul(q, e))
     return q.to(angles.dtype)
 
 
@@ -618,7 +574,7 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
     if symmetric:
         k = 3 - i - j
     sign = (i - j) * (j - k) * (k - i) // 2  # +1 if (i, j, k) is a cyclic permutation
-    ql = _lift(q)
+    ql = lift(q)
     w, qi, qj, qk = ql[..., 0], ql[..., 1 + i], ql[..., 1 + j], sign * ql[..., 1 + k]
     # Step 1: rotate the problem onto a proper Euler sequence (i, j, i).
     a, b, c, d = (w, qi, qj, qk) if symmetric else (w - qj, qi + qk, qj + w, qk - qi)

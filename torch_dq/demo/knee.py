@@ -67,7 +67,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-from . import _checks, dualquat, quat
+from .. import _checks, dualquat, quat
 
 __all__ = ["KneeModel", "KneeSamples", "sample_poses"]
 

@@ -1,6 +1,6 @@
 r"""The demo behind ``python -m torch_dq demo``: fit dual-quaternion curves to a knee motion.
 
-On the embedded synthetic knee flexion of :mod:`torch_dq.knee` (no download) it
+On the embedded synthetic knee flexion of :mod:`torch_dq.demo.knee` (no download) it
 
 1. samples noisy poses of the tibia relative to the femur (seeded ``torch.Generator``;
    noise in degrees and millimetres);
@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from . import curves, dualquat, losses
-from . import nn as dqnn
+from .. import curves, dualquat, losses
+from .. import nn as dqnn
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["FIGURES", "PLOT_HINT", "run_demo"]

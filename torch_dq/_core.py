@@ -1,0 +1,134 @@
+r"""Unchecked building blocks shared by every module (private).
+
+The bottom of the import ladder (``_numerics``, ``_checks`` and this module, then ``dual ->
+quat -> dualquat -> curves -> nn``): products, conjugates, rotations, translations, sign
+alignment of a chain and the robust half-angle, on plain tensors with no argument checks.
+Public modules call these instead of reaching into each other's private names.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ._numerics import compute_dtype, safe_denominator, taylor_threshold
+
+__all__ = [
+    "align_chain", "canonical", "dq_from_rt", "dq_mul", "half_angle", "join", "lift", "qconj",
+    "qmul", "qrotate", "split", "translation", "twist_translation",
+]
+
+
+def lift(x: Tensor) -> Tensor:
+    """``x`` in its compute dtype (float16/bfloat16 compute in float32)."""
+    return x.to(compute_dtype(x.dtype))
+
+
+# ----------------------------------------------------------------------------- quaternions
+
+def qmul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        dim=-1,
+    )
+
+
+def qconj(q: Tensor) -> Tensor:
+    """Quaternion conjugate ``(w, -x, -y, -z)``."""
+    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
+
+
+def qrotate(q: Tensor, v: Tensor) -> Tensor:
+    r"""``q v q*`` for a unit ``q``: :math:`v + w t + u \times t` with :math:`t = 2 u \times v`.
+
+    ``q (..., 4)`` and ``v (..., 3)`` broadcast across any numbers of batch dims.
+    """
+    shape = (*torch.broadcast_shapes(q.shape[:-1], v.shape[:-1]), 3)
+    w, u, v = q[..., :1], q[..., 1:].expand(shape), v.expand(shape)
+    t = 2.0 * torch.linalg.cross(u, v, dim=-1)
+    return v + w * t + torch.linalg.cross(u, t, dim=-1)
+
+
+def canonical(q: Tensor) -> Tensor:
+    """``q`` or ``-q``, whichever has its first non-zero component (w, x, y, z) positive.
+
+    This is scipy's canonical form: ``w >= 0``, ties at ``w = 0`` broken by x, then y, z.
+    """
+    flip = torch.zeros_like(q[..., 0], dtype=torch.bool)
+    undecided = torch.ones_like(flip)
+    for c in q.unbind(-1):
+        flip = flip | (undecided & (c < 0))
+        undecided = undecided & (c == 0)
+    return torch.where(flip[..., None], -q, q)
+
+
+def half_angle(q: Tensor) -> Tensor:
+    r"""``atan2(|v|, |w|)`` of ``(..., 4)`` quaternions: half the rotation angle in
+    ``[0, pi/2]``, the same for ``q`` and ``-q``, accurate near 0 and pi (unlike ``acos``)."""
+    v2 = (q[..., 1:] * q[..., 1:]).sum(-1)
+    zero = v2 == 0
+    vn = torch.where(zero, 0.0, torch.sqrt(torch.where(zero, 1.0, v2)))
+    return torch.atan2(vn, q[..., 0].abs())
+
+
+# ----------------------------------------------------------------------------- dual quaternions
+
+def split(x: Tensor) -> tuple[Tensor, Tensor]:
+    """Real and dual quaternion halves of ``(..., 8)`` as views."""
+    return x[..., :4], x[..., 4:]
+
+
+def join(r: Tensor, d: Tensor) -> Tensor:
+    """``(..., 8)`` from real and dual halves (broadcast against each other)."""
+    r, d = torch.broadcast_tensors(r, d)
+    return torch.cat((r, d), dim=-1)
+
+
+def dq_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Dual-quaternion product :math:`(r_a r_b, r_a d_b + d_a r_b)`."""
+    ra, da = split(a)
+    rb, db = split(b)
+    return join(qmul(ra, rb), qmul(ra, db) + qmul(da, rb))
+
+
+def translation(r: Tensor, d: Tensor) -> Tensor:
+    """Translation ``t = 2 vec(d r*)`` of a unit dual quaternion ``(r, d)``."""
+    return 2.0 * qmul(d, qconj(r))[..., 1:]
+
+
+def dq_from_rt(r: Tensor, t: Tensor) -> Tensor:
+    """``(r, 0.5 (0, t) r)`` for a unit quaternion ``r`` and a translation ``t``."""
+    t0 = torch.cat((torch.zeros_like(t[..., :1]), t), dim=-1)
+    return join(r, 0.5 * qmul(t0, r))
+
+
+def align_chain(x: Tensor) -> Tensor:
+    """Sign-align a sequence ``(..., N, 8)`` so that each element's real part has a
+    non-negative dot with its predecessor's (same poses, continuous representatives)."""
+    dots = (x[..., 1:, :4] * x[..., :-1, :4]).sum(-1)
+    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(x.dtype), dim=-1)
+    return torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
+
+
+def twist_translation(omega: Tensor, t: Tensor) -> Tensor:
+    r"""Linear part of the twist, :math:`v = V(\omega)^{-1} t`, for angles in ``[0, 2 pi)``.
+
+    :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)` with
+    :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
+    """
+    theta = torch.linalg.vector_norm(omega, dim=-1)
+    small = theta < taylor_threshold(theta.dtype, 6)
+    th = safe_denominator(theta, small)
+    t2 = theta * theta
+    c3 = torch.where(small, (1.0 + t2 / 60.0 * (1.0 + t2 / 42.0)) / 12.0,
+                     (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
+    wxt = torch.linalg.cross(omega, t, dim=-1)
+    return t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)

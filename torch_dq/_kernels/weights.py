@@ -1,0 +1,123 @@
+r"""Dual weights of the screw interpolation, eq. 11, as one power series (private).
+
+Notation (paper section 3): for unit dual quaternions :math:`a = P + \epsilon Q` and
+:math:`b = R + \epsilon S`, the dual scalar product (eq. 1) is
+:math:`c + \epsilon\delta` with :math:`c = P\cdot R = \cos\theta` and
+:math:`\delta = P\cdot S + R\cdot Q = -\hat\theta \sin\theta` (eqs. 4, 5, 7).
+
+Interpolation (eq. 11) uses the dual weight :math:`F(s, \bar\theta)` with
+:math:`F(s, \theta) = \sin(s\theta)/\sin\theta`, :math:`s = 1 - t` for ``a`` and
+:math:`s = t` for ``b``. Its dual part is :math:`\hat\theta\, \partial_\theta F
+= -\delta\, G` with :math:`G = \partial_\theta F / \sin\theta`, so that
+
+.. math::
+    q(t) = F_0 a + F_1 b - \epsilon\, \delta\, (G_0 P + G_1 R)
+
+and no :math:`\hat\theta = -\delta/\sin\theta` (a 0/0 when the rotations agree) is ever
+formed. In the variable :math:`y = 1 - \cos\theta` every weight is one power series,
+
+.. math::
+    F = \sum_k a_k(s)\, y^k, \quad a_0 = s, \quad
+    a_k = a_{k-1}\,\frac{k^2 - s^2}{k (2k + 1)},
+
+and :math:`G = \partial_y F`, :math:`H = \partial_y G` (needed by the gradients, together
+with :math:`F_s = \partial_s F`, :math:`G_s = \partial_s G`). Near :math:`y = 0` the
+truncated series is used, elsewhere the closed forms
+
+.. math::
+    G = \frac{s\cos s\theta - F\cos\theta}{\sin^2\theta},\quad
+    H = \frac{(1 - s^2) F - 3 G \cos\theta}{\sin^2\theta},\quad
+    F_s = \frac{\theta\cos s\theta}{\sin\theta},\quad
+    G_s = \frac{\cos s\theta - s\theta\sin s\theta - F_s\cos\theta}{\sin^2\theta}.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+_TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
+
+
+def _series_threshold(dtype: torch.dtype) -> float:
+    r"""Switch point in :math:`y`: series error :math:`\sqrt y (y/2)^4` (of :math:`\delta G`)
+    against the closed form's :math:`\epsilon / \sqrt y`, balanced at :math:`y^5 = 16\epsilon`."""
+    return float((16.0 * torch.finfo(dtype).eps) ** (1.0 / _TERMS))
+
+
+def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
+    out = coeffs[-1]
+    for a in reversed(coeffs[:-1]):
+        out = torch.addcmul(a, y, out)
+    return out
+
+
+def _nested(u: list[Tensor], j: int) -> Tensor:
+    r""":math:`\partial_y^j F / (j!\,a_j)` as a nested product.
+
+    With :math:`u_k = (k^2 - s^2) y` the recurrence gives
+    :math:`\sum_{k \ge j} \frac{k!}{(k-j)!} a_k y^{k-j} = j!\,a_j \big(1 + \frac{j+1}{1}
+    r_{j+1} y \big(1 + \frac{j+2}{2} r_{j+2} y (\dots)\big)\big)`,
+    :math:`r_k y = u_k / (k (2k + 1))`: one fused multiply-add per term.
+    """
+    out = None
+    for k in range(_TERMS - 1, j, -1):
+        scale = 1.0 / ((k - j) * (2 * k + 1))  # (k / (k - j)) / (k (2k + 1))
+        out = 1.0 + scale * u[k] if out is None else torch.addcmul(u[0], u[k], out, value=scale)
+    return out
+
+
+def screw_weights(c: Tensor, t: Tensor, derivatives: bool) -> tuple[Tensor, ...]:
+    r"""Interpolation weights at :math:`\cos\theta = c` for ``s = (1 - t, t)``.
+
+    Args:
+        c: ``(N,)`` cosines, in ``[-1, 1]`` up to rounding.
+        t: ``(N,)`` interpolation parameters.
+        derivatives: also return :math:`H, F_s, G_s` (for the gradients).
+
+    Returns:
+        ``F, G`` (and ``H, Fs, Gs``), each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1
+        for ``b`` (``s = t``).
+    """
+    s = torch.stack((1.0 - t, t))
+    s2 = s * s
+    y = 1.0 - c
+    # The series is accurate while y max(1, s^2) is small (its terms scale like (s^2 y)^k).
+    small = y * torch.clamp(s2.amax(0), min=1.0) < _series_threshold(c.dtype)
+
+    # Series branch (module docstring): u[k] = (k^2 - s^2) y, u[0] holds ones for addcmul.
+    s2ny = s2 * -y
+    u = [torch.ones_like(s)] + [torch.add(s2ny, y, alpha=k * k) for k in range(1, _TERMS)]
+    a1 = s * (1.0 - s2) / 3.0
+    F = s * _nested(u, 0)
+    G = a1 * _nested(u, 1)
+
+    # Closed forms on safe inputs: the series elements see theta = pi / 2 instead. Using
+    # sin and cos of the same theta makes the endpoints exact (s = 1: F = 1, G = 0). No
+    # clamp: c > 1 only occurs in the series branch, and c < -1 (opposite real parts with
+    # shortest=False, undefined) or an infinite c must give NaN, not a finite theta = pi.
+    theta = torch.acos(torch.where(small, 0.0, c))
+    sin_t, cs = torch.sin(theta), torch.cos(theta)
+    sin2 = sin_t * sin_t
+    st = s * theta
+    sin_st, cos_st = torch.sin(st), torch.cos(st)
+    F_exact = sin_st / sin_t
+    G_exact = (s * cos_st - F_exact * cs) / sin2
+    F = torch.where(small, F, F_exact)
+    G = torch.where(small, G, G_exact)
+    if not derivatives:
+        return F, G
+
+    # d a_k / ds by differentiating the recurrence a_k = a_{k-1} (k^2 - s^2) / (k (2k + 1)).
+    a, da = [s], [torch.ones_like(s)]
+    for k in range(1, _TERMS):
+        d = k * (2 * k + 1)
+        da.append((da[-1] * (k * k - s2) - 2.0 * s * a[-1]) / d)
+        a.append(a[-1] * (k * k - s2) / d)
+    H = torch.where(small, 0.2 * a1 * (4.0 - s2) * _nested(u, 2),
+                    ((1.0 - s2) * F_exact - 3.0 * G_exact * cs) / sin2)
+    Fs_exact = theta * cos_st / sin_t
+    Fs = torch.where(small, _horner(da, y), Fs_exact)
+    Gs = torch.where(small, _horner([k * da[k] for k in range(1, _TERMS)], y),
+                     (cos_st - st * sin_st - Fs_exact * cs) / sin2)
+    return F, G, H, Fs, Gs
