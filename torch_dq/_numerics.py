@@ -13,13 +13,68 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "compute_dtype", "nan_unless", "safe_denominator", "safe_norm", "sinc", "taylor_threshold",
+    "THRESHOLDS", "compute_dtype", "eps", "nan_unless", "safe_denominator", "safe_norm", "sinc",
+    "taylor_threshold", "threshold",
 ]
 
 
 def compute_dtype(dtype: torch.dtype) -> torch.dtype:
     """The dtype used for internal arithmetic: float16/bfloat16 compute in float32."""
     return torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
+
+
+def _unit_atol(eps: float) -> float:
+    # 1e-10 in float64 and 1e-5 in float32 (rounding of products of unit inputs over long
+    # chains stays far below); 10 eps for float16/bfloat16, whose rounding of a unit dual
+    # quaternion alone leaves defects of one eps.
+    return {torch.finfo(torch.float64).eps: 1e-10, torch.finfo(torch.float32).eps: 1e-5}.get(
+        eps, 10.0 * eps)
+
+
+#: The threshold table (jaxlie's ``get_epsilon``): every switch point and tolerance of the
+#: package, as a function of the machine epsilon ``eps`` of the dtype it applies to. Read an
+#: entry with :func:`threshold`; each line says where it is used and why it has that value.
+THRESHOLDS = {
+    # sin(theta) below which two rotations count as equal or opposite and eq. 6 replaces
+    # eq. 5 in the dual angle: eq. 5's error eps |t| / sin(theta) reaches sqrt(eps) |t|.
+    "dual_angle_degenerate": lambda eps: eps ** 0.5,
+    # y = 1 - cos(theta) below which the dual weights of eq. 11 use their power series
+    # (5 terms): series error sqrt(y) (y/2)^4 against the closed form's eps / sqrt(y).
+    "screw_series": lambda eps: (16.0 * eps) ** (1.0 / 5.0),
+    # Relative tolerance of the curves' domain check on t (multiply by the domain's scale
+    # max(|t0|, |t1|)): 4 ulps of rounding in the caller's time arithmetic are accepted.
+    "domain_rtol": lambda eps: 4.0 * eps,
+    # |omega| <= eps |v|: a twist or screw counts as a pure translation (its axis would lie
+    # beyond 1 / eps lengths); also sin(theta / 2) <= eps in dualquat.to_screw and
+    # |t| <= eps for "no translation direction".
+    "pure_translation": lambda eps: eps,
+    # |r| (the residual of q1 orthogonal to q0) below which quat.slerp treats q1 as -q0.
+    "antipodal": lambda eps: eps,
+    # Default atol of dualquat.is_unit.
+    "unit_atol": _unit_atol,
+    # scipy's gimbal-lock threshold of as_euler (a fixed 1e-7 rad, not eps-based: kept
+    # for agreement with scipy in every dtype).
+    "gimbal_lock": lambda eps: 1e-7,
+}
+
+
+def eps(dtype: torch.dtype) -> float:
+    """Machine epsilon of the compute dtype of ``dtype`` (float32's for float16/bfloat16)."""
+    return float(torch.finfo(compute_dtype(dtype)).eps)
+
+
+def threshold(name: str, dtype: torch.dtype) -> float:
+    """Entry ``name`` of :data:`THRESHOLDS` for ``dtype``.
+
+    Pass the dtype the compared quantity is computed in (the compute dtype, float32 for
+    float16 input, unless the tolerance is about the input's own rounding, as in
+    ``dualquat.is_unit``).
+
+    Example:
+        >>> threshold("dual_angle_degenerate", torch.float64)  # sqrt(eps)
+        1.4901161193847656e-08
+    """
+    return float(THRESHOLDS[name](torch.finfo(dtype).eps))
 
 
 def taylor_threshold(dtype: torch.dtype, order: int) -> float:
@@ -34,8 +89,7 @@ def taylor_threshold(dtype: torch.dtype, order: int) -> float:
         dtype: the compute dtype.
         order: degree of the first neglected Taylor term.
     """
-    eps = torch.finfo(compute_dtype(dtype)).eps
-    return float(eps ** (1.0 / (order + 2)))
+    return float(eps(dtype) ** (1.0 / (order + 2)))
 
 
 def safe_denominator(x: Tensor, small: Tensor) -> Tensor:

@@ -38,7 +38,14 @@ from ._core import (
 from ._kernels import dual_angle as _dual_angle_kernel
 from ._kernels import sclerp as _sclerp_kernel
 from ._kernels.weights import screw_weights
-from ._numerics import compute_dtype, nan_unless, safe_denominator, safe_norm, taylor_threshold
+from ._numerics import (
+    compute_dtype,
+    nan_unless,
+    safe_denominator,
+    safe_norm,
+    taylor_threshold,
+    threshold,
+)
 from .dual import Dual
 
 __all__ = [
@@ -247,8 +254,7 @@ def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
                              or not atol >= 0):
         _checks.fail("dualquat.is_unit", f"expected atol to be a number >= 0, got {atol!r}")
     if atol is None:
-        atol = {torch.float64: 1e-10, torch.float32: 1e-5}.get(
-            x.dtype, 10.0 * torch.finfo(x.dtype).eps)
+        atol = threshold("unit_atol", x.dtype)
     x = lift(x)
     r, d = split(x)
     finite = torch.isfinite(x).all(-1)
@@ -416,7 +422,7 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     w, v = rc[..., :1], rc[..., 1:]
     sin_half = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
     theta = 2.0 * torch.atan2(sin_half, w)
-    eps = torch.finfo(x.dtype).eps
+    eps = threshold("pure_translation", x.dtype)
     translation_only = sin_half <= eps
     t_norm = torch.linalg.vector_norm(t, dim=-1, keepdim=True)
     fallback = torch.zeros_like(t)

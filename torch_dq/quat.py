@@ -291,7 +291,7 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
     r = r - (r * q0).sum(-1, keepdim=True) * q0
     r_norm = _numerics.safe_norm(r)[..., None]
     near = d >= 0
-    antipodal = ~near & (r_norm <= torch.finfo(r.dtype).eps)
+    antipodal = ~near & (r_norm <= _numerics.threshold("antipodal", r.dtype))
     r = torch.where(antipodal, qmul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
     # sin(t omega) / sin(omega): through sinc for omega <= pi/2 (0 / 0 at omega = 0), through
     # |r| beyond, where sin of the rounded omega loses the relative accuracy |r| keeps.
@@ -581,8 +581,9 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
     # Step 2: the second angle, then the half sum and half difference of the
     # other two, each undefined at one gimbal lock: safe-where their atan2.
     theta = 2.0 * torch.atan2(_safe_hypot(c, d), _safe_hypot(a, b))
-    lock0 = theta <= 1e-7
-    lock_pi = (theta - math.pi).abs() <= 1e-7
+    lock = _numerics.threshold("gimbal_lock", theta.dtype)
+    lock0 = theta <= lock
+    lock_pi = (theta - math.pi).abs() <= lock
     free = ~(lock0 | lock_pi)
     half_sum = torch.atan2(torch.where(lock_pi, 0.0, b), torch.where(lock_pi, 1.0, a))
     half_diff = torch.atan2(torch.where(lock0, 0.0, d), torch.where(lock0, 1.0, c))
