@@ -17,4 +17,4 @@ __all__ = [
     "Dual", "DualQuaternion", "curves", "dual", "dual_angle", "dualquat", "losses", "nn",
     "quat", "sclerp",
 ]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
