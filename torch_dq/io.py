@@ -1,0 +1,501 @@
+r"""Read and write trajectory files: TUM, KITTI and EuRoC ground truth, and a resampled CSV.
+
+A trajectory file holds timestamped rigid poses (body to world). Three common formats:
+
+============  ==================================================================  ============
+``format``    one pose per line                                                   times
+============  ==================================================================  ============
+``"tum"``     ``t x y z qx qy qz qw`` (whitespace or commas; ``#`` comments),     seconds
+              the TUM RGB-D benchmark's ``groundtruth.txt``
+``"kitti"``   ``r11 r12 r13 tx r21 r22 r23 ty r31 r32 r33 tz``: the 3x4 matrix    a separate
+              ``[R | t]`` row by row (KITTI odometry ``poses/NN.txt``)            file (s)
+``"euroc"``   ``#timestamp [ns], p_RS_R_x [m], p_RS_R_y, p_RS_R_z, q_RS_w,       nanoseconds
+              q_RS_x, q_RS_y, q_RS_z`` and optionally velocity and biases
+              (``state_groundtruth_estimate0/data.csv``; columns after the 8th
+              are ignored)
+============  ==================================================================  ============
+
+:func:`read_trajectory` returns a :class:`Trajectory`: ``float64`` times in seconds as
+written (absolute UNIX seconds stay absolute: ``float64`` keeps them to ~0.2 µs), rotations
+as unit quaternions ``(w, x, y, z)`` and translations, on the CPU; ``trajectory.poses()``
+gives the unit dual quaternions. Malformed files raise :class:`TrajectoryFileError` (a
+``ValueError``) naming the file and the line: wrong column count, a value that is not a
+finite number, timestamps that are not strictly increasing, a quaternion whose norm is not 1
+within ``atol`` (a KITTI rotation matrix that is not orthonormal), an empty file.
+:func:`write_trajectory` writes the three formats back; :func:`write_csv` writes a resampled
+trajectory with its velocities and accelerations (what ``python -m torch_dq fit`` writes).
+
+Example:
+    >>> import torch, tempfile, os
+    >>> from torch_dq import io
+    >>> path = os.path.join(tempfile.mkdtemp(), "traj.txt")
+    >>> with open(path, "w") as f:
+    ...     _ = f.write("# timestamp tx ty tz qx qy qz qw\n"
+    ...                 "1305031098.6659 1.3563 0.6305 1.6380 0.6132 0.5962 -0.3311 -0.3986\n"
+    ...                 "1305031098.6758 1.3543 0.6306 1.6360 0.6129 0.5966 -0.3316 -0.3980\n")
+    >>> traj = io.read_trajectory(path)
+    >>> len(traj), traj.times.dtype, traj.poses().shape
+    (2, torch.float64, torch.Size([2, 8]))
+    >>> round(float(traj.times[1] - traj.times[0]), 4)
+    0.0099
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from . import _checks, dualquat, quat
+
+__all__ = [
+    "CSV_COLUMNS",
+    "FORMATS",
+    "Trajectory",
+    "TrajectoryFileError",
+    "read_trajectory",
+    "write_csv",
+    "write_trajectory",
+]
+
+#: The file formats :func:`read_trajectory` and :func:`write_trajectory` know.
+FORMATS = ("tum", "kitti", "euroc")
+
+#: Columns of :func:`write_csv`, in order (SI units; world frame).
+CSV_COLUMNS = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "vx", "vy", "vz", "wx", "wy", "wz",
+               "ax", "ay", "az", "alpha_x", "alpha_y", "alpha_z")
+
+_TUM_COLUMNS = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+_KITTI_COLUMNS = ("r11", "r12", "r13", "tx", "r21", "r22", "r23", "ty", "r31", "r32", "r33",
+                  "tz")
+_EUROC_COLUMNS = ("#timestamp [ns]", "p_RS_R_x [m]", "p_RS_R_y [m]", "p_RS_R_z [m]",
+                  "q_RS_w []", "q_RS_x []", "q_RS_y []", "q_RS_z []")
+
+
+class TrajectoryFileError(ValueError):
+    """A malformed trajectory file (or times file).
+
+    The message reads ``"<file>, line <n>: <what is wrong>"`` (without the line for
+    problems of the whole file, e.g. an empty one).
+
+    Attributes:
+        path: the file, as given.
+        line: the 1-based line number, or ``None``.
+    """
+
+    def __init__(self, path, line: int | None, message: str):
+        self.path = os.fspath(path)
+        self.line = line
+        where = self.path if line is None else f"{self.path}, line {line}"
+        super().__init__(f"{where}: {message}")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    r"""Timestamped rigid poses (body to world): ``x -> R(rotations[i]) x + translations[i]``.
+
+    Attributes:
+        times: ``(N,)`` float64 strictly increasing times in seconds (as in the file:
+            UNIX seconds stay absolute).
+        rotations: ``(N, 4)`` float64 unit quaternions ``(w, x, y, z)`` (sign as in the
+            file).
+        translations: ``(N, 3)`` float64 positions of the body origin in the world frame
+            (the file's unit: metres for TUM, KITTI and EuRoC).
+    """
+
+    times: Tensor
+    rotations: Tensor
+    translations: Tensor
+
+    def __len__(self) -> int:
+        return self.times.shape[0]
+
+    def poses(self) -> Tensor:
+        """The poses as ``(N, 8)`` unit dual quaternions (:func:`torch_dq.dualquat.from_rt`)."""
+        return dualquat.from_rt(self.rotations, self.translations)
+
+    def select(self, index) -> Trajectory:
+        """The sub-trajectory at ``index`` (a slice, an index tensor or a bool mask).
+
+        Example:
+            >>> t = torch.arange(6.0, dtype=torch.float64)
+            >>> traj = Trajectory(t, quat.identity((6,), torch.float64), torch.zeros(6, 3,
+            ...                   dtype=torch.float64))
+            >>> traj.select(slice(None, None, 2)).times
+            tensor([0., 2., 4.], dtype=torch.float64)
+        """
+        return Trajectory(self.times[index], self.rotations[index], self.translations[index])
+
+
+# ----------------------------------------------------------------------------- parsing
+
+def _read_lines(path) -> tuple[list[int], list[str], list[str]]:
+    """Data lines of a text file: (line numbers, texts, the comment lines before the data).
+
+    ``#`` starts a comment (to the end of the line); blank lines are skipped.
+    """
+    numbers_, texts, header = [], [], []
+    try:
+        with open(path, encoding="utf-8") as f:
+            for n, line in enumerate(f, 1):
+                text, hash_, comment = line.partition("#")
+                text = text.strip()
+                if text:
+                    numbers_.append(n)
+                    texts.append(text)
+                elif hash_ and not texts:
+                    header.append(comment.strip())
+    except UnicodeDecodeError as exc:
+        raise TrajectoryFileError(path, None, f"not a UTF-8 text file ({exc.reason} at byte "
+                                              f"{exc.start})") from None
+    if not texts:
+        raise TrajectoryFileError(path, None, "no data (the file is empty or holds only "
+                                              "comments)")
+    return numbers_, texts, header
+
+
+def _split(texts: list[str], commas: bool) -> list[list[str]]:
+    """Fields of each line: at commas when ``commas``, else at whitespace or commas."""
+    if commas:
+        return [[s.strip() for s in text.split(",")] for text in texts]
+    return [text.replace(",", " ").split() for text in texts]
+
+
+def _floats(path, lines: list[int], rows: list[list[str]], names: Sequence[str]) -> np.ndarray:
+    """Parse rows of numeric fields into a float64 array, naming the first bad line."""
+    width = len(names)
+    for n, fields in zip(lines, rows, strict=True):
+        if len(fields) != width:
+            raise TrajectoryFileError(path, n, f"expected {width} columns "
+                                               f"({' '.join(names)}), got {len(fields)}")
+    try:
+        values = np.array(rows, dtype=np.float64)
+    except ValueError:
+        for n, fields in zip(lines, rows, strict=True):
+            for name, text in zip(names, fields, strict=True):
+                try:
+                    float(text)
+                except ValueError:
+                    raise TrajectoryFileError(path, n, f"{name}: {text!r} is not a number") \
+                        from None
+        raise  # pragma: no cover (numpy and float() accept the same numbers)
+    _first_bad(path, lines, ~np.isfinite(values).all(axis=1),
+               lambda i: f"non-finite value in {' '.join(rows[i])!r}")
+    return values
+
+
+def _first_bad(path, lines: list[int], bad: np.ndarray, message) -> None:
+    """Raise for the first True of ``bad`` (per row), saying how many rows are bad."""
+    where = np.flatnonzero(bad)
+    if where.size:
+        i = int(where[0])
+        more = f" ({where.size} lines in all)" if where.size > 1 else ""
+        raise TrajectoryFileError(path, lines[i], message(i) + more)
+
+
+def _check_times(path, lines: list[int], t: np.ndarray, duplicates: str,
+                 unit: str = "s") -> np.ndarray:
+    """Check that times increase strictly; with duplicates="first" drop repeated ones.
+
+    Returns:
+        The indices of the rows kept.
+    """
+    step = np.diff(t)
+    show = lambda i: repr(t[i] if unit == "ns" else float(t[i]))  # noqa: E731
+    _first_bad(path, lines[1:], step < 0,
+               lambda i: f"timestamp {show(i + 1)} {unit} is before the previous one "
+                         f"({show(i)} {unit}, line {lines[i]}): the rows must be sorted by "
+                         f"time")
+    if duplicates == "first":
+        return np.flatnonzero(np.concatenate(([True], step > 0)))
+    _first_bad(path, lines[1:], step == 0,
+               lambda i: f"duplicate timestamp {show(i + 1)} {unit} (also on line "
+                         f"{lines[i]}); pass duplicates='first' (fit: --duplicates first) to "
+                         f"keep the first pose of each time")
+    return np.arange(t.shape[0])
+
+
+def _unit_quaternions(path, lines: list[int], q: np.ndarray, atol: float) -> np.ndarray:
+    """Check ``| |q| - 1 | <= atol`` per row and return the normalized quaternions."""
+    norm = np.linalg.norm(q, axis=1)
+    _first_bad(path, lines, ~(np.abs(norm - 1.0) <= atol),
+               lambda i: f"quaternion norm {norm[i]:.6g} is not 1 (tolerance atol={atol:g})")
+    return q / norm[:, None]
+
+
+def _read_tum(path, lines, texts, atol: float, duplicates: str):
+    v = _floats(path, lines, _split(texts, commas=False), _TUM_COLUMNS)
+    keep = _check_times(path, lines, v[:, 0], duplicates)
+    q = _unit_quaternions(path, lines, v[:, [7, 4, 5, 6]], atol)
+    return v[keep, 0], q[keep], v[keep, 1:4]
+
+
+def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
+    rows = _split(texts, commas=True)
+    # The column count: the header's when it names 8 or more, else the first row's (>= 8).
+    names = [s.strip() for s in header[-1].split(",")] if header else []
+    if len(names) >= 8:
+        names[0] = "#" + names[0]
+    else:
+        names = list(_EUROC_COLUMNS) + [f"column {k + 1}" for k in range(8, len(rows[0]))]
+    for n, fields in zip(lines, rows, strict=True):
+        if len(fields) != len(names):
+            raise TrajectoryFileError(path, n, f"expected {len(names)} comma-separated columns "
+                                               f"({', '.join(names[:8])}"
+                                               f"{', ...' * (len(names) > 8)}), got "
+                                               f"{len(fields)}")
+    ns = []
+    for n, fields in zip(lines, rows, strict=True):
+        try:
+            ns.append(int(fields[0]))
+        except ValueError:
+            raise TrajectoryFileError(path, n, f"timestamp {fields[0]!r} is not an integer "
+                                               f"number of nanoseconds") from None
+    v = _floats(path, lines, [f[1:8] for f in rows], names[1:8])
+    keep = _check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
+    # int / int is correctly rounded in Python: the float64 nearest to ns * 1e-9.
+    t = np.array([ns[i] / 10**9 for i in keep], dtype=np.float64)
+    q = _unit_quaternions(path, lines, v[:, 3:7], atol)
+    return t, q[keep], v[keep, 0:3]
+
+
+def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object, list[int]]:
+    """KITTI times from a file or an array: (times, where they came from, their lines)."""
+    if times is None:
+        _checks.fail(fn, f"KITTI poses ({os.fspath(path)}) carry no times: pass times= (the "
+                         f"sequence's times.txt, one time in seconds per line, or a (N,) "
+                         f"array; fit: --times FILE)")
+    if isinstance(times, (str, os.PathLike)):
+        lines, texts, _ = _read_lines(times)
+        t = _floats(times, lines, _split(texts, commas=False), ("time",))[:, 0]
+        if t.shape[0] != n_poses:
+            raise TrajectoryFileError(times, None, f"holds {t.shape[0]} times but the poses "
+                                                   f"file {os.fspath(path)} has {n_poses}")
+        return t, times, lines
+    try:
+        t = np.asarray(times.detach().cpu() if isinstance(times, Tensor) else times,
+                       dtype=np.float64)
+    except (TypeError, ValueError):
+        _checks.fail(fn, f"times must be a path or a (N,) array of seconds, got "
+                         f"{type(times).__name__}", TypeError)
+    if t.shape != (n_poses,):
+        _checks.fail(fn, f"times must have shape ({n_poses},) (one per pose), got "
+                         f"{_checks.shape_str(t.shape)}")
+    if not np.isfinite(t).all():
+        _checks.fail(fn, "times must be finite")
+    return t, "times", list(range(1, n_poses + 1))
+
+
+def _read_kitti(fn: str, path, lines, texts, times, atol: float, duplicates: str):
+    v = _floats(path, lines, _split(texts, commas=False), _KITTI_COLUMNS)
+    t, t_path, t_lines = _kitti_times(fn, path, times, v.shape[0])
+    keep = _check_times(t_path, t_lines, t, duplicates)
+    R = v.reshape(-1, 3, 4)[:, :, :3]
+    err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    _first_bad(path, lines, ~(err <= atol),
+               lambda i: f"rotation is not orthonormal: max |R^T R - I| = {err[i]:.3g} "
+                         f"(tolerance atol={atol:g})")
+    _first_bad(path, lines, np.linalg.det(R) < 0,
+               lambda i: "rotation matrix has determinant -1 (a reflection)")
+    q = quat.normalize(quat.from_matrix(torch.from_numpy(np.ascontiguousarray(R)))).numpy()
+    return t[keep], q[keep], v[keep][:, [3, 7, 11]]
+
+
+def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
+    """Guess the format from the first data line and the header comment."""
+    if "," in texts[0] or any(h.lower().startswith("timestamp") and "," in h for h in header):
+        return "euroc"
+    width = len(texts[0].split())
+    if width in (8, 12):
+        return "tum" if width == 8 else "kitti"
+    raise TrajectoryFileError(path, lines[0], f"cannot tell the format: {width} "
+                                              f"whitespace-separated columns, where TUM has 8 "
+                                              f"and KITTI 12 (EuRoC is comma-separated); pass "
+                                              f"format= (fit: --format)")
+
+
+def read_trajectory(path, format: str = "auto", times=None, *, atol: float = 1e-3,
+                    duplicates: str = "error") -> Trajectory:
+    r"""Read timestamped poses from a TUM, KITTI or EuRoC file.
+
+    Args:
+        path: the file (``str`` or ``os.PathLike``).
+        format: ``"tum"``, ``"kitti"``, ``"euroc"`` or ``"auto"`` (default): comma-separated
+            rows or a ``#timestamp,...`` header mean EuRoC, else 8 columns TUM and 12 KITTI.
+        times: KITTI only (required there): the times file (one time in seconds per line,
+            like KITTI's ``times.txt``) or a ``(N,)`` array of seconds, one per pose.
+        atol: tolerance on unit norms: ``| |q| - 1 |`` for TUM and EuRoC quaternions, the
+            largest entry of ``|R^T R - I|`` for KITTI matrices. The default 1e-3 accepts
+            the 4-decimal rounding of TUM files (~1e-4); rotations are normalized after the
+            check.
+        duplicates: ``"error"`` (default): a repeated timestamp is an error;
+            ``"first"``: keep the first pose of each repeated timestamp (real files have
+            them, e.g. TUM freiburg2_desk at line 10863).
+
+    Returns:
+        :class:`Trajectory` of float64 CPU tensors: ``times (N,)`` in seconds (EuRoC's
+        nanoseconds converted with correct rounding), ``rotations (N, 4)`` unit ``(w, x, y,
+        z)``, ``translations (N, 3)``.
+
+    Raises:
+        TrajectoryFileError: (a ``ValueError``) malformed file, naming the file and the
+            line: wrong column count, a value that is not a finite number (EuRoC: a
+            timestamp that is not an integer), unsorted or (with ``duplicates="error"``)
+            repeated timestamps, a non-unit quaternion (the message gives its norm), a
+            non-orthonormal or reflecting KITTI rotation, a times file of another length,
+            an empty file.
+        ValueError: bad ``format``/``atol``/``duplicates``, KITTI without ``times``, or
+            ``times`` given for another format.
+        OSError: the file cannot be opened.
+
+    Example:
+        >>> traj = read_trajectory("tests/data/tum_fr1_xyz_sub.txt")  # doctest: +SKIP
+        >>> spline = nn.BSpline.from_poses(traj.rotations, traj.translations,
+        ...                                traj.times, n_ctrl=60)  # doctest: +SKIP
+    """
+    fn = "io.read_trajectory"
+    if not isinstance(path, (str, os.PathLike)):
+        _checks.fail(fn, f"expected a path (str or os.PathLike) for path, got "
+                         f"{type(path).__name__}", TypeError)
+    if format not in (*FORMATS, "auto"):
+        _checks.fail(fn, f"format must be one of 'auto', 'tum', 'kitti', 'euroc', got "
+                         f"{format!r}")
+    if isinstance(atol, bool) or not isinstance(atol, (int, float)) or not atol > 0 \
+            or math.isinf(atol):
+        _checks.fail(fn, f"atol must be a finite number > 0, got {atol!r}")
+    if duplicates not in ("error", "first"):
+        _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
+    lines, texts, header = _read_lines(path)
+    if format == "auto":
+        format = _detect(path, lines, texts, header)
+    if times is not None and format != "kitti":
+        _checks.fail(fn, f"times= applies to KITTI files only ({format.upper()} files hold "
+                         f"their own times)")
+    if format == "tum":
+        t, q, p = _read_tum(path, lines, texts, atol, duplicates)
+    elif format == "euroc":
+        t, q, p = _read_euroc(path, lines, texts, header, atol, duplicates)
+    else:
+        t, q, p = _read_kitti(fn, path, lines, texts, times, atol, duplicates)
+    as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
+    return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
+
+
+# ----------------------------------------------------------------------------- writing
+
+def _numpy(fn: str, name: str, x, last: int | None) -> np.ndarray:
+    _checks.tensor(fn, name, x, last)
+    return x.detach().to("cpu", torch.float64).numpy()
+
+
+def _trajectory_arrays(fn: str, trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if not isinstance(trajectory, Trajectory):
+        _checks.fail(fn, f"expected a Trajectory for trajectory, got "
+                         f"{type(trajectory).__name__}", TypeError)
+    t = _numpy(fn, "trajectory.times", trajectory.times, None)
+    q = _numpy(fn, "trajectory.rotations", trajectory.rotations, 4)
+    p = _numpy(fn, "trajectory.translations", trajectory.translations, 3)
+    if t.ndim != 1 or q.shape != (t.shape[0], 4) or p.shape != (t.shape[0], 3):
+        _checks.fail(fn, f"expected times (N,), rotations (N, 4) and translations (N, 3), "
+                         f"got {_checks.shape_str(t.shape)}, {_checks.shape_str(q.shape)} "
+                         f"and {_checks.shape_str(p.shape)}")
+    return t, q, p
+
+
+def write_trajectory(path, trajectory: Trajectory, format: str = "tum", times_path=None) -> None:
+    r"""Write a trajectory as a TUM, KITTI or EuRoC file (read back by :func:`read_trajectory`).
+
+    Numbers are written with 17 significant digits (times with 9 decimals: nanoseconds),
+    so reading the file back returns the same float64 values.
+
+    Args:
+        path: the file to (over)write.
+        trajectory: a :class:`Trajectory`.
+        format: ``"tum"`` (default; ``t x y z qx qy qz qw``), ``"kitti"`` (3x4 matrix rows;
+            the times go to ``times_path``) or ``"euroc"`` (the 8 pose columns, integer
+            nanoseconds).
+        times_path: KITTI only (required there): the times file to write.
+
+    Example:
+        >>> write_trajectory("/tmp/traj.txt", traj)  # doctest: +SKIP
+    """
+    fn = "io.write_trajectory"
+    if format not in FORMATS:
+        _checks.fail(fn, f"format must be one of 'tum', 'kitti', 'euroc', got {format!r}")
+    if (format == "kitti") != (times_path is not None):
+        _checks.fail(fn, "times_path is required for format='kitti' and only there")
+    t, q, p = _trajectory_arrays(fn, trajectory)
+    if format == "tum":
+        data = np.column_stack((t, p, q[:, 1:], q[:, :1]))
+        np.savetxt(path, data, fmt=["%.9f"] + ["%.17g"] * 7,
+                   header=" ".join(_TUM_COLUMNS), comments="# ")
+    elif format == "kitti":
+        R = quat.to_matrix(torch.from_numpy(q)).numpy()
+        np.savetxt(path, np.concatenate((R, p[:, :, None]), axis=2).reshape(-1, 12),
+                   fmt="%.17g")
+        np.savetxt(times_path, t, fmt="%.9f")
+    else:
+        from decimal import Decimal  # exact: the nanosecond nearest to each float64 time
+
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(",".join(_EUROC_COLUMNS) + "\n")
+            for ti, pi, qi in zip(t, p, q, strict=True):
+                ns = int((Decimal(float(ti)) * 10**9).to_integral_value())
+                f.write(",".join([str(ns)] + [repr(float(v)) for v in (*pi, *qi)]) + "\n")
+
+
+def write_csv(path, trajectory: Trajectory, kinematics=None, comments: Sequence[str] = ()) -> None:
+    r"""Write a (resampled) trajectory with its velocities and accelerations as CSV.
+
+    The first line is the header row :data:`CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz,
+    vx, vy, vz, wx, wy, wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit
+    quaternion, m/s, rad/s, m/s², rad/s²; all vectors in the world frame: ``v = dp/dt``,
+    ``w`` with ``dR/dt = [w]x R``, ``a = d²p/dt²``, ``alpha = dw/dt``), then ``#`` comment
+    lines (the units, then ``comments``), then one row per time. Readable with
+    ``numpy.genfromtxt(path, delimiter=",", names=True)``, ``numpy.loadtxt(path,
+    delimiter=",", skiprows=1)`` or ``pandas.read_csv(path, comment="#")``.
+
+    Args:
+        path: the file to (over)write.
+        trajectory: a :class:`Trajectory` (times in seconds, positions in metres).
+        kinematics: world-frame kinematics at ``trajectory.times``: anything with
+            ``(N, 3)`` attributes ``linear_velocity``, ``angular_velocity``,
+            ``linear_acceleration``, ``angular_acceleration`` (e.g. what
+            :func:`torch_dq.curves.kinematics` returns); ``None`` writes the pose columns
+            only.
+        comments: extra lines for the comment block (e.g. the source file).
+
+    Example:
+        >>> k = spline.kinematics(traj.times)  # doctest: +SKIP
+        >>> write_csv("resampled.csv", traj, k)  # doctest: +SKIP
+    """
+    fn = "io.write_csv"
+    t, q, p = _trajectory_arrays(fn, trajectory)
+    columns = [t[:, None], p, q]
+    names = list(CSV_COLUMNS[:8])
+    if kinematics is not None:
+        for attr in ("linear_velocity", "angular_velocity", "linear_acceleration",
+                     "angular_acceleration"):
+            value = getattr(kinematics, attr, None)
+            if value is None:
+                _checks.fail(fn, f"kinematics has no {attr} (pass curves.kinematics(..., "
+                                 f"ddx) with accelerations)")
+            a = _numpy(fn, f"kinematics.{attr}", value, 3)
+            if a.shape != (t.shape[0], 3):
+                _checks.fail(fn, f"expected ({t.shape[0]}, 3) for kinematics.{attr}, got "
+                                 f"{_checks.shape_str(a.shape)}")
+            columns.append(a)
+        names = list(CSV_COLUMNS)
+    units = ("units (SI, world frame): t [s]; x, y, z [m]; qw, qx, qy, qz unit quaternion "
+             "(body to world)")
+    if kinematics is not None:
+        units += ("; vx, vy, vz [m/s]; wx, wy, wz angular velocity [rad/s]; ax, ay, az "
+                  "[m/s^2]; alpha_x, alpha_y, alpha_z angular acceleration [rad/s^2]")
+    header = "\n".join([",".join(names), "# " + units] + ["# " + c for c in comments])
+    np.savetxt(path, np.concatenate(columns, axis=1), delimiter=",", header=header,
+               comments="", fmt=["%.9f"] + ["%.15g"] * (len(names) - 1))
