@@ -18,6 +18,8 @@ __all__ = [
     "broadcast_batch",
     "factory_args",
     "fail",
+    "flag",
+    "host_all",
     "pair",
     "same_dtype_device",
     "shape_str",
@@ -128,3 +130,28 @@ def pair(fn: str, a: Tensor, b: Tensor, last: int, names: tuple[str, str] = ("a"
     tensor(fn, names[1], b, last)
     same_dtype_device(fn, **{names[0]: a, names[1]: b})
     broadcast_batch(fn, **{names[0]: (a, 1), names[1]: (b, 1)})
+
+
+def flag(fn: str, name: str, value) -> bool:
+    """Check that a boolean flag (``shortest``, ``check``) is a ``bool``.
+
+    A truthy string such as ``"no"`` would otherwise silently mean True.
+    """
+    if not isinstance(value, bool):
+        fail(fn, f"expected {name} to be a bool (True or False), got {value!r}", TypeError)
+    return value
+
+
+def host_all(fn: str, what: str, mask: Tensor) -> bool:
+    """``bool(mask.all())``, read on the host (a device sync), for opt-in value checks.
+
+    Under ``torch.func.vmap`` (or another transform whose tensors have no host values) the
+    read is impossible: raise a ``RuntimeError`` that names the function and the way out,
+    instead of torch's data-dependent control-flow error.
+    """
+    try:
+        return bool(torch.all(mask))
+    except RuntimeError as e:
+        raise RuntimeError(f"{fn}: {what} reads the values on the host, which this transform "
+                           f"(e.g. torch.func.vmap) does not allow; pass check=False inside "
+                           f"the transform and check outside it") from e

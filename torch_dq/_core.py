@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ._numerics import compute_dtype, safe_denominator, taylor_threshold
+from ._numerics import compute_dtype, even
 
 __all__ = [
     "align_chain", "canonical", "dq_from_rt", "dq_mul", "half_angle", "join", "lift", "qconj",
@@ -122,13 +122,11 @@ def twist_translation(omega: Tensor, t: Tensor) -> Tensor:
     r"""Linear part of the twist, :math:`v = V(\omega)^{-1} t`, for angles in ``[0, 2 pi)``.
 
     :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)` with
-    :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
+    :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2`, evaluated from
+    :math:`\theta^2 = |\omega|^2` (series near 0: smooth to every order at ``omega = 0``).
+    ``omega (..., 3)`` and ``t (..., 3)`` broadcast.
     """
-    theta = torch.linalg.vector_norm(omega, dim=-1)
-    small = theta < taylor_threshold(theta.dtype, 6)
-    th = safe_denominator(theta, small)
-    t2 = theta * theta
-    c3 = torch.where(small, (1.0 + t2 / 60.0 * (1.0 + t2 / 42.0)) / 12.0,
-                     (1.0 - 0.5 * th / torch.tan(0.5 * th)) / th**2)
+    omega, t = torch.broadcast_tensors(omega, t)
+    c3 = even("se3_c3", (omega * omega).sum(-1, keepdim=True))
     wxt = torch.linalg.cross(omega, t, dim=-1)
-    return t - 0.5 * wxt + c3[..., None] * torch.linalg.cross(omega, wxt, dim=-1)
+    return t - 0.5 * wxt + c3 * torch.linalg.cross(omega, wxt, dim=-1)

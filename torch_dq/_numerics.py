@@ -9,12 +9,15 @@ unselected ``0 / 0`` (pytorch issue 52248).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
 __all__ = [
-    "THRESHOLDS", "compute_dtype", "eps", "nan_unless", "safe_denominator", "safe_norm", "sinc",
-    "taylor_threshold", "threshold",
+    "THRESHOLDS", "compute_dtype", "eps", "even", "nan_unless", "power_of_two_scale",
+    "safe_denominator", "safe_norm", "taylor_threshold", "threshold",
 ]
 
 
@@ -50,6 +53,10 @@ THRESHOLDS = {
     "pure_translation": lambda eps: eps,
     # |r| (the residual of q1 orthogonal to q0) below which quat.slerp treats q1 as -q0.
     "antipodal": lambda eps: eps,
+    # 1 + q0 . q1 at or below which dualquat.sclerp(shortest=False) counts the real parts as
+    # exactly opposite (no unique path: NaN): the dot of two rounded unit quaternions is
+    # off by up to ~3 eps (measured), so closer pairs cannot be told from opposite ones.
+    "opposite_real_parts": lambda eps: 8.0 * eps,
     # Default atol of dualquat.is_unit.
     "unit_atol": _unit_atol,
     # scipy's gimbal-lock threshold of as_euler (a fixed 1e-7 rad, not eps-based: kept
@@ -108,16 +115,74 @@ def nan_unless(finite: Tensor, x: Tensor) -> Tensor:
     return torch.where(finite, x, torch.nan)
 
 
-def sinc(x: Tensor) -> Tensor:
-    r"""Unnormalised :math:`\sin(x) / x`, exact and smooth at 0 in value and gradient.
+def _series(coefficient: Callable[[int], float]) -> tuple[float, ...]:
+    return tuple(coefficient(k) for k in range(_EVEN_TERMS + 1))
 
-    Taylor branch :math:`1 - x^2/6 + x^4/120 - x^6/5040` below the threshold.
+
+_EVEN_TERMS = 8  # terms c_0 .. c_7 of the series in x2 = theta^2 (through theta^14)
+_BERNOULLI = (1.0, 1 / 6, -1 / 30, 1 / 42, -1 / 30, 5 / 66, -691 / 2730, 7 / 6, -3617 / 510,
+              43867 / 798)  # B_0, B_2, ..., B_18
+_FACT = math.factorial
+
+#: Even analytic functions of theta, evaluated from x2 = theta^2 by :func:`even`: for each,
+#: the coefficients c_k of ``f = sum_k c_k x2^k`` (one more than used: the first neglected
+#: term sets the switch point) and the closed form in theta.
+_EVEN = {
+    # cos(theta)
+    "cos": (_series(lambda k: (-1) ** k / _FACT(2 * k)), torch.cos),
+    # sin(theta) / theta
+    "sinc": (_series(lambda k: (-1) ** k / _FACT(2 * k + 1)), lambda th: torch.sin(th) / th),
+    # atan(theta) / theta (series radius 1)
+    "atanc": (_series(lambda k: (-1) ** k / (2 * k + 1)), lambda th: torch.atan(th) / th),
+    # (1 - cos theta) / theta^2: the c_1 of the SE(3) exponential
+    "se3_c1": (_series(lambda k: (-1) ** k / _FACT(2 * k + 2)),
+               lambda th: (1.0 - torch.cos(th)) / (th * th)),
+    # (theta - sin theta) / theta^3: the c_2 of the SE(3) exponential
+    "se3_c2": (_series(lambda k: (-1) ** k / _FACT(2 * k + 3)),
+               lambda th: (th - torch.sin(th)) / (th * th * th)),
+    # (1 - (theta / 2) cot(theta / 2)) / theta^2: the c_3 of the SE(3) logarithm, from
+    # x cot x = sum_n (-1)^n B_2n (2x)^2n / (2n)! (series radius 2 pi)
+    "se3_c3": (_series(lambda k: (-1) ** k * _BERNOULLI[k + 1] / _FACT(2 * k + 2)),
+               lambda th: (1.0 - 0.5 * th / torch.tan(0.5 * th)) / (th * th)),
+}
+
+
+def even(name: str, x2: Tensor) -> Tensor:
+    r"""An even function :math:`f(\theta)` of :data:`_EVEN`, evaluated from :math:`x_2 = \theta^2`.
+
+    Why from the square: :math:`\theta = |v|` is a cone at :math:`v = 0`, so ``f(|v|)``
+    differentiated by the chain rule gets a wrong (zero) second derivative there, even with
+    a Taylor branch in :math:`\theta`; :math:`x_2 = v \cdot v` is a polynomial, and
+    :math:`f` is analytic in :math:`x_2`, so every derivative of ``even(name, v @ v)`` is
+    right to all orders, in reverse, forward and nested modes.
+
+    Below the switch point the series :math:`\sum_{k<K} c_k x_2^k` is used (its first
+    neglected term is below an ulp of the result: the switch is at
+    :math:`x_2 = \frac14 \min(1, (\epsilon / |c_K|)^{1/K})`, large, so that the closed
+    form never meets the cancellation of its derivatives near 0). Above it, the closed form is
+    evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
+    where), so no branch ever produces a NaN or an infinite derivative.
     """
-    small = x.abs() < taylor_threshold(x.dtype, 8)
-    xs = safe_denominator(x, small)
-    x2 = x * x
-    series = 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
-    return torch.where(small, series, torch.sin(xs) / xs)
+    coeffs, exact = _EVEN[name]
+    switch = min(0.25, 0.25 * (eps(x2.dtype) / abs(coeffs[-1])) ** (1.0 / _EVEN_TERMS))
+    small = x2 < switch
+    series = coeffs[_EVEN_TERMS - 1]
+    for c in reversed(coeffs[:_EVEN_TERMS - 1]):
+        series = series * x2 + c
+    return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+
+
+def power_of_two_scale(x: Tensor) -> Tensor:
+    """A power of two near ``max |x|`` over the last dim (kept), detached; 1 where the max is
+    0 or non-finite.
+
+    Dividing by it is exact, so it changes no digit of a scale-invariant result
+    (``q / |q|``, a rotation of ``q``), while it keeps the squares of tiny (1e-25) or huge
+    (1e20) components away from underflow and overflow (as ``hypot`` does).
+    """
+    m = x.detach().abs().amax(-1, keepdim=True)
+    ok = (m > 0) & torch.isfinite(m)
+    return torch.where(ok, torch.exp2(torch.floor(torch.log2(torch.where(ok, m, 1.0)))), 1.0)
 
 
 def safe_norm(x: Tensor) -> Tensor:

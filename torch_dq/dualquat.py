@@ -40,10 +40,10 @@ from ._kernels import sclerp as _sclerp_kernel
 from ._kernels.weights import screw_weights
 from ._numerics import (
     compute_dtype,
+    even,
     nan_unless,
     safe_denominator,
     safe_norm,
-    taylor_threshold,
     threshold,
 )
 from .dual import Dual
@@ -444,17 +444,6 @@ def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 
 # ----------------------------------------------------------------------------- exp / log
 
-def _se3_coefficients(theta: Tensor) -> tuple[Tensor, Tensor]:
-    r"""``c1 = (1 - cos θ)/θ²`` and ``c2 = (θ - sin θ)/θ³`` with Taylor branches at 0."""
-    small = theta < taylor_threshold(theta.dtype, 6)
-    th = safe_denominator(theta, small)
-    t2 = theta * theta
-    c1 = torch.where(small, 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0), (1.0 - torch.cos(th)) / th**2)
-    c2 = torch.where(small, (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)) / 6.0,
-                     (th - torch.sin(th)) / th**3)
-    return c1, c2
-
-
 def exp(xi: Tensor) -> Tensor:
     r"""Rigid-motion exponential of twists :math:`\xi = (\omega, v)`.
 
@@ -462,9 +451,10 @@ def exp(xi: Tensor) -> Tensor:
     (pytransform3d's exponential coordinates; no factor 1/2): rotation by
     :math:`|\omega|` about :math:`\omega`, translation
     :math:`t = v + c_1\,\omega\times v + c_2\,\omega\times(\omega\times v)` with
-    :math:`c_1 = (1-\cos\theta)/\theta^2`, :math:`c_2 = (\theta-\sin\theta)/\theta^3`
-    (Taylor branches near 0, so a pure translation ``omega = 0`` is exact and has finite
-    gradients).
+    :math:`c_1 = (1-\cos\theta)/\theta^2`, :math:`c_2 = (\theta-\sin\theta)/\theta^3`.
+    :math:`c_1, c_2` (and the rotation) are evaluated from :math:`\theta^2 = |\omega|^2`
+    with series near 0, so a pure translation ``omega = 0`` is exact, and first and second
+    derivatives there are exact too.
 
     Args:
         xi: ``(..., 6)`` twists ``(omega_x, omega_y, omega_z, v_x, v_y, v_z)``.
@@ -475,10 +465,10 @@ def exp(xi: Tensor) -> Tensor:
     _checks.tensor("dualquat.exp", "xi", xi, 6)
     xl = lift(xi)
     omega, v = xl[..., :3], xl[..., 3:]
-    theta = torch.linalg.vector_norm(omega, dim=-1)
-    c1, c2 = _se3_coefficients(theta)
+    theta2 = (omega * omega).sum(-1, keepdim=True)
     wxv = torch.linalg.cross(omega, v, dim=-1)
-    t = v + c1[..., None] * wxv + c2[..., None] * torch.linalg.cross(omega, wxv, dim=-1)
+    t = v + even("se3_c1", theta2) * wxv + even("se3_c2", theta2) * torch.linalg.cross(
+        omega, wxv, dim=-1)
     return dq_from_rt(quat.from_rotvec(omega), t).to(xi.dtype)
 
 

@@ -4,12 +4,16 @@ r"""Pose losses between unit dual quaternions, invariant to the sign of either a
 (and the same gradient up to that sign) for either representative.
 
 - :func:`rotation_angle`: geodesic angle in ``[0, pi]`` between the rotations (radians).
+- :func:`squared_rotation_angle`: its square, a smooth function at zero error (the angle
+  itself is a cone there), for losses and second-order methods.
 - :func:`translation_error`: Euclidean distance between the translations (length units).
 - :func:`pose_loss`: ``rot_weight * angle**2 + trans_weight * |dt|**2``, reduced.
 
 All accept ``(..., 8)`` tensors whose batch shapes broadcast, and are differentiable with
 finite gradients everywhere, including at zero error (the zero subgradient at the kink of
-the angle and of the distance).
+the angle and of the distance). The squared errors (:func:`squared_rotation_angle`,
+:func:`pose_loss`) are twice differentiable at zero error: their Hessian there is the
+Gauss-Newton one (``2 I`` for the rotation block in a chart ``b = a exp(xi)``).
 """
 
 from __future__ import annotations
@@ -22,9 +26,9 @@ from torch import Tensor
 
 from . import _checks
 from ._core import translation
-from ._numerics import compute_dtype, safe_norm
+from ._numerics import compute_dtype, even, safe_norm
 
-__all__ = ["pose_loss", "rotation_angle", "translation_error"]
+__all__ = ["pose_loss", "rotation_angle", "squared_rotation_angle", "translation_error"]
 
 _REDUCTIONS = ("mean", "sum", "none")
 
@@ -47,6 +51,17 @@ def _rotation_angle(a: Tensor, b: Tensor) -> Tensor:
     # unit quaternions in R^4; the rotation angle is 2 min(phi, pi - phi) =
     # 4 atan2(min, max): accurate at 0 and at pi (no acos), and the same for -ra or -rb.
     return 4.0 * torch.atan2(torch.minimum(minus, plus), torch.maximum(minus, plus))
+
+
+def _squared_rotation_angle(a: Tensor, b: Tensor) -> Tensor:
+    ra, rb = _unit_real(a), _unit_real(b)
+    dm, dp = rb - ra, rb + ra
+    minus, plus = (dm * dm).sum(-1), (dp * dp).sum(-1)
+    # The angle is 4 atan(sqrt(z2)) with z2 = min / max of |rb -+ ra|^2 = tan^2(angle / 4)
+    # in [0, 1], so angle^2 = 16 z2 atanc(z2)^2: a smooth function of z2, itself smooth
+    # (a ratio of squared norms, the larger one >= 2) except at the tie (angle pi).
+    z2 = torch.minimum(minus, plus) / torch.maximum(minus, plus)
+    return 16.0 * z2 * even("atanc", z2) ** 2
 
 
 def rotation_angle(a: Tensor, b: Tensor) -> Tensor:
@@ -80,6 +95,39 @@ def rotation_angle(a: Tensor, b: Tensor) -> Tensor:
     _checks.pair("losses.rotation_angle", a, b, 8)
     dtype = compute_dtype(a.dtype)
     return _rotation_angle(a.to(dtype), b.to(dtype)).to(a.dtype)
+
+
+def squared_rotation_angle(a: Tensor, b: Tensor) -> Tensor:
+    r"""Square of :func:`rotation_angle`, smooth at zero error (radians²).
+
+    The angle is a cone at zero error (like :math:`|x|`, no second derivative), so squaring
+    it after the fact gives a zero Hessian there; this function evaluates
+    :math:`	heta^2 = 16 z\,\mathrm{atanc}(z)^2` from :math:`z = 	an^2(	heta / 4) =
+    \min(|r_b - r_a|^2, |r_b + r_a|^2) / \max(\dots)`, a smooth function of the inputs, so
+    its Hessian at ``a == b`` is exact: ``2 I`` in a chart ``b = a exp(xi)`` (Gauss-Newton
+    and Laplace approximations get the right curvature). At pi (the maximum) the two tied
+    branches meet in a kink, as for the angle.
+
+    Args:
+        a: ``(..., 8)`` dual quaternions with non-zero real parts (normally unit).
+        b: ``(..., 8)``, batch broadcastable with ``a``, same dtype and device.
+
+    Returns:
+        ``(...)`` squared angles in ``[0, pi**2]``. float16/bfloat16 compute in float32.
+
+    Raises:
+        ValueError: trailing dimension not 8, batch shapes that do not broadcast.
+        TypeError: non-floating tensors, mixed dtypes or devices.
+
+    Example:
+        >>> import torch_dq.dualquat as dq
+        >>> q = torch.tensor([0.0, 0.0, 0.0, 1.0])  # 180 degrees about z
+        >>> squared_rotation_angle(dq.identity(), dq.from_rt(q, torch.zeros(3)))
+        tensor(9.8696)
+    """
+    _checks.pair("losses.squared_rotation_angle", a, b, 8)
+    dtype = compute_dtype(a.dtype)
+    return _squared_rotation_angle(a.to(dtype), b.to(dtype)).to(a.dtype)
 
 
 def translation_error(a: Tensor, b: Tensor) -> Tensor:
@@ -122,7 +170,9 @@ def pose_loss(a: Tensor, b: Tensor, rot_weight: float = 1.0, trans_weight: float
               reduction: str = "mean") -> Tensor:
     r"""Squared pose error :math:`w_r\,\theta^2 + w_t\,|t_a - t_b|^2`, reduced.
 
-    :math:`\theta` is :func:`rotation_angle` (radians) and :math:`t` the translations, so
+    :math:`\theta^2` is :func:`squared_rotation_angle` (radians², smooth at zero error, so
+    Hessians there are exact: ``2 rot_weight I`` for the rotation block in a chart
+    ``b = a exp(xi)``) and :math:`t` the translations, so
     the two terms are in rad² and length² respectively: choose
     ``trans_weight = 1 / scale**2`` for a typical translation scale ``scale`` of the data
     to weigh one scale unit like one radian (e.g. ``1 / 0.1**2 = 100`` for a 10 cm
@@ -158,9 +208,8 @@ def pose_loss(a: Tensor, b: Tensor, rot_weight: float = 1.0, trans_weight: float
         _checks.fail(fn, f"reduction must be one of {_REDUCTIONS}, got {reduction!r}")
     out, dtype = a.dtype, compute_dtype(a.dtype)
     a, b = a.to(dtype), b.to(dtype)
-    angle = _rotation_angle(a, b)
     dt = _translation(a) - _translation(b)
-    per = wr * angle * angle + wt * (dt * dt).sum(-1)
+    per = wr * _squared_rotation_angle(a, b) + wt * (dt * dt).sum(-1)
     if reduction == "mean":
         per = per.mean()
     elif reduction == "sum":

@@ -57,32 +57,44 @@ def _safe_hypot(x: Tensor, y: Tensor) -> Tensor:
 
 
 def _exp(q: Tensor) -> Tensor:
-    r"""Unchecked :math:`e^w (\cos|v|, \operatorname{sinc}|v| \, v)`."""
-    theta = _numerics.safe_norm(q[..., 1:])[..., None]
+    r"""Unchecked :math:`e^w (\cos|v|, \operatorname{sinc}|v| \, v)`.
+
+    ``cos`` and ``sinc`` are evaluated from :math:`|v|^2` (:func:`_numerics.even`), so the
+    result is smooth to every order at :math:`v = 0` (a Hessian there is exact)."""
+    v = q[..., 1:]
+    v2 = (v * v).sum(-1, keepdim=True)
     return torch.exp(q[..., :1]) * torch.cat(
-        (torch.cos(theta), _numerics.sinc(theta) * q[..., 1:]), dim=-1)
+        (_numerics.even("cos", v2), _numerics.even("sinc", v2) * v), dim=-1)
 
 
 def _log(q: Tensor) -> Tensor:
-    r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`."""
-    w, v = q[..., 0], q[..., 1:]
-    s = _numerics.safe_norm(v)
-    n = torch.linalg.vector_norm(q, dim=-1)
-    theta = torch.atan2(s, w)
-    # theta / s, the scale of v. For w > 0 (theta < pi/2), s = n sin(theta) gives
-    # theta / s = 1 / (n sinc(theta)), smooth through s = 0. For w <= 0, theta >= pi/2 and
-    # theta / s is exact for s > 0 (sin of a theta near pi would lose relative accuracy).
-    pos = w > 0
-    theta_pos = torch.where(pos, theta, torch.zeros_like(theta))
-    s_safe = _numerics.safe_denominator(s, pos | (s == 0))
-    scale = torch.where(pos, 1.0 / (n * _numerics.sinc(theta_pos)), theta / s_safe)
+    r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`.
+
+    ``q`` is first divided by a power of two near its largest component (exact), so no
+    square over- or underflows. For :math:`|v| \le w` the scale
+    :math:`\theta / |v| = \operatorname{atanc}(|v|^2 / w^2) / w` is a smooth function of
+    :math:`|v|^2` (every derivative exact at the identity); elsewhere
+    :math:`\operatorname{atan2}(|v|, w) / |v|` with :math:`|v| \ge |w|` or :math:`w < 0`.
+    """
+    m = _numerics.power_of_two_scale(q)
+    p = q / m
+    w, v = p[..., 0], p[..., 1:]
+    v2, w2 = (v * v).sum(-1), w * w
+    inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
+    w_in = torch.where(inner, w, 1.0)
+    z2 = torch.where(inner, v2, 0.0) / (w_in * w_in)
+    s = torch.sqrt(torch.where(inner | (v2 == 0), 1.0, v2))
+    scale = torch.where(inner, _numerics.even("atanc", z2) / w_in, torch.atan2(s, w) / s)
     # On the negative real axis (v = 0, w < 0) the direction of v is undefined: use x.
-    neg_real = (s == 0) & ~pos
-    vec = torch.where(neg_real[..., None], theta[..., None] * q.new_tensor([1.0, 0.0, 0.0]),
+    # (q = 0 gives theta = atan2(0, 0) = 0.)
+    axis_line = (v2 == 0) & (w <= 0)
+    theta = torch.atan2(torch.zeros_like(w), w)
+    vec = torch.where(axis_line[..., None], theta[..., None] * p.new_tensor([1.0, 0.0, 0.0]),
                       v * scale[..., None])
+    n2 = v2 + w2
     # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
-    vec = _numerics.nan_unless(torch.isfinite(n)[..., None], vec)
-    return torch.cat((torch.log(n)[..., None], vec), dim=-1)
+    vec = _numerics.nan_unless(torch.isfinite(n2)[..., None], vec)
+    return torch.cat(((0.5 * torch.log(n2) + torch.log(m[..., 0]))[..., None], vec), dim=-1)
 
 
 def _wrap(angle: Tensor) -> Tensor:
@@ -169,7 +181,9 @@ def norm(q: Tensor) -> Tensor:
         ``(...)`` tensor.
     """
     _checks.tensor("quat.norm", "q", q, 4)
-    return torch.linalg.vector_norm(lift(q), dim=-1).to(q.dtype)
+    ql = lift(q)
+    m = _numerics.power_of_two_scale(ql)
+    return (m[..., 0] * torch.linalg.vector_norm(ql / m, dim=-1)).to(q.dtype)
 
 
 def inv(q: Tensor) -> Tensor:
@@ -181,8 +195,10 @@ def inv(q: Tensor) -> Tensor:
     """
     _checks.tensor("quat.inv", "q", q, 4)
     ql = lift(q)
-    n2 = (ql * ql).sum(-1, keepdim=True)
-    return (qconj(ql) / _numerics.nan_unless(torch.isfinite(n2), n2)).to(q.dtype)
+    m = _numerics.power_of_two_scale(ql)
+    p = ql / m
+    n2 = (p * p).sum(-1, keepdim=True)
+    return (qconj(p) / (_numerics.nan_unless(torch.isfinite(n2), n2) * m)).to(q.dtype)
 
 
 def normalize(q: Tensor, check: bool = False) -> Tensor:
@@ -199,10 +215,12 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
     """
     _checks.tensor("quat.normalize", "q", q, 4)
     dtype, q = q.dtype, lift(q)
+    q = q / _numerics.power_of_two_scale(q)  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
-    if check and not bool(torch.all(torch.isfinite(n) & (n > 0))):
+    ok = (n > 0) & torch.isfinite(n)
+    if check and not _checks.host_all("quat.normalize", "check=True", ok):
         _checks.fail("quat.normalize", "q contains zero or non-finite quaternions")
-    return (q / _numerics.nan_unless((n > 0) & torch.isfinite(n), n)).to(dtype)
+    return (q / _numerics.nan_unless(ok, n)).to(dtype)
 
 
 def dot(a: Tensor, b: Tensor) -> Tensor:
@@ -260,11 +278,12 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
     Returns:
         ``(..., 4)`` quaternions, batch shape broadcast of ``q0``, ``q1`` and ``t``.
 
-    Singular points: at ``q0 == q1`` the value and the gradients are finite (``sinc``
-    Taylor branch). With ``shortest=False`` and ``q1`` close to ``-q0`` the great circle
-    is ill-conditioned (the path is still a unit great circle through ``q0``, but its
-    direction has error about ``eps / (pi - angle)``). For ``q1 == -q0`` (within ``eps``)
-    every great circle is a geodesic and the one through ``q0 (0, 1, 0, 0)`` is returned,
+    Singular points: at ``q0 == q1`` the value and its derivatives of every order are
+    exact (the weights are evaluated from the squared angle, a smooth function). With
+    ``shortest=False`` and ``q1`` close to ``-q0`` the great circle is ill-conditioned (the
+    path is still a unit great circle through ``q0``, but its direction has error about
+    ``eps / (pi - angle)``). For ``q1 == -q0`` (within ``eps``) every great circle is a
+    geodesic and the one through ``q0 (0, 1, 0, 0)`` is returned,
     ``cos(pi t) q0 + sin(pi t) q0 (0, 1, 0, 0)``, consistent with ``log(-1) = (0, pi, 0, 0)``.
 
     Example:
@@ -276,32 +295,38 @@ def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
     _checks.pair(fn, q0, q1, 4, ("q0", "q1"))
     t = _checks.as_float_tensor(fn, "t", t, q0, "q0")
     _checks.broadcast_batch(fn, q0=(q0, 1), q1=(q1, 1), t=(t, 0))
+    shortest = _checks.flag(fn, "shortest", shortest)
     dtype = q0.dtype
     q0, q1, t = lift(q0), lift(q1), lift(t)[..., None]
     d = (q0 * q1).sum(-1, keepdim=True)
     if shortest:
         flip = d < 0
         q1, d = torch.where(flip, -q1, q1), torch.where(flip, -d, d)
-    # omega, the angle between q0 and q1 in R^4, without acos's loss of accuracy near 0.
-    omega = 2.0 * torch.atan2(_numerics.safe_norm(q1 - q0), _numerics.safe_norm(q1 + q0))[..., None]
-    # The result is cos(t omega) q0 + sin(t omega) r / |r|, with r the part of q1
-    # orthogonal to q0 (|r| = sin(omega)); projecting twice keeps r orthogonal to q0 to
-    # rounding even when q1 is nearly -q0 and r is all cancellation.
+    # The result is cos(t omega) q0 + sin(t omega) r / |r|, with omega the angle between q0
+    # and q1 in R^4 and r the part of q1 orthogonal to q0 (|r| = sin(omega)); projecting
+    # twice keeps r orthogonal to q0 to rounding even when q1 is nearly -q0.
     r = q1 - d * q0
     r = r - (r * q0).sum(-1, keepdim=True) * q0
+    dm, dp = q1 - q0, q1 + q0
+    near = d >= 0  # omega <= pi / 2
+    # Near: z2 = |q1 - q0|^2 / |q1 + q0|^2 = tan^2(omega / 2) <= 1, so
+    # omega^2 = 4 z2 atanc(z2)^2, and cos(t omega), sin(t omega) / sin(omega) are even
+    # functions of omega evaluated from omega^2: smooth to every order at q0 == q1.
+    dp2 = torch.where(near, (dp * dp).sum(-1, keepdim=True), 1.0)
+    z2 = torch.where(near, (dm * dm).sum(-1, keepdim=True) / dp2, 0.0)
+    omega2 = 4.0 * z2 * _numerics.even("atanc", z2) ** 2
+    tw2 = t * t * omega2
+    cos_near = _numerics.even("cos", tw2)
+    scale_near = t * _numerics.even("sinc", tw2) / _numerics.even("sinc", omega2)
+    # Far (omega > pi / 2): sin(t omega) / |r|, where sin of the rounded omega would lose the
+    # relative accuracy |r| keeps; for q1 == -q0 (within eps) r is replaced by q0 (0, 1, 0, 0).
+    omega = 2.0 * torch.atan2(_numerics.safe_norm(dm), _numerics.safe_norm(dp))[..., None]
     r_norm = _numerics.safe_norm(r)[..., None]
-    near = d >= 0
     antipodal = ~near & (r_norm <= _numerics.threshold("antipodal", r.dtype))
     r = torch.where(antipodal, qmul(q0, q0.new_tensor([0.0, 1.0, 0.0, 0.0])), r)
-    # sin(t omega) / sin(omega): through sinc for omega <= pi/2 (0 / 0 at omega = 0), through
-    # |r| beyond, where sin of the rounded omega loses the relative accuracy |r| keeps.
-    omega_near = torch.where(near, omega, torch.zeros_like(omega))
-    scale = torch.where(
-        near,
-        t * _numerics.sinc(t * omega_near) / _numerics.sinc(omega_near),
-        torch.sin(t * omega) / _numerics.safe_denominator(r_norm, near | antipodal),
-    )
-    return (torch.cos(t * omega) * q0 + scale * r).to(dtype)
+    scale_far = torch.sin(t * omega) / _numerics.safe_denominator(r_norm, near | antipodal)
+    return (torch.where(near, cos_near, torch.cos(t * omega)) * q0
+            + torch.where(near, scale_near, scale_far) * r).to(dtype)
 
 
 def exp(q: Tensor) -> Tensor:
@@ -404,6 +429,7 @@ def to_matrix(q: Tensor) -> Tensor:
     """
     _checks.tensor("quat.to_matrix", "q", q, 4)
     ql = lift(q)
+    ql = ql / _numerics.power_of_two_scale(ql)  # exact; no square over- or underflows
     w, x, y, z = ql.unbind(-1)
     n2 = (ql * ql).sum(-1)
     s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
@@ -462,6 +488,7 @@ def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
     """
     _checks.tensor("quat.to_axis_angle", "q", q, 4)
     qc = canonical(lift(q))
+    qc = qc / _numerics.power_of_two_scale(qc)  # exact; no square over- or underflows
     w, v = qc[..., 0], qc[..., 1:]
     s = _numerics.safe_norm(v)
     zero = (s == 0)[..., None]
@@ -575,6 +602,7 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
         k = 3 - i - j
     sign = (i - j) * (j - k) * (k - i) // 2  # +1 if (i, j, k) is a cyclic permutation
     ql = lift(q)
+    ql = ql / _numerics.power_of_two_scale(ql)  # exact; no square over- or underflows
     w, qi, qj, qk = ql[..., 0], ql[..., 1 + i], ql[..., 1 + j], sign * ql[..., 1 + k]
     # Step 1: rotate the problem onto a proper Euler sequence (i, j, i).
     a, b, c, d = (w, qi, qj, qk) if symmetric else (w - qj, qi + qk, qj + w, qk - qi)
