@@ -344,7 +344,7 @@ def test_twists_match_matrix_finite_differences(gen, kind):
         lambda s: bspline(ctrl, s, knots=knots))
     t = torch.tensor([0.01, 0.3, 0.5, 0.7, 0.99], dtype=F64)
     x, dx = velocity(f, t)
-    assert max_err(x, f(t)) == 0
+    assert max_err(x, f(t)) <= 1e-14  # readable scheme under jvp, fused op outside
     h = 1e-4  # fourth-order central differences
     T = dq.to_matrix(x)
     M = [dq.to_matrix(f(t + k * h)) for k in (-2, -1, 1, 2)]
@@ -486,7 +486,6 @@ def _bad_cases():
         ("bezier t inf", lambda: bezier(c, t * math.inf), ValueError, r"bezier.*t.*domain"),
         ("bezier int ctrl", lambda: bezier(c.long(), t), TypeError, r"bezier.*ctrl"),
         ("bezier int t", lambda: bezier(c, t.long()), TypeError, r"bezier.*t"),
-        ("bezier mixed dtype", lambda: bezier(c, t.float()), TypeError, r"bezier.*t"),
         ("bezier not tensor", lambda: bezier(c, [0.5]), TypeError, r"bezier.*t"),
         ("bezier batch", lambda: bezier(c.expand(3, 5, 8), t.expand(2, 4)), ValueError,
          r"bezier.*batch.*ctrl.*t"),
@@ -512,8 +511,6 @@ def _bad_cases():
          r"bspline.*t.*domain"),
         ("bspline t outside default", lambda: bspline(c, t + 1e-6), ValueError,
          r"bspline.*t.*domain"),
-        ("bspline knots dtype", lambda: bspline(c, t, knots=k.float()), TypeError,
-         r"bspline.*knots"),
         ("bspline knots int", lambda: bspline(c, t, knots=k.long()), TypeError,
          r"bspline.*knots"),
         ("knots degree", lambda: clamped_uniform_knots(5, 0), ValueError,
@@ -543,4 +540,5 @@ def test_bad_input(case):
 
 def test_module_exports():
     assert set(curves.__all__) == {"bezier", "bspline", "clamped_uniform_knots", "screw_axis",
-                                   "twists", "velocity"}
+                                   "twists", "velocity", "bezier_derivatives",
+                                   "bspline_derivatives", "kinematics", "imu"}

@@ -5,47 +5,75 @@ paper's eq. 11 (:func:`torch_dq.dualquat.sclerp` with ``shortest=True`` at every
 before each interpolation the second point is replaced by its antipode when the real
 parts' dot is negative, so that ``x`` and ``-x`` control points give the same motion).
 
-- :func:`bezier`: De Casteljau (paper 4.1), ``n + 1`` control points, ``t`` in ``[0, 1]``.
-- :func:`bspline`: De Boor (paper 4.2), any non-decreasing knot vector
+- :func:`bezier`: De Casteljau (paper 4.1) over a ``domain`` ``[t0, t1]`` of the caller's time.
+- :func:`bspline`: De Boor (paper 4.2), any non-decreasing knot vector in the caller's time
   (:func:`clamped_uniform_knots` by default), ``t`` in the knot domain.
-- :func:`velocity`, :func:`twists`, :func:`screw_axis`: derivative along a curve, body and
-  spatial twists, and the instantaneous screw axis (whose trace over ``t`` is the fixed
-  axode of the motion).
+- :func:`bezier_derivatives`, :func:`bspline_derivatives`: the pose and its exact time
+  derivatives up to order 3, in the caller's time.
+- :func:`kinematics`, :func:`imu`: angular and linear velocity and acceleration (world or
+  body axes), and what an ideal IMU reads; :func:`velocity`, :func:`twists`,
+  :func:`screw_axis`: forward-mode velocity of any curve function, body and spatial twists,
+  and the instantaneous screw axis (whose trace over ``t`` is the fixed axode).
+
+Time is the caller's: a Bézier curve's ``domain`` and a B-spline's knots are in seconds,
+frames or whatever unit ``t`` is in, never silently rescaled, and derivatives are with
+respect to that ``t``. Wide time: ``t``, ``knots`` and ``domain`` may have a wider floating
+dtype than the control points (float64 UNIX timestamps with float32 control points). The
+time arithmetic (spans, local parameters ``(t - u_i) / (u_j - u_i)`` and their slopes) then
+runs in the widest dtype of ``ctrl``, ``t`` and the knots (or domain); only the local
+parameters, in ``[0, 1]``, are rounded to ``ctrl``'s dtype. A *narrower* ``t`` or knots
+are promoted the same way (the widest dtype wins), so mixing dtypes never raises here.
 
 Shapes: control points ``(..., n, 8)`` and times ``(T,)`` or ``(..., T)``; the batch dims
 (all but the last two of ``ctrl``, all but the last of ``t``) broadcast, and the curves
 are ``(..., T, 8)``. Every evaluation is vectorised over the batch, the control points and
-all ``T`` times at once (the only Python loop is over the ``degree`` levels), and its
-gradients with respect to the control points, the times and the knots come from the
-analytic autograd op behind ``sclerp`` (finite at equal and antipodal control points).
+all ``T`` times at once (the only Python loop is over the levels of the scheme).
 
-Value checks on knots and times cost one device synchronisation; ``check=False`` skips them
-(for ``torch.compile`` and tight loops).
+Two implementations of each scheme: the readable level loops of this module
+(:func:`_de_casteljau`, :func:`_de_boor`, plain calls to ``sclerp``: the reference, exact to
+any order of differentiation in any mode), and the fused op
+:func:`torch_dq._kernels.pyramid.pyramid` (all levels in one autograd op, O(output) memory).
+:func:`bezier` and :func:`bspline` run the fused op except under ``torch.func`` transforms
+and forward-mode AD (:func:`torch_dq._kernels.fused_path`), where a custom op cannot pass
+nested tangents on.
+
+Value checks on knots, domain and times cost one device synchronisation; ``check=False``
+skips them (for ``torch.compile`` and tight loops).
 """
 
 from __future__ import annotations
 
+import functools
+import math
 import numbers
-from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
-from . import _checks, dualquat
-from ._core import align_chain, dq_mul
+from . import _checks, _kernels, dualquat
+from ._core import align_chain
 from ._kernels.pyramid import pyramid
+from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype, safe_denominator
 
 __all__ = [
     "bezier",
+    "bezier_derivatives",
     "bspline",
+    "bspline_derivatives",
     "clamped_uniform_knots",
+    "imu",
+    "kinematics",
     "screw_axis",
     "twists",
     "velocity",
 ]
 
+for _f in (Kinematics, imu, kinematics, screw_axis, twists, velocity):
+    _f.__module__ = __name__  # documented and pickled as torch_dq.curves.<name>
+
 _ULPS = 4.0  # tolerance of the domain check on t, in units of eps * scale of the domain
+_MAX_ORDER = 3  # highest time derivative of the *_derivatives functions
 
 
 # ----------------------------------------------------------------------------- checks
@@ -56,6 +84,13 @@ def _check_degree(fn: str, degree) -> int:
     return int(degree)
 
 
+def _check_order(fn: str, order) -> int:
+    if (isinstance(order, bool) or not isinstance(order, numbers.Integral)
+            or not 0 <= order <= _MAX_ORDER):
+        _checks.fail(fn, f"order must be an int in 0..{_MAX_ORDER}, got {order!r}")
+    return int(order)
+
+
 def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
     _checks.tensor(fn, "ctrl", ctrl, 8)
     if ctrl.dim() < 2 or ctrl.shape[-2] < min_points:
@@ -64,58 +99,122 @@ def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
                          f"({what}), got shape {got}")
 
 
+def _same_device(fn: str, ctrl: Tensor, name: str, x: Tensor) -> None:
+    if x.device != ctrl.device:
+        _checks.fail(fn, f"{name} is on {x.device} but ctrl is on {ctrl.device}", TypeError)
+
+
 def _check_times(fn: str, t, ctrl: Tensor) -> torch.Size:
     _checks.tensor(fn, "t", t)
     if t.dim() < 1:
         _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
-    _checks.same_dtype_device(fn, ctrl=ctrl, t=t)
+    _same_device(fn, ctrl, "t", t)
     return _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1))
 
 
-def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | None) -> None:
-    """All value checks with one synchronisation (``.tolist()`` of a few bools)."""
+def _time_dtype(ctrl: Tensor, *times: Tensor) -> torch.dtype:
+    """The widest compute dtype of ``ctrl`` and the time tensors (module docstring)."""
+    dtype = compute_dtype(ctrl.dtype)
+    for x in times:
+        dtype = torch.promote_types(dtype, compute_dtype(x.dtype))
+    return dtype
+
+
+def _fmt(x: float, dtype: torch.dtype) -> str:
+    """A time for a message, with the digits its dtype holds (UNIX seconds stay readable)."""
+    return f"{x:.{15 if dtype == torch.float64 else 7}g}"
+
+
+def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor, Tensor] | tuple[float, float]:
+    """``domain`` as two Python floats (checked here) or two 0-d tensors (checked with t)."""
+    msg = f"expected domain to be (t0, t1), two real numbers or a (2,) tensor, got {domain!r}"
+    if isinstance(domain, Tensor):
+        _checks.tensor(fn, "domain", domain)
+        if domain.shape != (2,):
+            _checks.fail(fn, f"expected a (2,) tensor for domain, got shape "
+                             f"{_checks.shape_str(domain.shape)}")
+        _same_device(fn, ctrl, "domain", domain)
+        return domain[0], domain[1]
+    try:
+        t0, t1 = domain
+    except (TypeError, ValueError):
+        _checks.fail(fn, msg)
+    ends = []
+    for e in (t0, t1):
+        if isinstance(e, Tensor) and e.dim() == 0 and e.is_floating_point():
+            _same_device(fn, ctrl, "domain", e)
+            ends.append(e)
+        elif isinstance(e, numbers.Real) and not isinstance(e, bool):
+            ends.append(float(e))
+        else:
+            _checks.fail(fn, msg)
+    if all(isinstance(e, float) for e in ends) and not (math.isfinite(ends[0])
+                                                         and math.isfinite(ends[1])
+                                                         and ends[0] < ends[1]):
+        _checks.fail(fn, f"domain must be two finite times t0 < t1, got {domain!r}")
+    return ends[0], ends[1]
+
+
+def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | None,
+                  fix: str) -> None:
+    """All value checks with one synchronisation (``.tolist()`` of a few bools).
+
+    ``t``, ``lo``, ``hi`` (and ``knots``) are in the time dtype; ``fix`` ends the message
+    on ``t`` outside the domain (how to get there).
+    """
     flags = []
     if knots is not None:
-        flags += [~torch.isfinite(knots).all(), (knots[1:] < knots[:-1]).any(), ~(lo < hi)]
+        flags += [~torch.isfinite(knots).all(), (knots[1:] < knots[:-1]).any()]
+    flags.append(~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi)))
     tol = _ULPS * torch.finfo(t.dtype).eps * torch.maximum(lo.abs(), hi.abs())
-    flags.append(((t < lo - tol) | (t > hi + tol)).any())
+    flags.append(((t < lo - tol) | (t > hi + tol)).any())  # NaN times give NaN poses
     try:
         bad = torch.stack(flags).tolist()
     except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
         raise RuntimeError(f"{fn}: the value checks read t (and knots) on the host, which "
                            f"this transform does not allow; pass check=False") from e
+    dt = t.dtype
+    ends = f"[{_fmt(lo.item(), dt)}, {_fmt(hi.item(), dt)}]"
     if knots is not None:
         if bad[0]:
             _checks.fail(fn, "knots must be finite")
         if bad[1]:
             _checks.fail(fn, f"knots must be non-decreasing, got {knots.tolist()}")
         if bad[2]:
-            _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = "
-                             f"[{lo.item():g}, {hi.item():g}]")
+            _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = {ends}")
+    elif bad[0]:
+        _checks.fail(fn, f"domain must be two finite times t0 < t1, got {ends}")
     if bad[-1]:
         finite = t[torch.isfinite(t)]
-        seen = (f"[{finite.min().item():g}, {finite.max().item():g}]" if finite.numel()
-                else "none finite")
-        _checks.fail(fn, f"t must lie in the domain [{lo.item():g}, {hi.item():g}], got "
-                         f"values in {seen} (non-finite: {int((~torch.isfinite(t)).sum())})")
+        n_bad = int((~torch.isfinite(t)).sum())
+        if finite.numel():
+            got = (f"got values in [{_fmt(finite.min().item(), dt)}, "
+                   f"{_fmt(finite.max().item(), dt)}]")
+            if n_bad:
+                got += f" and t contains NaN/inf ({n_bad} values)"
+        else:
+            got = f"but t contains NaN/inf only ({n_bad} values)"
+        _checks.fail(fn, f"t must lie in the domain {ends}, {got}; {fix}")
 
 
 # ----------------------------------------------------------------------------- knots
 
 def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = None,
-                          device=None) -> Tensor:
-    r"""Clamped uniform knot vector on ``[0, 1]`` for ``n_ctrl`` control points.
+                          device=None, domain=(0.0, 1.0)) -> Tensor:
+    r"""Clamped uniform knot vector on ``domain = (t0, t1)`` for ``n_ctrl`` control points.
 
-    ``degree + 1`` zeros, the ``n_ctrl - degree - 1`` interior knots
-    :math:`i / (n_{ctrl} - degree)` and ``degree + 1`` ones: the B-spline then starts at
-    the first and ends at the last control point, and ``n_ctrl = degree + 1`` gives the
-    Bézier curve.
+    ``degree + 1`` copies of ``t0``, the ``n_ctrl - degree - 1`` interior knots
+    :math:`t_0 + i\,(t_1 - t_0) / (n_{ctrl} - degree)` and ``degree + 1`` copies of ``t1``:
+    the B-spline then starts at the first and ends at the last control point, its domain is
+    ``[t0, t1]`` and ``n_ctrl = degree + 1`` gives the Bézier curve on that domain.
 
     Args:
         n_ctrl: number of control points, ``> degree``.
         degree: polynomial degree ``>= 1`` (3 for cubic).
-        dtype: floating dtype (default: ``torch.get_default_dtype()``).
+        dtype: floating dtype (default: ``torch.get_default_dtype()``); use float64 for
+            absolute timestamps such as UNIX seconds (float32 resolves 128 s at 1.7e9).
         device: device of the result.
+        domain: ``(t0, t1)``, two finite real numbers with ``t0 < t1``, in the caller's time.
 
     Returns:
         ``(n_ctrl + degree + 1,)`` non-decreasing knots.
@@ -123,6 +222,9 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
     Example:
         >>> clamped_uniform_knots(5, 2)
         tensor([0.0000, 0.0000, 0.0000, 0.3333, 0.6667, 1.0000, 1.0000, 1.0000])
+        >>> clamped_uniform_knots(4, 3, dtype=torch.float64, domain=(10.0, 12.5))
+        tensor([10.0000, 10.0000, 10.0000, 10.0000, 12.5000, 12.5000, 12.5000, 12.5000],
+               dtype=torch.float64)
     """
     fn = "curves.clamped_uniform_knots"
     degree = _check_degree(fn, degree)
@@ -131,107 +233,337 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
     dtype = torch.get_default_dtype() if dtype is None else dtype
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         _checks.fail(fn, f"expected a floating dtype, got {dtype!r}", TypeError)
+    try:
+        t0, t1 = (float(e) for e in domain)
+        ok = not any(isinstance(e, bool) for e in domain) and len(domain) == 2
+    except (TypeError, ValueError, RuntimeError):
+        ok = False
+    if not ok or not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
+        _checks.fail(fn, f"domain must be two finite real numbers t0 < t1, got {domain!r}")
     n_ctrl = int(n_ctrl)
-    inner = torch.linspace(0.0, 1.0, n_ctrl - degree + 1, dtype=dtype, device=device)
-    return torch.cat((inner.new_zeros(degree), inner, inner.new_ones(degree)))
+    inner = torch.linspace(t0, t1, n_ctrl - degree + 1, dtype=dtype, device=device)[1:-1]
+    return torch.cat((inner.new_full((degree + 1,), t0), inner, inner.new_full((degree + 1,), t1)))
 
 
-# ----------------------------------------------------------------------------- evaluation
+# ----------------------------------------------------------------------------- readable schemes
 
-def _bezier(ctrl: Tensor, t: Tensor, batch: torch.Size) -> Tensor:
-    """Unchecked De Casteljau: every curve's ``m`` control points are level 0 of the fused
-    scheme of :func:`torch_dq._kernels.pyramid.pyramid`, with ``alpha = t`` at every level."""
-    T, m, B = t.shape[-1], ctrl.shape[-2], batch.numel()
+def _de_casteljau(ctrl: Tensor, s: Tensor) -> Tensor:
+    r"""De Casteljau with eq. 11 (paper 4.1), one level per iteration: the reference.
+
+    ``ctrl (..., m, 8)`` and local parameters ``s (..., T)`` (batches broadcast) ->
+    ``(..., T, 8)``: :math:`q_i^{(j)} = \mathrm{sclerp}(q_i^{(j-1)}, q_{i+1}^{(j-1)}, s)`.
+    """
+    q = ctrl[..., None, :, :]  # (..., 1, m, 8): level 0, shared by the T times
+    s = s[..., None]  # (..., T, 1): the same parameter at every level and index
+    for _ in range(ctrl.shape[-2] - 1):
+        q = dualquat.sclerp(q[..., :-1, :], q[..., 1:, :], s)
+    return q[..., 0, :]
+
+
+def _de_boor(d: Tensor, alphas: list[Tensor]) -> Tensor:
+    r"""De Boor with eq. 11 (paper 4.2), one level per iteration: the reference.
+
+    ``d (..., T, p + 1, 8)``: the control points :math:`d_{r-p}, \dots, d_r` of each time's
+    span; ``alphas[j - 1] (..., T, p + 1 - j)``: the local parameters
+    :math:`\alpha_i^j = (t - u_i) / (u_{i+p+1-j} - u_i)`, ``i = r-p+j .. r``. Returns
+    :math:`d_r^p`, ``(..., T, 8)``, from
+    :math:`d_i^j = \mathrm{sclerp}(d_{i-1}^{j-1}, d_i^{j-1}, \alpha_i^j)`.
+    """
+    for alpha in alphas:
+        d = dualquat.sclerp(d[..., :-1, :], d[..., 1:, :], alpha)
+    return d[..., 0, :]
+
+
+# ----------------------------------------------------------------------------- local parameters
+
+def _bezier_parameter(t: Tensor, t0, t1, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+    """Local parameter ``(t - t0) / (t1 - t0)`` and its slope ``1 / (t1 - t0)``, computed in
+    ``t``'s (time) dtype and rounded to the compute dtype ``dtype``."""
+    t0, t1 = (torch.as_tensor(e, dtype=t.dtype, device=t.device) for e in (t0, t1))
+    span = t1 - t0
+    return ((t - t0) / span).to(dtype), (1.0 / span).to(dtype)
+
+
+def _bspline_parameters(t: Tensor, knots: Tensor, degree: int, n: int, dtype: torch.dtype):
+    """Spans and local parameters of De Boor's scheme, in the time dtype of ``t, knots``.
+
+    Returns ``r (..., T)`` (the span ``knots[r] <= t < knots[r + 1]``, ``r`` in
+    ``[p, n - 1]``; the last non-empty span at the right end of the domain), and per level
+    ``j = 1..p`` the pair ``alpha_j, slope_j (..., T, p + 1 - j)`` rounded to ``dtype``,
+    ``slope = d alpha / dt = 1 / (u_{i+p+1-j} - u_i)``.
+    """
+    p = degree
+    inner = knots[p + 1:n]
+    r = p + torch.searchsorted(inner, t.detach().contiguous(), right=True)
+    r_end = p + torch.searchsorted(inner, knots[n:n + 1].detach(), right=False)
+    r = torch.minimum(r, r_end)
+    # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
+    K = knots[r[..., None] + torch.arange(1 - p, p + 1, device=t.device)]
+    te = t[..., None]
+    levels = []
+    for j in range(1, p + 1):
+        # alpha_i = (t - knots[i]) / (knots[i + p + 1 - j] - knots[i]), i = r-p+j .. r
+        left, right = K[..., j - 1:p], K[..., p:2 * p - j + 1]
+        denom = right - left
+        empty = denom <= 0  # never inside a non-empty span; guards 0 / 0 all the same
+        safe = safe_denominator(denom, empty)
+        alpha = torch.where(empty, 0.0, (te - left) / safe)
+        slope = torch.where(empty, 0.0, 1.0 / safe)
+        levels.append((alpha.to(dtype), slope.to(dtype)))
+    return r, levels
+
+
+def _span_points(ctrl: Tensor, r: Tensor, degree: int, batch: torch.Size) -> Tensor:
+    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, 8)``,
+    gathered through one flat index (the backward accumulates into ``(B n, 8)``)."""
+    n, T = ctrl.shape[-2], r.shape[-1]
+    flat = ctrl.expand(*batch, n, 8).reshape(-1, 8)
+    offsets = (torch.arange(batch.numel(), device=r.device) * n).reshape(*batch, 1, 1)
+    idx = r[..., None] + torch.arange(-degree, 1, device=r.device) + offsets
+    idx = idx.expand(*batch, T, degree + 1)
+    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, 8)
+
+
+# ----------------------------------------------------------------------------- fused schemes
+
+def _fused_bezier(ctrl: Tensor, s: Tensor, batch: torch.Size) -> Tensor:
+    """De Casteljau through the fused op: every curve's ``m`` control points are level 0,
+    with ``alpha = s`` at every level."""
+    T, m, B = s.shape[-1], ctrl.shape[-2], batch.numel()
     flat = ctrl.expand(*batch, m, 8).reshape(B * m, 8)
     # idx[i, b T + k] = b m + i: the i-th control point of curve b, for each of its T times
-    idx = (torch.arange(B, device=t.device)[:, None] * m + torch.arange(m, device=t.device))
+    idx = (torch.arange(B, device=s.device)[:, None] * m + torch.arange(m, device=s.device))
     idx = idx.T[:, :, None].expand(m, B, T).reshape(m, B * T)
-    tt = t.expand(*batch, T).reshape(1, B * T)
-    out = pyramid(flat, idx, [tt.expand(m - j, B * T) for j in range(1, m)])
+    ss = s.expand(*batch, T).reshape(1, B * T)
+    out = pyramid(flat, idx, [ss.expand(m - j, B * T) for j in range(1, m)])
     return out.view(*batch, T, 8)
 
 
-def bezier(ctrl: Tensor, t: Tensor, check: bool = True) -> Tensor:
+def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
+                   batch: torch.Size) -> Tensor:
+    """De Boor through the fused op, which gathers the ``degree + 1`` points of each time
+    itself and recomputes the levels in its backward (memory O(output))."""
+    p, n, T, B = degree, ctrl.shape[-2], r.shape[-1], batch.numel()
+    flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
+    offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1, 1)
+    idx = r[..., None] + torch.arange(-p, 1, device=r.device) + offsets  # (*batch, T, p + 1)
+    rows = [a.expand(*batch, T, p + 1 - j).reshape(B * T, p + 1 - j).T
+            for j, a in enumerate(alphas, start=1)]
+    out = pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, rows)
+    return out.view(*batch, T, 8)
+
+
+# ----------------------------------------------------------------------------- time derivatives
+
+def _taylor(jet: list[Tensor], tau: Tensor) -> Tensor:
+    r""":math:`\sum_k x^{(k)} \tau^k / k!` by Horner's rule (``jet = [x, x', ...]``)."""
+    out = jet[-1]
+    for k in range(len(jet) - 1, 0, -1):
+        out = jet[k - 1] + (tau / k) * out
+    return out
+
+
+def _tangent(f, tau: Tensor):
+    return torch.func.jvp(f, (tau,), (torch.ones_like(tau),))
+
+
+def _sclerp_jet(a: list[Tensor], b: list[Tensor], alpha: tuple[Tensor, Tensor],
+                order: int) -> list[Tensor]:
+    r"""Time derivatives ``0..order`` of :math:`y(t) = \mathrm{sclerp}(a(t), b(t), \alpha(t))`.
+
+    ``a``, ``b``: jets ``[x, x', ...]`` (missing entries are zero); ``alpha = (value, slope)``
+    (the local parameters are affine in ``t``). The derivatives of
+    :math:`\tau \mapsto \mathrm{sclerp}(a(t + \tau), b(t + \tau), \alpha(t + \tau))` at 0,
+    with the arguments replaced by their Taylor polynomials (exact up to ``order``), by
+    ``order`` nested ``torch.func.jvp`` in the scalar :math:`\tau` (Taylor-mode arithmetic by
+    nesting: exact, and differentiable again in reverse mode).
+    """
+    def y(tau):
+        return dualquat.sclerp(_taylor(a, tau), _taylor(b, tau), alpha[0] + tau * alpha[1])
+
+    f = y
+    for _ in range(order):
+        f = functools.partial(_tangent, f)
+    out = f(alpha[0].new_zeros(()))
+    jet = []
+    for k in range(order + 1):  # ((y, y'), (y', y'')) for order 2: take k tangent branches
+        node = out
+        for level in range(order):
+            node = node[1 if level < k else 0]
+        jet.append(node)
+    return jet
+
+
+def _jet_de_casteljau(ctrl: Tensor, s: Tensor, slope: Tensor, order: int) -> list[Tensor]:
+    """:func:`_de_casteljau` with the time derivatives up to ``order`` of every level."""
+    q = [ctrl[..., None, :, :]]  # constant in t
+    alpha = (s[..., None], slope)
+    for _ in range(ctrl.shape[-2] - 1):
+        q = _sclerp_jet([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], alpha, order)
+    return [x[..., 0, :] for x in q]
+
+
+def _jet_de_boor(d: Tensor, levels, order: int) -> list[Tensor]:
+    """:func:`_de_boor` with the time derivatives up to ``order`` of every level."""
+    q = [d]  # constant in t
+    for alpha in levels:
+        q = _sclerp_jet([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], alpha, order)
+    return [x[..., 0, :] for x in q]
+
+
+# ----------------------------------------------------------------------------- public curves
+
+_SMOOTHNESS = r"""
+    Smoothness: inside a span every level is analytic in ``t``; at a simple interior knot of
+    a B-spline of degree ``p >= 2`` the curve is :math:`C^1` but in general not :math:`C^2`
+    (the second derivative jumps, measured in ``tests/test_continuous_time.py``): each level
+    of the scheme is a geodesic (screw) interpolation, not an affine combination, so the
+    Euclidean :math:`C^{p-1}` argument only survives to first order. Rotation-only motions
+    about one axis and pure translations are :math:`C^{p-1}`, as in Euclidean space."""
+
+
+def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool):
+    _check_ctrl(fn, ctrl, 2, "at least 2 control points")
+    batch = _check_times(fn, t, ctrl)
+    t0, t1 = _domain(fn, domain, ctrl)
+    tdtype = _time_dtype(ctrl, t, *(e for e in (t0, t1) if isinstance(e, Tensor)))
+    tt = t.to(tdtype)
+    if check:
+        lo, hi = (torch.as_tensor(e, dtype=tdtype, device=t.device) for e in (t0, t1))
+        _check_values(fn, tt, lo, hi, None,
+                      "evaluate inside it or pass a domain=(t0, t1) that covers it")
+    dtype = compute_dtype(ctrl.dtype)
+    s, slope = _bezier_parameter(tt, t0, t1, dtype)
+    return batch, ctrl.to(dtype), s, slope
+
+
+def bezier(ctrl: Tensor, t: Tensor, domain=(0.0, 1.0), check: bool = True) -> Tensor:
     r"""Bézier curve of unit dual quaternions by De Casteljau's algorithm (paper 4.1).
 
-    With :math:`q_i^{(0)} = q_i` (the control points),
+    With :math:`q_i^{(0)} = q_i` (the control points) and the local parameter
+    :math:`s = (t - t_0) / (t_1 - t_0)` of the ``domain`` :math:`[t_0, t_1]`,
 
     .. math::
-        q_i^{(j)}(t) = \mathrm{sclerp}\big(q_i^{(j-1)}(t),\, q_{i+1}^{(j-1)}(t),\, t\big),
+        q_i^{(j)}(t) = \mathrm{sclerp}\big(q_i^{(j-1)}(t),\, q_{i+1}^{(j-1)}(t),\, s\big),
         \quad j = 1..n,\ i = 0..n-j,
 
     and the curve is :math:`q_0^{(n)}(t)`; ``sclerp`` is eq. 11 with the shortest-path sign
-    choice at every step. The curve starts at ``ctrl[..., 0, :]`` (exactly, same sign) and
-    ends at ``±ctrl[..., -1, :]``. Rotation-only control points give Shoemake's quaternion
-    Bézier curve; translation-only ones the Euclidean Bézier curve of the translations.
-    Cost :math:`O(T n^2)` interpolations.
+    choice at every step. The curve starts at ``ctrl[..., 0, :]`` (exactly, same sign) at
+    :math:`t_0` and ends at ``±ctrl[..., -1, :]`` at :math:`t_1`. Rotation-only control
+    points give Shoemake's quaternion Bézier curve; translation-only ones the Euclidean
+    Bézier curve of the translations. Cost :math:`O(T n^2)` interpolations.
 
     Args:
         ctrl: ``(..., n + 1, 8)`` unit dual quaternions (not checked), ``n + 1 >= 2``.
-        t: ``(T,)`` or ``(..., T)`` times in ``[0, 1]``, same dtype and device as ``ctrl``;
-            its batch dims broadcast with those of ``ctrl``. NaN times give NaN poses.
-        check: verify that ``t`` lies in ``[0, 1]`` up to a few ulps (one device
+        t: ``(T,)`` or ``(..., T)`` times in ``domain``, on ``ctrl``'s device, any floating
+            dtype (module docstring, "wide time"); its batch dims broadcast with those of
+            ``ctrl``. NaN times give NaN poses.
+        domain: ``(t0, t1)`` with ``t0 < t1``, in the caller's time: two real numbers, two
+            0-d tensors or a ``(2,)`` tensor (may be float64 with float32 ``ctrl``).
+        check: verify that ``t`` lies in ``domain`` up to a few ulps (one device
             synchronisation); ``False`` skips it (e.g. under ``torch.compile``).
 
     Returns:
-        ``(..., T, 8)`` unit dual quaternions. float16/bfloat16 are computed in float32.
+        ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
+        computed in float32.
 
     Raises:
         ValueError: ``ctrl`` not ``(..., n + 1, 8)`` with ``n + 1 >= 2``, ``t`` 0-d, batch
-            shapes that do not broadcast, ``t`` outside ``[0, 1]`` (with ``check``).
-        TypeError: non-floating tensors, mixed dtypes or devices.
+            shapes that do not broadcast, a malformed or empty ``domain``, ``t`` outside
+            the domain (with ``check``).
+        TypeError: non-floating tensors, tensors on another device than ``ctrl``.
 
     Example:
         >>> import torch_dq.dualquat as dq
         >>> a = dq.identity()
         >>> b = dq.from_rt(torch.tensor([1., 0., 0., 0.]), torch.tensor([2., 0., 0.]))
-        >>> bezier(torch.stack((a, b, b)), torch.tensor([0.0, 0.5]))[:, 5]  # half x-shift
+        >>> bezier(torch.stack((a, b, b)), torch.tensor([10.0, 15.0]), domain=(10.0, 20.0))[:, 5]
         tensor([0.0000, 0.7500])
     """
     fn = "curves.bezier"
+    batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check)
+    if _kernels.fused_path(ctrl_c, s):
+        return _fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
+    return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
+
+
+def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, domain=(0.0, 1.0),
+                       check: bool = True) -> tuple[Tensor, ...]:
+    r"""A Bézier curve (:func:`bezier`) and its exact time derivatives up to ``order``.
+
+    Returns :math:`(x, \dot x, \dots, x^{(\mathrm{order})})` with derivatives with respect
+    to the caller's time ``t`` (the chain rule through :math:`s = (t - t_0)/(t_1 - t_0)` is
+    included: a curve on a domain of 10 s moves 10 times slower than on ``[0, 1]``).
+    Exact, not finite differences: the time derivatives of every level of De Casteljau's
+    scheme are propagated through eq. 11 (Taylor arithmetic by nested forward mode on each
+    interpolation step, with the weights' derivatives in ``t``). The results are
+    differentiable (reverse mode, twice; and in forward mode) with respect to ``ctrl``,
+    ``t`` and a tensor ``domain``. Feed them to :func:`kinematics` or :func:`imu`.
+
+    Args:
+        ctrl: ``(..., n + 1, 8)`` unit dual quaternions (not checked), ``n + 1 >= 2``.
+        t: ``(T,)`` or ``(..., T)`` times in ``domain`` (as :func:`bezier`).
+        order: highest derivative, an int in ``0..3``.
+        domain: ``(t0, t1)`` in the caller's time (as :func:`bezier`).
+        check: verify that ``t`` lies in ``domain`` (one device synchronisation).
+
+    Returns:
+        ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as
+        :func:`bezier` to rounding) and their 1st, ..., ``order``-th derivatives, tangent to
+        the unit dual quaternions (:math:`x^* \dot x` is pure).
+
+    Raises:
+        ValueError: as :func:`bezier`; ``order`` not an int in ``0..3``.
+        TypeError: as :func:`bezier`.
+
+    Example:
+        >>> import torch_dq.dualquat as dq
+        >>> ctrl = torch.stack((dq.identity(), dq.from_rt(torch.tensor([1., 0, 0, 0]),
+        ...                                                torch.tensor([2., 0, 0]))))
+        >>> x, dx = bezier_derivatives(ctrl, torch.tensor([1.0]), order=1, domain=(0.0, 4.0))
+        >>> kinematics(x, dx).linear_velocity  # 2 m over 4 s
+        tensor([[0.5000, 0.0000, 0.0000]])
+    """
+    fn = "curves.bezier_derivatives"
+    order = _check_order(fn, order)
+    _, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check)
+    jet = _jet_de_casteljau(ctrl_c, s, slope, order)
+    return tuple(x.to(ctrl.dtype) for x in jet)
+
+
+def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool):
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
+    degree = _check_degree(fn, degree)
+    n = int(ctrl.shape[-2])
+    if degree >= n:
+        _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
+                         f"got degree {degree}")
     batch = _check_times(fn, t, ctrl)
-    if check:
-        _check_values(fn, t, t.new_zeros(()), t.new_ones(()), None)
+    fix = "evaluate inside it or pass knots that cover it"
+    if knots is None:
+        tdtype = _time_dtype(ctrl, t)
+        knots = clamped_uniform_knots(n, degree, dtype=tdtype, device=ctrl.device)
+        tt = t.to(tdtype)
+        if check:
+            _check_values(fn, tt, knots[degree], knots[n], None, fix + " (default knots: "
+                          "clamped uniform on [0, 1])")
+    else:
+        _checks.tensor(fn, "knots", knots)
+        _same_device(fn, ctrl, "knots", knots)
+        if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
+            _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
+                             f"{n + degree + 1} entries, got shape "
+                             f"{_checks.shape_str(knots.shape)}")
+        tdtype = _time_dtype(ctrl, t, knots)
+        knots, tt = knots.to(tdtype), t.to(tdtype)
+        if check:
+            _check_values(fn, tt, knots[degree], knots[n], knots, fix)
     dtype = compute_dtype(ctrl.dtype)
-    return _bezier(ctrl.to(dtype), t.to(dtype), batch).to(ctrl.dtype)
-
-
-def _bspline(ctrl: Tensor, t: Tensor, degree: int, knots: Tensor, batch: torch.Size) -> Tensor:
-    """Unchecked De Boor: span search, gather of ``degree + 1`` points, ``degree`` levels."""
-    p, n, T = degree, ctrl.shape[-2], t.shape[-1]
-    # Span r with knots[r] <= t < knots[r + 1], r in [p, n - 1]; at t >= knots[n] the last
-    # non-empty span (so the right end of the domain is the left limit of the curve).
-    inner = knots[p + 1:n]
-    r = p + torch.searchsorted(inner, t.detach().contiguous(), right=True)
-    r_end = p + torch.searchsorted(inner, knots[n:n + 1].detach(), right=False)
-    r = torch.minimum(r, r_end)
+    r, levels = _bspline_parameters(tt, knots, degree, n, dtype)
     # Sign-align the control polygon (ctrl[i] nearest to ctrl[i - 1]): the motion is the
     # same (sclerp with shortest=True is sign-equivariant), but neighbouring spans then
     # start from representatives of one chain and the output sign does not jump at knots.
-    ctrl = align_chain(ctrl)
-    # The degree + 1 control points of each time, through one flat index (the backward
-    # accumulates into (batch, n, 8), never into (batch, T, n, 8)).
-    B = batch.numel()
-    flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
-    offsets = (torch.arange(B, device=t.device) * n).reshape(*batch, 1, 1)
-    idx = r[..., None] + torch.arange(-p, 1, device=t.device) + offsets  # (*batch, T, p + 1)
-    # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
-    K = knots[r[..., None] + torch.arange(1 - p, p + 1, device=t.device)]
-    te = t[..., None]
-    alphas = []
-    for j in range(1, p + 1):
-        # d_i^j = sclerp(d_{i-1}^{j-1}, d_i^{j-1}, alpha_i), i = r-p+j .. r (local k = j .. p)
-        # alpha_i = (t - knots[i]) / (knots[i + p + 1 - j] - knots[i])
-        left, right = K[..., j - 1:p], K[..., p:2 * p - j + 1]
-        denom = right - left
-        empty = denom <= 0  # never inside a non-empty span; guards 0 / 0 all the same
-        alpha = torch.where(empty, 0.0, (te - left) / safe_denominator(denom, empty))
-        alphas.append(alpha.expand(*batch, T, p + 1 - j).reshape(B * T, p + 1 - j).T)
-    # The fused scheme gathers the degree + 1 points of each time itself and recomputes
-    # the levels in its backward (memory O(output), gradients accumulate into (B n, 8)).
-    out = pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, alphas)
-    return out.view(*batch, T, 8)
+    return batch, degree, align_chain(ctrl.to(dtype)), r, levels
 
 
 def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = None,
@@ -251,214 +583,103 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     :math:`O(T p^2)` interpolations whatever ``n``, and moving ``ctrl[i]`` changes the motion
     only on :math:`[u_i, u_{i+p+1})` (local control; the sign of later samples may flip,
     see below). The domain is :math:`[u_p, u_n]` including its right end, evaluated as the
-    limit from the left.
-    Interior knots may repeat (multiplicity ``m`` lowers the smoothness there to
-    :math:`C^{p-m}`; ``m = p + 1`` makes the curve jump, right-continuously). The control
-    polygon is first sign-aligned (each point replaced by the representative nearest to
-    its predecessor; the motion is unchanged), so that the output's sign follows
-    ``ctrl[..., 0, :]`` and does not flip from one span to the next. With the
-    default clamped knots the curve starts at ``ctrl[..., 0, :]`` and ends at
+    limit from the left. The knots are in the caller's time (seconds, frames, ...).
+    Interior knots may repeat (multiplicity ``m`` makes the curve jump at ``m = p + 1``,
+    right-continuously). The control polygon is first sign-aligned (each point replaced by
+    the representative nearest to its predecessor; the motion is unchanged), so that the
+    output's sign follows ``ctrl[..., 0, :]`` and does not flip from one span to the next.
+    With clamped knots the curve starts at ``ctrl[..., 0, :]`` and ends at
     ``±ctrl[..., -1, :]``; ``n = p + 1`` then gives :func:`bezier`. Rotation-only control
     points give the quaternion De Boor curve with slerp; translation-only ones the Euclidean
     B-spline of the translations.
+    """ + _SMOOTHNESS + r"""
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
-        t: ``(T,)`` or ``(..., T)`` times in ``[knots[degree], knots[n]]``, same dtype and
-            device as ``ctrl``; its batch dims broadcast with those of ``ctrl``.
+        t: ``(T,)`` or ``(..., T)`` times in ``[knots[degree], knots[n]]``, on ``ctrl``'s
+            device, any floating dtype (module docstring, "wide time"); its batch dims
+            broadcast with those of ``ctrl``.
         degree: polynomial degree ``p >= 1`` (1: piecewise sclerp, 3: cubic).
-        knots: ``(n + degree + 1,)`` non-decreasing knots, same dtype and device as
-            ``ctrl``; default :func:`clamped_uniform_knots` on ``[0, 1]``. Differentiable
-            (at times that are not knots).
+        knots: ``(n + degree + 1,)`` non-decreasing knots in the caller's time, on
+            ``ctrl``'s device, any floating dtype (float64 for UNIX seconds); default
+            :func:`clamped_uniform_knots` on ``[0, 1]``. Differentiable (at times that are
+            not knots).
         check: verify that the knots are finite, non-decreasing with a non-empty domain,
             and that ``t`` lies in the domain up to a few ulps (one device
             synchronisation); ``False`` skips these (e.g. under ``torch.compile``).
 
     Returns:
-        ``(..., T, 8)`` unit dual quaternions. float16/bfloat16 are computed in float32.
+        ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
+        computed in float32.
 
     Raises:
         ValueError: ``ctrl`` not ``(..., n, 8)``, ``degree`` not an int in ``[1, n)``, knots
             not 1-D with ``n + degree + 1`` entries, batch shapes that do not broadcast;
             with ``check``: decreasing or non-finite knots, ``knots[degree] == knots[n]``,
             ``t`` outside the domain.
-        TypeError: non-floating tensors, mixed dtypes or devices.
+        TypeError: non-floating tensors, tensors on another device than ``ctrl``.
 
     Example:
         >>> import torch_dq.dualquat as dq
         >>> q = torch.tensor([1., 0., 0., 0.])
         >>> ctrl = dq.from_rt(q, torch.tensor([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]))
-        >>> x = bspline(ctrl, torch.tensor([0.0, 0.5, 1.0]))
+        >>> knots = clamped_uniform_knots(4, 3, domain=(0.0, 2.0))  # seconds
+        >>> x = bspline(ctrl, torch.tensor([0.0, 1.0, 2.0]), knots=knots)
         >>> dq.to_rt(x)[1]
         tensor([[0.0000, 0.0000, 0.0000],
                 [0.7500, 0.5000, 0.0000],
                 [0.0000, 1.0000, 0.0000]])
     """
     fn = "curves.bspline"
-    _check_ctrl(fn, ctrl, 2, "at least 2 control points")
-    degree = _check_degree(fn, degree)
-    n = int(ctrl.shape[-2])  # a Python int even under torch.jit.trace
-    if degree >= n:
-        _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
-                         f"got degree {degree}")
-    batch = _check_times(fn, t, ctrl)
-    dtype = compute_dtype(ctrl.dtype)
-    if knots is None:
-        knots = clamped_uniform_knots(n, degree, dtype=dtype, device=ctrl.device)
-        if check:
-            _check_values(fn, t, knots[degree].to(t.dtype), knots[n].to(t.dtype), None)
-    else:
-        _checks.tensor(fn, "knots", knots)
-        _checks.same_dtype_device(fn, ctrl=ctrl, knots=knots)
-        if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
-            _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
-                             f"{n + degree + 1} entries, got shape "
-                             f"{_checks.shape_str(knots.shape)}")
-        if check:
-            _check_values(fn, t, knots[degree], knots[n], knots)
-    out = _bspline(ctrl.to(dtype), t.to(dtype), degree, knots.to(dtype), batch)
-    return out.to(ctrl.dtype)
+    batch, degree, ctrl_c, r, levels = _prepare_bspline(fn, ctrl, t, degree, knots, check)
+    alphas = [alpha for alpha, _ in levels]
+    if _kernels.fused_path(ctrl_c, *alphas):
+        return _fused_bspline(ctrl_c, r, alphas, degree, batch).to(ctrl.dtype)
+    d = _span_points(ctrl_c, r, degree, batch)
+    return _de_boor(d, alphas).to(ctrl.dtype)
 
 
-# ----------------------------------------------------------------------------- derivatives
+def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3,
+                        knots: Tensor | None = None, check: bool = True) -> tuple[Tensor, ...]:
+    r"""A B-spline (:func:`bspline`) and its exact time derivatives up to ``order``.
 
-def velocity(fn: Callable[[Tensor], Tensor], t: Tensor) -> tuple[Tensor, Tensor]:
-    r"""Pose and its time derivative along a curve, by forward-mode differentiation.
-
-    ``torch.func.jvp`` of ``fn`` at ``t`` with tangent ones: exact to rounding (no finite
-    differences), one pass, and differentiable again. ``fn`` must act pointwise in time:
-    output sample ``k`` may depend on ``t[..., k]`` only (true of :func:`bezier` and
-    :func:`bspline`); the derivative of a B-spline at a knot is the one of the span that
-    contains it (the right-hand derivative, the left-hand one at the domain's right end).
+    Returns :math:`(x, \dot x, \dots, x^{(\mathrm{order})})` with derivatives with respect
+    to the caller's time ``t``, the time of the knots. Exact, not finite differences: the
+    time derivatives of every level of De Boor's scheme are propagated through eq. 11, with
+    the local parameters' slopes :math:`d\alpha_i^j/dt = 1 / (u_{i+p+1-j} - u_i)` (Taylor
+    arithmetic by nested forward mode on each interpolation step). At a knot the
+    derivatives are those of the span that contains ``t`` (right-hand derivatives; the
+    left-hand ones at the domain's right end). The results are differentiable (reverse
+    mode, twice; and in forward mode) with respect to ``ctrl``, ``t`` and the knots.
+    """ + _SMOOTHNESS + r"""
 
     Args:
-        fn: callable ``t -> (..., T, 8)``, e.g. ``lambda t: bspline(ctrl, t)``.
-        t: ``(T,)`` or ``(..., T)`` times.
+        ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
+        t: ``(T,)`` or ``(..., T)`` times in the knot domain (as :func:`bspline`).
+        order: highest derivative, an int in ``0..3``.
+        degree: polynomial degree ``p >= 1``.
+        knots: ``(n + degree + 1,)`` knots in the caller's time (as :func:`bspline`).
+        check: the value checks of :func:`bspline` (one device synchronisation).
 
     Returns:
-        ``(x, dx)``: ``fn(t)`` and :math:`dx/dt`, both ``(..., T, 8)``; feed them to
-        :func:`twists`.
+        ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as
+        :func:`bspline` to rounding) and their 1st, ..., ``order``-th derivatives.
+
+    Raises:
+        ValueError: as :func:`bspline`; ``order`` not an int in ``0..3``.
+        TypeError: as :func:`bspline`.
 
     Example:
         >>> import torch_dq.dualquat as dq
-        >>> ctrl = torch.stack((dq.identity(), dq.from_rt(torch.tensor([1., 0, 0, 0]),
-        ...                                                torch.tensor([2., 0, 0]))))
-        >>> x, dx = velocity(lambda t: bezier(ctrl, t), torch.tensor([0.5]))
-        >>> twists(x, dx)  # constant speed 2 along x
-        tensor([[0., 0., 0., 2., 0., 0.]])
+        >>> ctrl = dq.from_rt(dq.identity((4,))[:, :4], torch.tensor([[0., 0, 0], [1, 0, 0],
+        ...                                                            [2, 0, 0], [3, 0, 0]]))
+        >>> knots = clamped_uniform_knots(4, 3, domain=(0.0, 6.0))  # 3 m in 6 s
+        >>> x, dx, ddx = bspline_derivatives(ctrl, torch.tensor([3.0]), knots=knots)
+        >>> kinematics(x, dx, ddx).linear_velocity
+        tensor([[0.5000, 0.0000, 0.0000]])
     """
-    name = "curves.velocity"
-    if not callable(fn):
-        _checks.fail(name, f"expected a callable for fn, got {type(fn).__name__}", TypeError)
-    _checks.tensor(name, "t", t)
-    return torch.func.jvp(fn, (t,), (torch.ones_like(t),))
-
-
-def twists(x: Tensor, dx: Tensor, frame: str = "body") -> Tensor:
-    r"""Body or spatial twists :math:`(\omega, v)` of a motion from its pose and derivative.
-
-    For :math:`x(t) = ` ``from_rt(q(t), p(t))``, i.e. :math:`T(t) = [[R, p], [0, 1]]`:
-
-    - ``frame="body"``: :math:`T^{-1}\dot T = [[\,[\omega_b]_\times, v_b], [0, 0]]`, i.e.
-      :math:`\dot R = R\,[\omega_b]_\times` and :math:`\dot p = R\, v_b` (velocities in the
-      moving frame). From :math:`x^* \dot x = \tfrac12 (0, \omega_b)
-      + \epsilon\, \tfrac12 (0, v_b)`.
-    - ``frame="spatial"``: :math:`\dot T T^{-1} = [[\,[\omega_s]_\times, v_s], [0, 0]]`, i.e.
-      :math:`\omega_s = R\,\omega_b` and :math:`v_s = \dot p - \omega_s \times p` (the
-      velocity of the body point momentarily at the origin). From
-      :math:`\dot x x^* = \tfrac12 (0, \omega_s) + \epsilon\, \tfrac12 (0, v_s)`.
-
-    Both are twice the vector parts of those products; ``(x, dx)`` and ``(-x, -dx)`` give
-    the same twist.
-
-    Args:
-        x: ``(..., 8)`` unit dual quaternions (not checked).
-        dx: ``(..., 8)`` their time derivatives (tangent to the unit dual quaternions),
-            batch broadcastable with ``x``; see :func:`velocity`.
-        frame: ``"body"`` or ``"spatial"``.
-
-    Returns:
-        ``(..., 6)`` twists ``(omega_x, omega_y, omega_z, v_x, v_y, v_z)``, the convention of
-        :func:`torch_dq.dualquat.exp` (a constant twist ``xi`` gives
-        ``x(t) = x(0) exp(t xi)`` in the body frame, ``exp(t xi) x(0)`` in the spatial one).
-
-    Example:
-        >>> import torch_dq.dualquat as dq
-        >>> x = dq.identity()
-        >>> dx = torch.tensor([0., 0., 0., 0.5, 0., 0., 0., 0.])  # d/dt of exp(t (0,0,1,0,0,0))
-        >>> twists(x, dx)
-        tensor([0., 0., 1., 0., 0., 0.])
-    """
-    fn = "curves.twists"
-    _checks.tensor(fn, "x", x, 8)
-    _checks.tensor(fn, "dx", dx, 8)
-    _checks.same_dtype_device(fn, x=x, dx=dx)
-    _checks.broadcast_batch(fn, x=(x, 1), dx=(dx, 1))
-    if frame not in ("body", "spatial"):
-        _checks.fail(fn, f"frame must be 'body' or 'spatial', got {frame!r}")
-    dtype = compute_dtype(x.dtype)
-    xc, dx = dualquat.conj(x.to(dtype)), dx.to(dtype)
-    # body: conj(x) dx; spatial: dx conj(x); both pure (zero scalar parts) for unit x.
-    prod = dq_mul(xc, dx) if frame == "body" else dq_mul(dx, xc)
-    return (2.0 * torch.cat((prod[..., 1:4], prod[..., 5:]), dim=-1)).to(x.dtype)
-
-
-def screw_axis(omega: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    r"""Instantaneous screw axis of a spatial twist :math:`(\omega, v)`.
-
-    The motion is momentarily a rotation about a line with angular velocity :math:`\omega`
-    plus a translation along it at speed :math:`h|\omega|`:
-
-    - direction :math:`l = \omega / |\omega|`;
-    - pitch :math:`h = \omega \cdot v / |\omega|^2`;
-    - point of the axis nearest to the origin :math:`c = \omega \times v / |\omega|^2`
-      (``= cross(direction, moment)``); points on the axis move along it:
-      :math:`v + \omega \times c = h\,\omega`;
-    - moment :math:`m = c \times l = (v - h\,\omega) / |\omega|` (Plücker coordinates
-      ``(l, m)``, the convention of :func:`torch_dq.dualquat.from_screw`).
-
-    Pure translation (:math:`|\omega| \le \epsilon |v|` with :math:`\epsilon` the dtype's
-    machine epsilon: the axis would lie beyond ``1 / eps`` lengths): direction
-    :math:`v / |v|`, moment 0, pitch ``inf``. At rest (:math:`\omega = v = 0`) there is no
-    axis: all three outputs are NaN, as for a non-finite twist. Tracing the axis over the
-    times of a curve (with the spatial twists of :func:`twists`) gives the fixed axode.
-
-    Args:
-        omega: ``(..., 3)`` angular velocity of a spatial twist.
-        v: ``(..., 3)`` its linear part, batch broadcastable with ``omega``.
-
-    Returns:
-        ``(direction (..., 3), moment (..., 3), pitch (...))``.
-
-    Example:
-        >>> l, m, h = screw_axis(torch.tensor([0., 0., 2.]), torch.tensor([2., 0., 1.]))
-        >>> l, torch.linalg.cross(l, m), h  # z-parallel axis through (0, 1, 0), pitch 1/2
-        (tensor([0., 0., 1.]), tensor([0., 1., 0.]), tensor(0.5000))
-    """
-    fn = "curves.screw_axis"
-    _checks.tensor(fn, "omega", omega, 3)
-    _checks.tensor(fn, "v", v, 3)
-    _checks.same_dtype_device(fn, omega=omega, v=v)
-    batch = _checks.broadcast_batch(fn, omega=(omega, 1), v=(v, 1))
-    dtype = compute_dtype(omega.dtype)
-    w, u = omega.to(dtype).expand(*batch, 3), v.to(dtype).expand(*batch, 3)
-    w2 = (w * w).sum(-1, keepdim=True)
-    v2 = (u * u).sum(-1, keepdim=True)
-    eps = torch.finfo(dtype).eps
-    translation = w2 <= (eps * eps) * v2  # includes rest (0 <= 0)
-    # At rest, and for a non-finite twist, there is no axis: NaN (never a finite limit).
-    rest = (translation & (v2 <= 0)) | ~(torch.isfinite(w2) & torch.isfinite(v2))
-    # Safe where: the rotation branch divides by |omega|, the translation one by |v|.
-    w2s = safe_denominator(w2, translation)
-    wn = torch.sqrt(w2s)
-    vn = torch.sqrt(safe_denominator(v2, v2 <= 0))
-    pitch = (w * u).sum(-1, keepdim=True) / w2s
-    direction = torch.where(translation, u / vn, w / wn)
-    moment = torch.where(translation, 0.0, (u - pitch * w) / wn)
-    pitch = torch.where(translation, torch.inf, pitch)
-    nan = torch.full_like(pitch, torch.nan)
-    direction = torch.where(rest, nan, direction)
-    moment = torch.where(rest, nan, moment)
-    pitch = torch.where(rest, nan, pitch)
-    out = omega.dtype
-    return direction.to(out), moment.to(out), pitch[..., 0].to(out)
+    fn = "curves.bspline_derivatives"
+    order = _check_order(fn, order)
+    batch, degree, ctrl_c, r, levels = _prepare_bspline(fn, ctrl, t, degree, knots, check)
+    d = _span_points(ctrl_c, r, degree, batch)
+    return tuple(x.to(ctrl.dtype) for x in _jet_de_boor(d, levels, order))
