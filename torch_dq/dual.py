@@ -42,7 +42,7 @@ import torch
 import torch.utils._pytree as _pytree
 from torch import Tensor
 
-from . import _checks
+from . import _checks, _kernels
 
 __all__ = [
     "Dual",
@@ -497,7 +497,10 @@ class _SinCos(torch.autograd.Function):
     r"""``(a, b) -> (sin a, b cos a, cos a, -b sin a)``: dual sine and cosine together.
 
     The forward evaluates ``sin a`` and ``cos a`` once; the backward saves only ``a`` and
-    ``b`` and recomputes them, with differentiable ops (so double backward works).
+    ``b`` and recomputes them, with differentiable ops (so double backward works). No
+    forward-mode rule (a custom ``jvp`` is first order only: nested forward mode would give
+    zeros): :func:`sincos` runs the plain ops of :func:`_sincos` under ``torch.func``
+    transforms and forward-mode AD.
     """
 
     generate_vmap_rule = True
@@ -510,7 +513,6 @@ class _SinCos(torch.autograd.Function):
     @staticmethod
     def setup_context(ctx, inputs, output):
         ctx.save_for_backward(*inputs)
-        ctx.save_for_forward(*inputs)
 
     @staticmethod
     def backward(ctx, g_s, g_sd, g_c, g_cd):
@@ -521,12 +523,6 @@ class _SinCos(torch.autograd.Function):
         grad_b = c * g_sd - s * g_cd
         return grad_a, grad_b
 
-    @staticmethod
-    def jvp(ctx, t_a, t_b):
-        a, b = ctx.saved_tensors
-        s, c = torch.sin(a), torch.cos(a)
-        return c * t_a, c * t_b - b * s * t_a, -s * t_a, -(s * t_b + b * c * t_a)
-
 
 def sincos(x: Dual) -> tuple[Dual, Dual]:
     r"""Dual sine and cosine together (paper section 2.2):
@@ -535,10 +531,11 @@ def sincos(x: Dual) -> tuple[Dual, Dual]:
         \sin(a + \epsilon b) = \sin a + \epsilon\, b \cos a, \qquad
         \cos(a + \epsilon b) = \cos a - \epsilon\, b \sin a.
 
-    Backed by a custom ``torch.autograd.Function`` that evaluates ``sin a`` and ``cos a``
-    once and saves only ``a`` and ``b`` for the backward (twice differentiable, with
-    ``jvp`` and vmap rules). Under ``torch.compile`` the same formulas are traced as plain
-    ops instead (Dynamo cannot trace a Function with a custom ``jvp``).
+    In eager reverse mode a custom ``torch.autograd.Function`` evaluates ``sin a`` and
+    ``cos a`` once and saves only ``a`` and ``b`` for the backward (twice differentiable).
+    Under ``torch.func`` transforms (``jvp``, ``hessian``, ``vmap``, ...) and forward-mode
+    AD the same formulas run as plain torch ops, differentiable to every order in every
+    mode (nested ``jvp`` included).
 
     Args:
         x: ``Dual`` angle (radians).
@@ -552,12 +549,17 @@ def sincos(x: Dual) -> tuple[Dual, Dual]:
         (Dual(real=tensor(0.), dual=tensor(2.)), Dual(real=tensor(1.), dual=tensor(-0.)))
     """
     a, b = _dual("dual.sincos", x)
-    if torch.compiler.is_compiling():
-        s, c = torch.sin(a), torch.cos(a)
-        s_d, c_d = b * c, -b * s
-    else:
+    if _kernels.fused_path(a, b):
         s, s_d, c, c_d = _SinCos.apply(a, b)
+    else:
+        s, s_d, c, c_d = _sincos(a, b)
     return Dual._make(s, s_d), Dual._make(c, c_d)
+
+
+def _sincos(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(sin a, b cos a, cos a, -b sin a)`` in plain torch ops (reference of :class:`_SinCos`)."""
+    s, c = torch.sin(a), torch.cos(a)
+    return s, b * c, c, -b * s
 
 
 def sin(x: Dual) -> Dual:

@@ -550,7 +550,8 @@ def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Te
 def angle(a: Tensor, b: Tensor) -> Dual:
     r"""Dual angle :math:`\bar\theta = \theta + \epsilon\hat\theta` between unit dual quaternions.
 
-    The paper's eqs. 4-7, with no sign flip, so that ``dual.cos(angle(a, b)) == dot(a, b)``:
+    The paper's eqs. 4-7, with no sign flip, so that ``dual.cos(angle(a, b)) == dot(a, b)``
+    (eq. 7, :math:`\bar q_0 \cdot \bar q_1 = \cos\bar\theta`):
 
     - real part (eq. 4): :math:`\theta = \arccos(q_0 \cdot q_1) \in [0, \pi]`, evaluated as
       :math:`2\,\mathrm{atan2}(|q_1 - q_0|, |q_1 + q_0|)`, accurate near 0 and pi. It is half
@@ -565,15 +566,21 @@ def angle(a: Tensor, b: Tensor) -> Dual:
       is the full axial distance, while eq. 5 tends to half of it (signed) as
       :math:`\theta \to 0`: the value jumps by a factor 2 at the branch switch.
 
-    Gradients are analytic (a custom autograd op) and finite everywhere; at
-    :math:`\theta \in \{0, \pi\}` the kink of :math:`\theta` gets the zero subgradient.
+    Derivatives: :math:`\theta` is smooth for :math:`0 < \theta < \pi` and has a kink (a
+    cone, like ``|x|``) at 0 and pi, where its gradient is the zero subgradient;
+    :math:`\hat\theta` is smooth in each branch. Eager reverse mode runs a fused op with an
+    analytic backward (twice differentiable); under ``torch.func`` transforms
+    (``hessian``, ``jacfwd``, nested ``jvp``, ``vmap``) and forward-mode AD the plain-op
+    formulas of :func:`_eqs4_5` and :func:`_eq6` run instead, so second derivatives are
+    right in every mode.
 
     Args:
         a: ``(..., 8)`` unit dual quaternions (not checked).
         b: ``(..., 8)`` unit dual quaternions, batch broadcastable with ``a``.
 
     Returns:
-        ``Dual`` of the broadcast batch shape.
+        ``Dual`` of the broadcast batch shape. Non-finite components give NaN (or inf) in
+        their own batch element.
 
     Example:
         >>> a = identity()
@@ -585,17 +592,55 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     _checks.pair(fn, a, b, 8)
     dtype = a.dtype
     a, b = torch.broadcast_tensors(lift(a), lift(b))
-    theta, theta_hat = _dual_angle_kernel.dual_angle(a, b)
+    if _kernels.fused_path(a, b):
+        theta, theta_hat, degenerate = _dual_angle_kernel.dual_angle(a, b)
+    else:
+        theta, theta_hat, degenerate = _eqs4_5(a, b)
+    theta_hat = torch.where(degenerate, _eq6(a, b), theta_hat)
+    return Dual(theta.to(dtype), theta_hat.to(dtype))
+
+
+def _eqs4_5(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    r"""Eqs. 4 and 5 on broadcast ``a, b (..., 8)``, in plain torch ops (smooth to every
+    order for :math:`0 < \theta < \pi`): ``(theta, theta_hat, degenerate)``, where
+    ``degenerate`` marks :math:`\sin\theta` below the eq. 6 threshold (``theta_hat`` there is
+    a placeholder). The fused op :func:`torch_dq._kernels.dual_angle.dual_angle` computes the
+    same; :func:`angle` documents the conventions."""
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
-    degenerate = _dual_angle_kernel.degenerate(a, b)
-    # eq. 6: |(t1 - t0) . u| with u the common axis, |t1 - t0| for identity rotations.
-    dt = translation(R, S) - translation(P, Q)
-    axis = P[..., 1:]
-    axis_norm = torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
-    no_axis = axis_norm <= _dual_angle_kernel.degenerate_threshold(a.dtype)
-    along = (dt * axis / safe_denominator(axis_norm, no_axis)).sum(-1)
-    eq6 = torch.where(no_axis[..., 0], safe_norm(dt), along.abs())
-    return Dual(theta.to(dtype), torch.where(degenerate, eq6, theta_hat).to(dtype))
+    # eq. 1: q0 . q1 = c + eps delta, with c = P . R and delta = P . S + R . Q.
+    delta = (P * S).sum(-1) + (R * Q).sum(-1)
+    # eq. 4: theta = acos(c) in [0, pi], as 2 atan2(|R - P|, |R + P|) (for unit P and R:
+    # |R -+ P|^2 = 2 -+ 2c), accurate near 0 and pi; an infinite input gives NaN, not pi / 2.
+    u, v = safe_norm(R - P), safe_norm(R + P)
+    theta = nan_unless(torch.isfinite(u) & torch.isfinite(v), 2.0 * torch.atan2(u, v))
+    sin_theta = 0.5 * u * v  # = sqrt(1 - c^2)
+    # eq. 7's dual part, delta = -theta_hat sin(theta), solved where sin(theta) != 0: eq. 5.
+    degenerate = sin_theta <= threshold("dual_angle_degenerate", a.dtype)
+    theta_hat = -delta / safe_denominator(sin_theta, degenerate)
+    return theta, theta_hat, degenerate
+
+
+def _eq6(a: Tensor, b: Tensor) -> Tensor:
+    r"""Eq. 6 on broadcast ``a, b (..., 8)``: :math:`\hat\theta = |d_1 - d_0|`, for equal or
+    opposite rotations.
+
+    :math:`d_i = t_i \cdot u_i` is the translation of pose ``i`` along its own screw axis
+    (eq. 2; for a screw through ``p``, :math:`t = d u + (I - R) p` and
+    :math:`((I - R) p)\cdot u = 0`), with ``u_1`` taken with the sign of ``u_0``
+    (``-q`` turns about ``-u``). On equal rotations this is :math:`|(t_1 - t_0)\cdot u|`;
+    for the identity rotation (no axis) it is :math:`|t_1 - t_0|`.
+    """
+    def axis(q: Tensor) -> tuple[Tensor, Tensor]:
+        n = safe_norm(q[..., 1:])
+        none = n <= threshold("dual_angle_degenerate", q.dtype)
+        return q[..., 1:] / safe_denominator(n, none)[..., None], none
+
+    P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
+    t0, t1 = translation(P, Q), translation(R, S)
+    (u0, none0), (u1, none1) = axis(P), axis(R)
+    sign = torch.where((P * R).sum(-1) < 0, -1.0, 1.0).to(P.dtype)
+    d0, d1 = (t0 * u0).sum(-1), sign * (t1 * u1).sum(-1)
+    return torch.where(none0 | none1, safe_norm(t1 - t0), (d1 - d0).abs())
 
 
 def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
@@ -618,21 +663,31 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     At a tie (orthogonal real parts, a half-turn relative rotation) both paths are equally
     short and the sign of the zero dot decides, so ``a`` and ``-a`` may take different ones.
     With ``shortest=False`` the path from ``a`` to ``b`` as given is followed; it is
-    ill-conditioned when the real parts are nearly opposite and non-finite for exactly
-    opposite real parts (no unique great circle).
+    ill-conditioned when the real parts are nearly opposite, and undefined (no unique
+    path) when they are opposite: where :math:`1 + q_0 \cdot q_1 \le 8\epsilon` of the
+    dtype (closer than the rounding of the dot itself) the result is NaN.
 
-    Gradients with respect to ``a``, ``b`` and ``t`` come from an analytic custom autograd
-    op (also forward mode and ``vmap``); they are finite at every degenerate point.
+    Derivatives in ``a``, ``b`` and ``t`` are finite at every degenerate point and smooth to
+    every order (the weights are analytic in :math:`\cos\theta`). Eager reverse mode runs a
+    fused op with an analytic backward (twice differentiable); under ``torch.func``
+    transforms (``hessian``, ``jacfwd``, nested ``jvp``, ``vmap``) and forward-mode AD the
+    plain-op :func:`_eq11` runs instead, so Hessians and nested forward mode are right too.
     float16/bfloat16 inputs are computed in float32.
 
     Args:
         a: ``(..., 8)`` unit dual quaternions (not checked; start, ``t = 0``).
         b: ``(..., 8)`` unit dual quaternions (not checked; end, ``t = 1``).
         t: ``(...)`` tensor or Python float; ``a``, ``b`` and ``t`` broadcast together.
-        shortest: flip ``b`` to the representative nearest to ``a``.
+        shortest: bool; flip ``b`` to the representative nearest to ``a``.
 
     Returns:
         ``(..., 8)`` unit dual quaternions of the broadcast batch shape.
+
+    Raises:
+        TypeError: ``shortest`` is not a bool, or a tensor argument is not floating point
+            or does not share ``a``'s dtype and device.
+        ValueError: trailing dimensions other than 8, or batch shapes that do not
+            broadcast.
 
     Example:
         >>> a = identity()
@@ -643,30 +698,43 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     fn = "dualquat.sclerp"
     _checks.pair(fn, a, b, 8)
     t = _checks.as_float_tensor(fn, "t", t, a, "a")
+    if not isinstance(shortest, bool):
+        _checks.fail(fn, f"expected shortest to be a bool, got {shortest!r}", TypeError)
     batch = _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1), t=(t, 0))
     dtype = a.dtype
     a, b, t = (x.to(compute_dtype(dtype)) for x in (a, b, t))
     a, b, t = a.expand(*batch, 8), b.expand(*batch, 8), t.expand(batch)
     if _kernels.fused_path(a, b, t):
-        return _sclerp_kernel.sclerp(a, b, t, bool(shortest)).to(dtype)
-    return _eq11(a, b, t, bool(shortest)).to(dtype)
+        out = _sclerp_kernel.sclerp(a, b, t, shortest)
+    else:
+        out = _eq11(a, b, t, shortest)
+    if not shortest:  # opposite real parts: no unique path (and acos(-1) has sin ~ 1e-16)
+        opposite = 1.0 + (a[..., :4] * b[..., :4]).sum(-1) <= threshold("opposite_real_parts",
+                                                                         a.dtype)
+        out = nan_unless(~opposite[..., None], out)
+    return out.to(dtype)
 
 
 def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     r"""Eq. 11 on broadcast ``a, b (..., 8)`` and ``t (...)``, in plain torch ops.
 
+    The reference for the fused :func:`torch_dq._kernels.sclerp.sclerp` (same formula on
+    component rows) and what :func:`sclerp` runs under ``torch.func`` transforms.
+
     With :math:`a = P + \epsilon Q`, :math:`b = R + \epsilon S` and the dual scalar product
     :math:`\cos\bar\theta = c + \epsilon\delta` (eqs. 1, 7), each dual weight of eq. 11 is
     :math:`F(s, \bar\theta) = F + \epsilon\hat\theta\,\partial_\theta F = F - \epsilon\delta G`
-    with :math:`F = \sin(s\theta)/\sin\theta`, :math:`G = \partial_\theta F/\sin\theta` and
-    :math:`\hat\theta = -\delta/\sin\theta` (eq. 5), so that
+    (section 2.2's dual function) with :math:`F = \sin(s\theta)/\sin\theta`,
+    :math:`G = \partial_\theta F/\sin\theta` and :math:`\hat\theta = -\delta/\sin\theta`
+    (eq. 5), so that
 
     .. math::
         q(t) = F_0 a + F_1 b - \epsilon\,\delta\,(G_0 P + G_1 R),\qquad s_0 = 1 - t,\ s_1 = t.
 
-    ``F`` and ``G`` are one power series in :math:`1 - \cos\theta` near 0 (no 0/0 at equal
-    rotations) and closed forms elsewhere: smooth to every order, so this runs under every
-    ``torch.func`` transform (the fused kernel is the same formula, faster).
+    ``F`` and ``G`` (:func:`torch_dq._kernels.weights.screw_weights`) are one power series
+    in :math:`1 - \cos\theta` near 0 (no 0/0 at equal rotations, where this is the paper's
+    linear branch :math:`(1 - t) a + t b`) and closed forms elsewhere: analytic in
+    :math:`c`, so every derivative, to any order, is right.
     """
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     c = (P * R).sum(-1)

@@ -1,108 +1,125 @@
-r"""The dual angle (eqs. 4-5) as a custom autograd op (private).
+r"""The dual angle's eqs. 4-5 as a custom autograd op (private).
 
-The readable eqs. 4-7 are :func:`torch_dq.dualquat.angle`.
+The readable reference is :func:`torch_dq.dualquat._eqs4_5` (with eq. 6 and the docs in
+:func:`torch_dq.dualquat.angle`); this op computes the same formulas and saves only its
+inputs and one output for an analytic backward, instead of autograd's intermediates.
+
+Notation: :math:`a = P + \epsilon Q`, :math:`b = R + \epsilon S`, :math:`u = |R - P|`,
+:math:`v = |R + P|`, :math:`\delta = P\cdot S + R\cdot Q` (the dual part of eq. 1). For unit
+real parts :math:`u v = 2\sin\theta`, so
+
+.. math::
+    \theta = 2\,\mathrm{atan2}(u, v), \qquad \hat\theta = -\frac{\delta}{\sin\theta}
+    = -\frac{2\delta}{u v}.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
-from .._numerics import nan_unless
+from .._numerics import nan_unless, safe_denominator, threshold
 
 
-def degenerate_threshold(dtype: torch.dtype) -> float:
-    r"""``sin θ`` below which two rotations count as equal or opposite (eq. 6 branch):
-    :math:`\sqrt{\epsilon}` of the dtype, where eq. 5's error :math:`\epsilon|t|/\sin\theta`
-    reaches :math:`\sqrt{\epsilon}|t|`."""
-    return float(torch.finfo(dtype).eps ** 0.5)
+class Frame(NamedTuple):
+    """The quantities eqs. 4-5 are built from, for a broadcast pair ``a, b (..., 8)``."""
+
+    P: Tensor  #: real part of ``a``
+    Q: Tensor  #: dual part of ``a``
+    R: Tensor  #: real part of ``b``
+    S: Tensor  #: dual part of ``b``
+    u: Tensor  #: ``|R - P|``
+    v: Tensor  #: ``|R + P|``
+    dm_hat: Tensor  #: ``(R - P) / u`` (0 where ``u = 0``)
+    dp_hat: Tensor  #: ``(R + P) / v`` (0 where ``v = 0``)
+    degenerate: Tensor  #: ``sin θ = u v / 2`` below the eq. 6 threshold
 
 
-def _angle_frame(a: Tensor, b: Tensor):
-    """Halves, ``u = |R - P|``, ``v = |R + P|`` with unit directions, and the eq. 6 mask."""
+class Partials(NamedTuple):
+    """Partial derivatives of ``θ(u, v)`` and ``θ̂(δ, u, v)``, finite in the eq. 6 region."""
+
+    theta_u: Tensor
+    theta_v: Tensor
+    hat_delta: Tensor
+    hat_u: Tensor
+    hat_v: Tensor
+
+
+class DualAngle(NamedTuple):
+    """Output of :func:`dual_angle`."""
+
+    theta: Tensor  #: eq. 4, in ``[0, π]``
+    theta_hat: Tensor  #: eq. 5, 0 where ``degenerate``
+    degenerate: Tensor  #: where eq. 6 replaces eq. 5 (bool)
+
+
+def frame(a: Tensor, b: Tensor) -> Frame:
+    """The :class:`Frame` of a broadcast pair ``a, b (..., 8)``."""
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     dm, dp = R - P, R + P
     u = torch.linalg.vector_norm(dm, dim=-1)
     v = torch.linalg.vector_norm(dp, dim=-1)
-    dm_hat = dm / torch.where(u > 0, u, 1.0)[..., None]
-    dp_hat = dp / torch.where(v > 0, v, 1.0)[..., None]
-    degenerate = u * v <= 2.0 * degenerate_threshold(a.dtype)  # u v = 2 sin(theta)
-    return P, Q, R, S, u, v, dm_hat, dp_hat, degenerate
+    dm_hat = dm / safe_denominator(u, u == 0)[..., None]
+    dp_hat = dp / safe_denominator(v, v == 0)[..., None]
+    degenerate = 0.5 * u * v <= threshold("dual_angle_degenerate", a.dtype)
+    return Frame(P, Q, R, S, u, v, dm_hat, dp_hat, degenerate)
 
 
-class _DualAngleVJP(torch.autograd.Function):
-    r"""Dual angle (eqs. 4, 5): :math:`\theta = 2\,\mathrm{atan2}(|R - P|, |R + P|)`
-    (equal to :math:`\arccos(P \cdot R)` for unit inputs, but accurate near 0 and pi) and
-    :math:`\hat\theta = -\delta / \sin\theta = -2\delta / (|R - P|\,|R + P|)`.
+def partials(f: Frame, theta_hat: Tensor) -> Partials:
+    r""":math:`\partial\theta/\partial(u, v) = (2v, -2u) / (u^2 + v^2)` and
+    :math:`\partial\hat\theta/\partial(\delta, u, v) = (-2/(uv), -\hat\theta/u, -\hat\theta/v)`,
+    zero in the eq. 6 region (where ``theta_hat`` is 0)."""
+    k = 2.0 / (f.u * f.u + f.v * f.v)
+    us, vs = safe_denominator(f.u, f.degenerate), safe_denominator(f.v, f.degenerate)
+    hat_delta = torch.where(f.degenerate, 0.0, -2.0 / (us * vs))
+    return Partials(k * f.v, -k * f.u, hat_delta, -theta_hat / us, -theta_hat / vs)
 
-    Returns ``(theta, theta_hat)``; ``theta_hat`` is 0 where ``sin θ`` is below
-    :func:`degenerate_threshold` (the caller substitutes eq. 6 there). At ``θ = 0`` or
-    ``π`` the gradient of ``θ`` (a kink, like ``|x|``) is the zero subgradient.
-    As for sclerp, the subclass :class:`_DualAngle` adds the forward-mode rule.
+
+class _DualAngle(torch.autograd.Function):
+    r"""Eqs. 4-5 with an analytic backward: :math:`(\theta, \hat\theta)` and the eq. 6 mask.
+
+    At :math:`\theta \in \{0, \pi\}` (a kink, like ``|x|``) the gradient of :math:`\theta`
+    is the zero subgradient; in the eq. 6 region :math:`\hat\theta = 0` with zero gradient
+    (the caller substitutes eq. 6). Infinite real parts give :math:`\theta =` NaN, not
+    ``atan2``'s finite limit.
+
+    No forward-mode rule: a custom ``jvp`` would be first order only (nested forward mode
+    would give zeros), so :func:`torch_dq._kernels.fused_path` sends forward mode and every
+    ``torch.func`` transform to the plain-op reference instead.
     """
 
     generate_vmap_rule = True
 
     @staticmethod
-    def forward(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
-        P, Q, R, S, u, v, _, _, degenerate = _angle_frame(a, b)
-        delta = (P * S).sum(-1) + (R * Q).sum(-1)
-        # Infinite real parts: NaN, not atan2's finite limit pi / 2.
-        theta = nan_unless(torch.isfinite(u) & torch.isfinite(v), 2.0 * torch.atan2(u, v))
-        theta_hat = torch.where(degenerate, 0.0, -2.0 * delta / torch.where(degenerate, 1.0, u * v))
-        return theta, theta_hat
+    def forward(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        f = frame(a, b)
+        delta = (f.P * f.S).sum(-1) + (f.R * f.Q).sum(-1)
+        theta = nan_unless(torch.isfinite(f.u) & torch.isfinite(f.v), 2.0 * torch.atan2(f.u, f.v))
+        sin_theta = 0.5 * safe_denominator(f.u * f.v, f.degenerate)
+        theta_hat = torch.where(f.degenerate, 0.0, -delta / sin_theta)
+        return theta, theta_hat, f.degenerate
 
     @staticmethod
     def setup_context(ctx, inputs, output):
+        ctx.mark_non_differentiable(output[2])
         ctx.save_for_backward(*inputs, output[1])
-        ctx.save_for_forward(*inputs, output[1])
 
     @staticmethod
-    def _partials(a: Tensor, b: Tensor, theta_hat: Tensor):
-        """d theta / d(u, v) and d theta_hat / d(delta, u, v), safe in the eq. 6 region."""
-        P, Q, R, S, u, v, dm_hat, dp_hat, degenerate = _angle_frame(a, b)
-        k = 2.0 / (u * u + v * v)
-        us, vs = torch.where(degenerate, 1.0, u), torch.where(degenerate, 1.0, v)
-        d_delta = torch.where(degenerate, 0.0, -2.0 / (us * vs))
-        return P, Q, R, S, dm_hat, dp_hat, k * v, -k * u, d_delta, -theta_hat / us, -theta_hat / vs
-
-    @staticmethod
-    def backward(ctx, g_theta, g_hat):
+    def backward(ctx, g_theta, g_hat, _):
         a, b, theta_hat = ctx.saved_tensors
-        P, Q, R, S, dm_hat, dp_hat, th_u, th_v, h_d, h_u, h_v = _DualAngleVJP._partials(
-            a, b, theta_hat)
+        f = frame(a, b)
+        p = partials(f, theta_hat)
         # Scalar sensitivities to u = |R - P|, v = |R + P| and delta = P.S + R.Q, as columns.
-        g_u = (g_theta * th_u + g_hat * h_u)[..., None]
-        g_v = (g_theta * th_v + g_hat * h_v)[..., None]
-        g_d = (g_hat * h_d)[..., None]
-        grad_P = -g_u * dm_hat + g_v * dp_hat + g_d * S
-        grad_R = g_u * dm_hat + g_v * dp_hat + g_d * Q
-        return torch.cat((grad_P, g_d * R), -1), torch.cat((grad_R, g_d * P), -1)
+        g_u = (g_theta * p.theta_u + g_hat * p.hat_u)[..., None]
+        g_v = (g_theta * p.theta_v + g_hat * p.hat_v)[..., None]
+        g_d = (g_hat * p.hat_delta)[..., None]
+        grad_P = -g_u * f.dm_hat + g_v * f.dp_hat + g_d * f.S
+        grad_R = g_u * f.dm_hat + g_v * f.dp_hat + g_d * f.Q
+        return torch.cat((grad_P, g_d * f.R), -1), torch.cat((grad_R, g_d * f.P), -1)
 
 
-class _DualAngle(_DualAngleVJP):
-    """:class:`_DualAngleVJP` with the forward-mode rule."""
-
-    @staticmethod
-    def jvp(ctx, ta, tb):
-        a, b, theta_hat = ctx.saved_tensors
-        P, Q, R, S, dm_hat, dp_hat, th_u, th_v, h_d, h_u, h_v = _DualAngleVJP._partials(
-            a, b, theta_hat)
-        ta = torch.zeros_like(a) if ta is None else ta
-        tb = torch.zeros_like(b) if tb is None else tb
-        tP, tQ, tR, tS = ta[..., :4], ta[..., 4:], tb[..., :4], tb[..., 4:]
-        du = (dm_hat * (tR - tP)).sum(-1)
-        dv = (dp_hat * (tR + tP)).sum(-1)
-        dd = (tP * S + P * tS + tR * Q + R * tQ).sum(-1)
-        return th_u * du + th_v * dv, h_d * dd + h_u * du + h_v * dv
-
-
-def dual_angle(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
-    """Unchecked ``(theta, theta_hat)`` of eqs. 4-5 on broadcast inputs (0 in the eq. 6 region)."""
-    op = _DualAngleVJP if torch.compiler.is_compiling() else _DualAngle
-    return op.apply(a, b)
-
-
-def degenerate(a: Tensor, b: Tensor) -> Tensor:
-    """Where eq. 6 replaces eq. 5: ``sin θ`` below :func:`degenerate_threshold`."""
-    return _angle_frame(a, b)[-1]
+def dual_angle(a: Tensor, b: Tensor) -> DualAngle:
+    """Unchecked eqs. 4-5 on broadcast ``a, b (..., 8)``: see :class:`DualAngle`."""
+    return DualAngle(*_DualAngle.apply(a, b))
