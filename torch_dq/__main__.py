@@ -1,6 +1,8 @@
-"""Command line: ``python -m torch_dq demo`` (also the ``torch-dq`` console script).
+"""Command line: ``python -m torch_dq demo`` and ``python -m torch_dq fit FILE`` (also the
+``torch-dq`` console script).
 
-Run ``python -m torch_dq demo --help`` for the options; see :mod:`torch_dq.demo`.
+Run ``python -m torch_dq demo --help`` or ``python -m torch_dq fit --help`` for the options;
+see :mod:`torch_dq.demo` and :mod:`torch_dq.demo.fit_file`.
 """
 
 from __future__ import annotations
@@ -70,7 +72,77 @@ def _parser() -> argparse.ArgumentParser:
                       help="torch intra-op threads (1 is fastest for these small tensors)")
     demo.add_argument("--no-plots", action="store_true", help="skip the figures")
     demo.add_argument("--quiet", action="store_true", help="print nothing but warnings")
+    _add_fit_parser(sub)
     return parser
+
+
+def _positive_float(text: str) -> float:
+    value = _non_negative_float(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    return 0 if text.strip() == "0" else _positive_int(text)
+
+
+def _add_fit_parser(sub) -> None:
+    fit = sub.add_parser(
+        "fit", help="fit a dual-quaternion B-spline to a trajectory file (TUM, KITTI, EuRoC)",
+        description="Fit a dual-quaternion B-spline to the poses of a trajectory file in its "
+                    "own (e.g. UNIX) seconds, print the errors on held-out poses, and write "
+                    "to --out the trajectory resampled with velocities and accelerations "
+                    "(trajectory.csv, SI units), the module's state_dict (spline.pt), "
+                    "summary.json and figures (components, speed and angular rate, "
+                    "residuals; need matplotlib: pip install 'torch_dq[plot]'). Malformed "
+                    "files end with a one-line error naming the file and the line (exit "
+                    "status 1).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    fit.add_argument("file", metavar="FILE", help="trajectory file")
+    fit.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
+                     help="file format: TUM 't x y z qx qy qz qw', KITTI 3x4 pose rows "
+                          "(with --times), EuRoC ground-truth CSV; auto: from the content")
+    fit.add_argument("--times", metavar="TIMES_FILE", default=None,
+                     help="KITTI: the times file (one time in seconds per line)")
+    fit.add_argument("--knot-spacing", metavar="SECONDS", type=_positive_float, default=0.1,
+                     help="seconds between knots")
+    fit.add_argument("--degree", type=_positive_int, default=3, help="B-spline degree")
+    fit.add_argument("--holdout", metavar="K", type=_positive_int, default=2,
+                     help="fit every K-th pose (and the last), report errors on the others "
+                          "(1: fit all, report the fit residuals)")
+    fit.add_argument("--steps", metavar="N", type=_non_negative_int, default=50,
+                     help="maximum refinement steps of torch_dq.nn.fit after the "
+                          "least-squares start (0: none)")
+    fit.add_argument("--rate", metavar="HZ", type=_positive_float, default=None,
+                     help="resampling rate of trajectory.csv (default: the file's median "
+                          "rate)")
+    fit.add_argument("--duplicates", choices=("error", "first"), default="error",
+                     help="repeated timestamps: an error, or keep the first pose")
+    fit.add_argument("--dtype", choices=("float32", "float64"), default="float64",
+                     help="dtype of the B-spline (times stay float64)")
+    fit.add_argument("--threads", type=_positive_int, default=1, help="torch intra-op threads")
+    fit.add_argument("--out", metavar="DIR", default="torch_dq_fit", help="output folder")
+    fit.add_argument("--no-plots", action="store_true", help="skip the figures")
+    fit.add_argument("--quiet", action="store_true", help="print nothing but warnings")
+
+
+def _fit(args) -> int:
+    """``python -m torch_dq fit``: errors in the file or the options end in one line."""
+    import torch
+
+    from .demo.fit_file import run_fit
+
+    torch.set_num_threads(args.threads)
+    try:
+        run_fit(args.file, format=args.format, times=args.times, duplicates=args.duplicates,
+                knot_spacing=args.knot_spacing, degree=args.degree, holdout=args.holdout,
+                steps=args.steps, rate=args.rate, dtype=getattr(torch, args.dtype),
+                out=args.out, plots=not args.no_plots, verbose=not args.quiet)
+    except (ValueError, OSError) as exc:
+        print(f"torch-dq fit: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,13 +153,17 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The exit status: 0 on success (also when matplotlib is missing: the figures are
-        skipped with a warning), 2 on bad arguments.
+        skipped with a warning), 2 on bad arguments, 1 when ``fit`` meets a malformed or
+        unreadable file or options the data cannot satisfy (one line on stderr, no
+        traceback).
     """
     parser = _parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
+    if args.command == "fit":
+        return _fit(args)
     if args.command == "demo":
         if args.degree >= args.n_ctrl:
             parser.error(f"demo: --degree ({args.degree}) must be < --n-ctrl ({args.n_ctrl})")
