@@ -1,0 +1,304 @@
+"""The fused kernels against the readable references (roma's ``slerp`` / ``slerp_fast``).
+
+Every public function backed by a custom autograd op runs it in eager reverse mode and its
+readable plain-op reference under ``torch.func`` transforms and forward-mode AD
+(``torch_dq._kernels.fused_path``). Here both are run on the same inputs, random and
+degenerate (equal and opposite rotations, pure translations, relative rotations of 0,
+1e-9, 1e-6, 1e-3 rad, half turns, translations up to 1e3), and compared:
+
+- sclerp (eq. 11): ``_kernels.sclerp.sclerp`` against ``dualquat._eq11``;
+- the dual angle (eqs. 4-5): ``_kernels.dual_angle.dual_angle`` against
+  ``dualquat._eqs4_5``, and the public ``angle`` with and without ``torch.func``;
+- dual sine and cosine: ``dual._SinCos`` against ``dual._sincos``;
+- the fused De Casteljau / De Boor pyramid: ``curves.bezier`` / ``curves.bspline`` against
+  themselves under ``torch.func.vmap`` (the readable level loops) and against a De Casteljau
+  loop of ``dualquat.sclerp`` written here.
+
+Bounds (float64), relative to the scale ``s = max(1, |a|, |b|)`` of the inputs' components
+(translations up to 1e3 make the dual parts that large): values within 32 eps s; gradients
+(a random cotangent) within 256 eps s max(1, |grad|); Hessian-vector products through the
+fused double backward within 1e-10 relative. float32 kernels against the float64
+reference: within 1e-6 s with the shortest path, 8e-6 s with ``shortest=False`` away from
+opposite real parts (``q0 . q1 > -0.99``: the path's conditioning is 1 / sin(theta)), ties
+(orthogonal real parts, where float32 and float64 may pick different equally short paths)
+excluded.
+"""
+
+import math
+
+import pytest
+import torch
+from strategies import adversarial_dqs, screw, unit_dq
+
+import torch_dq.dual as D
+import torch_dq.dualquat as dq
+from torch_dq import curves
+from torch_dq._kernels import dual_angle as angle_kernel
+from torch_dq._kernels import sclerp as sclerp_kernel
+from torch_dq.dual import Dual
+
+EPS = torch.finfo(torch.float64).eps
+T_VALUES = (0.0, 1.0, 0.5, -0.5, 1.5)
+
+
+def degenerate_pairs(gen):
+    """``(a, b, t, scale)``: random pairs, screw families at the degenerate angles, every pair
+    of adversarial poses, equal and sign-flipped pairs; ``t`` cycles through ``T_VALUES``."""
+    pairs = [(unit_dq((300,), gen), unit_dq((300,), gen))]
+    for theta in (0.0, 1e-9, 1e-6, 1e-3, 0.5, math.pi / 2, math.pi - 1e-6, math.pi):
+        for d in (0.0, 1.0, 100.0):
+            axis, moment, th, dd = screw((40,), gen, theta, d, moment_scale=10.0)
+            a = unit_dq((40,), gen, scale=10.0)
+            pairs.append((a, dq.mul(a, dq.from_screw(axis, moment, th, dd))))
+    adv = adversarial_dqs()
+    i, j = torch.meshgrid(torch.arange(len(adv)), torch.arange(len(adv)), indexing="ij")
+    pairs.append((adv[i.reshape(-1)], adv[j.reshape(-1)]))
+    a = unit_dq((100,), gen, scale=3.0)
+    pairs += [(a, a), (a, -a), (a, dq.from_rt(a[:, :4], torch.randn(100, 3, generator=gen,
+                                                                     dtype=torch.float64)))]
+    a, b = (torch.cat(x) for x in zip(*pairs, strict=True))
+    t = torch.tensor(T_VALUES, dtype=torch.float64).repeat(len(a) // len(T_VALUES) + 1)[:len(a)]
+    t = t[torch.randperm(len(a), generator=gen)]
+    scale = torch.maximum(a.abs().amax(-1), b.abs().amax(-1)).clamp(min=1.0)
+    return a, b, t, scale
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    return degenerate_pairs(torch.Generator().manual_seed(12))
+
+
+def usable(a, b, shortest):
+    """Pairs on which the function is defined: every pair with the shortest path; away from
+    opposite real parts (undefined) without it."""
+    c = (a[:, :4] * b[:, :4]).sum(-1)
+    return torch.ones_like(c, dtype=torch.bool) if shortest else c > -0.99
+
+
+def hvp_fused(f, args, w, v):
+    """Hessian-vector product of ``<w, f(args)>`` by double backward (the fused ops)."""
+    xs = [x.clone().requires_grad_() for x in args]
+    gs = torch.autograd.grad((f(*xs) * w).sum(), xs, create_graph=True)
+    return torch.autograd.grad(sum((g * u).sum() for g, u in zip(gs, v, strict=True)), xs)
+
+
+def hvp_readable(f, args, w, v):
+    """The same by forward-over-reverse under ``torch.func`` (the readable references)."""
+    def grad(*xs):
+        return torch.func.grad(lambda *ys: (f(*ys) * w).sum(), argnums=tuple(range(len(xs))))(*xs)
+
+    return torch.func.jvp(grad, tuple(args), tuple(v))[1]
+
+
+def rel(x, y):
+    """Max ``|x - y|`` relative to ``max(1, |y|)`` over all entries."""
+    return ((x - y).abs() / y.abs().amax().clamp(min=1.0)).max().item()
+
+
+# ----------------------------------------------------------------------------- sclerp
+
+@pytest.mark.parametrize("shortest", [True, False])
+def test_sclerp_kernel_values_float64(pairs, shortest):
+    a, b, t, s = (x[usable(*pairs[:2], shortest)] for x in pairs)
+    fused = sclerp_kernel.sclerp(a, b, t, shortest)
+    ref = dq._eq11(a, b, t, shortest)
+    err = ((fused - ref).abs().amax(-1) / s).max().item()
+    assert err <= 32 * EPS, err  # measured 16 eps
+
+
+@pytest.mark.parametrize("shortest", [True, False])
+def test_sclerp_kernel_values_float32(pairs, shortest):
+    a, b, t, s = (x[usable(*pairs[:2], shortest)] for x in pairs)
+    c = (a[:, :4] * b[:, :4]).sum(-1)
+    keep = c.abs() > 1e-3  # no ties: float32 may pick the other equally short path
+    a, b, t, s = a[keep], b[keep], t[keep], s[keep]
+    ref = dq._eq11(a, b, t, shortest)
+    fused = sclerp_kernel.sclerp(a.float(), b.float(), t.float(), shortest).double()
+    readable = dq._eq11(a.float(), b.float(), t.float(), shortest).double()
+    bound = 1e-6 if shortest else 8e-6  # measured 5.2e-7 and 5.0e-6
+    assert ((fused - ref).abs().amax(-1) / s).max() <= bound
+    assert ((fused - readable).abs().amax(-1) / s).max() <= bound  # measured 2.8e-7, 8e-7
+
+
+@pytest.mark.parametrize("shortest", [True, False])
+def test_sclerp_kernel_gradients(pairs, shortest):
+    a, b, t, s = (x[usable(*pairs[:2], shortest)] for x in pairs)
+    w = torch.randn(a.shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    xs = [x.clone().requires_grad_() for x in (a, b, t)]
+    fused = torch.autograd.grad((sclerp_kernel.sclerp(*xs, shortest) * w).sum(), xs)
+    _, vjp = torch.func.vjp(lambda *ys: dq._eq11(*ys, shortest), a, b, t)
+    for g, r in zip(fused, vjp(w), strict=True):
+        g, r = g.reshape(len(s), -1), r.reshape(len(s), -1)
+        err = (g - r).abs().amax(-1) / (s * r.abs().amax(-1).clamp(min=1.0))
+        assert err.max() <= 256 * EPS, err.max()  # measured 113 eps (t = -0.5, c = 0.94)
+
+
+@pytest.mark.parametrize("theta", [0.0, 1e-9, 1e-3, 0.7])
+@pytest.mark.parametrize("t", [0.0, 0.3, 1.0])
+def test_sclerp_kernel_second_order(gen, theta, t):
+    """Double backward through the fused op equals forward-over-reverse of eq. 11."""
+    axis, moment, th, d = screw((6,), gen, theta, 2.0)
+    a = unit_dq((6,), gen)
+    b = dq.mul(a, dq.from_screw(axis, moment, th, d))
+    tt = torch.full((6,), t, dtype=torch.float64)
+    w = torch.randn(6, 8, generator=gen, dtype=torch.float64)
+    v = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in (a, b, tt)]
+    for shortest in (True, False):
+        def f(x, y, z, shortest=shortest):
+            return dq.sclerp(x, y, z, shortest=shortest)
+
+        for h, r in zip(hvp_fused(f, (a, b, tt), w, v), hvp_readable(f, (a, b, tt), w, v),
+                        strict=True):
+            assert rel(h, r) < 1e-10
+
+
+def test_sclerp_public_under_and_outside_vmap(pairs):
+    a, b, t, s = pairs
+    fused = dq.sclerp(a, b, t)
+    readable = torch.func.vmap(dq.sclerp)(a, b, t)
+    assert ((fused - readable).abs().amax(-1) / s).max() <= 32 * EPS
+
+
+# ----------------------------------------------------------------------------- dual angle
+
+def test_dual_angle_kernel_values(pairs):
+    a, b, _, s = pairs
+    fused = angle_kernel.dual_angle(a, b)
+    theta, theta_hat, degenerate = dq._eqs4_5(a, b)
+    assert torch.equal(fused.degenerate, degenerate)
+    assert degenerate.any() and (~degenerate).any()
+    assert (fused.theta - theta).abs().max() <= 4 * EPS
+    assert torch.equal(fused.theta_hat[degenerate], torch.zeros_like(theta_hat[degenerate]))
+    ok = ~degenerate
+    err = (fused.theta_hat[ok] - theta_hat[ok]).abs() / (s[ok] * theta_hat[ok].abs().clamp(min=1))
+    assert err.max() <= 8 * EPS
+
+
+def test_dual_angle_kernel_float32(pairs):
+    a, b, _, s = pairs
+    ref = angle_kernel.dual_angle(a, b)
+    fused = angle_kernel.dual_angle(a.float(), b.float())
+    readable = dq._eqs4_5(a.float(), b.float())
+    assert torch.equal(fused.degenerate, readable[2])
+    assert (fused.theta - readable[0]).abs().max() <= 4 * torch.finfo(torch.float32).eps
+    # theta from the rounded inputs: 2 atan2(|R - P|, |R + P|) is well conditioned
+    assert (fused.theta.double() - ref.theta).abs().max() < 1e-6
+    # theta_hat where sin(theta) > 0.1 (elsewhere its conditioning is 1 / sin(theta))
+    ok = (torch.sin(ref.theta) > 0.1) & ~fused.degenerate
+    err = (fused.theta_hat.double() - ref.theta_hat).abs() / s
+    assert err[ok].max() < 1e-5
+
+
+def test_dual_angle_public_gradients_and_second_order(pairs):
+    a, b, _, _ = pairs
+    gen = torch.Generator().manual_seed(4)
+    w = torch.randn(2, len(a), generator=gen, dtype=torch.float64)
+
+    def f(x, y):
+        ang = dq.angle(x, y)
+        return torch.stack((ang.real, ang.dual))
+
+    fused = f(a, b)
+    assert rel(fused, torch.func.vmap(f, out_dims=1)(a, b)) <= 8 * EPS
+    xs = [x.clone().requires_grad_() for x in (a, b)]
+    g_fused = torch.autograd.grad((f(*xs) * w).sum(), xs)
+    _, vjp = torch.func.vjp(f, a, b)
+    for g, r in zip(g_fused, vjp(w), strict=True):
+        assert rel(g, r) <= 64 * EPS
+    # second order away from the kinks (theta = 0 or pi) and the eq. 6 branch
+    sin_theta = torch.sin(fused[0])
+    keep = sin_theta > 1e-2
+    a, b, w = a[keep][:200], b[keep][:200], w[:, keep][:, :200]
+    v = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in (a, b)]
+    for h, r in zip(hvp_fused(f, (a, b), w, v), hvp_readable(f, (a, b), w, v), strict=True):
+        assert rel(h, r) < 1e-10
+
+
+# ----------------------------------------------------------------------------- dual sin / cos
+
+def test_sincos_op_against_plain_ops(gen):
+    x = torch.randn(50, generator=gen, dtype=torch.float64) * 4
+    y = torch.randn(50, generator=gen, dtype=torch.float64)
+    fused = D._SinCos.apply(x, y)
+    plain = D._sincos(x, y)
+    for f, p in zip(fused, plain, strict=True):
+        assert torch.equal(f, p)
+    w = torch.randn(4, 50, generator=gen, dtype=torch.float64)
+    v = [torch.randn(50, generator=gen, dtype=torch.float64) for _ in range(2)]
+
+    def through(op):
+        return lambda a, b: torch.stack(op(a, b))
+
+    for h, r in zip(hvp_fused(through(D._SinCos.apply), (x, y), w, v),
+                    hvp_readable(through(D._sincos), (x, y), w, v), strict=True):
+        assert rel(h, r) <= 8 * EPS
+    # the public functions pick the op outside transforms and the plain ops inside
+    s_fused, c_fused = D.sincos(Dual(x, y))
+    s_vmap, c_vmap = torch.func.vmap(D.sincos)(Dual(x, y))
+    for f, p in zip((*s_fused, *c_fused), (*s_vmap, *c_vmap), strict=True):
+        assert torch.equal(f, p)
+
+
+# ----------------------------------------------------------------------------- curve pyramid
+
+def de_casteljau(ctrl, s):
+    """De Casteljau with the public sclerp, written here: ``ctrl (n, 8)``, ``s (T,)``."""
+    q = [ctrl[i].expand(len(s), 8) for i in range(len(ctrl))]
+    while len(q) > 1:
+        q = [dq.sclerp(q[i], q[i + 1], s) for i in range(len(q) - 1)]
+    return q[0]
+
+
+def up_to_sign(x, ref):
+    sign = torch.where((x[..., :4] * ref[..., :4]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+    return (x - sign * ref).abs().max().item()
+
+
+def curve_ctrl(gen, n):
+    """Control points: random, then a repeated pose, a pure translation and a 1e-9 turn."""
+    ctrl = unit_dq((3, n), gen, scale=2.0)
+    ctrl[1, 2] = ctrl[1, 1]
+    ctrl[1, 3] = dq.from_rt(ctrl[1, 1, :4], torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64))
+    axis, moment, th, d = screw((), gen, 1e-9, 0.5)
+    ctrl[2, 1] = dq.mul(ctrl[2, 0], dq.from_screw(axis, moment, th, d))
+    return ctrl
+
+
+def test_bezier_pyramid_against_loops(gen):
+    ctrl = curve_ctrl(gen, 5)
+    t = torch.tensor([0.0, 0.1, 0.5, 0.77, 1.0], dtype=torch.float64)
+    fused = curves.bezier(ctrl, t)
+    readable = torch.func.vmap(lambda c: curves.bezier(c, t, check=False))(ctrl)
+    assert up_to_sign(fused, readable) < 1e-13
+    for k in range(3):
+        assert up_to_sign(fused[k], de_casteljau(ctrl[k], t)) < 1e-13
+
+
+def test_bspline_pyramid_against_readable(gen):
+    ctrl = curve_ctrl(gen, 7)
+    t = torch.linspace(0, 1, 23, dtype=torch.float64)
+    for degree in (1, 2, 3):
+        fused = curves.bspline(ctrl, t, degree=degree)
+        readable = torch.func.vmap(lambda c, p=degree: curves.bspline(c, t, p, check=False))(ctrl)
+        assert up_to_sign(fused, readable) < 1e-13
+
+
+@pytest.mark.parametrize("name", ["bezier", "bspline"])
+def test_pyramid_gradients_first_and_second_order(gen, name):
+    ctrl = curve_ctrl(gen, 5)
+    t = torch.tensor([0.0, 0.3, 0.5, 1.0], dtype=torch.float64)
+
+    def f(c, t):
+        return curves.bezier(c, t, check=False) if name == "bezier" else curves.bspline(
+            c, t, degree=3, check=False)
+
+    w = torch.randn(3, 4, 8, generator=gen, dtype=torch.float64)
+    xs = [x.clone().requires_grad_() for x in (ctrl, t)]
+    fused = torch.autograd.grad((f(*xs) * w).sum(), xs)
+    _, vjp = torch.func.vjp(f, ctrl, t)
+    for g, r in zip(fused, vjp(w), strict=True):
+        assert rel(g, r) < 1e-12
+    v = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in (ctrl, t)]
+    for h, r in zip(hvp_fused(f, (ctrl, t), w, v), hvp_readable(f, (ctrl, t), w, v),
+                    strict=True):
+        assert rel(h, r) < 1e-10
