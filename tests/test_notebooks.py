@@ -23,6 +23,7 @@ EXPECTED = {
     "03_bezier_vs_bspline": ["03_fig1_components.png", "03_local_control.png"],
     "04_fitting_and_learning": ["04_fit_losses.png", "04_mlp_predictions.png"],
     "05_knee_axode": ["05_knee_angles.png", "05_axode.png"],
+    "06_real_trajectory": ["06_heldout_errors.png", "06_kinematics.png", "06_imu.png"],
 }
 
 
