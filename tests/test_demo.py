@@ -1,8 +1,11 @@
 """The demo (``python -m torch_dq demo``), its command line, and the synthetic knee model."""
 
+import argparse
+import inspect
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -14,8 +17,9 @@ import torch_dq.curves as curves
 import torch_dq.dualquat as dq
 import torch_dq.losses as losses
 import torch_dq.quat as quat
-from torch_dq.__main__ import main
-from torch_dq.demo import FIGURES, PLOT_HINT
+from torch_dq import nn
+from torch_dq.__main__ import _parser, main
+from torch_dq.demo import FIGURES, PLOT_HINT, run_demo
 from torch_dq.demo.knee import KneeModel, sample_poses
 
 # Small, fast settings: the errors must still beat these bounds (noise: 1 deg, 1 mm per axis).
@@ -26,6 +30,11 @@ MAX_TRANS_MEAN_MM, MAX_TRANS_MM = 1.0, 3.0
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(
     [os.path.dirname(os.path.dirname(os.path.abspath(__file__)))]
     + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))}
+
+
+def _demo_parser() -> argparse.ArgumentParser:
+    sub = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices["demo"]
 
 
 def _summary(out) -> dict:
@@ -52,6 +61,10 @@ def _check_errors(summary: dict) -> None:
 
 # ----------------------------------------------------------------------------- demo
 
+# No deprecated API and no warning from our own code; torch's own jit deprecation (emitted when
+# forward-mode AD first loads its decompositions) is filtered as in setup.cfg.
+@pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
+@pytest.mark.filterwarnings("error")
 def test_demo_writes_figures_and_summary(tmp_path):
     pytest.importorskip("matplotlib")
     assert main(["demo", "--out", str(tmp_path), *FAST]) == 0
@@ -102,6 +115,26 @@ def test_demo_rejects_bad_arguments(args, tmp_path, capsys):
         main(["demo", "--out", str(tmp_path), *args])
     assert exc.value.code == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_demo_defaults_are_fits():
+    """One source of truth: the demo and its command line take fit's defaults."""
+    fit_defaults = {k: p.default for k, p in inspect.signature(nn.fit).parameters.items()}
+    demo_defaults = {k: p.default for k, p in inspect.signature(run_demo).parameters.items()}
+    for name in ("optimizer", "steps", "lr"):
+        assert demo_defaults[name] == fit_defaults[name], name
+    args = _demo_parser().parse_args(["--out", "x"])
+    assert args.optimizer == fit_defaults["optimizer"] and args.steps == fit_defaults["steps"]
+    assert args.lr is None
+
+
+def test_demo_help_states_each_default_once():
+    text = " ".join(_demo_parser().format_help().split())
+    assert "(default: None)" not in text
+    assert f"(default: {inspect.signature(nn.fit).parameters['steps'].default})" in text
+    for entry in re.split(r"\s(?=--)", text):
+        assert entry.count("(default:") <= 1, entry
+    assert "1e-3" not in text and "0.001" not in text
 
 
 def test_main_without_command_prints_help(capsys):
