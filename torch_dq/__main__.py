@@ -33,8 +33,18 @@ def _non_negative_float(text: str) -> float:
     return value
 
 
+class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends "(default: ...)" to an option's help, except where there is no default."""
+
+    def _get_help_string(self, action):
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def _parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .demo.runner import FIT_DEFAULTS
 
     parser = argparse.ArgumentParser(
         prog="torch-dq", description="torch_dq: differentiable unit dual quaternions.")
@@ -47,13 +57,13 @@ def _parser() -> argparse.ArgumentParser:
                     "torch_dq.demo.knee, no download), print the fit errors and write figures "
                     "and summary.json to --out. Figures need matplotlib: "
                     "pip install 'torch_dq[plot]'.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_DefaultsHelp)
     demo.add_argument("--out", default="torch_dq_demo", help="output folder")
     demo.add_argument("--n-ctrl", type=_positive_int, default=8,
                       help="control points of each curve (the Bezier degree is n-ctrl - 1)")
     demo.add_argument("--degree", type=_positive_int, default=3, help="B-spline degree")
-    demo.add_argument("--steps", type=_positive_int, default=300,
-                      help="maximum optimizer steps per curve")
+    demo.add_argument("--steps", type=_positive_int, default=FIT_DEFAULTS["steps"],
+                      help="maximum optimizer steps per curve (torch_dq.nn.fit's default)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the pose noise")
     demo.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     demo.add_argument("--dtype", choices=("float32", "float64"), default="float32",
@@ -64,10 +74,13 @@ def _parser() -> argparse.ArgumentParser:
                       help="rotation noise per axis (degrees)")
     demo.add_argument("--trans-noise", type=_non_negative_float, default=1.0,
                       help="translation noise per axis (mm)")
-    demo.add_argument("--optimizer", choices=("adam", "lbfgs", "sgd"), default="adam",
-                      help="optimizer of torch_dq.nn.fit")
+    demo.add_argument("--optimizer", choices=("auto", "lm", "adam", "lbfgs", "sgd"),
+                      default=FIT_DEFAULTS["optimizer"],
+                      help="optimizer of torch_dq.nn.fit, started from the least-squares fit "
+                           "of from_poses (loss.png also shows a second optimizer)")
     demo.add_argument("--lr", type=float, default=None,
-                      help="learning rate (default: 1e-3 for adam and sgd, 1 for lbfgs)")
+                      help="learning rate (default: torch_dq.nn.fit's default for the "
+                           "optimizer)")
     demo.add_argument("--threads", type=_positive_int, default=1,
                       help="torch intra-op threads (1 is fastest for these small tensors)")
     demo.add_argument("--no-plots", action="store_true", help="skip the figures")
@@ -183,8 +196,6 @@ def main(argv: list[str] | None = None) -> int:
         if device.type == "cuda" and not torch.cuda.is_available():
             parser.error("demo: --device cuda requested but CUDA is not available")
         lr = args.lr
-        if lr is None and args.optimizer != "lbfgs":
-            lr = 1e-3
         if lr is not None and not lr > 0:
             parser.error(f"demo: --lr must be > 0, got {args.lr}")
         torch.set_num_threads(args.threads)
