@@ -34,10 +34,11 @@ def _non_negative_float(text: str) -> float:
 
 
 class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
-    """Appends "(default: ...)" to an option's help, except where there is no default."""
+    """Appends "(default: ...)" to an option's help, except for flags and for options whose
+    default is None (their help says what None means)."""
 
     def _get_help_string(self, action):
-        if action.default is None:
+        if action.default is None or action.nargs == 0:
             return action.help
         return super()._get_help_string(action)
 
@@ -63,7 +64,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="control points of each curve (the Bezier degree is n-ctrl - 1)")
     demo.add_argument("--degree", type=_positive_int, default=3, help="B-spline degree")
     demo.add_argument("--steps", type=_positive_int, default=FIT_DEFAULTS["steps"],
-                      help="maximum optimizer steps per curve (torch_dq.nn.fit's default)")
+                      help="maximum optimizer steps per curve, as in torch_dq.nn.fit")
     demo.add_argument("--seed", type=int, default=0, help="seed of the pose noise")
     demo.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     demo.add_argument("--dtype", choices=("float32", "float64"), default="float32",
