@@ -42,6 +42,7 @@ from ._numerics import (
     compute_dtype,
     even,
     nan_unless,
+    power_of_two_scale,
     safe_denominator,
     safe_norm,
     threshold,
@@ -85,6 +86,7 @@ def _dq(fn: str, name: str, x: Tensor) -> Tensor:
 
 def _normalize(x: Tensor) -> Tensor:
     """Unchecked projection onto unit dual quaternions (see :func:`normalize`)."""
+    x = x / power_of_two_scale(x[..., :4])  # exact; no square of r over- or underflows
     r, d = split(x)
     n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
     n = nan_unless((n > 0) & torch.isfinite(n), n)
@@ -225,8 +227,9 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
     _dq("dualquat.normalize", "x", x)
     dtype, x = x.dtype, lift(x)
     if check:
-        n = torch.linalg.vector_norm(x[..., :4], dim=-1)
-        if not bool(torch.all(torch.isfinite(n) & (n > 0))):
+        r = x[..., :4]
+        ok = torch.isfinite(r).all(-1) & (r != 0).any(-1)
+        if not _checks.host_all("dualquat.normalize", "check=True", ok):
             _checks.fail("dualquat.normalize", "x contains zero or non-finite real parts")
     return _normalize(x).to(dtype)
 
@@ -539,10 +542,10 @@ def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Te
     _checks.same_dtype_device(fn, x=x, direction=direction, moment=moment)
     batch = _checks.broadcast_batch(fn, x=(x, 1), direction=(direction, 1), moment=(moment, 1))
     r, d = split(lift(x))
-    l2 = qrotate(r, lift(direction))
-    m2 = (qrotate(r, lift(moment))
-          + torch.linalg.cross(translation(r, d), l2.expand(*batch, 3), dim=-1))
-    return l2.expand(*batch, 3).to(x.dtype), m2.to(x.dtype)
+    l2 = qrotate(r, lift(direction)).expand(*batch, 3)
+    t = translation(r, d).expand(*batch, 3)
+    m2 = qrotate(r, lift(moment)).expand(*batch, 3) + torch.linalg.cross(t, l2, dim=-1)
+    return l2.to(x.dtype), m2.to(x.dtype)
 
 
 # ----------------------------------------------------------------------------- dual angle
