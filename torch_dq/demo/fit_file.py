@@ -214,10 +214,8 @@ def run_fit(path, *, format: str = "auto", times=None, duplicates: str = "error"
              "spline.pt": os.path.join(out, "spline.pt"),
              "summary.json": os.path.join(out, "summary.json")}
     io.write_csv(paths["trajectory.csv"], resampled, _double(kin), comments=[
-        f"torch_dq fit of {os.fspath(path)}: cubic" if degree == 3 else
-        f"torch_dq fit of {os.fspath(path)}: degree {degree}",
-        f"B-spline, {n_ctrl} control points, knot every {knot_spacing:g} s; resampled at "
-        f"{rate_hz:.6g} Hz"])
+        f"torch_dq fit of {os.fspath(path)}: B-spline of degree {degree}, {n_ctrl} control "
+        f"points (a knot every {knot_spacing:g} s), resampled at {rate_hz:.6g} Hz"])
     torch.save(spline.state_dict(), paths["spline.pt"])
     summary["resampled"] = {"rate_hz": rate_hz, "samples": count}
     if plots:
