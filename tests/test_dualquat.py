@@ -352,6 +352,20 @@ def test_normalize(poses, gen):
     assert torch.isnan(out[3]).all() and torch.equal(out[:3], n[:3])
 
 
+@pytest.mark.parametrize("k", [1e-30, 1e-25, 1e20, 1e30], ids=lambda k: f"{k:g}")
+def test_normalize_over_scales(k, gen):
+    """float32 dual quaternions scaled by 1e-30 .. 1e30 normalise like the unscaled ones
+    (0.1: the square of the real part under/overflowed and gave NaN)."""
+    x = unit_dq((16,), gen, dtype=torch.float32)
+    torch.testing.assert_close(dq.normalize(x * k), dq.normalize(x), rtol=0, atol=1e-6)
+
+
+def test_vmap_over_normalize_check_names_the_way_out(gen):
+    x = unit_dq((3,), gen)
+    with pytest.raises(RuntimeError, match=r"dualquat\.normalize: check=True .*check=False"):
+        torch.func.vmap(lambda y: dq.normalize(y, check=True))(x)
+
+
 def test_is_unit(poses, gen):
     assert dq.is_unit(poses).all()
     # atol is absolute and r . d scales with |t|: the float32 default 1e-5 holds up to |t| ~ 1e2

@@ -371,6 +371,45 @@ def test_vmap_has_no_data_dependent_branches(gen):
     assert torch.equal(vm(quat.log)(q0), quat.log(q0))
 
 
+def test_vmap_over_normalize_check_names_the_way_out(gen):
+    """0.1 raised torch's raw data-dependent control-flow error under vmap."""
+    q = unit_quat((3,), gen)
+    with pytest.raises(RuntimeError, match=r"quat\.normalize: check=True .*check=False"):
+        torch.func.vmap(lambda x: quat.normalize(x, check=True))(q)
+    torch.testing.assert_close(torch.func.vmap(quat.normalize)(2 * q), q)
+
+
+SCALES = [10.0 ** k for k in range(-30, 31, 5)]
+
+
+@pytest.mark.parametrize("scale", SCALES, ids=lambda s: f"{s:g}")
+def test_any_norm_functions_over_scales(scale, dtype, gen):
+    """Functions documented for any non-zero norm agree with scipy on q / |q| for |q| from
+    1e-30 to 1e30 (0.1: to_axis_angle of 1e-25 q gave the identity, to_matrix and normalize
+    of 1e-25 q and to_rotvec of 1e20 q gave NaN in float32: squares under/overflowed)."""
+    q = torch.cat((unit_quat((32,), gen), adversarial_quats()))
+    q = q[q[:, 0] > 1e-3]  # away from 180 degrees, where the canonical sign is rounding
+    r = to_scipy(q)
+    x = (q * scale).to(dtype)
+    tol = 1e-12 if dtype == F64 else F32_TOL
+    assert maxabs(quat.to_matrix(x).double(), torch.from_numpy(r.as_matrix())) < tol
+    assert maxabs(quat.normalize(x).double(), q) < tol
+    assert maxabs(quat.to_rotvec(x).double(), torch.from_numpy(r.as_rotvec())) < 4 * tol
+    axis, angle = quat.to_axis_angle(x)
+    assert maxabs(angle.double(), torch.from_numpy(r.magnitude())) < 4 * tol
+    moved = angle.double() > 1e-4
+    assert maxabs((axis.double() * angle.double()[:, None])[moved],
+                  torch.from_numpy(r.as_rotvec())[moved]) < 4 * tol
+    euler = quat.to_euler(x, "ZYX").double()
+    assert qdist(quat.from_euler(euler, "ZYX"), q) < 4 * tol
+    # Algebra on any norm: |q|, q^-1 and log|q| follow the scale.
+    assert maxabs(quat.norm(x).double() / scale, torch.ones(len(q), dtype=F64)) < tol
+    assert maxabs(quat.inv(x).double() * scale, q * q.new_tensor([1, -1, -1, -1])) < tol
+    log = quat.log(x).double()
+    assert maxabs(log[:, 0], torch.full((len(q),), math.log(scale), dtype=F64)) < 70 * tol
+    assert maxabs(2 * log[:, 1:], torch.from_numpy(r.as_rotvec())) < 4 * tol
+
+
 # ---------------------------------------------------------------------------- batch shapes
 
 def test_batch_shapes(batch_shape, gen):
@@ -508,6 +547,10 @@ def test_finite_gradients_at_singular_points(point):
         (lambda: quat.to_euler(torch.zeros(4), "abc"), ValueError, "seq"),
         (lambda: quat.to_euler(torch.zeros(4), 123), TypeError, "seq.*str"),
         (lambda: quat.to_euler(torch.zeros(5), "xyz"), ValueError, r"for q, got shape \(5,\)"),
+        (lambda: quat.slerp(torch.zeros(4), torch.zeros(4), 0.5, shortest="no"), TypeError,
+         r"quat\.slerp: expected shortest to be a bool"),
+        (lambda: quat.slerp(torch.zeros(4), torch.zeros(4), 0.5, shortest=1), TypeError,
+         "shortest"),
     ],
 )
 def test_bad_arguments(call, exc, match):
