@@ -200,3 +200,25 @@ def test_subprocess_exit_status_without_traceback(tmp_path):
     assert "Traceback" not in run.stderr
     assert run.stderr.strip() == (f"torch-dq fit: error: {bad}, line 11: expected 8 columns "
                                   f"(timestamp tx ty tz qx qy qz qw), got 3")
+
+
+def test_float32_module_matches_float64(tmp_path):
+    """--dtype float32 with float64 UNIX times: the float64 fit to float32 rounding."""
+    short = tmp_path / "short.txt"
+    io.write_trajectory(short, io.read_trajectory(SHIPPED).select(slice(0, 150)))
+    runs = {}
+    for dtype in ("float32", "float64"):
+        out = tmp_path / dtype
+        assert main(["fit", str(short), "--dtype", dtype, "--out", str(out), "--no-plots",
+                     *QUICK]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["model"]["dtype"] == dtype
+        runs[dtype] = (summary, np.genfromtxt(out / "trajectory.csv", delimiter=",",
+                                              names=True))
+    (s32, c32), (s64, c64) = runs["float32"], runs["float64"]
+    np.testing.assert_array_equal(c32["t"], c64["t"])
+    for c in ("x", "y", "z"):
+        np.testing.assert_allclose(c32[c], c64[c], rtol=0, atol=2e-5)  # metres
+    for key, tol in (("translation_mm", 2e-2), ("rotation_deg", 2e-3)):
+        for stat in ("mean", "median", "max"):
+            assert abs(s32["heldout_errors"][key][stat] - s64["heldout_errors"][key][stat]) < tol
