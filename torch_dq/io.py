@@ -9,7 +9,7 @@ A trajectory file holds timestamped rigid poses (body to world). Three common fo
               the TUM RGB-D benchmark's ``groundtruth.txt``
 ``"kitti"``   ``r11 r12 r13 tx r21 r22 r23 ty r31 r32 r33 tz``: the 3x4 matrix    a separate
               ``[R | t]`` row by row (KITTI odometry ``poses/NN.txt``)            file (s)
-``"euroc"``   ``#timestamp [ns], p_RS_R_x [m], p_RS_R_y, p_RS_R_z, q_RS_w,       nanoseconds
+``"euroc"``   ``#timestamp [ns], p_RS_R_x [m], p_RS_R_y, p_RS_R_z, q_RS_w,        nanoseconds
               q_RS_x, q_RS_y, q_RS_z`` and optionally velocity and biases
               (``state_groundtruth_estimate0/data.csv``; columns after the 8th
               are ignored)
