@@ -80,7 +80,8 @@ def test_layers_show_torch_dq_members_not_nn_module(html):
     for cls in ("BSpline", "Bezier"):
         for member in ("from_poses", "forward", "control_points"):
             assert f'id="torch_dq.nn.{cls}.{member}"' in page, (cls, member)
-    for inherited in ("register_forward_hook", "state_dict", "zero_grad", "parameters"):
+    for inherited in ("register_forward_hook", "state_dict", "zero_grad", "parameters",
+                      "training"):
         assert f".{inherited}\"" not in page, inherited
 
 
