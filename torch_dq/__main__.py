@@ -112,7 +112,7 @@ def _add_fit_parser(sub) -> None:
                     "residuals; need matplotlib: pip install 'torch_dq[plot]'). Malformed "
                     "files end with a one-line error naming the file and the line (exit "
                     "status 1).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_DefaultsHelp)
     fit.add_argument("file", metavar="FILE", help="trajectory file")
     fit.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
                      help="file format: TUM 't x y z qx qy qz qw', KITTI 3x4 pose rows "
