@@ -120,6 +120,8 @@ def test_euroc_matches_numpy_parse(tmp_path):
     for extra in (9, 0):  # full ground-truth CSV (17 columns) and pose-only (8 columns)
         path = _write_euroc(tmp_path / f"data{extra}.csv", ns, rot, p, extra=extra)
         ref = np.loadtxt(path, delimiter=",", comments="#")
+        if extra == 0:  # a header row without the leading '#' is accepted too
+            path.write_text(path.read_text()[1:])
         traj = io.read_trajectory(path)  # auto: EuRoC
         # correctly rounded seconds: the float64 nearest to ns / 1e9
         assert traj.times.tolist() == [float(Fraction(n, 10**9)) for n in ns]
@@ -356,8 +358,13 @@ def test_malformed_euroc(tmp_path):
     seconds = lines[2].replace(str(ns[1]), "1403636579.76")
     bad.write_text("\n".join([*lines[:2], seconds, *lines[3:]]) + "\n")
     with pytest.raises(io.TrajectoryFileError, match=r"line 3: timestamp '1403636579.76' is "
-                                                     r"not an integer number of nanoseconds"):
+                                                     r"not an integer number of nanoseconds; a "
+                                                     r"TUM file with commas\? pass format='tum'"):
         io.read_trajectory(bad)
+    bad.write_text(lines[0][1:] + "\n")
+    with pytest.raises(io.TrajectoryFileError, match=r"bad.csv: no data \(the file holds only a "
+                                                     r"header\)"):
+        io.read_trajectory(bad, format="euroc")
 
     swapped = [*lines[:2], lines[3], lines[2], *lines[4:]]
     bad.write_text("\n".join(swapped) + "\n")

@@ -95,7 +95,7 @@ class TrajectoryFileError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Trajectory:
     r"""Timestamped rigid poses (body to world): ``x -> R(rotations[i]) x + translations[i]``.
 
@@ -237,6 +237,10 @@ def _read_tum(path, lines, texts, atol: float, duplicates: str):
 
 def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
     rows = _split(texts, commas=True)
+    if rows[0][0][:1].isalpha():  # a header row written without the leading "#"
+        header, lines, texts, rows = [texts[0]], lines[1:], texts[1:], rows[1:]
+        if not rows:
+            raise TrajectoryFileError(path, None, "no data (the file holds only a header)")
     # The column count: the header's when it names 8 or more, else the first row's (>= 8).
     names = [s.strip() for s in header[-1].split(",")] if header else []
     if len(names) >= 8:
@@ -254,8 +258,10 @@ def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
         try:
             ns.append(int(fields[0]))
         except ValueError:
+            hint = ("; a TUM file with commas? pass format='tum' (fit: --format tum)"
+                    if "." in fields[0] else "")
             raise TrajectoryFileError(path, n, f"timestamp {fields[0]!r} is not an integer "
-                                               f"number of nanoseconds") from None
+                                               f"number of nanoseconds{hint}") from None
     v = _floats(path, lines, [f[1:8] for f in rows], names[1:8])
     keep = _check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
     # int / int is correctly rounded in Python: the float64 nearest to ns * 1e-9.
