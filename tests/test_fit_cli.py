@@ -222,3 +222,15 @@ def test_float32_module_matches_float64(tmp_path):
     for key, tol in (("translation_mm", 2e-2), ("rotation_deg", 2e-3)):
         for stat in ("mean", "median", "max"):
             assert abs(s32["heldout_errors"][key][stat] - s64["heldout_errors"][key][stat]) < tol
+
+
+def test_fit_help(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["fit", "--help"])
+    assert info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for option in ("--format", "--times", "--knot-spacing", "--degree", "--holdout", "--out",
+                   "--steps", "--rate", "--duplicates", "--dtype", "--no-plots", "--quiet"):
+        assert option in text
+    assert "(default: None)" not in text and "torch_dq[plot]" in text
+    assert "(default: 0.1)" in text and "(default: 2)" in text
