@@ -47,7 +47,7 @@ napoleon_use_rtype = False
 # napoleon's attribute directives would describe them twice.
 napoleon_use_ivar = True
 # Only torch_dq's own members: never nn.Module's hundred methods (see api/nn.rst).
-autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": True}
+autodoc_default_options = {"members": True, "undoc-members": False}
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
 autodoc_preserve_defaults = True
