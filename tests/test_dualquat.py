@@ -778,6 +778,8 @@ I64 = torch.int64
         (lambda: dq.identity((2, -1)), ValueError, r"dualquat\.identity.*shape.*\(2, -1\)"),
         (lambda: dq.normalize(torch.zeros(8), check=True), ValueError,
          r"dualquat\.normalize.*x contains zero"),
+        (lambda: dq.normalize(torch.ones(8), check="yes"), TypeError,
+         r"dualquat\.normalize: expected check to be a bool"),
     ],
 )
 def test_bad_arguments(call, exc, match):

@@ -551,6 +551,8 @@ def test_finite_gradients_at_singular_points(point):
          r"quat\.slerp: expected shortest to be a bool"),
         (lambda: quat.slerp(torch.zeros(4), torch.zeros(4), 0.5, shortest=1), TypeError,
          "shortest"),
+        (lambda: quat.normalize(torch.ones(4), check="no"), TypeError,
+         r"quat\.normalize: expected check to be a bool"),
     ],
 )
 def test_bad_arguments(call, exc, match):

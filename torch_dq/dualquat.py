@@ -225,6 +225,7 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
         ``(..., 8)`` unit dual quaternions.
     """
     _dq("dualquat.normalize", "x", x)
+    check = _checks.flag("dualquat.normalize", "check", check)
     dtype, x = x.dtype, lift(x)
     if check:
         r = x[..., :4]

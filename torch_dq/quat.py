@@ -214,6 +214,7 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
         ``(..., 4)`` unit quaternions.
     """
     _checks.tensor("quat.normalize", "q", q, 4)
+    check = _checks.flag("quat.normalize", "check", check)
     dtype, q = q.dtype, lift(q)
     q = q / _numerics.power_of_two_scale(q)  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
