@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from strategies import adversarial_dqs, unit_dq
 
 import torch_dq.dualquat as dq
-from torch_dq.losses import pose_loss, rotation_angle, translation_error
+from torch_dq.losses import pose_loss, rotation_angle, squared_rotation_angle, translation_error
 
 F64 = torch.float64
 
@@ -56,6 +56,15 @@ def test_rotation_angle_matches_scipy(dtype, gen):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["float32", "float64"])
+def test_squared_rotation_angle_matches_scipy(dtype, gen):
+    a, b = pairs(gen, dtype)
+    got = squared_rotation_angle(a, b)
+    assert got.shape == a.shape[:-1] and got.dtype == dtype
+    tol = 1e-12 if dtype == F64 else 4e-5
+    np.testing.assert_allclose(got.double().numpy(), scipy_angle(a, b) ** 2, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["float32", "float64"])
 def test_translation_error_matches_numpy(dtype, gen):
     a, b = pairs(gen, dtype)
     got = translation_error(a, b)
@@ -66,7 +75,7 @@ def test_translation_error_matches_numpy(dtype, gen):
 
 def test_sign_invariance(gen):
     a, b = pairs(gen)
-    for f in (rotation_angle, translation_error,
+    for f in (rotation_angle, squared_rotation_angle, translation_error,
               lambda x, y: pose_loss(x, y, 0.7, 3.0, reduction="none")):
         ref = f(a, b)
         for sa in (1.0, -1.0):
@@ -122,6 +131,7 @@ def test_nan_stays_in_its_element(gen):
 
 LOSSES = {
     "rotation_angle": rotation_angle,
+    "squared_rotation_angle": squared_rotation_angle,
     "translation_error": translation_error,
     "pose_loss": lambda x, y: pose_loss(x, y, 1.5, 0.5, reduction="sum"),
 }
@@ -134,8 +144,18 @@ def test_gradcheck_away_from_zero(name, gen):
     b[1] = -b[1]  # the opposite representative: still away from the kinks
     b = b.requires_grad_()
     assert torch.autograd.gradcheck(LOSSES[name], (a, b))
-    if name == "pose_loss":
+    if name in ("pose_loss", "squared_rotation_angle"):
         assert torch.autograd.gradgradcheck(LOSSES[name], (a, b))
+
+
+@pytest.mark.parametrize("name", ["pose_loss", "squared_rotation_angle"])
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["same", "opposite"])
+def test_gradgradcheck_at_zero_error(name, sign, gen):
+    """The squared errors are smooth at zero error: second derivatives pass gradgradcheck
+    there (0.1 squared the angle, a cone, and had a zero Hessian at zero error)."""
+    x = unit_dq((2,), gen, scale=1.5)
+    a, b = x.clone().requires_grad_(), (sign * x).requires_grad_()
+    assert torch.autograd.gradgradcheck(LOSSES[name], (a, b))
 
 
 @pytest.mark.parametrize("name", list(LOSSES))
@@ -161,7 +181,8 @@ def test_finite_gradient_at_half_turn(gen):
 
 # ----------------------------------------------------------------------------- bad input
 
-@pytest.mark.parametrize("fn", [rotation_angle, translation_error, pose_loss])
+@pytest.mark.parametrize("fn", [rotation_angle, squared_rotation_angle, translation_error,
+                                pose_loss])
 def test_bad_inputs(fn):
     a = dq.identity((3,), dtype=F64)
     with pytest.raises(ValueError, match=r"\(\.\.\., 8\).*for a"):
