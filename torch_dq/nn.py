@@ -1,4 +1,4 @@
-r"""Curve layers with learnable unit-dual-quaternion control points, and fitting.
+r"""Curve layers with learnable unit-dual-quaternion control points, in the caller's time.
 
 - :class:`UnitDualQuaternion`: a parametrization in PyTorch's sense
   (:func:`torch.nn.utils.parametrize.register_parametrization`): the stored raw ``(..., 8)``
@@ -7,18 +7,22 @@ r"""Curve layers with learnable unit-dual-quaternion control points, and fitting
   quaternion whatever an optimizer does to the raw tensor.
 - :class:`Bezier` and :class:`BSpline`: ``nn.Module`` wrappers of
   :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` whose control points
-  are such a parameter; ``forward(t, ctrl=...)`` uses control points predicted by another
+  are such a parameter; ``forward(t, ctrl=...)`` (and :meth:`~BSpline.derivatives`,
+  :meth:`~BSpline.kinematics`, :meth:`~BSpline.imu`) use control points predicted by another
   network instead. ``from_poses`` / ``from_matrices`` / ``from_dualquats`` build a curve by
-  a linear least-squares fit to timestamped poses.
-- :func:`fit`: fits a curve module to timestamped poses with Adam, SGD, LBFGS or any
-  ``torch.optim`` optimizer (a plain ``torch.optim`` loop works just as well).
+  local least squares on timestamped poses (:mod:`torch_dq.fitting`).
+- :func:`fit` and :class:`FitHistory` (from :mod:`torch_dq.fitting`): refine a curve on
+  timestamped poses (Levenberg-Marquardt in local charts, or any ``torch.optim`` optimizer).
 
-Time: a module's ``forward`` takes times in its *curve domain* (``[0, 1]`` for
-:class:`Bezier` and for the default clamped knots of :class:`BSpline`, otherwise
-``[knots[degree], knots[n]]``). The ``time_range`` buffer ``(t0, t1)`` records the raw
-times that map onto that domain (the first and last sample for ``from_poses``, the domain
-itself otherwise), and :meth:`normalize_time` applies that affine map; :func:`fit` takes
-raw times and applies it for you.
+Time is the caller's (seconds, frames, ...): a :class:`Bezier` lives on its ``domain``
+``(t0, t1)`` and a :class:`BSpline` on ``[knots[degree], knots[n]]``, and ``module(t)``
+takes ``t`` in those units. ``from_poses`` places the curve over ``[times[0], times[-1]]``,
+so ``module(times)`` is the fit at those very times. Absolute timestamps (UNIX seconds,
+~1.7e9) are welcome in float64 even for a float32 module: the module keeps its time origin
+(the start of its domain) as a Python float (float64, saved in the ``state_dict`` as extra
+state and untouched by ``.to(dtype)``) and its knots relative to it, and evaluates
+``t - origin`` in the wider of the two dtypes, so nothing is lost beyond the rounding of the
+time since the origin in the module's dtype.
 
 Control polygons: every interpolation takes the shortest path, so the curve jumps where two
 neighbouring control points come to differ by a half turn of rotation. Keep neighbours
@@ -41,20 +45,18 @@ from __future__ import annotations
 
 import math
 import numbers
-import sys
-import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+import warnings
 
 import torch
 from torch import Tensor
 from torch.nn.utils import parametrize
 
-from . import _checks, curves, dualquat, quat
-from ._core import align_chain, twist_translation
-from .losses import pose_loss
+from . import _checks, curves, dualquat, fitting, quat
+from .fitting import FitHistory, fit
 
 __all__ = ["BSpline", "Bezier", "FitHistory", "UnitDualQuaternion", "fit"]
+
+_ULPS = 4.0  # tolerance of the domain check, in units of eps * scale of the relative domain
 
 
 # ----------------------------------------------------------------------------- parametrization
@@ -86,60 +88,7 @@ class UnitDualQuaternion(torch.nn.Module):
         return dualquat.normalize(X)
 
 
-# ----------------------------------------------------------------------------- least squares
-
-def _bspline_basis(u: Tensor, knots: Tensor, degree: int, n: int) -> Tensor:
-    """``(N, n)`` B-spline basis at ``u`` by Cox-de Boor (right end: left limit)."""
-    p = degree
-    inner = knots[p + 1:n]
-    r = p + torch.searchsorted(inner, u.contiguous(), right=True)
-    r_end = p + torch.searchsorted(inner, knots[n:n + 1], right=False)
-    r = torch.minimum(r, r_end)
-    B = torch.nn.functional.one_hot(r, n + p).to(u.dtype)
-    uu = u[:, None]
-    for k in range(1, p + 1):
-        m = n + p - k  # basis functions of degree k
-        ti, tik = knots[:m], knots[k:k + m]
-        ti1, tik1 = knots[1:1 + m], knots[k + 1:k + 1 + m]
-        dl, dr = tik - ti, tik1 - ti1
-        left = torch.where(dl > 0, (uu - ti) / torch.where(dl > 0, dl, 1.0), 0.0)
-        right = torch.where(dr > 0, (tik1 - uu) / torch.where(dr > 0, dr, 1.0), 0.0)
-        B = left * B[:, :-1] + right * B[:, 1:]
-    return B
-
-
-def _bernstein_basis(u: Tensor, n: int) -> Tensor:
-    """``(N, n)`` Bernstein basis of degree ``n - 1`` at ``u``."""
-    i = torch.arange(n, dtype=u.dtype, device=u.device)
-    binom = torch.tensor([math.comb(n - 1, k) for k in range(n)], dtype=u.dtype,
-                         device=u.device)
-    uu = u[:, None]
-    return binom * uu**i * (1.0 - uu) ** (n - 1 - i)
-
-
-def _lifted_twists(x: Tensor, ref: int) -> tuple[Tensor, Tensor]:
-    r"""Twists :math:`\xi_i` with :math:`\exp(\xi_i) = \pm x_{ref}^{-1} x_i`, continuous in i.
-
-    The samples are first sign-aligned along the sequence, so the relative real parts form
-    a continuous path from ``+1`` at ``ref``; their rotation angle
-    ``2 atan2(|v|, w)`` then runs over ``[0, 2 pi)`` without the jump at pi of the principal
-    logarithm (relative rotations up to a full turn either side of the reference).
-
-    Returns ``(x_ref (..., 1, 8), xi (..., N, 6))`` in float64.
-    """
-    x = align_chain(x)
-    x_ref = x[..., ref:ref + 1, :]
-    y = dualquat.mul(dualquat.conj(x_ref), x)
-    r, t = dualquat.to_rt(y)
-    w, v = r[..., 0], r[..., 1:]
-    s = torch.linalg.vector_norm(v, dim=-1)
-    theta = 2.0 * torch.atan2(s, w)  # in [0, 2 pi]
-    axis = v / torch.where(s > 0, s, 1.0)[..., None]
-    theta = torch.where(theta > 2.0 * math.pi - 1e-6, theta - 2.0 * math.pi, theta)
-    omega = theta[..., None] * axis
-    lin = twist_translation(omega, t)
-    return x_ref, torch.cat((omega, lin), dim=-1)
-
+# ----------------------------------------------------------------------------- argument checks
 
 def _check_int(fn: str, name: str, value, low: int, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
@@ -147,19 +96,16 @@ def _check_int(fn: str, name: str, value, low: int, what: str) -> int:
     return int(value)
 
 
-def _check_times_1d(fn: str, times, n: int | None) -> Tensor:
-    _checks.tensor(fn, "times", times)
-    if times.dim() != 1 or times.shape[0] < 2 or (n is not None and times.shape[0] != n):
-        want = "(N,) with N >= 2" if n is None else f"({n},) matching the N = {n} poses"
-        _checks.fail(fn, f"expected a {want} tensor for times, got shape "
-                         f"{_checks.shape_str(times.shape)}")
-    tt = times.detach()
-    bad = torch.stack((~torch.isfinite(tt).all(), (tt[1:] <= tt[:-1]).any())).tolist()
-    if bad[0]:
-        _checks.fail(fn, "times must be finite")
-    if bad[1]:
-        _checks.fail(fn, "times must be strictly increasing")
-    return times
+def _time_pair(fn: str, name: str, value) -> tuple[float, float]:
+    """Two finite increasing times ``(t0, t1)`` from a pair of numbers or a ``(2,)`` tensor."""
+    try:
+        pair = tuple(float(v) for v in (value.detach().cpu().tolist() if isinstance(
+            value, Tensor) else value))
+    except (TypeError, ValueError):
+        pair = ()
+    if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or not pair[0] < pair[1]:
+        _checks.fail(fn, f"{name} must be two finite increasing times (t0, t1), got {value!r}")
+    return pair
 
 
 def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
@@ -185,10 +131,16 @@ def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
     return dualquat.from_rt(q, translations)
 
 
+def _deprecated(what: str, instead: str) -> None:
+    warnings.warn(f"{what} is deprecated: {instead}", DeprecationWarning, stacklevel=3)
+
+
 # ----------------------------------------------------------------------------- curve layers
 
 class _Curve(torch.nn.Module):
-    """Shared machinery: the parametrized ``ctrl``, ``time_range`` and pose constructors."""
+    """Shared machinery: the parametrized ``ctrl``, the time origin, evaluation, derivatives
+    and the constructors from poses. Subclasses define ``_relative_domain``, ``_curve``,
+    ``_curve_derivatives``, ``basis`` and ``_from_dq``."""
 
     _name = "nn._Curve"
 
@@ -198,21 +150,11 @@ class _Curve(torch.nn.Module):
         if ctrl.dim() < 2 or ctrl.shape[-2] < min_points:
             _checks.fail(fn, f"expected a (..., n, 8) tensor for ctrl with n >= {min_points}, "
                              f"got shape {_checks.shape_str(ctrl.shape)}")
-        self.check = bool(check)
+        if not isinstance(check, bool):
+            _checks.fail(fn, f"check must be a bool, got {check!r}", TypeError)
+        self.check = check
         self.ctrl = torch.nn.Parameter(ctrl.detach().clone())
         parametrize.register_parametrization(self, "ctrl", UnitDualQuaternion())
-
-    def _set_time_range(self, time_range, lo: Tensor, hi: Tensor) -> None:
-        fn = self._name
-        like = self.parametrizations.ctrl.original
-        if time_range is None:
-            tr = torch.stack((lo, hi)).to(like.dtype)
-        else:
-            tr = torch.as_tensor(time_range, dtype=like.dtype, device=like.device)
-            if tr.shape != (2,) or not bool(torch.isfinite(tr).all() & (tr[0] < tr[1])):
-                _checks.fail(fn, f"time_range must be two finite increasing times (t0, t1), "
-                                 f"got {time_range!r}")
-        self.register_buffer("time_range", tr.to(like.device))
 
     # -- control points
     @property
@@ -239,10 +181,9 @@ class _Curve(torch.nn.Module):
                                      f"{_checks.shape_str(value.shape)}")
         self.ctrl = value
 
-    def _resolve(self, ctrl: Tensor | None) -> Tensor:
+    def _resolve(self, fn: str, ctrl: Tensor | None) -> Tensor:
         if ctrl is None:
             return self.ctrl
-        fn = f"{self._name}.forward"
         _checks.tensor(fn, "ctrl", ctrl, 8)
         n = self.n_ctrl
         if ctrl.dim() < 2 or ctrl.shape[-2] != n:
@@ -251,81 +192,225 @@ class _Curve(torch.nn.Module):
         return self.parametrizations.ctrl[0](ctrl)
 
     # -- time
-    def _domain(self) -> tuple[Tensor, Tensor]:
-        raise NotImplementedError
+    @property
+    def domain(self) -> tuple[float, float]:
+        """The module's time domain ``(start, end)`` in the caller's units (Python floats)."""
+        lo, hi = self._relative_domain()
+        return self._origin + float(lo), self._origin + float(hi)
 
-    def normalize_time(self, times: Tensor) -> Tensor:
-        r"""Map raw times affinely onto the curve domain: ``time_range`` -> domain.
+    def get_extra_state(self) -> dict:
+        return {"origin": self._origin}
 
-        ``u = lo + (times - t0) / (t1 - t0) * (hi - lo)`` with ``(t0, t1) = time_range`` and
-        ``[lo, hi]`` the domain (``[0, 1]`` unless custom knots). The identity for a module
-        built without ``time_range``. Computed in the module's dtype (for absolute
-        timestamps in float32, subtract a reference time first).
+    def set_extra_state(self, state: dict) -> None:
+        origin = state.get("origin") if isinstance(state, dict) else None
+        if isinstance(origin, bool) or not isinstance(origin, numbers.Real) or not math.isfinite(
+                origin):
+            _checks.fail(f"{self._name}.load_state_dict", f"expected extra state "
+                                                          f"{{'origin': float}}, got {state!r}")
+        self._origin = float(origin)
+
+    def _local_time(self, fn: str, t: Tensor, like: Tensor) -> Tensor:
+        """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, checked against the
+        domain when ``self.check``."""
+        _checks.tensor(fn, "t", t)
+        if t.dim() < 1:
+            _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
+        if t.device != like.device:
+            _checks.fail(fn, f"t is on {t.device} but the control points are on {like.device}",
+                         TypeError)
+        wide = torch.promote_types(t.dtype, like.dtype)
+        rel = t.to(wide) - self._origin if self._origin != 0.0 else t.to(wide)
+        if self.check:
+            lo, hi = self._relative_domain()
+            # the relative knots are stored in the module's dtype, maybe narrower than like's
+            stored = self.parametrizations.ctrl.original.dtype
+            eps = max(torch.finfo(stored).eps, torch.finfo(like.dtype).eps)
+            tol = _ULPS * eps * max(abs(float(lo)), abs(float(hi)))
+            outside = ((rel < float(lo) - tol) | (rel > float(hi) + tol)).any()
+            try:
+                bad = bool(outside)
+            except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
+                raise RuntimeError(f"{fn}: the domain check reads t on the host, which this "
+                                   f"transform does not allow; build the module with "
+                                   f"check=False") from e
+            if bad:
+                start, end = self.domain
+                finite = t.detach()[torch.isfinite(t.detach())]
+                seen = (f"values in [{float(finite.min())!r}, {float(finite.max())!r}]"
+                        if finite.numel() else "no finite value")
+                nonfinite = t.numel() - finite.numel()
+                _checks.fail(fn, f"t must lie in the module's time domain [{start!r}, {end!r}] "
+                                 f"(the caller's units; from_poses places it over "
+                                 f"[times[0], times[-1]]), got {seen}"
+                                 + (f" and {nonfinite} non-finite" if nonfinite else ""))
+        return rel
+
+    def forward(self, t: Tensor, ctrl: Tensor | None = None) -> Tensor:
+        """Poses at times ``t`` of the module's domain (the caller's units).
 
         Args:
-            times: ``(..., T)`` floating times, cast to the module's dtype and device.
+            t: ``(T,)`` or ``(..., T)`` times in :attr:`domain`, any floating dtype (float64
+                absolute timestamps work with a float32 module), on the module's device;
+                batch dims broadcast with those of the control points.
+            ctrl: optional ``(..., n, 8)`` control points (e.g. a network's raw outputs)
+                used instead of the module's own, projected like them; ``n`` must be the
+                module's.
+
+        Returns:
+            ``(..., T, 8)`` unit dual quaternions of the control points' dtype.
+
+        Raises:
+            ValueError: ``t`` outside the domain (with ``check``), bad shapes.
         """
+        fn = f"{self._name}.forward"
+        ctrl = self._resolve(fn, ctrl)
+        return self._curve(ctrl, self._local_time(fn, t, ctrl))
+
+    def derivatives(self, t: Tensor, order: int = 2, ctrl: Tensor | None = None,
+                    ) -> tuple[Tensor, ...]:
+        r"""Poses and their exact time derivatives ``(x, dx/dt, ..., d^order x/dt^order)``.
+
+        Derivatives are with respect to the caller's time (the module's own), through
+        :func:`torch_dq.curves.bspline_derivatives` / :func:`torch_dq.curves.bezier_derivatives`:
+        exact, differentiable (twice) with respect to the control points and ``t``.
+
+        Args:
+            t: ``(T,)`` or ``(..., T)`` times in :attr:`domain` (see :meth:`forward`).
+            order: highest derivative, 0 to 3.
+            ctrl: optional predicted control points (see :meth:`forward`).
+
+        Returns:
+            ``order + 1`` tensors, each ``(..., T, 8)``.
+        """
+        fn = f"{self._name}.derivatives"
+        order = _check_int(fn, "order", order, 0, "in 0..3")
+        if order > 3:
+            _checks.fail(fn, f"order must be an int in 0..3, got {order!r}")
+        ctrl = self._resolve(fn, ctrl)
+        return self._curve_derivatives(ctrl, self._local_time(fn, t, ctrl), order)
+
+    def kinematics(self, t: Tensor, frame: str = "world", ctrl: Tensor | None = None):
+        r"""Angular and linear velocities and accelerations at ``t`` (caller's units).
+
+        As :func:`torch_dq.curves.kinematics` on :meth:`derivatives` of order 2: with
+        ``x = (R, p)``, world frame ``dR/dt = [w]x R``, ``v = dp/dt``, ``alpha = dw/dt``,
+        ``a = d^2 p/dt^2``; ``frame="body"`` gives the same vectors in body axes.
+        Differentiable (twice) with respect to the control points.
+
+        Args:
+            t: ``(T,)`` or ``(..., T)`` times in :attr:`domain`.
+            frame: ``"world"`` or ``"body"``.
+            ctrl: optional predicted control points (see :meth:`forward`).
+
+        Returns:
+            Named tuple ``(angular_velocity, linear_velocity, angular_acceleration,
+            linear_acceleration)``, each ``(..., T, 3)``.
+
+        Example:
+            >>> import torch_dq.dualquat as dq
+            >>> xi = torch.tensor([0.0, 0.0, 0.5, 2.0, 0.0, 0.0])  # per second
+            >>> ctrl = dq.exp(torch.linspace(0.0, 4.0, 2)[:, None] * xi)
+            >>> curve = Bezier(ctrl.double(), domain=(10.0, 14.0))  # seconds 10 to 14
+            >>> k = curve.kinematics(torch.tensor([12.0], dtype=torch.float64))
+            >>> k.angular_velocity.detach()  # rad/s
+            tensor([[0.0000, 0.0000, 0.5000]], dtype=torch.float64)
+        """
+        x, dx, ddx = self.derivatives(t, 2, ctrl)
+        return curves.kinematics(x, dx, ddx, frame=frame)
+
+    def imu(self, t: Tensor, gravity=(0.0, 0.0, -9.81), ctrl: Tensor | None = None,
+            ) -> tuple[Tensor, Tensor]:
+        r"""What an ideal IMU rigidly attached at the body origin reads at ``t``.
+
+        As :func:`torch_dq.curves.imu` on :meth:`derivatives` of order 2: gyroscope
+        :math:`R^T \omega` and accelerometer (specific force) :math:`R^T (a - g)`.
+
+        Args:
+            t: ``(T,)`` or ``(..., T)`` times in :attr:`domain`.
+            gravity: gravity ``g`` in world axes (default ``(0, 0, -9.81)``).
+            ctrl: optional predicted control points (see :meth:`forward`).
+
+        Returns:
+            ``(gyro, accel)``, each ``(..., T, 3)``.
+        """
+        x, dx, ddx = self.derivatives(t, 2, ctrl)
+        return curves.imu(x, dx, ddx, gravity=gravity)
+
+    def normalize_time(self, times: Tensor) -> Tensor:
+        """Deprecated: the identity (modules now take the caller's time directly).
+
+        0.1 mapped raw times onto ``[0, 1]``; since 0.2 a module's time is the caller's, so
+        ``module(times)`` replaces ``module(module.normalize_time(times))``.
+        """
+        _deprecated(f"{self._name}.normalize_time",
+                    "modules take the caller's time directly; call module(times)")
         _checks.tensor(f"{self._name}.normalize_time", "times", times)
-        tr = self.time_range
-        lo, hi = self._domain()
-        times = times.to(dtype=tr.dtype, device=tr.device)
-        return lo + (times - tr[0]) / (tr[1] - tr[0]) * (hi - lo)
+        return times
+
+    @property
+    def time_range(self) -> Tensor:
+        """Deprecated: the :attr:`domain` as a float64 ``(2,)`` tensor."""
+        _deprecated(f"{self._name}.time_range", "use module.domain")
+        like = self.parametrizations.ctrl.original
+        return torch.tensor(self.domain, dtype=torch.float64, device=like.device)
 
     def extra_repr(self) -> str:
         raw = self.parametrizations.ctrl.original
         batch = _checks.shape_str(raw.shape[:-2])
-        tr = ", ".join(f"{v:g}" for v in self.time_range.tolist())
+        start, end = self.domain
         deg = f", degree={self.degree}" if hasattr(self, "degree") else ""
-        return (f"n_ctrl={self.n_ctrl}{deg}, batch_shape={batch}, time_range=({tr}), "
-                f"dtype={raw.dtype}")
+        return (f"n_ctrl={self.n_ctrl}{deg}, batch_shape={batch}, domain=({start!r}, "
+                f"{end!r}), dtype={raw.dtype}")
 
     # -- constructors from poses
-    @classmethod
-    def _ls_ctrl(cls, fn: str, x: Tensor, times: Tensor, basis: Callable[[Tensor], Tensor],
-                 ) -> Tensor:
-        """Least-squares control points: ``x_ref exp(C)``, ``C`` fit to the twists."""
-        dtype, device = x.dtype, x.device
-        x64 = x.detach().to(torch.float64).cpu()
+    def _fill(self, fn: str, x: Tensor, t64: Tensor) -> _Curve:
+        """Set the control points from the local least-squares start
+        (:func:`torch_dq.fitting.least_squares_start`) on poses ``x`` at float64 times."""
+        n, N = self.n_ctrl, x.shape[-2]
+        if n > N:
+            _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
+                             f"N = {N} samples; use n_ctrl <= {N}")
+        x64 = x.detach().to(dtype=torch.float64, device="cpu")
         if not bool(torch.isfinite(x64).all()):
-            _checks.fail(fn, "the poses must be finite, with non-zero rotations (every sample "
-                             "enters every control point of the least-squares fit)")
-        t64 = times.detach().to(torch.float64).cpu()
-        N = x64.shape[-2]
-        x_ref, xi = _lifted_twists(x64, N // 2)
-        u = (t64 - t64[0]) / (t64[-1] - t64[0])
-        A = basis(u)  # (N, n)
-        C = torch.linalg.lstsq(A.expand(*xi.shape[:-2], *A.shape), xi, driver="gelsd").solution
-        ctrl = dualquat.mul(x_ref, dualquat.exp(C))
-        return ctrl.to(dtype=dtype, device=device)
+            _checks.fail(fn, "the poses must be finite, with non-zero rotations")
+        first, values = self.basis(t64.to(x.device))
+        first, values = first.cpu(), values.cpu()
+        ctrl = fitting.least_squares_start(x64, t64 - self._origin, first, values, n,
+                                           self._greville())
+        self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
+        return self
 
     @classmethod
     def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor, **kwargs):
-        r"""Curve fit to timestamped rigid poses by linear least squares on twists.
+        r"""Curve over ``[times[0], times[-1]]`` fit to timestamped rigid poses.
 
-        With ``x_i`` the poses, ``x_ref`` the middle sample and
-        :math:`\xi_i = \log(x_{ref}^{-1} x_i)` (continuous along the samples, see below),
-        the Euclidean curve coefficients :math:`C` minimising
-        :math:`\sum_i |\sum_j B_j(u_i) C_j - \xi_i|^2` (``torch.linalg.lstsq`` on the
-        basis matrix at the normalised times :math:`u_i \in [0, 1]`) give the control
-        points :math:`x_{ref} \exp(C_j)`. The curve through them is close to the samples
-        for smooth motions (exact for a constant screw motion) and is a good start for
-        :func:`fit`. Relative rotations to the middle sample may reach a full turn on
-        either side (the twists' rotation angle is unwrapped over ``[0, 2 pi)``).
-
-        Times are mapped affinely onto ``[0, 1]`` (first sample -> 0, last -> 1) and that
-        map is stored as the ``time_range`` buffer: evaluate with
-        ``module(module.normalize_time(times))``.
+        The time domain is placed over the samples in the caller's units, so
+        ``module(times)`` evaluates the fit at the sample times. The control points come
+        from a local least-squares start (:func:`torch_dq.fitting.least_squares_start`):
+        each control point is fit in a local chart (the pose interpolated at its Greville
+        abscissa) to the samples of a window around it, so the start is sane on long
+        trajectories with loops and extents of kilometres, costs :math:`O(N)`, and does not
+        depend on where the world origin is. Control points that the samples do not
+        determine (a time gap longer than a knot span) are bridged: they stay on the screw
+        motion between the samples on either side of the gap. Refine the start with
+        :func:`fit`.
 
         Args:
             rotations: ``(..., N, 4)`` quaternions ``(w, x, y, z)`` (normalised here) or
                 ``(..., N, 3, 3)`` rotation matrices. Extra leading dims give a batch of
                 curves.
             translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
-            times: ``(N,)`` strictly increasing finite times (any floating dtype).
+            times: ``(N,)`` strictly increasing finite times in the caller's units, any
+                floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
+                float32 rounding of the time since the first sample).
             **kwargs: ``n_ctrl`` (and ``degree`` for :class:`BSpline`), ``check``.
 
         Returns:
             The module, with control points of the dtype and device of ``rotations``.
+
+        Raises:
+            ValueError: bad shapes, non-increasing times, non-finite poses, more control
+                points than samples (``n_ctrl > N``: underdetermined).
         """
         fn = f"{cls._name}.from_poses"
         x = _poses_to_dq(fn, rotations, translations)
@@ -358,69 +443,122 @@ class _Curve(torch.nn.Module):
 class Bezier(_Curve):
     r"""Bézier curve of rigid motions with learnable unit-dual-quaternion control points.
 
-    Evaluates :func:`torch_dq.curves.bezier` (De Casteljau with ``sclerp``, paper 4.1). The
-    control points are the parameter ``ctrl`` under the :class:`UnitDualQuaternion`
-    parametrization: the raw tensor (``parametrizations.ctrl.original``) is what optimizers
-    update, and ``.control_points`` (= ``.ctrl``) is always its unit projection.
-    Save and load through ``state_dict`` (parametrized modules do not pickle).
+    Evaluates :func:`torch_dq.curves.bezier` (De Casteljau with ``sclerp``, paper 4.1) on
+    its ``domain`` in the caller's units. The control points are the parameter ``ctrl``
+    under the :class:`UnitDualQuaternion` parametrization: the raw tensor
+    (``parametrizations.ctrl.original``) is what optimizers update, and
+    ``.control_points`` (= ``.ctrl``) is always its unit projection. Save and load through
+    ``state_dict`` (the domain is extra state; parametrized modules do not pickle).
 
     Args:
         ctrl: ``(..., n, 8)`` initial control points, ``n >= 2`` (degree ``n - 1``),
             projected onto unit dual quaternions; leading dims give a batch of curves.
             dtype and device of the module.
-        time_range: raw times ``(t0, t1)`` mapped onto ``[0, 1]`` by
-            :meth:`normalize_time` (default ``(0, 1)``).
-        check: check at every call that ``t`` lies in ``[0, 1]`` (one device sync).
+        domain: ``(t0, t1)``, the time span of the curve in the caller's units (kept as
+            Python floats: absolute timestamps are safe with a float32 module).
+        time_range: deprecated alias of ``domain`` (0.1).
+        check: check at every call that ``t`` lies in the domain (one device sync).
 
     Shape:
-        ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in ``[0, 1]`` -> ``(..., T, 8)``.
+        ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in the domain -> ``(..., T, 8)``.
 
     Example:
         >>> import torch_dq.dualquat as dq
-        >>> curve = Bezier(dq.identity((4,)))
-        >>> curve(torch.linspace(0, 1, 5)).shape
+        >>> curve = Bezier(dq.identity((4,)), domain=(2.0, 3.0))
+        >>> curve(torch.linspace(2, 3, 5)).shape
         torch.Size([5, 8])
     """
 
     _name = "nn.Bezier"
 
-    def __init__(self, ctrl: Tensor, *, time_range=None, check: bool = True):
+    def __init__(self, ctrl: Tensor, domain=(0.0, 1.0), *, time_range=None, check: bool = True):
         super().__init__()
+        fn = self._name
         self._setup(ctrl, 2, check)
-        one = self.parametrizations.ctrl.original.new_ones(())
-        self._set_time_range(time_range, 0.0 * one, one)
+        if time_range is not None:
+            _deprecated(f"{fn}(time_range=...)", "pass domain=(t0, t1)")
+            domain = time_range
+        start, end = _time_pair(fn, "domain", domain)
+        self._origin = start
+        self._length = end - start
 
-    def _domain(self) -> tuple[Tensor, Tensor]:
-        return 0.0, 1.0
+    def get_extra_state(self) -> dict:
+        return {"origin": self._origin, "length": self._length}
 
-    def forward(self, t: Tensor, ctrl: Tensor | None = None) -> Tensor:
-        """Poses at times ``t`` in ``[0, 1]``.
+    def set_extra_state(self, state: dict) -> None:
+        super().set_extra_state(state)
+        length = state.get("length")
+        if isinstance(length, bool) or not isinstance(length, numbers.Real) or not (
+                math.isfinite(length) and length > 0):
+            _checks.fail(f"{self._name}.load_state_dict", f"expected a finite length > 0 in "
+                                                          f"the extra state, got {state!r}")
+        self._length = float(length)
+
+    def _relative_domain(self) -> tuple[float, float]:
+        return 0.0, self._length
+
+    def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor:
+        return curves.bezier(ctrl, rel, domain=(0.0, self._length), check=False)
+
+    def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int) -> tuple[Tensor, ...]:
+        return curves.bezier_derivatives(ctrl, rel, order=order, domain=(0.0, self._length),
+                                         check=False)
+
+    def basis(self, t: Tensor) -> tuple[Tensor, Tensor]:
+        r"""Euclidean Bernstein basis at ``t``: ``(first (T,), values (T, n))``.
+
+        ``values[i, j]`` is :math:`\binom{n-1}{j} u^j (1-u)^{n-1-j}` at the local parameter
+        ``u`` of ``t[i]``; every pose depends on all ``n`` control points (``first = 0``).
+        This is the design matrix of the least-squares start.
 
         Args:
-            t: ``(T,)`` or ``(..., T)`` times, same dtype and device as the control points.
-            ctrl: optional ``(..., n, 8)`` control points (e.g. a network's raw outputs)
-                used instead of the module's own, projected like them; ``n`` must be the
-                module's.
+            t: ``(T,)`` times in the domain (caller's units), any floating dtype.
 
         Returns:
-            ``(..., T, 8)`` unit dual quaternions.
+            ``(first, values)``: ``(T,)`` int64 zeros and ``(T, n)`` float64 values.
         """
-        return curves.bezier(self._resolve(ctrl), t, check=self.check)
+        fn = f"{self._name}.basis"
+        rel = self._local_time(fn, t, self.parametrizations.ctrl.original).to(torch.float64)
+        if rel.dim() != 1:
+            _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
+                             f"{_checks.shape_str(t.shape)}")
+        u = (rel / self._length)[:, None]
+        n = self.n_ctrl
+        j = torch.arange(n, dtype=torch.float64, device=rel.device)
+        binom = torch.tensor([math.comb(n - 1, k) for k in range(n)], dtype=torch.float64,
+                             device=rel.device)
+        values = binom * u**j * (1.0 - u) ** (n - 1 - j)
+        return torch.zeros(rel.shape, dtype=torch.int64, device=rel.device), values
+
+    def _greville(self) -> Tensor:
+        return torch.linspace(0.0, self._length, self.n_ctrl, dtype=torch.float64)
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4, check: bool = True):
         n = _check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
-        _check_times_1d(fn, times, x.shape[-2])
-        ctrl = cls._ls_ctrl(fn, x, times, lambda u: _bernstein_basis(u, n))
-        tt = times.detach()
-        return cls(ctrl, time_range=(float(tt[0]), float(tt[-1])), check=check)
+        t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
+        module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
+                     domain=(float(t64[0]), float(t64[-1])), check=check)
+        return module._fill(fn, x, t64)
 
     @classmethod
     def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
                    n_ctrl: int = 4, check: bool = True) -> Bezier:
-        """Bézier curve with ``n_ctrl`` control points fit to poses (Bernstein basis).
+        """Bézier curve with ``n_ctrl`` control points fit to poses over
+        ``[times[0], times[-1]]`` (Bernstein basis; see :meth:`_Curve.from_poses`).
 
-        See :meth:`_Curve.from_poses`; ``n_ctrl >= 2`` (degree ``n_ctrl - 1``).
+        ``n_ctrl >= 2`` (degree ``n_ctrl - 1``), at most the number of samples.
+
+        Example:
+            >>> import torch_dq.dualquat as dq
+            >>> times = torch.linspace(100.0, 102.0, 9, dtype=torch.float64)
+            >>> xi = torch.tensor([0.0, 0.0, 0.3, 1.0, 0.0, 0.0], dtype=torch.float64)
+            >>> q, p = dq.to_rt(dq.exp((times - 100.0)[:, None] * xi))
+            >>> curve = Bezier.from_poses(q, p, times, n_ctrl=3)
+            >>> curve.domain
+            (100.0, 102.0)
+            >>> torch.allclose(dq.to_rt(curve(times))[1], p)
+            True
         """
         return super().from_poses(rotations, translations, times, n_ctrl=n_ctrl, check=check)
 
@@ -428,19 +566,23 @@ class Bezier(_Curve):
 class BSpline(_Curve):
     r"""B-spline curve of rigid motions with learnable unit-dual-quaternion control points.
 
-    Evaluates :func:`torch_dq.curves.bspline` (De Boor with ``sclerp``, paper 4.2); see
-    :class:`Bezier` for the parametrization. The knots are a buffer (they follow
-    ``.to()`` and are saved in the ``state_dict``), not learned.
+    Evaluates :func:`torch_dq.curves.bspline` (De Boor with ``sclerp``, paper 4.2) on the
+    knot domain ``[knots[degree], knots[n]]`` in the caller's units; see :class:`Bezier`
+    for the parametrization. The knots are not learned: the module keeps their origin
+    ``knots[degree]`` as a Python float (extra state of the ``state_dict``) and the knots
+    relative to it as a buffer (it follows ``.to()``), so absolute timestamps survive a
+    float32 module; :attr:`knots` returns them in the caller's units (float64).
 
     Args:
         ctrl: ``(..., n, 8)`` initial control points, ``n > degree``, projected onto unit
             dual quaternions; leading dims give a batch of curves.
         degree: polynomial degree ``>= 1`` (3: cubic).
-        knots: ``(n + degree + 1,)`` non-decreasing finite knots with
+        knots: ``(n + degree + 1,)`` non-decreasing finite knots in the caller's units
+            (any floating dtype; float64 for absolute timestamps) with
             ``knots[degree] < knots[n]``; default clamped uniform on ``[0, 1]``
             (:func:`torch_dq.curves.clamped_uniform_knots`).
-        time_range: raw times ``(t0, t1)`` mapped onto the domain
-            ``[knots[degree], knots[n]]`` by :meth:`normalize_time` (default: the domain).
+        time_range: deprecated (0.1): ``(t0, t1)`` rescales the knots affinely so that the
+            domain becomes ``[t0, t1]``.
         check: check at every call that ``t`` lies in the domain (one device sync).
 
     Shape:
@@ -450,7 +592,7 @@ class BSpline(_Curve):
         >>> import torch_dq.dualquat as dq
         >>> spline = BSpline(dq.identity((6,)), degree=3)
         >>> spline.extra_repr()
-        'n_ctrl=6, degree=3, batch_shape=(), time_range=(0, 1), dtype=torch.float32'
+        'n_ctrl=6, degree=3, batch_shape=(), domain=(0.0, 1.0), dtype=torch.float32'
         >>> spline(torch.rand(2, 7)).shape  # a (2, 7) batch of times
         torch.Size([2, 7, 8])
     """
@@ -470,236 +612,106 @@ class BSpline(_Curve):
                              f"degree {degree}")
         self.degree = degree
         if knots is None:
-            knots = curves.clamped_uniform_knots(n, degree, dtype=raw.dtype, device=raw.device)
+            k64 = curves.clamped_uniform_knots(n, degree, dtype=torch.float64)
         else:
             _checks.tensor(fn, "knots", knots)
             if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
                 _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
                                  f"{n + degree + 1} entries, got shape "
                                  f"{_checks.shape_str(knots.shape)}")
-            k = knots.detach()
-            bad = torch.stack((~torch.isfinite(k).all(), (k[1:] < k[:-1]).any(),
-                               ~(k[degree] < k[n]))).tolist()
+            k64 = knots.detach().to(dtype=torch.float64, device="cpu")
+            bad = torch.stack((~torch.isfinite(k64).all(), (k64[1:] < k64[:-1]).any(),
+                               ~(k64[degree] < k64[n]))).tolist()
             if any(bad):
                 _checks.fail(fn, f"knots must be finite and non-decreasing with "
-                                 f"knots[degree] < knots[n], got {k.tolist()}")
-            knots = knots.detach().to(dtype=raw.dtype, device=raw.device).clone()
-        self.register_buffer("knots", knots)
-        self._set_time_range(time_range, knots[degree], knots[n])
+                                 f"knots[degree] < knots[n], got {k64.tolist()}")
+        if time_range is not None:  # affine map of the knot domain onto time_range
+            _deprecated(f"{fn}(time_range=...)", "pass knots in the caller's time (or build "
+                                                 "with from_poses)")
+            span = _time_pair(fn, "time_range", time_range)
+            lo, hi = k64[degree], k64[n]
+            k64 = span[0] + (k64 - lo) * ((span[1] - span[0]) / (hi - lo))
+            k64[degree], k64[n] = span  # exact ends
+        self._origin = float(k64[degree])
+        self.register_buffer("_knots", (k64 - self._origin).to(dtype=raw.dtype,
+                                                                 device=raw.device))
 
-    def _domain(self) -> tuple[Tensor, Tensor]:
-        return self.knots[self.degree], self.knots[self.n_ctrl]
+    @property
+    def knots(self) -> Tensor:
+        """The ``(n + degree + 1,)`` knots in the caller's units (float64, module's device)."""
+        return self._knots.to(torch.float64) + self._origin
 
-    def forward(self, t: Tensor, ctrl: Tensor | None = None) -> Tensor:
-        """Poses at times ``t`` in the knot domain (``[0, 1]`` by default).
+    def _relative_domain(self) -> tuple[Tensor, Tensor]:
+        return self._knots[self.degree], self._knots[self.n_ctrl]
+
+    def _knots_like(self, rel: Tensor) -> Tensor:
+        return self._knots.to(dtype=rel.dtype, device=rel.device)
+
+    def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor:
+        return curves.bspline(ctrl, rel, self.degree, self._knots_like(rel), check=False)
+
+    def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int) -> tuple[Tensor, ...]:
+        return curves.bspline_derivatives(ctrl, rel, order=order, degree=self.degree,
+                                          knots=self._knots_like(rel), check=False)
+
+    def basis(self, t: Tensor) -> tuple[Tensor, Tensor]:
+        r"""Euclidean B-spline basis at ``t``: ``(first (T,), values (T, degree + 1))``.
+
+        The pose at ``t[i]`` depends on the control points ``first[i] .. first[i] + degree``
+        only (local support), with the Cox-de Boor basis functions
+        ``values[i, j] = N_{first[i] + j, degree}(t[i])`` (non-negative, summing to 1): the
+        banded design matrix of the least-squares start and of the Gauss-Newton fit.
 
         Args:
-            t: ``(T,)`` or ``(..., T)`` times, same dtype and device as the control points.
-            ctrl: optional ``(..., n, 8)`` control points (e.g. a network's raw outputs)
-                used instead of the module's own, projected like them; ``n`` must be the
-                module's.
+            t: ``(T,)`` times in the domain (caller's units), any floating dtype.
 
         Returns:
-            ``(..., T, 8)`` unit dual quaternions.
+            ``(first, values)``: ``(T,)`` int64 and ``(T, degree + 1)`` float64.
         """
-        ctrl = self._resolve(ctrl)
-        knots = self.knots.to(dtype=ctrl.dtype, device=ctrl.device)
-        return curves.bspline(ctrl, t, self.degree, knots, check=self.check)
+        fn = f"{self._name}.basis"
+        rel = self._local_time(fn, t, self.parametrizations.ctrl.original).to(torch.float64)
+        if rel.dim() != 1:
+            _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
+                             f"{_checks.shape_str(t.shape)}")
+        return fitting.bspline_basis(rel, self._knots.to(torch.float64), self.degree)
+
+    def _greville(self) -> Tensor:
+        k = self._knots.detach().to(dtype=torch.float64, device="cpu")
+        p, n = self.degree, self.n_ctrl
+        return k[1:n + p].unfold(0, p, 1).mean(-1)  # mean of knots[j + 1 .. j + p]
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 8, degree: int = 3,
                  check: bool = True):
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
-        _check_times_1d(fn, times, x.shape[-2])
-        knots = curves.clamped_uniform_knots(n, degree, dtype=torch.float64)
-        ctrl = cls._ls_ctrl(fn, x, times, lambda u: _bspline_basis(u, knots, degree, n))
-        tt = times.detach()
-        return cls(ctrl, degree=degree, time_range=(float(tt[0]), float(tt[-1])), check=check)
+        t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
+        t0, t1 = float(t64[0]), float(t64[-1])
+        knots = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
+        module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
+                     degree=degree, knots=knots, check=check)
+        return module._fill(fn, x, t64)
 
     @classmethod
     def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
                    n_ctrl: int = 8, degree: int = 3, check: bool = True) -> BSpline:
-        """B-spline with ``n_ctrl`` control points fit to poses (Cox-de Boor basis).
+        """B-spline with ``n_ctrl`` control points fit to poses (see
+        :meth:`_Curve.from_poses`), on clamped uniform knots over ``[times[0], times[-1]]``.
 
-        Clamped uniform knots on ``[0, 1]``; see :meth:`_Curve.from_poses`.
-        ``n_ctrl > degree``.
+        ``degree < n_ctrl <= N``. For a knot every ``h`` seconds, take
+        ``n_ctrl = ceil((times[-1] - times[0]) / h) + degree``.
+
+        Example:
+            >>> import torch_dq.dualquat as dq
+            >>> times = 1.7e9 + torch.linspace(0.0, 3.0, 31, dtype=torch.float64)  # UNIX s
+            >>> xi = torch.tensor([0.0, 0.2, 0.0, 0.5, 0.0, 0.1], dtype=torch.float64)
+            >>> q, p = dq.to_rt(dq.exp((times - times[0])[:, None] * xi))
+            >>> spline = BSpline.from_poses(q.float(), p.float(), times, n_ctrl=6)
+            >>> spline.domain == (float(times[0]), float(times[-1]))
+            True
+            >>> err = (dq.to_rt(spline(times))[1] - p).norm(dim=-1).max()  # float64 times
+            >>> bool(err < 1e-5)
+            True
         """
         return super().from_poses(rotations, translations, times, n_ctrl=n_ctrl,
                                   degree=degree, check=check)
-
-
-# ----------------------------------------------------------------------------- fitting
-
-@dataclass
-class FitHistory:
-    """What :func:`fit` did.
-
-    Attributes:
-        loss: the loss before each optimizer step (``len(loss) == steps``).
-        steps: number of optimizer steps taken.
-        final_loss: the loss after the last step.
-        converged: True when the early-stopping test held (the loop stopped there).
-        seconds: wall-clock time of the loop.
-    """
-
-    loss: list[float] = field(default_factory=list)
-    steps: int = 0
-    final_loss: float = math.nan
-    converged: bool = False
-    seconds: float = 0.0
-
-
-_DEFAULT_LR = {"adam": 1e-2, "sgd": 1e-2, "lbfgs": 1.0}
-
-
-def _make_optimizer(fn: str, optimizer, params: list, lr):
-    if isinstance(optimizer, str):
-        name = optimizer.lower()
-        if name not in _DEFAULT_LR:
-            _checks.fail(fn, f"optimizer must be 'adam', 'sgd', 'lbfgs', a torch.optim "
-                             f"optimizer or a callable(params) -> optimizer, got {optimizer!r}")
-        lr = _DEFAULT_LR[name] if lr is None else lr
-        if isinstance(lr, bool) or not isinstance(lr, numbers.Real) or not lr > 0:
-            _checks.fail(fn, f"lr must be a real number > 0, got {lr!r}")
-        if name == "adam":
-            return torch.optim.Adam(params, lr=lr)
-        if name == "sgd":
-            return torch.optim.SGD(params, lr=lr, momentum=0.9)
-        return torch.optim.LBFGS(params, lr=lr, line_search_fn="strong_wolfe")
-    if lr is not None:
-        _checks.fail(fn, "lr applies to named optimizers only; set it in the optimizer or "
-                         "factory")
-    if isinstance(optimizer, torch.optim.Optimizer):
-        return optimizer
-    if callable(optimizer):
-        opt = optimizer(params)
-        if not isinstance(opt, torch.optim.Optimizer):
-            _checks.fail(fn, f"the optimizer factory must return a torch.optim.Optimizer, "
-                             f"got {type(opt).__name__}", TypeError)
-        return opt
-    _checks.fail(fn, f"optimizer must be 'adam', 'sgd', 'lbfgs', a torch.optim optimizer or a "
-                     f"callable(params) -> optimizer, got {type(optimizer).__name__}")
-
-
-def _progress(total: int, enabled: bool):
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # tqdm is optional
-        return None
-    return tqdm(total=total, desc="torch_dq.fit", leave=False)
-
-
-def fit(module: torch.nn.Module, times: Tensor, poses: Tensor, optimizer="adam",
-        steps: int = 500, lr: float | None = None, tol: float = 1e-9, window: int = 10,
-        loss: Callable[[Tensor, Tensor], Tensor] = pose_loss,
-        verbose: bool = True) -> FitHistory:
-    r"""Fit a curve module to timestamped poses by gradient-based optimisation.
-
-    Minimises ``loss(module(module.normalize_time(times)), poses)`` over all the module's
-    parameters (for :class:`Bezier` / :class:`BSpline`, the raw control points: the curve's
-    control points stay unit dual quaternions whatever the optimizer). Each step calls
-    ``optimizer.step(closure)`` (so LBFGS's line search works; one LBFGS step runs up to
-    its ``max_iter = 20`` inner iterations). Early stopping: after ``window`` steps, stop
-    when :math:`|L_{k-w} - L_k| \le tol \cdot |L_{k-w}|` (relative change over the window)
-    or the loss is exactly 0; a non-finite loss also stops the loop (its
-    ``final_loss`` is then not finite). A plain ``torch.optim`` loop does the same thing.
-
-    Args:
-        module: a :class:`Bezier` / :class:`BSpline` (or any module mapping ``(N,)`` times
-            to ``(..., N, 8)`` poses; ``normalize_time`` is used when it has one).
-        times: ``(N,)`` raw times (mapped by ``module.normalize_time``); cast to the
-            module's dtype and device.
-        poses: ``(..., N, 8)`` unit dual quaternions or ``(..., N, 4, 4)`` homogeneous
-            matrices, cast to the dtype and device of ``times`` after normalisation.
-        optimizer: ``"adam"`` (default), ``"sgd"`` (momentum 0.9), ``"lbfgs"`` (strong
-            Wolfe line search), a ``torch.optim.Optimizer`` instance over the module's
-            parameters, or a callable ``params -> Optimizer``
-            (e.g. ``lambda p: torch.optim.AdamW(p, lr=3e-3)``).
-        steps: maximum number of optimizer steps (``>= 1``).
-        lr: learning rate of a named optimizer (default 1e-2 for Adam and SGD, 1 for
-            LBFGS); must be None with an instance or a factory.
-        tol: relative loss change over ``window`` steps below which to stop (0: never).
-        window: steps between the compared losses (``>= 1``).
-        loss: ``loss(pred, target) -> 0-d tensor``; default :func:`torch_dq.losses.pose_loss`
-            (mean of rad² + length²; use ``functools.partial(pose_loss, trans_weight=...)``
-            to balance the units).
-        verbose: show a tqdm progress bar when stderr is a terminal and tqdm is installed.
-
-    Returns:
-        :class:`FitHistory` with the per-step losses.
-
-    Raises:
-        ValueError: bad shapes, unknown optimizer name, bad ``steps``/``lr``/``tol``/
-            ``window``, non-increasing times.
-        TypeError: non-module ``module``, non-floating tensors, a factory that does not
-            return an optimizer.
-
-    Example:
-        >>> import torch_dq.dualquat as dq
-        >>> t = torch.linspace(0.0, 2.0, 30)
-        >>> target = dq.exp(t[:, None] * torch.tensor([0.0, 0.0, 1.0, 0.5, 0.0, 0.0]))
-        >>> spline = BSpline(dq.identity((6,)), time_range=(0.0, 2.0))
-        >>> history = fit(spline, t, target, steps=50, verbose=False)
-        >>> history.final_loss < history.loss[0]
-        True
-    """
-    fn = "nn.fit"
-    if not isinstance(module, torch.nn.Module):
-        _checks.fail(fn, f"expected a torch.nn.Module for module, got {type(module).__name__}",
-                     TypeError)
-    steps = _check_int(fn, "steps", steps, 1, ">= 1")
-    window = _check_int(fn, "window", window, 1, ">= 1")
-    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not tol >= 0:
-        _checks.fail(fn, f"tol must be a real number >= 0, got {tol!r}")
-    if not callable(loss):
-        _checks.fail(fn, f"expected a callable for loss, got {type(loss).__name__}", TypeError)
-    _checks.tensor(fn, "poses", poses)
-    if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
-        poses = dualquat.from_matrix(poses)
-    elif poses.dim() < 2 or poses.shape[-1] != 8:
-        _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
-                         f"for poses, got shape {_checks.shape_str(poses.shape)}")
-    _check_times_1d(fn, times, poses.shape[-2])
-    params = [p for p in module.parameters() if p.requires_grad]
-    if not params:
-        _checks.fail(fn, "module has no parameters that require grad")
-    u = module.normalize_time(times) if hasattr(module, "normalize_time") else times
-    u = u.detach().to(dtype=params[0].dtype, device=params[0].device)
-    target = poses.detach().to(dtype=u.dtype, device=u.device)
-    opt = _make_optimizer(fn, optimizer, params, lr)
-
-    def closure():
-        opt.zero_grad(set_to_none=True)
-        value = loss(module(u), target)
-        value.backward()
-        return value
-
-    history = FitHistory()
-    bar = _progress(steps, verbose and sys.stderr.isatty())
-    start = time.perf_counter()
-    try:
-        for k in range(steps):
-            value = float(opt.step(closure).detach())
-            history.loss.append(value)
-            history.steps = k + 1
-            if bar is not None:
-                bar.update(1)
-                if k % 10 == 0:
-                    bar.set_postfix(loss=f"{value:.3e}")
-            if not math.isfinite(value):
-                break
-            if value == 0.0 or (k >= window and tol > 0 and
-                                abs(history.loss[k - window] - value)
-                                <= tol * abs(history.loss[k - window])):
-                history.converged = True
-                break
-    finally:
-        if bar is not None:
-            bar.close()
-    with torch.no_grad():
-        history.final_loss = float(loss(module(u), target))
-    history.seconds = time.perf_counter() - start
-    return history
