@@ -9,6 +9,9 @@ pytransform3d's ``pq`` (x, y, z, qw, qx, qy, qz).
 
 import inspect
 import io
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -187,3 +190,19 @@ def test_pose7_is_not_pytransform3d_pq():
     pq = pt.pq_from_transform(A2B)
     wrong = dq.to_matrix(dq.from_pose7(_t(pq))).numpy()
     assert np.abs(wrong[:3, :3] - A2B[:3, :3]).max() > 0.1
+
+
+def test_the_library_never_imports_a_peer():
+    """The peers are optional: importing every public module loads none of them."""
+    code = (
+        "import importlib, pkgutil, sys, torch_dq\n"
+        "for m in pkgutil.walk_packages(torch_dq.__path__, 'torch_dq.'):\n"
+        "    if m.name != 'torch_dq.__main__':\n"
+        "        importlib.import_module(m.name)\n"
+        "print(sorted(p for p in ('scipy', 'pytransform3d', 'pypose', 'roma') if p in sys.modules))"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]", res.stdout
