@@ -22,19 +22,22 @@ r"""Fitting curves of rigid motions to timestamped poses (used by :mod:`torch_dq
   the layers: an underdetermined fit (more control points than samples, or a control point
   whose support holds no sample of its own) raises a ``ValueError``, never a garbage fit.
 
-Example (a long loop 1e5 m from the origin, UNIX timestamps, a float32 module):
+Example (a 300 m loop 1e5 m from the origin, timestamped in UNIX seconds):
     >>> import math
     >>> import torch_dq.dualquat as dq
+    >>> from torch_dq.losses import translation_error
     >>> from torch_dq.nn import BSpline
     >>> s = torch.linspace(0.0, 60.0, 601, dtype=torch.float64)  # 60 s at 10 Hz
     >>> xi = torch.tensor([0.0, 0.0, 2 * math.pi / 60, 5.0, 0.0, 0.2], dtype=torch.float64)
     >>> far = dq.from_rt(torch.tensor([1.0, 0, 0, 0], dtype=torch.float64),
     ...                  torch.tensor([1e5, -2e5, 30.0], dtype=torch.float64))
-    >>> poses = dq.mul(far, dq.exp(s[:, None] * xi))  # a 300 m circle, climbing
+    >>> poses = dq.mul(far, dq.exp(s[:, None] * xi))  # a circle, climbing
+    >>> wobble = dq.exp(0.01 * torch.sin(3 * s)[:, None] * torch.ones(6, dtype=torch.float64))
+    >>> poses = dq.mul(poses, wobble)
     >>> times = 1.7e9 + s
-    >>> spline = BSpline.from_dualquats(poses.float(), times, n_ctrl=63)
-    >>> history = fit(spline, times, poses.float(), optimizer="lm", verbose=False)
-    >>> history.final_loss < 1e-6
+    >>> spline = BSpline.from_dualquats(poses, times, n_ctrl=123)  # a knot every 0.5 s
+    >>> history = fit(spline, times, poses, optimizer="lm", verbose=False)
+    >>> bool(translation_error(spline(times), poses).max() < 1e-3)  # metres
     True
 """
 
