@@ -2,7 +2,7 @@ r"""Unchecked building blocks shared by every module (private).
 
 The bottom of the import ladder (``_numerics``, ``_checks`` and this module, then ``dual ->
 quat -> dualquat -> curves -> nn``): products, conjugates, rotations, translations, sign
-alignment of a chain and the robust half-angle, on plain tensors with no argument checks.
+alignment of a chain and the twist translation, on plain tensors with no argument checks.
 Public modules call these instead of reaching into each other's private names.
 """
 
@@ -14,7 +14,7 @@ from torch import Tensor
 from ._numerics import compute_dtype, even
 
 __all__ = [
-    "align_chain", "canonical", "dq_from_rt", "dq_mul", "half_angle", "join", "lift", "qconj",
+    "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "lift", "qconj",
     "qmul", "qrotate", "split", "translation", "twist_translation",
 ]
 
@@ -68,15 +68,6 @@ def canonical(q: Tensor) -> Tensor:
         flip = flip | (undecided & (c < 0))
         undecided = undecided & (c == 0)
     return torch.where(flip[..., None], -q, q)
-
-
-def half_angle(q: Tensor) -> Tensor:
-    r"""``atan2(|v|, |w|)`` of ``(..., 4)`` quaternions: half the rotation angle in
-    ``[0, pi/2]``, the same for ``q`` and ``-q``, accurate near 0 and pi (unlike ``acos``)."""
-    v2 = (q[..., 1:] * q[..., 1:]).sum(-1)
-    zero = v2 == 0
-    vn = torch.where(zero, 0.0, torch.sqrt(torch.where(zero, 1.0, v2)))
-    return torch.atan2(vn, q[..., 0].abs())
 
 
 # ----------------------------------------------------------------------------- dual quaternions

@@ -17,7 +17,7 @@ from torch import Tensor
 
 __all__ = [
     "THRESHOLDS", "compute_dtype", "eps", "even", "nan_unless", "power_of_two_scale",
-    "safe_denominator", "safe_norm", "taylor_threshold", "threshold",
+    "safe_denominator", "safe_norm", "threshold",
 ]
 
 
@@ -84,21 +84,6 @@ def threshold(name: str, dtype: torch.dtype) -> float:
     return float(THRESHOLDS[name](torch.finfo(dtype).eps))
 
 
-def taylor_threshold(dtype: torch.dtype, order: int) -> float:
-    r"""Switch point between a Taylor branch and the exact formula.
-
-    A truncated series with first neglected term of degree ``order`` has relative error
-    ``x**order``; the exact formula of a function whose numerator cancels to second order
-    has relative error ``eps / x**2``. Balancing the two gives
-    ``x0 = eps ** (1 / (order + 2))``.
-
-    Args:
-        dtype: the compute dtype.
-        order: degree of the first neglected Taylor term.
-    """
-    return float(eps(dtype) ** (1.0 / (order + 2)))
-
-
 def safe_denominator(x: Tensor, small: Tensor) -> Tensor:
     """``x`` with the entries where ``small`` holds replaced by 1 (to divide safely)."""
     return torch.where(small, torch.ones_like(x), x)
@@ -158,13 +143,14 @@ def even(name: str, x2: Tensor) -> Tensor:
 
     Below the switch point the series :math:`\sum_{k<K} c_k x_2^k` is used (its first
     neglected term is below an ulp of the result: the switch is at
-    :math:`x_2 = \frac14 \min(1, (\epsilon / |c_K|)^{1/K})`, large, so that the closed
-    form never meets the cancellation of its derivatives near 0). Above it, the closed form is
+    :math:`x_2 = \min(1, \frac14 (\epsilon / |c_K|)^{1/K})`, large, so that the closed
+    form never meets the cancellation of its derivatives near 0; at most 1, where the
+    alternating series would start to cancel). Above it, the closed form is
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
     where), so no branch ever produces a NaN or an infinite derivative.
     """
     coeffs, exact = _EVEN[name]
-    switch = min(0.25, 0.25 * (eps(x2.dtype) / abs(coeffs[-1])) ** (1.0 / _EVEN_TERMS))
+    switch = min(1.0, 0.25 * (eps(x2.dtype) / abs(coeffs[-1])) ** (1.0 / _EVEN_TERMS))
     small = x2 < switch
     series = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
