@@ -43,14 +43,13 @@ skips them (for ``torch.compile`` and tight loops).
 
 from __future__ import annotations
 
-import functools
 import math
 import numbers
 
 import torch
 from torch import Tensor
 
-from . import _checks, _kernels, dualquat
+from . import _checks, _kernels, _taylor, dualquat
 from ._core import align_chain
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
@@ -355,60 +354,22 @@ def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
 
 # ----------------------------------------------------------------------------- time derivatives
 
-def _taylor(jet: list[Tensor], tau: Tensor) -> Tensor:
-    r""":math:`\sum_k x^{(k)} \tau^k / k!` by Horner's rule (``jet = [x, x', ...]``)."""
-    out = jet[-1]
-    for k in range(len(jet) - 1, 0, -1):
-        out = jet[k - 1] + (tau / k) * out
-    return out
+def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[Tensor]:
+    r"""The triangular scheme of :func:`_de_casteljau` / :func:`_de_boor` on jets: the
+    time derivatives ``0..order`` of every level, propagated through eq. 11 in truncated
+    Taylor arithmetic (:mod:`torch_dq._taylor`).
 
-
-def _tangent(f, tau: Tensor):
-    return torch.func.jvp(f, (tau,), (torch.ones_like(tau),))
-
-
-def _sclerp_jet(a: list[Tensor], b: list[Tensor], alpha: tuple[Tensor, Tensor],
-                order: int) -> list[Tensor]:
-    r"""Time derivatives ``0..order`` of :math:`y(t) = \mathrm{sclerp}(a(t), b(t), \alpha(t))`.
-
-    ``a``, ``b``: jets ``[x, x', ...]`` (missing entries are zero); ``alpha = (value, slope)``
-    (the local parameters are affine in ``t``). The derivatives of
-    :math:`\tau \mapsto \mathrm{sclerp}(a(t + \tau), b(t + \tau), \alpha(t + \tau))` at 0,
-    with the arguments replaced by their Taylor polynomials (exact up to ``order``), by
-    ``order`` nested ``torch.func.jvp`` in the scalar :math:`\tau` (Taylor-mode arithmetic by
-    nesting: exact, and differentiable again in reverse mode).
+    ``points (*batch, T, m, 8)``: level 0 (constant in time); ``levels``: per level ``j``
+    the local parameters and their slopes ``d alpha / dt``, ``(..., T, m - j)`` (affine in
+    ``t``: no higher Taylor coefficients). Returns ``[x, dx/dt, ..., d^order x/dt^order]``.
     """
-    def y(tau):
-        return dualquat.sclerp(_taylor(a, tau), _taylor(b, tau), alpha[0] + tau * alpha[1])
-
-    f = y
-    for _ in range(order):
-        f = functools.partial(_tangent, f)
-    out = f(alpha[0].new_zeros(()))
-    jet = []
-    for k in range(order + 1):  # ((y, y'), (y', y'')) for order 2: take k tangent branches
-        node = out
-        for level in range(order):
-            node = node[1 if level < k else 0]
-        jet.append(node)
-    return jet
-
-
-def _jet_de_casteljau(ctrl: Tensor, s: Tensor, slope: Tensor, order: int) -> list[Tensor]:
-    """:func:`_de_casteljau` with the time derivatives up to ``order`` of every level."""
-    q = [ctrl[..., None, :, :]]  # constant in t
-    alpha = (s[..., None], slope)
-    for _ in range(ctrl.shape[-2] - 1):
-        q = _sclerp_jet([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], alpha, order)
-    return [x[..., 0, :] for x in q]
-
-
-def _jet_de_boor(d: Tensor, levels, order: int) -> list[Tensor]:
-    """:func:`_de_boor` with the time derivatives up to ``order`` of every level."""
-    q = [d]  # constant in t
-    for alpha in levels:
-        q = _sclerp_jet([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], alpha, order)
-    return [x[..., 0, :] for x in q]
+    q = torch.cat((points[None], points.new_zeros(order, *points.shape)))
+    for alpha, slope in levels:
+        shape = (*batch, *alpha.shape[-2:])
+        jet = [alpha.expand(shape), slope.expand(shape)][:order + 1]
+        jet += [alpha.new_zeros(()).expand(shape)] * (order + 1 - len(jet))
+        q = _taylor.sclerp(q[..., :-1, :], q[..., 1:, :], torch.stack(jet))
+    return _taylor.derivatives(q[..., 0, :])
 
 
 # ----------------------------------------------------------------------------- public curves
@@ -423,6 +384,7 @@ _SMOOTHNESS = r"""
 
 
 def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool):
+    _checks.flag(fn, "check", check)
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
     batch = _check_times(fn, t, ctrl)
     t0, t1 = _domain(fn, domain, ctrl)
@@ -495,8 +457,8 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, domain=(0.0, 1.0
     to the caller's time ``t`` (the chain rule through :math:`s = (t - t_0)/(t_1 - t_0)` is
     included: a curve on a domain of 10 s moves 10 times slower than on ``[0, 1]``).
     Exact, not finite differences: the time derivatives of every level of De Casteljau's
-    scheme are propagated through eq. 11 (Taylor arithmetic by nested forward mode on each
-    interpolation step, with the weights' derivatives in ``t``). The results are
+    scheme are propagated through eq. 11 in truncated Taylor arithmetic (the jets of the
+    weights of eq. 11 in ``t``; :mod:`torch_dq._taylor`). The results are
     differentiable (reverse mode, twice; and in forward mode) with respect to ``ctrl``,
     ``t`` and a tensor ``domain``. Feed them to :func:`kinematics` or :func:`imu`.
 
@@ -526,12 +488,15 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, domain=(0.0, 1.0
     """
     fn = "curves.bezier_derivatives"
     order = _check_order(fn, order)
-    _, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check)
-    jet = _jet_de_casteljau(ctrl_c, s, slope, order)
-    return tuple(x.to(ctrl.dtype) for x in jet)
+    batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check)
+    T, m = s.shape[-1], ctrl_c.shape[-2]
+    points = ctrl_c[..., None, :, :].expand(*batch, T, m, 8)
+    levels = [(s[..., None], slope)] * (m - 1)  # the same parameter at every level
+    return tuple(x.to(ctrl.dtype) for x in _jet_scheme(points, levels, order, batch))
 
 
 def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool):
+    _checks.flag(fn, "check", check)
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
     degree = _check_degree(fn, degree)
     n = int(ctrl.shape[-2])
@@ -646,8 +611,8 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     Returns :math:`(x, \dot x, \dots, x^{(\mathrm{order})})` with derivatives with respect
     to the caller's time ``t``, the time of the knots. Exact, not finite differences: the
     time derivatives of every level of De Boor's scheme are propagated through eq. 11, with
-    the local parameters' slopes :math:`d\alpha_i^j/dt = 1 / (u_{i+p+1-j} - u_i)` (Taylor
-    arithmetic by nested forward mode on each interpolation step). At a knot the
+    the local parameters' slopes :math:`d\alpha_i^j/dt = 1 / (u_{i+p+1-j} - u_i)`, in
+    truncated Taylor arithmetic (:mod:`torch_dq._taylor`). At a knot the
     derivatives are those of the span that contains ``t`` (right-hand derivatives; the
     left-hand ones at the domain's right end). The results are differentiable (reverse
     mode, twice; and in forward mode) with respect to ``ctrl``, ``t`` and the knots.
@@ -682,4 +647,4 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     order = _check_order(fn, order)
     batch, degree, ctrl_c, r, levels = _prepare_bspline(fn, ctrl, t, degree, knots, check)
     d = _span_points(ctrl_c, r, degree, batch)
-    return tuple(x.to(ctrl.dtype) for x in _jet_de_boor(d, levels, order))
+    return tuple(x.to(ctrl.dtype) for x in _jet_scheme(d, levels, order, batch))
