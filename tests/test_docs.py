@@ -7,6 +7,7 @@ notebook that does not parse fails it. Skipped, with the reason, when the ``docs
 not installed.
 """
 
+import doctest
 import importlib
 import pathlib
 import pkgutil
@@ -116,3 +117,14 @@ def test_docs_example_runs(page, index, capsys):
         pytest.importorskip(peer)
     exec(compile(code, f"docs/{page}.md block {index}", "exec"), {})
     assert capsys.readouterr().out.strip(), "each example prints its result"
+
+
+@pytest.mark.parametrize("module", _public_modules())
+def test_docstring_examples_run(module, tmp_path, monkeypatch):
+    """Every ``Example:`` in the reference runs and prints what it shows (doctest)."""
+    pytest.importorskip("scipy")  # a few examples compare with scipy
+    monkeypatch.chdir(tmp_path)  # examples that write files write them here
+    mod = importlib.import_module(module)
+    flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
+    result = doctest.testmod(mod, optionflags=flags, report=True, verbose=False)
+    assert result.failed == 0, f"{module}: {result.failed} of {result.attempted} examples fail"
