@@ -107,6 +107,16 @@ def test_units_example():
                                torch.tensor(2.0, dtype=F64))
 
 
+@pytest.mark.parametrize("k", [2.0**-100, 2.0**-83, 2.0**66, 2.0**100], ids=lambda k: f"{k:g}")
+def test_scaled_inputs_float32(k, gen):
+    """Real parts are normalised and translations taken as 2 vec(d r*) / |r|^2 for any scale
+    of the dual quaternions (here 1e-30 to 1e30, powers of two so that the scaled inputs are
+    exact, except for components that become subnormal), without under/overflow in float32."""
+    a, b = pairs(gen, torch.float32)
+    for f in (rotation_angle, squared_rotation_angle, translation_error):
+        torch.testing.assert_close(f(k * a, b), f(a, b), rtol=1e-6, atol=1e-6)
+
+
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16], ids=["f16", "bf16"])
 def test_half_precision_computes_in_float32(dtype, gen):
     a, b = unit_dq((8,), gen), unit_dq((8,), gen)

@@ -26,7 +26,7 @@ from torch import Tensor
 
 from . import _checks
 from ._core import translation
-from ._numerics import compute_dtype, even, safe_norm
+from ._numerics import compute_dtype, even, power_of_two_scale, safe_norm
 
 __all__ = ["pose_loss", "rotation_angle", "squared_rotation_angle", "translation_error"]
 
@@ -35,11 +35,13 @@ _REDUCTIONS = ("mean", "sum", "none")
 
 def _unit_real(x: Tensor) -> Tensor:
     r = x[..., :4]
+    r = r / power_of_two_scale(r)  # exact; no square over- or underflows
     return r / torch.linalg.vector_norm(r, dim=-1, keepdim=True)
 
 
 def _translation(x: Tensor) -> Tensor:
     """``2 vec(d r*) / |r|^2``: the translation kept by ``dualquat.normalize``."""
+    x = x / power_of_two_scale(x[..., :4])  # both parts: the ratio is unchanged
     r, d = x[..., :4], x[..., 4:]
     return translation(r, d) / (r * r).sum(-1, keepdim=True)
 
