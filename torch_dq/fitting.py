@@ -407,6 +407,8 @@ def _solve_block_banded(band: Tensor, rhs: Tensor) -> Tensor | None:
     time and memory. Returns None when ``A`` is not numerically positive definite.
     """
     *batch, n, w, s, _ = band.shape
+    beyond = torch.arange(n)[:, None] + torch.arange(w) >= n  # blocks (k, k + d >= n)
+    band = band.masked_fill(beyond[:, :, None, None], 0.0)
     g = max(w - 1, 1)
     G = -(-n // g)
     pad = G * g - n
@@ -556,7 +558,7 @@ def _levenberg_marquardt(module, times: Tensor, target: Tensor, weights, prior: 
 
 def fit(module: torch.nn.Module, times: Tensor, poses: Tensor, optimizer="auto",
         steps: int = 500, lr: float | None = None, tol: float = 1e-9, window: int = 10,
-        loss: Callable[[Tensor, Tensor], Tensor] = pose_loss, prior: float = 1e-4,
+        loss: Callable[[Tensor, Tensor], Tensor] = pose_loss, prior: float = 1e-3,
         verbose: bool = True) -> FitHistory:
     r"""Fit a curve module to timestamped poses; the module ends at the best iterate seen.
 
