@@ -50,7 +50,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _kernels, _taylor, dualquat
-from ._core import align_chain
+from ._core import align_chain, knot_span
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype, safe_denominator
@@ -292,10 +292,7 @@ def _bspline_parameters(t: Tensor, knots: Tensor, degree: int, n: int, dtype: to
     ``slope = d alpha / dt = 1 / (u_{i+p+1-j} - u_i)``.
     """
     p = degree
-    inner = knots[p + 1:n]
-    r = p + torch.searchsorted(inner, t.detach().contiguous(), right=True)
-    r_end = p + torch.searchsorted(inner, knots[n:n + 1].detach(), right=False)
-    r = torch.minimum(r, r_end)
+    r = knot_span(knots, t, p)
     # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
     K = knots[r[..., None] + torch.arange(1 - p, p + 1, device=t.device)]
     te = t[..., None]

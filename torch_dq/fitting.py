@@ -55,7 +55,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, dualquat, quat
-from ._core import align_chain, twist_translation
+from ._core import align_chain, knot_span, twist_translation
 from .losses import pose_loss
 
 __all__ = ["FitHistory", "bspline_basis", "check_determined", "check_times", "fit",
@@ -140,8 +140,9 @@ def bspline_basis(t: Tensor, knots: Tensor, degree: int) -> tuple[Tensor, Tensor
     r"""Euclidean B-spline basis functions at ``t``, local form (Cox-de Boor).
 
     For ``t`` in the span :math:`[u_r, u_{r+1})` (the last non-empty span at the right end
-    of the domain), the ``degree + 1`` functions :math:`N_{r-p..r,\,p}(t)` that can be
-    non-zero there (Piegl and Tiller, *The NURBS Book*, A2.2).
+    of the domain; the span search of De Boor's scheme), the ``degree + 1`` functions
+    :math:`N_{r-p..r,\,p}(t)` that can be non-zero there (Piegl and Tiller, *The NURBS
+    Book*, A2.2).
 
     Args:
         t: ``(T,)`` times in ``[knots[degree], knots[n]]``.
@@ -153,11 +154,7 @@ def bspline_basis(t: Tensor, knots: Tensor, degree: int) -> tuple[Tensor, Tensor
         time depends on) and ``values`` ``(T, p + 1)``, non-negative, summing to 1.
     """
     p = degree
-    n = knots.shape[0] - p - 1
-    inner = knots[p + 1:n]
-    r = p + torch.searchsorted(inner, t.contiguous(), right=True)
-    r_end = p + torch.searchsorted(inner, knots[n:n + 1], right=False)
-    r = torch.minimum(r, r_end)
+    r = knot_span(knots, t, p)
     values = torch.ones_like(t)[:, None]
     for j in range(1, p + 1):
         # N_{r-j..r, j} from N_{r-j+1..r, j-1} (A2.2's saved-term recursion)
