@@ -669,7 +669,7 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     With ``shortest=False`` the path from ``a`` to ``b`` as given is followed; it is
     ill-conditioned when the real parts are nearly opposite, and undefined (no unique
     path) when they are opposite: where :math:`1 + q_0 \cdot q_1 \le 8\epsilon` of the
-    dtype (closer than the rounding of the dot itself) the result is NaN.
+    inputs' dtype (closer than their rounding can tell from opposite) the result is NaN.
 
     Derivatives in ``a``, ``b`` and ``t`` are finite at every degenerate point and smooth to
     every order (the weights are analytic in :math:`\cos\theta`). Eager reverse mode runs a
@@ -702,8 +702,7 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     fn = "dualquat.sclerp"
     _checks.pair(fn, a, b, 8)
     t = _checks.as_float_tensor(fn, "t", t, a, "a")
-    if not isinstance(shortest, bool):
-        _checks.fail(fn, f"expected shortest to be a bool, got {shortest!r}", TypeError)
+    shortest = _checks.flag(fn, "shortest", shortest)
     batch = _checks.broadcast_batch(fn, a=(a, 1), b=(b, 1), t=(t, 0))
     dtype = a.dtype
     a, b, t = (x.to(compute_dtype(dtype)) for x in (a, b, t))
@@ -713,8 +712,9 @@ def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
     else:
         out = _eq11(a, b, t, shortest)
     if not shortest:  # opposite real parts: no unique path (and acos(-1) has sin ~ 1e-16)
+        # the inputs' own rounding (their dtype's eps) bounds how close to -1 the dot can be
         opposite = 1.0 + (a[..., :4] * b[..., :4]).sum(-1) <= threshold("opposite_real_parts",
-                                                                         a.dtype)
+                                                                         dtype)
         out = nan_unless(~opposite[..., None], out)
     return out.to(dtype)
 
