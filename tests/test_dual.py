@@ -390,7 +390,7 @@ def test_sincos_second_order_in_every_mode(gen):
                      torch.autograd.functional.hessian(f, z)):
             assert np.abs(hess.numpy() - fd).max() < 1e-7
         v = torch.randn(2, generator=gen, dtype=F64)
-        nested = torch.func.jvp(lambda z: torch.func.jvp(f, (z,), (v,))[1], (z,), (v,))[1]
+        nested = torch.func.jvp(lambda y, v=v: torch.func.jvp(f, (y,), (v,))[1], (z,), (v,))[1]
         assert abs(nested.item() - v.numpy() @ fd @ v.numpy()) < 1e-7
 
 
