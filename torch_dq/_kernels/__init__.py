@@ -2,14 +2,17 @@
 
 Each kernel computes the same mathematics as a readable reference in the public module
 that owns the concept, faster: component-row layout, cache-sized chunks, custom autograd
-``Function``s with analytic backward (and compile-safe twins without forward-mode rules).
+``Function``s with an analytic (twice differentiable) backward. ``tests/test_kernels.py``
+runs each against its reference over random and degenerate inputs.
 
 - :mod:`.weights`: the dual weights of eq. 11 as one power series (shared by all kernels).
 - :mod:`.layout`: component rows and chunking.
-- :mod:`.sclerp`: eq. 11 (reference: :func:`torch_dq.dualquat.sclerp`).
-- :mod:`.dual_angle`: eqs. 4-5 (reference: :func:`torch_dq.dualquat.angle`).
+- :mod:`.sclerp`: eq. 11 (reference: :func:`torch_dq.dualquat._eq11`).
+- :mod:`.dual_angle`: eqs. 4-5 (reference: :func:`torch_dq.dualquat._eqs4_5`).
 - :mod:`.pyramid`: the fused De Casteljau / De Boor scheme (references in
   :mod:`torch_dq.curves`).
+
+The dual sine and cosine (:class:`torch_dq.dual._SinCos`) follow the same dispatch.
 """
 
 from __future__ import annotations
@@ -25,14 +28,21 @@ __all__ = ["fused_path"]
 def fused_path(*tensors: Tensor) -> bool:
     """Whether the fused ops may run on these inputs.
 
-    They give exact first derivatives in reverse and forward mode, and double backward, but
-    a custom ``Function`` cannot pass an outer transform's tangents through its own
-    derivative rules: nested forward mode (``jvp`` of ``jvp``) would come back as zeros. So
-    under a ``torch.func`` transform (``jvp``, ``vmap``, ``grad``, ``hessian``, ...) or
-    inside a ``forward_ad.dual_level`` the public functions run their readable references
-    instead: plain torch ops, differentiable to any order in any mode.
+    The fused ops give exact derivatives in reverse mode, double backward included, but a
+    custom ``Function`` cannot pass an outer transform's tangents through its own derivative
+    rules: a forward-mode rule would make nested forward mode (``jvp`` of ``jvp``) come back
+    as zeros. So under a ``torch.func`` transform (``jvp``, ``vmap``, ``grad``, ``hessian``,
+    ...) or inside a ``forward_ad.dual_level`` the public functions run their readable
+    references instead: plain torch ops, differentiable to any order in any mode. Under
+    ``torch.compile`` the fused ops run (Dynamo traces them).
+
+    Args:
+        *tensors: the inputs of the op (any of them may be a transform's wrapped tensor).
+
+    Returns:
+        ``True`` where the fused op may run, ``False`` where the reference must.
     """
-    if torch.compiler.is_compiling():  # dynamo traces the compile-safe twins
+    if torch.compiler.is_compiling():  # Dynamo traces the fused ops
         return True
     if _forward_ad._current_level >= 0:
         return False
