@@ -347,3 +347,40 @@ def test_colored_jacobian_matches_autograd(gen):
         for a in range(4):
             torch.testing.assert_close(J[i, a], dense[i, :, int(first[i]) + a, :],
                                        rtol=1e-7, atol=1e-8)
+
+
+def test_lm_on_a_batch_of_curves_equals_one_by_one(gen):
+    """Batched control points (2, n, 8): one block-banded solve per curve, the same optimum
+    as fitting each curve alone (prior=0: the plain least squares)."""
+    s = torch.linspace(0.0, 2.0, 40, dtype=F64)
+    xi = torch.tensor([[0.3, 0.0, 1.0, 0.5, 0.0, 0.2], [0.0, 0.4, -1.0, 0.1, 0.3, 0.2]],
+                      dtype=F64)
+    x = dq.mul(dq.exp(s[:, None] * xi[:, None, :]),
+               dq.exp(0.01 * torch.randn(2, 40, 6, generator=gen, dtype=F64)))
+    both = BSpline.from_dualquats(x, s, n_ctrl=8)
+    history = fit(both, s, x, prior=0.0, verbose=False)
+    assert history.final_loss < history.loss[0]
+    for b in range(2):
+        one = BSpline.from_dualquats(x[b], s, n_ctrl=8)
+        fit(one, s, x[b], prior=0.0, verbose=False)
+        torch.testing.assert_close(both.control_points[b], one.control_points, rtol=0,
+                                   atol=1e-7)
+
+
+def test_fit_of_another_module_casts_times():
+    """A module that is not a curve layer: 'auto' picks Adam and the times are cast to its
+    parameters' dtype."""
+
+    class Screw(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.xi = torch.nn.Parameter(torch.zeros(6))
+
+        def forward(self, t):
+            assert t.dtype == F32
+            return dq.exp(t[:, None] * self.xi)
+
+    s = torch.linspace(0.0, 1.0, 20, dtype=F64)
+    target = dq.exp(s[:, None] * torch.tensor([0.0, 0.0, 0.5, 0.2, 0.0, 0.0], dtype=F64))
+    history = fit(Screw(), s, target, lr=0.05, steps=100, verbose=False)
+    assert history.optimizer == "adam" and history.final_loss < 1e-2 * history.loss[0]

@@ -222,6 +222,24 @@ def test_deprecated_time_api_keeps_working():
         assert Bezier(dq.identity((3,)), time_range=(1.0, 2.0)).domain == (1.0, 2.0)
 
 
+@pytest.mark.parametrize("cls", [BSpline, Bezier])
+def test_loading_a_0_1_state_dict(cls, gen):
+    """A 0.1 checkpoint (knots on [0, 1] and a time_range buffer (3, 7)) loads with a
+    DeprecationWarning into a module on [3, 7] that is the old one at the old raw times."""
+    raw = unit_dq((5,), gen).float()
+    old = {"parametrizations.ctrl.original": raw, "time_range": torch.tensor([3.0, 7.0])}
+    if cls is BSpline:
+        old["knots"] = curves.clamped_uniform_knots(5, 2)
+    module = cls(dq.identity((5,)), **({"degree": 2} if cls is BSpline else {}))
+    with pytest.warns(DeprecationWarning, match="0.1 state_dict"):
+        module.load_state_dict(old)
+    assert module.domain == (3.0, 7.0)
+    t = torch.tensor([3.0, 4.5, 7.0])
+    u = (t - 3.0) / 4.0
+    ref = curves.bspline(raw, u, degree=2) if cls is BSpline else curves.bezier(raw, u)
+    torch.testing.assert_close(module(t), ref, rtol=0, atol=2e-6)
+
+
 def test_float32_module_with_unix_times_matches_float64():
     """from_poses on float64 UNIX seconds (~1.7e9): the float32 module (and after .float() of
     a float64 one) agrees with the float64 module to float32 rounding at those times; in

@@ -209,6 +209,17 @@ class _Curve(torch.nn.Module):
                                                           f"{{'origin': float}}, got {state!r}")
         self._origin = float(origin)
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # A 0.1 state_dict: a ``time_range`` buffer (and knots on the domain it maps onto)
+        # instead of the time origin: converted, with a DeprecationWarning.
+        if prefix + "time_range" in state_dict and prefix + "_extra_state" not in state_dict:
+            warnings.warn(f"{self._name}.load_state_dict: converting a 0.1 state_dict "
+                          f"(time_range) to the caller's time; save it again to update it",
+                          DeprecationWarning, stacklevel=4)
+            start, end = (float(v) for v in state_dict.pop(prefix + "time_range").tolist())
+            self._convert_01(state_dict, prefix, start, end)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def _local_time(self, fn: str, t: Tensor, like: Tensor) -> Tensor:
         """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, checked against the
         domain when ``self.check``."""
@@ -494,6 +505,9 @@ class Bezier(_Curve):
                                                           f"the extra state, got {state!r}")
         self._length = float(length)
 
+    def _convert_01(self, state_dict, prefix, start: float, end: float) -> None:
+        state_dict[prefix + "_extra_state"] = {"origin": start, "length": end - start}
+
     def _relative_domain(self) -> tuple[float, float]:
         return 0.0, self._length
 
@@ -635,6 +649,15 @@ class BSpline(_Curve):
         self._origin = float(k64[degree])
         self.register_buffer("_knots", (k64 - self._origin).to(dtype=raw.dtype,
                                                                  device=raw.device))
+
+    def _convert_01(self, state_dict, prefix, start: float, end: float) -> None:
+        p, n = self.degree, self.n_ctrl
+        k = state_dict.pop(prefix + "knots", None)
+        k = (curves.clamped_uniform_knots(n, p, dtype=torch.float64) if k is None else
+             k.detach().to(dtype=torch.float64, device="cpu"))
+        k = (k - k[p]) * ((end - start) / float(k[n] - k[p]))  # time since start
+        state_dict[prefix + "_knots"] = k.to(self._knots.dtype)
+        state_dict[prefix + "_extra_state"] = {"origin": start}
 
     @property
     def knots(self) -> Tensor:
