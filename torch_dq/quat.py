@@ -8,11 +8,18 @@ and cast back). Inputs are never modified in place and outputs are new tensors.
 
 Non-unit input, per function: ``mul``, ``conj``, ``inv``, ``norm``, ``normalize``, ``dot``,
 ``exp``, ``log`` are plain quaternion algebra (any norm); ``to_matrix``, ``to_axis_angle``,
-``to_rotvec``, ``to_euler`` normalise implicitly (any non-zero ``q``); ``rotate`` and
+``to_rotvec``, ``to_euler`` normalise implicitly (any non-zero ``q``: these and ``norm``,
+``normalize``, ``inv``, ``log`` divide by a power of two near ``max |q_i|`` first, exactly,
+so no square under- or overflows, e.g. from 1e-30 to 1e30 in float32); ``rotate`` and
 ``slerp`` assume unit input (not checked); ``normalize(q, check=True)`` raises on zero or
 non-finite rows. Non-finite components give NaN (or inf) in their own row only, never a
 finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is 0, as
 ``torch.exp``).
+
+Second order: removable singularities (``sin|v| / |v|`` in ``exp``, ``atan2(|v|, w) / |v|``
+in ``log``, the slerp weights at ``q0 == q1``) are even functions evaluated from the
+*squared* norm, so Hessians, double backward and nested forward mode are exact at and near
+the identity (a ``where`` guard on ``|v|`` itself would give zero second derivatives).
 """
 
 from __future__ import annotations
@@ -338,7 +345,8 @@ def exp(q: Tensor) -> Tensor:
             is the unit quaternion of the rotation by ``2 |v|`` about ``v``.
 
     Returns:
-        ``(..., 4)`` quaternions. Value and gradient are finite at ``v = 0`` (``sinc``).
+        ``(..., 4)`` quaternions, smooth at ``v = 0``: value, gradient and Hessian are exact
+        there (``cos`` and ``sinc`` of :math:`|v|` evaluated from :math:`|v|^2`).
         A real part ``-inf`` gives 0 (:math:`e^{-\infty}`, as ``torch.exp``); any other
         non-finite component gives NaN or inf.
 
@@ -361,7 +369,8 @@ def log(q: Tensor) -> Tensor:
         q: ``(..., 4)`` non-zero quaternions.
 
     Returns:
-        ``(..., 4)``. Value and gradient are finite at ``v = 0`` for ``w > 0``. On the
+        ``(..., 4)``. Smooth at ``v = 0`` for ``w > 0`` (value, gradient and Hessian exact
+        there: the scale :math:`\operatorname{atanc}(|v|^2 / w^2) / w`). On the
         negative real axis (``v = 0``, ``w < 0``) the direction is undefined and
         ``(log|w|, pi, 0, 0)`` is returned; ``q = 0`` gives ``(-inf, 0, 0, 0)``.
 
@@ -508,7 +517,8 @@ def from_rotvec(rotvec: Tensor) -> Tensor:
         rotvec: ``(..., 3)`` rotation vectors ``angle * axis`` (radians, any length).
 
     Returns:
-        ``(..., 4)`` unit quaternions; value and gradient are finite at ``rotvec = 0``.
+        ``(..., 4)`` unit quaternions; smooth at ``rotvec = 0`` (value, gradient and
+        Hessian exact there: the Hessian of ``w`` is ``-I / 4``).
 
     Example:
         >>> from_rotvec(torch.tensor([0., 0., torch.pi / 2]))
@@ -526,8 +536,9 @@ def to_rotvec(q: Tensor) -> Tensor:
         q: ``(..., 4)`` non-zero quaternions (need not be unit).
 
     Returns:
-        ``(..., 3)`` rotation vectors. Value and gradient are finite at the identity and
-        at 180 degrees, where the sign follows scipy's canonical form (``as_rotvec``).
+        ``(..., 3)`` rotation vectors. Smooth at the identity (exact Hessian there); value
+        and gradient are finite at 180 degrees, where the sign follows scipy's canonical
+        form (``as_rotvec``).
 
     Example:
         >>> to_rotvec(torch.tensor([0., 0., 1., 0.]))
