@@ -653,6 +653,26 @@ def test_angle_gradients(gen):
         assert torch.isfinite(a2.grad).all() and torch.isfinite(b2.grad).all()
 
 
+def test_angle_compiles_without_graph_breaks(gen):
+    """``torch.compile(fullgraph=True)`` runs the fused op, with and without gradients."""
+    a, b = unit_dq((6,), gen), unit_dq((6,), gen)
+    b[0] = a[0]  # the eq. 6 branch too
+
+    def f(a, b):
+        ang = dq.angle(a, b)
+        return torch.stack((ang.real, ang.dual))
+
+    compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
+    with torch.no_grad():
+        assert torch.equal(compiled(a, b), f(a, b))
+    grads = []
+    for fn in (compiled, f):
+        aa = a.clone().requires_grad_()
+        fn(aa, b).sum().backward()
+        grads.append(aa.grad)
+    assert (grads[0] - grads[1]).abs().max() < 1e-14
+
+
 def test_top_level_reexports():
     assert torch_dq.dual_angle is dq.angle
     assert torch_dq.sclerp is dq.sclerp

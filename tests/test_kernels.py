@@ -299,6 +299,13 @@ def test_pyramid_gradients_first_and_second_order(gen, name):
     for g, r in zip(fused, vjp(w), strict=True):
         assert rel(g, r) < 1e-12
     v = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in (ctrl, t)]
-    for h, r in zip(hvp_fused(f, (ctrl, t), w, v), hvp_readable(f, (ctrl, t), w, v),
-                    strict=True):
+    fused_hvp = hvp_fused(f, (ctrl, t), w, v)
+    for h, r in zip(fused_hvp, hvp_readable(f, (ctrl, t), w, v), strict=True):
         assert rel(h, r) < 1e-10
+    # nested forward mode (0 for the custom op in 0.1): v^T H v by jvp of jvp
+    def inner(c, t):
+        return torch.func.jvp(lambda c, t: (f(c, t) * w).sum(), (c, t), tuple(v))[1]
+
+    nested = torch.func.jvp(inner, (ctrl, t), tuple(v))[1]
+    quadratic = sum((h * u).sum() for h, u in zip(fused_hvp, v, strict=True))
+    assert abs(nested - quadratic) < 1e-10 * max(1.0, abs(quadratic.item()))
