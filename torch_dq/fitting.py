@@ -115,8 +115,9 @@ def check_determined(fn: str, first: Tensor, values: Tensor, n: int,
                          f"samples; use at most {N} control points")
     first_l = first.tolist()
     positive = (values > 1e-12).tolist()
-    lo = torch.searchsorted(first, torch.arange(n) - (w - 1), right=False).tolist()
-    hi = torch.searchsorted(first, torch.arange(n), right=True).tolist()
+    ks = torch.arange(n, device=first.device)
+    lo = torch.searchsorted(first, ks - (w - 1), right=False).tolist()
+    hi = torch.searchsorted(first, ks, right=True).tolist()
     ptr = 0
     for k in range(n):
         i = max(ptr, lo[k])
@@ -232,7 +233,8 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     h = w - 1
     x = align_chain(x)
     anchor = _interpolate(x, times, anchors)  # (..., n, 8)
-    ks = torch.arange(n)
+    dev = x.device
+    ks = torch.arange(n, device=dev)
     lo = torch.searchsorted(first, ks - 2 * h, right=False)
     hi = torch.searchsorted(first, ks + h, right=True)
     # The chart of each window: the pose interpolated at the middle time of its samples (the
@@ -248,23 +250,23 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     coeffs = []
     for start in range(0, n, chunk):
         k = ks[start:start + chunk]
-        idx = lo[k, None] + torch.arange(M)
+        idx = lo[k, None] + torch.arange(M, device=dev)
         mask = idx < hi[k, None]
         idx = idx.clamp(max=N - 1)
         base = (k - 2 * h).clamp(0, n - U)
-        cols = first[idx][..., None] - base[:, None, None] + torch.arange(w)
-        cols = torch.where(mask[..., None], cols, torch.arange(w))
-        A = torch.zeros(len(k), M, U, dtype=x.dtype)
+        cols = first[idx][..., None] - base[:, None, None] + torch.arange(w, device=dev)
+        cols = torch.where(mask[..., None], cols, torch.arange(w, device=dev))
+        A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
         A.scatter_(2, cols, values[idx] * mask[..., None])
         chart = centre[..., k, None, :]
         xi = _chart_twists(chart, x[..., idx, :])  # (..., K, M, 6)
         # prior: unknown j at its own anchor, seen from the chart of anchor k
-        near = anchor[..., base[:, None] + torch.arange(U), :]  # (..., K, U, 8)
+        near = anchor[..., base[:, None] + torch.arange(U, device=dev), :]  # (..., K, U, 8)
         prior = _chart_twists(chart, near)
-        G = A.mT @ A + weight * torch.eye(U, dtype=x.dtype)
+        G = A.mT @ A + weight * torch.eye(U, dtype=x.dtype, device=dev)
         rhs = A.mT @ xi + weight * prior
         sol = torch.cholesky_solve(rhs, torch.linalg.cholesky(G))  # (..., K, U, 6)
-        coeffs.append(sol[..., torch.arange(len(k)), k - base, :])
+        coeffs.append(sol[..., torch.arange(len(k), device=dev), k - base, :])
     C = torch.cat(coeffs, dim=-2)
     ctrl = dualquat.mul(centre, dualquat.exp(C))
     # the representative of each control point nearest to its anchor (the samples' chain)
@@ -279,7 +281,8 @@ class FitHistory:
     """What :func:`fit` did.
 
     Attributes:
-        loss: the loss before each optimizer step (``len(loss) == steps``).
+        loss: the loss before each optimizer step (``len(loss) == steps``); for ``"lm"``
+            the regularised objective (the loss plus its ``prior`` term, see :func:`fit`).
         steps: number of optimizer steps taken.
         final_loss: the loss of the returned parameters (the best iterate seen).
         converged: True when the stopping test held (the loop stopped there).
@@ -377,8 +380,8 @@ def _banded_to_block_tridiagonal(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
     """
     *batch, n, w, s, _ = band.shape
     G = n // g
-    a = torch.arange(g)
-    j = torch.arange(G)[:, None, None]
+    a = torch.arange(g, device=band.device)
+    j = torch.arange(G, device=band.device)[:, None, None]
     rows = j * g + a[:, None]  # (G, g, 1)
     cols = j * g + a[None, :]  # (G, 1, g)
     lo, d = torch.minimum(rows, cols), (rows - cols).abs()
@@ -404,14 +407,15 @@ def _solve_block_banded(band: Tensor, rhs: Tensor) -> Tensor | None:
     time and memory. Returns None when ``A`` is not numerically positive definite.
     """
     *batch, n, w, s, _ = band.shape
-    beyond = torch.arange(n)[:, None] + torch.arange(w) >= n  # blocks (k, k + d >= n)
+    dev = band.device
+    beyond = torch.arange(n, device=dev)[:, None] + torch.arange(w, device=dev) >= n
     band = band.masked_fill(beyond[:, :, None, None], 0.0)
     g = max(w - 1, 1)
     G = -(-n // g)
     pad = G * g - n
     if pad:
-        eye = torch.zeros(*batch, pad, w, s, s, dtype=band.dtype)
-        eye[..., 0, :, :] = torch.eye(s, dtype=band.dtype)
+        eye = band.new_zeros(*batch, pad, w, s, s)
+        eye[..., 0, :, :] = torch.eye(s, dtype=band.dtype, device=dev)
         band = torch.cat((band, eye), dim=-4)
         rhs = torch.cat((rhs, rhs.new_zeros(*batch, pad, s)), dim=-2)
     D, E = _banded_to_block_tridiagonal(band, g)
