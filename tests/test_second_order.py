@@ -403,3 +403,32 @@ def test_even_series_and_derivatives_against_mpmath(name, dtype):
         scale = torch.maximum(want.abs(), 0.1 * want.abs().max())
         err = ((got.detach().double() - want).abs() / scale).max().item() / eps
         assert err < bound, (name, order, err)
+
+
+def _gradgrad_cases():
+    q0 = torch.tensor(Q0, dtype=F64) / torch.tensor(Q0, dtype=F64).norm()
+    x0 = t_dq(q0, torch.tensor(TA, dtype=F64))
+    one = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=F64)
+    t = torch.tensor(0.3, dtype=F64)
+    return {
+        "quat.slerp q0 == q1": (quat.slerp, (q0, q0, t)),
+        "quat.slerp q1 == -q0": (quat.slerp, (q0, -q0, t)),
+        "quat.from_rotvec 0": (quat.from_rotvec, (torch.zeros(3, dtype=F64),)),
+        "quat.exp 0": (quat.exp, (torch.zeros(4, dtype=F64),)),
+        "quat.log 1": (quat.log, (one,)),
+        "quat.to_rotvec 1": (quat.to_rotvec, (one,)),
+        "dualquat.exp pure translation": (dq.exp, (torch.tensor([0, 0, 0, 0.3, 0.2, 0.1],
+                                                                dtype=F64),)),
+        "dualquat.log pure translation": (dq.log, (t_dq(one, torch.tensor(TA, dtype=F64)),)),
+        "losses.pose_loss a == b": (losses.pose_loss, (x0, x0)),
+        "losses.squared_rotation_angle a == -b": (losses.squared_rotation_angle, (x0, -x0)),
+    }
+
+
+@pytest.mark.parametrize("name", sorted(_gradgrad_cases()))
+def test_gradgradcheck_in_ambient_coordinates(name):
+    """Unconstrained inputs (off the unit sphere too): torch's gradgradcheck at the
+    degenerate points, which a zero second derivative from a guard fails."""
+    f, args = _gradgrad_cases()[name]
+    args = tuple(a.detach().clone().requires_grad_() for a in args)
+    assert torch.autograd.gradgradcheck(f, args)

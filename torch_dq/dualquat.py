@@ -481,7 +481,9 @@ def log(x: Tensor) -> Tensor:
 
     :math:`\omega` is the rotation vector with angle in ``[0, pi]`` (``x`` and ``-x`` give the
     same twist) and :math:`v = t - \frac12 \omega \times t + c_3\,\omega \times (\omega \times t)`
-    with :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2` (Taylor branch near 0).
+    with :math:`c_3 = (1 - \frac\theta2 \cot\frac\theta2)/\theta^2`, evaluated from
+    :math:`\theta^2` (a series near 0), so the twist is smooth at the identity rotation:
+    value, gradient and Hessian exact there.
     At exactly 180 degrees the sign of :math:`\omega` is scipy's canonical one (first non-zero
     of its x, y, z positive, see :func:`torch_dq.quat.to_rotvec`), for ``x`` and ``-x`` alike.
 
