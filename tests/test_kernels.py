@@ -309,3 +309,29 @@ def test_pyramid_gradients_first_and_second_order(gen, name):
     nested = torch.func.jvp(inner, (ctrl, t), tuple(v))[1]
     quadratic = sum((h * u).sum() for h, u in zip(fused_hvp, v, strict=True))
     assert abs(nested - quadratic) < 1e-10 * max(1.0, abs(quadratic.item()))
+
+
+# ----------------------------------------------------------------------------- non-finite input
+
+def test_kernels_and_references_agree_on_non_finite_input(gen):
+    """A NaN or an infinity in any component: the fused ops and the references give
+    non-finite results in the same entries, and never a finite number where an input
+    component is not finite."""
+    a, b = unit_dq((2, 16), gen), unit_dq((2, 16), gen)
+    for bad in (math.nan, math.inf, -math.inf):
+        a2, b2 = a.clone(), b.clone()
+        a2[0, range(8), range(8)] = bad  # each component of a in turn
+        b2[1, range(8, 16), range(8)] = bad  # each component of b in turn
+        a2, b2 = a2.reshape(-1, 8), b2.reshape(-1, 8)
+        t = torch.full((32,), 0.3, dtype=torch.float64)
+        for shortest in (True, False):
+            fused = sclerp_kernel.sclerp(a2, b2, t, shortest)
+            ref = dq._eq11(a2, b2, t, shortest)
+            assert torch.equal(torch.isfinite(fused), torch.isfinite(ref))
+            hit = torch.cat((torch.arange(8), 16 + torch.arange(8, 16)))
+            assert not torch.isfinite(fused[hit]).all(-1).any()
+        fused = dq.angle(a2, b2)
+        readable = torch.func.vmap(dq.angle)(a2, b2)
+        for f, r in zip(fused, readable, strict=True):
+            assert torch.equal(torch.isfinite(f), torch.isfinite(r))
+        assert not (torch.isfinite(fused.real[hit]) & torch.isfinite(fused.dual[hit])).any()
