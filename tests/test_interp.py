@@ -630,6 +630,12 @@ def test_angle_degenerate_branch_eq6(gen):
                                (y[:4], pt.pq_from_dual_quaternion(y)[:3])))
                 for x, y in zip(a.numpy(), b.numpy(), strict=True)]
     assert np.abs(dq.angle(a, b).dual.numpy() - expected).max() < 1e-9
+    # a screw about the poses' own rotation axis: eq. 5 -> d / 2, eq. 6 = d (the factor 2)
+    n = np.array([0.0, 0.6, 0.8])
+    a = np_pose(np.concatenate(([math.cos(0.4)], math.sin(0.4) * n)), np.array([1.0, 2, -1]))
+    for theta, expected in ((1e-4, 1.5), (1e-12, 3.0)):
+        b = np_dqmul(a, np_screw(n, np.array([0.3, -1.0, 2.0]), np.array(theta), 3.0))
+        assert abs(dq.angle(torch.from_numpy(a), torch.from_numpy(b)).dual.item() - expected) < 1e-9
 
 
 def test_angle_gradients(gen):

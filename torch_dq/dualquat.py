@@ -569,8 +569,10 @@ def angle(a: Tensor, b: Tensor) -> Dual:
       :math:`d_i` the translation of pose ``i`` along its own screw axis, i.e.
       :math:`|(t_1 - t_0)\cdot u|` for the common rotation axis ``u``, and
       :math:`|t_1 - t_0|` when the rotations are the identity. As written in the paper this
-      is the full axial distance, while eq. 5 tends to half of it (signed) as
-      :math:`\theta \to 0`: the value jumps by a factor 2 at the branch switch.
+      is a full axial distance, while eq. 5 tends to half the relative screw's translation
+      (signed) as :math:`\theta \to 0`: for a motion along the common rotation axis the
+      value jumps by a factor 2 at the branch switch (in general the two branches measure
+      along different axes: the poses' own, and the relative screw's).
 
     Derivatives: :math:`\theta` is smooth for :math:`0 < \theta < \pi` and has a kink (a
     cone, like ``|x|``) at 0 and pi, where its gradient is the zero subgradient;
