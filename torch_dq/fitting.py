@@ -287,8 +287,8 @@ class FitHistory:
         final_loss: the loss of the returned parameters (the best iterate seen).
         converged: True when the stopping test held (the loop stopped there).
         seconds: wall-clock time of the loop.
-        best_step: the step whose parameters were returned (``steps`` when the last
-            iterate was the best).
+        best_step: how many optimizer steps led to the returned parameters (0: the start
+            was the best; ``steps``: the last iterate).
         optimizer: the optimizer used (``"lm"``, ``"adam"``, ... or its class name).
     """
 
@@ -446,20 +446,19 @@ def _jacobian(residual: Callable[[Tensor], Tensor], ctrl: Tensor, first: Tensor,
 
     Colouring: the control points ``k = c mod w`` never share a support, so ``6 w``
     directional derivatives (one per colour and step component) give the whole band. They
-    are central differences in float64 with step ``1e-5`` (relative error ~1e-9, all
-    ``12 w`` evaluations in one batched call of the fused curve kernel): this Jacobian only
-    shapes the Gauss-Newton matrix, the gradient is exact (reverse mode).
+    are central differences in float64 with step ``1e-5`` (relative error ~1e-9; the 12
+    evaluations of a colour in one batched call of the fused curve kernel): this Jacobian
+    only shapes the Gauss-Newton matrix, the gradient is exact (reverse mode).
     """
     eps = 1e-5
-    V = ctrl.new_zeros(w, 6, *ctrl.shape[:-1], 6)
+    columns = []
     for c in range(w):
+        V = ctrl.new_zeros(6, *ctrl.shape[:-1], 6)
         for m in range(6):
-            V[c, m, ..., c::w, m] = eps
-    V = V.flatten(0, 1)
-    both = dualquat.mul(ctrl, dualquat.exp(torch.cat((V, -V))))
-    r = residual(both)
-    D = (r[:6 * w] - r[6 * w:]) / (2.0 * eps)  # (6w, ..., N, 6r)
-    D = D.unflatten(0, (w, 6)).movedim((0, 1), (-2, -1))  # (..., N, 6r, w colours, 6m)
+            V[m, ..., c::w, m] = eps
+        r = residual(dualquat.mul(ctrl, dualquat.exp(torch.cat((V, -V)))))
+        columns.append((r[:6] - r[6:]) / (2.0 * eps))  # (6m, ..., N, 6r)
+    D = torch.stack(columns).movedim((0, 1), (-2, -1))  # (..., N, 6r, w colours, 6m)
     colour = (first[:, None] + torch.arange(w, device=first.device)) % w  # (N, w) slots
     index = colour[:, None, :, None].expand(*D.shape)
     return D.gather(-2, index).transpose(-3, -2)  # (..., N, w slots, 6r, 6m)
@@ -478,13 +477,12 @@ def _gradient(objective: Callable[[Tensor], Tensor], ctrl: Tensor) -> tuple[floa
 def _normal_matrix(J: Tensor, first: Tensor, n: int) -> Tensor:
     """Band ``(..., n, w, 6, 6)`` of ``J^T J`` (block ``(k, k + d)`` at ``[..., k, d]``)."""
     *batch, _, w, _, s = J.shape
-    P = torch.einsum("...iarm,...ibrq->...iabmq", J, J)
     band = J.new_zeros(*batch, n, w, s, s)
     nd = len(batch)
     for a in range(w):
-        for d in range(w - a):
-            view = band[..., d, :, :]
-            view.index_add_(nd, first + a, P[..., a, a + d, :, :])
+        for d in range(w - a):  # J_a^T J_{a+d} of every sample, into block (k, k + d)
+            block = torch.einsum("...irm,...irq->...imq", J[..., a, :, :], J[..., a + d, :, :])
+            band[..., d, :, :].index_add_(nd, first + a, block)
     return band
 
 
