@@ -1,5 +1,5 @@
 """Every PyTorch execution mode on the hot paths: torch.compile, torch.func (vmap, jacrev,
-jacfwd, jvp), torch.jit.trace, CUDA, and run-to-run determinism.
+jacfwd, jvp), CUDA, and run-to-run determinism.
 
 Status (each line is asserted below):
 
@@ -12,17 +12,18 @@ Status (each line is asserted below):
   ops define vmap rules and a forward-mode rule); ``jacrev`` and ``jacfwd`` agree with the
   eager Jacobian, ``jvp`` with central differences. bezier/bspline need ``check=False``
   under ``vmap`` (the checks are data-dependent).
-- ``torch.jit.trace``: supported for sclerp and the curves (``check=False``). The trace
-  records the custom autograd op (analytic backward kept), is specialised to the dtype,
-  the number of batch dimensions and ``shortest``, and follows other batch sizes.
+- ``torch.jit`` (deprecated by PyTorch, which prints a DeprecationWarning for it) is not
+  tested: use ``torch.compile`` or ``torch.export``.
+- The time derivatives, kinematics and IMU readings of ``torch_dq.curves`` compile with
+  ``fullgraph=True`` too (plain ops, no custom op), forward and backward.
 - CUDA: same results as on the CPU (skipped without a GPU).
 - Determinism: the same inputs give bitwise equal outputs and gradients run to run, with
   ``torch.use_deterministic_algorithms(True)`` as well, and the eager chunking of large
   batches does not change a single bit.
 """
 
+import functools
 import shutil
-import warnings
 
 import pytest
 import torch
@@ -98,6 +99,47 @@ def test_compile_fullgraph_forward_backward(name, gen):
         assert (g - r).abs().max() <= 1e-12
 
 
+@pytest.mark.parametrize("grad", [False, True], ids=["inference", "grad"])
+@pytest.mark.parametrize("name", ["bezier", "bspline"])
+def test_compile_curves_partial_check_false(name, grad, gen):
+    """Issue 14: ``torch.compile(partial(curves.bspline, check=False), fullgraph=True)``
+    compiles without graph breaks in inference and with gradients, and matches eager."""
+    c, t = _args(name, gen)
+    c = c[:, :4]
+    f = functools.partial(getattr(curves, name), check=False)
+    torch._dynamo.reset()
+    compiled = torch.compile(f, backend="aot_eager", fullgraph=True)
+    with torch.set_grad_enabled(grad):
+        cc = c.clone().requires_grad_(grad)
+        out, ref = compiled(cc, t), f(c, t)
+    assert (out - ref).abs().max() <= 1e-14
+    if grad:
+        (g,) = torch.autograd.grad((out * ref).sum(), cc)
+        cr = c.clone().requires_grad_()
+        (r,) = torch.autograd.grad((f(cr, t) * ref).sum(), cr)
+        assert (g - r).abs().max() <= 1e-12
+
+
+def test_compile_derivatives_kinematics_imu(gen):
+    """Time derivatives, world/body kinematics and IMU readings in one compiled graph,
+    forward and backward."""
+    c, t = _args("bspline", gen)
+    c = c[0, :3]
+
+    def f(c, t):  # kept small: compilation time grows with the levels and the order
+        jet = curves.bspline_derivatives(c, t, order=2, degree=1, check=False)
+        body = curves.kinematics(*jet, frame="body")
+        return torch.cat((*jet, *body, *curves.imu(*jet)), -1)
+
+    torch._dynamo.reset()
+    compiled = torch.compile(f, backend="aot_eager", fullgraph=True)
+    out, grads = _grads(compiled, (c, t))
+    ref, ref_grads = _grads(f, (c, t))
+    assert (out - ref).abs().max() <= 1e-12
+    for g, r in zip(grads, ref_grads, strict=True):
+        assert (g - r).abs().max() <= 1e-10
+
+
 def test_compile_with_value_checks_breaks_the_graph(gen):
     """Documented: ``check=True`` reads values on the host, so fullgraph fails; the
     default (graph breaks allowed) still compiles and matches."""
@@ -134,6 +176,8 @@ def _cxx():
 
 
 @pytest.mark.skipif(not _cxx(), reason="no C++ compiler for the inductor CPU backend")
+# PyTorch's own inductor modules use torch.jit.script_method on import (not torch_dq).
+@pytest.mark.filterwarnings("ignore:`torch.jit.script_method` is deprecated:DeprecationWarning")
 def test_compile_inductor_sclerp(gen):
     """The default backend (inductor, C++ on CPU): sclerp forward and backward."""
     a, b, t = _args("sclerp", gen)
@@ -168,12 +212,12 @@ def test_vmap_curves_value_checks(gen):
     """The value checks on ``t`` run when ``t`` is shared; mapped over ``t`` they are
     data-dependent and refused: use ``check=False`` (documented)."""
     c, t = _args("bezier", gen)
-    out = torch.func.vmap(curves.bezier, in_dims=(0, None))(c, t)
-    assert torch.equal(out, curves.bezier(c, t))
+    out = torch.func.vmap(curves.bezier, in_dims=(0, None))(c, t)  # the readable scheme
+    assert (out - curves.bezier(c, t)).abs().max() <= 1e-14
     with pytest.raises(RuntimeError, match=r"curves\.bezier: .* pass check=False"):
         torch.func.vmap(curves.bezier)(c, t.expand(2, 6))
     out = torch.func.vmap(lambda c, t: curves.bezier(c, t, check=False))(c, t.expand(2, 6))
-    assert torch.equal(out, curves.bezier(c, t))
+    assert (out - curves.bezier(c, t)).abs().max() <= 1e-14
 
 
 @pytest.mark.parametrize("name", FNS)
@@ -203,36 +247,6 @@ def test_jvp_matches_finite_differences(name, gen):
     minus = f(*(x - h * v for x, v in zip(args, tangents, strict=True)))
     assert (out - f(*args)).abs().max() <= 1e-15
     assert ((tangent - (plus - minus) / (2 * h)).abs() / tangent.abs().clamp(min=1)).max() < 1e-7
-
-
-# ----------------------------------------------------------------------------- torch.jit.trace
-
-def test_jit_trace_sclerp(gen):
-    a, b, t = _args("sclerp", gen)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
-        traced = torch.jit.trace(dq.sclerp, (a, b, t))
-    assert "_Sclerp" in str(traced.graph)  # the custom op, with its analytic backward
-    a2, b2 = unit_dq((7,), gen), unit_dq((7,), gen)  # another batch size, same rank
-    t2 = torch.rand(7, generator=gen, dtype=F64)
-    out, grads = _grads(traced, (a2, b2, t2))
-    ref, ref_grads = _grads(dq.sclerp, (a2, b2, t2))
-    assert torch.equal(out, ref)
-    for g, r in zip(grads, ref_grads, strict=True):
-        assert torch.equal(g, r)
-    with pytest.raises(RuntimeError):  # specialised to one batch dimension
-        traced(a2.view(7, 1, 8), b2.view(7, 1, 8), t2.view(7, 1))
-
-
-@pytest.mark.parametrize("name", ["bezier", "bspline"])
-def test_jit_trace_curves(name, gen):
-    """The curves trace too (``check=False``: the checks would be frozen as constants)."""
-    f = FNS[name][0]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
-        traced = torch.jit.trace(f, tuple(_args(name, gen)))
-    c, t = unit_dq((2, 5), gen), torch.rand(6, generator=gen, dtype=F64)
-    assert torch.equal(traced(c, t), f(c, t))
 
 
 # ----------------------------------------------------------------------------- CUDA
