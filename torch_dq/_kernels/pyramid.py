@@ -2,6 +2,12 @@ r"""Fused triangular scheme of De Casteljau and De Boor (paper section 4) (priva
 
 The readable level loops are in :mod:`torch_dq.curves`; this runs all levels of the
 scheme in component-row layout over cache-sized chunks, as one autograd op.
+
+Level 0 of both algorithms reads consecutive control points, so the pairs it interpolates
+are the same for every time of a span (De Boor) or of a curve (De Casteljau): their frames
+(cosine, dual dot, sign) and angles are computed once per pair of control points and
+gathered, and in the backward the frame's part of the gradient is summed per pair before
+it is expanded into control-point rows.
 """
 
 from __future__ import annotations
@@ -11,89 +17,129 @@ from torch import Tensor
 
 from . import layout
 from .layout import chunks, from_rows, to_rows
-from .sclerp import backward_rows, forward_rows, jvp_rows
+from .sclerp import Frame, add_frame_terms, combine, frame, vjp_rows, weights
+from .weights import Angle, angle
 
 
-def _gather(rows: Tensor, idx: Tensor) -> Tensor:
-    """Control-point rows ``(8, M)`` gathered straight into level 0, ``(m, 8, n)``."""
-    m, n = idx.shape
-    return rows.index_select(1, idx.reshape(-1)).view(8, m, n).transpose(0, 1)
+def _pair_table(rows: Tensor) -> Tensor:
+    """``(6, M - 1)``: :class:`Frame` and :class:`Angle` of control points ``(i, i + 1)``."""
+    fr = frame(rows[:, :-1], rows[:, 1:], True)
+    return torch.stack((*fr, *angle(fr.c)))
 
 
-def _pyramid_levels(rows: Tensor, idx: Tensor, alphas: tuple[Tensor, ...]) -> list[Tensor]:
-    """All levels of the triangular scheme for one chunk, each ``(m - j, 8, n)``."""
-    levels = [_gather(rows, idx)]
-    for alpha in alphas:
-        D = levels[-1]
-        levels.append(forward_rows(D[:-1], D[1:], alpha, True))
-    return levels
+def _alpha(alphas: Tensor, m: int, j: int) -> Tensor:
+    """Level ``j``'s parameters: rows ``j - 1`` levels in of the triangular stack, or the
+    shared ``(1, n)`` row."""
+    if alphas.shape[0] == 1:
+        return alphas
+    start = (j - 1) * m - (j - 1) * j // 2  # sum of m - i for i = 1 .. j - 1
+    return alphas[start:start + m - j]
 
 
-class _PyramidVJP(torch.autograd.Function):
+def _levels(rows: Tensor, table: Tensor, first: Tensor, alphas: Tensor, m: int,
+            derivatives: bool = False, time_slopes: bool = False):
+    """All levels of the scheme for one chunk: the points ``(m - j, 8, n)`` of levels
+    ``0 .. m - 1``, and the frames and weights of levels ``1 .. m - 1``."""
+    n = first.shape[0]
+    k = torch.arange(m, device=first.device)[:, None]
+    D = rows.index_select(1, (first + k).reshape(-1)).view(8, m, n).transpose(0, 1)
+    pairs = table.index_select(1, (first + k[:-1]).reshape(-1)).view(6, m - 1, n)
+    fr, ang = Frame(*pairs[:3]), Angle(*pairs[3:])
+    points, frames, ws = [D], [], []
+    for j in range(1, m):
+        A, B = D[:-1], D[1:]
+        if j > 1:
+            fr, ang = frame(A, B, True), None
+        w = weights(fr, _alpha(alphas, m, j), derivatives, time_slopes, ang)
+        D = combine(A, B, fr, w)
+        points.append(D)
+        frames.append(fr)
+        ws.append(w)
+    return points, frames, ws
+
+
+class _Pyramid(torch.autograd.Function):
     r"""The triangular scheme of De Casteljau and De Boor, fused (paper section 4).
 
-    Level 0 holds ``m`` control points per output, ``ctrl[idx[i, k]]``; level ``j`` holds
+    Level 0 holds ``m`` consecutive control points per output, ``ctrl[first + k]``,
+    ``k = 0 .. m - 1``; level ``j`` holds
     :math:`d^{(j)}_i = \mathrm{sclerp}(d^{(j-1)}_i, d^{(j-1)}_{i+1}, \alpha_j[i])`
     (shortest path), and the output is the single point of level ``m - 1``.
 
-    Inputs: ``ctrl (M, 8)``, ``idx (m, N)`` int64, and ``m - 1`` tensors
-    ``alpha_j (m - j, N)``. Output ``(N, 8)``. All levels run in component-row layout over
-    cache-sized chunks of ``N``; the backward recomputes them chunk by chunk, so nothing but
-    the (small) inputs is saved: fused memory is O(output) instead of O(m^2 output).
+    Inputs: ``ctrl (M, 8)``, ``first (N,)`` int64, ``alphas``: the levels' parameters
+    stacked, ``(m (m - 1) / 2, N)`` (level ``j`` has ``m - j`` rows), or ``(1, N)`` shared
+    by every level and position (De Casteljau), and ``m``. Output ``(N, 8)``. All levels run
+    in component-row layout over cache-sized chunks of ``N``; the backward recomputes them
+    chunk by chunk, so nothing but the (small) inputs is saved: memory O(output) instead
+    of O(m^2 output).
     """
 
     generate_vmap_rule = True
 
     @staticmethod
-    def forward(ctrl: Tensor, idx: Tensor, *alphas: Tensor) -> Tensor:
+    def forward(ctrl: Tensor, first: Tensor, alphas: Tensor, m: int) -> Tensor:
         rows = to_rows(ctrl)
-        parts = [from_rows(_pyramid_levels(rows, idx[:, i], tuple(a[:, i] for a in alphas))[-1][0])
-                 for i in chunks(idx.shape[1], layout.PYRAMID_CHUNK)]
+        table = _pair_table(rows)
+        parts = [from_rows(_levels(rows, table, first[i], alphas[:, i], m)[0][-1][0])
+                 for i in chunks(first.shape[0], layout.PYRAMID_CHUNK)]
         return torch.cat(parts)
 
     @staticmethod
     def setup_context(ctx, inputs, output):
-        ctx.save_for_backward(*inputs)
-        ctx.save_for_forward(*inputs)
+        ctrl, first, alphas, m = inputs
+        ctx.save_for_backward(ctrl, first, alphas)
+        ctx.m = m
 
     @staticmethod
     def backward(ctx, grad):
-        ctrl, idx, *alphas = ctx.saved_tensors
+        ctrl, first, alphas = ctx.saved_tensors
+        m, need_alpha = ctx.m, ctx.needs_input_grad[2]
         rows = to_rows(ctrl)
+        table = _pair_table(rows)
         grad_rows = torch.zeros_like(rows)
-        grad_alphas = [[] for _ in alphas]
-        for i in chunks(idx.shape[1], layout.PYRAMID_CHUNK):
-            chunk_alphas = tuple(a[:, i] for a in alphas)
-            levels = _pyramid_levels(rows, idx[:, i], chunk_alphas)
+        pair_c = rows.new_zeros(rows.shape[1] - 1)  # level-1 frame sensitivities per pair
+        pair_d = torch.zeros_like(pair_c)
+        grad_alphas = []
+        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+            points, frames, ws = _levels(rows, table, first[i], alphas[:, i], m, True, need_alpha)
             G = to_rows(grad[i]).unsqueeze(0)
-            for j in range(len(alphas), 0, -1):
-                D = levels[j - 1]
-                gA, gB, g_alpha = backward_rows(D[:-1], D[1:], chunk_alphas[j - 1], G, True)
-                grad_alphas[j - 1].append(g_alpha)
+            g_alpha = []
+            for j in range(m - 1, 0, -1):
+                D = points[j - 1]
+                ct = vjp_rows(D[:-1], D[1:], frames[j - 1], ws[j - 1], G, frame_terms=j > 1)
+                g_alpha.append(ct.t)
+                if j == 1:
+                    pair = (first[i] + torch.arange(m - 1, device=first.device)[:, None])
+                    pair_c = pair_c.index_add(0, pair.reshape(-1), ct.c.reshape(-1))
+                    pair_d = pair_d.index_add(0, pair.reshape(-1), ct.delta.reshape(-1))
                 # d_i^(j-1) feeds d_(i-1)^(j) as b and d_i^(j) as a
-                zero = torch.zeros_like(gA[:1])
-                G = torch.cat((gA, zero)) + torch.cat((zero, gB))
-            grad_rows = grad_rows.index_add(1, idx[:, i].reshape(-1),
+                G = torch.cat((ct.a[:1], ct.a[1:] + ct.b[:-1], ct.b[-1:]))
+            level0 = first[i] + torch.arange(m, device=first.device)[:, None]
+            grad_rows = grad_rows.index_add(1, level0.reshape(-1),
                                             G.transpose(0, 1).reshape(8, -1))
-        return (from_rows(grad_rows), None, *(torch.cat(g, dim=-1) for g in grad_alphas))
+            if need_alpha:
+                g_alpha.reverse()  # level order
+                grad_alphas.append(sum(g.sum(0, keepdim=True) for g in g_alpha)
+                                   if alphas.shape[0] == 1 else torch.cat(g_alpha))
+        # Level 1's frame terms, once per pair of control points (i, i + 1).
+        grad_a, grad_b = torch.zeros_like(rows[:, 1:]), torch.zeros_like(rows[:, 1:])
+        add_frame_terms(grad_a, grad_b, rows[:, :-1], rows[:, 1:], pair_c, pair_d)
+        grad_rows = grad_rows + torch.cat((grad_a, grad_a[:, :1] * 0), 1) \
+            + torch.cat((grad_b[:, :1] * 0, grad_b), 1)
+        grad_alpha = torch.cat(grad_alphas, -1) if need_alpha else None
+        return from_rows(grad_rows), None, grad_alpha, None
 
 
-class _Pyramid(_PyramidVJP):
-    """:class:`_PyramidVJP` with the forward-mode rule."""
+def pyramid(ctrl: Tensor, idx: Tensor, alphas: list[Tensor] | Tensor) -> Tensor:
+    """Unchecked fused De Casteljau / De Boor scheme (:class:`_Pyramid`), ``(N, 8)``.
 
-    @staticmethod
-    def jvp(ctx, t_ctrl, _, *t_alphas):
-        ctrl, idx, *alphas = ctx.saved_tensors
-        t_ctrl = torch.zeros_like(ctrl) if t_ctrl is None else t_ctrl
-        D, TD = _gather(to_rows(ctrl), idx), _gather(to_rows(t_ctrl), idx)
-        for alpha, t_alpha in zip(alphas, t_alphas, strict=True):
-            t_alpha = torch.zeros_like(alpha) if t_alpha is None else t_alpha
-            D, TD = (forward_rows(D[:-1], D[1:], alpha, True),
-                     jvp_rows(D[:-1], D[1:], alpha, TD[:-1], TD[1:], t_alpha, True))
-        return from_rows(TD[0])
-
-
-def pyramid(ctrl: Tensor, idx: Tensor, alphas: list[Tensor]) -> Tensor:
-    """Unchecked fused De Casteljau / De Boor scheme (:class:`_PyramidVJP`), ``(N, 8)``."""
-    op = _PyramidVJP if torch.compiler.is_compiling() else _Pyramid
-    return op.apply(ctrl, idx, *alphas)
+    Args:
+        ctrl: ``(M, 8)`` control points (flattened over curves).
+        idx: ``(m, N)`` int64 indices into ``ctrl`` of level 0 of each output; consecutive
+            (``idx[k] = idx[0] + k``), as both algorithms read them.
+        alphas: the ``m - 1`` levels' parameters, ``(m - j, N)`` for level ``j``; or one
+            ``(1, N)`` tensor used at every level and position (De Casteljau's ``t``).
+    """
+    m = idx.shape[0]
+    stacked = alphas if isinstance(alphas, Tensor) else torch.cat(alphas)
+    return _Pyramid.apply(ctrl, idx[0], stacked, m)

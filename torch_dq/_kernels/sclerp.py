@@ -1,87 +1,137 @@
 r"""Fused screw interpolation (eq. 11) as a custom autograd op (private).
 
 The readable eq. 11 is :func:`torch_dq.dualquat.sclerp`; this is the same formula on
-component rows with the sign folded into the weights, chunked, with analytic backward
-and forward-mode rules. Notation and weights: :mod:`torch_dq._kernels.weights`.
+component rows with the sign folded into the weights, chunked, with an analytic backward.
+Notation and weights: :mod:`torch_dq._kernels.weights`. The pieces (:func:`frame`,
+:func:`combine`, :func:`vjp_rows`) are shared with the fused curve scheme
+(:mod:`torch_dq._kernels.pyramid`).
+
+There is no forward-mode rule: under ``torch.func`` transforms and forward AD the public
+functions run their readable references (:func:`torch_dq._kernels.fused_path`), so a
+forward-mode call that reaches this op anyway raises instead of returning zeros.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
 from .layout import chunks, coef, from_rows, to_rows
-from .weights import screw_weights
+from .weights import Angle, Weights, WeightSlopes, screw_weights
 
 
-def _frame(A: Tensor, B: Tensor, shortest: bool):
-    """Halves, cosine ``c``, dual dot ``delta`` and sign of pairs of ``(..., 8, N)`` rows.
+class Frame(NamedTuple):
+    """Dual scalar product (eq. 1) of a pair ``a = P + eps Q``, ``b = R + eps S`` after the
+    sign choice; each ``(..., N)``. ``b`` itself is *not* sign-aligned: ``sigma`` is folded
+    into the N-sized coefficients instead, saving a pass over ``b``."""
 
-    ``B`` is *not* sign-aligned: the sign ``sigma`` (all ones when not ``shortest``) is folded
-    into the N-sized coefficients instead, saving a pass over ``B``; ``c`` and ``delta`` are
-    those of the sign-aligned pair.
-    """
+    c: Tensor  # sigma P.R = cos(theta)
+    delta: Tensor  # sigma (P.S + R.Q)
+    sigma: Tensor  # -1 where shortest and P.R < 0, else 1
+
+
+class Cotangents(NamedTuple):
+    """Vector-Jacobian product of :func:`combine` (see :func:`vjp_rows`)."""
+
+    a: Tensor  # (..., 8, N) rows
+    b: Tensor  # (..., 8, N) rows
+    c: Tensor  # (..., N) sensitivity to the frame's c, already times sigma
+    delta: Tensor  # (..., N) sensitivity to the frame's delta, already times sigma
+    t: Tensor | None  # (..., N), None when the time derivatives were not asked for
+
+
+def frame(A: Tensor, B: Tensor, shortest: bool) -> Frame:
+    """:class:`Frame` of pairs of ``(..., 8, N)`` rows."""
     P, Q, R, S = A[..., :4, :], A[..., 4:, :], B[..., :4, :], B[..., 4:, :]
     c = (P * R).sum(-2)
-    sigma = torch.where(c < 0, -1.0, 1.0).to(c.dtype) if shortest else torch.ones_like(c)
+    # sigma = where(c < 0, -1, 1) (-0.0 counts as positive), in arithmetic: torch.where is
+    # several times slower than a multiply on CPU.
+    sigma = 1.0 - 2.0 * (c < 0).to(c.dtype) if shortest else torch.ones_like(c)
     delta = sigma * ((P * S).sum(-2) + (R * Q).sum(-2))
-    return P, Q, R, S, sigma * c, delta, sigma
+    return Frame(sigma * c, delta, sigma)
+
+
+def weights(fr: Frame, t: Tensor, derivatives: bool = False, time_slopes: bool = True,
+            ang: Angle | None = None) -> Weights | WeightSlopes:
+    """:func:`screw_weights` of a frame (``ang``: its :func:`angle`, if already known),
+    evaluating only the branches in use in eager mode on CPU (where a host read is free)."""
+    host = fr.c.device.type == "cpu" and not torch.compiler.is_compiling()
+    return screw_weights(fr.c, t, derivatives, time_slopes=time_slopes, ang=ang,
+                         host_branch=host)
+
+
+def combine(A: Tensor, B: Tensor, fr: Frame, w: Weights | WeightSlopes) -> Tensor:
+    r"""Eq. 11 on rows: :math:`F_0 a + F_1 \sigma b - \epsilon\delta(G_0 P + G_1 \sigma R)`."""
+    F0, F1 = w.F
+    G0, G1 = w.G
+    s1 = fr.sigma * F1
+    out = torch.addcmul(coef(F0) * A, coef(s1), B)
+    dual = out[..., 4:, :]
+    dual.addcmul_(coef(fr.delta * G0), A[..., :4, :], value=-1.0)
+    dual.addcmul_(coef(fr.delta * fr.sigma * G1), B[..., :4, :], value=-1.0)
+    return out
+
+
+def vjp_rows(A: Tensor, B: Tensor, fr: Frame, w: WeightSlopes, grad: Tensor,
+             frame_terms: bool = True) -> Cotangents:
+    r"""Vector-Jacobian product of :func:`combine` at the output cotangent ``grad``.
+
+    Written for the sign-aligned :math:`b' = \sigma b`, with the sign folded into the
+    coefficients.
+    Without ``frame_terms`` the gradients leave out :math:`L_c\,\partial c + L_\delta\,
+    \partial\delta` (the pyramid adds those once per pair of control points, from the
+    returned sensitivities).
+    """
+    P, R = A[..., :4, :], B[..., :4, :]
+    sigma, delta = fr.sigma, fr.delta
+    (F0, F1), (G0, G1), (H0, H1) = w.F, w.G, w.H
+    gd = grad[..., 4:, :]
+    pa, pb = (grad * A).sum(-2), sigma * (grad * B).sum(-2)
+    gP, gR = (gd * P).sum(-2), sigma * (gd * R).sum(-2)
+    # Sensitivities to c = P.R', delta = P.S' + R'.Q and t (module docstring of weights).
+    L_c = delta * (H0 * gP + H1 * gR) - G0 * pa - G1 * pb
+    L_d = -(G0 * gP + G1 * gR)
+    L_t = None
+    if w.Fs is not None:
+        (Fs0, Fs1), (Gs0, Gs1) = w.Fs, w.Gs
+        L_t = Fs1 * pb - Fs0 * pa + delta * (Gs0 * gP - Gs1 * gR)
+    s1 = sigma * F1
+    grad_a = coef(F0) * grad
+    grad_b = coef(s1) * grad
+    grad_a[..., :4, :].addcmul_(coef(delta * G0), gd, value=-1.0)
+    grad_b[..., :4, :].addcmul_(coef(sigma * delta * G1), gd, value=-1.0)
+    sL_c, sL_d = sigma * L_c, sigma * L_d
+    if frame_terms:
+        add_frame_terms(grad_a, grad_b, A, B, sL_c, sL_d)
+    return Cotangents(grad_a, grad_b, sL_c, sL_d, L_t)
+
+
+def add_frame_terms(grad_a: Tensor, grad_b: Tensor, A: Tensor, B: Tensor, sL_c: Tensor,
+                    sL_d: Tensor) -> None:
+    r"""Add :math:`L_c\,\partial c/\partial(a, b) + L_\delta\,\partial\delta/\partial(a, b)`
+    in place (``sL_c``, ``sL_d``: the sensitivities times ``sigma``, broadcast over
+    ``(..., N)``)."""
+    P, Q, R, S = A[..., :4, :], A[..., 4:, :], B[..., :4, :], B[..., 4:, :]
+    sL_c, sL_d = coef(sL_c), coef(sL_d)
+    grad_a[..., :4, :].addcmul_(sL_c, R).addcmul_(sL_d, S)
+    grad_a[..., 4:, :].addcmul_(sL_d, R)
+    grad_b[..., :4, :].addcmul_(sL_c, P).addcmul_(sL_d, Q)
+    grad_b[..., 4:, :].addcmul_(sL_d, P)
 
 
 def forward_rows(A: Tensor, B: Tensor, t: Tensor, shortest: bool) -> Tensor:
     """Eq. 11 on ``(..., 8, N)`` rows and ``(..., N)`` parameters."""
-    P, _, R, _, c, delta, sigma = _frame(A, B, shortest)
-    (F0, F1), (G0, G1) = screw_weights(c, t, derivatives=False)
-    out = torch.addcmul(coef(F0) * A, coef(sigma * F1), B)
-    out[..., 4:, :] -= torch.addcmul(coef(delta * G0) * P, coef(delta * sigma * G1), R)
-    return out
+    fr = frame(A, B, shortest)
+    return combine(A, B, fr, weights(fr, t))
 
 
-def backward_rows(A: Tensor, B: Tensor, t: Tensor, grad: Tensor, shortest: bool):
-    """Vector-Jacobian product of :func:`forward_rows`: rows of ``a`` and ``b``, and ``t``.
-
-    Written for the sign-aligned ``b' = sigma b`` (``R, S`` below), then mapped back.
-    """
-    P, Q, R, S, c, delta, sigma = _frame(A, B, shortest)
-    (F0, F1), (G0, G1), (H0, H1), (Fs0, Fs1), (Gs0, Gs1) = screw_weights(c, t, True)
-    R, S = coef(sigma) * R, coef(sigma) * S
-    gr, gd = grad[..., :4, :], grad[..., 4:, :]
-    pa, pb = (grad * A).sum(-2), sigma * (grad * B).sum(-2)
-    gP, gR = (gd * P).sum(-2), (gd * R).sum(-2)
-    # Sensitivities to c = P.R, delta = P.S + R.Q and t (module docstring).
-    L_c = delta * (H0 * gP + H1 * gR) - G0 * pa - G1 * pb
-    L_d = -(G0 * gP + G1 * gR)
-    L_t = Fs1 * pb - Fs0 * pa + delta * (Gs0 * gP - Gs1 * gR)
-    F0, F1, L_c, L_d = coef(F0), coef(F1), coef(L_c), coef(L_d)
-    grad_a = torch.cat((F0 * gr - coef(delta * G0) * gd + L_c * R + L_d * S, F0 * gd + L_d * R), -2)
-    grad_b = torch.cat((F1 * gr - coef(delta * G1) * gd + L_c * P + L_d * Q, F1 * gd + L_d * P), -2)
-    return grad_a, coef(sigma) * grad_b, L_t
-
-
-def jvp_rows(A, B, t, TA, TB, tt, shortest: bool) -> Tensor:
-    """Jacobian-vector product of :func:`forward_rows` (tangents of the same shapes)."""
-    P, Q, R, S, c, delta, sigma = _frame(A, B, shortest)
-    (F0, F1), (G0, G1), (H0, H1), (Fs0, Fs1), (Gs0, Gs1) = screw_weights(c, t, True)
-    B, R, S, TB = coef(sigma) * B, coef(sigma) * R, coef(sigma) * S, coef(sigma) * TB
-    tP, tQ, tR, tS = TA[..., :4, :], TA[..., 4:, :], TB[..., :4, :], TB[..., 4:, :]
-    dc = (tP * R + P * tR).sum(-2)
-    dd = (tP * S + P * tS + tR * Q + R * tQ).sum(-2)
-    dF0, dF1 = -G0 * dc - Fs0 * tt, Fs1 * tt - G1 * dc
-    dG0, dG1 = -H0 * dc - Gs0 * tt, Gs1 * tt - H1 * dc
-    out = coef(F0) * TA + coef(F1) * TB + coef(dF0) * A + coef(dF1) * B
-    out[..., 4:, :] -= (coef(delta) * (coef(G0) * tP + coef(G1) * tR + coef(dG0) * P
-                                       + coef(dG1) * R)
-                        + coef(dd) * (coef(G0) * P + coef(G1) * R))
-    return out
-
-
-class _SclerpVJP(torch.autograd.Function):
+class _Sclerp(torch.autograd.Function):
     """Screw linear interpolation (eq. 11) with an analytic backward.
 
     Inputs are already broadcast: ``a, b (..., 8)``, ``t (...)``. Saves only the inputs;
     the backward recomputes the weights (cheaper in memory than keeping intermediates).
-    TorchDynamo cannot trace a Function that defines ``jvp``, so compiled code uses this
-    class and eager code the subclass :class:`_Sclerp` that adds forward mode.
     """
 
     generate_vmap_rule = True
@@ -90,41 +140,33 @@ class _SclerpVJP(torch.autograd.Function):
     def forward(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
         a2, b2, t1 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1)
         parts = [from_rows(forward_rows(to_rows(a2[i]), to_rows(b2[i]), t1[i], shortest))
-                 for i in chunks(len(t1))]
+                 for i in chunks(t1.shape[0])]
         return torch.cat(parts).view(a.shape)
 
     @staticmethod
     def setup_context(ctx, inputs, output):
         a, b, t, shortest = inputs
         ctx.save_for_backward(a, b, t)
-        ctx.save_for_forward(a, b, t)
         ctx.shortest = shortest
 
     @staticmethod
     def backward(ctx, grad):
         a, b, t = ctx.saved_tensors
+        need_t = ctx.needs_input_grad[2]
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
-        parts = [backward_rows(to_rows(a2[i]), to_rows(b2[i]), t1[i], to_rows(g2[i]), ctx.shortest)
-                 for i in chunks(len(t1))]
-        ga, gb, gt = (torch.cat(p, dim=-1) for p in zip(*parts, strict=True))
-        return from_rows(ga).view(a.shape), from_rows(gb).view(b.shape), gt.view(t.shape), None
-
-
-class _Sclerp(_SclerpVJP):
-    """:class:`_SclerpVJP` with the forward-mode rule (``torch.func.jvp``, forward AD)."""
-
-    @staticmethod
-    def jvp(ctx, ta, tb, tt, _):
-        a, b, t = ctx.saved_tensors
-        ta = torch.zeros_like(a) if ta is None else ta
-        tb = torch.zeros_like(b) if tb is None else tb
-        tt = torch.zeros_like(t) if tt is None else tt
-        A, B, TA, TB = (to_rows(x.reshape(-1, 8)) for x in (a, b, ta, tb))
-        out = jvp_rows(A, B, t.reshape(-1), TA, TB, tt.reshape(-1), ctx.shortest)
-        return from_rows(out).view(a.shape)
+        ga, gb, gt = [], [], []
+        for i in chunks(t1.shape[0]):
+            A, B = to_rows(a2[i]), to_rows(b2[i])
+            fr = frame(A, B, ctx.shortest)
+            w = weights(fr, t1[i], derivatives=True, time_slopes=need_t)
+            ct = vjp_rows(A, B, fr, w, to_rows(g2[i]))
+            ga.append(from_rows(ct.a))
+            gb.append(from_rows(ct.b))
+            gt.append(ct.t)
+        grad_t = torch.cat(gt).view(t.shape) if need_t else None
+        return torch.cat(ga).view(a.shape), torch.cat(gb).view(b.shape), grad_t, None
 
 
 def sclerp(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     """Unchecked eq. 11 on broadcast inputs ``a, b (..., 8)``, ``t (...)``."""
-    op = _SclerpVJP if torch.compiler.is_compiling() else _Sclerp
-    return op.apply(a, b, t, shortest)
+    return _Sclerp.apply(a, b, t, shortest)

@@ -33,10 +33,58 @@ truncated series is used, elsewhere the closed forms
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
 _TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
+
+
+class Weights(NamedTuple):
+    """Dual weights of eq. 11, each ``(2, ...)``: row 0 for ``a`` (``s = 1 - t``), row 1 for
+    ``b`` (``s = t``)."""
+
+    F: Tensor  # sin(s theta) / sin(theta)
+    G: Tensor  # dF/dtheta / sin(theta) = dF/dy
+
+
+class WeightSlopes(NamedTuple):
+    """:class:`Weights` and the derivatives the gradients need, each ``(2, ...)``."""
+
+    F: Tensor
+    G: Tensor
+    H: Tensor  # dG/dy
+    Fs: Tensor | None  # dF/ds (None when the time derivatives were not asked for)
+    Gs: Tensor | None  # dG/ds
+
+
+class Angle(NamedTuple):
+    r""":math:`\theta = \arccos c` with its sine and cosine, on guarded inputs.
+
+    The fused curve scheme computes these once per pair of neighbouring control points
+    (level 0 of De Casteljau / De Boor reads the same pairs at every time of a span) and
+    hands them to :func:`screw_weights`.
+    """
+
+    theta: Tensor
+    sin: Tensor
+    cos: Tensor
+
+
+def angle(c: Tensor) -> Angle:
+    r""":class:`Angle` of cosines ``c``, with ``c`` replaced by 0 (``theta = pi / 2``) where
+    :math:`1 - c` is below the series threshold: every element whose closed forms
+    :func:`screw_weights` may discard then keeps them (and their derivatives) finite."""
+    near = (1.0 - c < _series_threshold(c.dtype)).to(c.dtype)
+    theta = torch.acos(c * (1.0 - near))  # where(near, 0, c) without torch.where
+    return Angle(theta, torch.sin(theta), torch.cos(theta))
+
+
+def _select(mask: Tensor, x: Tensor, y: Tensor) -> Tensor:
+    """``where(mask, x, y)`` for a float 0/1 ``mask`` and finite ``x``, ``y``: exact
+    (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
+    return torch.addcmul(y * (1.0 - mask), x, mask)
 
 
 def _series_threshold(dtype: torch.dtype) -> float:
@@ -67,57 +115,85 @@ def _nested(u: list[Tensor], j: int) -> Tensor:
     return out
 
 
-def screw_weights(c: Tensor, t: Tensor, derivatives: bool) -> tuple[Tensor, ...]:
-    r"""Interpolation weights at :math:`\cos\theta = c` for ``s = (1 - t, t)``.
-
-    Args:
-        c: ``(N,)`` cosines, in ``[-1, 1]`` up to rounding.
-        t: ``(N,)`` interpolation parameters.
-        derivatives: also return :math:`H, F_s, G_s` (for the gradients).
-
-    Returns:
-        ``F, G`` (and ``H, Fs, Gs``), each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1
-        for ``b`` (``s = t``).
-    """
-    s = torch.stack((1.0 - t, t))
-    s2 = s * s
-    y = 1.0 - c
-    # The series is accurate while y max(1, s^2) is small (its terms scale like (s^2 y)^k).
-    small = y * torch.clamp(s2.amax(0), min=1.0) < _series_threshold(c.dtype)
-
-    # Series branch (module docstring): u[k] = (k^2 - s^2) y, u[0] holds ones for addcmul.
+def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool):
+    """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``) near ``y = 0``."""
+    # u[k] = (k^2 - s^2) y; u[0] holds ones for addcmul.
     s2ny = s2 * -y
-    u = [torch.ones_like(s)] + [torch.add(s2ny, y, alpha=k * k) for k in range(1, _TERMS)]
+    u = [torch.ones_like(s2ny)] + [torch.add(s2ny, y, alpha=k * k) for k in range(1, _TERMS)]
     a1 = s * (1.0 - s2) / 3.0
-    F = s * _nested(u, 0)
-    G = a1 * _nested(u, 1)
-
-    # Closed forms on safe inputs: the series elements see theta = pi / 2 instead. Using
-    # sin and cos of the same theta makes the endpoints exact (s = 1: F = 1, G = 0). No
-    # clamp: c > 1 only occurs in the series branch, and c < -1 (opposite real parts with
-    # shortest=False, undefined) or an infinite c must give NaN, not a finite theta = pi.
-    theta = torch.acos(torch.where(small, 0.0, c))
-    sin_t, cs = torch.sin(theta), torch.cos(theta)
-    sin2 = sin_t * sin_t
-    st = s * theta
-    sin_st, cos_st = torch.sin(st), torch.cos(st)
-    F_exact = sin_st / sin_t
-    G_exact = (s * cos_st - F_exact * cs) / sin2
-    F = torch.where(small, F, F_exact)
-    G = torch.where(small, G, G_exact)
+    F, G = s * _nested(u, 0), a1 * _nested(u, 1)
     if not derivatives:
-        return F, G
-
+        return F, G, None, None, None
+    H = 0.2 * a1 * (4.0 - s2) * _nested(u, 2)
+    if not time_slopes:
+        return F, G, H, None, None
     # d a_k / ds by differentiating the recurrence a_k = a_{k-1} (k^2 - s^2) / (k (2k + 1)).
     a, da = [s], [torch.ones_like(s)]
     for k in range(1, _TERMS):
         d = k * (2 * k + 1)
         da.append((da[-1] * (k * k - s2) - 2.0 * s * a[-1]) / d)
         a.append(a[-1] * (k * k - s2) / d)
-    H = torch.where(small, 0.2 * a1 * (4.0 - s2) * _nested(u, 2),
-                    ((1.0 - s2) * F_exact - 3.0 * G_exact * cs) / sin2)
-    Fs_exact = theta * cos_st / sin_t
-    Fs = torch.where(small, _horner(da, y), Fs_exact)
-    Gs = torch.where(small, _horner([k * da[k] for k in range(1, _TERMS)], y),
-                     (cos_st - st * sin_st - Fs_exact * cs) / sin2)
-    return F, G, H, Fs, Gs
+    return F, G, H, _horner(da, y), _horner([k * da[k] for k in range(1, _TERMS)], y)
+
+
+def _closed(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool):
+    """Closed forms (module docstring) at the angles ``ang``."""
+    sin2 = ang.sin * ang.sin
+    st = s * ang.theta
+    sin_st, cos_st = torch.sin(st), torch.cos(st)
+    F = sin_st / ang.sin
+    G = (s * cos_st - F * ang.cos) / sin2
+    if not derivatives:
+        return F, G, None, None, None
+    H = ((1.0 - s * s) * F - 3.0 * G * ang.cos) / sin2
+    if not time_slopes:
+        return F, G, H, None, None
+    Fs = ang.theta * cos_st / ang.sin
+    return F, G, H, Fs, (cos_st - st * sin_st - Fs * ang.cos) / sin2
+
+
+def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
+                  time_slopes: bool = True, ang: Angle | None = None,
+                  host_branch: bool = False) -> Weights | WeightSlopes:
+    r"""Interpolation weights at :math:`\cos\theta = c` for ``s = (1 - t, t)``.
+
+    Args:
+        c: ``(N,)`` cosines, in ``[-1, 1]`` up to rounding (any shape broadcasting with
+            ``t``).
+        t: ``(N,)`` interpolation parameters.
+        derivatives: also return :math:`H, F_s, G_s` (for the gradients).
+        time_slopes: with ``derivatives``, also :math:`F_s, G_s` (``None`` otherwise: only
+            the gradient with respect to ``t`` needs them).
+        ang: :func:`angle` of ``c`` if already known (the fused curve scheme computes it
+            once per pair of control points).
+        host_branch: evaluate only the branches that some element takes (one host read of
+            a count; the result is the same to the bit). For the eager fused kernels on
+            CPU: in float32 the series covers relative rotations up to ~40 degrees, so for
+            a smooth trajectory no transcendental function is evaluated at all.
+
+    Returns:
+        :class:`Weights` ``(F, G)``, or :class:`WeightSlopes` ``(F, G, H, Fs, Gs)`` with
+        ``derivatives``; each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1 for ``b``
+        (``s = t``).
+    """
+    s = torch.stack((1.0 - t, t))
+    s2 = s * s
+    y = 1.0 - c
+    # The series is accurate while y max(1, s^2) is small (its terms scale like (s^2 y)^k).
+    small = (y * torch.clamp(s2, min=1.0) < _series_threshold(c.dtype)).to(c.dtype)
+    # Closed forms on guarded inputs (series elements with y below the threshold see
+    # theta = pi / 2). Using sin and cos of the same theta makes the endpoints exact (s = 1:
+    # F = 1, G = 0). No clamp: c > 1 only occurs in the series branch, and c < -1
+    # (opposite real parts with shortest=False, undefined) or an infinite c must give NaN,
+    # not a finite theta = pi.
+    n_small = int(small.sum()) if host_branch else -1
+    if n_small == 0:
+        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
+    elif n_small == small.numel():
+        out = _series(s, s2, y, derivatives, time_slopes)
+    else:
+        closed = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
+        series = _series(s, s2, y, derivatives, time_slopes)
+        out = tuple(x if x is None else _select(small, x, e)
+                    for x, e in zip(series, closed, strict=True))
+    return WeightSlopes(*out) if derivatives else Weights(*out[:2])

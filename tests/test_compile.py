@@ -1,0 +1,85 @@
+"""torch.compile: the fused kernels trace as one graph, with and without gradients, and a
+change in the number of samples does not recompile.
+
+The compiled functions run on the ``aot_eager`` backend (dynamo + AOTAutograd, the graphs
+inductor would receive, without its slow code generation) and are compared with eager
+evaluation; ``CompileCounterWithBackend`` counts the frames dynamo compiled: with
+``fullgraph=True`` (no graph break allowed), one frame per grad mode across the sizes means
+no recompilation.
+"""
+
+import functools
+
+import pytest
+import torch
+from strategies import unit_dq
+from torch._dynamo.testing import CompileCounterWithBackend
+
+import torch_dq.dualquat as dq
+from torch_dq import curves
+
+SIZES = (5, 9)  # the second size would recompile if the sample axis were specialised
+
+
+@pytest.fixture(autouse=True)
+def _fresh_dynamo():
+    torch._dynamo.reset()
+    yield
+    torch._dynamo.reset()
+
+
+def _compiled(fn):
+    counter = CompileCounterWithBackend("aot_eager")
+    return torch.compile(fn, fullgraph=True, backend=counter), counter
+
+
+def _weighted_sum(x):
+    """A loss whose gradient differs per element (a plain sum would hide index mix-ups)."""
+    return (x * torch.linspace(-1.0, 2.0, x.numel(), dtype=x.dtype).view(x.shape)).sum()
+
+
+def _value_and_grads(fn, inputs, wrt):
+    leaves = [x.clone().requires_grad_(i in wrt) for i, x in enumerate(inputs)]
+    out = fn(*leaves)
+    grads = torch.autograd.grad(_weighted_sum(out), [leaves[i] for i in wrt])
+    return out.detach(), grads
+
+
+def _check(fn, make_inputs, wrt, n_dynamic=1):
+    """Compiled equals eager (values and gradients) at every size, from one graph.
+
+    ``make_inputs(n)`` returns the inputs with ``n`` samples; the leading axis (the
+    samples) of the first ``n_dynamic`` ones is marked dynamic.
+    """
+    infer, infer_count = _compiled(fn)
+    train, train_count = _compiled(fn)
+    for n in SIZES:
+        inputs = make_inputs(n)
+        for x in inputs[:n_dynamic]:
+            torch._dynamo.mark_dynamic(x, 0)
+        with torch.no_grad():
+            assert torch.allclose(infer(*inputs), fn(*inputs), rtol=0, atol=1e-14)
+        out, grads = _value_and_grads(train, inputs, wrt)
+        ref, ref_grads = _value_and_grads(fn, inputs, wrt)
+        assert torch.allclose(out, ref, rtol=0, atol=1e-14)
+        for g, r in zip(grads, ref_grads, strict=True):
+            assert torch.allclose(g, r, rtol=0, atol=1e-12)
+    # fullgraph=True: no graph break; one frame each at both sizes: no recompilation
+    assert (infer_count.frame_count, train_count.frame_count) == (1, 1)
+
+
+def _times(gen, n):
+    return torch.rand(n, generator=gen, dtype=torch.float64)
+
+
+def test_sclerp_compiles_as_one_graph(gen):
+    _check(dq.sclerp, lambda n: (unit_dq((n,), gen), unit_dq((n,), gen), _times(gen, n)),
+           wrt=(0, 1, 2), n_dynamic=3)
+
+
+@pytest.mark.parametrize("curve", ["bezier", "bspline"])
+def test_curve_compiles_as_one_graph(gen, curve):
+    """Gradients with respect to the control points and the times (every level's alpha)."""
+    ctrl = unit_dq((4,), gen) if curve == "bezier" else unit_dq((7,), gen)
+    fn = functools.partial(getattr(curves, curve), check=False)
+    _check(lambda t, c: fn(c, t), lambda n: (_times(gen, n), ctrl), wrt=(0, 1))
