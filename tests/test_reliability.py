@@ -168,6 +168,15 @@ OPS = [
     Op("curves.twists", lambda x, v: curves.twists(x, v, frame="spatial"),
        (("x", "dq"), ("dx", "dq")), "spatial"),
     Op("curves.screw_axis", curves.screw_axis, (("omega", "vec"), ("v", "vec"))),
+    Op("curves.bezier_derivatives", lambda c: curves.bezier_derivatives(c, _times(c), 3),
+       (("ctrl", "ctrl"),), curve=True),
+    Op("curves.bspline_derivatives",
+       lambda c: curves.bspline_derivatives(c, _times(c), 2, degree=2), (("ctrl", "ctrl"),),
+       curve=True),
+    Op("curves.kinematics", curves.kinematics, (("x", "dq"), ("dx", "dq"), ("ddx", "dq"))),
+    Op("curves.kinematics", lambda x, v, a: curves.kinematics(x, v, a, frame="body"),
+       (("x", "dq"), ("dx", "dq"), ("ddx", "dq")), "body"),
+    Op("curves.imu", curves.imu, (("x", "dq"), ("dx", "dq"), ("ddx", "dq"))),
 ]
 IDS = [op.id for op in OPS]
 
