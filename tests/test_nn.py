@@ -476,19 +476,21 @@ def test_from_poses_batched(gen):
 
 # ----------------------------------------------------------------------------- fitting
 
-def test_fit_from_identity_recovers_the_trajectory():
-    """Adam from all-identity control points on 60 noisy samples (noise 1 deg and 0.01 per
-    axis), 8 control points, float32, at most 250 steps: the held-out pose loss drops by
-    >= 100x (measured 3.9 -> 1.9e-4), the training loss by >= 1000x (4.09 -> 1.1e-3), and at
-    200 held-out times the curve is within 3 deg and 0.03 length units of the noise-free
-    truth (measured max 1.01 deg and 0.011; 171 deg and 1.55 at the start)."""
+@pytest.mark.parametrize("optimizer", ["adam", "lm"])
+def test_fit_from_identity_recovers_the_trajectory(optimizer):
+    """Adam (at most 250 steps) or Levenberg-Marquardt (5 steps) from all-identity control
+    points on 60 noisy samples (noise 1 deg and 0.01 per axis), 8 control points, float32:
+    the held-out pose loss drops by >= 100x (measured 3.9 -> 1.9e-4), the training loss by
+    >= 1000x (4.09 -> 1.1e-3), and at 200 held-out times the curve is within 3 deg and 0.03
+    length units of the noise-free truth (measured max 1.01 deg and 0.011 with either; 171
+    deg and 1.55 at the start)."""
     gen = torch.Generator().manual_seed(1)
     times = torch.linspace(0, 2, 60, dtype=F64)
     samples = noisy(truth(times), gen).float()
     spline = BSpline(dq.identity((8,)), degree=3, knots=knots_on(8, 3, 0.0, 2.0))
     (rot0, trans0), loss0 = held_out(spline, torch.Generator().manual_seed(9))
-    history = fit(spline, times.float(), samples, optimizer="adam", lr=3e-2, steps=250,
-                  verbose=False)
+    kwargs = dict(optimizer="adam", lr=3e-2) if optimizer == "adam" else dict(optimizer="lm")
+    history = fit(spline, times.float(), samples, steps=250, verbose=False, **kwargs)
     (rot1, trans1), loss1 = held_out(spline, torch.Generator().manual_seed(9))
     assert isinstance(history, FitHistory) and history.steps == len(history.loss) <= 250
     assert history.final_loss <= 1e-3 * history.loss[0]
