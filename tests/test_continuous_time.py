@@ -365,6 +365,9 @@ def test_gradcheck_derivatives_wrt_ctrl_and_t(gen):
 
     assert torch.autograd.gradcheck(f, (ctrl, t))
     assert torch.autograd.gradgradcheck(f, (ctrl, t), fast_mode=True)
+    domain = torch.tensor([-0.1, 1.2], dtype=F64, requires_grad=True)  # a tensor domain
+    assert torch.autograd.gradcheck(lambda d: torch.cat(bezier_derivatives(
+        ctrl.detach(), t.detach(), order=2, domain=d, check=False), -1), (domain,))
     c4 = near((4,), gen).requires_grad_()
     knots = torch.tensor([0, 0, 0, 0.45, 1, 1, 1], dtype=F64, requires_grad=True)
 

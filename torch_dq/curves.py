@@ -371,15 +371,6 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
 
 # ----------------------------------------------------------------------------- public curves
 
-_SMOOTHNESS = r"""
-    Smoothness: inside a span every level is analytic in ``t``; at a simple interior knot of
-    a B-spline of degree ``p >= 2`` the curve is :math:`C^1` but in general not :math:`C^2`
-    (the second derivative jumps, measured in ``tests/test_continuous_time.py``): each level
-    of the scheme is a geodesic (screw) interpolation, not an affine combination, so the
-    Euclidean :math:`C^{p-1}` argument only survives to first order. Rotation-only motions
-    about one axis and pure translations are :math:`C^{p-1}`, as in Euclidean space."""
-
-
 def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool):
     _checks.flag(fn, "check", check)
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
@@ -554,7 +545,13 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     ``±ctrl[..., -1, :]``; ``n = p + 1`` then gives :func:`bezier`. Rotation-only control
     points give the quaternion De Boor curve with slerp; translation-only ones the Euclidean
     B-spline of the translations.
-    """ + _SMOOTHNESS + r"""
+
+    Smoothness: inside a span the curve is analytic in ``t``; at a simple interior knot of
+    degree ``p >= 2`` it is :math:`C^1` but in general not :math:`C^2` (the second derivative
+    jumps; measured in ``tests/test_continuous_time.py``): each level of the scheme is a
+    screw interpolation, not an affine combination, so the Euclidean :math:`C^{p-1}`
+    argument only survives to first order. Pure translations, as in Euclidean space, are
+    :math:`C^{p-1}`. Degree 1 is :math:`C^0`.
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
@@ -613,7 +610,11 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     derivatives are those of the span that contains ``t`` (right-hand derivatives; the
     left-hand ones at the domain's right end). The results are differentiable (reverse
     mode, twice; and in forward mode) with respect to ``ctrl``, ``t`` and the knots.
-    """ + _SMOOTHNESS + r"""
+
+    Smoothness at simple interior knots (:func:`bspline`): :math:`C^1` for degree
+    ``p >= 2``, so the velocities are continuous but the accelerations (second derivatives)
+    jump at the knots, even for cubic and quartic B-splines; only pure translations keep
+    the Euclidean :math:`C^{p-1}`.
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
