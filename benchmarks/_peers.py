@@ -173,3 +173,31 @@ def pypose_bspline(ctrl: torch.Tensor, n_out: int, backward: bool):
     with torch.no_grad():
         count = pp.bspline(data.detach(), interval=interval, extrapolate=False).shape[-2]
     return fn, None, count
+
+
+def pypose_train_step(init: torch.Tensor, target: torch.Tensor, interval: float):
+    """One Adam step fitting ``pp.bspline`` control poses to ``target`` poses on its grid.
+
+    The control poses are a ``pp.Parameter(pp.SE3(...))`` started at ``init``; the loss is
+    pypose's geodesic error, the mean of ``|Log(target^-1 P)|^2`` over the
+    ``(N - 3) / interval + 1`` poses ``P`` of ``pp.bspline(X, interval)``; Adam (lr 1e-3)
+    updates the 7 stored numbers per pose, as a pypose user's ``optimizer.step()`` does.
+    Returns ``(step, count)``.
+    """
+    pp = _need("pypose")
+    X = pp.Parameter(pp.SE3(dq.to_pose7(init.detach()).contiguous()))
+    tgt_inv = pp.SE3(dq.to_pose7(target.detach()).contiguous()).Inv()
+    opt = torch.optim.Adam([X], lr=1e-3)
+
+    def step():
+        opt.zero_grad(set_to_none=True)
+        P = pp.bspline(X, interval=interval, extrapolate=False)
+        loss = (tgt_inv * P).Log().tensor().pow(2).sum(-1).mean()
+        loss.backward()
+        opt.step()
+
+    with torch.no_grad():
+        count = pp.bspline(X.detach(), interval=interval, extrapolate=False).shape[-2]
+    if count != target.shape[-2]:
+        raise ValueError(f"pypose returned {count} poses, expected {target.shape[-2]}")
+    return step, count

@@ -15,6 +15,7 @@ Every time is the median of ``--repeats`` (>= 5) runs after ``--warmup`` runs, w
 from __future__ import annotations
 
 import argparse
+import functools
 import gc
 import json
 import os
@@ -35,24 +36,28 @@ from _peers import PeerMissing
 
 import torch_dq
 import torch_dq.dualquat as dq
-from torch_dq import quat
+from torch_dq import losses, quat
 
 try:
     from torch_dq import curves
+    from torch_dq import nn as dqnn
     CURVES_ERROR = None
 except ImportError as exc:  # curves.py may not exist yet
-    curves = None
+    curves = dqnn = None
     CURVES_ERROR = f"torch_dq.curves not available ({exc})"
 
-CPU_SIZES = {"sclerp": 1_000_000, "slerp": 1_000_000, "bspline": 100_000, "bezier": 4096}
-QUICK_SIZES = {"sclerp": 20_000, "slerp": 20_000, "bspline": 5_000, "bezier": 128}
+CPU_SIZES = {"sclerp": 1_000_000, "slerp": 1_000_000, "bspline": 100_000, "bezier": 4096,
+             "train": 100_000}
+QUICK_SIZES = {"sclerp": 20_000, "slerp": 20_000, "bspline": 5_000, "bezier": 128,
+               "train": 5_000}
 CUDA_TARGETS = {"sclerp": 100_000_000, "slerp": 100_000_000, "bspline": 10_000_000,
-                "bezier": 262_144}
+                "bezier": 262_144, "train": 10_000_000}
 # Slow peers are timed on at most this many items and scaled linearly (said in the note).
 PEER_CAP = {"pypose": 100_000, "pytransform3d": 100_000, "scipy": 100_000}
 QUICK_PEER_CAP = 5_000
 CUDA_PEER_CAP = {"pypose": 10_000_000}
 N_CTRL = 64        # B-spline control points
+N_TRAIN_CTRL = 512  # control points of the trained B-spline layer
 BEZIER_TIMES = 64  # Bezier times per curve
 
 
@@ -304,17 +309,30 @@ def bench_sclerp(b: Bench, dtype):
           "grad of sum wrt a, b, t")
 
     # torch.compile (the documented compiled path), default inductor backend
-    if b.args.no_compile:
-        b.add("sclerp [compiled]", dtype, n, "skipped (--no-compile)", 0, n)
-        return
-    if b.args.quick and dtype != b.dtypes[0]:
-        b.add("sclerp [compiled]", dtype, n, "skipped (--quick: first dtype only)", 0, n)
+    if _skip_compile(b, dtype, "sclerp [compiled]", n):
         return
     compiled = torch.compile(dq.sclerp)
-    for label, fn, eager, peer_ms, bytes_ in (
-            ("sclerp fwd [compiled]", lambda: compiled(a, c, t), ours, pp_ms, fwd_bytes),
-            ("sclerp fwd+bwd [compiled]", lambda: _grad(compiled(ag, cg, tg), (ag, cg, tg)),
-             ours_fb, pp_fb, fb_bytes)):
+    _compiled_rows(b, dtype, n, "pypose", (
+        ("sclerp fwd [compiled]", lambda: compiled(a, c, t), ours, pp_ms, fwd_bytes),
+        ("sclerp fwd+bwd [compiled]", lambda: _grad(compiled(ag, cg, tg), (ag, cg, tg)),
+         ours_fb, pp_fb, fb_bytes)))
+
+
+def _skip_compile(b: Bench, dtype, label: str, n: int) -> bool:
+    """Adds a 'skipped' row and returns True where compiled rows are not wanted."""
+    if b.args.no_compile:
+        b.add(label, dtype, n, "skipped (--no-compile)", 0, n)
+        return True
+    if b.args.quick and dtype != b.dtypes[0]:
+        b.add(label, dtype, n, "skipped (--quick: first dtype only)", 0, n)
+        return True
+    return False
+
+
+def _compiled_rows(b: Bench, dtype, n: int, peer: str, cases):
+    """Rows ``(label, fn, eager_ms, peer_ms, bytes)`` of compiled callables: the first call
+    compiles (its time is printed in the note), then the usual median."""
+    for label, fn, eager, peer_ms, bytes_ in cases:
         try:
             t0 = time.perf_counter()
             fn()
@@ -322,9 +340,9 @@ def bench_sclerp(b: Bench, dtype):
             compile_s = time.perf_counter() - t0
             ms = b.time(fn)
         except Exception as exc:
-            b.add(label, dtype, n, _err(exc), 0, n, "pypose")
+            b.add(label, dtype, n, _err(exc), 0, n, peer)
             continue
-        b.add(label, dtype, n, ms, bytes_, n, "pypose", peer_ms,
+        b.add(label, dtype, n, ms, bytes_, n, peer, peer_ms,
               note=f"compile speed-up vs eager x{eager / ms:.2f}; first call {compile_s:.1f} s")
 
 
@@ -403,6 +421,7 @@ def bench_bspline(b: Bench, dtype):
     except Exception as exc:
         b.add("bspline cubic", dtype, T, _err(exc), 0, T)
         return
+    pp_times = {}
     for label, ms, bytes_, bwd in (("bspline cubic fwd", ours, fwd_bytes, False),
                                    ("bspline cubic fwd+bwd", ours_fb, fb_bytes, True)):
         counts = {}
@@ -421,6 +440,123 @@ def bench_bspline(b: Bench, dtype):
                                          f"{m_req} asked, time scaled per pose", match) if x)
         b.add(label, dtype, T, ms, bytes_, T, "pypose bspline", pp_ms, note,
               "grad wrt control points" if bwd else "")
+        pp_times[bwd] = pp_ms
+
+    # torch.compile of the public function (check=False: the value check reads the host)
+    if _skip_compile(b, dtype, "bspline cubic [compiled]", T):
+        return
+    compiled = torch.compile(functools.partial(curves.bspline, degree=3, check=False))
+    _compiled_rows(b, dtype, T, "pypose bspline", (
+        ("bspline cubic fwd [compiled]", lambda: compiled(ctrl, t), ours, pp_times[False],
+         fwd_bytes),
+        ("bspline cubic fwd+bwd [compiled]", lambda: _grad(compiled(cg, t), (cg,)), ours_fb,
+         pp_times[True], fb_bytes)))
+
+
+def bench_derivatives(b: Bench, dtype):
+    """Order-2 time derivatives of the cubic B-spline against the pose alone."""
+    T = b.sizes["bspline"]
+    if curves is None or not hasattr(curves, "bspline_derivatives"):
+        b.add("bspline derivatives", dtype, T, "not available", 0, 0,
+              note=CURVES_ERROR or "curves.bspline_derivatives not available")
+        return
+    ctrl, t = _bspline_inputs(T, dtype, b.device)
+    cg = ctrl.clone().requires_grad_()
+    size = torch.finfo(dtype).bits // 8
+
+    def derivatives_loss(c):
+        return sum(x.sum() for x in curves.bspline_derivatives(c, t, order=2))
+
+    try:
+        pose = b.time(lambda: curves.bspline(ctrl, t))
+        pose_fb = b.time(lambda: _grad(curves.bspline(cg, t), (cg,)))
+        der = b.time(lambda: curves.bspline_derivatives(ctrl, t, order=2))
+        der_fb = b.time(lambda: torch.autograd.grad(derivatives_loss(cg), (cg,)))
+    except Exception as exc:
+        b.add("bspline derivatives", dtype, T, _err(exc), 0, T)
+        return
+    out_bytes = 3 * 8 * T * size
+    for label, ms, ref, bwd in (("bspline order-2 derivatives fwd", der, pose, False),
+                                ("bspline order-2 derivatives fwd+bwd", der_fb, pose_fb, True)):
+        note = (f"(x, dx/dt, d2x/dt2), {N_CTRL} control poses, cubic; "
+                f"{ms / ref:.2f} x the pose-only time" + (" (goal <= 4)" if bwd else "")
+                + ("; grad of the sum of all three wrt control points" if bwd else ""))
+        b.add(label, dtype, T, ms, out_bytes * (2 if bwd else 1), T,
+              "torch_dq pose only", ref, note=note)
+
+
+def _smooth_motion(n: int, dtype, device, gen) -> torch.Tensor:
+    """``n`` control poses of a smooth motion: a random walk of small screw steps."""
+    steps = 0.05 * torch.randn(n, 6, generator=gen, dtype=dtype, device=device)
+    x = dq.identity(dtype=dtype, device=device)
+    out = []
+    for xi in dq.exp(steps):
+        x = dq.mul(x, xi)
+        out.append(x)
+    return torch.stack(out)
+
+
+def bench_train(b: Bench, dtype):
+    """One Adam step of a 512-control-point B-spline layer fitted to T timestamped poses."""
+    T = b.sizes["train"]
+    if curves is None:
+        b.add("train step", dtype, T, "not available", 0, 0, note=CURVES_ERROR)
+        return
+    dev = b.device
+    g = _gen(dev, 7)
+    truth = _smooth_motion(N_TRAIN_CTRL, dtype, dev, g)
+    times = torch.linspace(0.0, 1.0, T, dtype=dtype, device=dev)
+    with torch.no_grad():
+        target = curves.bspline(truth, times, check=False)
+        # start: the true control poses, each moved by a small random screw
+        noise = dq.exp(0.02 * torch.randn(N_TRAIN_CTRL, 6, generator=g, dtype=dtype,
+                                          device=dev))
+        init = dq.mul(truth, noise)
+
+    def make_step(model, loss_fn):
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+        def step():
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn()
+            loss.backward()
+            opt.step()
+        return step
+
+    model = dqnn.BSpline(init.clone(), degree=3, check=False)
+    eager_step = make_step(model, lambda: losses.pose_loss(model(times), target))
+    note = (f"{N_TRAIN_CTRL} control poses, cubic, {T} timestamped target poses; "
+            "losses.pose_loss; Adam lr 1e-3; zero_grad + forward + backward + step")
+    try:
+        ours = b.time(eager_step)
+    except Exception as exc:
+        b.add("train step (Adam)", dtype, T, _err(exc), 0, T)
+        return
+
+    def make_pp(m):
+        k = -(-(m - 1) // (N_TRAIN_CTRL - 3))
+        count = (N_TRAIN_CTRL - 3) * k + 1
+        grid = torch.linspace(0.0, 1.0, count, dtype=dtype, device=dev)
+        with torch.no_grad():
+            tgt = curves.bspline(truth, grid, check=False)
+        fn, count = _peers.pypose_train_step(init, tgt, 1.0 / k)
+        counts["m"] = count
+        return fn, None
+
+    counts = {}
+    pp_ms, pp_note, made, m_req = _peer_time(b, "pypose", make_pp, T)
+    if made is not None:
+        pp_ms *= m_req / counts["m"]
+        pp_note = "; ".join(x for x in (pp_note, f"pypose fits {counts['m']} poses for "
+                                        f"{m_req} asked, time scaled per pose") if x)
+    b.add("train step (Adam)", dtype, T, ours, 0, T, "pypose bspline loop", pp_ms,
+          pp_note, note)
+    if _skip_compile(b, dtype, "train step (Adam) [compiled]", T):
+        return
+    model_c = dqnn.BSpline(init.clone(), degree=3, check=False)
+    compiled_loss = torch.compile(lambda: losses.pose_loss(model_c(times), target))
+    _compiled_rows(b, dtype, T, "pypose bspline loop", (
+        ("train step (Adam) [compiled]", make_step(model_c, compiled_loss), ours, pp_ms, 0),))
 
 
 def bench_bezier(b: Bench, dtype):
@@ -596,7 +732,7 @@ def main(argv=None):
     p.add_argument("--warmup", type=int, default=1)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--only", default="", help="comma list of sections: "
-                   "sclerp,slerp,bspline,bezier,memory")
+                   "sclerp,slerp,bspline,derivatives,train,bezier,memory")
     p.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     p.add_argument("--json", default=None, help="write rows and metadata as JSON here")
     p.add_argument("--_memprobe", default=None, help=argparse.SUPPRESS)
@@ -618,7 +754,8 @@ def main(argv=None):
     b.sizes = _parse_sizes(args.sizes, base)
     dtypes = [getattr(torch, d.strip()) for d in args.dtypes.split(",") if d.strip()]
     b.dtypes = dtypes
-    sections = [s for s in (args.only or "sclerp,slerp,bspline,bezier,memory").split(",") if s]
+    default_sections = "sclerp,slerp,bspline,derivatives,train,bezier,memory"
+    sections = [s for s in (args.only or default_sections).split(",") if s]
 
     if b.cuda:
         dev_name = torch.cuda.get_device_name(b.device)
@@ -637,6 +774,7 @@ def main(argv=None):
     print(_header(b.cuda), flush=True)
     t_start = time.perf_counter()
     funcs = {"sclerp": bench_sclerp, "slerp": bench_slerp, "bspline": bench_bspline,
+             "derivatives": bench_derivatives, "train": bench_train,
              "bezier": bench_bezier}
     for sec in sections:
         if sec not in funcs:
