@@ -154,16 +154,17 @@ def sclerp(A: Tensor, B: Tensor, alpha: Tensor) -> Tensor:
     r"""Eq. 11 (shortest path) on jets: ``A, B (K + 1, ..., 8)``, ``alpha (K + 1, ...)``
     (module docstring). The sign choice is the one of the current value (constant nearby).
     """
-    P, Q, R, S = A[..., :4], A[..., 4:], B[..., :4], B[..., 4:]
-    sigma = torch.where((P[0] * R[0]).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(A.dtype)
-    R, S = sigma * R, sigma * S  # b's representative nearest to a
-    c = mul(P, R).sum(-1)
-    delta = (mul(P, S) + mul(R, Q)).sum(-1)
+    sigma = torch.where((A[0, ..., :4] * B[0, ..., :4]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+    B = sigma.to(B.dtype) * B  # b's representative nearest to a
+    # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
+    dots = mul(A[:, None], torch.stack((B, torch.cat((B[..., 4:], B[..., :4]), -1)), 1))
+    c, delta = dots[:, 0, ..., :4].sum(-1), dots[:, 1].sum(-1)
     s = torch.stack((_rsub(1.0, alpha), alpha), 1)  # s = 1 - t for a, t for b
-    (F0, F1), (G0, G1) = (w[..., None].unbind(1) for w in _weights(c, s))
-    real = mul(F0, P) + mul(F1, R)
-    dual = mul(F0, Q) + mul(F1, S) - mul(delta[..., None], mul(G0, P) + mul(G1, R))
-    return torch.cat((real, dual), -1)
+    F, G = (w[..., None] for w in _weights(c, s))  # (K + 1, 2, ..., 1): rows for a and b
+    X = torch.stack((A, B), 1)
+    q = mul(F, X).sum(1)  # F_0 a + F_1 b
+    correction = mul(delta[..., None], mul(G, X[..., :4]).sum(1))  # delta (G_0 P + G_1 R)
+    return torch.cat((q[..., :4], q[..., 4:] - correction), -1)
 
 
 def derivatives(jet: Tensor) -> list[Tensor]:
