@@ -37,6 +37,13 @@ any order of differentiation in any mode), and the fused op
 and forward-mode AD (:func:`torch_dq._kernels.fused_path`), where a custom op cannot pass
 nested tangents on.
 
+The time derivatives (:func:`bezier_derivatives`, :func:`bspline_derivatives`) run the same
+schemes on jets (truncated Taylor series in ``t``, :mod:`torch_dq._taylor`) in plain torch
+ops: exact, differentiable again, and compilable with ``fullgraph=True``. Measured on one
+CPU thread (float32, 100 control points, 10,000 times, cubic), forward + backward costs
+about 4x (velocities), 10x (accelerations) and 18x (jerks) the pose-only forward + backward
+of the fused op.
+
 Value checks on knots, domain and times cost one device synchronisation; ``check=False``
 skips them (for ``torch.compile`` and tight loops).
 """
