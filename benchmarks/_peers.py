@@ -175,18 +175,21 @@ def pypose_bspline(ctrl: torch.Tensor, n_out: int, backward: bool):
     return fn, None, count
 
 
-def pypose_train_step(init: torch.Tensor, target: torch.Tensor, interval: float):
-    """One Adam step fitting ``pp.bspline`` control poses to ``target`` poses on its grid.
+def pypose_train_step(init: torch.Tensor, target_at, interval: float):
+    """One Adam step fitting ``pp.bspline`` control poses to target poses on its grid.
 
     The control poses are a ``pp.Parameter(pp.SE3(...))`` started at ``init``; the loss is
-    pypose's geodesic error, the mean of ``|Log(target^-1 P)|^2`` over the
-    ``(N - 3) / interval + 1`` poses ``P`` of ``pp.bspline(X, interval)``; Adam (lr 1e-3)
-    updates the 7 stored numbers per pose, as a pypose user's ``optimizer.step()`` does.
+    pypose's geodesic error, the mean of ``|Log(target^-1 P)|^2`` over the poses ``P`` of
+    ``pp.bspline(X, interval)``; Adam (lr 1e-3) updates the 7 stored numbers per pose, as a
+    pypose user's ``optimizer.step()`` does. ``target_at(count)`` returns the ``(count, 8)``
+    target poses on pypose's uniform grid of ``count`` poses (outside the timing).
     Returns ``(step, count)``.
     """
     pp = _need("pypose")
     X = pp.Parameter(pp.SE3(dq.to_pose7(init.detach()).contiguous()))
-    tgt_inv = pp.SE3(dq.to_pose7(target.detach()).contiguous()).Inv()
+    with torch.no_grad():
+        count = pp.bspline(X.detach(), interval=interval, extrapolate=False).shape[-2]
+    tgt_inv = pp.SE3(dq.to_pose7(target_at(count).detach()).contiguous()).Inv()
     opt = torch.optim.Adam([X], lr=1e-3)
 
     def step():
@@ -196,8 +199,4 @@ def pypose_train_step(init: torch.Tensor, target: torch.Tensor, interval: float)
         loss.backward()
         opt.step()
 
-    with torch.no_grad():
-        count = pp.bspline(X.detach(), interval=interval, extrapolate=False).shape[-2]
-    if count != target.shape[-2]:
-        raise ValueError(f"pypose returned {count} poses, expected {target.shape[-2]}")
     return step, count

@@ -533,14 +533,14 @@ def bench_train(b: Bench, dtype):
         b.add("train step (Adam)", dtype, T, _err(exc), 0, T)
         return
 
+    def target_at(count):
+        with torch.no_grad():
+            grid = torch.linspace(0.0, 1.0, count, dtype=dtype, device=dev)
+            return curves.bspline(truth, grid, check=False)
+
     def make_pp(m):
         k = -(-(m - 1) // (N_TRAIN_CTRL - 3))
-        count = (N_TRAIN_CTRL - 3) * k + 1
-        grid = torch.linspace(0.0, 1.0, count, dtype=dtype, device=dev)
-        with torch.no_grad():
-            tgt = curves.bspline(truth, grid, check=False)
-        fn, count = _peers.pypose_train_step(init, tgt, 1.0 / k)
-        counts["m"] = count
+        fn, counts["m"] = _peers.pypose_train_step(init, target_at, 1.0 / k)
         return fn, None
 
     counts = {}
