@@ -392,7 +392,7 @@ def plot_loss(Figure, Canvas, path, runs, trans_weight):
             the same least-squares start (step 0) with different optimizers.
         trans_weight: the loss's translation weight (rad² per mm²), for the axis label.
     """
-    fig = Figure(figsize=(12.0, 4.8), layout="constrained")
+    fig = Figure(figsize=(12.0, 6.0), layout="constrained")
     axes = fig.subplots(1, len(runs), sharey=False, squeeze=False)[0]
     for ax, (name, fits) in zip(axes, runs.items(), strict=True):
         losses = {label: torch.tensor([*h.loss, h.final_loss], dtype=torch.float64)
@@ -401,15 +401,18 @@ def plot_loss(Figure, Canvas, path, runs, trans_weight):
         for label, h, color in fits:
             excess = losses[label] - best
             excess[excess <= 0] = float("nan")  # the lowest loss itself has no place on a log axis
-            ax.semilogy(range(len(excess)), _np(excess), color=color, lw=1.8, marker=".",
-                        ms=3, label=f"{label}: {len(h.loss)} steps, final {h.final_loss:.6e}")
+            text = f"{label}:\n{len(h.loss)} steps, final {h.final_loss:.6e} rad$^2$"
+            ax.semilogy(range(len(excess)), _np(excess), color=color, lw=1.8, marker=".", ms=3,
+                        label=text)
             ax.plot([0], [float(excess[0])], "o", color=color, mfc="none", ms=7)
         ax.set_xlabel("optimizer step (step 0: the least-squares start of from_poses;\n"
                       "Levenberg-Marquardt: one Gauss-Newton iteration per step)")
-        ax.set_ylabel(r"loss $-$ lowest loss found (rad$^2$)")
-        ax.set_title(f"{CURVE_LABELS[name]}: lowest loss {best:.6e} rad$^2$", fontsize=10.5)
+        ax.set_ylabel(r"loss $-$ lowest value found (rad$^2$)")
+        ax.set_title(f"{CURVE_LABELS[name]}: lowest value {best:.6e} rad$^2$", fontsize=10.5)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8.5, loc="upper right")
+        ax.legend(fontsize=8.5, loc="upper center", bbox_to_anchor=(0.5, -0.24), frameon=False)
     fig.suptitle(r"nn.fit on the noisy knee poses: pose loss, mean of $\theta^2 + w\,|\Delta t|^2$"
-                 f" with w = {trans_weight:.3g} rad$^2$/mm$^2$")
+                 f" with w = {trans_weight:.3g} rad$^2$/mm$^2$\n(Levenberg-Marquardt minimises "
+                 "it plus a weak pull towards its least-squares start, so it may stop slightly "
+                 "above the loss's minimum)")
     return _save(fig, Canvas, path)

@@ -110,8 +110,12 @@ def _fit_curve(name: str, samples: KneeSamples, n_ctrl: int, degree: int, fit_kw
 
 
 def _optimizer_text(name: str, lr: float | None) -> str:
-    if name in ("auto", "lm"):
-        return f"{name} (Levenberg-Marquardt)" if lr is None else f"{name} (Adam, lr {lr:g})"
+    if name == "lm" or (name == "auto" and lr is None):
+        # fit's history records Levenberg-Marquardt's regularised objective
+        return (f"{name} (Levenberg-Marquardt; loss + prior term, "
+                f"prior {FIT_DEFAULTS['prior']:g})")
+    if name == "auto":
+        return f"{name} (Adam, lr {lr:g})"
     return f"{name} ({'default lr' if lr is None else f'lr {lr:g}'})"
 
 
