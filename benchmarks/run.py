@@ -93,13 +93,14 @@ class Bench:
         for _ in range(warmup):
             fn()
         self.sync()
+        clock = time.process_time if self.args.clock == "cpu" else time.perf_counter
         times = []
         for _ in range(repeats):
             self.sync()
-            t0 = time.perf_counter()
+            t0 = clock()
             fn()
             self.sync()
-            times.append(time.perf_counter() - t0)
+            times.append(clock() - t0)
         return statistics.median(times) * 1e3
 
     def copy_ms(self, nbytes: int) -> tuple[float, float]:
@@ -731,6 +732,9 @@ def main(argv=None):
     p.add_argument("--repeats", type=int, default=5, help="timed repeats (>= 5), median")
     p.add_argument("--warmup", type=int, default=1)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                   help="wall (perf_counter) or cpu (process CPU time, summed over threads: "
+                   "robust on a loaded machine; with --threads 1 it is the idle wall time)")
     p.add_argument("--only", default="", help="comma list of sections: "
                    "sclerp,slerp,bspline,derivatives,train,bezier,memory")
     p.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
@@ -744,6 +748,8 @@ def main(argv=None):
         return
     if args.repeats < 5:
         raise SystemExit("--repeats must be >= 5")
+    if args.clock == "cpu" and args.device != "cpu":
+        raise SystemExit("--clock cpu measures host CPU time: use it with --device cpu")
     torch.set_num_threads(args.threads)
     b = Bench(args)
     b.memory = {}
@@ -763,7 +769,7 @@ def main(argv=None):
         dev_name = platform.processor() or platform.machine()
     print(f"# torch_dq benchmarks  (torch {torch.__version__}, torch_dq "
           f"{getattr(torch_dq, '__version__', '?')}, device {args.device}: {dev_name}, "
-          f"threads {torch.get_num_threads()}, median of {args.repeats} after "
+          f"threads {torch.get_num_threads()}, {args.clock} clock, median of {args.repeats} after "
           f"{args.warmup} warm-up)")
     peers = {k: _peers.version(k) for k in ("pypose", "pytransform3d", "roma", "scipy")}
     print("# peers: " + ", ".join(f"{k} {v or 'not installed'}" for k, v in peers.items()))
@@ -809,7 +815,7 @@ def main(argv=None):
           "read and the input gradients written); 1 = at the copy limit.")
     if args.json:
         meta = {"torch": torch.__version__, "device": args.device, "device_name": dev_name,
-                "threads": torch.get_num_threads(), "repeats": args.repeats,
+                "threads": torch.get_num_threads(), "clock": args.clock, "repeats": args.repeats,
                 "warmup": args.warmup, "sizes": b.sizes, "peers": peers,
                 "peak_hbm_Bps": b.peak_bw, "quick": args.quick, "elapsed_s": elapsed,
                 "python": platform.python_version()}
