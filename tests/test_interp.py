@@ -111,6 +111,19 @@ def test_sclerp_equals_matrix_power(gen):
         assert np.abs(matrices(dq.sclerp(a, b, t)) - ref).max() < 5e-13
 
 
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("t", [-2.0, -0.5, 1.5, 2.0, 3.0])
+def test_sclerp_extrapolates_across_the_series_switch(gen, dtype, t):
+    """Relative rotations swept through the series/closed-form switch of the weights, where
+    the switch point moves with ``s^2`` when extrapolating (a regression: a guard that did
+    not move with it gave non-unit results, e.g. 0.1 rad at t = 1.5)."""
+    for theta in np.geomspace(1e-4, 1.0, 60):
+        a, b, exact = screw_pairs(gen, 8, float(theta), d=1.0)
+        out = dq.sclerp(a.to(dtype), b.to(dtype), t).double()
+        tol = 1e-13 if dtype == torch.float64 else 3e-6 * abs(t)
+        assert up_to_sign(out, exact(t)) < tol, theta
+
+
 @pytest.mark.parametrize("theta", [2.0, 1e-2, 1e-4, 1e-7, 1e-10, 0.0])
 @pytest.mark.parametrize("t", T_VALUES)
 def test_sclerp_exact_on_screw_families(gen, theta, t):

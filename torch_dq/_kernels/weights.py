@@ -74,10 +74,12 @@ class Angle(NamedTuple):
 
 def angle(c: Tensor) -> Angle:
     r""":class:`Angle` of cosines ``c``, with ``c`` replaced by 0 (``theta = pi / 2``) where
-    :math:`1 - c` is below the series threshold: every element whose closed forms
-    :func:`screw_weights` may discard then keeps them (and their derivatives) finite."""
-    near = (1.0 - c < _series_threshold(c.dtype)).to(c.dtype)
-    theta = torch.acos(c * (1.0 - near))  # where(near, 0, c) without torch.where
+    :math:`c \ge 1` (equal rotations, or rounding above 1), the only cosines whose closed
+    forms are not finite; :func:`screw_weights` takes the series branch there for every
+    ``t``. The guard cannot be wider: with extrapolation (:math:`|s| > 1`) the closed forms
+    are selected down to :math:`1 - c` = threshold / :math:`s^2`, and need the true angle."""
+    at_one = (c >= 1.0).to(c.dtype)
+    theta = torch.acos(c * (1.0 - at_one))  # where(c >= 1, 0, c) without torch.where
     return Angle(theta, torch.sin(theta), torch.cos(theta))
 
 
