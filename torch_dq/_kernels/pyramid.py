@@ -99,6 +99,7 @@ class _Pyramid(torch.autograd.Function):
         grad_rows = torch.zeros_like(rows)
         pair_c = rows.new_zeros(rows.shape[1] - 1)  # level-1 frame sensitivities per pair
         pair_d = torch.zeros_like(pair_c)
+        used = torch.zeros_like(pair_c, dtype=torch.bool)  # pairs inside one curve's span
         grad_alphas = []
         for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
             points, frames, ws = _levels(rows, table, first[i], alphas[:, i], m, True, need_alpha)
@@ -112,6 +113,7 @@ class _Pyramid(torch.autograd.Function):
                     pair = (first[i] + torch.arange(m - 1, device=first.device)[:, None])
                     pair_c = pair_c.index_add(0, pair.reshape(-1), ct.c.reshape(-1))
                     pair_d = pair_d.index_add(0, pair.reshape(-1), ct.delta.reshape(-1))
+                    used = used.index_fill(0, pair.reshape(-1), True)
                 # d_i^(j-1) feeds d_(i-1)^(j) as b and d_i^(j) as a
                 G = torch.cat((ct.a[:1], ct.a[1:] + ct.b[:-1], ct.b[-1:]))
             level0 = first[i] + torch.arange(m, device=first.device)[:, None]
@@ -121,11 +123,14 @@ class _Pyramid(torch.autograd.Function):
                 g_alpha.reverse()  # level order
                 grad_alphas.append(sum(g.sum(0, keepdim=True) for g in g_alpha)
                                    if alphas.shape[0] == 1 else torch.cat(g_alpha))
-        # Level 1's frame terms, once per pair of control points (i, i + 1).
-        grad_a, grad_b = torch.zeros_like(rows[:, 1:]), torch.zeros_like(rows[:, 1:])
-        add_frame_terms(grad_a, grad_b, rows[:, :-1], rows[:, 1:], pair_c, pair_d)
-        grad_rows = grad_rows + torch.cat((grad_a, grad_a[:, :1] * 0), 1) \
-            + torch.cat((grad_b[:, :1] * 0, grad_b), 1)
+        # Level 1's frame terms, once per pair of control points (i, i + 1). Pairs that no
+        # output reads (e.g. the last point of one curve and the first of the next) are
+        # zeroed, not multiplied by a zero sensitivity: a NaN in one curve stays there.
+        A, B = (torch.where(used, x, 0.0) for x in (rows[:, :-1], rows[:, 1:]))
+        grad_a, grad_b = torch.zeros_like(A), torch.zeros_like(B)
+        add_frame_terms(grad_a, grad_b, A, B, pair_c, pair_d)
+        zero = torch.zeros_like(grad_a[:, :1])
+        grad_rows = grad_rows + torch.cat((grad_a, zero), 1) + torch.cat((zero, grad_b), 1)
         grad_alpha = torch.cat(grad_alphas, -1) if need_alpha else None
         return from_rows(grad_rows), None, grad_alpha, None
 
