@@ -40,6 +40,12 @@ def from_rows(x: Tensor) -> Tensor:
     return x.unsqueeze(1).permute(2, 0, 1).contiguous().squeeze(-1)
 
 
+def rows_into(out: Tensor, x: Tensor) -> None:
+    """:func:`from_rows` written into ``out`` (``(N, k)``, e.g. a chunk's slice of the
+    result): saves the concatenation of the chunks, a full extra pass over the output."""
+    out.unsqueeze(1).copy_(x.unsqueeze(1).permute(2, 1, 0))
+
+
 def coef(x: Tensor) -> Tensor:
     """An ``(..., N)`` coefficient broadcast over the component axis of ``(..., k, N)`` rows."""
     return x.unsqueeze(-2)

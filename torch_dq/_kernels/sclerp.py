@@ -18,7 +18,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .layout import chunks, coef, from_rows, to_rows
+from .layout import chunks, coef, rows_into, to_rows
 from .weights import Angle, Weights, WeightSlopes, screw_weights
 
 
@@ -139,9 +139,10 @@ class _Sclerp(torch.autograd.Function):
     @staticmethod
     def forward(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
         a2, b2, t1 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1)
-        parts = [from_rows(forward_rows(to_rows(a2[i]), to_rows(b2[i]), t1[i], shortest))
-                 for i in chunks(t1.shape[0])]
-        return torch.cat(parts).view(a.shape)
+        out = torch.empty_like(a2)
+        for i in chunks(t1.shape[0]):
+            rows_into(out[i], forward_rows(to_rows(a2[i]), to_rows(b2[i]), t1[i], shortest))
+        return out.view(a.shape)
 
     @staticmethod
     def setup_context(ctx, inputs, output):
@@ -154,17 +155,19 @@ class _Sclerp(torch.autograd.Function):
         a, b, t = ctx.saved_tensors
         need_t = ctx.needs_input_grad[2]
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
-        ga, gb, gt = [], [], []
+        ga, gb = torch.empty_like(a2), torch.empty_like(b2)
+        gt = torch.empty_like(t1) if need_t else None
         for i in chunks(t1.shape[0]):
             A, B = to_rows(a2[i]), to_rows(b2[i])
             fr = frame(A, B, ctx.shortest)
             w = weights(fr, t1[i], derivatives=True, time_slopes=need_t)
             ct = vjp_rows(A, B, fr, w, to_rows(g2[i]))
-            ga.append(from_rows(ct.a))
-            gb.append(from_rows(ct.b))
-            gt.append(ct.t)
-        grad_t = torch.cat(gt).view(t.shape) if need_t else None
-        return torch.cat(ga).view(a.shape), torch.cat(gb).view(b.shape), grad_t, None
+            rows_into(ga[i], ct.a)
+            rows_into(gb[i], ct.b)
+            if need_t:
+                gt[i] = ct.t
+        grad_t = gt.view(t.shape) if need_t else None
+        return ga.view(a.shape), gb.view(b.shape), grad_t, None
 
 
 def sclerp(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
