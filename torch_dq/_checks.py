@@ -9,6 +9,7 @@ These checks only read shapes and dtypes: they never synchronise with a device.
 from __future__ import annotations
 
 import numbers
+from typing import NoReturn
 
 import torch
 from torch import Tensor
@@ -33,7 +34,7 @@ def shape_str(shape) -> str:
     return "(" + ", ".join(str(d) for d in dims) + ("," if len(dims) == 1 else "") + ")"
 
 
-def fail(fn: str, message: str, kind: type[Exception] = ValueError):
+def fail(fn: str, message: str, kind: type[Exception] = ValueError) -> NoReturn:
     """Raise ``kind`` with the message prefixed by the function name."""
     raise kind(f"{fn}: {message}")
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numbers
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
@@ -129,7 +129,9 @@ def kinematics(x: Tensor, dx: Tensor, ddx: Tensor | None = None,
         rc = qconj(x[..., :4])
         out = tuple(None if v is None else qrotate(rc, v) for v in out)
     batch = torch.broadcast_shapes(*(v.shape[:-1] for v in (x, dx, ddx) if v is not None))
-    return Kinematics(*(None if v is None else v.expand(*batch, 3).to(dtype) for v in out))
+    omega, v, alpha, a = (None if u is None else u.expand(*batch, 3).to(dtype) for u in out)
+    assert omega is not None and v is not None  # velocities are always computed
+    return Kinematics(omega, v, alpha, a)
 
 
 def imu(x: Tensor, dx: Tensor, ddx: Tensor,
@@ -224,7 +226,8 @@ def velocity(fn: Callable[[Tensor], Tensor], t: Tensor) -> tuple[Tensor, Tensor]
     if not callable(fn):
         _checks.fail(name, f"expected a callable for fn, got {type(fn).__name__}", TypeError)
     _checks.tensor(name, "t", t)
-    return torch.func.jvp(fn, (t,), (torch.ones_like(t),))
+    # jvp's return type covers has_aux=True (a triple); here it is (fn(t), d fn / dt).
+    return cast("tuple[Tensor, Tensor]", torch.func.jvp(fn, (t,), (torch.ones_like(t),)))
 
 
 def twists(x: Tensor, dx: Tensor, frame: str = "body") -> Tensor:

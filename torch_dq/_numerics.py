@@ -152,7 +152,7 @@ def even(name: str, x2: Tensor) -> Tensor:
     coeffs, exact = _EVEN[name]
     switch = min(1.0, 0.25 * (eps(x2.dtype) / abs(coeffs[-1])) ** (1.0 / _EVEN_TERMS))
     small = x2 < switch
-    series = coeffs[_EVEN_TERMS - 1]
+    series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
     return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))

@@ -29,6 +29,7 @@ derivatives in :math:`y` that the jets need (:func:`_series`).
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 from torch import Tensor
@@ -55,7 +56,9 @@ def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
 def mul(a: Tensor, b: Tensor) -> Tensor:
     r"""Cauchy product :math:`(ab)_k = \sum_{i + j = k} a_i b_j` of two jets (batch dims
     after the first broadcast)."""
-    return torch.stack([sum(a[i] * b[k - i] for i in range(k + 1)) for k in range(a.shape[0])])
+    # ``sum`` of tensors is a tensor (typeshed types it ``Tensor | Literal[0]``).
+    return torch.stack([cast(Tensor, sum(a[i] * b[k - i] for i in range(k + 1)))
+                        for k in range(a.shape[0])])
 
 
 def div(a: Tensor, b: Tensor) -> Tensor:
@@ -87,8 +90,8 @@ def sin_cos(phi: Tensor) -> tuple[Tensor, Tensor]:
     :math:`c_k = -\frac1k \sum_{j=1}^k j \varphi_j s_{k-j}`."""
     s, c = [torch.sin(phi[0])], [torch.cos(phi[0])]
     for k in range(1, phi.shape[0]):
-        s.append(sum(j * phi[j] * c[k - j] for j in range(1, k + 1)) / k)
-        c.append(-sum(j * phi[j] * s[k - j] for j in range(1, k + 1)) / k)
+        s.append(cast(Tensor, sum(j * phi[j] * c[k - j] for j in range(1, k + 1))) / k)
+        c.append(-cast(Tensor, sum(j * phi[j] * s[k - j] for j in range(1, k + 1))) / k)
     return torch.stack(s), torch.stack(c)
 
 
@@ -128,13 +131,14 @@ def _weights(c: Tensor, s: Tensor) -> tuple[Tensor, Tensor]:
     # (1 + u_3 / (2 7) (...))), a_1 = s (1 - s^2) / 3: one jet product per term.
     s2 = mul(s, s)
     s2y = mul(s2, y)
-    u = [None] + [k * k * y - s2y for k in range(1, terms)]
+    u = {k: k * k * y - s2y for k in range(1, terms)}
     nested = []
     for j in (0, 1):
-        out = None
+        out: Tensor | None = None
         for k in range(terms - 1, j, -1):
             term = u[k] if out is None else mul(u[k], out)
             out = _plus(term / ((k - j) * (2 * k + 1)), 1.0)
+        assert out is not None  # terms >= 6: the loop ran
         nested.append(out)
     F_series = mul(s, nested[0])
     G_series = mul(mul(s, _rsub(1.0, s2)) / 3.0, nested[1])

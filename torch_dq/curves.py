@@ -92,7 +92,7 @@ def _check_degree(fn: str, degree) -> int:
 
 def _check_order(fn: str, order) -> int:
     if (isinstance(order, bool) or not isinstance(order, numbers.Integral)
-            or not 0 <= order <= _MAX_ORDER):
+            or not 0 <= int(order) <= _MAX_ORDER):
         _checks.fail(fn, f"order must be an int in 0..{_MAX_ORDER}, got {order!r}")
     return int(order)
 
@@ -131,7 +131,7 @@ def _fmt(x: float, dtype: torch.dtype) -> str:
     return f"{x:.{15 if dtype == torch.float64 else 7}g}"
 
 
-def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor, Tensor] | tuple[float, float]:
+def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor | float, Tensor | float]:
     """``domain`` as two Python floats (checked here) or two 0-d tensors (checked with t)."""
     msg = f"expected domain to be (t0, t1), two real numbers or a (2,) tensor, got {domain!r}"
     if isinstance(domain, Tensor):
@@ -145,7 +145,7 @@ def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor, Tensor] | tuple[floa
         t0, t1 = domain
     except (TypeError, ValueError):
         _checks.fail(fn, msg)
-    ends = []
+    ends: list[Tensor | float] = []
     for e in (t0, t1):
         if isinstance(e, Tensor) and e.dim() == 0 and e.is_floating_point():
             _same_device(fn, ctrl, "domain", e)

@@ -367,6 +367,7 @@ def _div(a, b: Tensor | None, c: Tensor, d: Tensor | None) -> Dual:
     c_safe = torch.where(singular, torch.ones_like(c), c)
     # Regular elements: (b - (a / c) d) / c, torch's own forward-mode formula for a / c.
     if d is None:
+        assert b is not None  # b and d are not both None (returned above)
         regular, blow_up = b / c_safe, _blow_up(b, 1.0 / c.detach())
     else:
         num = -(a / c_safe) * d if b is None else b - (a / c_safe) * d

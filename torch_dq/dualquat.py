@@ -749,7 +749,8 @@ def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     sigma = torch.where(c < 0, -1.0, 1.0).to(c.dtype) if shortest else torch.ones_like(c)
     R, S = sigma[..., None] * R, sigma[..., None] * S  # b's representative nearest to a
     c, delta = sigma * c, (P * S).sum(-1) + (R * Q).sum(-1)  # eq. 1: c + eps delta
-    (F0, F1), (G0, G1) = (w[..., None] for w in screw_weights(c, t, derivatives=False))
+    weights = screw_weights(c, t, derivatives=False)
+    (F0, F1), (G0, G1) = weights.F[..., None], weights.G[..., None]
     real = F0 * P + F1 * R
     dual = F0 * Q + F1 * S - delta[..., None] * (G0 * P + G1 * R)
     return torch.cat((real, dual), -1)

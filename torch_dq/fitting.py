@@ -50,6 +50,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -307,7 +308,7 @@ _DEFAULT_LR = {"adam": 1e-2, "sgd": 1e-2, "lbfgs": 1.0}
 _NAMES = "'auto', 'lm', 'adam', 'sgd', 'lbfgs', a torch.optim optimizer or a callable(params)"
 
 
-def _make_optimizer(fn: str, optimizer, params: list, lr):
+def _make_optimizer(fn: str, optimizer, params: list, lr: float | None):
     if isinstance(optimizer, str):
         name = optimizer.lower()
         lr = _DEFAULT_LR[name] if lr is None else lr
@@ -353,7 +354,7 @@ def _pose_loss_weights(loss) -> tuple[float, float] | None:
         wr = loss.keywords.get("rot_weight", 1.0)
         wt = loss.keywords.get("trans_weight", 1.0)
         if all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-               and v >= 0 for v in (wr, wt)):
+               and float(v) >= 0 for v in (wr, wt)):
             return float(wr), float(wt)
     return None
 
@@ -420,7 +421,8 @@ def _solve_block_banded(band: Tensor, rhs: Tensor) -> Tensor | None:
         rhs = torch.cat((rhs, rhs.new_zeros(*batch, pad, s)), dim=-2)
     D, E = _banded_to_block_tridiagonal(band, g)
     b = rhs.reshape(*batch, G, g * s, 1)
-    chol, y = [], []
+    chol: list[Tensor] = []
+    y: list[Tensor] = []
     for j in range(G):
         S, yj = D[..., j, :, :], b[..., j, :, :]
         if j:
@@ -432,11 +434,10 @@ def _solve_block_banded(band: Tensor, rhs: Tensor) -> Tensor | None:
             return None
         chol.append(L)
         y.append(yj)
-    x = [None] * G
-    x[G - 1] = torch.cholesky_solve(y[G - 1], chol[G - 1])
+    x = {G - 1: torch.cholesky_solve(y[G - 1], chol[G - 1])}
     for j in range(G - 2, -1, -1):
         x[j] = torch.cholesky_solve(y[j] - E[..., j + 1, :, :].mT @ x[j + 1], chol[j])
-    return torch.cat(x, dim=-2).reshape(*batch, G * g, s)[..., :n, :]
+    return torch.cat([x[j] for j in range(G)], dim=-2).reshape(*batch, G * g, s)[..., :n, :]
 
 
 def _jacobian(residual: Callable[[Tensor], Tensor], ctrl: Tensor, first: Tensor, w: int,
@@ -719,7 +720,7 @@ def _check_count(fn: str, name: str, value) -> int:
 def _torch_loop(module, t: Tensor, target: Tensor, opt, params: list, steps: int, tol: float,
                 window: int, loss, history: FitHistory, bar) -> None:
     """``optimizer.step(closure)`` loop with early stopping; restores the best iterate."""
-    best = {"loss": math.inf, "params": None, "step": 0}
+    best: dict[str, Any] = {"loss": math.inf, "params": None, "step": 0}
 
     def closure():
         opt.zero_grad(set_to_none=True)

@@ -189,7 +189,7 @@ def _floats(path, lines: list[int], rows: list[list[str]], names: Sequence[str])
     return values
 
 
-def _first_bad(path, lines: list[int], bad: np.ndarray, message) -> None:
+def _first_bad(path, lines: list[int], bad: np.ndarray | np.bool_, message) -> None:
     """Raise for the first True of ``bad`` (per row), saying how many rows are bad."""
     where = np.flatnonzero(bad)
     if where.size:

@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -53,6 +54,23 @@ from torch.nn.utils import parametrize
 
 from . import _checks, curves, dualquat, fitting, quat
 from .fitting import FitHistory, fit
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Protocol
+
+    from typing_extensions import Self
+
+    class _CtrlParametrization(Protocol):
+        """``parametrizations.ctrl`` as the curve layers use it (``nn.Module.__getattr__``
+        types it ``Tensor | Module``)."""
+
+        original: Tensor
+
+        def __getitem__(self, index: int) -> Callable[[Tensor], Tensor]: ...
+
+    class _Parametrizations(Protocol):
+        ctrl: _CtrlParametrization
 
 __all__ = ["BSpline", "Bezier", "FitHistory", "UnitDualQuaternion", "fit"]
 
@@ -105,7 +123,7 @@ def _time_pair(fn: str, name: str, value) -> tuple[float, float]:
         pair = ()
     if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or not pair[0] < pair[1]:
         _checks.fail(fn, f"{name} must be two finite increasing times (t0, t1), got {value!r}")
-    return pair
+    return pair[0], pair[1]
 
 
 def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
@@ -143,6 +161,30 @@ class _Curve(torch.nn.Module):
     ``_curve_derivatives``, ``basis`` and ``_from_dq``."""
 
     _name = "nn._Curve"
+
+    if TYPE_CHECKING:  # attributes set by _setup and parametrize, hooks of the subclasses
+        ctrl: Tensor
+        parametrizations: _Parametrizations
+        check: bool
+        _origin: float
+
+        def _relative_domain(self) -> tuple[Tensor | float, Tensor | float]: ...
+
+        def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor: ...
+
+        def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int,
+                               ) -> tuple[Tensor, ...]: ...
+
+        def basis(self, t: Tensor) -> tuple[Tensor, Tensor]: ...
+
+        def _greville(self) -> Tensor: ...
+
+        def _convert_01(self, state_dict: dict[str, Any], prefix: str, start: float,
+                        end: float) -> None: ...
+
+        @classmethod
+        def _from_dq(cls, fn: str, x: Tensor, times: Tensor, *args: Any,
+                     **kwargs: Any) -> Self: ...
 
     def _setup(self, ctrl: Tensor, min_points: int, check: bool) -> None:
         fn = self._name
@@ -374,7 +416,7 @@ class _Curve(torch.nn.Module):
                 f"{end!r}), dtype={raw.dtype}")
 
     # -- constructors from poses
-    def _fill(self, fn: str, x: Tensor, t64: Tensor) -> _Curve:
+    def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
         """Set the control points from the local least-squares start
         (:func:`torch_dq.fitting.least_squares_start`) on poses ``x`` at float64 times."""
         n, N = self.n_ctrl, x.shape[-2]
@@ -392,7 +434,8 @@ class _Curve(torch.nn.Module):
         return self
 
     @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor, **kwargs):
+    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
+                   **kwargs: Any) -> Self:
         r"""Curve over ``[times[0], times[-1]]`` fit to timestamped rigid poses.
 
         The time domain is placed over the samples in the caller's units, so
@@ -428,7 +471,7 @@ class _Curve(torch.nn.Module):
         return cls._from_dq(fn, x, times, **kwargs)
 
     @classmethod
-    def from_matrices(cls, T: Tensor, times: Tensor, **kwargs):
+    def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:
         """:meth:`from_poses` with ``(..., N, 4, 4)`` homogeneous matrices ``T``.
 
         Keywords as for :meth:`from_poses` (``n_ctrl``, ``degree`` for a B-spline, ``check``).
@@ -441,7 +484,7 @@ class _Curve(torch.nn.Module):
         return cls._from_dq(fn, dualquat.from_matrix(T), times, **kwargs)
 
     @classmethod
-    def from_dualquats(cls, x: Tensor, times: Tensor, **kwargs):
+    def from_dualquats(cls, x: Tensor, times: Tensor, **kwargs: Any) -> Self:
         """:meth:`from_poses` with ``(..., N, 8)`` unit dual quaternions ``x`` (any signs)."""
         fn = f"{cls._name}.from_dualquats"
         _checks.tensor(fn, "x", x, 8)
@@ -500,7 +543,7 @@ class Bezier(_Curve):
         super().set_extra_state(state)
         length = state.get("length")
         if isinstance(length, bool) or not isinstance(length, numbers.Real) or not (
-                math.isfinite(length) and length > 0):
+                math.isfinite(length) and float(length) > 0):
             _checks.fail(f"{self._name}.load_state_dict", f"expected a finite length > 0 in "
                                                           f"the extra state, got {state!r}")
         self._length = float(length)
@@ -548,15 +591,17 @@ class Bezier(_Curve):
         return torch.linspace(0.0, self._length, self.n_ctrl, dtype=torch.float64)
 
     @classmethod
-    def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4, check: bool = True):
+    def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4,
+                 check: bool = True) -> Self:
         n = _check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
         t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
         module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
                      domain=(float(t64[0]), float(t64[-1])), check=check)
         return module._fill(fn, x, t64)
 
+    # The override spells out the keywords that _Curve.from_poses takes as **kwargs.
     @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
+    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,  # type: ignore[override]
                    n_ctrl: int = 4, check: bool = True) -> Bezier:
         """Bézier curve with ``n_ctrl`` control points fit to poses over
         ``[times[0], times[-1]]`` (Bernstein basis; see :meth:`_Curve.from_poses`).
@@ -612,6 +657,9 @@ class BSpline(_Curve):
     """
 
     _name = "nn.BSpline"
+
+    if TYPE_CHECKING:  # a buffer (register_buffer)
+        _knots: Tensor
 
     def __init__(self, ctrl: Tensor, degree: int = 3, knots: Tensor | None = None, *,
                  time_range=None, check: bool = True):
@@ -705,7 +753,7 @@ class BSpline(_Curve):
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 8, degree: int = 3,
-                 check: bool = True):
+                 check: bool = True) -> Self:
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
         t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
@@ -715,8 +763,9 @@ class BSpline(_Curve):
                      degree=degree, knots=knots, check=check)
         return module._fill(fn, x, t64)
 
+    # The override spells out the keywords that _Curve.from_poses takes as **kwargs.
     @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
+    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,  # type: ignore[override]
                    n_ctrl: int = 8, degree: int = 3, check: bool = True) -> BSpline:
         """B-spline with ``n_ctrl`` control points fit to poses (see
         :meth:`_Curve.from_poses`), on clamped uniform knots over ``[times[0], times[-1]]``.

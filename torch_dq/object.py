@@ -64,6 +64,7 @@ class DualQuaternion:
     """
 
     __slots__ = ("_tensor",)
+    _tensor: Tensor  # the (..., 8) tensor, set once by __init__ or _make
     __iter__ = None  # indexing is over the batch; no implicit iteration protocol
 
     def __init__(self, tensor: Tensor):
@@ -343,6 +344,6 @@ def _vec(v: Tensor, eps: float) -> str:
 _pytree.register_pytree_node(
     DualQuaternion,
     lambda x: ([x.tensor], None),
-    lambda parts, _: DualQuaternion._make(parts[0]),
+    lambda parts, _: DualQuaternion._make(*parts),  # parts: the one child, [x.tensor]
     serialized_type_name="torch_dq.object.DualQuaternion",
 )

@@ -575,10 +575,11 @@ def from_euler(angles: Tensor, seq: str) -> Tensor:
     axes, extrinsic = _parse_seq(fn, seq)
     half = lift(angles)[..., None] / 2.0
     basis = torch.eye(3, dtype=half.dtype, device=half.device)
-    q = None
+    q: Tensor | None = None
     for n, ax in enumerate(axes):
         e = torch.cat((torch.cos(half[..., n, :]), torch.sin(half[..., n, :]) * basis[ax]), -1)
         q = e if q is None else (qmul(e, q) if extrinsic else qmul(q, e))
+    assert q is not None  # _parse_seq gives three axes
     return q.to(angles.dtype)
 
 
@@ -629,7 +630,7 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
     half_diff = torch.atan2(torch.where(lock0, 0.0, d), torch.where(lock0, 1.0, c))
     # Step 3: in gimbal lock angle 0 takes the whole rotation and angle 2 is zero.
     locked = torch.where(lock0, 2.0 * half_sum, (-2.0 if extrinsic else 2.0) * half_diff)
-    out = [None, None, None]
+    out: dict[int, Tensor] = {}
     first, third = (0, 2) if extrinsic else (2, 0)
     out[first] = torch.where(free, half_sum - half_diff, locked if first == 0 else 0.0)
     out[third] = torch.where(free, half_sum + half_diff, locked if third == 0 else 0.0)
@@ -637,9 +638,9 @@ def to_euler(q: Tensor, seq: str) -> Tensor:
     if not symmetric:
         out[third] = sign * out[third]
         out[1] = theta - math.pi / 2
-    out = torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1)
+    angles = torch.stack((_wrap(out[0]), out[1], _wrap(out[2])), dim=-1)
     # Non-finite q: NaN, not the finite limits of the atan2s.
-    return _numerics.nan_unless(torch.isfinite(ql).all(-1, keepdim=True), out).to(q.dtype)
+    return _numerics.nan_unless(torch.isfinite(ql).all(-1, keepdim=True), angles).to(q.dtype)
 
 
 def from_xyzw(q: Tensor) -> Tensor:

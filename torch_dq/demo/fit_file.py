@@ -41,6 +41,7 @@ import math
 import os
 import time
 import warnings
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -160,7 +161,7 @@ def run_fit(path, *, format: str = "auto", times=None, duplicates: str = "error"
     say(f"B-spline: degree {degree}, {n_ctrl} control points (a knot every {knot_spacing:g} s), "
         f"fitted to {len(train)} poses (1 in {holdout}), {len(held_idx)} held out")
 
-    dev = dict(dtype=dtype)
+    dev: dict[str, Any] = dict(dtype=dtype)
     poses = traj.poses()
     start = time.perf_counter()
     spline = dqnn.BSpline.from_poses(train.rotations.to(**dev), train.translations.to(**dev),

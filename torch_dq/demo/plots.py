@@ -14,6 +14,8 @@ the figure is saved with a tight bounding box so that no label is clipped.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import Tensor
 
@@ -23,10 +25,12 @@ __all__ = ["import_matplotlib", "plot_axode", "plot_components", "plot_frames", 
 
 CURVE_LABELS = {"bspline": "B-spline", "bezier": "Bézier"}
 # Bézier: a wide pale band; B-spline: a thin dashed line on top, so both show where they meet.
-_LINE = {"bezier": {"ls": "-", "lw": 3.2, "alpha": 0.4, "solid_capstyle": "butt"},
-         "bspline": {"ls": (0, (4, 2)), "lw": 1.3, "alpha": 1.0}}
-_CTRL = {"bezier": {"marker": "o", "ms": 7, "mfc": "none", "mew": 1.4},
-         "bspline": {"marker": "s", "ms": 5, "mfc": "white", "mew": 1.4}}
+_LINE: dict[str, dict[str, Any]] = {
+    "bezier": {"ls": "-", "lw": 3.2, "alpha": 0.4, "solid_capstyle": "butt"},
+    "bspline": {"ls": (0, (4, 2)), "lw": 1.3, "alpha": 1.0}}
+_CTRL: dict[str, dict[str, Any]] = {
+    "bezier": {"marker": "o", "ms": 7, "mfc": "none", "mew": 1.4},
+    "bspline": {"marker": "s", "ms": 5, "mfc": "white", "mew": 1.4}}
 _CURVE_COLOR = {"bezier": "tab:blue", "bspline": "tab:red"}
 _DPI = 120
 

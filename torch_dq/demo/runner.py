@@ -39,6 +39,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -161,8 +162,9 @@ def _table(summary: dict) -> str:
 
 
 def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
-             steps: int = FIT_DEFAULTS["steps"], seed: int = 0, device: str = "cpu",
-             dtype: torch.dtype = torch.float32, n_samples: int = 100,
+             steps: int = FIT_DEFAULTS["steps"], seed: int = 0,
+             device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32,
+             n_samples: int = 100,
              rot_noise_deg: float = 1.0, trans_noise_mm: float = 1.0,
              optimizer: str = FIT_DEFAULTS["optimizer"], lr: float | None = FIT_DEFAULTS["lr"],
              plots: bool = True, verbose: bool = True, stream=None) -> dict:
@@ -218,7 +220,7 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
             for name in ("bspline", "bezier")]
     noise_errors = _errors(samples.poses, samples.truth)
 
-    summary = {
+    summary: dict[str, Any] = {
         "description": "torch_dq demo: dual-quaternion curves fitted to a synthetic knee "
                        "flexion (tibia relative to femur, mm); errors against the noise-free "
                        "motion at held-out times",
