@@ -19,7 +19,7 @@ Every formula is invariant under :math:`(x, \dot x, \ddot x) \to -(x, \dot x, \d
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple, cast
 
 import torch
@@ -135,7 +135,7 @@ def kinematics(x: Tensor, dx: Tensor, ddx: Tensor | None = None,
 
 
 def imu(x: Tensor, dx: Tensor, ddx: Tensor,
-        gravity=(0.0, 0.0, -9.81)) -> tuple[Tensor, Tensor]:
+        gravity: Tensor | Sequence[float] = (0.0, 0.0, -9.81)) -> tuple[Tensor, Tensor]:
     r"""What an ideal IMU rigidly attached at the body's origin reads along a motion.
 
     The gyroscope measures the angular velocity in body axes, :math:`R^T\omega`; the

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -206,7 +207,8 @@ def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | No
 # ----------------------------------------------------------------------------- knots
 
 def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = None,
-                          device=None, domain=(0.0, 1.0)) -> Tensor:
+                          device: torch.device | str | None = None,
+                          domain: Sequence[float] = (0.0, 1.0)) -> Tensor:
     r"""Clamped uniform knot vector on ``domain = (t0, t1)`` for ``n_ctrl`` control points.
 
     ``degree + 1`` copies of ``t0``, the ``n_ctrl - degree - 1`` interior knots
@@ -394,7 +396,8 @@ def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool):
     return batch, ctrl.to(dtype), s, slope
 
 
-def bezier(ctrl: Tensor, t: Tensor, domain=(0.0, 1.0), check: bool = True) -> Tensor:
+def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = (0.0, 1.0),
+           check: bool = True) -> Tensor:
     r"""Bézier curve of unit dual quaternions by De Casteljau's algorithm (paper 4.1).
 
     With :math:`q_i^{(0)} = q_i` (the control points) and the local parameter
@@ -444,7 +447,8 @@ def bezier(ctrl: Tensor, t: Tensor, domain=(0.0, 1.0), check: bool = True) -> Te
     return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
 
 
-def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, domain=(0.0, 1.0),
+def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
+                       domain: Sequence[float | Tensor] | Tensor = (0.0, 1.0),
                        check: bool = True) -> tuple[Tensor, ...]:
     r"""A Bézier curve (:func:`bezier`) and its exact time derivatives up to ``order``.
 

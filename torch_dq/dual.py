@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import torch
 import torch.utils._pytree as _pytree
@@ -175,14 +176,14 @@ class Dual:
         yield self.real
         yield self.dual
 
-    def __getitem__(self, index) -> Dual:
+    def __getitem__(self, index: Any) -> Dual:
         """Index the batch of both parts: ``Dual(x.real[index], x.dual[index])``."""
         return Dual._make(self.real[index], self.dual[index])
 
     def __repr__(self) -> str:
         return f"Dual(real={self.real!r}, dual={self.dual!r})"
 
-    def to(self, *args, **kwargs) -> Dual:
+    def to(self, *args: Any, **kwargs: Any) -> Dual:
         """Both parts through ``Tensor.to`` (dtype and/or device); must stay floating."""
         return Dual(self.real.to(*args, **kwargs), self.dual.to(*args, **kwargs))
 
@@ -199,7 +200,7 @@ class Dual:
     def __neg__(self) -> Dual:
         return Dual._make(-self.real, -self.dual)
 
-    def __add__(self, other) -> Dual:
+    def __add__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__add__", self, other)
         if o is NotImplemented:
             return o
@@ -208,21 +209,21 @@ class Dual:
 
     __radd__ = __add__
 
-    def __sub__(self, other) -> Dual:
+    def __sub__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__sub__", self, other)
         if o is NotImplemented:
             return o
         c, d = o
         return _new(self.real - c, self.dual if d is None else self.dual - d)
 
-    def __rsub__(self, other) -> Dual:
+    def __rsub__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__rsub__", self, other)
         if o is NotImplemented:
             return o
         c, d = o
         return _new(c - self.real, -self.dual if d is None else d - self.dual)
 
-    def __mul__(self, other) -> Dual:
+    def __mul__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__mul__", self, other)
         if o is NotImplemented:
             return o
@@ -230,14 +231,14 @@ class Dual:
 
     __rmul__ = __mul__
 
-    def __truediv__(self, other) -> Dual:
+    def __truediv__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__truediv__", self, other)
         if o is NotImplemented:
             return o
         c, d = o
         return _div(self.real, self.dual, _as_like(c, self.real), d)
 
-    def __rtruediv__(self, other) -> Dual:
+    def __rtruediv__(self, other: Dual | Tensor | float) -> Dual:
         o = _operand("Dual.__rtruediv__", self, other)
         if o is NotImplemented:
             return o
@@ -383,7 +384,7 @@ def _div(a, b: Tensor | None, c: Tensor, d: Tensor | None) -> Dual:
 # -- public functions ----------------------------------------------------------------------
 
 
-def mul(a, b) -> Dual:
+def mul(a: Dual | Tensor | float, b: Dual | Tensor | float) -> Dual:
     r"""Product :math:`(a_r + \epsilon a_d)(b_r + \epsilon b_d)
     = a_r b_r + \epsilon (a_r b_d + a_d b_r)`.
 
@@ -403,7 +404,7 @@ def mul(a, b) -> Dual:
     return _mul(*_parts("dual.mul", ("a", "b"), a, b))
 
 
-def div(a, b) -> Dual:
+def div(a: Dual | Tensor | float, b: Dual | Tensor | float) -> Dual:
     r"""Quotient :math:`\frac{a_r + \epsilon a_d}{b_r + \epsilon b_d}
     = \frac{a_r}{b_r} + \epsilon \frac{a_d b_r - a_r b_d}{b_r^2}`.
 
@@ -429,8 +430,8 @@ def div(a, b) -> Dual:
         >>> div(Dual(torch.tensor(6.0), 1.0), Dual(torch.tensor(2.0), 1.0))
         Dual(real=tensor(3.), dual=tensor(-1.))
     """
-    a, b, c, d = _parts("dual.div", ("a", "b"), a, b)
-    return _div(a, b, c, d)
+    ar, ad, br, bd = _parts("dual.div", ("a", "b"), a, b)
+    return _div(ar, ad, br, bd)
 
 
 def inv(x: Dual) -> Dual:
@@ -626,7 +627,7 @@ def acos(x: Dual) -> Dual:
     return Dual._make(torch.acos(a), _guard(regular, singular, _blow_up(b, -_INF)))
 
 
-def atan2(y, x) -> Dual:
+def atan2(y: Dual | Tensor | float, x: Dual | Tensor | float) -> Dual:
     r"""Dual two-argument arc tangent, the angle of the point :math:`(x, y)`:
 
     .. math::

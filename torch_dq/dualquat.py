@@ -17,6 +17,7 @@ element only, never a finite value.
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -97,7 +98,8 @@ def _normalize(x: Tensor) -> Tensor:
 
 # ----------------------------------------------------------------------------- algebra
 
-def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
+def identity(shape: int | Sequence[int] = (), dtype: torch.dtype | None = None,
+             device: torch.device | str | None = None) -> Tensor:
     """Identity transforms ``(1, 0, 0, 0, 0, 0, 0, 0)`` of batch shape ``shape``.
 
     Example:
@@ -362,7 +364,8 @@ def to_pose7(x: Tensor) -> Tensor:
     return torch.cat((translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
 
 
-def from_screw(axis: Tensor, moment: Tensor, theta, d) -> Tensor:
+def from_screw(axis: Tensor, moment: Tensor, theta: Tensor | float, d: Tensor | float,
+               ) -> Tensor:
     r"""Screw motion as a dual quaternion (the paper's eq. 2 with its typos fixed).
 
     :math:`\cos\frac{\theta + \epsilon d}{2} + \sin\frac{\theta + \epsilon d}{2}
@@ -651,7 +654,7 @@ def _eq6(a: Tensor, b: Tensor) -> Tensor:
     return torch.where(none0 | none1, safe_norm(t1 - t0), (d1 - d0).abs())
 
 
-def sclerp(a: Tensor, b: Tensor, t, shortest: bool = True) -> Tensor:
+def sclerp(a: Tensor, b: Tensor, t: Tensor | float, shortest: bool = True) -> Tensor:
     r"""Screw linear interpolation, the paper's eq. 11: :math:`a\,(a^{-1} b)^t`.
 
     .. math::

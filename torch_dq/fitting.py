@@ -69,7 +69,7 @@ _START_PRIOR = 1e-3  # pull of the windowed least squares towards the anchors (s
 
 # ----------------------------------------------------------------------------- checks
 
-def check_times(fn: str, times, n: int | None = None) -> Tensor:
+def check_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
     """Check ``(N,)`` finite strictly increasing times (``N >= 2``, ``N == n`` if given).
 
     Returns:
@@ -556,7 +556,9 @@ def _levenberg_marquardt(module, times: Tensor, target: Tensor, weights, prior: 
 
 # ----------------------------------------------------------------------------- fit
 
-def fit(module: torch.nn.Module, times: Tensor, poses: Tensor, optimizer="auto",
+def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
+        optimizer: str | torch.optim.Optimizer
+        | Callable[[list[Tensor]], torch.optim.Optimizer] = "auto",
         steps: int = 500, lr: float | None = None, tol: float = 1e-9, window: int = 10,
         loss: Callable[[Tensor, Tensor], Tensor] = pose_loss, prior: float = 1e-3,
         verbose: bool = True) -> FitHistory:

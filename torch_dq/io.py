@@ -48,6 +48,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from torch import Tensor
 
@@ -88,7 +89,7 @@ class TrajectoryFileError(ValueError):
         line: the 1-based line number, or ``None``.
     """
 
-    def __init__(self, path, line: int | None, message: str):
+    def __init__(self, path: str | os.PathLike[str], line: int | None, message: str):
         self.path = os.fspath(path)
         self.line = line
         where = self.path if line is None else f"{self.path}, line {line}"
@@ -119,7 +120,7 @@ class Trajectory:
         """The poses as ``(N, 8)`` unit dual quaternions (:func:`torch_dq.dualquat.from_rt`)."""
         return dualquat.from_rt(self.rotations, self.translations)
 
-    def select(self, index) -> Trajectory:
+    def select(self, index: slice | Tensor) -> Trajectory:
         """The sub-trajectory at ``index`` (a slice, an index tensor or a bool mask).
 
         Example:
@@ -325,8 +326,9 @@ def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
                                               f"format= (fit: --format)")
 
 
-def read_trajectory(path, format: str = "auto", times=None, *, atol: float = 1e-3,
-                    duplicates: str = "error") -> Trajectory:
+def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
+                    times: str | os.PathLike[str] | Tensor | npt.ArrayLike | None = None, *,
+                    atol: float = 1e-3, duplicates: str = "error") -> Trajectory:
     r"""Read timestamped poses from a TUM, KITTI or EuRoC file.
 
     Args:
@@ -413,7 +415,8 @@ def _trajectory_arrays(fn: str, trajectory) -> tuple[np.ndarray, np.ndarray, np.
     return t, q, p
 
 
-def write_trajectory(path, trajectory: Trajectory, format: str = "tum", times_path=None) -> None:
+def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, format: str = "tum",
+                     times_path: str | os.PathLike[str] | None = None) -> None:
     r"""Write a trajectory as a TUM, KITTI or EuRoC file (read back by :func:`read_trajectory`).
 
     Numbers are written with 17 significant digits (times with 9 decimals: nanoseconds),
@@ -444,6 +447,7 @@ def write_trajectory(path, trajectory: Trajectory, format: str = "tum", times_pa
         R = quat.to_matrix(torch.from_numpy(q)).numpy()
         np.savetxt(path, np.concatenate((R, p[:, :, None]), axis=2).reshape(-1, 12),
                    fmt="%.17g")
+        assert times_path is not None  # required for kitti, checked above
         np.savetxt(times_path, t, fmt="%.9f")
     else:
         from decimal import Decimal  # exact: the nanosecond nearest to each float64 time
@@ -455,7 +459,8 @@ def write_trajectory(path, trajectory: Trajectory, format: str = "tum", times_pa
                 f.write(",".join([str(ns)] + [repr(float(v)) for v in (*pi, *qi)]) + "\n")
 
 
-def write_csv(path, trajectory: Trajectory, kinematics=None, comments: Sequence[str] = ()) -> None:
+def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: object = None,
+              comments: Sequence[str] = ()) -> None:
     r"""Write a (resampled) trajectory with its velocities and accelerations as CSV.
 
     The first line is the header row :data:`CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz,

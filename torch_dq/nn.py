@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -342,7 +343,8 @@ class _Curve(torch.nn.Module):
         ctrl = self._resolve(fn, ctrl)
         return self._curve_derivatives(ctrl, self._local_time(fn, t, ctrl), order)
 
-    def kinematics(self, t: Tensor, frame: str = "world", ctrl: Tensor | None = None):
+    def kinematics(self, t: Tensor, frame: str = "world", ctrl: Tensor | None = None,
+                   ) -> curves.Kinematics:
         r"""Angular and linear velocities and accelerations at ``t`` (caller's units).
 
         As :func:`torch_dq.curves.kinematics` on :meth:`derivatives` of order 2: with
@@ -371,7 +373,8 @@ class _Curve(torch.nn.Module):
         x, dx, ddx = self.derivatives(t, 2, ctrl)
         return curves.kinematics(x, dx, ddx, frame=frame)
 
-    def imu(self, t: Tensor, gravity=(0.0, 0.0, -9.81), ctrl: Tensor | None = None,
+    def imu(self, t: Tensor, gravity: Tensor | Sequence[float] = (0.0, 0.0, -9.81),
+            ctrl: Tensor | None = None,
             ) -> tuple[Tensor, Tensor]:
         r"""What an ideal IMU rigidly attached at the body origin reads at ``t``.
 
@@ -525,7 +528,8 @@ class Bezier(_Curve):
 
     _name = "nn.Bezier"
 
-    def __init__(self, ctrl: Tensor, domain=(0.0, 1.0), *, time_range=None, check: bool = True):
+    def __init__(self, ctrl: Tensor, domain: Sequence[float] | Tensor = (0.0, 1.0), *,
+                 time_range: Sequence[float] | Tensor | None = None, check: bool = True):
         super().__init__()
         fn = self._name
         self._setup(ctrl, 2, check)
@@ -662,7 +666,7 @@ class BSpline(_Curve):
         _knots: Tensor
 
     def __init__(self, ctrl: Tensor, degree: int = 3, knots: Tensor | None = None, *,
-                 time_range=None, check: bool = True):
+                 time_range: Sequence[float] | Tensor | None = None, check: bool = True):
         super().__init__()
         fn = self._name
         degree = _check_int(fn, "degree", degree, 1, ">= 1")

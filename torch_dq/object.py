@@ -16,6 +16,9 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import torch
 import torch.utils._pytree as _pytree
 from torch import Tensor
@@ -90,7 +93,8 @@ class DualQuaternion:
     # -- constructors --------------------------------------------------------------------------
 
     @classmethod
-    def identity(cls, shape=(), dtype: torch.dtype | None = None, device=None) -> DualQuaternion:
+    def identity(cls, shape: int | Sequence[int] = (), dtype: torch.dtype | None = None,
+                 device: torch.device | str | None = None) -> DualQuaternion:
         """Identity transforms of batch shape ``shape`` (:func:`torch_dq.dualquat.identity`).
 
         Example:
@@ -125,7 +129,8 @@ class DualQuaternion:
         return cls._make(dualquat.from_matrix(T))
 
     @classmethod
-    def from_screw(cls, axis: Tensor, moment: Tensor, theta, d) -> DualQuaternion:
+    def from_screw(cls, axis: Tensor, moment: Tensor, theta: Tensor | float,
+                   d: Tensor | float) -> DualQuaternion:
         """Screw motion (:func:`torch_dq.dualquat.from_screw`): rotation ``theta`` about the
         Plücker line ``(axis, moment)`` and translation ``d`` along it.
 
@@ -187,7 +192,7 @@ class DualQuaternion:
             raise TypeError("len() of a DualQuaternion with batch shape ()")
         return self._tensor.shape[0]
 
-    def __getitem__(self, index) -> DualQuaternion:
+    def __getitem__(self, index: Any) -> DualQuaternion:
         """Index the batch dimensions (ints, slices, ``None``, ``...``, index and bool tensors);
         the trailing 8 is never indexed.
 
@@ -206,7 +211,7 @@ class DualQuaternion:
                              f"dimensions only): {e}") from None
         return DualQuaternion._make(out)
 
-    def to(self, *args, **kwargs) -> DualQuaternion:
+    def to(self, *args: Any, **kwargs: Any) -> DualQuaternion:
         """Through ``Tensor.to`` (dtype and/or device); the result must stay floating.
 
         Example:
@@ -240,7 +245,7 @@ class DualQuaternion:
 
     # -- group operations -----------------------------------------------------------------------
 
-    def __mul__(self, other) -> DualQuaternion:
+    def __mul__(self, other: DualQuaternion) -> DualQuaternion:
         """``a * b``: :func:`torch_dq.dualquat.mul`, the transform ``b`` followed by ``a``."""
         return DualQuaternion._make(dualquat.mul(self._tensor, _operand("*", other)))
 
@@ -274,7 +279,8 @@ class DualQuaternion:
         """Twists ``(..., 6)`` = ``(omega, v)`` (:func:`torch_dq.dualquat.log`)."""
         return dualquat.log(self._tensor)
 
-    def sclerp(self, other: DualQuaternion, t, shortest: bool = True) -> DualQuaternion:
+    def sclerp(self, other: DualQuaternion, t: Tensor | float,
+               shortest: bool = True) -> DualQuaternion:
         """Screw linear interpolation from ``self`` (``t = 0``) to ``other`` (``t = 1``)
         (:func:`torch_dq.dualquat.sclerp`; ``t`` broadcasts against the batch).
 

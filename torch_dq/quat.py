@@ -25,6 +25,7 @@ the identity (a ``where`` guard on ``|v|`` itself would give zero second derivat
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -128,7 +129,8 @@ def _parse_seq(fn: str, seq) -> tuple[list[int], bool]:
     return ["xyz".index(c) for c in low], seq == low
 
 
-def identity(shape=(), dtype: torch.dtype | None = None, device=None) -> Tensor:
+def identity(shape: int | Sequence[int] = (), dtype: torch.dtype | None = None,
+             device: torch.device | str | None = None) -> Tensor:
     """Identity quaternions ``(1, 0, 0, 0)`` of batch shape ``shape``.
 
     Args:
@@ -268,7 +270,7 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     return qrotate(lift(q), lift(v)).to(q.dtype)
 
 
-def slerp(q0: Tensor, q1: Tensor, t, shortest: bool = True) -> Tensor:
+def slerp(q0: Tensor, q1: Tensor, t: Tensor | float, shortest: bool = True) -> Tensor:
     r"""Spherical linear interpolation :math:`q_0 (q_0^{-1} q_1)^t`.
 
     Travels the great circle from ``q0`` (``t = 0``) to ``q1`` (``t = 1``) at constant
@@ -452,7 +454,7 @@ def to_matrix(q: Tensor) -> Tensor:
     ), dim=-1).unflatten(-1, (3, 3)).to(q.dtype)
 
 
-def from_axis_angle(axis: Tensor, angle) -> Tensor:
+def from_axis_angle(axis: Tensor, angle: Tensor | float) -> Tensor:
     r"""Rotation by ``angle`` about ``axis``: :math:`(\cos\frac{a}{2}, \sin\frac{a}{2} u)`.
 
     Args:

@@ -85,7 +85,8 @@ def _median_rate(times: Tensor) -> float:
     return 1.0 / float(torch.diff(times).median())
 
 
-def run_fit(path, *, format: str = "auto", times=None, duplicates: str = "error",
+def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
+            times: str | os.PathLike[str] | Tensor | None = None, duplicates: str = "error",
             knot_spacing: float = 0.1, degree: int = 3, holdout: int = 2, steps: int = 50,
             rate: float | None = None, dtype: torch.dtype = torch.float64,
             out: str = "torch_dq_fit", plots: bool = True, verbose: bool = True) -> dict:
@@ -180,7 +181,7 @@ def run_fit(path, *, format: str = "auto", times=None, duplicates: str = "error"
     init_trans_mm, init_rot_deg = _errors(init_pred.double(), poses)
     report = held_idx if len(held_idx) else fit_idx
     heldout = {"translation_mm": _stats(trans_mm[report]), "rotation_deg": _stats(rot_deg[report])}
-    summary = {
+    summary: dict[str, Any] = {
         "input": {"file": os.fspath(path), "format": format, "poses": n,
                   "start_time_s": t0, "duration_s": duration, "median_rate_hz": file_rate,
                   "gaps_over_2_knot_spacings": int(gaps.sum())},

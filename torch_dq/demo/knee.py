@@ -198,7 +198,8 @@ class KneeSamples:
 
 def sample_poses(model: KneeModel | None = None, n: int = 60, rot_noise_deg: float = 1.0,
                  trans_noise_mm: float = 1.0, *, generator: torch.Generator | None = None,
-                 dtype: torch.dtype | None = None, device=None) -> KneeSamples:
+                 dtype: torch.dtype | None = None,
+                 device: torch.device | str | None = None) -> KneeSamples:
     r"""Noisy poses of the knee model at ``n`` uniform times over the motion.
 
     Noise: :math:`R_i = R(t_i) \exp([\delta_i]_\times)` with
