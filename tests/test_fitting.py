@@ -221,6 +221,23 @@ def test_more_control_points_than_samples_is_an_error():
             fit(spline, s, x, optimizer=optimizer, verbose=False)
 
 
+def test_messages_say_how_to_fix_the_input():
+    """Too few samples for the degree, float32 UNIX times, and fit's times outside the
+    module's domain each name the cause (found by trying the library as a new user)."""
+    s = torch.tensor([0.0, 0.5], dtype=F64)
+    x = dq.exp(s[:, None] * torch.tensor([0.0, 0.0, 1.0, 1.0, 0.0, 0.0], dtype=F64))
+    with pytest.raises(ValueError, match=r"degree-3 curve needs at least 4 samples"):
+        BSpline.from_dualquats(x, s, n_ctrl=4)
+    unix = torch.tensor([1305031098.6659, 1305031098.6758, 1305031098.69, 1305031098.7])
+    q, p = quat.identity((4,)), torch.zeros(4, 3)
+    with pytest.raises(ValueError, match=r"strictly increasing \(torch.float32 rounds.*float64"):
+        BSpline.from_poses(q, p, unix, n_ctrl=4)
+    t64 = unix.double() + torch.arange(4, dtype=F64)
+    spline = BSpline.from_poses(q.double(), p.double(), t64, n_ctrl=4)
+    with pytest.raises(ValueError, match=r"^nn.fit: .*domain"):
+        fit(spline, t64 + 10.0, dq.from_rt(q, p).double(), verbose=False)
+
+
 def test_check_determined_is_schoenberg_whitney():
     """The greedy interlacing test against the rank of the dense design matrix, for random
     sample sets (clustered, with holes) on clamped cubic knots."""

@@ -89,7 +89,12 @@ def check_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
     if bad[0]:
         _checks.fail(fn, "times must be finite")
     if bad[1]:
-        _checks.fail(fn, "times must be strictly increasing")
+        hint = ""
+        if times.dtype != torch.float64:  # absolute timestamps collapse in float32
+            ulp = float(tt.abs().max()) * torch.finfo(times.dtype).eps
+            hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g}; pass absolute "
+                    f"timestamps such as UNIX seconds as float64)")
+        _checks.fail(fn, "times must be strictly increasing" + hint)
     return times
 
 
@@ -678,7 +683,10 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
             _checks.fail(fn, "lr applies to the torch optimizers, not to optimizer='lm'")
     like = module.control_points if curve else params[0]
     if curve:
-        first, values = module.basis(times.detach())
+        try:
+            first, values = module.basis(times.detach())
+        except ValueError as e:  # times outside the module's domain: say who was called
+            raise ValueError(f"{fn}: {e}") from None
         if module.n_ctrl > values.shape[0] or (name == "lm" and prior == 0):
             check_determined(fn, first.cpu(), values.cpu(), module.n_ctrl,
                              getattr(module, "knots", None))

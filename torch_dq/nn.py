@@ -424,8 +424,12 @@ class _Curve(torch.nn.Module):
         (:func:`torch_dq.fitting.least_squares_start`) on poses ``x`` at float64 times."""
         n, N = self.n_ctrl, x.shape[-2]
         if n > N:
+            low = self.degree + 1 if isinstance(self, BSpline) else 2
+            fix = (f"use n_ctrl <= {N}" if N >= low else
+                   f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
+                   f"lower the degree")
             _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
-                             f"N = {N} samples; use n_ctrl <= {N}")
+                             f"N = {N} samples; {fix}")
         x64 = x.detach().to(dtype=torch.float64, device="cpu")
         if not bool(torch.isfinite(x64).all()):
             _checks.fail(fn, "the poses must be finite, with non-zero rotations")
