@@ -168,8 +168,9 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
             the gradient with respect to ``t`` needs them).
         ang: :func:`angle` of ``c`` if already known (the fused curve scheme computes it
             once per pair of control points).
-        host_branch: evaluate only the branches that some element takes (one host read of
-            a count; the result is the same to the bit). For the eager fused kernels on
+        host_branch: evaluate only the branches that some element takes, and the series
+            only at its elements when they are few (one host read of a count; the result is
+            the same to the bit). For the eager fused kernels on
             CPU: in float32 the series covers relative rotations up to ~40 degrees, so for
             a smooth trajectory no transcendental function is evaluated at all.
 
@@ -188,14 +189,22 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
     # F = 1, G = 0). No clamp: c > 1 only occurs in the series branch, and c < -1
     # (opposite real parts with shortest=False, undefined) or an infinite c must give NaN,
     # not a finite theta = pi.
-    n_small = int(small.sum()) if host_branch else -1
-    if n_small == 0:
-        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
-    elif n_small == small.numel():
+    n_small = int(small.count_nonzero()) if host_branch else -1
+    if n_small == small.numel():
         out = _series(s, s2, y, derivatives, time_slopes)
     else:
-        closed = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
+        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
+    if 0 < n_small < small.numel() // 4:
+        # A few series elements (eager, CPU): the series on those alone, put into the
+        # closed forms (out of place: a double backward may have saved the closed forms).
+        at = (small > 0).nonzero(as_tuple=True)
+        shape = small.shape
+        series = _series(s.expand(shape)[at], s2.expand(shape)[at], y.expand(shape)[at],
+                         derivatives, time_slopes)
+        out = tuple(e if e is None else torch.index_put(e, at, x)
+                    for x, e in zip(series, out, strict=True))
+    elif 0 < n_small < small.numel() or n_small < 0:
         series = _series(s, s2, y, derivatives, time_slopes)
         out = tuple(x if x is None else _select(small, x, e)
-                    for x, e in zip(series, closed, strict=True))
+                    for x, e in zip(series, out, strict=True))
     return WeightSlopes(*out) if derivatives else Weights(*out[:2])
