@@ -28,8 +28,8 @@ def _pair_table(rows: Tensor) -> Tensor:
 
 
 def _alpha(alphas: Tensor, m: int, j: int) -> Tensor:
-    """Level ``j``'s parameters: rows ``j - 1`` levels in of the triangular stack, or the
-    shared ``(1, n)`` row."""
+    """Level ``j``'s ``m - j`` rows of the triangular stack (after the rows of levels
+    ``1 .. j - 1``), or the shared ``(1, n)`` row."""
     if alphas.shape[0] == 1:
         return alphas
     start = (j - 1) * m - (j - 1) * j // 2  # sum of m - i for i = 1 .. j - 1
