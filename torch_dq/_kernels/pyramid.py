@@ -12,6 +12,8 @@ it is expanded into control-point rows.
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor
 
@@ -44,7 +46,8 @@ def _levels(rows: Tensor, table: Tensor, first: Tensor, alphas: Tensor, m: int,
     k = torch.arange(m, device=first.device)[:, None]
     D = rows.index_select(1, (first + k).reshape(-1)).view(8, m, n).transpose(0, 1)
     pairs = table.index_select(1, (first + k[:-1]).reshape(-1)).view(6, m - 1, n)
-    fr, ang = Frame(*pairs[:3]), Angle(*pairs[3:])
+    fr = Frame(*pairs[:3])
+    ang: Angle | None = Angle(*pairs[3:])
     points, frames, ws = [D], [], []
     for j in range(1, m):
         A, B = D[:-1], D[1:]
@@ -100,15 +103,15 @@ class _Pyramid(torch.autograd.Function):
         pair_c = rows.new_zeros(rows.shape[1] - 1)  # level-1 frame sensitivities per pair
         pair_d = torch.zeros_like(pair_c)
         used = torch.zeros_like(pair_c, dtype=torch.bool)  # pairs inside one curve's span
-        grad_alphas = []
+        grad_alphas: list[Tensor] = []
         for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
             points, frames, ws = _levels(rows, table, first[i], alphas[:, i], m, True, need_alpha)
             G = to_rows(grad[i]).unsqueeze(0)
-            g_alpha = []
+            g_alpha: list[Tensor] = []
             for j in range(m - 1, 0, -1):
                 D = points[j - 1]
                 ct = vjp_rows(D[:-1], D[1:], frames[j - 1], ws[j - 1], G, frame_terms=j > 1)
-                g_alpha.append(ct.t)
+                g_alpha.append(cast(Tensor, ct.t))  # None only when not need_alpha (unused)
                 if j == 1:
                     pair = (first[i] + torch.arange(m - 1, device=first.device)[:, None])
                     pair_c = pair_c.index_add(0, pair.reshape(-1), ct.c.reshape(-1))
@@ -121,7 +124,7 @@ class _Pyramid(torch.autograd.Function):
                                             G.transpose(0, 1).reshape(8, -1))
             if need_alpha:
                 g_alpha.reverse()  # level order
-                grad_alphas.append(sum(g.sum(0, keepdim=True) for g in g_alpha)
+                grad_alphas.append(cast(Tensor, sum(g.sum(0, keepdim=True) for g in g_alpha))
                                    if alphas.shape[0] == 1 else torch.cat(g_alpha))
         # Level 1's frame terms, once per pair of control points (i, i + 1). Pairs that no
         # output reads (e.g. the last point of one curve and the first of the next) are

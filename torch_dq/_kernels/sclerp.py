@@ -13,7 +13,7 @@ forward-mode call that reaches this op anyway raises instead of returning zeros.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
@@ -94,7 +94,7 @@ def vjp_rows(A: Tensor, B: Tensor, fr: Frame, w: WeightSlopes, grad: Tensor,
     L_c = delta * (H0 * gP + H1 * gR) - G0 * pa - G1 * pb
     L_d = -(G0 * gP + G1 * gR)
     L_t = None
-    if w.Fs is not None:
+    if w.Fs is not None and w.Gs is not None:  # both or neither (time_slopes)
         (Fs0, Fs1), (Gs0, Gs1) = w.Fs, w.Gs
         L_t = Fs1 * pb - Fs0 * pa + delta * (Gs0 * gP - Gs1 * gR)
     s1 = sigma * F1
@@ -160,13 +160,13 @@ class _Sclerp(torch.autograd.Function):
         for i in chunks(t1.shape[0]):
             A, B = to_rows(a2[i]), to_rows(b2[i])
             fr = frame(A, B, ctx.shortest)
-            w = weights(fr, t1[i], derivatives=True, time_slopes=need_t)
+            w = cast(WeightSlopes, weights(fr, t1[i], derivatives=True, time_slopes=need_t))
             ct = vjp_rows(A, B, fr, w, to_rows(g2[i]))
             rows_into(ga[i], ct.a)
             rows_into(gb[i], ct.b)
-            if need_t:
-                gt[i] = ct.t
-        grad_t = gt.view(t.shape) if need_t else None
+            if gt is not None:  # need_t
+                gt[i] = cast(Tensor, ct.t)  # not None with time_slopes=need_t
+        grad_t = gt.view(t.shape) if gt is not None else None
         return ga.view(a.shape), gb.view(b.shape), grad_t, None
 
 

@@ -110,10 +110,11 @@ def _nested(u: list[Tensor], j: int) -> Tensor:
     r_{j+1} y \big(1 + \frac{j+2}{2} r_{j+2} y (\dots)\big)\big)`,
     :math:`r_k y = u_k / (k (2k + 1))`: one fused multiply-add per term.
     """
-    out = None
+    out: Tensor | None = None
     for k in range(_TERMS - 1, j, -1):
         scale = 1.0 / ((k - j) * (2 * k + 1))  # (k / (k - j)) / (k (2k + 1))
         out = 1.0 + scale * u[k] if out is None else torch.addcmul(u[0], u[k], out, value=scale)
+    assert out is not None  # j < _TERMS - 1: the loop ran
     return out
 
 
