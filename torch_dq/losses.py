@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -66,6 +67,14 @@ def _squared_rotation_angle(a: Tensor, b: Tensor) -> Tensor:
     return 16.0 * z2 * even("atanc", z2) ** 2
 
 
+def _pairwise(fn: str, metric: Callable[[Tensor, Tensor], Tensor], a: Tensor,
+              b: Tensor) -> Tensor:
+    """Check a pair of ``(..., 8)`` tensors, evaluate ``metric`` in the compute dtype."""
+    _checks.pair(fn, a, b, 8)
+    dtype = compute_dtype(a.dtype)
+    return metric(a.to(dtype), b.to(dtype)).to(a.dtype)
+
+
 def rotation_angle(a: Tensor, b: Tensor) -> Tensor:
     r"""Geodesic angle in ``[0, pi]`` between the rotations of two dual quaternions.
 
@@ -94,9 +103,7 @@ def rotation_angle(a: Tensor, b: Tensor) -> Tensor:
         >>> rotation_angle(dq.identity(), dq.from_rt(q, torch.zeros(3)))
         tensor(3.1416)
     """
-    _checks.pair("losses.rotation_angle", a, b, 8)
-    dtype = compute_dtype(a.dtype)
-    return _rotation_angle(a.to(dtype), b.to(dtype)).to(a.dtype)
+    return _pairwise("losses.rotation_angle", _rotation_angle, a, b)
 
 
 def squared_rotation_angle(a: Tensor, b: Tensor) -> Tensor:
@@ -104,32 +111,20 @@ def squared_rotation_angle(a: Tensor, b: Tensor) -> Tensor:
 
     The angle is a cone at zero error (like :math:`|x|`, no second derivative), so squaring
     it after the fact gives a zero Hessian there; this function evaluates
-    :math:`	heta^2 = 16 z\,\mathrm{atanc}(z)^2` from :math:`z = 	an^2(	heta / 4) =
+    :math:`\theta^2 = 16 z\,\mathrm{atanc}(z)^2` from :math:`z = \tan^2(\theta / 4) =
     \min(|r_b - r_a|^2, |r_b + r_a|^2) / \max(\dots)`, a smooth function of the inputs, so
     its Hessian at ``a == b`` is exact: ``2 I`` in a chart ``b = a exp(xi)`` (Gauss-Newton
     and Laplace approximations get the right curvature). At pi (the maximum) the two tied
-    branches meet in a kink, as for the angle.
-
-    Args:
-        a: ``(..., 8)`` dual quaternions with non-zero real parts (normally unit).
-        b: ``(..., 8)``, batch broadcastable with ``a``, same dtype and device.
-
-    Returns:
-        ``(...)`` squared angles in ``[0, pi**2]``. float16/bfloat16 compute in float32.
-
-    Raises:
-        ValueError: trailing dimension not 8, batch shapes that do not broadcast.
-        TypeError: non-floating tensors, mixed dtypes or devices.
+    branches meet in a kink, as for the angle. Arguments, dtypes and errors as for
+    :func:`rotation_angle`; returns ``(...)`` squared angles in ``[0, pi**2]``.
 
     Example:
         >>> import torch_dq.dualquat as dq
-        >>> q = torch.tensor([0.0, 0.0, 0.0, 1.0])  # 180 degrees about z
-        >>> squared_rotation_angle(dq.identity(), dq.from_rt(q, torch.zeros(3)))
-        tensor(9.8696)
+        >>> turn = dq.exp(torch.tensor([0.5, 0.0, 0.0, 0.0, 0.0, 0.0]))  # 0.5 rad about x
+        >>> squared_rotation_angle(dq.identity(), turn)
+        tensor(0.2500)
     """
-    _checks.pair("losses.squared_rotation_angle", a, b, 8)
-    dtype = compute_dtype(a.dtype)
-    return _squared_rotation_angle(a.to(dtype), b.to(dtype)).to(a.dtype)
+    return _pairwise("losses.squared_rotation_angle", _squared_rotation_angle, a, b)
 
 
 def translation_error(a: Tensor, b: Tensor) -> Tensor:
@@ -157,9 +152,8 @@ def translation_error(a: Tensor, b: Tensor) -> Tensor:
         ...                   dq.from_rt(q, torch.tensor([0., 4, 0])))
         tensor(5.)
     """
-    _checks.pair("losses.translation_error", a, b, 8)
-    dtype = compute_dtype(a.dtype)
-    return safe_norm(_translation(a.to(dtype)) - _translation(b.to(dtype))).to(a.dtype)
+    return _pairwise("losses.translation_error",
+                     lambda x, y: safe_norm(_translation(x) - _translation(y)), a, b)
 
 
 def _weight(fn: str, name: str, w) -> float:
