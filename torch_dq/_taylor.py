@@ -1,7 +1,7 @@
 r"""Truncated Taylor arithmetic ("jets") and eq. 11 on jets (private; used by
 :mod:`torch_dq.curves` for exact time derivatives).
 
-A jet of order ``K`` is a tensor ``(K + 1, ...)`` of normalised Taylor coefficients
+A jet of order ``K`` is a list of ``K + 1`` tensors, the normalised Taylor coefficients
 :math:`x_k = x^{(k)}(t) / k!` of a quantity along time. Sums are coefficient-wise; the other
 operations are the classical recurrences of automatic Taylor expansion (Griewank & Walther,
 *Evaluating Derivatives*, ch. 13): a product is a Cauchy product, and a quotient, a square
@@ -53,124 +53,146 @@ def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
     return terms, float((eps * 2.0**terms / terms ** (order + 2)) ** (1.0 / terms))
 
 
-def mul(a: Tensor, b: Tensor) -> Tensor:
-    r"""Cauchy product :math:`(ab)_k = \sum_{i + j = k} a_i b_j` of two jets (batch dims
-    after the first broadcast)."""
-    # ``sum`` of tensors is a tensor (typeshed types it ``Tensor | Literal[0]``).
-    return torch.stack([cast(Tensor, sum(a[i] * b[k - i] for i in range(k + 1)))
-                        for k in range(a.shape[0])])
+Jet = list[Tensor]
 
 
-def div(a: Tensor, b: Tensor) -> Tensor:
+def mul(a: Jet, b: Jet) -> Jet:
+    r"""Cauchy product :math:`(ab)_k = \sum_{i + j = k} a_i b_j` of two jets (coefficients
+    broadcast)."""
+    out = []
+    for k in range(len(a)):
+        acc = a[0] * b[k]
+        for i in range(1, k + 1):
+            acc = torch.addcmul(acc, a[i], b[k - i])
+        out.append(acc)
+    return out
+
+
+def div(a: Jet, b: Jet) -> Jet:
     r""":math:`q = a / b`: :math:`q_k = (a_k - \sum_{i=1}^k b_i q_{k-i}) / b_0`."""
-    q: list[Tensor] = []
-    for k in range(a.shape[0]):
+    q: Jet = []
+    for k in range(len(a)):
         acc = a[k]
         for i in range(1, k + 1):
-            acc = acc - b[i] * q[k - i]
+            acc = torch.addcmul(acc, b[i], q[k - i], value=-1.0)
         q.append(acc / b[0])
-    return torch.stack(q)
+    return q
 
 
-def sqrt(a: Tensor) -> Tensor:
+def sqrt(a: Jet) -> Jet:
     r""":math:`r = \sqrt a`: :math:`r_k = (a_k - \sum_{i=1}^{k-1} r_i r_{k-i}) / (2 r_0)`."""
     r = [torch.sqrt(a[0])]
-    for k in range(1, a.shape[0]):
+    for k in range(1, len(a)):
         acc = a[k]
         for i in range(1, k):
-            acc = acc - r[i] * r[k - i]
+            acc = torch.addcmul(acc, r[i], r[k - i], value=-1.0)
         r.append(acc / (2.0 * r[0]))
-    return torch.stack(r)
+    return r
 
 
-def sin_cos(phi: Tensor) -> tuple[Tensor, Tensor]:
+def sin_cos(phi: Jet) -> tuple[Jet, Jet]:
     r""":math:`\sin\varphi, \cos\varphi` from :math:`(\sin\varphi)' = \varphi' \cos\varphi`,
     :math:`(\cos\varphi)' = -\varphi' \sin\varphi`:
     :math:`s_k = \frac1k \sum_{j=1}^k j \varphi_j c_{k-j}`,
     :math:`c_k = -\frac1k \sum_{j=1}^k j \varphi_j s_{k-j}`."""
     s, c = [torch.sin(phi[0])], [torch.cos(phi[0])]
-    for k in range(1, phi.shape[0]):
+    for k in range(1, len(phi)):
         s.append(cast(Tensor, sum(j * phi[j] * c[k - j] for j in range(1, k + 1))) / k)
         c.append(-cast(Tensor, sum(j * phi[j] * s[k - j] for j in range(1, k + 1))) / k)
-    return torch.stack(s), torch.stack(c)
+    return s, c
 
 
-def acos(c: Tensor, sin_theta: Tensor) -> Tensor:
+def acos(c: Jet, sin_theta: Jet) -> Jet:
     r""":math:`\theta = \arccos c` given the jet of :math:`\sin\theta > 0`, from
     :math:`c' = -\theta' \sin\theta`:
     :math:`\theta_k = -(k c_k + \sum_{j=1}^{k-1} j \theta_j S_{k-j}) / (k S_0)`."""
     theta = [torch.atan2(sin_theta[0], c[0])]
-    for k in range(1, c.shape[0]):
+    for k in range(1, len(c)):
         acc = k * c[k]
         for j in range(1, k):
             acc = acc + j * theta[j] * sin_theta[k - j]
         theta.append(-acc / (k * sin_theta[0]))
-    return torch.stack(theta)
+    return theta
 
 
-def _rsub(value: float, jet: Tensor) -> Tensor:
+def _rsub(value: float, jet: Jet) -> Jet:
     """The jet of ``value - x``."""
-    return torch.cat((value - jet[:1], -jet[1:]))
+    return [value - jet[0]] + [-x for x in jet[1:]]
 
 
-def _plus(jet: Tensor, value: float) -> Tensor:
+def _plus(jet: Jet, value: float) -> Jet:
     """The jet of ``x + value``."""
-    return torch.cat((jet[:1] + value, jet[1:]))
+    return [jet[0] + value, *jet[1:]]
 
 
-def _weights(c: Tensor, s: Tensor) -> tuple[Tensor, Tensor]:
+def _scale(jet: Jet, value: float | Tensor) -> Jet:
+    """The jet of ``value x`` for a constant ``value``."""
+    return [value * x for x in jet]
+
+
+def _select(mask: Tensor, x: Jet, y: Jet) -> Jet:
+    """``where(mask, x, y)`` coefficient-wise for a float 0/1 ``mask`` and finite ``x, y``:
+    exact (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
+    keep = 1.0 - mask
+    return [torch.addcmul(b * keep, a, mask) for a, b in zip(x, y, strict=True)]
+
+
+def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
-    ``(K + 1, ...)`` for ``s (K + 1, 2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``."""
-    c = c[:, None]
+    ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``."""
     y = _rsub(1.0, c)
-    terms, threshold = _series(c.shape[0] - 1, c.dtype)
-    small = y[0] * torch.clamp(s[0] * s[0], min=1.0) < threshold
+    terms, threshold = _series(len(c) - 1, c[0].dtype)
+    small = (y[0] * torch.clamp(s[0] * s[0], min=1.0) < threshold).to(c[0].dtype)
 
     # Series branch, nested: with u_k = (k^2 - s^2) y the recurrence of a_k gives
     # F = s (1 + u_1 / (1 3) (1 + u_2 / (2 5) (...))) and G = dF/dy = a_1 (1 + u_2 / (1 5)
     # (1 + u_3 / (2 7) (...))), a_1 = s (1 - s^2) / 3: one jet product per term.
     s2 = mul(s, s)
     s2y = mul(s2, y)
-    u = {k: k * k * y - s2y for k in range(1, terms)}
+    u = {k: [torch.sub(k * k * a, b) for a, b in zip(y, s2y, strict=True)] for k in range(1, terms)}
     nested = []
     for j in (0, 1):
-        out: Tensor | None = None
+        out: Jet | None = None
         for k in range(terms - 1, j, -1):
             term = u[k] if out is None else mul(u[k], out)
-            out = _plus(term / ((k - j) * (2 * k + 1)), 1.0)
+            out = _plus(_scale(term, 1.0 / ((k - j) * (2 * k + 1))), 1.0)
         assert out is not None  # terms >= 6: the loop ran
         nested.append(out)
     F_series = mul(s, nested[0])
-    G_series = mul(mul(s, _rsub(1.0, s2)) / 3.0, nested[1])
+    G_series = mul(_scale(mul(s, _rsub(1.0, s2)), 1.0 / 3.0), nested[1])
 
     # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2).
-    c_safe = torch.where(small, torch.zeros_like(c), c)
+    c_safe = _scale(c, 1.0 - small)
     y_safe = _rsub(1.0, c_safe)
     sin_t = sqrt(mul(y_safe, _rsub(2.0, y_safe)))  # sin^2 = (1 - c)(1 + c)
     theta = acos(c_safe, sin_t)
     sin_st, cos_st = sin_cos(mul(s, theta))
     F = div(sin_st, sin_t)
-    G = div(mul(s, cos_st) - mul(F, c_safe), mul(sin_t, sin_t))
-    return torch.where(small, F_series, F), torch.where(small, G_series, G)
+    G = div([a - b for a, b in zip(mul(s, cos_st), mul(F, c_safe), strict=True)], mul(sin_t, sin_t))
+    return _select(small, F_series, F), _select(small, G_series, G)
 
 
-def sclerp(A: Tensor, B: Tensor, alpha: Tensor) -> Tensor:
-    r"""Eq. 11 (shortest path) on jets: ``A, B (K + 1, ..., 8)``, ``alpha (K + 1, ...)``
+def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
+    r"""Eq. 11 (shortest path) on jets: ``A, B (..., 8)``, ``alpha (...)`` per coefficient
     (module docstring). The sign choice is the one of the current value (constant nearby).
     """
-    sigma = torch.where((A[0, ..., :4] * B[0, ..., :4]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-    B = sigma.to(B.dtype) * B  # b's representative nearest to a
+    flip = ((A[0][..., :4] * B[0][..., :4]).sum(-1, keepdim=True) < 0).to(B[0].dtype)
+    B = _scale(B, 1.0 - 2.0 * flip)  # b's representative nearest to a
     # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
-    dots = mul(A[:, None], torch.stack((B, torch.cat((B[..., 4:], B[..., :4]), -1)), 1))
-    c, delta = dots[:, 0, ..., :4].sum(-1), dots[:, 1].sum(-1)
-    s = torch.stack((_rsub(1.0, alpha), alpha), 1)  # s = 1 - t for a, t for b
-    F, G = (w[..., None] for w in _weights(c, s))  # (K + 1, 2, ..., 1): rows for a and b
-    X = torch.stack((A, B), 1)
-    q = mul(F, X).sum(1)  # F_0 a + F_1 b
-    correction = mul(delta[..., None], mul(G, X[..., :4]).sum(1))  # delta (G_0 P + G_1 R)
-    return torch.cat((q[..., :4], q[..., 4:] - correction), -1)
+    dots = mul([a[..., None, :] for a in A],
+               [torch.stack((b, torch.cat((b[..., 4:], b[..., :4]), -1)), -2) for b in B])
+    c, delta = [d[..., 0, :4].sum(-1) for d in dots], [d[..., 1, :].sum(-1) for d in dots]
+    # s = 1 - t for a, t for b
+    s = [torch.stack(pair) for pair in zip(_rsub(1.0, alpha), alpha, strict=True)]
+    F, G = ([w[..., None] for w in jet] for jet in _weights([x[None] for x in c], s))
+    X = [torch.stack(pair) for pair in zip(A, B, strict=True)]
+    q = [x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
+    PR = [x[..., :4] for x in X]
+    correction = mul([d[..., None] for d in delta], [x.sum(0) for x in mul(G, PR)])
+    return [torch.cat((x[..., :4], x[..., 4:] - corr), -1)
+            for x, corr in zip(q, correction, strict=True)]
 
 
-def derivatives(jet: Tensor) -> list[Tensor]:
-    """The derivatives ``x^(k) = k! x_k`` of a jet, as a list."""
-    return [math.factorial(k) * x for k, x in enumerate(jet.unbind(0))]
+def derivatives(jet: Jet) -> list[Tensor]:
+    """The derivatives ``x^(k) = k! x_k`` of a jet."""
+    return [math.factorial(k) * x for k, x in enumerate(jet)]

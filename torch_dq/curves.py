@@ -369,13 +369,14 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
     the local parameters and their slopes ``d alpha / dt``, ``(..., T, m - j)`` (affine in
     ``t``: no higher Taylor coefficients). Returns ``[x, dx/dt, ..., d^order x/dt^order]``.
     """
-    q = torch.cat((points[None], points.new_zeros(order, *points.shape)))
+    zero = points.new_zeros(())
+    q = [points] + [zero.expand(points.shape)] * order
     for alpha, slope in levels:
         shape = (*batch, *alpha.shape[-2:])
         jet = [alpha.expand(shape), slope.expand(shape)][:order + 1]
-        jet += [alpha.new_zeros(()).expand(shape)] * (order + 1 - len(jet))
-        q = _taylor.sclerp(q[..., :-1, :], q[..., 1:, :], torch.stack(jet))
-    return _taylor.derivatives(q[..., 0, :])
+        jet += [zero.expand(shape)] * (order + 1 - len(jet))
+        q = _taylor.sclerp([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], jet)
+    return _taylor.derivatives([x[..., 0, :] for x in q])
 
 
 # ----------------------------------------------------------------------------- public curves
