@@ -59,6 +59,7 @@ from torch import Tensor
 
 from . import _checks, _kernels, _taylor, dualquat
 from ._core import align_chain, knot_span
+from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype, safe_denominator
@@ -360,6 +361,9 @@ def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
 
 # ----------------------------------------------------------------------------- time derivatives
 
+JET_CHUNK = 16384  # times per eager chunk of the jet scheme (its temporaries stay in cache)
+
+
 def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[Tensor]:
     r"""The triangular scheme of :func:`_de_casteljau` / :func:`_de_boor` on jets: the
     time derivatives ``0..order`` of every level, propagated through eq. 11 in truncated
@@ -369,14 +373,21 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
     the local parameters and their slopes ``d alpha / dt``, ``(..., T, m - j)`` (affine in
     ``t``: no higher Taylor coefficients). Returns ``[x, dx/dt, ..., d^order x/dt^order]``.
     """
+    T, m = points.shape[-3:-1]
+    n = batch.numel() * T
+    points = points.reshape(n, m, 8)
+    flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j) for x in level)
+            for j, level in enumerate(levels, start=1)]
     zero = points.new_zeros(())
-    q = [points] + [zero.expand(points.shape)] * order
-    for alpha, slope in levels:
-        shape = (*batch, *alpha.shape[-2:])
-        jet = [alpha.expand(shape), slope.expand(shape)][:order + 1]
-        jet += [zero.expand(shape)] * (order + 1 - len(jet))
-        q = _taylor.sclerp([x[..., :-1, :] for x in q], [x[..., 1:, :] for x in q], jet)
-    return _taylor.derivatives([x[..., 0, :] for x in q])
+    outs = []
+    for part in chunks(n, JET_CHUNK):  # temporaries stay in cache
+        q = [points[part]] + [zero.expand(points[part].shape)] * order
+        for alpha, slope in flat:
+            alpha, slope = alpha[part], slope[part]
+            jet = [alpha, slope, *[zero.expand(alpha.shape)] * (order - 1)][:order + 1]
+            q = _taylor.sclerp([x[:, :-1] for x in q], [x[:, 1:] for x in q], jet)
+        outs.append(_taylor.derivatives([x[:, 0] for x in q]))
+    return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
 
 # ----------------------------------------------------------------------------- public curves
