@@ -369,24 +369,27 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
     time derivatives ``0..order`` of every level, propagated through eq. 11 in truncated
     Taylor arithmetic (:mod:`torch_dq._taylor`).
 
-    ``points (*batch, T, m, 8)``: level 0 (constant in time); ``levels``: per level ``j``
+    ``points (*batch, T, m, 8)``: level 0 (constant in time), evaluated as component rows
+    ``(8, m, n)`` over chunks of times; ``levels``: per level ``j``
     the local parameters and their slopes ``d alpha / dt``, ``(..., T, m - j)`` (affine in
     ``t``: no higher Taylor coefficients). Returns ``[x, dx/dt, ..., d^order x/dt^order]``.
     """
     T, m = points.shape[-3:-1]
     n = batch.numel() * T
-    points = points.reshape(n, m, 8)
-    flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j) for x in level)
+    # Component rows (8, m, n): every op runs over contiguous rows of times.
+    points = points.reshape(n, m * 8).T.reshape(m, 8, n).transpose(0, 1)
+    flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j).T for x in level)
             for j, level in enumerate(levels, start=1)]
     zero = points.new_zeros(())
     outs = []
     for part in chunks(n, JET_CHUNK):  # temporaries stay in cache
-        q = [points[part]] + [zero.expand(points[part].shape)] * order
+        q = [points[..., part].contiguous()]
+        q += [zero.expand(q[0].shape)] * order
         for alpha, slope in flat:
-            alpha, slope = alpha[part], slope[part]
+            alpha, slope = alpha[:, part].contiguous(), slope[:, part].contiguous()
             jet = [alpha, slope, *[zero.expand(alpha.shape)] * (order - 1)][:order + 1]
             q = _taylor.sclerp([x[:, :-1] for x in q], [x[:, 1:] for x in q], jet)
-        outs.append(_taylor.derivatives([x[:, 0] for x in q]))
+        outs.append([x[:, 0].T for x in _taylor.derivatives(q)])
     return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
 
