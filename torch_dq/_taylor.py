@@ -34,6 +34,8 @@ from typing import cast
 import torch
 from torch import Tensor
 
+from ._kernels import fused_path
+
 __all__ = ["mul", "sclerp"]
 
 def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
@@ -137,19 +139,18 @@ def _select(mask: Tensor, x: Jet, y: Jet) -> Jet:
     return [torch.addcmul(b * keep, a, mask) for a, b in zip(x, y, strict=True)]
 
 
-def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
-    """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
-    ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``."""
-    y = _rsub(1.0, c)
-    terms, threshold = _series(len(c) - 1, c[0].dtype)
-    small = (y[0] * torch.clamp(s[0] * s[0], min=1.0) < threshold).to(c[0].dtype)
+def _series_weights(y: Jet, s: Jet, terms: int) -> tuple[Jet, Jet]:
+    r"""Jets of ``F, G`` from ``terms`` terms of their power series in :math:`y = 1 - c`.
 
-    # Series branch, nested: with u_k = (k^2 - s^2) y the recurrence of a_k gives
-    # F = s (1 + u_1 / (1 3) (1 + u_2 / (2 5) (...))) and G = dF/dy = a_1 (1 + u_2 / (1 5)
-    # (1 + u_3 / (2 7) (...))), a_1 = s (1 - s^2) / 3: one jet product per term.
+    Nested: with :math:`u_k = (k^2 - s^2) y` the recurrence of :math:`a_k` gives
+    :math:`F = s (1 + u_1 / (1 \cdot 3) (1 + u_2 / (2 \cdot 5) (\dots)))` and
+    :math:`G = \partial_y F = a_1 (1 + u_2 / (1 \cdot 5) (1 + u_3 / (2 \cdot 7) (\dots)))`,
+    :math:`a_1 = s (1 - s^2) / 3`: one jet product per term.
+    """
     s2 = mul(s, s)
     s2y = mul(s2, y)
-    u = {k: [torch.sub(k * k * a, b) for a, b in zip(y, s2y, strict=True)] for k in range(1, terms)}
+    u = {k: [torch.sub(k * k * a, b) for a, b in zip(y, s2y, strict=True)]
+         for k in range(1, terms)}
     nested = []
     for j in (0, 1):
         out: Jet | None = None
@@ -158,17 +159,44 @@ def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
             out = _plus(_scale(term, 1.0 / ((k - j) * (2 * k + 1))), 1.0)
         assert out is not None  # terms >= 6: the loop ran
         nested.append(out)
-    F_series = mul(s, nested[0])
-    G_series = mul(_scale(mul(s, _rsub(1.0, s2)), 1.0 / 3.0), nested[1])
+    return mul(s, nested[0]), mul(_scale(mul(s, _rsub(1.0, s2)), 1.0 / 3.0), nested[1])
+
+
+def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
+    """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
+    ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``.
+
+    The series branch runs where ``y max(1, s^2)`` is below the switch point. In eager mode
+    on CPU (one host read of a count) it is skipped when no element needs it and evaluated
+    on those elements alone when they are few; elsewhere (compiled, under ``torch.func``
+    transforms or forward AD, on other devices) on every element, selected arithmetically.
+    """
+    y = _rsub(1.0, c)
+    terms, threshold = _series(len(c) - 1, c[0].dtype)
+    small = (y[0] * torch.clamp(s[0] * s[0], min=1.0) < threshold).to(c[0].dtype)
+    host = (small.device.type == "cpu" and not torch.compiler.is_compiling()
+            and fused_path(c[0], s[0]))
+    n_small = int(small.count_nonzero()) if host else -1
 
     # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2).
-    c_safe = _scale(c, 1.0 - small)
+    c_safe = c if n_small == 0 else _scale(c, 1.0 - small)
     y_safe = _rsub(1.0, c_safe)
     sin_t = sqrt(mul(y_safe, _rsub(2.0, y_safe)))  # sin^2 = (1 - c)(1 + c)
     theta = acos(c_safe, sin_t)
     sin_st, cos_st = sin_cos(mul(s, theta))
     F = div(sin_st, sin_t)
-    G = div([a - b for a, b in zip(mul(s, cos_st), mul(F, c_safe), strict=True)], mul(sin_t, sin_t))
+    G = div([a - b for a, b in zip(mul(s, cos_st), mul(F, c_safe), strict=True)],
+            mul(sin_t, sin_t))
+    if n_small == 0:
+        return F, G
+    if 0 < n_small < small.numel() // 4:
+        # A few series elements: the series on those alone, put into the closed forms.
+        at = (small > 0).nonzero(as_tuple=True)
+        F_series, G_series = _series_weights([x.expand(small.shape)[at] for x in y],
+                                             [x.expand(small.shape)[at] for x in s], terms)
+        return ([torch.index_put(e, at, x) for x, e in zip(F_series, F, strict=True)],
+                [torch.index_put(e, at, x) for x, e in zip(G_series, G, strict=True)])
+    F_series, G_series = _series_weights(y, s, terms)
     return _select(small, F_series, F), _select(small, G_series, G)
 
 
