@@ -243,11 +243,15 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         _checks.fail(fn, f"expected a floating dtype, got {dtype!r}", TypeError)
     try:
-        t0, t1 = (float(e) for e in domain)
+        # Under torch.compile(dynamic=True) the ends may be symbolic (SymFloat / SymInt):
+        # kept as they are and not checked here (math.isfinite would specialise on them).
+        t0, t1 = (e if isinstance(e, torch.SymFloat | torch.SymInt) else float(e)
+                  for e in domain)
         ok = not any(isinstance(e, bool) for e in domain) and len(domain) == 2
     except (TypeError, ValueError, RuntimeError):
         ok = False
-    if not ok or not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
+    concrete = ok and isinstance(t0, float) and isinstance(t1, float)
+    if not ok or (concrete and not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1)):
         _checks.fail(fn, f"domain must be two finite real numbers t0 < t1, got {domain!r}")
     n_ctrl = int(n_ctrl)
     inner = torch.linspace(t0, t1, n_ctrl - degree + 1, dtype=dtype, device=device)[1:-1]
@@ -341,7 +345,7 @@ def _fused_bezier(ctrl: Tensor, s: Tensor, batch: torch.Size) -> Tensor:
     idx = (torch.arange(B, device=s.device)[:, None] * m + torch.arange(m, device=s.device))
     idx = idx.T[:, :, None].expand(m, B, T).reshape(m, B * T)
     ss = s.expand(*batch, T).reshape(1, B * T)
-    out = pyramid(flat, idx, [ss.expand(m - j, B * T) for j in range(1, m)])
+    out = pyramid(flat, idx, ss)  # one (1, B T) parameter row shared by every level
     return out.view(*batch, T, 8)
 
 
