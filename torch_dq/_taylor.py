@@ -55,40 +55,55 @@ def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
     return terms, float((eps * 2.0**terms / terms ** (order + 2)) ** (1.0 / terms))
 
 
-Jet = list[Tensor]
+Jet = list[Tensor | None]  # None: a coefficient known to be zero (skipped, never computed)
+
+
+def _dot(pairs, init: Tensor | None = None, value: float = 1.0) -> Tensor | None:
+    r""":math:`init + value \sum a b` over the pairs whose factors are both nonzero."""
+    acc = init
+    for x, y in pairs:
+        if x is None or y is None:
+            continue
+        if acc is None:
+            acc = x * y if value == 1.0 else value * (x * y)
+        else:
+            acc = torch.addcmul(acc, x, y, value=value)
+    return acc
+
+
+def _lin(x: Tensor | None, a: float, y: Tensor | None = None, b: float = 1.0) -> Tensor | None:
+    """``a x + b y`` for coefficients that may be zero (``None``)."""
+    if x is None:
+        return None if y is None else (y if b == 1.0 else b * y)
+    x = x if a == 1.0 else a * x
+    return x if y is None else (x + y if b == 1.0 else torch.add(x, y, alpha=b))
 
 
 def mul(a: Jet, b: Jet) -> Jet:
     r"""Cauchy product :math:`(ab)_k = \sum_{i + j = k} a_i b_j` of two jets (coefficients
     broadcast)."""
-    out = []
-    for k in range(len(a)):
-        acc = a[0] * b[k]
-        for i in range(1, k + 1):
-            acc = torch.addcmul(acc, a[i], b[k - i])
-        out.append(acc)
-    return out
+    return [_dot((a[i], b[k - i]) for i in range(k + 1)) for k in range(len(a))]
+
+
+def _over(x: Tensor | None, d: Tensor) -> Tensor | None:
+    return None if x is None else x / d
 
 
 def div(a: Jet, b: Jet) -> Jet:
     r""":math:`q = a / b`: :math:`q_k = (a_k - \sum_{i=1}^k b_i q_{k-i}) / b_0`."""
+    b0 = cast(Tensor, b[0])
     q: Jet = []
     for k in range(len(a)):
-        acc = a[k]
-        for i in range(1, k + 1):
-            acc = torch.addcmul(acc, b[i], q[k - i], value=-1.0)
-        q.append(acc / b[0])
+        q.append(_over(_dot(((b[i], q[k - i]) for i in range(1, k + 1)), a[k], -1.0), b0))
     return q
 
 
 def sqrt(a: Jet) -> Jet:
     r""":math:`r = \sqrt a`: :math:`r_k = (a_k - \sum_{i=1}^{k-1} r_i r_{k-i}) / (2 r_0)`."""
-    r = [torch.sqrt(a[0])]
+    r0 = torch.sqrt(cast(Tensor, a[0]))
+    r: Jet = [r0]
     for k in range(1, len(a)):
-        acc = a[k]
-        for i in range(1, k):
-            acc = torch.addcmul(acc, r[i], r[k - i], value=-1.0)
-        r.append(acc / (2.0 * r[0]))
+        r.append(_over(_dot(((r[i], r[k - i]) for i in range(1, k)), a[k], -1.0), 2.0 * r0))
     return r
 
 
@@ -97,10 +112,13 @@ def sin_cos(phi: Jet) -> tuple[Jet, Jet]:
     :math:`(\cos\varphi)' = -\varphi' \sin\varphi`:
     :math:`s_k = \frac1k \sum_{j=1}^k j \varphi_j c_{k-j}`,
     :math:`c_k = -\frac1k \sum_{j=1}^k j \varphi_j s_{k-j}`."""
-    s, c = [torch.sin(phi[0])], [torch.cos(phi[0])]
+    phi0 = cast(Tensor, phi[0])
+    s: Jet = [torch.sin(phi0)]
+    c: Jet = [torch.cos(phi0)]
     for k in range(1, len(phi)):
-        s.append(cast(Tensor, sum(j * phi[j] * c[k - j] for j in range(1, k + 1))) / k)
-        c.append(-cast(Tensor, sum(j * phi[j] * s[k - j] for j in range(1, k + 1))) / k)
+        dphi = [_lin(phi[j], float(j)) for j in range(k + 1)]
+        s.append(_lin(_dot((dphi[j], c[k - j]) for j in range(1, k + 1)), 1.0 / k))
+        c.append(_lin(_dot((dphi[j], s[k - j]) for j in range(1, k + 1)), -1.0 / k))
     return s, c
 
 
@@ -108,35 +126,54 @@ def acos(c: Jet, sin_theta: Jet) -> Jet:
     r""":math:`\theta = \arccos c` given the jet of :math:`\sin\theta > 0`, from
     :math:`c' = -\theta' \sin\theta`:
     :math:`\theta_k = -(k c_k + \sum_{j=1}^{k-1} j \theta_j S_{k-j}) / (k S_0)`."""
-    theta = [torch.atan2(sin_theta[0], c[0])]
+    S0 = cast(Tensor, sin_theta[0])
+    theta: Jet = [torch.atan2(S0, cast(Tensor, c[0]))]
     for k in range(1, len(c)):
-        acc = k * c[k]
-        for j in range(1, k):
-            acc = acc + j * theta[j] * sin_theta[k - j]
-        theta.append(-acc / (k * sin_theta[0]))
+        acc = _dot(((_lin(theta[j], float(j)), sin_theta[k - j]) for j in range(1, k)),
+                   _lin(c[k], float(k)))
+        theta.append(_over(_lin(acc, -1.0), k * S0))
     return theta
 
 
 def _rsub(value: float, jet: Jet) -> Jet:
     """The jet of ``value - x``."""
-    return [value - jet[0]] + [-x for x in jet[1:]]
+    return [value - cast(Tensor, jet[0])] + [_lin(x, -1.0) for x in jet[1:]]
 
 
 def _plus(jet: Jet, value: float) -> Jet:
     """The jet of ``x + value``."""
-    return [jet[0] + value, *jet[1:]]
+    return [cast(Tensor, jet[0]) + value, *jet[1:]]
 
 
 def _scale(jet: Jet, value: float | Tensor) -> Jet:
     """The jet of ``value x`` for a constant ``value``."""
-    return [value * x for x in jet]
+    return [None if x is None else value * x for x in jet]
+
+
+def _sub(a: Jet, b: Jet) -> Jet:
+    """The jet of ``a - b``."""
+    return [_lin(x, 1.0, y, -1.0) for x, y in zip(a, b, strict=True)]
+
+
+def _stack(pairs, dim: int = 0) -> Jet:
+    """Coefficient-wise ``torch.stack`` (a zero beside a nonzero coefficient is filled in)."""
+    out: Jet = []
+    for pair in pairs:
+        known = [x for x in pair if x is not None]
+        if not known:
+            out.append(None)
+        else:
+            ref = torch.broadcast_tensors(*known)[0]
+            out.append(torch.stack([ref.new_zeros(()).expand(ref.shape) if x is None
+                                    else x.expand(ref.shape) for x in pair], dim))
+    return out
 
 
 def _select(mask: Tensor, x: Jet, y: Jet) -> Jet:
     """``where(mask, x, y)`` coefficient-wise for a float 0/1 ``mask`` and finite ``x, y``:
     exact (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
     keep = 1.0 - mask
-    return [torch.addcmul(b * keep, a, mask) for a, b in zip(x, y, strict=True)]
+    return [_dot(((a, mask),), _dot(((b, keep),))) for a, b in zip(x, y, strict=True)]
 
 
 def _series_weights(y: Jet, s: Jet, terms: int) -> tuple[Jet, Jet]:
@@ -149,7 +186,7 @@ def _series_weights(y: Jet, s: Jet, terms: int) -> tuple[Jet, Jet]:
     """
     s2 = mul(s, s)
     s2y = mul(s2, y)
-    u = {k: [torch.sub(k * k * a, b) for a, b in zip(y, s2y, strict=True)]
+    u = {k: [_lin(a, float(k * k), b, -1.0) for a, b in zip(y, s2y, strict=True)]
          for k in range(1, terms)}
     nested = []
     for j in (0, 1):
@@ -162,6 +199,18 @@ def _series_weights(y: Jet, s: Jet, terms: int) -> tuple[Jet, Jet]:
     return mul(s, nested[0]), mul(_scale(mul(s, _rsub(1.0, s2)), 1.0 / 3.0), nested[1])
 
 
+def _put(x: Jet, at: tuple[Tensor, ...], values: Jet) -> Jet:
+    """``x`` with ``values`` put at the indices ``at`` (out of place), coefficient-wise."""
+    out: Jet = []
+    for e, v in zip(x, values, strict=True):
+        if e is None and v is None:
+            out.append(None)
+        else:
+            full = torch.zeros_like(cast(Tensor, v)) if e is None else e
+            out.append(torch.index_put(full, at, torch.zeros_like(e) if v is None else v))
+    return out
+
+
 def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
     ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``.
@@ -172,10 +221,11 @@ def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     transforms or forward AD, on other devices) on every element, selected arithmetically.
     """
     y = _rsub(1.0, c)
-    terms, threshold = _series(len(c) - 1, c[0].dtype)
-    small = (y[0] * torch.clamp(s[0] * s[0], min=1.0) < threshold).to(c[0].dtype)
+    c0, s0, y0 = cast(Tensor, c[0]), cast(Tensor, s[0]), cast(Tensor, y[0])
+    terms, threshold = _series(len(c) - 1, c0.dtype)
+    small = (y0 * torch.clamp(s0 * s0, min=1.0) < threshold).to(c0.dtype)
     host = (small.device.type == "cpu" and not torch.compiler.is_compiling()
-            and fused_path(c[0], s[0]))
+            and fused_path(c0, s0))
     n_small = int(small.count_nonzero()) if host else -1
 
     # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2).
@@ -185,17 +235,17 @@ def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     theta = acos(c_safe, sin_t)
     sin_st, cos_st = sin_cos(mul(s, theta))
     F = div(sin_st, sin_t)
-    G = div([a - b for a, b in zip(mul(s, cos_st), mul(F, c_safe), strict=True)],
+    G = div(_sub(mul(s, cos_st), mul(F, c_safe)),
             mul(sin_t, sin_t))
     if n_small == 0:
         return F, G
     if 0 < n_small < small.numel() // 4:
         # A few series elements: the series on those alone, put into the closed forms.
         at = (small > 0).nonzero(as_tuple=True)
-        F_series, G_series = _series_weights([x.expand(small.shape)[at] for x in y],
-                                             [x.expand(small.shape)[at] for x in s], terms)
-        return ([torch.index_put(e, at, x) for x, e in zip(F_series, F, strict=True)],
-                [torch.index_put(e, at, x) for x, e in zip(G_series, G, strict=True)])
+        F_series, G_series = _series_weights(
+            [None if x is None else x.expand(small.shape)[at] for x in y],
+            [None if x is None else x.expand(small.shape)[at] for x in s], terms)
+        return _put(F, at, F_series), _put(G, at, G_series)
     F_series, G_series = _series_weights(y, s, terms)
     return _select(small, F_series, F), _select(small, G_series, G)
 
@@ -206,20 +256,27 @@ def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
     (constant nearby). Components first: every product runs over contiguous rows and every
     dot product is a sum over the leading dim (fast on CPU, unlike a trailing dim of 4 or 8).
     """
-    flip = ((A[0][:4] * B[0][:4]).sum(0) < 0).to(B[0].dtype)
+    A0, B0 = cast(Tensor, A[0]), cast(Tensor, B[0])
+    flip = ((A0[:4] * B0[:4]).sum(0) < 0).to(B0.dtype)
     B = _scale(B, 1.0 - 2.0 * flip)  # b's representative nearest to a
     # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
-    dots = mul(A, [torch.stack((b, torch.cat((b[4:], b[:4])))) for b in B])
-    c, delta = [d[0, :4].sum(0) for d in dots], [d[1].sum(0) for d in dots]
+    dots = mul(A, [None if b is None else torch.stack((b, torch.cat((b[4:], b[:4]))))
+                   for b in B])
+    c = [None if d is None else d[0, :4].sum(0) for d in dots]
+    delta = [None if d is None else d[1].sum(0) for d in dots]
     # s = 1 - t for a, t for b
-    s = [torch.stack(pair) for pair in zip(_rsub(1.0, alpha), alpha, strict=True)]
-    F, G = ([w[:, None] for w in jet] for jet in _weights(c, s))
-    X = [torch.stack(pair) for pair in zip(A, B, strict=True)]
-    q = [x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
-    correction = mul(delta, [x.sum(0) for x in mul(G, [x[:, :4] for x in X])])
-    return [torch.cat((x[:4], x[4:] - corr)) for x, corr in zip(q, correction, strict=True)]
+    s = _stack(zip(_rsub(1.0, alpha), alpha, strict=True))
+    F, G = ([None if w is None else w[:, None] for w in jet] for jet in _weights(c, s))
+    X = _stack(zip(A, B, strict=True))
+    q = [None if x is None else x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
+    GP = mul(G, [None if x is None else x[:, :4] for x in X])
+    correction = mul(delta, [None if x is None else x.sum(0) for x in GP])
+    return [None if x is None else torch.cat((x[:4], _lin(x[4:], 1.0, corr, -1.0)))
+            for x, corr in zip(q, correction, strict=True)]
 
 
 def derivatives(jet: Jet) -> list[Tensor]:
-    """The derivatives ``x^(k) = k! x_k`` of a jet."""
-    return [math.factorial(k) * x for k, x in enumerate(jet)]
+    """The derivatives ``x^(k) = k! x_k`` of a jet (zeros where a coefficient is zero)."""
+    x0 = cast(Tensor, jet[0])
+    return [torch.zeros_like(x0) if x is None else math.factorial(k) * x
+            for k, x in enumerate(jet)]

@@ -384,15 +384,15 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
     points = points.reshape(n, m * 8).T.reshape(m, 8, n).transpose(0, 1)
     flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j).T for x in level)
             for j, level in enumerate(levels, start=1)]
-    zero = points.new_zeros(())
     outs = []
     for part in chunks(n, JET_CHUNK):  # temporaries stay in cache
-        q = [points[..., part].contiguous()]
-        q += [zero.expand(q[0].shape)] * order
+        # Zero Taylor coefficients are None (skipped): level 0 is constant, alpha affine.
+        q: list[Tensor | None] = [points[..., part].contiguous(), *[None] * order]
         for alpha, slope in flat:
             alpha, slope = alpha[:, part].contiguous(), slope[:, part].contiguous()
-            jet = [alpha, slope, *[zero.expand(alpha.shape)] * (order - 1)][:order + 1]
-            q = _taylor.sclerp([x[:, :-1] for x in q], [x[:, 1:] for x in q], jet)
+            jet = [alpha, slope, *[None] * (order - 1)][:order + 1]
+            q = _taylor.sclerp(*([None if x is None else x[:, sl] for x in q]
+                                 for sl in (slice(None, -1), slice(1, None))), jet)
         outs.append([x[:, 0].T for x in _taylor.derivatives(q)])
     return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
