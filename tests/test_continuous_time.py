@@ -16,6 +16,7 @@ import pytest
 import torch
 from pytransform3d import rotations as pr
 from pytransform3d import transformations as pt
+from references import casteljau_np, deboor_np, sclerp_mat
 from strategies import unit_quat
 
 import torch_dq.dualquat as dq
@@ -58,32 +59,6 @@ def max_err(a, b):
 
 
 # ----------------------------------------------------------------------------- numpy references
-
-def sclerp_mat(Ta, Tb, s):
-    """Screw interpolation of 4x4 transforms, Ta exp(s log(Ta^-1 Tb))."""
-    xi = pt.exponential_coordinates_from_transform(np.linalg.solve(Ta, Tb))
-    return Ta @ pt.transform_from_exponential_coordinates(s * xi)
-
-
-def casteljau_mat(mats, s):
-    pts = list(mats)
-    while len(pts) > 1:
-        pts = [sclerp_mat(pts[i], pts[i + 1], s) for i in range(len(pts) - 1)]
-    return pts[0]
-
-
-def deboor_mat(mats, knots, p, s):
-    n = len(mats)
-    r = p
-    while r < n - 1 and knots[r + 1] <= s:
-        r += 1
-    d = {i: mats[i] for i in range(r - p, r + 1)}
-    for j in range(1, p + 1):
-        for i in range(r, r - p + j - 1, -1):
-            a = (s - knots[i]) / (knots[i + p + 1 - j] - knots[i])
-            d[i] = sclerp_mat(d[i - 1], d[i], a)
-    return d[r]
-
 
 def dq_of(T, ref):
     """The unit dual quaternion of a 4x4 transform (pytransform3d), sign-aligned with ref."""
@@ -139,7 +114,7 @@ def test_bezier_derivatives_match_reference(gen, order):
     jet = bezier_derivatives(ctrl, t, order=order, domain=(t0, t1))
     assert len(jet) == order + 1 and all(x.shape == (3, 8) and x.dtype == F64 for x in jet)
     mats = list(dq.to_matrix(ctrl).numpy())
-    _check_against_reference(jet, lambda s: casteljau_mat(mats, (s - t0) / (t1 - t0)), t,
+    _check_against_reference(jet, lambda s: casteljau_np(mats, (s - t0) / (t1 - t0), sclerp_mat), t,
                              2e-3, 1.0)
 
 
@@ -153,7 +128,8 @@ def test_bspline_derivatives_match_reference_nonuniform(gen, order, degree):
     t = torch.tensor([10.2, 10.48, 11.0, 12.3], dtype=F64)  # inside spans, off the knots
     jet = bspline_derivatives(ctrl, t, order=order, degree=degree, knots=knots)
     mats, kn = list(dq.to_matrix(ctrl).numpy()), knots.tolist()
-    _check_against_reference(jet, lambda s: deboor_mat(mats, kn, degree, s), t, 4e-3, 1.0)
+    _check_against_reference(jet, lambda s: deboor_np(mats, kn, degree, s, sclerp_mat), t,
+                             4e-3, 1.0)
 
 
 def test_derivatives_order0_and_poses_match_the_curves(gen):
@@ -234,11 +210,11 @@ def test_kinematics_and_imu_match_matrix_formulas(gen, kind):
     g = torch.tensor([0.3, -0.2, -9.8], dtype=F64)
     if kind == "bezier":
         jet = bezier_derivatives(ctrl, t, domain=(0.5, 3.0))
-        ref_fn = lambda s: casteljau_mat(mats, (s - 0.5) / 2.5)  # noqa: E731
+        ref_fn = lambda s: casteljau_np(mats, (s - 0.5) / 2.5, sclerp_mat)  # noqa: E731
     else:
         knots = torch.tensor([0.5] * 4 + [1.2, 2.2] + [3.0] * 4, dtype=F64)
         jet = bspline_derivatives(ctrl, t, knots=knots)
-        ref_fn = lambda s: deboor_mat(mats, knots.tolist(), 3, s)  # noqa: E731
+        ref_fn = lambda s: deboor_np(mats, knots.tolist(), 3, s, sclerp_mat)  # noqa: E731
     world, body = kinematics(*jet), kinematics(*jet, frame="body")
     gyro, accel = imu(*jet, gravity=g)
     for k, tk in enumerate(t.tolist()):

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from pytransform3d import transformations as pt
+from references import casteljau_np, deboor_np, sclerp_mat
 from scipy.interpolate import BSpline
 from strategies import unit_quat
 
@@ -56,32 +56,6 @@ def slerp_np(q0, q1, s):
         q = (1 - s) * q0 + s * q1
         return q / np.linalg.norm(q)
     return (math.sin((1 - s) * theta) * q0 + math.sin(s * theta) * q1) / math.sin(theta)
-
-
-def casteljau_np(points, s, interp):
-    pts = list(points)
-    while len(pts) > 1:
-        pts = [interp(pts[i], pts[i + 1], s) for i in range(len(pts) - 1)]
-    return pts[0]
-
-
-def deboor_np(points, knots, p, s, interp):
-    n = len(points)
-    r = p
-    while r < n - 1 and knots[r + 1] <= s:  # knots[r] <= s < knots[r+1], last span at the end
-        r += 1
-    d = {i: points[i] for i in range(r - p, r + 1)}
-    for j in range(1, p + 1):
-        for i in range(r, r - p + j - 1, -1):
-            a = (s - knots[i]) / (knots[i + p + 1 - j] - knots[i])
-            d[i] = interp(d[i - 1], d[i], a)
-    return d[r]
-
-
-def sclerp_mat(Ta, Tb, s):
-    """Screw interpolation of 4x4 transforms: Ta exp(s log(Ta^-1 Tb))."""
-    xi = pt.exponential_coordinates_from_transform(np.linalg.inv(Ta) @ Tb)
-    return Ta @ pt.transform_from_exponential_coordinates(s * xi)
 
 
 def bernstein_np(points, s):
