@@ -207,7 +207,8 @@ def _put(x: Jet, at: tuple[Tensor, ...], values: Jet) -> Jet:
             out.append(None)
         else:
             full = torch.zeros_like(cast(Tensor, v)) if e is None else e
-            out.append(torch.index_put(full, at, torch.zeros_like(e) if v is None else v))
+            out.append(torch.index_put(full, at, torch.zeros_like(cast(Tensor, e))
+                                       if v is None else v))
     return out
 
 
@@ -223,7 +224,9 @@ def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     y = _rsub(1.0, c)
     c0, s0, y0 = cast(Tensor, c[0]), cast(Tensor, s[0]), cast(Tensor, y[0])
     terms, threshold = _series(len(c) - 1, c0.dtype)
-    small = (y0 * torch.clamp(s0 * s0, min=1.0) < threshold).to(c0.dtype)
+    # Non-finite cosines take the closed forms (NaN there): a bad element must not change
+    # which branches the others are computed with (their values and gradients stay bitwise).
+    small = ((y0 * torch.clamp(s0 * s0, min=1.0) < threshold) & y0.isfinite()).to(c0.dtype)
     host = (small.device.type == "cpu" and not torch.compiler.is_compiling()
             and fused_path(c0, s0))
     n_small = int(small.count_nonzero()) if host else -1
@@ -271,7 +274,7 @@ def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
     q = [None if x is None else x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
     GP = mul(G, [None if x is None else x[:, :4] for x in X])
     correction = mul(delta, [None if x is None else x.sum(0) for x in GP])
-    return [None if x is None else torch.cat((x[:4], _lin(x[4:], 1.0, corr, -1.0)))
+    return [None if x is None else torch.cat((x[:4], cast(Tensor, _lin(x[4:], 1.0, corr, -1.0))))
             for x, corr in zip(q, correction, strict=True)]
 
 

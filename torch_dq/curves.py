@@ -391,8 +391,9 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
         for alpha, slope in flat:
             alpha, slope = alpha[:, part].contiguous(), slope[:, part].contiguous()
             jet = [alpha, slope, *[None] * (order - 1)][:order + 1]
-            q = _taylor.sclerp(*([None if x is None else x[:, sl] for x in q]
-                                 for sl in (slice(None, -1), slice(1, None))), jet)
+            a, b = ([None if x is None else x[:, sl] for x in q]
+                    for sl in (slice(None, -1), slice(1, None)))
+            q = _taylor.sclerp(a, b, jet)
         outs.append([x[:, 0].T for x in _taylor.derivatives(q)])
     return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
