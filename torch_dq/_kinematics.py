@@ -27,7 +27,7 @@ from torch import Tensor
 
 from . import _checks
 from ._core import dq_mul, lift, qconj, qmul, qrotate, split
-from ._numerics import compute_dtype, safe_denominator
+from ._numerics import compute_dtype, safe_denominator, threshold
 
 __all__ = ["Kinematics", "imu", "kinematics", "screw_axis", "twists", "velocity"]
 
@@ -321,7 +321,7 @@ def screw_axis(omega: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     w, u = omega.to(dtype).expand(*batch, 3), v.to(dtype).expand(*batch, 3)
     w2 = (w * w).sum(-1, keepdim=True)
     v2 = (u * u).sum(-1, keepdim=True)
-    eps = torch.finfo(dtype).eps
+    eps = threshold("pure_translation", dtype)
     translation = w2 <= (eps * eps) * v2  # includes rest (0 <= 0)
     # At rest, and for a non-finite twist, there is no axis: NaN (never a finite limit).
     rest = (translation & (v2 <= 0)) | ~(torch.isfinite(w2) & torch.isfinite(v2))

@@ -62,7 +62,7 @@ from ._core import align_chain, knot_span
 from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
-from ._numerics import compute_dtype, safe_denominator
+from ._numerics import compute_dtype, safe_denominator, threshold
 
 __all__ = [
     "bezier",
@@ -80,7 +80,6 @@ __all__ = [
 for _f in (Kinematics, imu, kinematics, screw_axis, twists, velocity):
     _f.__module__ = __name__  # documented and pickled as torch_dq.curves.<name>
 
-_ULPS = 4.0  # tolerance of the domain check on t, in units of eps * scale of the domain
 _MAX_ORDER = 3  # highest time derivative of the *_derivatives functions
 
 
@@ -174,7 +173,7 @@ def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | No
     if knots is not None:
         flags += [~torch.isfinite(knots).all(), (knots[1:] < knots[:-1]).any()]
     flags.append(~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi)))
-    tol = _ULPS * torch.finfo(t.dtype).eps * torch.maximum(lo.abs(), hi.abs())
+    tol = threshold("domain_rtol", t.dtype) * torch.maximum(lo.abs(), hi.abs())
     flags.append(((t < lo - tol) | (t > hi + tol)).any())  # NaN times give NaN poses
     try:
         bad = torch.stack(flags).tolist()

@@ -38,6 +38,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from .._numerics import threshold
+
 _TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
 
 
@@ -87,12 +89,6 @@ def _select(mask: Tensor, x: Tensor, y: Tensor) -> Tensor:
     """``where(mask, x, y)`` for a float 0/1 ``mask`` and finite ``x``, ``y``: exact
     (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
     return torch.addcmul(y * (1.0 - mask), x, mask)
-
-
-def _series_threshold(dtype: torch.dtype) -> float:
-    r"""Switch point in :math:`y`: series error :math:`\sqrt y (y/2)^4` (of :math:`\delta G`)
-    against the closed form's :math:`\epsilon / \sqrt y`, balanced at :math:`y^5 = 16\epsilon`."""
-    return float((16.0 * torch.finfo(dtype).eps) ** (1.0 / _TERMS))
 
 
 def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
@@ -184,7 +180,7 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
     s2 = s * s
     y = 1.0 - c
     # The series is accurate while y max(1, s^2) is small (its terms scale like (s^2 y)^k).
-    small = (y * torch.clamp(s2, min=1.0) < _series_threshold(c.dtype)).to(c.dtype)
+    small = (y * torch.clamp(s2, min=1.0) < threshold("screw_series", c.dtype)).to(c.dtype)
     # Closed forms on guarded inputs (series elements with y below the threshold see
     # theta = pi / 2). Using sin and cos of the same theta makes the endpoints exact (s = 1:
     # F = 1, G = 0). No clamp: c > 1 only occurs in the series branch, and c < -1
