@@ -1,6 +1,8 @@
-"""Random samplers (seeded torch draws) and hypothesis strategies shared by the tests."""
+"""Random samplers (seeded torch draws), hypothesis strategies and small assertion helpers
+shared by the tests."""
 
 import math
+import re
 
 import torch
 from hypothesis import strategies as st
@@ -135,3 +137,14 @@ def grads(f, *args):
     outs = out if isinstance(out, tuple) else (out,)
     sum(o.sum() for o in outs).backward()
     return [a.grad for a in args]
+
+
+def raises_exactly(call, error, pattern):
+    """``call()`` raises exactly ``error`` (not a subclass) with a message matching ``pattern``."""
+    try:
+        call()
+    except Exception as e:
+        assert type(e) is error, f"{type(e).__name__}: {e}"
+        assert re.search(pattern, str(e)), str(e)
+    else:
+        raise AssertionError(f"no {error.__name__} raised")

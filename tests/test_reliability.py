@@ -29,7 +29,7 @@ import pytest
 import torch
 from hypothesis import given
 from hypothesis import strategies as st
-from strategies import dual_quats, quats
+from strategies import dual_quats, quats, raises_exactly
 from torch import Tensor
 
 import torch_dq.dual as D
@@ -373,10 +373,7 @@ BAD_CASES = _bad_cases() + EXTRA_CASES
 @pytest.mark.parametrize("case", BAD_CASES, ids=lambda c: c[0])
 def test_bad_input(case):
     _, call, error, pattern = case
-    with pytest.raises(error) as info:
-        call()
-    assert type(info.value) is error
-    assert re.search(pattern, str(info.value)), str(info.value)
+    raises_exactly(call, error, pattern)
 
 
 # ----------------------------------------------------------------------------- empty batches
