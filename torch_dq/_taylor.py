@@ -36,7 +36,7 @@ from torch import Tensor
 
 from ._kernels import fused_path
 
-__all__ = ["mul", "sclerp"]
+__all__ = ["dq_mul", "dq_rows", "mul", "sclerp"]
 
 def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
     r"""Number of series terms and switch point in :math:`y = 1 - \cos\theta` for jets of
@@ -283,3 +283,35 @@ def derivatives(jet: Jet) -> list[Tensor]:
     x0 = cast(Tensor, jet[0])
     return [torch.zeros_like(x0) if x is None else math.factorial(k) * x
             for k, x in enumerate(jet)]
+
+
+def _qmul_rows(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of quaternions as component rows ``(4, ...)`` (``w, x, y, z``)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw))
+
+
+def dq_rows(a: Tensor, b: Tensor) -> Tensor:
+    r"""Dual-quaternion product :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
+    ``(8, ...)`` (broadcast)."""
+    return torch.cat((_qmul_rows(a[:4], b[:4]),
+                      _qmul_rows(a[:4], b[4:]) + _qmul_rows(a[4:], b[:4])))
+
+
+def dq_mul(a: Jet, b: Jet) -> Jet:
+    r"""Leibniz (Cauchy) product of two dual-quaternion jets of component rows ``(8, ...)``:
+    :math:`(ab)_k = \sum_{i + j = k} a_i b_j` with the dual-quaternion product (not
+    commutative: ``a`` on the left)."""
+    out: Jet = []
+    for k in range(len(a)):
+        acc: Tensor | None = None
+        for i in range(k + 1):
+            x, y = a[i], b[k - i]
+            if x is not None and y is not None:
+                acc = dq_rows(x, y) if acc is None else acc + dq_rows(x, y)
+        out.append(acc)
+    return out

@@ -57,12 +57,13 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _kernels, _taylor, dualquat
-from ._core import align_chain, knot_span
+from . import _checks, _cumulative, _kernels, _taylor, dualquat
+from ._core import align_chain
 from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
-from ._numerics import compute_dtype, safe_denominator, threshold
+from ._numerics import compute_dtype
+from ._time import KnotDomain
 
 __all__ = [
     "bezier",
@@ -81,6 +82,7 @@ for _f in (Kinematics, imu, kinematics, screw_axis, twists, velocity):
     _f.__module__ = __name__  # documented and pickled as torch_dq.curves.<name>
 
 _MAX_ORDER = 3  # highest time derivative of the *_derivatives functions
+FORMS = ("de_boor", "cumulative")  # the B-spline forms (module docstring)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -106,12 +108,21 @@ def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
                          f"({what}), got shape {got}")
 
 
+def check_form(fn: str, form) -> str:
+    """``form`` if it names a B-spline form (:data:`FORMS`), else ``ValueError``."""
+    if not isinstance(form, str) or form not in FORMS:
+        _checks.fail(fn, f"form must be 'de_boor' (the paper's De Boor pyramid) or "
+                         f"'cumulative' (Kim-Kim-Shin, C^(p-1)), got {form!r}")
+    return form
+
+
 def _same_device(fn: str, ctrl: Tensor, name: str, x: Tensor) -> None:
     if x.device != ctrl.device:
         _checks.fail(fn, f"{name} is on {x.device} but ctrl is on {ctrl.device}", TypeError)
 
 
-def _check_times(fn: str, t, ctrl: Tensor) -> torch.Size:
+def _time_batch(fn: str, t, ctrl: Tensor) -> torch.Size:
+    """Check ``t`` ``(T,)`` or ``(..., T)`` on ``ctrl``'s device; the broadcast batch shape."""
     _checks.tensor(fn, "t", t)
     if t.dim() < 1:
         _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
@@ -125,11 +136,6 @@ def _time_dtype(ctrl: Tensor, *times: Tensor) -> torch.dtype:
     for x in times:
         dtype = torch.promote_types(dtype, compute_dtype(x.dtype))
     return dtype
-
-
-def _fmt(x: float, dtype: torch.dtype) -> str:
-    """A time for a message, with the digits its dtype holds (UNIX seconds stay readable)."""
-    return f"{x:.{15 if dtype == torch.float64 else 7}g}"
 
 
 def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor | float, Tensor | float]:
@@ -160,48 +166,6 @@ def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor | float, Tensor | flo
                                                          and ends[0] < ends[1]):
         _checks.fail(fn, f"domain must be two finite times t0 < t1, got {domain!r}")
     return ends[0], ends[1]
-
-
-def _check_values(fn: str, t: Tensor, lo: Tensor, hi: Tensor, knots: Tensor | None,
-                  fix: str) -> None:
-    """All value checks with one synchronisation (``.tolist()`` of a few bools).
-
-    ``t``, ``lo``, ``hi`` (and ``knots``) are in the time dtype; ``fix`` ends the message
-    on ``t`` outside the domain (how to get there).
-    """
-    flags = []
-    if knots is not None:
-        flags += [~torch.isfinite(knots).all(), (knots[1:] < knots[:-1]).any()]
-    flags.append(~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi)))
-    tol = threshold("domain_rtol", t.dtype) * torch.maximum(lo.abs(), hi.abs())
-    flags.append(((t < lo - tol) | (t > hi + tol)).any())  # NaN times give NaN poses
-    try:
-        bad = torch.stack(flags).tolist()
-    except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
-        raise RuntimeError(f"{fn}: the value checks read t (and knots) on the host, which "
-                           f"this transform does not allow; pass check=False") from e
-    dt = t.dtype
-    ends = f"[{_fmt(lo.item(), dt)}, {_fmt(hi.item(), dt)}]"
-    if knots is not None:
-        if bad[0]:
-            _checks.fail(fn, "knots must be finite")
-        if bad[1]:
-            _checks.fail(fn, f"knots must be non-decreasing, got {knots.tolist()}")
-        if bad[2]:
-            _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = {ends}")
-    elif bad[0]:
-        _checks.fail(fn, f"domain must be two finite times t0 < t1, got {ends}")
-    if bad[-1]:
-        finite = t[torch.isfinite(t)]
-        n_bad = int((~torch.isfinite(t)).sum())
-        if finite.numel():
-            got = (f"got values in [{_fmt(finite.min().item(), dt)}, "
-                   f"{_fmt(finite.max().item(), dt)}]")
-            if n_bad:
-                got += f" and t contains NaN/inf ({n_bad} values)"
-        else:
-            got = f"but t contains NaN/inf only ({n_bad} values)"
-        _checks.fail(fn, f"t must lie in the domain {ends}, {got}; {fix}")
 
 
 # ----------------------------------------------------------------------------- knots
@@ -286,41 +250,24 @@ def _de_boor(d: Tensor, alphas: list[Tensor]) -> Tensor:
     return d[..., 0, :]
 
 
-# ----------------------------------------------------------------------------- local parameters
+def _kim_kim_shin(points: Tensor, weights: Tensor) -> Tensor:
+    r"""The cumulative form (Kim-Kim-Shin), one power per iteration: the reference.
 
-def _bezier_parameter(t: Tensor, t0, t1, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
-    """Local parameter ``(t - t0) / (t1 - t0)`` and its slope ``1 / (t1 - t0)``, computed in
-    ``t``'s (time) dtype and rounded to the compute dtype ``dtype``."""
-    t0, t1 = (torch.as_tensor(e, dtype=t.dtype, device=t.device) for e in (t0, t1))
-    span = t1 - t0
-    return ((t - t0) / span).to(dtype), (1.0 / span).to(dtype)
-
-
-def _bspline_parameters(t: Tensor, knots: Tensor, degree: int, n: int, dtype: torch.dtype):
-    """Spans and local parameters of De Boor's scheme, in the time dtype of ``t, knots``.
-
-    Returns ``r (..., T)`` (the span ``knots[r] <= t < knots[r + 1]``, ``r`` in
-    ``[p, n - 1]``; the last non-empty span at the right end of the domain), and per level
-    ``j = 1..p`` the pair ``alpha_j, slope_j (..., T, p + 1 - j)`` rounded to ``dtype``,
-    ``slope = d alpha / dt = 1 / (u_{i+p+1-j} - u_i)``.
+    ``points (..., T, p + 1, 8)``: the sign-aligned control points
+    :math:`c_{r-p}, \dots, c_r` of each time's span; ``weights (..., T, p)``: the cumulative
+    basis :math:`\tilde B_{r-p+j}(t)`, ``j = 1..p``. Returns ``(..., T, 8)``,
+    :math:`c_{r-p} \prod_{j=1}^p (c_{r-p+j-1}^{-1} c_{r-p+j})^{\tilde B_{r-p+j}}` with
+    :math:`x^w = \mathrm{sclerp}(1, x, w)` (shortest path).
     """
-    p = degree
-    r = knot_span(knots, t, p)
-    # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
-    K = knots[r[..., None] + torch.arange(1 - p, p + 1, device=t.device)]
-    te = t[..., None]
-    levels = []
-    for j in range(1, p + 1):
-        # alpha_i = (t - knots[i]) / (knots[i + p + 1 - j] - knots[i]), i = r-p+j .. r
-        left, right = K[..., j - 1:p], K[..., p:2 * p - j + 1]
-        denom = right - left
-        empty = denom <= 0  # never inside a non-empty span; guards 0 / 0 all the same
-        safe = safe_denominator(denom, empty)
-        alpha = torch.where(empty, 0.0, (te - left) / safe)
-        slope = torch.where(empty, 0.0, 1.0 / safe)
-        levels.append((alpha.to(dtype), slope.to(dtype)))
-    return r, levels
+    x = points[..., 0, :]
+    one = dualquat.identity(dtype=points.dtype, device=points.device)
+    for j in range(1, points.shape[-2]):
+        step = dualquat.mul(dualquat.conj(points[..., j - 1, :]), points[..., j, :])
+        x = dualquat.mul(x, dualquat.sclerp(one, step, weights[..., j - 1]))
+    return x
 
+
+# ----------------------------------------------------------------------------- span points
 
 def _span_points(ctrl: Tensor, r: Tensor, degree: int, batch: torch.Size) -> Tensor:
     """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, 8)``,
@@ -399,24 +346,29 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
 
 # ----------------------------------------------------------------------------- public curves
 
-def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool):
+def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extrapolate: bool):
+    """Checked arguments of a Bézier curve: ``batch``, ``ctrl`` in its compute dtype, the
+    local parameter ``s`` and its slope (:class:`~torch_dq._time.KnotDomain`: one span)."""
     _checks.flag(fn, "check", check)
+    _checks.flag(fn, "extrapolate", extrapolate)
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
-    batch = _check_times(fn, t, ctrl)
+    batch = _time_batch(fn, t, ctrl)
     t0, t1 = _domain(fn, domain, ctrl)
     tdtype = _time_dtype(ctrl, t, *(e for e in (t0, t1) if isinstance(e, Tensor)))
-    tt = t.to(tdtype)
-    if check:
-        lo, hi = (torch.as_tensor(e, dtype=tdtype, device=t.device) for e in (t0, t1))
-        _check_values(fn, tt, lo, hi, None,
-                      "evaluate inside it or pass a domain=(t0, t1) that covers it")
+    m = ctrl.shape[-2]
+    lo, hi = (torch.as_tensor(e, dtype=tdtype, device=t.device) for e in (t0, t1))
+    dom = KnotDomain(torch.stack((lo,) * m + (hi,) * m), m - 1)
+    tensor_ends = any(isinstance(e, Tensor) for e in (t0, t1))
+    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate,
+                      knots="domain" if tensor_ends else None,
+                      fix="evaluate inside it, pass a domain=(t0, t1) that covers it")
     dtype = compute_dtype(ctrl.dtype)
-    s, slope = _bezier_parameter(tt, t0, t1, dtype)
+    _, s, slope = dom.locate(rel, dtype)
     return batch, ctrl.to(dtype), s, slope
 
 
 def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = (0.0, 1.0),
-           check: bool = True) -> Tensor:
+           check: bool = True, extrapolate: bool = False) -> Tensor:
     r"""Bézier curve of unit dual quaternions by De Casteljau's algorithm (paper 4.1).
 
     With :math:`q_i^{(0)} = q_i` (the control points) and the local parameter
@@ -460,7 +412,7 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
         tensor([0.0000, 0.7500])
     """
     fn = "curves.bezier"
-    batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check)
+    batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
     if _kernels.fused_path(ctrl_c, s):
         return _fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
     return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
@@ -468,7 +420,7 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
 
 def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
                        domain: Sequence[float | Tensor] | Tensor = (0.0, 1.0),
-                       check: bool = True) -> tuple[Tensor, ...]:
+                       check: bool = True, extrapolate: bool = False) -> tuple[Tensor, ...]:
     r"""A Bézier curve (:func:`bezier`) and its exact time derivatives up to ``order``.
 
     Returns :math:`(x, \dot x, \dots, x^{(\mathrm{order})})` with derivatives with respect
@@ -506,30 +458,33 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
     """
     fn = "curves.bezier_derivatives"
     order = _check_order(fn, order)
-    batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check)
+    batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
     T, m = s.shape[-1], ctrl_c.shape[-2]
     points = ctrl_c[..., None, :, :].expand(*batch, T, m, 8)
     levels = [(s[..., None], slope)] * (m - 1)  # the same parameter at every level
     return tuple(x.to(ctrl.dtype) for x in _jet_scheme(points, levels, order, batch))
 
 
-def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool):
+def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool,
+                     extrapolate: bool, form) -> tuple[torch.Size, KnotDomain, Tensor, str]:
+    """Checked arguments of a B-spline: ``batch``, the time model on the (checked) knots in
+    the time dtype, the relative times to evaluate, the form."""
     _checks.flag(fn, "check", check)
+    _checks.flag(fn, "extrapolate", extrapolate)
+    form = check_form(fn, form)
     _check_ctrl(fn, ctrl, 2, "at least 2 control points")
     degree = _check_degree(fn, degree)
     n = int(ctrl.shape[-2])
     if degree >= n:
         _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
                          f"got degree {degree}")
-    batch = _check_times(fn, t, ctrl)
-    fix = "evaluate inside it or pass knots that cover it"
+    batch = _time_batch(fn, t, ctrl)
+    fix = "evaluate inside it, pass knots that cover it"
     if knots is None:
         tdtype = _time_dtype(ctrl, t)
         knots = clamped_uniform_knots(n, degree, dtype=tdtype, device=ctrl.device)
-        tt = t.to(tdtype)
-        if check:
-            _check_values(fn, tt, knots[degree], knots[n], None, fix + " (default knots: "
-                          "clamped uniform on [0, 1])")
+        fix += " (default knots: clamped uniform on [0, 1])"
+        validate = None
     else:
         _checks.tensor(fn, "knots", knots)
         _same_device(fn, ctrl, "knots", knots)
@@ -538,19 +493,58 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
                              f"{n + degree + 1} entries, got shape "
                              f"{_checks.shape_str(knots.shape)}")
         tdtype = _time_dtype(ctrl, t, knots)
-        knots, tt = knots.to(tdtype), t.to(tdtype)
-        if check:
-            _check_values(fn, tt, knots[degree], knots[n], knots, fix)
+        validate = "knots"
+    dom = KnotDomain(knots.to(tdtype), degree)
+    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate,
+                      fix=fix)
+    return batch, dom, rel, form
+
+
+def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
+                  batch: torch.Size) -> Tensor:
+    """The B-spline of ``form`` at the relative times ``rel`` of ``dom``, in ``ctrl``'s dtype.
+
+    The control polygon is sign-aligned first (``ctrl[i]`` nearest to ``ctrl[i - 1]``): the
+    motion is the same (every interpolation takes the shortest path), but neighbouring spans
+    then start from representatives of one chain and the output sign does not jump at knots.
+    """
     dtype = compute_dtype(ctrl.dtype)
-    r, levels = _bspline_parameters(tt, knots, degree, n, dtype)
-    # Sign-align the control polygon (ctrl[i] nearest to ctrl[i - 1]): the motion is the
-    # same (sclerp with shortest=True is sign-equivariant), but neighbouring spans then
-    # start from representatives of one chain and the output sign does not jump at knots.
-    return batch, degree, align_chain(ctrl.to(dtype)), r, levels
+    ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
+    r = dom.span(rel)
+    if form == "cumulative":
+        return _cumulative_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
+    alphas = [alpha for alpha, _ in dom.de_boor_levels(rel, r, dtype)]
+    if _kernels.fused_path(ctrl_c, *alphas):
+        return _fused_bspline(ctrl_c, r, alphas, p, batch).to(ctrl.dtype)
+    return _de_boor(_span_points(ctrl_c, r, p, batch), alphas).to(ctrl.dtype)
+
+
+def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: int,
+                  batch: torch.Size) -> tuple[Tensor, ...]:
+    """The B-spline of ``form`` and its time derivatives to ``order`` (as
+    :func:`_bspline_pose`), each ``(*batch, T, 8)`` in ``ctrl``'s dtype."""
+    dtype = compute_dtype(ctrl.dtype)
+    ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
+    r = dom.span(rel)
+    if form == "cumulative":
+        xs = _cumulative_jets(ctrl_c, dom, rel, r, order, batch)
+    else:
+        levels = dom.de_boor_levels(rel, r, dtype)
+        xs = _jet_scheme(_span_points(ctrl_c, r, p, batch), levels, order, batch)
+    return tuple(x.to(ctrl.dtype) for x in xs)
+
+
+def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
+                     batch: torch.Size) -> list[Tensor]:
+    """The cumulative form (:mod:`torch_dq._cumulative`): its basis in the time dtype, rounded
+    to the compute dtype of the sign-aligned ``ctrl``, then the product of powers."""
+    weights = _cumulative.basis(dom.knots.to(rel.dtype), r, rel, dom.degree, order)
+    weights = [w.to(ctrl.dtype) for w in weights]
+    return _cumulative.jets(_span_points(ctrl, r, dom.degree, batch), weights, order)
 
 
 def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = None,
-            check: bool = True) -> Tensor:
+            check: bool = True, extrapolate: bool = False, form: str = "de_boor") -> Tensor:
     r"""B-spline curve of unit dual quaternions by De Boor's algorithm (paper 4.2).
 
     For ``t`` in the span :math:`[u_r, u_{r+1})` of the knots :math:`u`, with ``p`` the
@@ -620,16 +614,15 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
                 [0.0000, 1.0000, 0.0000]])
     """
     fn = "curves.bspline"
-    batch, degree, ctrl_c, r, levels = _prepare_bspline(fn, ctrl, t, degree, knots, check)
-    alphas = [alpha for alpha, _ in levels]
-    if _kernels.fused_path(ctrl_c, *alphas):
-        return _fused_bspline(ctrl_c, r, alphas, degree, batch).to(ctrl.dtype)
-    d = _span_points(ctrl_c, r, degree, batch)
-    return _de_boor(d, alphas).to(ctrl.dtype)
+    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate,
+                                             form)
+    return _bspline_pose(ctrl, dom, rel, form, batch)
 
 
 def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3,
-                        knots: Tensor | None = None, check: bool = True) -> tuple[Tensor, ...]:
+                        knots: Tensor | None = None, check: bool = True,
+                        extrapolate: bool = False, form: str = "de_boor",
+                        ) -> tuple[Tensor, ...]:
     r"""A B-spline (:func:`bspline`) and its exact time derivatives up to ``order``.
 
     Returns :math:`(x, \dot x, \dots, x^{(\mathrm{order})})` with derivatives with respect
@@ -673,6 +666,6 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     """
     fn = "curves.bspline_derivatives"
     order = _check_order(fn, order)
-    batch, degree, ctrl_c, r, levels = _prepare_bspline(fn, ctrl, t, degree, knots, check)
-    d = _span_points(ctrl_c, r, degree, batch)
-    return tuple(x.to(ctrl.dtype) for x in _jet_scheme(d, levels, order, batch))
+    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate,
+                                             form)
+    return _bspline_jets(ctrl, dom, rel, form, order, batch)
