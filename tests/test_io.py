@@ -356,8 +356,8 @@ def test_malformed_euroc(tmp_path):
         io.read_trajectory(bad)
 
     seconds = lines[2].replace(str(ns[1]), "1403636579.76")
-    bad.write_text("\n".join([*lines[:2], seconds, *lines[3:]]) + "\n")
-    with pytest.raises(io.TrajectoryFileError, match=r"line 3: timestamp '1403636579.76' is "
+    bad.write_text("\n".join([lines[1], seconds, *lines[3:]]) + "\n")  # no '[ns]' header
+    with pytest.raises(io.TrajectoryFileError, match=r"line 2: timestamp '1403636579.76' is "
                                                      r"not an integer number of nanoseconds; a "
                                                      r"TUM file with commas\? pass format='tum'"):
         io.read_trajectory(bad)
@@ -408,3 +408,165 @@ def test_argument_errors(tmp_path):
         io.read_trajectory(3)
     with pytest.raises(FileNotFoundError):
         io.read_trajectory(tmp_path / "missing.txt")
+
+
+# ----------------------------------------------------------------------------- issue 22 files
+
+def test_underscore_in_a_number_is_rejected(tmp_path):
+    """Python's float reads '1_0' as 10.0; a trajectory file must not."""
+    path = tmp_path / "under.txt"
+    path.write_text(f"{GOOD}\n{GOOD2.replace('1.3543', '1_0')}\n")
+    with pytest.raises(io.TrajectoryFileError, match=r"line 2: tx: '1_0' is not a number"):
+        io.read_trajectory(path)
+    kitti, times = tmp_path / "00.txt", tmp_path / "t.txt"
+    kitti.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1 0\n")
+    times.write_text("0.0\n1_0\n")
+    with pytest.raises(io.TrajectoryFileError, match=r"t.txt, line 2: time: '1_0' is not"):
+        io.read_trajectory(kitti, times=times)
+    euroc = tmp_path / "data.csv"
+    euroc.write_text("#timestamp [ns],x,y,z,qw,qx,qy,qz\n1_000,0,0,0,1,0,0,0\n")
+    with pytest.raises(io.TrajectoryFileError, match=r"line 2: timestamp '1_000' is not an "
+                                                     r"integer"):
+        io.read_trajectory(euroc)
+
+
+def test_utf8_bom_is_accepted(tmp_path):
+    path = tmp_path / "bom.txt"
+    path.write_bytes(b"\xef\xbb\xbf" + f"{GOOD}\n{GOOD2}\n".encode())
+    traj = io.read_trajectory(path)
+    np.testing.assert_array_equal(traj.times.numpy(), [1305031098.6659, 1305031098.6758])
+
+
+@pytest.mark.parametrize("fmt", io.FORMATS)
+@pytest.mark.parametrize("times", ["linspace", "tiny", "negative"])
+def test_round_trip_exact_for_times_of_any_scale(tmp_path, fmt, times):
+    """write_trajectory's exact float64 round trip, not only at UNIX scale."""
+    t = {"linspace": np.linspace(0.0, 1.0, 7), "tiny": 1e-12 * np.arange(1.0, 8.0) / 3.0,
+         "negative": np.linspace(-2.0, 1.0, 7) / 3.0}[times]
+    _, rot, p = _known(n=7, seed=8)
+    traj = io.Trajectory(torch.from_numpy(t), torch.from_numpy(_wxyz(rot)),
+                         torch.from_numpy(p / 7.0))
+    path = tmp_path / f"out.{fmt}"
+    times_path = tmp_path / "times.txt" if fmt == "kitti" else None
+    io.write_trajectory(path, traj, format=fmt, times_path=times_path)
+    back = io.read_trajectory(path, format=fmt, times=times_path)
+    assert back.times.tolist() == t.tolist()  # bit-exact
+    assert back.translations.tolist() == (p / 7.0).tolist()
+    if fmt != "kitti":
+        assert io.read_trajectory(path).times.tolist() == t.tolist()  # auto-detected
+
+
+def test_euroc_nanoseconds_written_as_integers_at_unix_scale(tmp_path):
+    t, rot, p = _known(n=5, seed=9)
+    traj = io.Trajectory(torch.from_numpy(t), torch.from_numpy(_wxyz(rot)), torch.from_numpy(p))
+    path = tmp_path / "data.csv"
+    io.write_trajectory(path, traj, format="euroc")
+    stamps = [row.split(",")[0] for row in path.read_text().splitlines()[1:]]
+    assert all(s.isdigit() for s in stamps)
+    assert [float(Fraction(int(s), 10**9)) for s in stamps] == t.tolist()
+
+
+@pytest.mark.parametrize("sep", [",", ", "])
+def test_tum_header_with_commas_is_tum(tmp_path, sep):
+    t, rot, p = _known(n=6, seed=10)
+    path = _write_tum(tmp_path / "gt.txt", t, rot, p, fmt="%.9f", sep=sep, header=False)
+    names = sep.join(("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw"))
+    path.write_text(f"# {names}\n" + path.read_text())
+    traj = io.read_trajectory(path)  # auto
+    ref = np.loadtxt(path, delimiter=",")
+    np.testing.assert_array_equal(traj.times.numpy(), ref[:, 0])
+    np.testing.assert_array_equal(traj.translations.numpy(), ref[:, 1:4])
+    # without any header, 8 comma-separated fields with decimal seconds are TUM too
+    path.write_text("\n".join(path.read_text().splitlines()[1:]) + "\n")
+    np.testing.assert_array_equal(io.read_trajectory(path).times.numpy(), ref[:, 0])
+
+
+@pytest.mark.parametrize("kind", ["torch", "numpy"])
+def test_float32_kitti_times_say_why_they_repeat(tmp_path, kind):
+    t, rot, p = _known(n=6, seed=11)
+    poses, times = tmp_path / "00.txt", tmp_path / "times.txt"
+    _write_kitti(poses, times, t, rot, p)
+    t32 = torch.from_numpy(t).float() if kind == "torch" else t.astype(np.float32)
+    with pytest.raises(io.TrajectoryFileError, match=r"duplicate timestamp .*came as float32, "
+                                                     r"which rounds them to steps of 1\d\d s: "
+                                                     r"pass them as float64"):
+        io.read_trajectory(poses, times=t32)
+    # float64 times with a real duplicate: no float32 hint
+    t64 = t.copy()
+    t64[2] = t64[1]
+    with pytest.raises(io.TrajectoryFileError) as info:
+        io.read_trajectory(poses, times=t64)
+    assert "float32" not in str(info.value) and "duplicate timestamp" in str(info.value)
+
+
+# ----------------------------------------------------------------------------- IMU
+
+def _imu_data(n=20, seed=12):
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(n, 3)), 9.81 + rng.normal(size=(n, 3))
+
+
+def test_read_imu_euroc(tmp_path):
+    gyro, accel = _imu_data()
+    ns = [1403636579758555392 + 5_000_000 * k + 7 for k in range(len(gyro))]
+    header = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
+    rows = [",".join([str(n)] + [repr(float(v)) for v in (*g, *a)])
+            for n, g, a in zip(ns, gyro, accel, strict=True)]
+    path = tmp_path / "data.csv"
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    t, g, a = io.read_imu(path)
+    assert t.dtype == g.dtype == a.dtype == torch.float64
+    assert g.shape == a.shape == (len(ns), 3)
+    assert t.tolist() == [float(Fraction(n, 10**9)) for n in ns]  # correctly rounded
+    ref = np.loadtxt(path, delimiter=",", comments="#")
+    np.testing.assert_array_equal(g.numpy(), ref[:, 1:4])
+    np.testing.assert_array_equal(a.numpy(), ref[:, 4:7])
+    # no header: 19-digit integers are nanoseconds too
+    path.write_text("\n".join(rows) + "\n")
+    assert io.read_imu(path)[0].tolist() == t.tolist()
+
+
+@pytest.mark.parametrize("sep", [" ", ","])
+def test_read_imu_plain_seconds(tmp_path, sep):
+    gyro, accel = _imu_data(seed=13)
+    t = 12.5 + 0.005 * np.arange(len(gyro))
+    rows = [sep.join(repr(float(v)) for v in (ti, *g, *a))
+            for ti, g, a in zip(t, gyro, accel, strict=True)]
+    path = tmp_path / "imu.txt"
+    path.write_text("# t gx gy gz ax ay az\n" + "\n".join(rows) + "\n")
+    times, g, a = io.read_imu(path)
+    assert times.tolist() == t.tolist()
+    np.testing.assert_array_equal(g.numpy(), gyro)
+    np.testing.assert_array_equal(a.numpy(), accel)
+    with pytest.raises(io.TrajectoryFileError, match=r"line 2: timestamp '12.5' is not an "
+                                                     r"integer number of nanoseconds"):
+        io.read_imu(path, time_unit="ns")
+
+
+def test_read_imu_malformed(tmp_path):
+    good = "0.0 0.1 0.2 0.3 0.0 0.0 9.81"
+    cases = [
+        ("columns", f"{good}\n0.005 0.1 0.2 0.3 0.0 9.81\n", r"line 2: expected 7 columns "
+                                                              r"\(t, gx, .*got 6"),
+        ("number", f"{good}\n0.005 0.1 x 0.3 0.0 0.0 9.81\n", r"line 2: gy: 'x' is not a number"),
+        ("underscore", f"{good}\n0.005 0.1 0.2 0.3 0.0 0.0 9_81\n", r"line 2: az: '9_81'"),
+        ("nan", f"{good}\n0.005 nan 0.2 0.3 0.0 0.0 9.81\n", r"line 2: non-finite value"),
+        ("unsorted", f"0.01 0 0 0 0 0 0\n{good}\n", r"line 2: timestamp 0\.0 s is before"),
+        ("duplicate", f"{good}\n{good}\n", r"line 2: duplicate timestamp 0\.0 s"),
+        ("empty", "# t gx gy gz ax ay az\n", r"imu.txt: no data"),
+    ]
+    path = tmp_path / "imu.txt"
+    for name, text, pattern in cases:
+        path.write_text(text)
+        with pytest.raises(io.TrajectoryFileError, match=pattern) as info:
+            io.read_imu(path)
+        assert str(info.value).startswith(str(path)), name
+    path.write_text(f"{good}\n{good}\n")
+    assert len(io.read_imu(path, duplicates="first")[0]) == 1
+    with pytest.raises(ValueError, match=r"io.read_imu: time_unit must be"):
+        io.read_imu(path, time_unit="ms")
+    with pytest.raises(ValueError, match=r"io.read_imu: duplicates must be"):
+        io.read_imu(path, duplicates="last")
+    with pytest.raises(TypeError, match=r"io.read_imu: expected a path"):
+        io.read_imu(3)

@@ -1,4 +1,4 @@
-r"""Read and write trajectory files: TUM, KITTI and EuRoC ground truth, and a resampled CSV.
+r"""Read and write trajectory files (TUM, KITTI, EuRoC ground truth, a resampled CSV) and IMU files.
 
 A trajectory file holds timestamped rigid poses (body to world). Three common formats:
 
@@ -22,8 +22,13 @@ gives the unit dual quaternions. Malformed files raise :class:`TrajectoryFileErr
 ``ValueError``) naming the file and the line: wrong column count, a value that is not a
 finite number, timestamps that are not strictly increasing, a quaternion whose norm is not 1
 within ``atol`` (a KITTI rotation matrix that is not orthonormal), an empty file.
-:func:`write_trajectory` writes the three formats back; :func:`write_csv` writes a resampled
-trajectory with its velocities and accelerations (what ``python -m torch_dq fit`` writes).
+:func:`write_trajectory` writes the three formats back, exactly (every float64 time and value
+reads back bit for bit); :func:`write_csv` writes a resampled trajectory with its velocities
+and accelerations (what ``python -m torch_dq fit`` writes). :func:`read_imu` reads gyroscope
+and accelerometer samples (EuRoC ``imu0/data.csv`` or plain ``t gx gy gz ax ay az``).
+
+Numbers are read strictly as files write them: ASCII decimals (``1_0``, which Python's
+``float`` takes for 10, is an error); a UTF-8 byte-order mark is skipped.
 
 Example:
     >>> import torch, tempfile, os
@@ -44,8 +49,11 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from decimal import Decimal, localcontext
+from fractions import Fraction
 
 import numpy as np
 import numpy.typing as npt
@@ -59,6 +67,7 @@ __all__ = [
     "FORMATS",
     "Trajectory",
     "TrajectoryFileError",
+    "read_imu",
     "read_trajectory",
     "write_csv",
     "write_trajectory",
@@ -142,7 +151,7 @@ def _read_lines(path) -> tuple[list[int], list[str], list[str]]:
     """
     numbers_, texts, header = [], [], []
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:  # a BOM is skipped
             for n, line in enumerate(f, 1):
                 text, hash_, comment = line.partition("#")
                 text = text.strip()
@@ -167,6 +176,13 @@ def _split(texts: list[str], commas: bool) -> list[list[str]]:
     return [text.replace(",", " ").split() for text in texts]
 
 
+#: A decimal number as files write it (ASCII digits, no ``_`` separators, which Python's
+#: ``float`` would accept: ``float("1_0") == 10.0``); nan and inf are numbers here, rejected
+#: later as non-finite.
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)",
+                     re.ASCII | re.IGNORECASE)
+
+
 def _floats(path, lines: list[int], rows: list[list[str]], names: Sequence[str]) -> np.ndarray:
     """Parse rows of numeric fields into a float64 array, naming the first bad line."""
     width = len(names)
@@ -174,17 +190,10 @@ def _floats(path, lines: list[int], rows: list[list[str]], names: Sequence[str])
         if len(fields) != width:
             raise TrajectoryFileError(path, n, f"expected {width} columns "
                                                f"({' '.join(names)}), got {len(fields)}")
-    try:
-        values = np.array(rows, dtype=np.float64)
-    except ValueError:
-        for n, fields in zip(lines, rows, strict=True):
-            for name, text in zip(names, fields, strict=True):
-                try:
-                    float(text)
-                except ValueError:
-                    raise TrajectoryFileError(path, n, f"{name}: {text!r} is not a number") \
-                        from None
-        raise  # pragma: no cover (numpy and float() accept the same numbers)
+        for name, text in zip(names, fields, strict=True):
+            if not _NUMBER.fullmatch(text):
+                raise TrajectoryFileError(path, n, f"{name}: {text!r} is not a number")
+    values = np.array(rows, dtype=np.float64)
     _first_bad(path, lines, ~np.isfinite(values).all(axis=1),
                lambda i: f"non-finite value in {' '.join(rows[i])!r}")
     return values
@@ -200,14 +209,17 @@ def _first_bad(path, lines: list[int], bad: np.ndarray | np.bool_, message) -> N
 
 
 def _check_times(path, lines: list[int], t: np.ndarray, duplicates: str,
-                 unit: str = "s") -> np.ndarray:
+                 unit: str = "s", hint: str = "") -> np.ndarray:
     """Check that times increase strictly; with duplicates="first" drop repeated ones.
+
+    ``hint`` is appended to the message on a repeated time (e.g. that the times were
+    rounded to float32 before they got here).
 
     Returns:
         The indices of the rows kept.
     """
     step = np.diff(t)
-    show = lambda i: repr(t[i] if unit == "ns" else float(t[i]))  # noqa: E731
+    show = lambda i: str(t[i]) if unit == "ns" else repr(float(t[i]))  # noqa: E731
     _first_bad(path, lines[1:], step < 0,
                lambda i: f"timestamp {show(i + 1)} {unit} is before the previous one "
                          f"({show(i)} {unit}, line {lines[i]}): the rows must be sorted by "
@@ -216,8 +228,8 @@ def _check_times(path, lines: list[int], t: np.ndarray, duplicates: str,
         return np.flatnonzero(np.concatenate(([True], step > 0)))
     _first_bad(path, lines[1:], step == 0,
                lambda i: f"duplicate timestamp {show(i + 1)} {unit} (also on line "
-                         f"{lines[i]}); pass duplicates='first' (fit: --duplicates first) to "
-                         f"keep the first pose of each time")
+                         f"{lines[i]}){hint}; pass duplicates='first' (fit: --duplicates "
+                         f"first) to keep the first pose of each time")
     return np.arange(t.shape[0])
 
 
@@ -234,6 +246,23 @@ def _read_tum(path, lines, texts, atol: float, duplicates: str):
     keep = _check_times(path, lines, v[:, 0], duplicates)
     q = _unit_quaternions(path, lines, v[:, [7, 4, 5, 6]], atol)
     return v[keep, 0], q[keep], v[keep, 1:4]
+
+
+_INTEGER = re.compile(r"-?\d+", re.ASCII)
+_DECIMAL = re.compile(r"-?\d+(?:\.\d*)?", re.ASCII)
+
+
+def _nanoseconds(path, lines: list[int], texts: list[str], fractions: bool) -> list[Decimal]:
+    """EuRoC timestamps: integer nanoseconds, exactly (fractions of a nanosecond too, as
+    :func:`write_trajectory` writes times finer than 1 ns, when the header says ``[ns]``)."""
+    pattern = _DECIMAL if fractions else _INTEGER
+    for n, text in zip(lines, texts, strict=True):
+        if not pattern.fullmatch(text):
+            hint = ("; a TUM file with commas? pass format='tum' (fit: --format tum)"
+                    if "." in text else "")
+            raise TrajectoryFileError(path, n, f"timestamp {text!r} is not an integer number "
+                                               f"of nanoseconds{hint}")
+    return [Decimal(text) for text in texts]
 
 
 def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
@@ -254,25 +283,34 @@ def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
                                                f"({', '.join(names[:8])}"
                                                f"{', ...' * (len(names) > 8)}), got "
                                                f"{len(fields)}")
-    ns = []
-    for n, fields in zip(lines, rows, strict=True):
-        try:
-            ns.append(int(fields[0]))
-        except ValueError:
-            hint = ("; a TUM file with commas? pass format='tum' (fit: --format tum)"
-                    if "." in fields[0] else "")
-            raise TrajectoryFileError(path, n, f"timestamp {fields[0]!r} is not an integer "
-                                               f"number of nanoseconds{hint}") from None
+    stated = bool(header) and "[ns]" in header[-1]  # the file's own header says nanoseconds
+    ns = _nanoseconds(path, lines, [f[0] for f in rows], fractions=stated)
     v = _floats(path, lines, [f[1:8] for f in rows], names[1:8])
     keep = _check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
-    # int / int is correctly rounded in Python: the float64 nearest to ns * 1e-9.
-    t = np.array([ns[i] / 10**9 for i in keep], dtype=np.float64)
+    # Fraction -> float is correctly rounded: the float64 nearest to ns * 1e-9.
+    t = np.array([float(Fraction(ns[i]) / 10**9) for i in keep], dtype=np.float64)
     q = _unit_quaternions(path, lines, v[:, 3:7], atol)
     return t, q[keep], v[keep, 0:3]
 
 
-def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object, list[int]]:
-    """KITTI times from a file or an array: (times, where they came from, their lines)."""
+def _narrow_hint(times) -> str:
+    """What to say when the times of an array repeat: a float32 array rounds UNIX seconds."""
+    dtype = getattr(times, "dtype", None)
+    if dtype is None or dtype in (torch.float64, np.float64):
+        return ""
+    try:
+        eps = torch.finfo(dtype).eps if isinstance(dtype, torch.dtype) else np.finfo(dtype).eps
+    except (TypeError, ValueError):  # an integer array: no rounding to explain
+        return ""
+    ulp = float(np.abs(np.asarray(times, dtype=np.float64)).max(initial=0.0)) * float(eps)
+    return (f" (the times came as {str(dtype).replace('torch.', '')}, which rounds them to "
+            f"steps of {ulp:.3g} s: pass them as float64)")
+
+
+def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object, list[int],
+                                                                str]:
+    """KITTI times from a file or an array: (times, where they came from, their lines, the
+    hint for repeated times)."""
     if times is None:
         _checks.fail(fn, f"KITTI poses ({os.fspath(path)}) carry no times: pass times= (the "
                          f"sequence's times.txt, one time in seconds per line, or a (N,) "
@@ -283,7 +321,7 @@ def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object
         if t.shape[0] != n_poses:
             raise TrajectoryFileError(times, None, f"holds {t.shape[0]} times but the poses "
                                                    f"file {os.fspath(path)} has {n_poses}")
-        return t, times, lines
+        return t, times, lines, ""
     try:
         t = np.asarray(times.detach().cpu() if isinstance(times, Tensor) else times,
                        dtype=np.float64)
@@ -295,13 +333,14 @@ def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object
                          f"{_checks.shape_str(t.shape)}")
     if not np.isfinite(t).all():
         _checks.fail(fn, "times must be finite")
-    return t, "times", list(range(1, n_poses + 1))
+    hint = _narrow_hint(times.detach().cpu() if isinstance(times, Tensor) else times)
+    return t, "times", list(range(1, n_poses + 1)), hint
 
 
 def _read_kitti(fn: str, path, lines, texts, times, atol: float, duplicates: str):
     v = _floats(path, lines, _split(texts, commas=False), _KITTI_COLUMNS)
-    t, t_path, t_lines = _kitti_times(fn, path, times, v.shape[0])
-    keep = _check_times(t_path, t_lines, t, duplicates)
+    t, t_path, t_lines, hint = _kitti_times(fn, path, times, v.shape[0])
+    keep = _check_times(t_path, t_lines, t, duplicates, hint=hint)
     R = v.reshape(-1, 3, 4)[:, :, :3]
     err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
     _first_bad(path, lines, ~(err <= atol),
@@ -314,9 +353,20 @@ def _read_kitti(fn: str, path, lines, texts, times, atol: float, duplicates: str
 
 
 def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
-    """Guess the format from the first data line and the header comment."""
+    """Guess the format from the header comment and the first data line.
+
+    A header naming TUM's columns (``timestamp tx ty tz qx qy qz qw``, spaces or commas)
+    means TUM. Commas (in the first row or a ``timestamp,...`` header) mean EuRoC, unless
+    the row has TUM's 8 fields with a time in decimal seconds and no ``[ns]`` header.
+    """
+    names = header[-1].lower().replace(",", " ").split() if header else []
+    if tuple(names[:8]) == _TUM_COLUMNS:
+        return "tum"
     if "," in texts[0] or any(h.lower().startswith("timestamp") and "," in h for h in header):
-        return "euroc"
+        first = [f.strip() for f in texts[0].split(",")]
+        seconds = len(first) == 8 and not _INTEGER.fullmatch(first[0]) \
+            and _NUMBER.fullmatch(first[0]) is not None
+        return "tum" if seconds and "[ns]" not in names else "euroc"
     width = len(texts[0].split())
     if width in (8, 12):
         return "tum" if width == 8 else "kitti"
@@ -333,10 +383,15 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
 
     Args:
         path: the file (``str`` or ``os.PathLike``).
-        format: ``"tum"``, ``"kitti"``, ``"euroc"`` or ``"auto"`` (default): comma-separated
-            rows or a ``#timestamp,...`` header mean EuRoC, else 8 columns TUM and 12 KITTI.
+        format: ``"tum"``, ``"kitti"``, ``"euroc"`` or ``"auto"`` (default): a header naming
+            TUM's columns (``# timestamp tx ty tz qx qy qz qw``, with spaces or commas) means
+            TUM; comma-separated rows or a ``#timestamp,...`` header mean EuRoC, except 8
+            fields with a decimal time and no ``[ns]`` header (TUM with commas); else 8
+            whitespace-separated columns mean TUM and 12 KITTI.
         times: KITTI only (required there): the times file (one time in seconds per line,
-            like KITTI's ``times.txt``) or a ``(N,)`` array of seconds, one per pose.
+            like KITTI's ``times.txt``) or a ``(N,)`` array of seconds, one per pose (keep
+            absolute times float64: a float32 array rounds UNIX seconds to 128 s steps, and
+            the error on the repeated times says so).
         atol: tolerance on unit norms: ``| |q| - 1 |`` for TUM and EuRoC quaternions, the
             largest entry of ``|R^T R - I|`` for KITTI matrices. The default 1e-3 accepts
             the 4-decimal rounding of TUM files (~1e-4); rotations are normalized after the
@@ -394,6 +449,95 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
     return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
 
 
+# ----------------------------------------------------------------------------- IMU
+
+_IMU_COLUMNS = ("t", "gx", "gy", "gz", "ax", "ay", "az")
+_EUROC_IMU_COLUMNS = ("#timestamp [ns]", "w_RS_S_x [rad s^-1]", "w_RS_S_y [rad s^-1]",
+                      "w_RS_S_z [rad s^-1]", "a_RS_S_x [m s^-2]", "a_RS_S_y [m s^-2]",
+                      "a_RS_S_z [m s^-2]")
+
+
+def _imu_unit(header: list[str], first: str, time_unit: str) -> str:
+    """``"ns"`` or ``"s"``: as given, else from a ``[ns]`` header or a 16+ digit integer."""
+    if time_unit != "auto":
+        return time_unit
+    if header and "[ns]" in header[-1]:
+        return "ns"
+    return "ns" if _INTEGER.fullmatch(first) and len(first.lstrip("-")) >= 16 else "s"
+
+
+def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
+             duplicates: str = "error") -> tuple[Tensor, Tensor, Tensor]:
+    r"""Read IMU samples: EuRoC ``imu0/data.csv`` or plain ``t gx gy gz ax ay az`` files.
+
+    ============  ====================================================================
+    EuRoC         ``#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y,w_RS_S_z,a_RS_S_x
+                  [m s^-2],a_RS_S_y,a_RS_S_z``: integer nanoseconds, comma-separated
+    plain         ``t gx gy gz ax ay az``: seconds, whitespace or commas, ``#`` comments
+    ============  ====================================================================
+
+    The gyroscope reads angular velocity (rad/s) and the accelerometer specific force
+    (m/s²), both in the IMU's axes, as :class:`torch_dq.fitting.Gyro` and
+    :class:`torch_dq.fitting.Accel` take them.
+
+    Args:
+        path: the file (``str`` or ``os.PathLike``).
+        time_unit: ``"s"``, ``"ns"`` or ``"auto"`` (default): nanoseconds when the header
+            says ``[ns]`` (EuRoC) or the first time is an integer of 16 digits or more
+            (UNIX nanoseconds), else seconds.
+        duplicates: ``"error"`` (default) or ``"first"`` (keep the first sample of a
+            repeated time).
+
+    Returns:
+        ``(times, gyro, accel)``: float64 CPU tensors ``(N,)`` (seconds; nanoseconds
+        converted with correct rounding), ``(N, 3)`` and ``(N, 3)``.
+
+    Raises:
+        TrajectoryFileError: (a ``ValueError``) naming the file and the line: not 7
+            columns, a value that is not a finite number, unsorted or repeated times, an
+            empty file.
+        ValueError: bad ``time_unit`` or ``duplicates``.
+        OSError: the file cannot be opened.
+
+    Example:
+        >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP
+        >>> gyro.shape, times.dtype  # doctest: +SKIP
+        (torch.Size([36820, 3]), torch.float64)
+    """
+    fn = "io.read_imu"
+    if not isinstance(path, (str, os.PathLike)):
+        _checks.fail(fn, f"expected a path (str or os.PathLike) for path, got "
+                         f"{type(path).__name__}", TypeError)
+    if time_unit not in ("auto", "s", "ns"):
+        _checks.fail(fn, f"time_unit must be 'auto', 's' or 'ns', got {time_unit!r}")
+    if duplicates not in ("error", "first"):
+        _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
+    lines, texts, header = _read_lines(path)
+    if texts[0][:1].isalpha():  # a header row written without the leading "#"
+        header, lines, texts = [texts[0]], lines[1:], texts[1:]
+        if not texts:
+            raise TrajectoryFileError(path, None, "no data (the file holds only a header)")
+    rows = _split(texts, commas=False)
+    unit = _imu_unit(header, rows[0][0], time_unit)
+    names = _EUROC_IMU_COLUMNS if unit == "ns" else _IMU_COLUMNS
+    for n, fields in zip(lines, rows, strict=True):
+        if len(fields) != 7:
+            raise TrajectoryFileError(path, n, f"expected 7 columns ({', '.join(names)}), got "
+                                               f"{len(fields)}")
+    v = _floats(path, lines, [f[1:] for f in rows], names[1:])
+    if unit == "ns":
+        stated = bool(header) and "[ns]" in header[-1]
+        ns = _nanoseconds(path, lines, [f[0] for f in rows], fractions=stated)
+        keep = _check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
+        t = np.array([float(Fraction(ns[i]) / 10**9) for i in keep], dtype=np.float64)
+    else:
+        t = _floats(path, lines, [f[:1] for f in rows], names[:1])[:, 0]
+        keep = _check_times(path, lines, t, duplicates)
+        t = t[keep]
+    as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
+    return as_tensor(t), as_tensor(v[keep, :3]), as_tensor(v[keep, 3:])
+
+
 # ----------------------------------------------------------------------------- writing
 
 def _numpy(fn: str, name: str, x, last: int | None) -> np.ndarray:
@@ -419,8 +563,12 @@ def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, forma
                      times_path: str | os.PathLike[str] | None = None) -> None:
     r"""Write a trajectory as a TUM, KITTI or EuRoC file (read back by :func:`read_trajectory`).
 
-    Numbers are written with 17 significant digits (times with 9 decimals: nanoseconds),
-    so reading the file back returns the same float64 values.
+    Every number is written as the shortest decimal that reads back as the same float64
+    (Python's ``repr``), times included, whatever their scale (UNIX seconds or
+    ``linspace(0, 1, 7)``): reading the file back returns the same values bit for bit.
+    EuRoC times are integer nanoseconds where those read back exactly (always at UNIX
+    scale), else decimal nanoseconds (``166666666.66666666``), which :func:`read_trajectory`
+    reads under the ``#timestamp [ns]`` header this function writes.
 
     Args:
         path: the file to (over)write.
@@ -440,23 +588,44 @@ def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, forma
         _checks.fail(fn, "times_path is required for format='kitti' and only there")
     t, q, p = _trajectory_arrays(fn, trajectory)
     if format == "tum":
-        data = np.column_stack((t, p, q[:, 1:], q[:, :1]))
-        np.savetxt(path, data, fmt=["%.9f"] + ["%.17g"] * 7,
-                   header=" ".join(_TUM_COLUMNS), comments="# ")
+        _write_rows(path, np.column_stack((t, p, q[:, 1:], q[:, :1])),
+                    "# " + " ".join(_TUM_COLUMNS))
     elif format == "kitti":
         R = quat.to_matrix(torch.from_numpy(q)).numpy()
-        np.savetxt(path, np.concatenate((R, p[:, :, None]), axis=2).reshape(-1, 12),
-                   fmt="%.17g")
+        _write_rows(path, np.concatenate((R, p[:, :, None]), axis=2).reshape(-1, 12))
         assert times_path is not None  # required for kitti, checked above
-        np.savetxt(times_path, t, fmt="%.9f")
+        _write_rows(times_path, t[:, None])
     else:
-        from decimal import Decimal  # exact: the nanosecond nearest to each float64 time
-
         with open(path, "w", encoding="utf-8") as f:
             f.write(",".join(_EUROC_COLUMNS) + "\n")
             for ti, pi, qi in zip(t, p, q, strict=True):
-                ns = int((Decimal(float(ti)) * 10**9).to_integral_value())
-                f.write(",".join([str(ns)] + [repr(float(v)) for v in (*pi, *qi)]) + "\n")
+                f.write(",".join([_ns_text(float(ti))] + [repr(float(v)) for v in (*pi, *qi)])
+                        + "\n")
+
+
+def _write_rows(path, values: np.ndarray, header: str | None = None) -> None:
+    """Rows of numbers, each the shortest text that reads back as the same float64."""
+    with open(path, "w", encoding="utf-8") as f:
+        if header is not None:
+            f.write(header + "\n")
+        f.writelines(" ".join(map(repr, row)) + "\n" for row in values.tolist())
+
+
+def _ns_text(t: float) -> str:
+    """``t`` seconds as nanoseconds that read back as ``t``: the nearest integer where that
+    suffices (always at UNIX scale, where float64 steps are ~240 ns), else the shortest
+    decimal fraction of a nanosecond."""
+    exact = Fraction(t) * 10**9
+    ns = round(exact)
+    if float(Fraction(ns, 10**9)) == t:
+        return str(ns)
+    with localcontext(prec=60):
+        value = Decimal(exact.numerator) / Decimal(exact.denominator)
+    for digits in range(1, 40):
+        text = f"{value:.{digits}f}"
+        if float(Fraction(text) / 10**9) == t:
+            return text
+    raise AssertionError(f"no decimal text for {t!r}")  # pragma: no cover (17 digits do)
 
 
 def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: object = None,
