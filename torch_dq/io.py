@@ -52,7 +52,7 @@ import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from decimal import Decimal, localcontext
+from decimal import Decimal
 from fractions import Fraction
 
 import numpy as np
@@ -619,10 +619,9 @@ def _ns_text(t: float) -> str:
     ns = round(exact)
     if float(Fraction(ns, 10**9)) == t:
         return str(ns)
-    with localcontext(prec=60):
-        value = Decimal(exact.numerator) / Decimal(exact.denominator)
     for digits in range(1, 40):
-        text = f"{value:.{digits}f}"
+        scaled = abs(round(exact * 10**digits))
+        text = f"{'-' * (exact < 0)}{scaled // 10**digits}.{scaled % 10**digits:0{digits}d}"
         if float(Fraction(text) / 10**9) == t:
             return text
     raise AssertionError(f"no decimal text for {t!r}")  # pragma: no cover (17 digits do)
