@@ -448,16 +448,18 @@ def _bad_cases():
          r"^curves\.bezier: expected a floating-point tensor for domain"),
         ("t outside domain", lambda: bezier(c, t + 5, domain=(0.0, 2.0)), ValueError,
          r"^curves\.bezier: t must lie in the domain \[0, 2\], got values in \[5, 6\]; "
-         r"evaluate inside it or pass a domain=\(t0, t1\) that covers it$"),
+         r"evaluate inside it, pass a domain=\(t0, t1\) that covers it, or pass "
+         r"extrapolate=True to continue the end spans$"),
         ("t all inf", lambda: bezier(c, t * math.inf + 1), ValueError,
          r"^curves\.bezier: t must lie in the domain \[0, 1\], but t contains NaN/inf only "
          r"\(4 values\)"),
         ("t some inf", lambda: bspline(c, torch.tensor([0.5, math.inf, -1.0], dtype=F64)),
          ValueError, r"got values in \[-1, 0\.5\] and t contains NaN/inf \(1 values\); "
-                     r"evaluate inside it or pass knots that cover it"),
+                     r"evaluate inside it, pass knots that cover it"),
         ("t unix outside", lambda: bspline_derivatives(c, 1.7e9 + 61 + t, knots=unix),
          ValueError, r"domain \[1700000000, 1700000060\], got values in \[1700000061, "
-                     r"1700000062\]; evaluate inside it or pass knots that cover it$"),
+                     r"1700000062\]; evaluate inside it, pass knots that cover it, or pass "
+                     r"extrapolate=True to continue the end spans$"),
         ("t normalized for unix knots", lambda: bspline(c, t, knots=unix), ValueError,
          r"t must lie in the domain \[1700000000, 1700000060\]"),
         ("knots device", lambda: bspline(c, t, knots=unix.to("meta")), TypeError,

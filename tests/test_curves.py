@@ -16,6 +16,7 @@ from strategies import unit_quat
 
 import torch_dq.dualquat as dq
 from torch_dq import curves
+from torch_dq._core import align_chain
 from torch_dq.curves import bezier, bspline, clamped_uniform_knots, screw_axis, twists, velocity
 
 F64 = torch.float64
@@ -286,8 +287,11 @@ def test_nan_stays_local(gen):
 
 def readable_bspline(ctrl, t, degree=3, knots=None):
     """The readable De Boor loop of torch_dq.curves (the reference of the fused op)."""
-    batch, p, c, r, levels = curves._prepare_bspline("test", ctrl, t, degree, knots, True)
-    return curves._de_boor(curves._span_points(c, r, p, batch), [a for a, _ in levels])
+    batch, dom, rel, _ = curves._prepare_bspline("test", ctrl, t, degree, knots, True, False,
+                                                 "de_boor")
+    c, r = align_chain(ctrl), dom.span(rel)
+    alphas = [a for a, _ in dom.de_boor_levels(rel, r, ctrl.dtype)]
+    return curves._de_boor(curves._span_points(c, r, dom.degree, batch), alphas)
 
 
 def degenerate_polygons(gen, dtype):

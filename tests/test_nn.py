@@ -194,11 +194,11 @@ def test_custom_knots_are_the_callers_time():
 
 def test_times_outside_the_domain_name_it():
     spline = BSpline(dq.identity((5,), dtype=F64), knots=knots_on(5, 3, 1.7e9, 1.7e9 + 30))
-    with pytest.raises(ValueError, match=r"domain \[1700000000.0, 1700000030.0\].*"
-                                         r"got values in \[0.0, 1.0\]"):
+    with pytest.raises(ValueError, match=r"domain \[1700000000, 1700000030\].*"
+                                         r"got values in \[0, 1\].*extrapolate=True"):
         spline(torch.tensor([0.0, 1.0], dtype=F64))
     with pytest.raises(ValueError, match=r"nn.Bezier.forward: t must lie in the module's time "
-                                         r"domain \[2.0, 3.0\]"):
+                                         r"domain \[2, 3\]"):
         Bezier(dq.identity((3,)), domain=(2.0, 3.0))(torch.tensor([3.5]))
     with pytest.raises(ValueError, match=r"derivatives.*domain"):
         spline.derivatives(torch.tensor([1.7e9 + 31], dtype=F64))
@@ -279,7 +279,7 @@ def test_state_dict_and_dtype_moves_keep_the_time_origin(gen):
     q, t = dq.to_rt(truth(times - times[0]))
     src = BSpline.from_poses(q.float(), t.float(), times, n_ctrl=6)
     state = src.state_dict()
-    assert state["_extra_state"] == {"origin": float(times[0])}
+    assert state["_extra_state"] == {"origin": float(times[0]), "degree": 3, "form": "de_boor"}
     assert state["_knots"].dtype == F32 and float(state["_knots"][-1]) == pytest.approx(2.0)
     dst = BSpline(dq.identity((6,)))
     dst.load_state_dict(state)
@@ -671,7 +671,7 @@ def test_bad_constructor_arguments(gen):
         BSpline(dq.identity((3,)), degree=0)
     with pytest.raises(ValueError, match="knots tensor of n \\+ degree \\+ 1 = 9"):
         BSpline(dq.identity((5,)), knots=torch.linspace(0, 1, 8))
-    with pytest.raises(ValueError, match="knots must be finite and non-decreasing"):
+    with pytest.raises(ValueError, match="knots must be non-decreasing"):
         BSpline(dq.identity((5,)), knots=torch.linspace(1, 0, 9))
     with pytest.raises(ValueError, match="domain must be two finite increasing times"):
         Bezier(dq.identity((5,)), domain=(2.0, 1.0))

@@ -5,14 +5,20 @@ r"""Curve layers with learnable unit-dual-quaternion control points, in the call
   tensor is unconstrained and ``forward`` projects it with
   :func:`torch_dq.dualquat.normalize`, so the parameter seen by the module is a unit dual
   quaternion whatever an optimizer does to the raw tensor.
-- :class:`Bezier` and :class:`BSpline`: ``nn.Module`` wrappers of
-  :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` whose control points
-  are such a parameter; ``forward(t, ctrl=...)`` (and :meth:`~BSpline.derivatives`,
-  :meth:`~BSpline.kinematics`, :meth:`~BSpline.imu`) use control points predicted by another
-  network instead. ``from_poses`` / ``from_matrices`` / ``from_dualquats`` build a curve by
-  local least squares on timestamped poses (:mod:`torch_dq.fitting`).
-- :func:`fit` and :class:`FitHistory` (from :mod:`torch_dq.fitting`): refine a curve on
-  timestamped poses (Levenberg-Marquardt in local charts, or any ``torch.optim`` optimizer).
+- :class:`Curve`: the contract of a curve layer (an abstract base class): learnable control
+  points, a time model (:attr:`Curve.time_model`: knots relative to a float64 origin),
+  evaluation with exact time derivatives, kinematics and IMU readings, the Euclidean basis
+  of its least-squares problems (:meth:`Curve.basis`), construction from poses and from a
+  saved ``state_dict``. :mod:`torch_dq.fitting` recognises a layer by
+  ``isinstance(module, Curve)``.
+- :class:`Bezier` and :class:`BSpline`: the two curves, wrapping
+  :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` (either B-spline form,
+  ``form="de_boor"`` or ``"cumulative"``); ``forward(t, ctrl=...)`` (and
+  :meth:`~Curve.derivatives`, :meth:`~Curve.kinematics`, :meth:`~Curve.imu`) use control
+  points predicted by another network instead. ``from_poses`` / ``from_matrices`` /
+  ``from_dualquats`` build a curve by local least squares on timestamped poses.
+- :func:`fit` and :class:`FitHistory` (lazy re-exports of :mod:`torch_dq.fitting`, which
+  imports this module): refine a curve on timestamped poses.
 
 Time is the caller's (seconds, frames, ...): a :class:`Bezier` lives on its ``domain``
 ``(t0, t1)`` and a :class:`BSpline` on ``[knots[degree], knots[n]]``, and ``module(t)``
@@ -22,7 +28,24 @@ so ``module(times)`` is the fit at those very times. Absolute timestamps (UNIX s
 (the start of its domain) as a Python float (float64, saved in the ``state_dict`` as extra
 state and untouched by ``.to(dtype)``) and its knots relative to it, and evaluates
 ``t - origin`` in the wider of the two dtypes, so nothing is lost beyond the rounding of the
-time since the origin in the module's dtype.
+time since the origin in the module's dtype. All of this is the time model
+(:class:`torch_dq._time.KnotDomain`), the one place where an origin is subtracted, a span
+searched or a domain checked.
+
+Domain rules: times outside the domain ``[t0, t1]`` by at most
+``tol = max(1e-9 (t1 - t0), 4 eps(t.dtype) max(|t0|, |t1|))`` (a rounding of ``t0 + k dt``)
+are evaluated at the nearest end; further out they raise ``ValueError`` naming the domain,
+unless ``extrapolate=True`` (on the constructor, or per call), which continues the end
+spans. The check reads ``t`` on the host (one synchronisation); it is skipped with
+``check=False``, under ``torch.compile`` (so that ``torch.compile(module, fullgraph=True)``
+works with the default arguments) and on meta tensors, and then such times give NaN poses,
+never a silent extrapolation.
+
+Saving: ``state_dict`` holds the raw control points, the relative knots (a buffer) and, as
+extra state, the origin, the degree and the form (or a Bézier's length);
+:meth:`BSpline.from_state_dict` / :meth:`Bezier.from_state_dict` rebuild a module from it,
+and ``torch.save(module)`` / ``torch.load(path, weights_only=False)`` pickle whole modules
+through the same route.
 
 Control polygons: every interpolation takes the shortest path, so the curve jumps where two
 neighbouring control points come to differ by a half turn of rotation. Keep neighbours
@@ -43,18 +66,19 @@ Example (a small network predicting trajectories, trained end to end):
 
 from __future__ import annotations
 
+import abc
 import math
 import numbers
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 from torch.nn.utils import parametrize
 
-from . import _checks, curves, dualquat, fitting, quat
-from .fitting import FitHistory, fit
+from . import _checks, _start, curves, dualquat, quat
+from ._time import KnotDomain
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -73,9 +97,18 @@ if TYPE_CHECKING:
     class _Parametrizations(Protocol):
         ctrl: _CtrlParametrization
 
-__all__ = ["BSpline", "Bezier", "FitHistory", "UnitDualQuaternion", "fit"]
+__all__ = ["BSpline", "Bezier", "Curve", "FitHistory", "UnitDualQuaternion", "fit"]
 
-_ULPS = 4.0  # tolerance of the domain check, in units of eps * scale of the relative domain
+_RAW = "parametrizations.ctrl.original"  # state_dict key of the raw control points
+
+
+def __getattr__(name: str) -> Any:
+    # fit and FitHistory live in torch_dq.fitting, which imports this module: re-exported
+    # lazily so that imports run one way (fitting -> nn -> curves).
+    if name in ("fit", "FitHistory"):
+        from . import fitting
+        return getattr(fitting, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ----------------------------------------------------------------------------- parametrization
@@ -127,6 +160,16 @@ def _time_pair(fn: str, name: str, value) -> tuple[float, float]:
     return pair[0], pair[1]
 
 
+def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
+    """``state[key]`` of a saved extra state: a finite real number (``> 0`` if ``positive``)."""
+    value = state.get(key) if isinstance(state, dict) else None
+    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+            or not math.isfinite(value) or (positive and not value > 0)):
+        _checks.fail(fn, f"expected a finite{' positive' if positive else ''} {key!r} in the "
+                         f"extra state, got {state!r}")
+    return float(value)
+
+
 def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
     """``(..., N, 8)`` dual quaternions from quaternions or matrices and translations."""
     _checks.tensor(fn, "rotations", rotations)
@@ -150,56 +193,279 @@ def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
     return dualquat.from_rt(q, translations)
 
 
+# ----------------------------------------------------------------------------- 0.1 compatibility
+
 def _deprecated(what: str, instead: str) -> None:
     warnings.warn(f"{what} is deprecated: {instead}", DeprecationWarning, stacklevel=3)
 
 
-# ----------------------------------------------------------------------------- curve layers
+def _rebuild(cls: type[Curve], state: dict[str, Any], settings: dict[str, bool]) -> Curve:
+    """Unpickle a curve layer (see :meth:`Curve.__reduce_ex__`)."""
+    module = cls.from_state_dict(state)
+    module.check, module.extrapolate = settings["check"], settings["extrapolate"]
+    return module.train(settings["training"])
 
-class _Curve(torch.nn.Module):
-    """Shared machinery: the parametrized ``ctrl``, the time origin, evaluation, derivatives
-    and the constructors from poses. Subclasses define ``_relative_domain``, ``_curve``,
-    ``_curve_derivatives``, ``basis`` and ``_from_dq``."""
 
-    _name = "nn._Curve"
+class _Compat01:
+    """What 0.1 code needs (deprecated, with a ``DeprecationWarning``): loading a 0.1
+    ``state_dict`` (a ``time_range`` buffer and knots on the domain it maps onto),
+    :meth:`normalize_time` and :attr:`time_range`."""
 
-    if TYPE_CHECKING:  # attributes set by _setup and parametrize, hooks of the subclasses
-        ctrl: Tensor
+    _name: str
+
+    if TYPE_CHECKING:
+        domain: tuple[float, float]
         parametrizations: _Parametrizations
-        check: bool
-        _origin: float
-
-        def _relative_domain(self) -> tuple[Tensor | float, Tensor | float]: ...
-
-        def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor: ...
-
-        def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int,
-                               ) -> tuple[Tensor, ...]: ...
-
-        def basis(self, t: Tensor) -> tuple[Tensor, Tensor]: ...
-
-        def _greville(self) -> Tensor: ...
 
         def _convert_01(self, state_dict: dict[str, Any], prefix: str, start: float,
                         end: float) -> None: ...
 
-        @classmethod
-        def _from_dq(cls, fn: str, x: Tensor, times: Tensor, *args: Any,
-                     **kwargs: Any) -> Self: ...
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        if prefix + "time_range" in state_dict and prefix + "_extra_state" not in state_dict:
+            warnings.warn(f"{self._name}.load_state_dict: converting a 0.1 state_dict "
+                          f"(time_range) to the caller's time; save it again to update it",
+                          DeprecationWarning, stacklevel=4)
+            start, end = (float(v) for v in state_dict.pop(prefix + "time_range").tolist())
+            self._convert_01(state_dict, prefix, start, end)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)  # type: ignore[misc]
 
-    def _setup(self, ctrl: Tensor, min_points: int, check: bool) -> None:
+    @staticmethod
+    def _time_range_knots(fn: str, k64: Tensor, degree: int, time_range) -> Tensor:
+        """0.1's ``time_range=``: the knots mapped affinely so that the domain is it."""
+        _deprecated(f"{fn}(time_range=...)", "pass knots in the caller's time (or build with "
+                                             "from_poses)")
+        span = _time_pair(fn, "time_range", time_range)
+        n = k64.shape[0] - degree - 1
+        lo, hi = k64[degree], k64[n]
+        k64 = span[0] + (k64 - lo) * ((span[1] - span[0]) / (hi - lo))
+        k64[degree], k64[n] = span  # exact ends
+        return k64
+
+    def normalize_time(self, times: Tensor) -> Tensor:
+        """Deprecated: the identity (modules now take the caller's time directly).
+
+        0.1 mapped raw times onto ``[0, 1]``; since 0.2 a module's time is the caller's, so
+        ``module(times)`` replaces ``module(module.normalize_time(times))``.
+        """
+        _deprecated(f"{self._name}.normalize_time",
+                    "modules take the caller's time directly; call module(times)")
+        _checks.tensor(f"{self._name}.normalize_time", "times", times)
+        return times
+
+    @property
+    def time_range(self) -> Tensor:
+        """Deprecated: the :attr:`~Curve.domain` as a float64 ``(2,)`` tensor."""
+        _deprecated(f"{self._name}.time_range", "use module.domain")
+        like = self.parametrizations.ctrl.original
+        return torch.tensor(self.domain, dtype=torch.float64, device=like.device)
+
+
+# ----------------------------------------------------------------------------- constructors
+
+class _Constructors:
+    """The constructors of every curve layer: from poses (the least-squares start of
+    :mod:`torch_dq._start`), matrices, dual quaternions, and from a saved ``state_dict``."""
+
+    _name: str
+
+    if TYPE_CHECKING:
+        time_model: KnotDomain
+        _min_samples: int
+        n_ctrl: int
+        _origin: float
+        control_points: Tensor
+
+        @classmethod
+        def _from_dq(cls, fn: str, x: Tensor, times: Tensor, **kwargs: Any) -> Self: ...
+
+        @classmethod
+        def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
+                             ) -> dict[str, Any]: ...
+
+        def load_state_dict(self, state_dict: Mapping[str, Any]) -> Any: ...
+
+    def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
+        """Set the control points from the local least-squares start
+        (:func:`torch_dq._start.least_squares_start`) on poses ``x`` at float64 times."""
+        n, N = self.n_ctrl, x.shape[-2]
+        if n > N:
+            low = self._min_samples
+            fix = (f"use n_ctrl <= {N}" if N >= low else
+                   f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
+                   f"lower the degree")
+            _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
+                             f"N = {N} samples; {fix}")
+        x64 = x.detach().to(dtype=torch.float64, device="cpu")
+        if not bool(torch.isfinite(x64).all()):
+            _checks.fail(fn, "the poses must be finite, with non-zero rotations")
+        dom = self.time_model
+        dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, dom.origin)
+        rel = dom.relative(t64, torch.float64)
+        first, values = dom.basis(rel)
+        ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville())
+        self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
+        return self
+
+    @classmethod
+    def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:
+        """``from_poses`` with ``(..., N, 4, 4)`` homogeneous matrices ``T``.
+
+        Keywords as for :meth:`BSpline.from_poses` / :meth:`Bezier.from_poses`.
+        """
+        fn = f"{cls._name}.from_matrices"
+        _checks.tensor(fn, "T", T, (4, 4))
+        if T.dim() < 3:
+            _checks.fail(fn, f"expected a (..., N, 4, 4) tensor for T, got shape "
+                             f"{_checks.shape_str(T.shape)}")
+        return cls._from_dq(fn, dualquat.from_matrix(T), times, **kwargs)
+
+    @classmethod
+    def from_dualquats(cls, x: Tensor, times: Tensor, **kwargs: Any) -> Self:
+        """``from_poses`` with ``(..., N, 8)`` unit dual quaternions ``x`` (any signs).
+
+        Keywords as for :meth:`BSpline.from_poses` / :meth:`Bezier.from_poses`.
+        """
+        fn = f"{cls._name}.from_dualquats"
+        _checks.tensor(fn, "x", x, 8)
+        if x.dim() < 2:
+            _checks.fail(fn, f"expected a (..., N, 8) tensor for x, got shape "
+                             f"{_checks.shape_str(x.shape)}")
+        return cls._from_dq(fn, dualquat.normalize(x), times, **kwargs)
+
+    @classmethod
+    def from_state_dict(cls, state_dict: Mapping[str, Any], *, check: bool = True,
+                        extrapolate: bool = False) -> Self:
+        """Rebuild a saved module from its ``state_dict`` alone.
+
+        The shape, dtype and device of the control points, and the degree, knots, form and
+        time origin (or a Bézier's domain) come from ``state_dict``: the caller need not
+        know them. 0.1 and 0.2 state dicts load too (a 0.1 one with a
+        ``DeprecationWarning``).
+
+        Args:
+            state_dict: what ``module.state_dict()`` returned (or ``torch.load`` of it).
+            check: the new module's :attr:`~Curve.check`.
+            extrapolate: the new module's :attr:`~Curve.extrapolate`.
+
+        Returns:
+            A module equal to the saved one (same outputs at every time).
+
+        Raises:
+            TypeError: ``state_dict`` not a mapping.
+            ValueError: no raw control points in it, or an inconsistent state.
+
+        Example:
+            >>> import torch_dq.dualquat as dq
+            >>> saved = BSpline(dq.identity((7,)), degree=2, form="cumulative").state_dict()
+            >>> BSpline.from_state_dict(saved).extra_repr()
+            "n_ctrl=7, degree=2, form='cumulative', batch_shape=(), domain=(0.0, 1.0), dtype=torch.float32"
+        """
+        fn = f"{cls._name}.from_state_dict"
+        if not isinstance(state_dict, Mapping):
+            _checks.fail(fn, f"expected a state_dict (a mapping), got "
+                             f"{type(state_dict).__name__}", TypeError)
+        raw = state_dict.get(_RAW)
+        if not isinstance(raw, Tensor) or raw.dim() < 2 or raw.shape[-1] != 8:
+            _checks.fail(fn, f"expected a state_dict of {cls._name} with a (..., n, 8) tensor "
+                             f"{_RAW!r}, got keys {sorted(state_dict)}")
+        kwargs = cls._args_from_state(fn, state_dict, raw)
+        ctrl = dualquat.identity(tuple(raw.shape[:-1]), dtype=raw.dtype, device=raw.device)
+        module = cls(ctrl, check=check, extrapolate=extrapolate, **kwargs)  # type: ignore[call-arg]
+        module.load_state_dict(dict(state_dict))
+        return module
+
+
+# ----------------------------------------------------------------------------- the contract
+
+class Curve(_Compat01, _Constructors, torch.nn.Module, abc.ABC):
+    """A curve layer: learnable unit-dual-quaternion control points on a time model.
+
+    The contract that :class:`Bezier` and :class:`BSpline` implement and that
+    :mod:`torch_dq.fitting` relies on. Concrete here: the parametrized control points
+    (:attr:`control_points`, :attr:`n_ctrl`), the time (:attr:`domain`, the domain rules of
+    the module docstring), :meth:`forward`, :meth:`derivatives`, :meth:`kinematics`,
+    :meth:`imu`, the Euclidean :meth:`basis` and :meth:`greville` abscissae of the
+    least-squares problems, saving and loading (extra state, :meth:`from_state_dict`,
+    pickling) and the constructors from poses. A subclass supplies its time model
+    (:attr:`time_model`), its evaluation (``_curve``, ``_curve_derivatives``), its extra
+    state (``_state``, ``_restore``, ``_args_from_state``, ``_convert_01``), its
+    constructor from poses (``_from_dq``) and the fewest samples its least-squares start
+    needs (``_min_samples``).
+
+    Attributes:
+        check: whether evaluations check ``t`` against the domain (one host sync per call;
+            skipped under ``torch.compile`` and on meta tensors).
+        extrapolate: the default of the ``extrapolate=`` argument of the evaluations.
+    """
+
+    _name = "nn.Curve"
+
+    if TYPE_CHECKING:  # attributes set by _setup and parametrize
+        ctrl: Tensor
+        parametrizations: _Parametrizations
+        check: bool
+        extrapolate: bool
+        _origin: float
+
+    # -- the hooks of a curve
+    @property
+    @abc.abstractmethod
+    def time_model(self) -> KnotDomain:
+        """The module's time (:class:`torch_dq._time.KnotDomain`): knots relative to the
+        float64 origin, on the module's device."""
+
+    @property
+    @abc.abstractmethod
+    def _min_samples(self) -> int:
+        """The fewest samples that can determine a curve of this kind."""
+
+    @abc.abstractmethod
+    def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor:
+        """Poses at admitted relative times ``rel`` (:meth:`KnotDomain.admit`)."""
+
+    @abc.abstractmethod
+    def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int,
+                           ) -> tuple[Tensor, ...]:
+        """Poses and time derivatives to ``order`` at admitted relative times ``rel``."""
+
+    @abc.abstractmethod
+    def _state(self) -> dict[str, Any]:
+        """Extra state besides the origin (saved in the ``state_dict``)."""
+
+    @abc.abstractmethod
+    def _restore(self, fn: str, state: dict[str, Any]) -> None:
+        """Set what :meth:`_state` saved (checked)."""
+
+    @classmethod
+    @abc.abstractmethod
+    def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
+                         ) -> dict[str, Any]:
+        """Constructor keywords of a module that can load ``state_dict``."""
+
+    @abc.abstractmethod
+    def _convert_01(self, state_dict: dict[str, Any], prefix: str, start: float,
+                    end: float) -> None:
+        """Rewrite a 0.1 ``state_dict`` on the domain ``(start, end)`` in place."""
+
+    @classmethod
+    @abc.abstractmethod
+    def _from_dq(cls, fn: str, x: Tensor, times: Tensor, **kwargs: Any) -> Self:
+        """A module fit to unit dual quaternions ``x`` at ``times`` (``from_poses``)."""
+
+    # -- control points
+    def _setup(self, ctrl: Tensor, min_points: int, check: bool, extrapolate: bool) -> None:
         fn = self._name
         _checks.tensor(fn, "ctrl", ctrl, 8)
         if ctrl.dim() < 2 or ctrl.shape[-2] < min_points:
             _checks.fail(fn, f"expected a (..., n, 8) tensor for ctrl with n >= {min_points}, "
                              f"got shape {_checks.shape_str(ctrl.shape)}")
-        if not isinstance(check, bool):
-            _checks.fail(fn, f"check must be a bool, got {check!r}", TypeError)
-        self.check = check
+        for name, value in (("check", check), ("extrapolate", extrapolate)):
+            if not isinstance(value, bool):
+                _checks.fail(fn, f"{name} must be a bool, got {value!r}", TypeError)
+        self.check, self.extrapolate = check, extrapolate
         self.ctrl = torch.nn.Parameter(ctrl.detach().clone())
         parametrize.register_parametrization(self, "ctrl", UnitDualQuaternion())
 
-    # -- control points
     @property
     def n_ctrl(self) -> int:
         """Number ``n`` of control points."""
@@ -238,68 +504,35 @@ class _Curve(torch.nn.Module):
     @property
     def domain(self) -> tuple[float, float]:
         """The module's time domain ``(start, end)`` in the caller's units (Python floats)."""
-        lo, hi = self._relative_domain()
-        return self._origin + float(lo), self._origin + float(hi)
+        return self.time_model.domain()
 
-    def get_extra_state(self) -> dict:
-        return {"origin": self._origin}
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"origin": self._origin, **self._state()}
 
-    def set_extra_state(self, state: dict) -> None:
-        origin = state.get("origin") if isinstance(state, dict) else None
-        if isinstance(origin, bool) or not isinstance(origin, numbers.Real) or not math.isfinite(
-                origin):
-            _checks.fail(f"{self._name}.load_state_dict", f"expected extra state "
-                                                          f"{{'origin': float}}, got {state!r}")
-        self._origin = float(origin)
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        fn = f"{self._name}.load_state_dict"
+        self._origin = _extra_float(fn, state, "origin")
+        self._restore(fn, state)
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        # A 0.1 state_dict: a ``time_range`` buffer (and knots on the domain it maps onto)
-        # instead of the time origin: converted, with a DeprecationWarning.
-        if prefix + "time_range" in state_dict and prefix + "_extra_state" not in state_dict:
-            warnings.warn(f"{self._name}.load_state_dict: converting a 0.1 state_dict "
-                          f"(time_range) to the caller's time; save it again to update it",
-                          DeprecationWarning, stacklevel=4)
-            start, end = (float(v) for v in state_dict.pop(prefix + "time_range").tolist())
-            self._convert_01(state_dict, prefix, start, end)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-
-    def _local_time(self, fn: str, t: Tensor, like: Tensor) -> Tensor:
-        """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, checked against the
-        domain when ``self.check``."""
+    def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None) -> Tensor:
+        """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, admitted by the time
+        model (checked when ``self.check``)."""
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
         if t.device != like.device:
             _checks.fail(fn, f"t is on {t.device} but the control points are on {like.device}",
                          TypeError)
-        wide = torch.promote_types(t.dtype, like.dtype)
-        rel = t.to(wide) - self._origin if self._origin != 0.0 else t.to(wide)
-        if self.check:
-            lo, hi = self._relative_domain()
-            # the relative knots are stored in the module's dtype, maybe narrower than like's
-            stored = self.parametrizations.ctrl.original.dtype
-            eps = max(torch.finfo(stored).eps, torch.finfo(like.dtype).eps)
-            tol = _ULPS * eps * max(abs(float(lo)), abs(float(hi)))
-            outside = ((rel < float(lo) - tol) | (rel > float(hi) + tol)).any()
-            try:
-                bad = bool(outside)
-            except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
-                raise RuntimeError(f"{fn}: the domain check reads t on the host, which this "
-                                   f"transform does not allow; build the module with "
-                                   f"check=False") from e
-            if bad:
-                start, end = self.domain
-                finite = t.detach()[torch.isfinite(t.detach())]
-                seen = (f"values in [{float(finite.min())!r}, {float(finite.max())!r}]"
-                        if finite.numel() else "no finite value")
-                nonfinite = t.numel() - finite.numel()
-                _checks.fail(fn, f"t must lie in the module's time domain [{start!r}, {end!r}] "
-                                 f"(the caller's units; from_poses places it over "
-                                 f"[times[0], times[-1]]), got {seen}"
-                                 + (f" and {nonfinite} non-finite" if nonfinite else ""))
-        return rel
+        extrapolate = (self.extrapolate if extrapolate is None
+                       else _checks.flag(fn, "extrapolate", extrapolate))
+        return self.time_model.prepare(
+            fn, t, like.dtype, check=self.check, extrapolate=extrapolate, knots=None,
+            what="the module's time domain", fix="evaluate inside it (the caller's units; "
+                                                "from_poses places it over [times[0], times[-1]])")
 
-    def forward(self, t: Tensor, ctrl: Tensor | None = None) -> Tensor:
+    # -- evaluation
+    def forward(self, t: Tensor, ctrl: Tensor | None = None,
+                extrapolate: bool | None = None) -> Tensor:
         """Poses at times ``t`` of the module's domain (the caller's units).
 
         Args:
@@ -309,6 +542,8 @@ class _Curve(torch.nn.Module):
             ctrl: optional ``(..., n, 8)`` control points (e.g. a network's raw outputs)
                 used instead of the module's own, projected like them; ``n`` must be the
                 module's.
+            extrapolate: continue the end spans beyond the domain (default: the module's
+                :attr:`extrapolate`); otherwise the domain rules of the module docstring.
 
         Returns:
             ``(..., T, 8)`` unit dual quaternions of the control points' dtype.
@@ -318,10 +553,10 @@ class _Curve(torch.nn.Module):
         """
         fn = f"{self._name}.forward"
         ctrl = self._resolve(fn, ctrl)
-        return self._curve(ctrl, self._local_time(fn, t, ctrl))
+        return self._curve(ctrl, self._times(fn, t, ctrl, extrapolate))
 
     def derivatives(self, t: Tensor, order: int = 2, ctrl: Tensor | None = None,
-                    ) -> tuple[Tensor, ...]:
+                    extrapolate: bool | None = None) -> tuple[Tensor, ...]:
         r"""Poses and their exact time derivatives ``(x, dx/dt, ..., d^order x/dt^order)``.
 
         Derivatives are with respect to the caller's time (the module's own), through
@@ -332,6 +567,7 @@ class _Curve(torch.nn.Module):
             t: ``(T,)`` or ``(..., T)`` times in :attr:`domain` (see :meth:`forward`).
             order: highest derivative, 0 to 3.
             ctrl: optional predicted control points (see :meth:`forward`).
+            extrapolate: see :meth:`forward`.
 
         Returns:
             ``order + 1`` tensors, each ``(..., T, 8)``.
@@ -341,10 +577,10 @@ class _Curve(torch.nn.Module):
         if order > 3:
             _checks.fail(fn, f"order must be an int in 0..3, got {order!r}")
         ctrl = self._resolve(fn, ctrl)
-        return self._curve_derivatives(ctrl, self._local_time(fn, t, ctrl), order)
+        return self._curve_derivatives(ctrl, self._times(fn, t, ctrl, extrapolate), order)
 
     def kinematics(self, t: Tensor, frame: str = "world", ctrl: Tensor | None = None,
-                   ) -> curves.Kinematics:
+                   extrapolate: bool | None = None) -> curves.Kinematics:
         r"""Angular and linear velocities and accelerations at ``t`` (caller's units).
 
         As :func:`torch_dq.curves.kinematics` on :meth:`derivatives` of order 2: with
@@ -356,6 +592,7 @@ class _Curve(torch.nn.Module):
             t: ``(T,)`` or ``(..., T)`` times in :attr:`domain`.
             frame: ``"world"`` or ``"body"``.
             ctrl: optional predicted control points (see :meth:`forward`).
+            extrapolate: see :meth:`forward`.
 
         Returns:
             Named tuple ``(angular_velocity, linear_velocity, angular_acceleration,
@@ -370,11 +607,11 @@ class _Curve(torch.nn.Module):
             >>> k.angular_velocity.detach()  # rad/s
             tensor([[0.0000, 0.0000, 0.5000]], dtype=torch.float64)
         """
-        x, dx, ddx = self.derivatives(t, 2, ctrl)
+        x, dx, ddx = self.derivatives(t, 2, ctrl, extrapolate)
         return curves.kinematics(x, dx, ddx, frame=frame)
 
     def imu(self, t: Tensor, gravity: Tensor | Sequence[float] = (0.0, 0.0, -9.81),
-            ctrl: Tensor | None = None,
+            ctrl: Tensor | None = None, extrapolate: bool | None = None,
             ) -> tuple[Tensor, Tensor]:
         r"""What an ideal IMU rigidly attached at the body origin reads at ``t``.
 
@@ -385,123 +622,71 @@ class _Curve(torch.nn.Module):
             t: ``(T,)`` or ``(..., T)`` times in :attr:`domain`.
             gravity: gravity ``g`` in world axes (default ``(0, 0, -9.81)``).
             ctrl: optional predicted control points (see :meth:`forward`).
+            extrapolate: see :meth:`forward`.
 
         Returns:
             ``(gyro, accel)``, each ``(..., T, 3)``.
         """
-        x, dx, ddx = self.derivatives(t, 2, ctrl)
+        x, dx, ddx = self.derivatives(t, 2, ctrl, extrapolate)
         return curves.imu(x, dx, ddx, gravity=gravity)
 
-    def normalize_time(self, times: Tensor) -> Tensor:
-        """Deprecated: the identity (modules now take the caller's time directly).
+    # -- the Euclidean basis of the least-squares problems
+    def basis(self, t: Tensor) -> tuple[Tensor, Tensor]:
+        r"""Euclidean basis at ``t``: ``(first (T,), values (T, w))``.
 
-        0.1 mapped raw times onto ``[0, 1]``; since 0.2 a module's time is the caller's, so
-        ``module(times)`` replaces ``module(module.normalize_time(times))``.
+        The pose at ``t[i]`` depends on the control points ``first[i] .. first[i] + w - 1``
+        only, with the Euclidean basis functions ``values[i, j]`` (Cox-de Boor for a
+        B-spline of degree ``p``, ``w = p + 1``: local support; Bernstein for a Bézier
+        curve, ``w = n``, ``first = 0``; non-negative, summing to 1): the design matrix of
+        the least-squares start and of the Gauss-Newton fit, for either B-spline form (the
+        linearization of both in local charts, :mod:`torch_dq._start`).
+
+        Args:
+            t: ``(T,)`` times in the domain (caller's units; the domain rules apply, checked
+                whatever :attr:`check`), any floating dtype.
+
+        Returns:
+            ``(first, values)``: ``(T,)`` int64 and ``(T, w)`` float64.
+
+        Raises:
+            ValueError: ``t`` not 1-D, or outside the domain.
         """
-        _deprecated(f"{self._name}.normalize_time",
-                    "modules take the caller's time directly; call module(times)")
-        _checks.tensor(f"{self._name}.normalize_time", "times", times)
-        return times
+        fn = f"{self._name}.basis"
+        _checks.tensor(fn, "t", t)
+        if t.dim() != 1:
+            _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
+                             f"{_checks.shape_str(t.shape)}")
+        dom = self.time_model
+        rel = dom.prepare(fn, t.detach().to(dom.knots.device), torch.float64, check=True,
+                          extrapolate=False, knots=None, what="the module's time domain",
+                          fix="evaluate inside it")
+        return dom.basis(rel)
 
-    @property
-    def time_range(self) -> Tensor:
-        """Deprecated: the :attr:`domain` as a float64 ``(2,)`` tensor."""
-        _deprecated(f"{self._name}.time_range", "use module.domain")
-        like = self.parametrizations.ctrl.original
-        return torch.tensor(self.domain, dtype=torch.float64, device=like.device)
+    def greville(self) -> Tensor:
+        """The Greville abscissae ``(..., n)`` of the control points, float64, in the
+        caller's units (where each control point acts most)."""
+        return self.time_model.greville() + self._origin
 
     def extra_repr(self) -> str:
         raw = self.parametrizations.ctrl.original
         batch = _checks.shape_str(raw.shape[:-2])
         start, end = self.domain
-        deg = f", degree={self.degree}" if hasattr(self, "degree") else ""
-        return (f"n_ctrl={self.n_ctrl}{deg}, batch_shape={batch}, domain=({start!r}, "
+        extra = "".join(f", {k}={v!r}" for k, v in self._state().items() if k != "length")
+        return (f"n_ctrl={self.n_ctrl}{extra}, batch_shape={batch}, domain=({start!r}, "
                 f"{end!r}), dtype={raw.dtype}")
 
-    # -- constructors from poses
-    def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
-        """Set the control points from the local least-squares start
-        (:func:`torch_dq.fitting.least_squares_start`) on poses ``x`` at float64 times."""
-        n, N = self.n_ctrl, x.shape[-2]
-        if n > N:
-            low = self.degree + 1 if isinstance(self, BSpline) else 2
-            fix = (f"use n_ctrl <= {N}" if N >= low else
-                   f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
-                   f"lower the degree")
-            _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
-                             f"N = {N} samples; {fix}")
-        x64 = x.detach().to(dtype=torch.float64, device="cpu")
-        if not bool(torch.isfinite(x64).all()):
-            _checks.fail(fn, "the poses must be finite, with non-zero rotations")
-        first, values = self.basis(t64.to(x.device))
-        first, values = first.cpu(), values.cpu()
-        ctrl = fitting.least_squares_start(x64, t64 - self._origin, first, values, n,
-                                           self._greville())
-        self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
-        return self
-
-    @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
-                   **kwargs: Any) -> Self:
-        r"""Curve over ``[times[0], times[-1]]`` fit to timestamped rigid poses.
-
-        The time domain is placed over the samples in the caller's units, so
-        ``module(times)`` evaluates the fit at the sample times. The control points come
-        from a local least-squares start (:func:`torch_dq.fitting.least_squares_start`):
-        each control point is fit in a local chart (the pose interpolated at its Greville
-        abscissa) to the samples of a window around it, so the start is sane on long
-        trajectories with loops and extents of kilometres, costs :math:`O(N)`, and does not
-        depend on where the world origin is. Control points that the samples do not
-        determine (a time gap longer than a knot span) are bridged: they stay on the screw
-        motion between the samples on either side of the gap. Refine the start with
-        :func:`fit`.
-
-        Args:
-            rotations: ``(..., N, 4)`` quaternions ``(w, x, y, z)`` (normalised here) or
-                ``(..., N, 3, 3)`` rotation matrices. Extra leading dims give a batch of
-                curves.
-            translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
-            times: ``(N,)`` strictly increasing finite times in the caller's units, any
-                floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
-                float32 rounding of the time since the first sample).
-            **kwargs: ``n_ctrl`` (and ``degree`` for :class:`BSpline`), ``check``.
-
-        Returns:
-            The module, with control points of the dtype and device of ``rotations``.
-
-        Raises:
-            ValueError: bad shapes, non-increasing times, non-finite poses, more control
-                points than samples (``n_ctrl > N``: underdetermined).
-        """
-        fn = f"{cls._name}.from_poses"
-        x = _poses_to_dq(fn, rotations, translations)
-        return cls._from_dq(fn, x, times, **kwargs)
-
-    @classmethod
-    def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:
-        """:meth:`from_poses` with ``(..., N, 4, 4)`` homogeneous matrices ``T``.
-
-        Keywords as for :meth:`from_poses` (``n_ctrl``, ``degree`` for a B-spline, ``check``).
-        """
-        fn = f"{cls._name}.from_matrices"
-        _checks.tensor(fn, "T", T, (4, 4))
-        if T.dim() < 3:
-            _checks.fail(fn, f"expected a (..., N, 4, 4) tensor for T, got shape "
-                             f"{_checks.shape_str(T.shape)}")
-        return cls._from_dq(fn, dualquat.from_matrix(T), times, **kwargs)
-
-    @classmethod
-    def from_dualquats(cls, x: Tensor, times: Tensor, **kwargs: Any) -> Self:
-        """:meth:`from_poses` with ``(..., N, 8)`` unit dual quaternions ``x`` (any signs)."""
-        fn = f"{cls._name}.from_dualquats"
-        _checks.tensor(fn, "x", x, 8)
-        if x.dim() < 2:
-            _checks.fail(fn, f"expected a (..., N, 8) tensor for x, got shape "
-                             f"{_checks.shape_str(x.shape)}")
-        return cls._from_dq(fn, dualquat.normalize(x), times, **kwargs)
+    def __reduce_ex__(self, protocol):
+        # Parametrized modules do not pickle (their class is made on the fly): rebuilt from
+        # the state_dict by from_state_dict, so torch.save(module) works.
+        settings = {"check": self.check, "extrapolate": self.extrapolate,
+                    "training": self.training}
+        return _rebuild, (parametrize.type_before_parametrizations(self),
+                          dict(self.state_dict()), settings)
 
 
-class Bezier(_Curve):
+# ----------------------------------------------------------------------------- the curves
+
+class Bezier(Curve):
     r"""Bézier curve of rigid motions with learnable unit-dual-quaternion control points.
 
     Evaluates :func:`torch_dq.curves.bezier` (De Casteljau with ``sclerp``, paper 4.1) on
@@ -509,7 +694,8 @@ class Bezier(_Curve):
     under the :class:`UnitDualQuaternion` parametrization: the raw tensor
     (``parametrizations.ctrl.original``) is what optimizers update, and
     ``.control_points`` (= ``.ctrl``) is always its unit projection. Save and load through
-    ``state_dict`` (the domain is extra state; parametrized modules do not pickle).
+    ``state_dict`` (the domain is extra state) and :meth:`~Curve.from_state_dict`, or
+    ``torch.save(module)``.
 
     Args:
         ctrl: ``(..., n, 8)`` initial control points, ``n >= 2`` (degree ``n - 1``),
@@ -518,7 +704,10 @@ class Bezier(_Curve):
         domain: ``(t0, t1)``, the time span of the curve in the caller's units (kept as
             Python floats: absolute timestamps are safe with a float32 module).
         time_range: deprecated alias of ``domain`` (0.1).
-        check: check at every call that ``t`` lies in the domain (one device sync).
+        check: check at every call that ``t`` lies in the domain (one device sync; skipped
+            under ``torch.compile``, where times outside give NaN).
+        extrapolate: default of the evaluations' ``extrapolate=``: continue the curve
+            beyond its domain instead of the domain rules.
 
     Shape:
         ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in the domain -> ``(..., T, 8)``.
@@ -533,10 +722,11 @@ class Bezier(_Curve):
     _name = "nn.Bezier"
 
     def __init__(self, ctrl: Tensor, domain: Sequence[float] | Tensor = (0.0, 1.0), *,
-                 time_range: Sequence[float] | Tensor | None = None, check: bool = True):
+                 time_range: Sequence[float] | Tensor | None = None, check: bool = True,
+                 extrapolate: bool = False):
         super().__init__()
         fn = self._name
-        self._setup(ctrl, 2, check)
+        self._setup(ctrl, 2, check, extrapolate)
         if time_range is not None:
             _deprecated(f"{fn}(time_range=...)", "pass domain=(t0, t1)")
             domain = time_range
@@ -544,77 +734,75 @@ class Bezier(_Curve):
         self._origin = start
         self._length = end - start
 
-    def get_extra_state(self) -> dict:
-        return {"origin": self._origin, "length": self._length}
+    @property
+    def time_model(self) -> KnotDomain:
+        raw = self.parametrizations.ctrl.original
+        return KnotDomain.bezier(self.n_ctrl, self._length, self._origin, device=raw.device)
 
-    def set_extra_state(self, state: dict) -> None:
-        super().set_extra_state(state)
-        length = state.get("length")
-        if isinstance(length, bool) or not isinstance(length, numbers.Real) or not (
-                math.isfinite(length) and float(length) > 0):
-            _checks.fail(f"{self._name}.load_state_dict", f"expected a finite length > 0 in "
-                                                          f"the extra state, got {state!r}")
-        self._length = float(length)
+    @property
+    def _min_samples(self) -> int:
+        return 2
+
+    def _state(self) -> dict[str, Any]:
+        return {"length": self._length}
+
+    def _restore(self, fn: str, state: dict[str, Any]) -> None:
+        self._length = _extra_float(fn, state, "length", positive=True)
+
+    @classmethod
+    def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
+                         ) -> dict[str, Any]:
+        return {}  # the domain is extra state
 
     def _convert_01(self, state_dict, prefix, start: float, end: float) -> None:
         state_dict[prefix + "_extra_state"] = {"origin": start, "length": end - start}
 
-    def _relative_domain(self) -> tuple[float, float]:
-        return 0.0, self._length
-
     def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor:
-        return curves.bezier(ctrl, rel, domain=(0.0, self._length), check=False)
+        return curves.bezier(ctrl, rel, domain=(0.0, self._length), check=False,
+                             extrapolate=True)
 
     def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int) -> tuple[Tensor, ...]:
         return curves.bezier_derivatives(ctrl, rel, order=order, domain=(0.0, self._length),
-                                         check=False)
-
-    def basis(self, t: Tensor) -> tuple[Tensor, Tensor]:
-        r"""Euclidean Bernstein basis at ``t``: ``(first (T,), values (T, n))``.
-
-        ``values[i, j]`` is :math:`\binom{n-1}{j} u^j (1-u)^{n-1-j}` at the local parameter
-        ``u`` of ``t[i]``; every pose depends on all ``n`` control points (``first = 0``).
-        This is the design matrix of the least-squares start.
-
-        Args:
-            t: ``(T,)`` times in the domain (caller's units), any floating dtype.
-
-        Returns:
-            ``(first, values)``: ``(T,)`` int64 zeros and ``(T, n)`` float64 values.
-        """
-        fn = f"{self._name}.basis"
-        rel = self._local_time(fn, t, self.parametrizations.ctrl.original).to(torch.float64)
-        if rel.dim() != 1:
-            _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
-                             f"{_checks.shape_str(t.shape)}")
-        u = (rel / self._length)[:, None]
-        n = self.n_ctrl
-        j = torch.arange(n, dtype=torch.float64, device=rel.device)
-        binom = torch.tensor([math.comb(n - 1, k) for k in range(n)], dtype=torch.float64,
-                             device=rel.device)
-        values = binom * u**j * (1.0 - u) ** (n - 1 - j)
-        return torch.zeros(rel.shape, dtype=torch.int64, device=rel.device), values
-
-    def _greville(self) -> Tensor:
-        return torch.linspace(0.0, self._length, self.n_ctrl, dtype=torch.float64)
+                                         check=False, extrapolate=True)
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4,
                  check: bool = True) -> Self:
         n = _check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
-        t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
+        t64 = _start.check_sample_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
         module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
                      domain=(float(t64[0]), float(t64[-1])), check=check)
         return module._fill(fn, x, t64)
 
-    # The override spells out the keywords that _Curve.from_poses takes as **kwargs.
     @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,  # type: ignore[override]
-                   n_ctrl: int = 4, check: bool = True) -> Bezier:
-        """Bézier curve with ``n_ctrl`` control points fit to poses over
-        ``[times[0], times[-1]]`` (Bernstein basis; see :meth:`_Curve.from_poses`).
+    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
+                   n_ctrl: int = 4, check: bool = True) -> Self:
+        r"""Bézier curve with ``n_ctrl`` control points fit to timestamped poses.
 
-        ``n_ctrl >= 2`` (degree ``n_ctrl - 1``), at most the number of samples.
+        The domain is ``[times[0], times[-1]]`` in the caller's units, so ``curve(times)``
+        evaluates the fit at the sample times. The control points come from the
+        least-squares start (:mod:`torch_dq._start`): the poses lifted into a chart at the
+        middle of the trajectory (relative rotations up to a full turn either side of it)
+        and fit there by the Bernstein basis; exact for a constant screw motion. Refine the
+        result with :func:`torch_dq.fitting.fit`.
+
+        Args:
+            rotations: ``(..., N, 4)`` quaternions ``(w, x, y, z)`` (normalised here) or
+                ``(..., N, 3, 3)`` rotation matrices; extra leading dims give a batch of
+                curves.
+            translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
+            times: ``(N,)`` strictly increasing finite times in the caller's units, any
+                floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
+                float32 rounding of the time since the first sample).
+            n_ctrl: number of control points, ``2 <= n_ctrl <= N`` (degree ``n_ctrl - 1``).
+            check: the module's :attr:`~Curve.check`.
+
+        Returns:
+            The module, with control points of the dtype and device of ``rotations``.
+
+        Raises:
+            ValueError: bad shapes, non-increasing times, non-finite poses, more control
+                points than samples (underdetermined).
 
         Example:
             >>> import torch_dq.dualquat as dq
@@ -627,18 +815,23 @@ class Bezier(_Curve):
             >>> torch.allclose(dq.to_rt(curve(times))[1], p)
             True
         """
-        return super().from_poses(rotations, translations, times, n_ctrl=n_ctrl, check=check)
+        fn = f"{cls._name}.from_poses"
+        x = _poses_to_dq(fn, rotations, translations)
+        return cls._from_dq(fn, x, times, n_ctrl=n_ctrl, check=check)
 
 
-class BSpline(_Curve):
+class BSpline(Curve):
     r"""B-spline curve of rigid motions with learnable unit-dual-quaternion control points.
 
-    Evaluates :func:`torch_dq.curves.bspline` (De Boor with ``sclerp``, paper 4.2) on the
-    knot domain ``[knots[degree], knots[n]]`` in the caller's units; see :class:`Bezier`
-    for the parametrization. The knots are not learned: the module keeps their origin
-    ``knots[degree]`` as a Python float (extra state of the ``state_dict``) and the knots
-    relative to it as a buffer (it follows ``.to()``), so absolute timestamps survive a
-    float32 module; :attr:`knots` returns them in the caller's units (float64).
+    Evaluates :func:`torch_dq.curves.bspline` on the knot domain
+    ``[knots[degree], knots[n]]`` in the caller's units, in either form: ``"de_boor"`` (De
+    Boor's pyramid of sclerps, paper 4.2, :math:`C^1`) or ``"cumulative"`` (Kim-Kim-Shin's
+    product of screw powers, :math:`C^{p-1}`: continuous accelerations and IMU readings for
+    cubics). See :class:`Bezier` for the parametrization. The knots are not learned: the
+    module keeps their origin ``knots[degree]`` as a Python float and the knots relative to
+    it as a buffer (it follows ``.to()``), so absolute timestamps survive a float32 module;
+    :attr:`knots` returns them in the caller's units (float64). The origin, the degree and
+    the form are the extra state of the ``state_dict``.
 
     Args:
         ctrl: ``(..., n, 8)`` initial control points, ``n > degree``, projected onto unit
@@ -647,10 +840,15 @@ class BSpline(_Curve):
         knots: ``(n + degree + 1,)`` non-decreasing finite knots in the caller's units
             (any floating dtype; float64 for absolute timestamps) with
             ``knots[degree] < knots[n]``; default clamped uniform on ``[0, 1]``
-            (:func:`torch_dq.curves.clamped_uniform_knots`).
+            (:func:`torch_dq.curves.clamped_uniform_knots`). Meta knots are kept as they
+            are (relative to origin 0, unchecked).
+        form: ``"de_boor"`` (default) or ``"cumulative"``; every evaluation follows it.
         time_range: deprecated (0.1): ``(t0, t1)`` rescales the knots affinely so that the
             domain becomes ``[t0, t1]``.
-        check: check at every call that ``t`` lies in the domain (one device sync).
+        check: check at every call that ``t`` lies in the domain (one device sync; skipped
+            under ``torch.compile``, where times outside give NaN).
+        extrapolate: default of the evaluations' ``extrapolate=``: continue the end spans
+            beyond the domain instead of the domain rules.
 
     Shape:
         ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in the domain -> ``(..., T, 8)``.
@@ -659,7 +857,7 @@ class BSpline(_Curve):
         >>> import torch_dq.dualquat as dq
         >>> spline = BSpline(dq.identity((6,)), degree=3)
         >>> spline.extra_repr()
-        'n_ctrl=6, degree=3, batch_shape=(), domain=(0.0, 1.0), dtype=torch.float32'
+        "n_ctrl=6, degree=3, form='de_boor', batch_shape=(), domain=(0.0, 1.0), dtype=torch.float32"
         >>> spline(torch.rand(2, 7)).shape  # a (2, 7) batch of times
         torch.Size([2, 7, 8])
     """
@@ -669,42 +867,74 @@ class BSpline(_Curve):
     if TYPE_CHECKING:  # a buffer (register_buffer)
         _knots: Tensor
 
-    def __init__(self, ctrl: Tensor, degree: int = 3, knots: Tensor | None = None, *,
-                 time_range: Sequence[float] | Tensor | None = None, check: bool = True):
+    def __init__(self, ctrl: Tensor, degree: int = 3, knots: Tensor | None = None,
+                 form: str = "de_boor", *, time_range: Sequence[float] | Tensor | None = None,
+                 check: bool = True, extrapolate: bool = False):
         super().__init__()
         fn = self._name
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
-        self._setup(ctrl, 2, check)
+        self.form = curves.check_form(fn, form)
+        self._setup(ctrl, 2, check, extrapolate)
         raw = self.parametrizations.ctrl.original
         n = raw.shape[-2]
         if degree >= n:
             _checks.fail(fn, f"degree must be < the number of control points n = {n}, got "
                              f"degree {degree}")
         self.degree = degree
-        if knots is None:
-            k64 = curves.clamped_uniform_knots(n, degree, dtype=torch.float64)
-        else:
+        if knots is not None:
             _checks.tensor(fn, "knots", knots)
             if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
                 _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
                                  f"{n + degree + 1} entries, got shape "
                                  f"{_checks.shape_str(knots.shape)}")
-            k64 = knots.detach().to(dtype=torch.float64, device="cpu")
-            bad = torch.stack((~torch.isfinite(k64).all(), (k64[1:] < k64[:-1]).any(),
-                               ~(k64[degree] < k64[n]))).tolist()
-            if any(bad):
-                _checks.fail(fn, f"knots must be finite and non-decreasing with "
-                                 f"knots[degree] < knots[n], got {k64.tolist()}")
-        if time_range is not None:  # affine map of the knot domain onto time_range
-            _deprecated(f"{fn}(time_range=...)", "pass knots in the caller's time (or build "
-                                                 "with from_poses)")
-            span = _time_pair(fn, "time_range", time_range)
-            lo, hi = k64[degree], k64[n]
-            k64 = span[0] + (k64 - lo) * ((span[1] - span[0]) / (hi - lo))
-            k64[degree], k64[n] = span  # exact ends
+        if knots is not None and knots.device.type == "meta":  # no values: origin 0
+            self._origin = 0.0
+            self.register_buffer("_knots", knots.to(dtype=raw.dtype, device=raw.device))
+            return
+        k64 = (curves.clamped_uniform_knots(n, degree, dtype=torch.float64) if knots is None
+               else knots.detach().to(dtype=torch.float64, device="cpu"))
+        empty = k64.new_zeros(0)
+        KnotDomain(k64, degree).check(fn, empty, knots="knots", extrapolate=True, fix="")
+        if time_range is not None:
+            k64 = self._time_range_knots(fn, k64, degree, time_range)
         self._origin = float(k64[degree])
         self.register_buffer("_knots", (k64 - self._origin).to(dtype=raw.dtype,
                                                                  device=raw.device))
+
+    @property
+    def knots(self) -> Tensor:
+        """The ``(n + degree + 1,)`` knots in the caller's units (float64, module's device)."""
+        return self._knots.to(torch.float64) + self._origin
+
+    @property
+    def time_model(self) -> KnotDomain:
+        return KnotDomain(self._knots, self.degree, self._origin)
+
+    @property
+    def _min_samples(self) -> int:
+        return self.degree + 1
+
+    def _state(self) -> dict[str, Any]:
+        return {"degree": self.degree, "form": self.form}
+
+    def _restore(self, fn: str, state: dict[str, Any]) -> None:
+        degree = state.get("degree", self.degree)  # 0.2 saved the origin only
+        if degree != self.degree:
+            _checks.fail(fn, f"the state_dict holds a degree-{degree!r} spline, this module "
+                             f"has degree {self.degree}; rebuild it with "
+                             f"{self._name}.from_state_dict")
+        self.form = curves.check_form(fn, state.get("form", "de_boor"))
+
+    @classmethod
+    def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
+                         ) -> dict[str, Any]:
+        extra = state_dict.get("_extra_state")
+        extra = extra if isinstance(extra, dict) else {}
+        knots = state_dict.get("_knots", state_dict.get("knots"))  # 0.2, 0.1
+        degree = extra.get("degree")
+        if degree is None:
+            degree = knots.shape[-1] - raw.shape[-2] - 1 if isinstance(knots, Tensor) else 3
+        return {"degree": degree, "form": extra.get("form", "de_boor")}
 
     def _convert_01(self, state_dict, prefix, start: float, end: float) -> None:
         p, n = self.degree, self.n_ctrl
@@ -715,71 +945,68 @@ class BSpline(_Curve):
         state_dict[prefix + "_knots"] = k.to(self._knots.dtype)
         state_dict[prefix + "_extra_state"] = {"origin": start}
 
-    @property
-    def knots(self) -> Tensor:
-        """The ``(n + degree + 1,)`` knots in the caller's units (float64, module's device)."""
-        return self._knots.to(torch.float64) + self._origin
-
-    def _relative_domain(self) -> tuple[Tensor, Tensor]:
-        return self._knots[self.degree], self._knots[self.n_ctrl]
-
-    def _knots_like(self, rel: Tensor) -> Tensor:
-        return self._knots.to(dtype=rel.dtype, device=rel.device)
-
     def _curve(self, ctrl: Tensor, rel: Tensor) -> Tensor:
-        return curves.bspline(ctrl, rel, self.degree, self._knots_like(rel), check=False)
+        return curves.bspline(ctrl, rel, self.degree, self._knots.to(rel.device), check=False,
+                              extrapolate=True, form=self.form)
 
     def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int) -> tuple[Tensor, ...]:
         return curves.bspline_derivatives(ctrl, rel, order=order, degree=self.degree,
-                                          knots=self._knots_like(rel), check=False)
-
-    def basis(self, t: Tensor) -> tuple[Tensor, Tensor]:
-        r"""Euclidean B-spline basis at ``t``: ``(first (T,), values (T, degree + 1))``.
-
-        The pose at ``t[i]`` depends on the control points ``first[i] .. first[i] + degree``
-        only (local support), with the Cox-de Boor basis functions
-        ``values[i, j] = N_{first[i] + j, degree}(t[i])`` (non-negative, summing to 1): the
-        banded design matrix of the least-squares start and of the Gauss-Newton fit.
-
-        Args:
-            t: ``(T,)`` times in the domain (caller's units), any floating dtype.
-
-        Returns:
-            ``(first, values)``: ``(T,)`` int64 and ``(T, degree + 1)`` float64.
-        """
-        fn = f"{self._name}.basis"
-        rel = self._local_time(fn, t, self.parametrizations.ctrl.original).to(torch.float64)
-        if rel.dim() != 1:
-            _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
-                             f"{_checks.shape_str(t.shape)}")
-        return fitting.bspline_basis(rel, self._knots.to(torch.float64), self.degree)
-
-    def _greville(self) -> Tensor:
-        k = self._knots.detach().to(dtype=torch.float64, device="cpu")
-        p, n = self.degree, self.n_ctrl
-        return k[1:n + p].unfold(0, p, 1).mean(-1)  # mean of knots[j + 1 .. j + p]
+                                          knots=self._knots.to(rel.device), check=False,
+                                          extrapolate=True, form=self.form)
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 8, degree: int = 3,
-                 check: bool = True) -> Self:
+                 form: str = "de_boor", check: bool = True) -> Self:
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
-        t64 = fitting.check_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
+        form = curves.check_form(fn, form)
+        t64 = _start.check_sample_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
         t0, t1 = float(t64[0]), float(t64[-1])
         knots = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
         module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
-                     degree=degree, knots=knots, check=check)
+                     degree=degree, knots=knots, form=form, check=check)
         return module._fill(fn, x, t64)
 
-    # The override spells out the keywords that _Curve.from_poses takes as **kwargs.
     @classmethod
-    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,  # type: ignore[override]
-                   n_ctrl: int = 8, degree: int = 3, check: bool = True) -> BSpline:
-        """B-spline with ``n_ctrl`` control points fit to poses (see
-        :meth:`_Curve.from_poses`), on clamped uniform knots over ``[times[0], times[-1]]``.
+    def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
+                   n_ctrl: int = 8, degree: int = 3, form: str = "de_boor",
+                   check: bool = True) -> Self:
+        r"""B-spline with ``n_ctrl`` control points fit to timestamped poses.
 
-        ``degree < n_ctrl <= N``. For a knot every ``h`` seconds, take
-        ``n_ctrl = ceil((times[-1] - times[0]) / h) + degree``.
+        The knots are clamped uniform over ``[times[0], times[-1]]`` in the caller's units,
+        so ``spline(times)`` evaluates the fit at the sample times; for a knot every ``h``
+        seconds, take ``n_ctrl = ceil((times[-1] - times[0]) / h) + degree``. The control
+        points come from the local least-squares start (:mod:`torch_dq._start`): each
+        control point is fit in its own chart (the pose interpolated at the middle of a
+        window of a few knot spans around it) to the samples of that window, by the
+        Euclidean B-spline basis (:meth:`~Curve.basis`), which is the linearization of both
+        forms in such a chart. So the start is sane on long trajectories with loops and
+        extents of kilometres, costs :math:`O(N)`, does not depend on where the world
+        origin is, and is exact for a constant screw motion. Control points that the samples
+        do not determine (a time gap longer than a knot span) stay on the screw motion
+        between the samples on either side. Keep the rotation per knot span below about
+        1 rad (a window then turns less than a full turn); refine the start with
+        :func:`torch_dq.fitting.fit`.
+
+        Args:
+            rotations: ``(..., N, 4)`` quaternions ``(w, x, y, z)`` (normalised here) or
+                ``(..., N, 3, 3)`` rotation matrices; extra leading dims give a batch of
+                curves sharing the times.
+            translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
+            times: ``(N,)`` strictly increasing finite times in the caller's units, any
+                floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
+                float32 rounding of the time since the first sample).
+            n_ctrl: number of control points, ``degree < n_ctrl <= N``.
+            degree: polynomial degree ``>= 1`` (3: cubic).
+            form: ``"de_boor"`` (default) or ``"cumulative"`` (see :class:`BSpline`).
+            check: the module's :attr:`~Curve.check`.
+
+        Returns:
+            The module, with control points of the dtype and device of ``rotations``.
+
+        Raises:
+            ValueError: bad shapes, non-increasing times, non-finite poses, an unknown
+                ``form``, more control points than samples (underdetermined).
 
         Example:
             >>> import torch_dq.dualquat as dq
@@ -793,5 +1020,7 @@ class BSpline(_Curve):
             >>> bool(err < 1e-5)
             True
         """
-        return super().from_poses(rotations, translations, times, n_ctrl=n_ctrl,
-                                  degree=degree, check=check)
+        fn = f"{cls._name}.from_poses"
+        x = _poses_to_dq(fn, rotations, translations)
+        return cls._from_dq(fn, x, times, n_ctrl=n_ctrl, degree=degree, form=form,
+                            check=check)

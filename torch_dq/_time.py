@@ -1,0 +1,312 @@
+r"""The time model of the curves: one object owns a curve's time (private).
+
+A :class:`KnotDomain` holds a curve's knots *relative to* a float64 time origin, its degree,
+and the origin itself, and answers every question about time that the curves, the layers,
+the least-squares start and the estimation ask:
+
+- :meth:`~KnotDomain.relative`: ``t - origin`` in the wide time dtype (the only place an
+  origin is subtracted);
+- :meth:`~KnotDomain.admit` and :meth:`~KnotDomain.check`: the domain rules of the public
+  contract (see below; the only place a domain is validated);
+- :meth:`~KnotDomain.span` and :meth:`~KnotDomain.locate`: the knot span of each time and
+  its local parameter ``u = (t - u_r) / (u_{r+1} - u_r)`` with the slope ``du/dt``
+  (Sophus' ``index_and_u``; the only span search); :meth:`~KnotDomain.de_boor_levels`: the
+  local parameters of every level of De Boor's scheme;
+- :meth:`~KnotDomain.basis` (Cox-de Boor, the design matrix of the least-squares start and
+  of Gauss-Newton) and :meth:`~KnotDomain.greville` (the Greville abscissae).
+
+A Bézier curve of ``n`` control points on ``[0, L]`` is the B-spline of degree ``n - 1`` on
+the clamped knots ``(0, ..., 0, L, ..., L)`` (:meth:`KnotDomain.bezier`): one span, whose
+local parameter is De Casteljau's ``s = t / L`` and whose basis is Bernstein's.
+
+Shapes: knots ``(K,)`` shared by every trajectory, or ``(B, K)`` (``(..., K)``) with a
+``(B, 1)`` origin for a batch of trajectories with their own times; times ``(..., T)``
+broadcast against the knots' batch dims. The B-spline *form* (De Boor or cumulative) is not
+the time model's business: both forms read the same spans and local parameters.
+
+Domain rules (``API.md``): times outside the domain ``[t0, t1]`` (absolute, the origin added)
+by at most ``tol = max(1e-9 (t1 - t0), 4 eps(t.dtype) max(|t0|, |t1|))`` (plus the rounding
+of the stored relative knots) are evaluated at the nearest end; with checks on, times further
+out raise ``ValueError`` naming the domain and ``extrapolate=True``; with checks skipped
+(``check=False``, under ``torch.compile``, on meta tensors) they give NaN, never a silent
+extrapolation; with ``extrapolate=True`` the end spans continue (spans are clamped to the
+first and last non-empty ones, local parameters run outside ``[0, 1]``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from . import _checks
+from ._numerics import safe_denominator, threshold
+
+__all__ = ["KnotDomain", "bspline_basis", "checks_possible"]
+
+_REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (API.md)
+EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"
+
+
+def checks_possible(*xs: Tensor) -> bool:
+    """Whether value checks that read tensors on the host can run: not under
+    ``torch.compile`` (a host sync would break the graph) and not on meta tensors."""
+    if torch.compiler.is_compiling():
+        return False
+    return not any(x.device.type == "meta" for x in xs)
+
+
+def _fmt(x: float, dtype: torch.dtype) -> str:
+    """A time for a message, with the digits its dtype holds (UNIX seconds stay readable)."""
+    return f"{x:.{15 if dtype == torch.float64 else 7}g}"
+
+
+def _take(knots: Tensor, idx: Tensor) -> Tensor:
+    """``knots[..., idx]`` for ``(K,)`` knots, or batched ``(..., K)`` knots with indices
+    ``(..., T)`` or ``(..., T, m)`` whose leading dims broadcast against the knots'."""
+    if knots.dim() == 1:
+        return knots[idx]
+    extra = idx.dim() - knots.dim()  # 1 for (..., T, m) indices
+    flat = idx.flatten(-2) if extra else idx
+    lead = torch.broadcast_shapes(knots.shape[:-1], flat.shape[:-1])
+    out = torch.take_along_dim(knots.expand(*lead, knots.shape[-1]),
+                               flat.expand(*lead, flat.shape[-1]), -1)
+    return out.view(*lead, *idx.shape[idx.dim() - 1 - extra:])
+
+
+class KnotDomain:
+    """A curve's time: knots relative to a float64 origin, and the degree.
+
+    Args:
+        knots: ``(K,)`` or ``(..., K)`` non-decreasing knots relative to ``origin``, ``K =
+            n + degree + 1``; any floating dtype (the stored dtype of a layer's knots).
+        degree: the polynomial degree ``p >= 1``.
+        origin: the absolute time of relative time 0: a Python float, or a float64 tensor of
+            the knots' batch shape plus a trailing 1 (per-trajectory origins).
+    """
+
+    __slots__ = ("degree", "knots", "origin")
+
+    def __init__(self, knots: Tensor, degree: int, origin: float | Tensor = 0.0):
+        self.knots = knots
+        self.degree = degree
+        self.origin = origin
+
+    @classmethod
+    def bezier(cls, n: int, length: float, origin: float = 0.0, *,
+               device: torch.device | None = None) -> KnotDomain:
+        """The domain ``[origin, origin + length]`` of a Bézier curve of ``n`` control points
+        (degree ``n - 1`` on clamped knots: one span)."""
+        knots = torch.tensor([0.0] * n + [length] * n, dtype=torch.float64, device=device)
+        return cls(knots, n - 1, origin)
+
+    # -- shape of the domain
+    @property
+    def n(self) -> int:
+        """Number of control points, ``K - degree - 1``."""
+        return self.knots.shape[-1] - self.degree - 1
+
+    def ends(self, dtype: torch.dtype | None = None) -> tuple[Tensor, Tensor]:
+        """Relative ends ``knots[degree], knots[n]`` (``(...)`` tensors), in ``dtype``."""
+        k = self.knots if dtype is None else self.knots.to(dtype)
+        return k[..., self.degree], k[..., self.n]
+
+    def domain(self) -> tuple[float, float]:
+        """The absolute domain ``(t0, t1)`` as Python floats (one host read; unbatched)."""
+        lo, hi = torch.stack(self.ends(torch.float64)).tolist()
+        return float(self.origin) + lo, float(self.origin) + hi
+
+    def tolerance(self, dtype: torch.dtype) -> Tensor:
+        """The domain tolerance in ``dtype`` (the wide time dtype of the evaluation)."""
+        lo, hi = self.ends(dtype)
+        origin = torch.as_tensor(self.origin, dtype=dtype, device=lo.device)
+        origin = origin.squeeze(-1) if origin.dim() else origin
+        scale = torch.maximum((lo + origin).abs(), (hi + origin).abs())
+        stored = threshold("domain_rtol", self.knots.dtype) * torch.maximum(lo.abs(), hi.abs())
+        return torch.maximum(torch.maximum(_REL_TOL * (hi - lo),
+                                           threshold("domain_rtol", dtype) * scale), stored)
+
+    # -- times
+    def relative(self, t: Tensor, dtype: torch.dtype) -> Tensor:
+        """``t - origin`` in the wide time dtype ``promote(t.dtype, dtype)``."""
+        wide = torch.promote_types(t.dtype, dtype)
+        origin = self.origin
+        if isinstance(origin, Tensor):
+            return t.to(wide) - origin.to(wide)
+        return t.to(wide) - origin if origin != 0.0 else t.to(wide)
+
+    def _outside(self, rel: Tensor) -> Tensor:
+        lo, hi = self.ends(rel.dtype)
+        tol = self.tolerance(rel.dtype)
+        return (rel < (lo - tol)[..., None]) | (rel > (hi + tol)[..., None])
+
+    def admit(self, rel: Tensor, extrapolate: bool) -> Tensor:
+        """The relative times to evaluate: those within the tolerance of an end moved onto
+        it (value only: the gradient with respect to ``t`` stays 1), those further out NaN;
+        ``extrapolate=True`` keeps every time. Branch-free: no host sync."""
+        if extrapolate:
+            return rel
+        lo, hi = self.ends(rel.dtype)
+        inside = torch.minimum(torch.maximum(rel, lo.detach()[..., None]), hi.detach()[..., None])
+        value = torch.where(self._outside(rel), torch.nan, inside)
+        return rel + (value - rel).detach()
+
+    def prepare(self, fn: str, t: Tensor, dtype: torch.dtype, *, check: bool,
+                extrapolate: bool, knots: str | None, fix: str,
+                what: str = "the domain") -> Tensor:
+        """The relative times to evaluate (:meth:`relative`, then :meth:`admit`), checked
+        first (:meth:`check`) when ``check`` and :func:`checks_possible`: the one entry of
+        every evaluation."""
+        rel = self.relative(t, dtype)
+        if check and checks_possible(rel, self.knots):
+            self.check(fn, rel, knots=knots, extrapolate=extrapolate, fix=fix, what=what)
+        return self.admit(rel, extrapolate)
+
+    def check(self, fn: str, rel: Tensor, *, knots: str | None, extrapolate: bool, fix: str,
+              what: str = "the domain") -> None:
+        """All value checks with one host synchronisation: the knots (finite,
+        non-decreasing, non-empty domain; ``knots`` names them in the message, ``"knots"``
+        or ``"domain"``, ``None``: not checked), and unless ``extrapolate`` the times within
+        the domain's tolerance. ``what`` names the domain and ``fix`` how to cover other
+        times in the message."""
+        k = self.knots.detach()
+        lo, hi = self.ends()
+        flags = [~torch.isfinite(k).all(), (k[..., 1:] < k[..., :-1]).any(),
+                 ~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi)).all()] if knots else []
+        if not extrapolate:
+            flags.append(self._outside(rel.detach()).any())
+        if not flags:
+            return
+        try:
+            bad = torch.stack(flags).tolist()
+        except RuntimeError as e:  # a transform with no host values, e.g. vmap over t
+            raise RuntimeError(f"{fn}: the value checks read t (and knots) on the host, which "
+                               f"this transform does not allow; pass check=False") from e
+        if knots == "domain" and any(bad[:3]):
+            _checks.fail(fn, f"domain must be two finite times t0 < t1, got "
+                             f"{self._ends_str(rel.dtype)}")
+        if knots and bad[0]:
+            _checks.fail(fn, "knots must be finite")
+        if knots and bad[1]:
+            _checks.fail(fn, f"knots must be non-decreasing, got {k.tolist()}")
+        if knots and bad[2]:
+            _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = "
+                             f"{self._ends_str(rel.dtype)}")
+        if not extrapolate and bad[-1]:
+            self._fail_outside(fn, rel.detach(), what, fix)
+
+    def _ends_str(self, dtype: torch.dtype) -> str:
+        if self.knots.dim() > 1:
+            return "(per trajectory)"
+        t0, t1 = self.domain()
+        return f"[{_fmt(t0, dtype)}, {_fmt(t1, dtype)}]"
+
+    def _fail_outside(self, fn: str, rel: Tensor, what: str, fix: str) -> None:
+        dt = rel.dtype
+        absolute = rel.to(torch.float64) + (self.origin if not isinstance(self.origin, Tensor)
+                                            else self.origin.to(rel.device))
+        finite = absolute[torch.isfinite(absolute)]
+        n_bad = int((~torch.isfinite(absolute)).sum())
+        if finite.numel():
+            got = (f"got values in [{_fmt(finite.min().item(), dt)}, "
+                   f"{_fmt(finite.max().item(), dt)}]")
+            if n_bad:
+                got += f" and t contains NaN/inf ({n_bad} values)"
+        else:
+            got = f"but t contains NaN/inf only ({n_bad} values)"
+        _checks.fail(fn, f"t must lie in {what} {self._ends_str(dt)}, {got}; {fix}, or "
+                         f"{EXTRAPOLATE_HINT}")
+
+    # -- spans and local parameters
+    def span(self, rel: Tensor) -> Tensor:
+        """Span ``r`` of each time, ``knots[r] <= t < knots[r + 1]`` with ``r`` in ``[p,
+        n - 1]``: at and beyond ``knots[n]`` the last non-empty span (the right end of the
+        domain is a left limit), before ``knots[p]`` the first. ``rel (..., T)`` -> int64."""
+        p, n, k = self.degree, self.n, self.knots.detach().to(rel.dtype)
+        inner = k[..., p + 1:n]
+        if k.dim() > 1:
+            lead = torch.broadcast_shapes(k.shape[:-1], rel.shape[:-1])
+            inner, rel = inner.expand(*lead, n - p - 1), rel.expand(*lead, rel.shape[-1])
+            end = k[..., n:n + 1].expand(*lead, 1)
+        else:
+            end = k[n:n + 1]
+        r = p + torch.searchsorted(inner.contiguous(), rel.detach().contiguous(), right=True)
+        r_end = p + torch.searchsorted(inner.contiguous(), end.contiguous(), right=False)
+        return torch.minimum(r, r_end)
+
+    def locate(self, rel: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
+        """``(span, u, du/dt)``: the span of each time, its local parameter
+        ``u = (t - u_r) / (u_{r+1} - u_r)`` and slope ``1 / (u_{r+1} - u_r)``, computed in
+        ``rel``'s (time) dtype and rounded to ``dtype``."""
+        r = self.span(rel)
+        k = self.knots.to(rel.dtype)
+        left, right = _take(k, r), _take(k, r + 1)
+        width = right - left
+        return r, ((rel - left) / width).to(dtype), (1.0 / width).to(dtype)
+
+    def de_boor_levels(self, rel: Tensor, r: Tensor, dtype: torch.dtype,
+                       ) -> list[tuple[Tensor, Tensor]]:
+        """Per level ``j = 1..p`` of De Boor's scheme the local parameters
+        ``alpha_i = (t - u_i) / (u_{i+p+1-j} - u_i)``, ``i = r-p+j .. r``, and their slopes,
+        each ``(..., T, p + 1 - j)``, computed in ``rel``'s dtype and rounded to ``dtype``."""
+        p = self.degree
+        # K[..., m] = knots[r - p + 1 + m], m = 0 .. 2p - 1.
+        K = _take(self.knots.to(rel.dtype),
+                  r[..., None] + torch.arange(1 - p, p + 1, device=rel.device))
+        te = rel[..., None]
+        levels = []
+        for j in range(1, p + 1):
+            left, right = K[..., j - 1:p], K[..., p:2 * p - j + 1]
+            denom = right - left
+            empty = denom <= 0  # never inside a non-empty span; guards 0 / 0 all the same
+            safe = safe_denominator(denom, empty)
+            alpha = torch.where(empty, 0.0, (te - left) / safe)
+            slope = torch.where(empty, 0.0, 1.0 / safe)
+            levels.append((alpha.to(dtype), slope.to(dtype)))
+        return levels
+
+    # -- the Euclidean basis
+    def basis(self, rel: Tensor) -> tuple[Tensor, Tensor]:
+        """Cox-de Boor basis at relative times ``rel (T,)``: see :func:`bspline_basis`."""
+        return bspline_basis(rel, self.knots.to(rel.dtype), self.degree, self.span(rel))
+
+    def greville(self) -> Tensor:
+        """Greville abscissae ``mean(knots[j + 1 .. j + p])``, ``(..., n)`` relative, float64."""
+        k = self.knots.detach().to(torch.float64)
+        p, n = self.degree, self.n
+        return k[..., 1:n + p].unfold(-1, p, 1).mean(-1)
+
+
+def bspline_basis(t: Tensor, knots: Tensor, degree: int, r: Tensor | None = None,
+                  ) -> tuple[Tensor, Tensor]:
+    r"""Euclidean B-spline basis functions at ``t``, local form (Cox-de Boor).
+
+    For ``t`` in the span :math:`[u_r, u_{r+1})` (:meth:`KnotDomain.span`), the
+    ``degree + 1`` functions :math:`N_{r-p..r,\,p}(t)` that can be non-zero there (Piegl and
+    Tiller, *The NURBS Book*, A2.2).
+
+    Args:
+        t: ``(T,)`` times in ``[knots[degree], knots[n]]``.
+        knots: ``(n + degree + 1,)`` non-decreasing knots, ``t``'s dtype and device.
+        degree: ``p >= 1``.
+        r: the spans of ``t`` if known (else searched).
+
+    Returns:
+        ``(first, values)``: ``first = r - p`` ``(T,)`` int64 (the first control point the
+        time depends on) and ``values`` ``(T, p + 1)``, non-negative, summing to 1.
+    """
+    p = degree
+    if r is None:
+        r = KnotDomain(knots, degree).span(t)
+    values = torch.ones_like(t)[:, None]
+    for j in range(1, p + 1):
+        # N_{r-j..r, j} from N_{r-j+1..r, j-1} (A2.2's saved-term recursion)
+        new = torch.zeros(t.shape[0], j + 1, dtype=t.dtype, device=t.device)
+        for m in range(j):
+            lm = t - knots[r - j + 1 + m]  # t - u_{r-j+1+m}
+            rm = knots[r + 1 + m] - t  # u_{r+1+m} - t
+            denom = rm + lm
+            temp = values[:, m] / torch.where(denom > 0, denom, 1.0)
+            new[:, m] = new[:, m] + rm * temp
+            new[:, m + 1] = lm * temp
+        values = new
+    return r - p, values
