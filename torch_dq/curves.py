@@ -461,7 +461,7 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
     batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
     T, m = s.shape[-1], ctrl_c.shape[-2]
     points = ctrl_c[..., None, :, :].expand(*batch, T, m, 8)
-    levels = [(s[..., None], slope)] * (m - 1)  # the same parameter at every level
+    levels = [(s[..., None], slope[..., None])] * (m - 1)  # the same parameter at every level
     return tuple(x.to(ctrl.dtype) for x in _jet_scheme(points, levels, order, batch))
 
 
