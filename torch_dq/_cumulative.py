@@ -39,11 +39,17 @@ import math
 import torch
 from torch import Tensor
 
+from typing import cast
+
 from . import _taylor
-from ._kernels.layout import chunks
+from ._kernels import layout
+from ._kernels.layout import chunks, from_rows, to_rows
+from ._kernels.sclerp import Frame, combine, frame, vjp_rows
+from ._kernels.sclerp import weights as screw_weights
+from ._kernels.weights import Angle, WeightSlopes, angle
 from ._numerics import safe_denominator
 
-__all__ = ["basis", "jets"]
+__all__ = ["basis", "jets", "poses"]
 
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
 
@@ -155,8 +161,9 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
         weights: ``order + 1`` tensors ``(..., T, p)`` as :func:`basis` returns them
             (rounded to ``points``' dtype): the weights :math:`w_j = \tilde B_{r-p+j}(t)`
             and their time derivatives.
-        order: highest time derivative, ``0 <= order < len(weights)``; ``0`` is the
-            pose-only path.
+        order: highest time derivative, ``0 <= order < len(weights)``; ``0`` gives the
+            poses alone (the plain-op reference of :func:`poses`, which is faster in
+            eager reverse mode: it computes each pair's relative motion once).
 
     Returns:
         ``order + 1`` tensors ``(..., T, 8)``: :math:`[X, \dot X, \dots, X^{(order)}]`.
@@ -172,3 +179,135 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
         x = _chunk_jets(rows[..., part].contiguous(), coefs)
         outs.append([v.T for v in _taylor.derivatives(x)])
     return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
+
+
+# ----------------------------------------------------------------------------- fused poses
+
+def _mul_vjp(U: Tensor, V: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
+    r"""Cotangents of ``U`` and ``V`` for :math:`Z = UV` (rows ``(8, ...)``) at ``G``:
+    with :math:`a \cdot (bc) = (a c^*) \cdot b = (b^* a) \cdot c`,
+    :math:`\bar U = (g_r v_r^* + g_d v_d^*,\ g_d v_r^*)` and
+    :math:`\bar V = (u_r^* g_r + u_d^* g_d,\ u_r^* g_d)`."""
+    q = _taylor._qmul_rows
+    Vc, Uc = _conj_rows(V), _conj_rows(U)
+    gr, gd = G[:4], G[4:]
+    gU = torch.cat((q(gr, Vc[:4]) + q(gd, Vc[4:]), q(gd, Vc[:4])))
+    gV = torch.cat((q(Uc[:4], gr) + q(Uc[4:], gd), q(Uc[:4], gd)))
+    return gU, gV
+
+
+def _pair_table(rows: Tensor) -> tuple[Tensor, Tensor]:
+    """Relative motions :math:`c_i^{-1} c_{i+1}` ``(8, M - 1)`` of consecutive rows
+    ``(8, M)``, and their :class:`Frame` and :class:`Angle` from the identity ``(6, M - 1)``:
+    computed once per pair, gathered for every time that reads it."""
+    rel = _taylor.dq_rows(_conj_rows(rows[:, :-1]), rows[:, 1:])
+    fr = frame(_identity_rows(rows)[:, 0], rel, True)
+    return rel, torch.stack((*fr, *angle(fr.c)))
+
+
+def _chunk_powers(rel: Tensor, table: Tensor, first: Tensor, w: Tensor,
+                  derivatives: bool = False, need_w: bool = False):
+    """The powers of one chunk: the gathered relative motions ``(p, 8, N)`` (``first`` the
+    index of each time's :math:`c_{r-p}`), their frames, weights and powers ``(p, 8, N)``."""
+    p, n = w.shape
+    idx = (first + torch.arange(p, device=first.device)[:, None]).reshape(-1)
+    R = rel.index_select(1, idx).view(8, p, n).transpose(0, 1)
+    pairs = table.index_select(1, idx).view(6, p, n)
+    fr = Frame(*pairs[:3])
+    ws = screw_weights(fr, w, derivatives, need_w, Angle(*pairs[3:]))
+    return R, fr, ws, combine(_identity_rows(rel)[:, 0], R, fr, ws)
+
+
+class _Poses(torch.autograd.Function):
+    r"""The cumulative form's poses, fused: :math:`c_f \prod_{j=1}^p E_j`,
+    :math:`E_j = (c_{f+j-1}^{-1} c_{f+j})^{w_j}` (eq. 11 from the identity).
+
+    Inputs: ``ctrl (M, 8)`` sign-aligned control points (flattened over curves),
+    ``first (N,)`` int64 (``f``, each time's first control point), ``w (p, N)``. Output
+    ``(N, 8)``. Component rows over cache-sized chunks; the relative motions and their
+    angles are computed once per pair of control points; the backward recomputes the
+    powers chunk by chunk (memory O(output)) and sums the pairs' sensitivities before
+    expanding them into control-point rows. Twice differentiable (the backward is plain
+    torch ops).
+    """
+
+    generate_vmap_rule = True
+
+    @staticmethod
+    def forward(ctrl: Tensor, first: Tensor, w: Tensor) -> Tensor:
+        rows = to_rows(ctrl)
+        rel, table = _pair_table(rows)
+        parts = []
+        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+            E = _chunk_powers(rel, table, first[i], w[:, i])[-1]
+            x = rows.index_select(1, first[i])
+            for j in range(E.shape[0]):
+                x = _taylor.dq_rows(x, E[j])
+            parts.append(from_rows(x))
+        return torch.cat(parts)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctrl, first, w = inputs
+        ctx.save_for_backward(ctrl, first, w)
+
+    @staticmethod
+    def backward(ctx, grad):
+        ctrl, first, w = ctx.saved_tensors
+        need_w = ctx.needs_input_grad[2]
+        rows = to_rows(ctrl)
+        rel, table = _pair_table(rows)
+        # accumulated per control point and per pair, (M, 8) and (M - 1, 8): index_add
+        # over the first dim adds contiguous rows of 8 (fast), unlike over component rows
+        grad_ctrl, grad_rel = torch.zeros_like(ctrl), ctrl.new_zeros(ctrl.shape[0] - 1, 8)
+        used = torch.zeros_like(grad_rel[:, 0], dtype=torch.bool)
+        grad_w = []
+        at_cd = torch.tensor([0, 4], device=ctrl.device)
+        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+            R, fr, ws, E = _chunk_powers(rel, table, first[i], w[:, i], True, need_w)
+            p, n = w[:, i].shape
+            prefix = [rows.index_select(1, first[i])]
+            for j in range(p - 1):
+                prefix.append(_taylor.dq_rows(prefix[-1], E[j]))
+            G, gE = to_rows(grad[i]), []
+            for j in range(p - 1, -1, -1):
+                G, g = _mul_vjp(prefix[j], E[j], G)
+                gE.append(g)
+            ct = vjp_rows(_identity_rows(rel)[:, 0], R, fr, cast(WeightSlopes, ws),
+                          torch.stack(gE[::-1]), frame_terms=False)
+            # From the identity, c = sigma R_w and delta = sigma S_w: the frame terms are
+            # the (sigma-scaled) sensitivities added to the real and dual scalar parts.
+            g_rel = ct.b.index_add(1, at_cd, torch.stack((ct.c, ct.delta), 1))
+            idx = (first[i] + torch.arange(p, device=first.device)[:, None]).reshape(-1)
+            grad_rel = grad_rel.index_add(0, idx, g_rel.transpose(1, 2).reshape(p * n, 8))
+            used = used.index_fill(0, idx, True)
+            grad_ctrl = grad_ctrl.index_add(0, first[i], G.T)
+            if need_w:
+                grad_w.append(cast(Tensor, ct.t))
+        # rel = c_i^* c_{i+1}; pairs that no time reads are zeroed (a NaN stays in its curve)
+        A, B = (torch.where(used, x, 0.0) for x in (rows[:, :-1], rows[:, 1:]))
+        g_conj, g_next = _mul_vjp(_conj_rows(A), B, grad_rel.T)
+        zero = torch.zeros_like(g_next[:, :1])
+        grad_rows = torch.cat((_conj_rows(g_conj), zero), 1) + torch.cat((zero, g_next), 1)
+        grad_ctrl = grad_ctrl + from_rows(grad_rows)
+        return grad_ctrl, None, torch.cat(grad_w, -1) if need_w else None
+
+
+def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
+    r"""The cumulative form's poses through the fused op (pose only, eager reverse mode).
+
+    Args:
+        ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened
+            into one ``M``).
+        first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`; the time
+            reads ``ctrl[first .. first + p]``.
+        weights: ``(p, N)`` the cumulative basis :math:`\tilde B_{r-p+j}(t)`, ``j = 1..p``
+            (:func:`basis`, transposed), in ``ctrl``'s dtype.
+
+    Returns:
+        ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
+        twice (reverse mode) with respect to ``ctrl`` and ``weights``. Under ``torch.func``
+        transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
+        :func:`jets` instead, which this does not check.
+    """
+    return _Poses.apply(ctrl, first, weights)
