@@ -7,6 +7,10 @@ degenerate (equal and opposite rotations, pure translations, relative rotations 
 1e-9, 1e-6, 1e-3 rad, half turns, translations up to 1e3), and compared:
 
 - sclerp (eq. 11): ``_kernels.sclerp.sclerp`` against ``dualquat._eq11``;
+- quaternion slerp (the real part of eq. 11, shortest path): ``_kernels.slerp.slerp``
+  against ``_kernels.slerp.plain`` (the same forward to the bit, chunked; the analytic
+  backward against autograd of the plain ops). The independent references (scipy, a numpy
+  formula, finite differences) are in ``test_quat.py``;
 - the dual angle (eqs. 4-5): ``_kernels.dual_angle.dual_angle`` against
   ``dualquat._eqs4_5``, and the public ``angle`` with and without ``torch.func``;
 - dual sine and cosine: ``dual._SinCos`` against ``dual._sincos``;
@@ -34,7 +38,9 @@ import torch_dq.dual as D
 import torch_dq.dualquat as dq
 from torch_dq import curves
 from torch_dq._kernels import dual_angle as angle_kernel
+from torch_dq._kernels import layout
 from torch_dq._kernels import sclerp as sclerp_kernel
+from torch_dq._kernels import slerp as slerp_kernel
 from torch_dq.dual import Dual
 
 EPS = torch.finfo(torch.float64).eps
@@ -157,6 +163,113 @@ def test_sclerp_public_under_and_outside_vmap(pairs):
     fused = dq.sclerp(a, b, t)
     readable = torch.func.vmap(dq.sclerp)(a, b, t)
     assert ((fused - readable).abs().amax(-1) / s).max() <= 32 * EPS
+
+
+# ----------------------------------------------------------------------------- quaternion slerp
+
+def slerp_pairs(gen, n_random=300):
+    """``(q0, q1)``: random pairs, pairs at relative angles from 0 to pi (both signs of
+    ``q1``: equal, opposite, across the weights' series switch, half turns with a dot of
+    exactly 0), all float64."""
+    q0 = unit_quat_rows(n_random, gen)
+    pairs = [(q0, unit_quat_rows(n_random, gen))]
+    for angle in (0.0, 1e-9, 1e-6, 1e-3, 0.3, 0.55, 0.6, 1.0, math.pi / 2, 2.0, math.pi - 1e-6,
+                  math.pi):
+        a = unit_quat_rows(20, gen)
+        axis = torch.randn(20, 3, generator=gen, dtype=torch.float64)
+        axis = axis / axis.norm(dim=-1, keepdim=True)
+        rel = torch.cat((torch.full((20, 1), math.cos(angle / 2), dtype=torch.float64),
+                         math.sin(angle / 2) * axis), -1)
+        b = qmul_rows(a, rel)
+        pairs += [(a, b), (a, -b)]
+    e = torch.eye(4, dtype=torch.float64)
+    pairs.append((e[[0, 1, 2, 3, 0]], e[[1, 0, 3, 2, 0]]))  # dots of exactly 0, and equal
+    return tuple(torch.cat(x) for x in zip(*pairs, strict=True))
+
+
+def unit_quat_rows(n, gen):
+    q = torch.randn(n, 4, generator=gen, dtype=torch.float64)
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+def qmul_rows(a, b):
+    """Hamilton product, written out (independent of torch_dq)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw), -1)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("common_t", [False, True])
+def test_slerp_kernel_forward_is_the_plain_formula(gen, monkeypatch, dtype, common_t):
+    """Same bits as the plain ops (which ``quat.slerp`` runs under ``torch.func``), over
+    several chunks (all-series, mixed and closed-form ones), with one ``t`` for all pairs
+    and with one per pair."""
+    monkeypatch.setattr(layout, "CHUNK", 128)
+    q0, q1 = (x.to(dtype) for x in slerp_pairs(gen))
+    n = q0.shape[0]
+    t = (torch.tensor([0.3], dtype=dtype) if common_t else
+         torch.tensor(T_VALUES, dtype=dtype).repeat(n // len(T_VALUES) + 1)[:n])
+    fused = slerp_kernel.slerp(q0, q1, t)
+    assert torch.equal(fused, slerp_kernel.plain(q0, q1, t.expand(n)))
+    assert torch.equal(fused, slerp_kernel.plain(q0, q1, t.expand(n), host_branch=True))
+
+
+@pytest.mark.parametrize("common_t", [False, True])
+def test_slerp_kernel_gradients(gen, monkeypatch, common_t):
+    """The analytic backward against reverse-mode autograd of the plain ops (over several
+    chunks: a common ``t`` sums its gradient over them)."""
+    monkeypatch.setattr(layout, "CHUNK", 128)
+    q0, q1 = slerp_pairs(gen)
+    n = q0.shape[0]
+    t = (torch.tensor([0.7], dtype=torch.float64) if common_t else
+         torch.tensor(T_VALUES, dtype=torch.float64).repeat(n // len(T_VALUES) + 1)[:n])
+    w = torch.randn(n, 4, generator=gen, dtype=torch.float64)
+    xs = [x.clone().requires_grad_() for x in (q0, q1, t)]
+    fused = torch.autograd.grad((slerp_kernel.slerp(*xs) * w).sum(), xs)
+    _, vjp = torch.func.vjp(lambda a, b, s: slerp_kernel.plain(a, b, s.expand(n)), q0, q1, t)
+    for g, r in zip(fused, vjp(w), strict=True):
+        assert g.shape == r.shape
+        assert rel(g, r) <= 64 * EPS, rel(g, r)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.7, math.pi - 1e-6, math.pi])
+@pytest.mark.parametrize("t", [0.0, 0.3, 1.0, 1.5])
+def test_slerp_kernel_second_order(gen, angle, t):
+    """Double backward through the analytic backward equals forward-over-reverse of the
+    plain ops, at and near equal (``angle = 0``) and opposite (``angle = pi``: ``q1`` is
+    ``-q0`` up to the rotation by ``2 pi - angle``) quaternions."""
+    q0 = unit_quat_rows(6, gen)
+    axis = torch.randn(6, 3, generator=gen, dtype=torch.float64)
+    rel_q = torch.cat((torch.full((6, 1), math.cos(angle / 2), dtype=torch.float64),
+                       math.sin(angle / 2) * axis / axis.norm(dim=-1, keepdim=True)), -1)
+    q1 = qmul_rows(q0, rel_q)
+    tt = torch.full((6,), t, dtype=torch.float64)
+    w = torch.randn(6, 4, generator=gen, dtype=torch.float64)
+    v = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in (q0, q1, tt)]
+    for h, r in zip(hvp_fused(slerp_kernel.slerp, (q0, q1, tt), w, v),
+                    hvp_readable(slerp_kernel.plain, (q0, q1, tt), w, v), strict=True):
+        assert rel(h, r) < 1e-10
+
+
+def test_slerp_kernel_keeps_non_finite_input_in_its_pair(gen):
+    q0, q1 = unit_quat_rows(16, gen), unit_quat_rows(16, gen)
+    t = torch.full((16,), 0.3, dtype=torch.float64)
+    for bad in (math.nan, math.inf, -math.inf):
+        a, b = q0.clone(), q1.clone()
+        a[range(4), range(4)] = bad  # each component of q0 in turn
+        b[range(4, 8), range(4)] = bad  # each component of q1 in turn
+        xs = [x.clone().requires_grad_() for x in (a, b, t)]
+        out = slerp_kernel.slerp(*xs)
+        assert not torch.isfinite(out[:8]).all(-1).any()
+        assert torch.equal(out[8:], slerp_kernel.slerp(q0[8:], q1[8:], t[8:]))
+        grads = torch.autograd.grad(out[8:].sum(), xs)
+        clean = [x[8:].clone().requires_grad_() for x in (q0, q1, t)]
+        ref = torch.autograd.grad(slerp_kernel.slerp(*clean).sum(), clean)
+        assert all(torch.equal(g[8:], r) for g, r in zip(grads, ref, strict=True))
 
 
 # ----------------------------------------------------------------------------- dual angle

@@ -260,6 +260,57 @@ def test_slerp_extrapolation_equals_power(shortest, gen):
     assert err < 1e-12, err
 
 
+def relative_rotations(gen, angles, n=8):
+    """``(q0, q1)`` with ``q1 = +-q0 rot(angle)`` about random axes, for each angle (float64)."""
+    q0 = unit_quat((len(angles), n), gen)
+    axis = torch.randn(len(angles), n, 3, generator=gen, dtype=F64)
+    half = torch.tensor(angles, dtype=F64)[:, None, None] / 2
+    rel = torch.cat((torch.cos(half).expand(-1, n, 1),
+                     torch.sin(half) * axis / axis.norm(dim=-1, keepdim=True)), -1)
+    sign = torch.where(torch.arange(n) % 2 == 0, 1.0, -1.0).to(F64)[None, :, None]
+    return q0.reshape(-1, 4), (sign * quat.mul(q0, rel)).reshape(-1, 4)
+
+
+ANGLES = (0.0, 1e-9, 1e-6, 1e-3, 0.3, 0.6, 1.0, 2.0, 3.0, math.pi - 1e-6)
+
+
+@pytest.mark.parametrize("dtype", [F64, torch.float32])
+def test_slerp_at_degenerate_angles_against_scipy_power(dtype, gen):
+    """``q0 (q0^-1 q1)^t`` by scipy rotation vectors (shortest path: angle in [0, pi]), at
+    relative rotations from 0 to nearly 180 degrees, ``q1`` of either sign, per-pair and
+    common ``t``, extrapolation included."""
+    q0, q1 = relative_rotations(gen, ANGLES)
+    r0, r1 = to_scipy(q0), to_scipy(q1)
+    rv = (r0.inv() * r1).as_rotvec()
+    tol = 1e-15 if dtype == F64 else 2e-6
+    for t in (-0.5, 0.0, 0.3, 1.0, 1.5):
+        ref = from_scipy((r0 * Rotation.from_rotvec(t * rv)).as_quat())
+        common = quat.slerp(q0.to(dtype), q1.to(dtype), t).double()
+        per_pair = quat.slerp(q0.to(dtype), q1.to(dtype), torch.full((len(q0),), t, dtype=dtype))
+        assert qdist(common, ref) < tol * max(1.0, abs(t))
+        assert torch.equal(per_pair.double(), common)
+    # shortest path: the result is on q1's side (sign-aligned), and exact at t = 0
+    assert torch.equal(quat.slerp(q0, q1, 0.0), q0)
+    q1s = torch.where(quat.dot(q0, q1)[:, None] < 0, -q1, q1)
+    assert maxabs(quat.slerp(q0, q1, 1.0), q1s) < 4e-16
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-7, 1e-3])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_slerp_second_derivatives_at_and_near_equal_and_opposite(gen, angle, sign):
+    """gradcheck and gradgradcheck (finite differences of the first and of the analytic
+    second derivatives) where ``q1`` is ``q0`` (``sign = 1``) or ``-q0`` (``sign = -1``) up
+    to a rotation by ``angle``, with ``t`` inside and outside [0, 1]."""
+    q0, q1 = relative_rotations(gen, (angle,), n=2)
+    q1 = sign * q1 * torch.tensor([[1.0], [-1.0]], dtype=F64)  # undo the alternating sign
+    t = torch.tensor([0.3, 1.4], dtype=F64)
+    args = [x.clone().requires_grad_() for x in (q0, q1, t)]
+    assert torch.autograd.gradcheck(quat.slerp, args, eps=1e-6, atol=1e-7)
+    assert torch.autograd.gradgradcheck(quat.slerp, args, eps=1e-6, atol=1e-6)
+    one_t = [x.clone().requires_grad_() for x in (q0, q1, torch.tensor(0.6, dtype=F64))]
+    assert torch.autograd.gradgradcheck(quat.slerp, one_t, eps=1e-6, atol=1e-6)
+
+
 def test_slerp_antipodal_without_shortest_is_documented_circle(gen):
     q0 = unit_quat((5,), gen)
     q1 = unit_quat((5,), gen)

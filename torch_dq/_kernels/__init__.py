@@ -8,6 +8,9 @@ runs each against its reference over random and degenerate inputs.
 - :mod:`.weights`: the dual weights of eq. 11 as one power series (shared by all kernels).
 - :mod:`.layout`: component rows and chunking.
 - :mod:`.sclerp`: eq. 11 (reference: :func:`torch_dq.dualquat._eq11`).
+- :mod:`.slerp`: quaternion slerp on the shortest path, the real part of eq. 11, in the
+  caller's ``(N, 4)`` layout (reference: :func:`torch_dq._kernels.slerp.plain`, the same
+  forward to the bit).
 - :mod:`.dual_angle`: eqs. 4-5 (reference: :func:`torch_dq.dualquat._eqs4_5`).
 - :mod:`.pyramid`: the fused De Casteljau / De Boor scheme (references in
   :mod:`torch_dq.curves`).

@@ -33,13 +33,14 @@ truncated series is used, elsewhere the closed forms
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
 
 from .._numerics import threshold
 
+_Optional5 = tuple[Tensor, Tensor | None, Tensor | None, Tensor | None, Tensor | None]
 _TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
 
 
@@ -59,6 +60,14 @@ class WeightSlopes(NamedTuple):
     H: Tensor  # dG/dy
     Fs: Tensor | None  # dF/ds (None when the time derivatives were not asked for)
     Gs: Tensor | None  # dG/ds
+
+
+class RotationWeights(NamedTuple):
+    """Weights of quaternion slerp (:func:`slerp_weights`), each ``(2, ...)``."""
+
+    F: Tensor  # sin(s theta) / sin(theta)
+    G: Tensor | None  # dF/dy (with derivatives)
+    Fs: Tensor | None  # dF/ds (with derivatives and time_slopes)
 
 
 class Angle(NamedTuple):
@@ -114,16 +123,19 @@ def _nested(u: list[Tensor], j: int) -> Tensor:
     return out
 
 
-def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool):
-    """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``) near ``y = 0``."""
+def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool,
+            dual: bool = True):
+    """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``) near ``y = 0``; without
+    ``dual`` only ``F`` (and ``G, Fs``), the others ``None``."""
     # u[k] = (k^2 - s^2) y; u[0] holds ones for addcmul.
     s2ny = s2 * -y
     u = [torch.ones_like(s2ny)] + [torch.add(s2ny, y, alpha=k * k) for k in range(1, _TERMS)]
     a1 = s * (1.0 - s2) / 3.0
-    F, G = s * _nested(u, 0), a1 * _nested(u, 1)
+    F = s * _nested(u, 0)
+    G = a1 * _nested(u, 1) if dual or derivatives else None
     if not derivatives:
         return F, G, None, None, None
-    H = 0.2 * a1 * (4.0 - s2) * _nested(u, 2)
+    H = 0.2 * a1 * (4.0 - s2) * _nested(u, 2) if dual else None
     if not time_slopes:
         return F, G, H, None, None
     # d a_k / ds by differentiating the recurrence a_k = a_{k-1} (k^2 - s^2) / (k (2k + 1)).
@@ -132,23 +144,28 @@ def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bo
         d = k * (2 * k + 1)
         da.append((da[-1] * (k * k - s2) - 2.0 * s * a[-1]) / d)
         a.append(a[-1] * (k * k - s2) / d)
-    return F, G, H, _horner(da, y), _horner([k * da[k] for k in range(1, _TERMS)], y)
+    Gs = _horner([k * da[k] for k in range(1, _TERMS)], y) if dual else None
+    return F, G, H, _horner(da, y), Gs
 
 
-def _closed(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool):
-    """Closed forms (module docstring) at the angles ``ang``."""
+def _closed(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool, dual: bool = True):
+    """Closed forms (module docstring) at the angles ``ang`` (``dual``: as :func:`_series`)."""
     sin2 = ang.sin * ang.sin
     st = s * ang.theta
-    sin_st, cos_st = torch.sin(st), torch.cos(st)
+    sin_st = torch.sin(st)
     F = sin_st / ang.sin
+    if not (dual or derivatives):
+        return F, None, None, None, None
+    cos_st = torch.cos(st)
     G = (s * cos_st - F * ang.cos) / sin2
     if not derivatives:
         return F, G, None, None, None
-    H = ((1.0 - s * s) * F - 3.0 * G * ang.cos) / sin2
+    H = ((1.0 - s * s) * F - 3.0 * G * ang.cos) / sin2 if dual else None
     if not time_slopes:
         return F, G, H, None, None
     Fs = ang.theta * cos_st / ang.sin
-    return F, G, H, Fs, (cos_st - st * sin_st - Fs * ang.cos) / sin2
+    Gs = (cos_st - st * sin_st - Fs * ang.cos) / sin2 if dual else None
+    return F, G, H, Fs, Gs
 
 
 def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
@@ -176,6 +193,35 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
         ``derivatives``; each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1 for ``b``
         (``s = t``).
     """
+    F, G, H, Fs, Gs = _weights(c, t, derivatives, time_slopes, ang, host_branch, dual=True)
+    G = cast(Tensor, G)  # computed with dual
+    return WeightSlopes(F, G, cast(Tensor, H), Fs, Gs) if derivatives else Weights(F, G)
+
+
+def slerp_weights(c: Tensor, t: Tensor, derivatives: bool = False, *, time_slopes: bool = True,
+                  host_branch: bool = False) -> RotationWeights:
+    r"""The weights :math:`F` of quaternion slerp (the real part of eq. 11) at
+    :math:`\cos\theta = c`, for ``s = (1 - t, t)``: :func:`screw_weights` without the dual
+    part's :math:`G, H, G_s` (for the gradients, :math:`G = \partial_y F` and :math:`F_s`).
+
+    Args:
+        c: ``(N,)`` cosines (any shape broadcasting with ``t``).
+        t: ``(N,)`` interpolation parameters.
+        derivatives: also return :math:`G` and (with ``time_slopes``) :math:`F_s`.
+        time_slopes: as in :func:`screw_weights`.
+        host_branch: as in :func:`screw_weights`.
+
+    Returns:
+        :class:`RotationWeights`, each ``(2, N)`` (or ``None`` where not asked for).
+    """
+    F, G, _, Fs, _ = _weights(c, t, derivatives, time_slopes, None, host_branch, dual=False)
+    return RotationWeights(F, G, Fs)
+
+
+def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: Angle | None,
+             host_branch: bool, dual: bool) -> _Optional5:
+    """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``(F, G, H, Fs, Gs)``,
+    ``None`` where not computed."""
     s = torch.stack((1.0 - t, t))
     s2 = s * s
     y = 1.0 - c
@@ -188,20 +234,20 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
     # not a finite theta = pi.
     n_small = int(small.count_nonzero()) if host_branch else -1
     if n_small == small.numel():
-        out = _series(s, s2, y, derivatives, time_slopes)
+        out = _series(s, s2, y, derivatives, time_slopes, dual)
     else:
-        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes)
+        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes, dual)
     if 0 < n_small < small.numel() // 4:
         # A few series elements (eager, CPU): the series on those alone, put into the
         # closed forms (out of place: a double backward may have saved the closed forms).
         at = (small > 0).nonzero(as_tuple=True)
         shape = small.shape
         series = _series(s.expand(shape)[at], s2.expand(shape)[at], y.expand(shape)[at],
-                         derivatives, time_slopes)
+                         derivatives, time_slopes, dual)
         out = tuple(e if e is None else torch.index_put(e, at, x)
                     for x, e in zip(series, out, strict=True))
     elif 0 < n_small < small.numel() or n_small < 0:
-        series = _series(s, s2, y, derivatives, time_slopes)
+        series = _series(s, s2, y, derivatives, time_slopes, dual)
         out = tuple(x if x is None else _select(small, x, e)
                     for x, e in zip(series, out, strict=True))
-    return WeightSlopes(*out) if derivatives else Weights(*out[:2])
+    return cast(_Optional5, out)
