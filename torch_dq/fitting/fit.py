@@ -1,0 +1,376 @@
+r""":func:`fit`: refine a curve module on timestamped poses (a thin case of
+:func:`~torch_dq.fitting.estimate` for Levenberg-Marquardt, or any torch optimizer)."""
+
+from __future__ import annotations
+
+import functools
+import math
+import numbers
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from .. import _checks, dualquat
+from ..losses import pose_loss
+from ._lsq import check_determined, check_times
+from .estimate import estimate, progress
+from .terms import Poses
+
+__all__ = ["FitHistory", "fit"]
+
+
+# ----------------------------------------------------------------------------- history
+
+@dataclass
+class FitHistory:
+    """What :func:`fit` did.
+
+    Attributes:
+        loss: the loss before each optimizer step (``len(loss) == steps``); for ``"lm"``
+            the loss at the start and after each iteration (the loss it minimises,
+            without the ``prior`` pull).
+        steps: number of optimizer steps taken.
+        final_loss: the loss of the returned parameters (the best iterate seen).
+        converged: True when the stopping test held (the loop stopped there).
+        seconds: wall-clock time of the loop.
+        best_step: how many optimizer steps led to the returned parameters (0: the start
+            was the best; ``steps``: the last iterate).
+        optimizer: the optimizer used (``"lm"``, ``"adam"``, ... or its class name).
+        reason: what stopped the loop (the stopping test, ``steps``, a non-finite loss, no
+            progress of LBFGS, ...).
+    """
+
+    loss: list[float] = field(default_factory=list)
+    steps: int = 0
+    final_loss: float = math.nan
+    converged: bool = False
+    seconds: float = 0.0
+    best_step: int = 0
+    optimizer: str = ""
+    reason: str = ""
+
+
+# ----------------------------------------------------------------------------- optimizers
+
+_DEFAULT_LR = {"adam": 1e-2, "sgd": 1e-2, "lbfgs": 1.0}
+_NAMES = "'auto', 'lm', 'adam', 'sgd', 'lbfgs', a torch.optim optimizer or a callable(params)"
+
+
+def _make_optimizer(fn: str, optimizer, params: list, lr: float | None):
+    if isinstance(optimizer, str):
+        name = optimizer.lower()
+        lr = _DEFAULT_LR[name] if lr is None else lr
+        if isinstance(lr, bool) or not isinstance(lr, numbers.Real) or not lr > 0:
+            _checks.fail(fn, f"lr must be a real number > 0, got {lr!r}")
+        if name == "adam":
+            return torch.optim.Adam(params, lr=lr)
+        if name == "sgd":
+            return torch.optim.SGD(params, lr=lr, momentum=0.9)
+        return torch.optim.LBFGS(params, lr=lr, line_search_fn="strong_wolfe")
+    if lr is not None:
+        _checks.fail(fn, "lr applies to named optimizers only; set it in the optimizer or "
+                         "factory")
+    if isinstance(optimizer, torch.optim.Optimizer):
+        return optimizer
+    if callable(optimizer):
+        opt = optimizer(params)
+        if not isinstance(opt, torch.optim.Optimizer):
+            _checks.fail(fn, f"the optimizer factory must return a torch.optim.Optimizer, "
+                             f"got {type(opt).__name__}", TypeError)
+        return opt
+    _checks.fail(fn, f"optimizer must be {_NAMES} -> optimizer, got "
+                     f"{type(optimizer).__name__}")
+
+
+def _pose_loss_weights(loss) -> tuple[float, float] | None:
+    """``(rot_weight, trans_weight)`` when ``loss`` is :func:`pose_loss` (possibly a
+    ``functools.partial`` of it with those keywords), else None."""
+    if loss is pose_loss:
+        return 1.0, 1.0
+    if (isinstance(loss, functools.partial) and loss.func is pose_loss and not loss.args
+            and set(loss.keywords) <= {"rot_weight", "trans_weight"}):
+        wr = loss.keywords.get("rot_weight", 1.0)
+        wt = loss.keywords.get("trans_weight", 1.0)
+        if all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+               and float(v) >= 0 for v in (wr, wt)):
+            return float(wr), float(wt)
+    return None
+
+
+# ----------------------------------------------------------------------------- fit
+
+def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
+        optimizer: str | torch.optim.Optimizer
+        | Callable[[list[Tensor]], torch.optim.Optimizer] = "auto",
+        steps: int = 500, lr: float | None = None, tol: float = 1e-9, window: int = 10,
+        loss: Callable[[Tensor, Tensor], Tensor] = pose_loss, prior: float = 1e-3,
+        verbose: bool = True) -> FitHistory:
+    r"""Fit a curve module to timestamped poses; the module ends at the best iterate seen.
+
+    Minimises ``loss(module(times), poses)`` (``times`` in the module's own time, the
+    caller's units, exactly as for ``module(times)``) over the module's parameters.
+
+    - ``optimizer="lm"``: Levenberg-Marquardt on a :class:`~torch_dq.nn.BSpline` or
+      :class:`~torch_dq.nn.Bezier`, stepping in local charts ``ctrl_k exp(delta_k)``
+      (body-frame twists: the fit does not depend on where the world origin is), with the
+      Gauss-Newton matrix of the residuals (rotation vector and translation difference,
+      whose squared norm is ``pose_loss``'s term) assembled from forward-mode products
+      and solved block-tridiagonally in :math:`O(n)`; it only accepts steps that lower the
+      loss. Needs ``loss`` to be :func:`~torch_dq.losses.pose_loss` or a
+      ``functools.partial`` of it setting ``rot_weight`` / ``trans_weight``. One step is one
+      Gauss-Newton iteration; stops when a step lowers the loss by at most ``tol``
+      relatively, or when no damping gives a decrease. Regularised: the objective adds
+      ``prior`` times the mean data curvature times :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`
+      (a pull towards the control points ``c^0`` the fit started from), which keeps the
+      control points that the samples barely or do not determine (a time gap longer than a
+      knot span) where the start put them (:meth:`~torch_dq.nn.BSpline.from_poses` bridges
+      such gaps by screw motion), and changes a well-determined fit by about ``prior``
+      times its distance from the start. ``prior=0`` gives the plain least-squares fit and
+      raises ``ValueError`` when it is underdetermined (Schoenberg-Whitney).
+    - ``"adam"``, ``"sgd"`` (momentum 0.9), ``"lbfgs"`` (strong Wolfe line search), a
+      ``torch.optim.Optimizer`` instance over the module's parameters, or a callable
+      ``params -> Optimizer``: each step calls ``optimizer.step(closure)`` on the raw
+      control points (they stay unit through the parametrization). Early stopping: after
+      ``window`` steps, stop when :math:`|L_{k-w} - L_k| \le tol \cdot |L_{k-w}|` or the
+      loss is exactly 0; a non-finite loss stops the loop. The parameters of the lowest
+      loss evaluated (including inside LBFGS's line search) are restored at the end.
+    - ``"auto"`` (default): ``"lm"`` for a curve layer with a ``pose_loss`` loss and no
+      ``lr``, else ``"adam"``.
+
+    Args:
+        module: a :class:`~torch_dq.nn.Bezier` / :class:`~torch_dq.nn.BSpline` (or, with
+            a torch optimizer, any module mapping ``(N,)`` times to ``(..., N, 8)`` poses).
+        times: ``(N,)`` strictly increasing times in the module's time. A curve layer
+            takes them as they are (float64 UNIX seconds with a float32 module are fine);
+            another module gets them cast to its parameters' dtype.
+        poses: ``(..., N, 8)`` unit dual quaternions or ``(..., N, 4, 4)`` homogeneous
+            matrices, cast to the module's dtype and device.
+        optimizer: see above.
+        steps: maximum number of optimizer steps (``>= 1``).
+        lr: learning rate of a named torch optimizer (default 1e-2 for Adam and SGD, 1 for
+            LBFGS); must be None with an instance or a factory, and with ``"lm"``.
+        tol: relative loss change below which to stop (0: never, for torch optimizers).
+        window: steps between the compared losses (``>= 1``; torch optimizers).
+        loss: ``loss(pred, target) -> 0-d tensor``; default :func:`torch_dq.losses.pose_loss`
+            (mean of rad² + length²; use ``functools.partial(pose_loss, trans_weight=...)``
+            to balance the units).
+        prior: weight of the pull towards the start for ``"lm"`` (see above), ``>= 0``.
+        verbose: show a tqdm progress bar when stderr is a terminal and tqdm is installed.
+
+    Returns:
+        :class:`FitHistory` with the per-step losses; ``final_loss`` is the loss of the
+        returned (best) parameters.
+
+    Raises:
+        ValueError: bad shapes, unknown optimizer name, bad ``steps``/``lr``/``tol``/
+            ``window``, non-increasing times, times outside the module's domain,
+            ``"lm"`` with another loss or module, more control points than samples (and,
+            with ``prior=0``, a control point whose support holds no sample of its own).
+        TypeError: non-module ``module``, non-floating tensors, a factory that does not
+            return an optimizer.
+
+    Example:
+        >>> import torch_dq.dualquat as dq
+        >>> from torch_dq.nn import BSpline
+        >>> t = torch.linspace(0.0, 2.0, 30)
+        >>> target = dq.exp(t[:, None] * torch.tensor([0.0, 0.0, 1.0, 0.5, 0.0, 0.0]))
+        >>> spline = BSpline(dq.identity((6,)), knots=torch.tensor(
+        ...     [0.0, 0, 0, 0, 0.67, 1.33, 2, 2, 2, 2]))  # domain [0, 2] seconds
+        >>> history = fit(spline, t, target, verbose=False)  # Levenberg-Marquardt
+        >>> history.final_loss < 1e-6 * history.loss[0]
+        True
+    """
+    fn = "nn.fit"
+    if not isinstance(module, torch.nn.Module):
+        _checks.fail(fn, f"expected a torch.nn.Module for module, got {type(module).__name__}",
+                     TypeError)
+    steps = _check_count(fn, "steps", steps)
+    window = _check_count(fn, "window", window)
+    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not tol >= 0:
+        _checks.fail(fn, f"tol must be a real number >= 0, got {tol!r}")
+    if isinstance(prior, bool) or not isinstance(prior, numbers.Real) or not (
+            math.isfinite(prior) and prior >= 0):
+        _checks.fail(fn, f"prior must be a finite real number >= 0, got {prior!r}")
+    if not callable(loss):
+        _checks.fail(fn, f"expected a callable for loss, got {type(loss).__name__}", TypeError)
+    poses = _check_poses(fn, poses)
+    check_times(fn, times, poses.shape[-2])
+    params = [p for p in module.parameters() if p.requires_grad]
+    if not params:
+        _checks.fail(fn, "module has no parameters that require grad")
+    from ..nn import Curve
+    curve = isinstance(module, Curve)
+    name = _resolve_optimizer(fn, optimizer, curve, loss, lr)
+    like = module.control_points if curve else params[0]
+    if curve:
+        try:
+            first, values = module.basis(times.detach())
+        except ValueError as e:  # times outside the module's domain: say who was called
+            raise ValueError(f"{fn}: {e}") from None
+        if module.n_ctrl > values.shape[0] or (name == "lm" and prior == 0):
+            check_determined(fn, first.cpu(), values.cpu(), module.n_ctrl,
+                             getattr(module, "knots", None))
+        t_in = times.detach().to(like.device)
+    else:
+        t_in = times.detach().to(dtype=like.dtype, device=like.device)
+    target = dualquat.normalize(poses.detach().to(dtype=like.dtype, device=like.device))
+    history = FitHistory(optimizer=name or type(optimizer).__name__)
+    start = time.perf_counter()
+    if name == "lm":
+        _lm(fn, module, t_in, target, _pose_loss_weights(loss), steps, tol, prior, history)
+        with torch.no_grad():
+            history.final_loss = float(loss(module(t_in), target))
+    else:
+        bar = progress(steps, verbose and sys.stderr.isatty(), "torch_dq.fit")
+        try:
+            opt = _make_optimizer(fn, name if name is not None else optimizer, params, lr)
+            _torch_loop(module, t_in, target, opt, params, steps, tol, window, loss, history,
+                        bar)
+        finally:
+            if bar is not None:
+                bar.close()
+    history.seconds = time.perf_counter() - start
+    return history
+
+
+def _check_poses(fn: str, poses) -> Tensor:
+    """``(..., N, 8)`` finite target poses (matrices converted)."""
+    _checks.tensor(fn, "poses", poses)
+    if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
+        poses = dualquat.from_matrix(poses)
+    elif poses.dim() < 2 or poses.shape[-1] != 8:
+        _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
+                         f"for poses, got shape {_checks.shape_str(poses.shape)}")
+    bad = ~torch.isfinite(poses.detach()).all(-1)
+    if bool(bad.any()):
+        where = bad.nonzero()[0].tolist()
+        _checks.fail(fn, f"poses must be finite: {int(bad.sum())} non-finite pose(s), the "
+                         f"first at index {tuple(where)}; drop or mask them before fitting")
+    return poses
+
+
+def _resolve_optimizer(fn: str, optimizer, curve: bool, loss, lr) -> str | None:
+    """The optimizer's name (None for an instance or a factory), ``"auto"`` resolved."""
+    if not isinstance(optimizer, str):
+        return None
+    name = optimizer.lower()
+    if name not in ("auto", "lm", *_DEFAULT_LR):
+        _checks.fail(fn, f"optimizer must be {_NAMES} -> optimizer, got {optimizer!r}")
+    weights = _pose_loss_weights(loss)
+    if name == "auto":
+        return "lm" if curve and weights is not None and lr is None else "adam"
+    if name == "lm":
+        if not curve:
+            _checks.fail(fn, "optimizer='lm' fits a torch_dq.nn.BSpline or Bezier (a curve "
+                             "layer); use optimizer='adam' for another module")
+        if weights is None:
+            _checks.fail(fn, "optimizer='lm' minimises pose_loss: pass loss=pose_loss or "
+                             "functools.partial(pose_loss, rot_weight=..., trans_weight=...)")
+        if lr is not None:
+            _checks.fail(fn, "lr applies to the torch optimizers, not to optimizer='lm'")
+    return name
+
+
+def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float],
+        steps: int, tol: float, prior: float, history: FitHistory) -> None:
+    """``estimate`` with one :class:`Poses` term whose squared whitened residuals are the
+    per-pose terms of ``pose_loss`` (sigmas ``1 / sqrt(weight)``)."""
+    like = module.control_points
+    if target.shape[:-2] != like.shape[:-2]:
+        try:
+            target = target.expand(*like.shape[:-2], *target.shape[-2:])
+        except RuntimeError:
+            _checks.fail(fn, f"optimizer='lm' needs poses with the module's batch shape "
+                             f"{_checks.shape_str(like.shape[:-2])}, got poses "
+                             f"{_checks.shape_str(target.shape)}")
+    wr, wt = weights
+    term = Poses(t, target, rot_sigma=wr ** -0.5 if wr > 0 else math.inf,
+                 trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
+    est = estimate(module, [term], steps=steps, tol=tol, prior=prior, verbose=False)
+    count = target.shape[:-1].numel()
+    history.loss = [float(v.sum()) / count for v in est.loss[:-1]] or [
+        float(est.loss[0].sum()) / count]
+    history.steps = est.steps
+    history.converged = bool(est.converged.all())
+    history.reason = est.reason
+    history.best_step = est.steps
+
+
+def _check_count(fn: str, name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        _checks.fail(fn, f"{name} must be an int >= 1, got {value!r}")
+    return int(value)
+
+
+def _torch_loop(module, t: Tensor, target: Tensor, opt, params: list, steps: int, tol: float,
+                window: int, loss, history: FitHistory, bar) -> None:
+    """``optimizer.step(closure)`` loop with early stopping; restores the best iterate (the
+    start when no finite loss was seen), so the module never ends worse than it came in."""
+    initial = [p.detach().clone() for p in params]
+    best: dict[str, Any] = {"loss": math.inf, "params": None, "step": 0}
+
+    def closure():
+        opt.zero_grad(set_to_none=True)
+        value = loss(module(t), target)
+        v = float(value.detach())
+        if v < best["loss"]:  # the parameters that gave it, before the step changes them
+            best.update(loss=v, params=[p.detach().clone() for p in params],
+                        step=history.steps)
+        value.backward()
+        return value
+
+    history.reason = f"steps={steps} reached"
+    for k in range(steps):
+        before = [p.detach().clone() for p in params]
+        value = float(opt.step(closure).detach())
+        history.loss.append(value)
+        history.steps = k + 1
+        if bar is not None:
+            bar.update(1)
+            if k % 10 == 0:
+                bar.set_postfix(loss=f"{value:.3e}")
+        if not math.isfinite(value):
+            history.reason = "non-finite loss"
+            break
+        if all(torch.equal(a, b) for a, b in zip(before, params, strict=True)):
+            history.reason = _stalled(opt)
+            break
+        if value == 0.0 or (k >= window and tol > 0 and
+                            abs(history.loss[k - window] - value)
+                            <= tol * abs(history.loss[k - window])):
+            history.converged = True
+            history.reason = "zero loss" if value == 0.0 else (
+                f"relative change over window={window} steps below tol={tol!r}")
+            break
+    _restore(module, t, target, loss, params, initial, best, history)
+
+
+def _stalled(opt) -> str:
+    """Why a step left the parameters unchanged (LBFGS: its own tolerances)."""
+    if isinstance(opt, torch.optim.LBFGS):
+        group = opt.param_groups[0]
+        return (f"LBFGS made no progress: its stopping tests (tolerance_grad="
+                f"{group['tolerance_grad']!r}, tolerance_change={group['tolerance_change']!r})"
+                f" held before any move; pass optimizer=lambda p: torch.optim.LBFGS(p, "
+                f"tolerance_grad=...) or use optimizer='lm'")
+    return f"{type(opt).__name__} step left the parameters unchanged"
+
+
+def _restore(module, t, target, loss, params, initial, best, history) -> None:
+    """Put back the best parameters seen (or the start), set ``final_loss``."""
+    with torch.no_grad():
+        final = float(loss(module(t), target))
+        saved = best["params"] if best["params"] is not None else initial
+        if not final <= best["loss"]:
+            for p, value in zip(params, saved, strict=True):
+                p.copy_(value)
+            final = float(loss(module(t), target))
+            history.best_step = best["step"]
+        else:
+            history.best_step = history.steps
+    history.final_loss = final

@@ -1,0 +1,228 @@
+r"""The least-squares problem of :func:`~torch_dq.fitting.estimate`: parameters, costs, and
+the Gauss-Newton system in block form.
+
+Unknowns: a body-frame step ``delta_k`` (6) per control point, ``c_k <- c_k exp(delta_k)``,
+and the chart steps of the ``m`` estimated nuisance parameters
+(:mod:`~torch_dq.fitting.nuisance`). With ``J`` the whitened Jacobian and ``W`` the robust
+weights, the Gauss-Newton matrix has three blocks: the control-point band
+``A_cc (..., n, w, 6, 6)`` (a sample touches ``w`` consecutive control points), the coupling
+``A_cn (..., n, 6, m)`` and ``A_nn (..., m, m)``; the gradient ``g = J^T W r``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .. import dualquat
+from . import robust as _robust
+from .local import SpanEvaluator, sample_jacobians
+from .nuisance import Free, chart_distance, retract
+from .terms import Term
+
+__all__ = ["Param", "Problem", "System"]
+
+
+@dataclass
+class Param:
+    """One estimated nuisance parameter: its :class:`Free`, kind, chart columns, start."""
+
+    free: Free
+    kind: str
+    dim: int
+    offset: int  # first column in the nuisance vector
+    start: Tensor
+    bound: float  # |value| bound (time offsets), inf otherwise
+
+
+@dataclass
+class System:
+    """Gauss-Newton system (flattened batch ``Bf``): ``band (Bf, n, w, 6, 6)``, ``cn (Bf,
+    n, 6, m)``, ``nn (Bf, m, m)``, gradients ``gc (Bf, n, 6)``, ``gn (Bf, m)``; per term
+    whitened residuals and robust weights."""
+
+    band: Tensor
+    cn: Tensor
+    nn: Tensor
+    gc: Tensor
+    gn: Tensor
+    residuals: list[Tensor]
+    weights: list[Tensor]
+
+
+class Problem:
+    """Terms, their estimated parameters and the trajectory's span structure.
+
+    Args:
+        trajectory: the curve layer.
+        terms: the measurement terms.
+        batch: the control points' batch shape.
+    """
+
+    def __init__(self, trajectory, terms: list[Term], batch: torch.Size) -> None:
+        self.trajectory, self.terms, self.batch = trajectory, terms, batch
+        self.spans = SpanEvaluator(trajectory)
+        self.params: list[Param] = []
+        self.index: dict[tuple[int, str], Param] = {}
+        self.m = 0
+
+    def add(self, term_i: int, name: str, free: Free, kind: str, dim: int, start: Tensor,
+            bound: float) -> None:
+        """Register the estimated parameter ``name`` of term ``term_i`` (shared frees once)."""
+        for p in self.params:
+            if p.free is free:
+                p.bound = min(p.bound, bound)
+                self.index[(term_i, name)] = p
+                return
+        p = Param(free, kind, dim, self.m, start, bound)
+        self.params.append(p)
+        self.index[(term_i, name)] = p
+        self.m += dim
+
+    # -- values
+    def term_values(self, i: int, values: list[Tensor]) -> dict[str, Tensor]:
+        """Nuisance values of term ``i`` (estimated ones from ``values``, by param)."""
+        term = self.terms[i]
+        like = torch.empty((), dtype=torch.float64, device=values[0].device if values else None)
+        out = {}
+        for name, slot in term.slots().items():
+            p = self.index.get((i, name))
+            out[name] = values[self.params.index(p)] if p is not None else slot.value(like)
+        return out
+
+    def retract(self, ctrl: Tensor, values: list[Tensor], dc: Tensor, dn: Tensor,
+                ) -> tuple[Tensor, list[Tensor]]:
+        """Control points and values moved by ``dc (..., n, 6)`` and ``dn (..., m)``."""
+        new = dualquat.mul(ctrl, dualquat.exp(dc))
+        moved = []
+        for p, v in zip(self.params, values, strict=True):
+            x = retract(p.kind, v, dn[..., p.offset:p.offset + p.dim])
+            moved.append(x.clamp(-p.bound, p.bound) if p.kind == "offset" else x)
+        return new, moved
+
+    # -- costs
+    def data_cost(self, ctrl: Tensor, values: list[Tensor]) -> list[Tensor]:
+        """Robust cost ``(...)`` of each term (the layer's public path)."""
+        out = []
+        for i, term in enumerate(self.terms):
+            r = term.evaluate(self.trajectory, ctrl, self.term_values(i, values))
+            out.append(_robust.rho(term.robust, r.norm(dim=-1), term.robust_k).sum(-1)
+                       .expand(self.batch))
+        return out
+
+    def prior_cost(self, values: list[Tensor]) -> Tensor:
+        """Gaussian priors of the :class:`Free` parameters that have ``prior_std``."""
+        total = torch.zeros(self.batch, dtype=torch.float64)
+        for p, v in zip(self.params, values, strict=True):
+            if p.free.prior_std is not None:
+                std = torch.as_tensor(p.free.prior_std, dtype=v.dtype, device=v.device)
+                d = chart_distance(p.kind, p.start, v) / std
+                total = total + (d * d).sum(-1).expand(self.batch)
+        return total
+
+    def prior_information(self) -> Tensor:
+        """``(m,)`` diagonal Gauss-Newton information of the Free priors (0 where none)."""
+        info = torch.zeros(self.m, dtype=torch.float64)
+        for p in self.params:
+            if p.free.prior_std is not None:
+                std = torch.as_tensor(p.free.prior_std, dtype=torch.float64)
+                info[p.offset:p.offset + p.dim] = (1.0 / std**2).expand(p.dim)
+        return info
+
+    # -- linearization
+    def width(self, values: list[Tensor]) -> int:
+        """Control points a sample's residual may touch (the band width ``w``)."""
+        w = self.spans.support
+        for i, term in enumerate(self.terms):
+            ts = term.times_list()
+            if len(ts) > 1:
+                dt = self.term_values(i, values)["time_offset"][..., None]
+                f = [self.spans.first(t + dt) for t in ts]
+                w = max(w, int((f[1] - f[0]).abs().max()) + self.spans.support)
+        return min(w, self.spans.n)
+
+    def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there."""
+        Bf = max(self.batch.numel(), 1)
+        n, m = self.spans.n, self.m
+        band = ctrl.new_zeros(Bf * (n + w), w, 6, 6)
+        cn = ctrl.new_zeros(Bf * (n + w), 6, m)
+        nn = ctrl.new_zeros(Bf, m, m)
+        gc = ctrl.new_zeros(Bf * (n + w), 6)
+        gn = ctrl.new_zeros(Bf, m)
+        residuals, weights = [], []
+        for i, term in enumerate(self.terms):
+            r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
+            residuals.append(r)
+            weights.append(wt)
+            N = r.shape[-2]
+            r = r.expand(*self.batch, N, r.shape[-1]).reshape(Bf, N, -1)
+            sw = wt.expand(*self.batch, N).reshape(Bf, N, 1).sqrt()
+            Jc = (Jc.expand(*self.batch, *Jc.shape[-4:]).reshape(Bf, N, -1, w, 6)
+                  * sw[..., None, None])
+            rows = (f0.expand(*self.batch, N).reshape(Bf, N)
+                    + (torch.arange(Bf, device=f0.device) * (n + w))[:, None])
+            rw = r * sw
+            upper = [(a, d) for a in range(w) for d in range(w - a)]
+            ia = torch.tensor([a for a, _ in upper], device=f0.device)
+            idd = torch.tensor([d for _, d in upper], device=f0.device)
+            blk = torch.einsum("bikpm,bikpq->bipmq", Jc[..., ia, :], Jc[..., ia + idd, :])
+            idx = ((rows[..., None] + ia) * w + idd).reshape(-1)
+            band.view(-1, 6, 6).index_add_(0, idx, blk.reshape(-1, 6, 6))
+            gc.index_add_(0, (rows[..., None] + torch.arange(w, device=f0.device)).reshape(-1),
+                          torch.einsum("bikam,bik->biam", Jc, rw).reshape(-1, 6))
+            Jn_all = ctrl.new_zeros(Bf, N, Jc.shape[2], m)
+            for name, J in Jn.items():
+                p = self.index[(i, name)]
+                Jn_all[..., p.offset:p.offset + p.dim] += (
+                    J.expand(*self.batch, *J.shape[-3:]).reshape(Bf, N, -1, p.dim)
+                    * sw[..., None])
+            if m:
+                blk = torch.einsum("bikam,bikq->biamq", Jc, Jn_all)
+                cn.index_add_(0, (rows[..., None] + torch.arange(w, device=f0.device))
+                              .reshape(-1), blk.reshape(-1, 6, m))
+                nn += torch.einsum("bikp,bikq->bpq", Jn_all, Jn_all)
+                gn += torch.einsum("bikp,bik->bp", Jn_all, rw)
+        keep = lambda x: x.reshape(Bf, n + w, *x.shape[1:])[:, :n]  # noqa: E731
+        return System(keep(band), keep(cn), nn, keep(gc), gn, residuals, weights)
+
+    def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
+        """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
+        term = self.terms[i]
+        vals = self.term_values(i, values)
+        kinds = {k: s.kind for k, s in term.slots().items()}
+        times = [t + vals["time_offset"][..., None] for t in term.times_list()]
+        firsts = [self.spans.first(t) for t in times]
+        f0 = torch.stack(firsts).amin(0)
+        n, sup = self.spans.n, self.spans.support
+        f0 = torch.minimum(f0, torch.full_like(f0, n - w))
+        window = (f0[..., None] + torch.arange(w, device=f0.device)).clamp(max=n - 1)
+        N = times[0].shape[-1]
+        shape = torch.broadcast_shapes(self.batch, f0.shape[:-1])
+        gathered = ctrl.expand(*shape, n, 8).gather(
+            -2, window.expand(*shape, N, w).reshape(*shape, N * w, 1).expand(
+                *shape, N * w, 8)).reshape(*shape, N, w, 8)
+        est = [name for name in vals if (i, name) in self.index]
+        leaves = [ctrl.new_zeros(*shape, N, w, 6)] + [
+            ctrl.new_zeros(*shape, N, self.index[(i, name)].dim) for name in est]
+
+        def residual(lv):
+            pts = dualquat.mul(gathered, dualquat.exp(lv[0]))
+            p = term.per_sample(vals, kinds)
+            for name, d in zip(est, lv[1:], strict=True):
+                p[name] = retract(kinds[name], p[name], d)
+            derivs = []
+            for t, f in zip(term.times_list(), firsts, strict=True):
+                off = (f - f0)[..., None] + torch.arange(sup, device=f.device)
+                lead = pts.shape[:-3]
+                sel = torch.take_along_dim(pts, off.expand(*lead, N, sup)[..., None], dim=-2)
+                derivs.append(self.spans.derivatives(sel, t + p["time_offset"], f,
+                                                     term.order))
+            return term.residuals(derivs, p)
+
+        r, J = sample_jacobians(residual, leaves, term.dim)
+        wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
+        wt = wt * term.mask.to(wt.dtype)
+        return r, wt, f0.expand(*shape, N), J[0], dict(zip(est, J[1:], strict=True))

@@ -1,0 +1,539 @@
+r"""Measurement terms: timestamped data of one sensor, its noise and nuisance parameters.
+
+Each term is a :class:`torch.nn.Module`; ``term(trajectory, ctrl=None)`` returns the
+whitened residuals ``(..., N, k)`` (predicted minus measured, divided by the sigmas; zero
+for masked samples) and ``term.cost(trajectory, ctrl=None)`` the robust cost
+:math:`\sum_i \rho(|r_i|)` per batch element (:mod:`torch_dq.fitting.robust`), both
+differentiable with respect to the control points, for a torch optimizer loop. With
+``x(t) = (R(t), p(t))`` the trajectory (body to world) and ``t' = t + dt`` the sample's
+time in the trajectory's clock:
+
+============== ==================================================== =======================
+term           prediction                                           residual frame
+============== ==================================================== =======================
+Poses          ``x(t') e`` (sensor mount ``e``)                     rotation vector of
+                                                                    ``R_m^T R R_e`` (sensor
+                                                                    axes), translation
+                                                                    (world)
+Positions      ``R(t') l + p(t')`` (lever arm ``l``)                world
+RelativePoses  ``x(t'_from)^-1 x(t'_to)``                           rotation: to-frame,
+                                                                    translation: from-frame
+Gyro           ``R^T w + b_g``                                      body
+Accel          ``R^T (a - g) + b_a``                                body
+============== ==================================================== =======================
+
+Times are the trajectory's (float64 absolute timestamps welcome), ``(N,)`` shared by the
+batch or ``(B, N)`` of their own; data carry the same leading batch. ``mask`` (bool, the
+samples' shape) excludes samples (their data may be NaN, their times are replaced by a
+valid one of the row).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import torch
+from torch import Tensor
+
+from .. import _checks, curves, dualquat, quat
+from . import robust as _robust
+from .nuisance import Slot
+
+__all__ = ["Accel", "Gyro", "Poses", "Positions", "RelativePoses", "Term"]
+
+
+def _sigma(fn: str, name: str, value, k: int) -> Tensor:
+    """``(k,)`` float64 positive standard deviations from a float or ``k`` values."""
+    if isinstance(value, bool) or value is None:
+        _checks.fail(fn, f"{name} is required: a positive float or {k} of them, got {value!r}")
+    try:
+        s = torch.as_tensor(value, dtype=torch.float64).detach().cpu()
+    except (TypeError, ValueError, RuntimeError):
+        _checks.fail(fn, f"{name} must be a positive float or {k} of them, got {value!r}",
+                     TypeError)
+    if s.dim() > 1 or (s.dim() == 1 and s.shape[0] != k):
+        _checks.fail(fn, f"{name} must be a float or a ({k},) tensor, got shape "
+                         f"{_checks.shape_str(s.shape)}")
+    if not bool((s > 0).all()) or bool(torch.isnan(s).any()):
+        _checks.fail(fn, f"{name} must be positive, got {value!r}")
+    return s.expand(k).clone()
+
+
+class Term(torch.nn.Module):
+    """Shared machinery of the measurement terms (see the module docstring).
+
+    Subclasses set ``dim`` (residual size), ``order`` (time derivatives they read),
+    ``_slots`` (their nuisance parameters) and implement ``_residual``.
+    """
+
+    dim = 0
+    order = 0
+    _fn = "fitting.Term"
+
+    def __init__(self, times: list[Tensor], names: list[str], data: Tensor, event: int,
+                 sigma: Tensor, *, time_offset, max_time_offset, robust, robust_k,
+                 mask) -> None:
+        super().__init__()
+        fn = self._fn
+        if robust not in _robust.KERNELS:
+            _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
+        self.robust = robust
+        if robust_k is None:
+            robust_k = _robust.chi_quantile(self.dim)
+        if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
+                math.isfinite(robust_k) and robust_k > 0):
+            _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
+        self.robust_k = float(robust_k)
+        if isinstance(max_time_offset, bool) or not isinstance(
+                max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
+                                                       and max_time_offset >= 0):
+            _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
+                             f"{max_time_offset!r}")
+        self.max_time_offset = float(max_time_offset)
+        self._slots: dict[str, Slot] = {"time_offset": Slot(fn, "time_offset", "offset",
+                                                            time_offset)}
+        _checks.tensor(fn, "data", data)
+        if data.dim() < 1 + event:
+            _checks.fail(fn, f"expected (..., N, ...) data, got {_checks.shape_str(data.shape)}")
+        n = data.shape[data.dim() - 1 - event]
+        batch = data.shape[:data.dim() - 1 - event]
+        for name, t in zip(names, times, strict=True):
+            _checks.tensor(fn, name, t)
+            if t.dim() not in (1, 2) or t.shape[-1] != n or (t.dim() == 2 and (
+                    len(batch) != 1 or t.shape[0] != batch[0])):
+                _checks.fail(fn, f"expected {name} of shape ({n},) or (B, {n}) matching the "
+                                 f"data {_checks.shape_str(data.shape)}, got "
+                                 f"{_checks.shape_str(t.shape)}")
+        if mask is None:
+            mask = torch.ones(data.shape[:data.dim() - event], dtype=torch.bool,
+                              device=data.device)
+        elif not isinstance(mask, Tensor) or mask.dtype != torch.bool:
+            _checks.fail(fn, f"mask must be a bool tensor, got {mask!r}", TypeError)
+        elif mask.shape != data.shape[:data.dim() - event] and mask.shape != (n,):
+            _checks.fail(fn, f"mask must have the samples' shape "
+                             f"{_checks.shape_str(data.shape[:data.dim() - event])}, got "
+                             f"{_checks.shape_str(mask.shape)}")
+        mask = mask.expand(data.shape[:data.dim() - event])
+        if not bool(mask.any(-1).all()):
+            _checks.fail(fn, "mask leaves no sample (in some batch element)")
+        sel = mask.reshape(*mask.shape, *(1,) * event).expand(data.shape)
+        if not bool(torch.isfinite(data.detach()[sel]).all()):
+            _checks.fail(fn, "the measurements must be finite (mask the samples that are not)")
+        self.register_buffer("mask", mask.clone())
+        self.register_buffer("sigma", sigma)
+        self._names = list(names)
+        for name, t in zip(names, times, strict=True):
+            self.register_buffer(name, self._fill_times(fn, name, t.detach(), mask))
+        self.N = n
+
+    def _fill_times(self, fn: str, name: str, t: Tensor, mask: Tensor) -> Tensor:
+        """Masked times replaced by the row's first valid time; checks finite, sorted."""
+        m = mask if t.dim() == mask.dim() else mask.all(0) if mask.dim() > 1 else mask
+        if t.dim() == 1 and mask.dim() > 1:
+            m = mask.any(0)
+        if not bool(torch.isfinite(t[m.expand(t.shape)]).all()):
+            _checks.fail(fn, f"{name} must be finite")
+        first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
+        filled = torch.where(m, t, first)
+        if len(self._names) == 1 and bool((filled[..., 1:] < filled[..., :-1]).any()):
+            _checks.fail(fn, f"{name} must be non-decreasing")
+        return filled
+
+    # -- nuisance values
+    def _value(self, name: str) -> Tensor | None:
+        slot = self._slots.get(name)
+        if slot is None:
+            return None
+        v = slot.value(torch.empty((), dtype=torch.float64, device=self.sigma.device))
+        return None if v is None else v.detach()
+
+    @property
+    def time_offset(self) -> Tensor | None:
+        """The time offset ``dt`` (seconds; the sample stamped ``t`` is compared with the
+        trajectory at ``t + dt``): fixed, estimated, its start, or None (default start not
+        yet computed)."""
+        return self._value("time_offset")
+
+    def times_list(self) -> list[Tensor]:
+        """The samples' times, one ``(N,)`` or ``(B, N)`` tensor per time argument."""
+        return [getattr(self, name) for name in self._names]
+
+    def slots(self) -> dict[str, Slot]:
+        """The nuisance parameters by name (absent, fixed or estimated)."""
+        return dict(self._slots)
+
+    def default_start(self, name: str, trajectory, ctrl: Tensor | None,
+                      values: dict[str, Tensor]) -> Tensor:
+        """Start of an estimated parameter without one (zero / identity by default)."""
+        like = torch.empty((), dtype=torch.float64, device=self.sigma.device)
+        return self._slots[name].identity(like)
+
+    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
+        """Current nuisance values by name, default starts computed on ``trajectory``."""
+        out: dict[str, Tensor] = {}
+        for name in sorted(self._slots, key=lambda s: s != "time_offset"):
+            v = self._value(name)
+            out[name] = self.default_start(name, trajectory, ctrl, out) if v is None else v
+        return out
+
+    # -- residuals
+    def _residual(self, ev: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
+        raise NotImplementedError
+
+    def residuals(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
+        """Whitened residuals ``(..., N, k)`` from the trajectory's derivatives at the
+        samples' times (one tuple per time argument) and per-sample nuisance values."""
+        r = self._residual(derivs, p)
+        r = r / self.sigma.to(r.dtype)
+        return torch.where(self.mask[..., None], r, torch.zeros((), dtype=r.dtype))
+
+    @staticmethod
+    def per_sample(values: dict[str, Tensor], kinds: dict[str, str]) -> dict[str, Tensor]:
+        """Values with a sample dim inserted before the event dims."""
+        ev = {"vector": 1, "offset": 0, "pose": 1, "gravity": 1}
+        return {k: v.unsqueeze(v.dim() - ev[kinds[k]]) for k, v in values.items()}
+
+    def forward(self, trajectory, ctrl: Tensor | None = None) -> Tensor:
+        """Whitened residuals ``(..., N, k)`` of the trajectory (or of ``ctrl`` predicted
+        control points used with it, as ``trajectory(t, ctrl=...)``)."""
+        return self.evaluate(trajectory, ctrl, self.values(trajectory, ctrl))
+
+    def evaluate(self, trajectory, ctrl: Tensor | None, values: dict[str, Tensor]) -> Tensor:
+        """Whitened residuals with the nuisance ``values`` (by name, batch first)."""
+        kinds = {k: s.kind for k, s in self._slots.items()}
+        like = trajectory.control_points if ctrl is None else ctrl
+        p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
+        derivs = [trajectory.derivatives(t + p["time_offset"], self.order, ctrl=ctrl)
+                  for t in self.times_list()]
+        return self.residuals(derivs, p)
+
+    def cost(self, trajectory, ctrl: Tensor | None = None) -> Tensor:
+        """Robust cost :math:`\\sum_i \\rho(|r_i|)` per batch element ``(...)``."""
+        r = self(trajectory, ctrl)
+        return _robust.rho(self.robust, r.norm(dim=-1), self.robust_k).sum(-1)
+
+
+def _pose_data(fn: str, name: str, poses: Tensor) -> Tensor:
+    """``(..., N, 8)`` normalized dual quaternions from dual quaternions or matrices."""
+    _checks.tensor(fn, name, poses)
+    if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
+        poses = dualquat.from_matrix(poses)
+    elif poses.dim() < 2 or poses.shape[-1] != 8:
+        _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
+                         f"for {name}, got shape {_checks.shape_str(poses.shape)}")
+    return poses.detach()
+
+
+def _rotation_residual(q_meas: Tensor, q: Tensor) -> Tensor:
+    """Rotation vector of ``R_m^T R`` (in ``q``'s frame)."""
+    return quat.to_rotvec(quat.mul(quat.conj(q_meas.to(q.dtype)), q))
+
+
+class Poses(Term):
+    r"""Poses of a sensor mounted on the body at ``extrinsic`` ``e``: :math:`x(t) e`.
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times (the trajectory's).
+        poses: ``(..., N, 8)`` dual quaternions or ``(..., N, 4, 4)`` matrices (sensor to
+            world); normalized on construction (:func:`~torch_dq.dualquat.normalize`).
+        rot_sigma: rotation noise (radians), a float or 3 (sensor axes).
+        trans_sigma: translation noise (length), a float or 3 (world axes).
+        extrinsic: ``(8,)`` sensor mount (None: identity), fixed or estimated.
+        time_offset: the sensor's clock offset (seconds), see :mod:`torch_dq.fitting`.
+        max_time_offset: bound on an estimated offset (seconds).
+        robust: None, ``"huber"`` or ``"cauchy"``; robust_k: its scale (default 3.5485).
+        mask: ``(..., N)`` bool, False excludes a sample.
+
+    Residual ``(..., N, 6)``: the rotation vector of :math:`R_m^T R(t) R_e` (sensor axes,
+    radians) over ``rot_sigma``, then the translation of :math:`x(t) e` minus the measured
+    one (world axes) over ``trans_sigma``.
+
+    Example:
+        >>> import torch_dq.dualquat as dq
+        >>> t = torch.linspace(0.0, 1.0, 5, dtype=torch.float64)
+        >>> term = Poses(t, dq.identity((5,), dtype=torch.float64), rot_sigma=0.01,
+        ...              trans_sigma=0.001)
+    """
+
+    dim = 6
+    _fn = "fitting.Poses"
+
+    def __init__(self, times: Tensor, poses: Tensor, *, rot_sigma, trans_sigma,
+                 extrinsic=None, time_offset=None, max_time_offset: float = 0.1,
+                 robust: str | None = None, robust_k: float | None = None,
+                 mask: Tensor | None = None) -> None:
+        fn = self._fn
+        x = _pose_data(fn, "poses", poses)
+        sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
+                           _sigma(fn, "trans_sigma", trans_sigma, 3)))
+        safe = x if mask is None else torch.where(mask[..., None], x, dualquat.identity(
+            dtype=x.dtype, device=x.device))
+        super().__init__([times], ["times"], x, 1, sigma, time_offset=time_offset,
+                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
+                         mask=mask)
+        q, t = dualquat.to_rt(dualquat.normalize(safe))
+        self.register_buffer("rotations", q)
+        self.register_buffer("translations", t)
+        self._slots["extrinsic"] = Slot(fn, "extrinsic", "pose", extrinsic)
+
+    @property
+    def extrinsic(self) -> Tensor | None:
+        """The sensor mount ``e`` ``(..., 8)`` (body to sensor pose on the body)."""
+        return self._value("extrinsic")
+
+    def _residual(self, ev, p):
+        x = ev[0][0]
+        if self._slots["extrinsic"].present:
+            x = dualquat.mul(x, p["extrinsic"])
+        q, t = dualquat.to_rt(x)
+        return torch.cat((_rotation_residual(self.rotations, q),
+                          t - self.translations.to(t.dtype)), dim=-1)
+
+
+class Positions(Term):
+    r"""Positions of a point fixed on the body at ``lever_arm`` ``l`` (body axes), seen in
+    world axes (GNSS antenna, mocap marker): :math:`R(t) l + p(t)`.
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times.
+        positions: ``(..., N, 3)`` measured positions (world axes).
+        sigma: noise (length), a float or 3 (world axes).
+        lever_arm: ``(3,)`` (None: the body origin), fixed or estimated.
+        time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Residual ``(..., N, 3)``: predicted minus measured position over ``sigma``.
+    """
+
+    dim = 3
+    _fn = "fitting.Positions"
+
+    def __init__(self, times: Tensor, positions: Tensor, *, sigma, lever_arm=None,
+                 time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
+                 robust_k: float | None = None, mask: Tensor | None = None) -> None:
+        fn = self._fn
+        _checks.tensor(fn, "positions", positions, 3)
+        if positions.dim() < 2:
+            _checks.fail(fn, f"expected (..., N, 3) positions, got "
+                             f"{_checks.shape_str(positions.shape)}")
+        super().__init__([times], ["times"], positions, 1, _sigma(fn, "sigma", sigma, 3),
+                         time_offset=time_offset, max_time_offset=max_time_offset,
+                         robust=robust, robust_k=robust_k, mask=mask)
+        safe = positions.detach() if mask is None else torch.where(
+            mask[..., None], positions.detach(), 0.0)
+        self.register_buffer("positions", safe)
+        self._slots["lever_arm"] = Slot(fn, "lever_arm", "vector", lever_arm)
+
+    @property
+    def lever_arm(self) -> Tensor | None:
+        """The lever arm ``l`` ``(..., 3)`` in body axes."""
+        return self._value("lever_arm")
+
+    def _residual(self, ev, p):
+        q, t = dualquat.to_rt(ev[0][0])
+        pred = t + quat.rotate(q, p["lever_arm"].expand(*q.shape[:-1], 3)) \
+            if self._slots["lever_arm"].present else t
+        return pred - self.positions.to(t.dtype)
+
+
+class RelativePoses(Term):
+    r"""Relative poses (odometry) :math:`x(t_{from})^{-1} x(t_{to})`.
+
+    Args:
+        times_from, times_to: ``(N,)`` or ``(B, N)`` times of each pair.
+        poses: ``(..., N, 8)`` or ``(..., N, 4, 4)`` measured relative poses (to-frame in
+            from-frame); normalized on construction.
+        rot_sigma: rotation noise (radians; to-frame axes); trans_sigma: translation noise
+            (from-frame axes).
+        time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Residual ``(..., N, 6)``: rotation vector of :math:`R_m^T R_{rel}` (to-frame) over
+    ``rot_sigma``, translation difference in from-frame axes over ``trans_sigma``.
+    """
+
+    dim = 6
+    _fn = "fitting.RelativePoses"
+
+    def __init__(self, times_from: Tensor, times_to: Tensor, poses: Tensor, *, rot_sigma,
+                 trans_sigma, time_offset=None, max_time_offset: float = 0.1,
+                 robust: str | None = None, robust_k: float | None = None,
+                 mask: Tensor | None = None) -> None:
+        fn = self._fn
+        x = _pose_data(fn, "poses", poses)
+        sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
+                           _sigma(fn, "trans_sigma", trans_sigma, 3)))
+        super().__init__([times_from, times_to], ["times_from", "times_to"], x, 1, sigma,
+                         time_offset=time_offset, max_time_offset=max_time_offset,
+                         robust=robust, robust_k=robust_k, mask=mask)
+        safe = x if mask is None else torch.where(mask[..., None], x, dualquat.identity(
+            dtype=x.dtype, device=x.device))
+        q, t = dualquat.to_rt(dualquat.normalize(safe))
+        self.register_buffer("rotations", q)
+        self.register_buffer("translations", t)
+
+    def _residual(self, ev, p):
+        z = dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0])
+        q, t = dualquat.to_rt(z)
+        return torch.cat((_rotation_residual(self.rotations, q),
+                          t - self.translations.to(t.dtype)), dim=-1)
+
+
+class _Imu(Term):
+    """Shared construction of the inertial terms: readings ``(..., N, 3)``, bias."""
+
+    dim = 3
+
+    def __init__(self, times, readings, sigma, bias, **kwargs) -> None:
+        fn = self._fn
+        _checks.tensor(fn, "readings", readings, 3)
+        if readings.dim() < 2:
+            _checks.fail(fn, f"expected (..., N, 3) readings, got "
+                             f"{_checks.shape_str(readings.shape)}")
+        super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
+                         **kwargs)
+        mask = kwargs.get("mask")
+        safe = readings.detach() if mask is None else torch.where(
+            mask[..., None], readings.detach(), 0.0)
+        self.register_buffer("readings", safe)
+        self._slots["bias"] = Slot(fn, "bias", "vector", bias)
+
+    @property
+    def bias(self) -> Tensor | None:
+        """The bias ``(..., 3)`` (body axes), added to the ideal reading."""
+        return self._value("bias")
+
+
+class Gyro(_Imu):
+    r"""Gyroscope readings :math:`R^T \omega + b_g` (body axes, rad/s).
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times.
+        readings: ``(..., N, 3)`` angular rates (rad/s, body axes).
+        sigma: noise (rad/s), a float or 3.
+        bias: ``(3,)`` bias, fixed or estimated (start zero).
+        time_offset: estimated without a start: from cross-correlating the measured and the
+            trajectory's angular rates over ``[-max_time_offset, max_time_offset]``.
+        max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+    """
+
+    order = 1
+    _fn = "fitting.Gyro"
+
+    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
+                 time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
+                 robust_k: float | None = None, mask: Tensor | None = None) -> None:
+        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
+                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
+                         mask=mask)
+
+    def _residual(self, ev, p):
+        x, dx = ev[0][:2]
+        w = curves.kinematics(x, dx, frame="body").angular_velocity
+        return w + p["bias"] - self.readings.to(w.dtype)
+
+    def default_start(self, name, trajectory, ctrl, values):
+        if name != "time_offset":
+            return super().default_start(name, trajectory, ctrl, values)
+        return _correlate_offset(self, trajectory, ctrl)
+
+
+def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
+    """Time offset maximising the correlation of the measured and predicted rate norms
+    (rotation and bias free), on a grid of 81 offsets refined by a parabola."""
+    m = term.max_time_offset
+    like = torch.empty((), dtype=torch.float64, device=term.sigma.device)
+    if m == 0.0:
+        return like.new_zeros(())
+    t = term.times
+    stride = max(1, t.shape[-1] // 2000)
+    t = t[..., ::stride]
+    meas = term.readings[..., ::stride, :].norm(dim=-1)
+    valid = term.mask[..., ::stride]
+    lo, hi = trajectory.domain
+    offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
+    shifted = (t[..., None, :] + offsets[:, None]).clamp(lo, hi)  # (..., 81, N')
+    with torch.no_grad():
+        c = ctrl if ctrl is None else ctrl.detach()
+        x, dx = trajectory.derivatives(shifted, 1, ctrl=c)
+        pred = curves.kinematics(x, dx, frame="body").angular_velocity.norm(dim=-1)
+    pred = pred.to(torch.float64)
+    w = valid[..., None, :].to(torch.float64).expand(pred.shape)
+    meas = meas[..., None, :].expand(pred.shape)
+
+    def centred(v):
+        return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
+
+    a, b = centred(pred), centred(meas)
+    corr = (a * b).sum(-1) / ((a * a).sum(-1) * (b * b).sum(-1)).sqrt().clamp_min(1e-300)
+    k = corr.argmax(-1).clamp(1, 79)
+    c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
+    denom = c0 - 2 * c1 + c2
+    frac = torch.where(denom < 0, 0.5 * (c0 - c2) / denom.clamp(max=-1e-300), 0.0)
+    step = offsets[1] - offsets[0]
+    return (offsets[k] + frac.clamp(-1, 1) * step).clamp(-m, m)
+
+
+class Accel(_Imu):
+    r"""Accelerometer readings (specific force) :math:`R^T (a - g) + b_a` (body axes).
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times.
+        readings: ``(..., N, 3)`` specific forces (body axes, e.g. m/s²).
+        sigma: noise, a float or 3.
+        bias: ``(3,)`` bias, fixed or estimated (start zero).
+        gravity: a fixed ``(3,)`` world vector (default ``(0, 0, -9.81)``); a float
+            magnitude: its direction is estimated, started from the mean reading rotated to
+            world axes by the trajectory (:math:`g \approx -\overline{R f}`); or a
+            :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept).
+        time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+    """
+
+    order = 2
+    _fn = "fitting.Accel"
+
+    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
+                 gravity=(0.0, 0.0, -9.81), time_offset=None, max_time_offset: float = 0.1,
+                 robust: str | None = None, robust_k: float | None = None,
+                 mask: Tensor | None = None) -> None:
+        fn = self._fn
+        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
+                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
+                         mask=mask)
+        self._magnitude: float | None = None
+        if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
+            if not (math.isfinite(gravity) and gravity > 0):
+                _checks.fail(fn, f"a gravity magnitude must be positive and finite, got "
+                                 f"{gravity!r}")
+            self._magnitude = float(gravity)
+            gravity = True
+        elif isinstance(gravity, (tuple, list)):
+            gravity = torch.tensor(gravity, dtype=torch.float64)
+        if gravity is None or gravity is False:
+            _checks.fail(fn, "gravity is required: a (3,) vector, a float magnitude or "
+                             "fitting.Free")
+        self._slots["gravity"] = Slot(fn, "gravity", "gravity", gravity)
+
+    @property
+    def gravity(self) -> Tensor | None:
+        """Gravity ``(..., 3)`` in world axes (fixed or estimated)."""
+        return self._value("gravity")
+
+    def default_start(self, name, trajectory, ctrl, values):
+        if name != "gravity":
+            return super().default_start(name, trajectory, ctrl, values)
+        with torch.no_grad():
+            c = ctrl if ctrl is None else ctrl.detach()
+            x = trajectory(self.times + values["time_offset"][..., None], ctrl=c)
+            q = dualquat.to_rt(x)[0].to(torch.float64)
+            f = quat.rotate(q, self.readings - values["bias"][..., None, :])
+            w = self.mask[..., None].to(f.dtype)
+            mean = (f * w).sum(-2) / w.sum(-2)
+        magnitude = 9.81 if self._magnitude is None else self._magnitude
+        return -magnitude * mean / mean.norm(dim=-1, keepdim=True)
+
+    def _residual(self, ev, p):
+        x, dx, ddx = ev[0][:3]
+        k = curves.kinematics(x, dx, ddx, frame="body")
+        q = dualquat.to_rt(x)[0]
+        g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
+        return k.linear_acceleration - g + p["bias"] - self.readings.to(g.dtype)

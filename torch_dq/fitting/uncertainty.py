@@ -1,0 +1,214 @@
+r"""Uncertainties of an estimate from the data-only Gauss-Newton matrix at the optimum.
+
+With the control-point block ``A`` (banded), the coupling ``C`` and the nuisance block
+``N`` (robust weights as converged, :func:`~torch_dq.fitting.estimate`'s ``prior``
+excluded, the Gaussian priors of :class:`~torch_dq.fitting.Free` included), the joint
+covariance is the inverse of ``[[A, C], [C^T, N]]``:
+
+.. math::
+    \Sigma_{nn} = S^{-1},\ S = N - C^T Z,\ Z = A^{-1} C, \qquad
+    \Sigma_{cc} = A^{-1} + Z \Sigma_{nn} Z^T, \qquad \Sigma_{cn} = -Z \Sigma_{nn}.
+
+``A^{-1}`` is only needed on the band (the selected inverse of
+:class:`~torch_dq.fitting._banded.BandedCholesky`), ``Z`` by one banded solve with ``m``
+columns: no dense inverse. ``S`` is inverted through its eigen-decomposition: a direction
+with an eigenvalue below ``1e-9`` of the largest (no information) gets an infinite
+variance and a warning, never a value chosen by the numerical prior.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import torch
+from torch import Tensor
+
+from .. import _checks, curves, dualquat, quat
+from ._banded import BandedCholesky
+from .local import sample_jacobians
+from .nuisance import gravity_basis
+
+__all__ = ["Estimate"]
+
+_NULL = 1e-9  # relative eigenvalue of the Schur complement below which a direction is unknown
+
+
+class Estimate:
+    """What :func:`~torch_dq.fitting.estimate` found, and its uncertainties.
+
+    Attributes:
+        loss: ``(steps + 1, ...)`` data-only robust cost at the start and after each step
+            (priors excluded).
+        final_loss: ``(...)`` the last entry of ``loss``.
+        steps: Levenberg-Marquardt iterations run.
+        converged: ``(...)`` bool, True where a stopping test held.
+        reason: what stopped it (one string per batch element, joined by ``"; "``).
+        chi2: per term (a dict keyed by the term) ``(...)`` sum of squared whitened
+            residuals of its unmasked samples (robust weights not applied).
+        dof: per term, the number of residual components of its unmasked samples ``(...)``.
+        weights: per term ``(..., N)`` robust weights at the optimum (0 where masked).
+    """
+
+    def __init__(self, problem, ctrl: Tensor, values: list[Tensor], system, history: dict,
+                 ) -> None:
+        self._problem, self._ctrl, self._values = problem, ctrl, values
+        batch = problem.batch
+        self.loss: Tensor = history["loss"]
+        self.final_loss: Tensor = self.loss[-1]
+        self.steps: int = history["steps"]
+        self.converged: Tensor = history["converged"]
+        self.reason: str = history["reason"]
+        self.chi2, self.dof, self.weights = {}, {}, {}
+        for term, r, w in zip(problem.terms, system.residuals, system.weights, strict=True):
+            self.chi2[term] = (r * r).sum((-1, -2)).expand(batch)
+            self.dof[term] = (term.mask.sum(-1) * term.dim).expand(batch)
+            self.weights[term] = w.expand(*batch, w.shape[-1])
+        self._factor(system)
+
+    # -- factorisation
+    def _factor(self, system) -> None:
+        p = self._problem
+        Bf = max(p.batch.numel(), 1)
+        self._chol = BandedCholesky(system.band)
+        ok = self._chol.ok
+        if not bool(ok.all()):
+            warnings.warn("fitting.Estimate: the data do not determine every control point "
+                          "(a time gap or an end without samples); the uncertainties of the "
+                          "affected batch elements are inf", RuntimeWarning, stacklevel=3)
+        self._ok = ok
+        m = p.m
+        if not m:
+            self._Z = system.cn
+            self._V = system.nn
+            self._inv = system.nn.new_zeros(Bf, 0)
+            return
+        self._Z = self._chol.solve(system.cn)  # (Bf, n, 6, m)
+        S = system.nn + torch.diag(p.prior_information()).to(system.nn)
+        S = S - torch.einsum("bnim,bniq->bmq", system.cn, self._Z)
+        S = 0.5 * (S + S.mT)
+        lam, V = torch.linalg.eigh(S)
+        top = lam.amax(-1, keepdim=True).clamp_min(0.0)
+        bad = (lam <= _NULL * top) | ~ok[:, None]
+        self._V = V
+        self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
+        if bool(bad.any()):
+            weak = [f"{type(p.terms[i]).__name__}.{name}" for (i, name), q in p.index.items()
+                    if bool((V[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
+                            .any(-2)[bad].any())]
+            warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
+                          f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
+                          RuntimeWarning, stacklevel=3)
+
+    def _quadratic(self, A: Tensor) -> Tensor:
+        """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe."""
+        shape = (A.shape[0],) + (1,) * (A.dim() - 3) + self._V.shape[1:]
+        a = A @ self._V.reshape(shape)
+        inv = self._inv.reshape(shape[:-2] + (1, -1))
+        scale = a.abs().amax(-1, keepdim=True)
+        return torch.where(a.abs() > 1e-8 * scale, a * a * inv, 0.0).sum(-1)
+
+    def _param(self, term, name: str):
+        fn = "fitting.Estimate.std"
+        p = self._problem
+        for i, t in enumerate(p.terms):
+            if t is term:
+                q = p.index.get((i, name))
+                if q is None:
+                    _checks.fail(fn, f"{type(term).__name__}.{name} was not estimated")
+                return q
+        _checks.fail(fn, "term is not one of the estimated terms")
+
+    def _chart_map(self, q) -> Tensor | None:
+        """Map from the chart to the reported coordinates (gravity: world ``(3, 2)``)."""
+        if q.kind != "gravity":
+            return None
+        g = self._values[self._problem.params.index(q)].reshape(-1, 3)
+        cross = torch.linalg.cross(g[:, :, None].expand(-1, 3, 3),
+                                   torch.eye(3, dtype=g.dtype).expand(g.shape[0], 3, 3),
+                                   dim=1)  # [g]x columns: g x e_j
+        return -cross @ gravity_basis(g)  # d(Exp(B d) g)/dd = -[g]x B
+
+    def cov(self, *items: tuple) -> Tensor:
+        """Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts (all
+        estimated parameters in order of first appearance when none are given)."""
+        p = self._problem
+        qs = [self._param(t, n) for t, n in items] if items else p.params
+        cols = torch.cat([torch.arange(q.offset, q.offset + q.dim) for q in qs])
+        Bf = self._V.shape[0]
+        E = torch.eye(p.m, dtype=self._V.dtype)[cols].expand(Bf, -1, -1)
+        a = E @ self._V
+        prod = a[:, :, None, :] * a[:, None, :, :]
+        big = (a.abs() > 1e-8)[:, :, None, :] & (a.abs() > 1e-8)[:, None, :, :]
+        C = torch.where(big, prod * self._inv[:, None, None, :], 0.0).sum(-1)
+        return C.reshape(*p.batch, len(cols), len(cols))
+
+    def std(self, term, name: str) -> Tensor:
+        """Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
+        lever arm ``(..., 3)``; time offset ``(...)``; gravity ``(..., 3)`` world axes;
+        extrinsic ``(..., 6)`` (``e exp(delta)``)."""
+        q = self._param(term, name)
+        C = self.cov((term, name)).reshape(-1, q.dim, q.dim)
+        M = self._chart_map(q)
+        if M is not None:
+            C = M @ torch.where(torch.isinf(C), torch.inf, C) @ M.mT if not bool(
+                torch.isinf(C).any()) else torch.full((C.shape[0], 3, 3), torch.inf)
+        s = C.diagonal(dim1=-2, dim2=-1).clamp_min(0.0).sqrt()
+        b = self._problem.batch
+        return s.reshape(*b) if q.kind == "offset" else s.reshape(*b, s.shape[-1])
+
+    # -- trajectory uncertainties
+    def _along(self, t: Tensor, k: int, output) -> Tensor:
+        """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t``."""
+        p = self._problem
+        spans, ctrl = p.spans, self._ctrl
+        sup, n = spans.support, spans.n
+        _checks.tensor("fitting.Estimate", "t", t)
+        if t.dim() < 1:
+            _checks.fail("fitting.Estimate", "expected (T,) or (..., T) times for t")
+        p.trajectory.derivatives(t, 0, ctrl=ctrl)  # the layer's domain check
+        shape = torch.broadcast_shapes(p.batch, t.shape[:-1])
+        T = t.shape[-1]
+        t = t.to(torch.float64).expand(*shape, T)
+        first = spans.first(t)
+        window = first[..., None] + torch.arange(sup, device=t.device)
+        pts = ctrl.expand(*shape, n, 8).gather(-2, window.reshape(*shape, T * sup, 1).expand(
+            *shape, T * sup, 8)).reshape(*shape, T, sup, 8)
+        ref = [d.detach() for d in spans.derivatives(pts, t, first, 2)]
+
+        def out(lv):
+            d = spans.derivatives(dualquat.mul(pts, dualquat.exp(lv[0])), t, first, 2)
+            return output(d, ref)
+
+        _, (J,) = sample_jacobians(out, [ctrl.new_zeros(*shape, T, sup, 6)], k)
+        Bf = max(p.batch.numel(), 1)
+        J = J.expand(*p.batch, T, k, sup, 6).reshape(Bf, T, k, sup * 6)
+        f = first.expand(*p.batch, T).reshape(Bf, T)
+        Sw = self._chol.window_covariance(f, sup)
+        var = torch.einsum("btij,btjl,btil->bti", J, Sw, J)
+        if p.m:
+            idx = (f[..., None] + torch.arange(sup)).clamp(max=n - 1)
+            Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
+                Bf, T * sup, 6, p.m)).reshape(Bf, T, sup * 6, p.m)
+            var = var + self._quadratic(J @ Zw)
+        std = var.clamp_min(0.0).sqrt()
+        std = torch.where(self._ok[:, None, None], std, torch.inf)
+        return std.reshape(*p.batch, T, k)
+
+    def pose_std(self, t: Tensor) -> Tensor:
+        """``(..., T, 6)``: standard deviations of the pose at ``t``: the rotation ``delta``
+        with ``R = R_hat exp(delta)`` (body axes, radians), then the translation (world)."""
+        def output(d, ref):
+            q, pos = dualquat.to_rt(d[0])
+            q0, p0 = dualquat.to_rt(ref[0])
+            return torch.cat((quat.to_rotvec(quat.mul(quat.conj(q0), q)), pos - p0), -1)
+
+        return self._along(t, 6, output)
+
+    def kinematics_std(self, t: Tensor) -> Tensor:
+        """``(..., T, 12)``: standard deviations of the angular velocity, linear velocity,
+        angular acceleration and linear acceleration at ``t`` (world axes)."""
+        def output(d, ref):
+            k = curves.kinematics(d[0], d[1], d[2])
+            return torch.cat(tuple(k), -1)
+
+        return self._along(t, 12, output)
