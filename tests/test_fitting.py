@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation, RotationSpline
 import torch_dq.dualquat as dq
 from torch_dq import curves, fitting, quat
 from torch_dq.losses import pose_loss, rotation_angle, translation_error
+from torch_dq.fitting._banded import BandedCholesky
 from torch_dq.nn import Bezier, BSpline, fit
 
 F32, F64 = torch.float32, torch.float64
@@ -323,46 +324,47 @@ def test_bezier_lm_fit(gen):
 
 # ----------------------------------------------------------------------------- linear algebra
 
+def _random_band(gen, n, w):
+    band = torch.randn(2, n, w, 6, 6, generator=gen, dtype=F64)
+    band[..., 1:, :, :] *= 0.1  # off-diagonal blocks small: positive definite
+    dense = torch.zeros(2, 6 * n, 6 * n, dtype=F64)
+    for k in range(n):
+        for d in range(w):
+            if k + d < n:
+                dense[:, 6 * k:6 * k + 6, 6 * (k + d):6 * (k + d) + 6] = band[:, k, d]
+    dense = dense.triu() + dense.triu(1).mT  # symmetric from the upper band
+    dense = dense + 6 * w * torch.eye(6 * n, dtype=F64)
+    for k in range(n):  # write the symmetric diagonal back into the band
+        band[:, k, 0] = dense[:, 6 * k:6 * k + 6, 6 * k:6 * k + 6]
+    return band, dense
+
+
 def test_block_banded_solver_matches_a_dense_solve(gen):
     for n, w in ((1, 1), (7, 2), (23, 4), (10, 10)):
-        band = torch.randn(2, n, w, 6, 6, generator=gen, dtype=F64)
-        band[..., 1:, :, :] *= 0.1  # off-diagonal blocks small: positive definite
-        dense = torch.zeros(2, 6 * n, 6 * n, dtype=F64)
-        for k in range(n):
-            for d in range(w):
-                if k + d < n:
-                    dense[:, 6 * k:6 * k + 6, 6 * (k + d):6 * (k + d) + 6] = band[:, k, d]
-        dense = dense.triu() + dense.triu(1).mT  # symmetric from the upper band
-        dense = dense + 6 * w * torch.eye(6 * n, dtype=F64)
-        for k in range(n):  # write the symmetric diagonal back into the band
-            band[:, k, 0] = dense[:, 6 * k:6 * k + 6, 6 * k:6 * k + 6]
-        rhs = torch.randn(2, n, 6, generator=gen, dtype=F64)
-        x = fitting._solve_block_banded(band, rhs)
-        ref = torch.linalg.solve(dense, rhs.reshape(2, -1, 1))[..., 0].reshape(2, n, 6)
+        band, dense = _random_band(gen, n, w)
+        rhs = torch.randn(2, n, 6, 3, generator=gen, dtype=F64)
+        chol = BandedCholesky(band)
+        assert bool(chol.ok.all())
+        x = chol.solve(rhs)
+        ref = torch.linalg.solve(dense, rhs.reshape(2, -1, 3)).reshape(2, n, 6, 3)
         torch.testing.assert_close(x, ref, rtol=1e-10, atol=1e-12)
-    assert fitting._solve_block_banded(-band, rhs) is None  # not positive definite
+    bad = band.clone()
+    bad[1] = -bad[1]
+    assert BandedCholesky(bad).ok.tolist() == [True, False]  # per batch element
 
 
-def test_colored_jacobian_matches_autograd(gen):
-    """The banded Jacobian of the residuals in body-frame steps, from 6 (p + 1) coloured
-    differences, against torch.autograd.functional.jacobian (dense)."""
-    s = torch.linspace(0.0, 1.0, 17, dtype=F64)
-    x = drive(s, laps=0.3, radius=1.0)
-    spline = BSpline.from_dualquats(x, s, n_ctrl=7)
-    ctrl = spline.control_points.detach()
-    target = dq.mul(x, dq.exp(0.05 * torch.randn(17, 6, generator=gen, dtype=F64)))
-    first, _ = spline.basis(s)
-
-    def residual(c):
-        return fitting._pose_residuals(spline(s, ctrl=c), target, (1.0, 2.0))
-
-    J = fitting._jacobian(residual, ctrl, first, 4)  # (17, 4, 6, 6)
-    dense = torch.autograd.functional.jacobian(
-        lambda d: residual(dq.mul(ctrl, dq.exp(d))), torch.zeros(7, 6, dtype=F64))
-    for i in range(17):
-        for a in range(4):
-            torch.testing.assert_close(J[i, a], dense[i, :, int(first[i]) + a, :],
-                                       rtol=1e-7, atol=1e-8)
+@pytest.mark.parametrize(("n", "w", "width"), [(9, 4, 4), (13, 3, 3), (5, 5, 5), (8, 2, 2)])
+def test_window_covariance_matches_the_dense_inverse(gen, n, w, width):
+    """Selected inversion (Takahashi) gives the covariance blocks of every window of
+    consecutive block rows, equal to those of numpy's dense inverse."""
+    band, dense = _random_band(gen, n, w)
+    inv = np.linalg.inv(dense.numpy())
+    first = torch.arange(n - width + 1).expand(2, -1)
+    S = BandedCholesky(band).window_covariance(first, width)
+    for b in range(2):
+        for f in range(n - width + 1):
+            ref = inv[b, 6 * f:6 * (f + width), 6 * f:6 * (f + width)]
+            np.testing.assert_allclose(S[b, f].numpy(), ref, rtol=1e-9, atol=1e-12)
 
 
 def test_lm_on_a_batch_of_curves_equals_one_by_one(gen):

@@ -69,7 +69,8 @@ def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[
 def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) -> None:
     """Times (widened by an estimated offset's bound) inside the trajectory's domain."""
     lo, hi = trajectory.domain
-    tol = 1e-9 * (hi - lo)
+    eps = torch.finfo(trajectory.control_points.dtype).eps
+    tol = (1e-9 + 4 * eps) * (hi - lo)  # the layer's relative knots round in its dtype
     for term in terms:
         name = type(term).__name__
         slot = term.slots()["time_offset"]
@@ -247,7 +248,7 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
     diag0 = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
     mu = prior * diag0
     data, obj = objective(ctrl, values)
-    losses = [data.clone()]
+    losses, objectives = [data.clone()], [obj.clone()]
     lam = torch.full((Bf,), 1e-4, dtype=torch.float64)
     active = torch.isfinite(obj.reshape(Bf)) & (obj.reshape(Bf) > 0)
     reasons = ["the cost is zero" if float(o) == 0 else _NONFINITE
@@ -294,6 +295,7 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
         lam = torch.where(pending, lam, (lam / 10.0).clamp_min(1e-12))
         ctrl, values, obj, data = new_ctrl, new_values, new_obj, new_data
         losses.append(data.clone())
+        objectives.append(obj.clone())
         if bar is not None:
             bar.update(1)
             bar.set_postfix(loss=f"{float(data.sum()):.3e}")
@@ -301,6 +303,6 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
     reasons = [r or f"steps={steps} reached" for r in reasons]
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
-    history = {"loss": torch.stack(losses), "steps": done, "reason": reason,
-               "converged": converged.reshape(batch)}
+    history = {"loss": torch.stack(losses), "objective": torch.stack(objectives),
+               "steps": done, "reason": reason, "converged": converged.reshape(batch)}
     return ctrl, values, history

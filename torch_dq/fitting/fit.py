@@ -32,8 +32,8 @@ class FitHistory:
 
     Attributes:
         loss: the loss before each optimizer step (``len(loss) == steps``); for ``"lm"``
-            the loss at the start and after each iteration (the loss it minimises,
-            without the ``prior`` pull).
+            the regularised objective it minimises (the loss plus its ``prior`` pull, see
+            :func:`fit`; the loss itself at the start).
         steps: number of optimizer steps taken.
         final_loss: the loss of the returned parameters (the best iterate seen).
         converged: True when the stopping test held (the loop stopped there).
@@ -293,8 +293,8 @@ def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float]
                  trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
     est = estimate(module, [term], steps=steps, tol=tol, prior=prior, verbose=False)
     count = target.shape[:-1].numel()
-    history.loss = [float(v.sum()) / count for v in est.loss[:-1]] or [
-        float(est.loss[0].sum()) / count]
+    history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
+        float(est.objective[0].sum()) / count]
     history.steps = est.steps
     history.converged = bool(est.converged.all())
     history.reason = est.reason

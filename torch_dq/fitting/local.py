@@ -64,6 +64,7 @@ class SpanEvaluator:
         self.group = group.to(dev)  # per span r - p
         self.scale = (h[rep][group, 0] / h[:, 0]).to(dev)  # rep span length / own
         self.start = (K[spans] + 0.0).to(dev)  # u_r relative to u_p
+        self.length = h[rep, 0].to(dev)  # span length of each group's layer
         self.origin = float(trajectory.knots[p])
 
     def first(self, t: Tensor) -> Tensor:
@@ -88,6 +89,7 @@ class SpanEvaluator:
         g = self.group[f]
         s = self.scale[f].to(tt.dtype)
         local = (tt - self.origin - self.start[f].to(tt.dtype)) * s
+        local = torch.minimum(local.clamp_min(0.0), self.length[g].to(tt.dtype))  # rounding
         perm = torch.argsort(g)
         counts = torch.bincount(g, minlength=len(self.layers)).tolist()
         outs, pos = [], 0
@@ -108,7 +110,7 @@ class SpanEvaluator:
 
 def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Tensor],
                      k: int) -> tuple[Tensor, list[Tensor]]:
-    """Residuals and their per-sample Jacobians by one reverse pass over ``k`` copies.
+    r"""Residuals and their per-sample Jacobians by one reverse pass over ``k`` copies.
 
     Copy ``j`` of every leaf (a leading dim of size ``k``) feeds residual component ``j``
     only, so one backward pass of :math:`\sum_j r^{(j)}_{\cdot j}` gives all ``k`` rows

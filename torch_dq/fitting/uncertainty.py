@@ -40,6 +40,8 @@ class Estimate:
         loss: ``(steps + 1, ...)`` data-only robust cost at the start and after each step
             (priors excluded).
         final_loss: ``(...)`` the last entry of ``loss``.
+        objective: ``(steps + 1, ...)`` the minimised objective (``loss`` plus the priors),
+            decreasing.
         steps: Levenberg-Marquardt iterations run.
         converged: ``(...)`` bool, True where a stopping test held.
         reason: what stopped it (one string per batch element, joined by ``"; "``).
@@ -55,6 +57,7 @@ class Estimate:
         batch = problem.batch
         self.loss: Tensor = history["loss"]
         self.final_loss: Tensor = self.loss[-1]
+        self.objective: Tensor = history["objective"]
         self.steps: int = history["steps"]
         self.converged: Tensor = history["converged"]
         self.reason: str = history["reason"]
@@ -63,7 +66,14 @@ class Estimate:
             self.chi2[term] = (r * r).sum((-1, -2)).expand(batch)
             self.dof[term] = (term.mask.sum(-1) * term.dim).expand(batch)
             self.weights[term] = w.expand(*batch, w.shape[-1])
-        self._factor(system)
+        self._system = system
+        self._factored = False
+
+    def _ensure(self) -> None:
+        """Factor the Gauss-Newton matrix on the first uncertainty asked for."""
+        if not self._factored:
+            self._factor(self._system)
+            self._factored = True
 
     # -- factorisation
     def _factor(self, system) -> None:
@@ -74,7 +84,7 @@ class Estimate:
         if not bool(ok.all()):
             warnings.warn("fitting.Estimate: the data do not determine every control point "
                           "(a time gap or an end without samples); the uncertainties of the "
-                          "affected batch elements are inf", RuntimeWarning, stacklevel=3)
+                          "affected batch elements are inf", RuntimeWarning, stacklevel=4)
         self._ok = ok
         m = p.m
         if not m:
@@ -97,7 +107,7 @@ class Estimate:
                             .any(-2)[bad].any())]
             warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
                           f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
-                          RuntimeWarning, stacklevel=3)
+                          RuntimeWarning, stacklevel=4)
 
     def _quadratic(self, A: Tensor) -> Tensor:
         """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe."""
@@ -131,6 +141,7 @@ class Estimate:
     def cov(self, *items: tuple) -> Tensor:
         """Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts (all
         estimated parameters in order of first appearance when none are given)."""
+        self._ensure()
         p = self._problem
         qs = [self._param(t, n) for t, n in items] if items else p.params
         cols = torch.cat([torch.arange(q.offset, q.offset + q.dim) for q in qs])
@@ -159,6 +170,7 @@ class Estimate:
     # -- trajectory uncertainties
     def _along(self, t: Tensor, k: int, output) -> Tensor:
         """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t``."""
+        self._ensure()
         p = self._problem
         spans, ctrl = p.spans, self._ctrl
         sup, n = spans.support, spans.n
