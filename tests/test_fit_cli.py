@@ -28,7 +28,7 @@ def full_run(tmp_path_factory):
     """One fit of the whole shipped file with figures: (exit status, out dir, stdout)."""
     pytest.importorskip("matplotlib")
     out = tmp_path_factory.mktemp("fit")
-    rate = 200.0
+    rate = 1000.0  # 1 ms: central differences of the CSV close to its exact derivatives
     import contextlib
     import io as stdio
 
@@ -73,10 +73,14 @@ def test_heldout_errors_next_to_scipy(full_run):
     csv = np.genfromtxt(out / "trajectory.csv", delimiter=",", names=True)
     assert csv["t"][0] == pytest.approx(t[0], abs=1e-9) and csv["t"][-1] <= t[-1]
     for key, ref in (("translation_mm", scipy_mm), ("rotation_deg", scipy_deg)):
-        for stat in ("mean", "median"):  # the issue's bar: at most 3x scipy's
-            assert ours[key][stat] < 3 * getattr(np, stat)(ref), (key, stat)
+        for stat in ("mean", "median"):  # issue 20's bar: within 1.5x of scipy's
+            assert ours[key][stat] < 1.5 * getattr(np, stat)(ref), (key, stat)
         assert ours[key]["max"] < 3 * ref.max(), key
-    assert summary["model"]["n_ctrl"] == int(np.ceil((t[-1] - t[0]) / 0.1 - 1e-9)) + 3
+    # the automatic knot spacing: as printed, and never more control points than poses
+    model = summary["model"]
+    assert model["n_ctrl"] == int(np.ceil((t[-1] - t[0]) / model["knot_spacing_s"] - 1e-9)) + 3
+    assert model["n_ctrl"] <= fit.sum()
+    assert "within 5 % of the best" in model["knot_spacing_reason"]
 
 
 def test_csv_derivatives_match_finite_differences(full_run):
@@ -96,8 +100,14 @@ def test_csv_derivatives_match_finite_differences(full_run):
     # central differences of the CSV's positions against its velocities
     fd_v = (p[2:] - p[:-2]) / (h[1:] + h[:-1])
     np.testing.assert_allclose(fd_v, v[1:-1], rtol=0, atol=2e-3 * np.abs(v).max())
+    # the De Boor form's acceleration jumps at knots (C1): skip stencils across a knot
+    model = json.loads((out / "summary.json").read_text())["model"]
+    t0, t1 = model["domain_s"]
+    knots = t0 + (t1 - t0) * np.arange(1, model["n_ctrl"] - 3) / (model["n_ctrl"] - 3)
+    across = np.searchsorted(knots, t[2:]) != np.searchsorted(knots, t[:-2])
     fd_a = (v[2:] - v[:-2]) / (h[1:] + h[:-1])
-    np.testing.assert_allclose(fd_a, a[1:-1], rtol=0, atol=2e-2 * np.abs(a).max())
+    np.testing.assert_allclose(fd_a[~across], a[1:-1][~across], rtol=0,
+                               atol=2e-2 * np.abs(a).max())
     # angular velocity (world frame): R(t+h) R(t-h)^T = exp(2h [w]x) to second order
     R = Rotation.from_quat(q[:, [1, 2, 3, 0]])
     fd_w = (R[2:] * R[:-2].inv()).as_rotvec() / (h[1:] + h[:-1])
@@ -177,9 +187,9 @@ def test_options_the_data_cannot_satisfy(tmp_path, capsys):
     short = tmp_path / "short.txt"
     io.write_trajectory(short, io.read_trajectory(SHIPPED).select(slice(0, 20)))
     assert main(["fit", str(short), "--knot-spacing", "0.01", "--quiet",
-                 "--out", str(tmp_path / "o")]) == 1
+                 "--out", str(tmp_path / "o")]) == 2
     line = _error_line(capsys)
-    assert "raise --knot-spacing" in line and "control points" in line
+    assert "--knot-spacing" in line and "control points" in line
     kitti = tmp_path / "00.txt"
     io.write_trajectory(kitti, io.read_trajectory(short), format="kitti",
                         times_path=tmp_path / "t.txt")
@@ -233,4 +243,190 @@ def test_fit_help(capsys):
                    "--steps", "--rate", "--duplicates", "--dtype", "--no-plots", "--quiet"):
         assert option in text
     assert "(default: None)" not in text and "torch_dq[plot]" in text
-    assert "(default: 0.1)" in text and "(default: 2)" in text
+    assert "(default: auto)" in text and "(default: 2)" in text and "--overwrite" in text
+
+
+# ----------------------------------------------------------------------------- issue 22: the CLI
+
+DESK = ROOT / "tests" / "data" / "tum_fr2_desk_sub.txt"
+
+
+def _write_tum(path, traj):
+    io.write_trajectory(path, traj)
+    return path
+
+
+def _hint_works(capsys, args, option, extra=()):
+    """The command fails (exit 2, one line) naming ``option VALUE``; with that value it works."""
+    import re
+
+    assert main(args) == 2
+    line = _error_line(capsys)
+    found = re.findall(rf"{option} (\S+)", line)  # the last one: the way out
+    assert found, line
+    value = found[-1]
+    fixed = list(args)
+    if option in fixed:
+        fixed[fixed.index(option) + 1] = value
+    else:
+        fixed += [option, value]
+    out = fixed[fixed.index("--out") + 1]
+    assert main([*fixed, "--overwrite", *extra]) == 0, (line, capsys.readouterr().err)
+    capsys.readouterr()
+    return line, value, out
+
+
+def test_input_is_never_overwritten(tmp_path, capsys):
+    folder = tmp_path / "d"
+    folder.mkdir()
+    source = _write_tum(folder / "trajectory.csv", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    before = source.read_bytes()
+    for extra in ([], ["--overwrite"]):
+        assert main(["fit", str(source), "--out", str(folder), "--no-plots", "--quiet",
+                     *extra]) == 2
+        line = _error_line(capsys)
+        assert "would overwrite the input" in line and "choose another --out" in line
+        assert source.read_bytes() == before
+    assert sorted(p.name for p in folder.iterdir()) == ["trajectory.csv"]
+
+
+def test_earlier_results_need_overwrite(tmp_path, capsys):
+    short = _write_tum(tmp_path / "short.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    out = tmp_path / "out"
+    args = ["fit", str(short), "--out", str(out), "--no-plots", "--quiet", "--steps", "1"]
+    assert main(args) == 0
+    stamp = (out / "summary.json").read_bytes()
+    assert main(args) == 2
+    line = _error_line(capsys)
+    assert "already holds results of an earlier run" in line and "--overwrite" in line
+    assert (out / "summary.json").read_bytes() == stamp
+    assert main([*args, "--overwrite", "--steps", "2"]) == 0
+    assert json.loads((out / "summary.json").read_text())["fit"]["steps"] <= 2
+
+
+def test_five_poses_with_defaults_one_line_with_working_hints(tmp_path, capsys):
+    five = _write_tum(tmp_path / "five.txt", io.read_trajectory(SHIPPED).select(slice(0, 5)))
+    for option in ("--holdout", "--degree"):
+        line, value, _ = _hint_works(capsys, ["fit", str(five), "--out", str(tmp_path / option),
+                                              "--quiet", "--no-plots"], option)
+        assert "too few for a degree-3 B-spline" in line
+    assert value == "2"  # 3 fitted poses allow degree 2
+    line, value, _ = _hint_works(capsys, ["fit", str(five), "--holdout", "4", "--out",
+                                          str(tmp_path / "o"), "--quiet", "--no-plots"],
+                                 "--holdout")
+    assert value == "1" and "-0.0" not in line
+
+
+def test_huge_holdout_hint_works(tmp_path, capsys):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 200)))
+    line, value, _ = _hint_works(capsys, ["fit", str(short), "--holdout", "100000", "--out",
+                                          str(tmp_path / "o"), "--quiet", "--no-plots"],
+                                 "--holdout")
+    assert int(value) == 99  # 0, 99, 198 and the last: the largest K with 4 fitted poses
+
+
+def test_knot_spacing_hint_is_rounded_up_on_10hz_data(tmp_path, capsys):
+    """Followed literally, the suggested spacing works (0.2 did not: rounded down)."""
+    traj = io.read_trajectory(SHIPPED).select(slice(0, None, 5))  # 10 Hz, like KITTI
+    poses, times = tmp_path / "00.txt", tmp_path / "times.txt"
+    io.write_trajectory(poses, traj, format="kitti", times_path=times)
+    line, value, out = _hint_works(capsys, ["fit", str(poses), "--times", str(times),
+                                            "--knot-spacing", "0.1", "--out",
+                                            str(tmp_path / "o"), "--quiet", "--no-plots",
+                                            "--steps", "2"], "--knot-spacing")
+    summary = json.loads((pathlib.Path(out) / "summary.json").read_text())
+    assert summary["model"]["n_ctrl"] == summary["holdout"]["fitted"]  # the finest that works
+
+
+def test_rate_is_bounded_by_the_duration(tmp_path, capsys):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 30)))
+    line, value, out = _hint_works(capsys, ["fit", str(short), "--rate", "1e9", "--out",
+                                            str(tmp_path / "o"), "--quiet", "--no-plots",
+                                            "--steps", "1"], "--rate")
+    rows = json.loads((pathlib.Path(out) / "summary.json").read_text())["resampled"]["samples"]
+    assert 0.99e6 < rows <= 1_000_000
+
+
+@pytest.mark.parametrize("option,value,says", [
+    ("--steps", "-1", "expected an integer >= 0, got -1"),
+    ("--knot-spacing", "-0.1", "expected a finite number > 0, got -0.1"),
+    ("--knot-spacing", "0", "expected a finite number > 0, got 0"),
+    ("--knot-spacing", "fast", "expected a number, got 'fast'"),
+    ("--holdout", "0", "expected an integer >= 1, got 0"),
+    ("--rate", "inf", "expected a finite number > 0, got inf"),
+])
+def test_bad_option_messages_state_the_bound(tmp_path, capsys, option, value, says):
+    with pytest.raises(SystemExit) as info:
+        main(["fit", str(SHIPPED), option, value])
+    assert info.value.code == 2
+    assert says in capsys.readouterr().err
+
+
+def test_steps_zero_is_allowed(tmp_path):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 40)))
+    assert main(["fit", str(short), "--steps", "0", "--out", str(tmp_path / "o"), "--quiet",
+                 "--no-plots"]) == 0
+
+
+def test_without_matplotlib_one_line_no_warning_source(tmp_path):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 40)))
+    code = ("import sys; sys.modules['matplotlib'] = None\n"
+            "from torch_dq.__main__ import main\n"
+            f"sys.exit(main(['fit', {str(short)!r}, '--out', {str(tmp_path / 'o')!r}, "
+            f"'--steps', '1']))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.count("torch_dq[plot]") == 1 and "torch_dq[plot]" not in run.stdout
+    assert "UserWarning" not in run.stderr and "warnings.warn" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1].startswith("torch-dq fit: warning: matplotlib")
+
+
+def test_x_label_without_a_useless_origin():
+    from torch_dq.demo.fit_plots import _xlabel
+
+    assert _xlabel(0.0) == "time [s]"
+    assert "(0 s)" not in _xlabel(0.0)
+    assert "UNIX 1305031098.666" in _xlabel(1305031098.6659)
+    assert "t = 12.5 s" in _xlabel(12.5)
+
+
+def _subsample(traj, step):
+    """The first pose, then each pose at least ``step`` s after the last one kept."""
+    keep, last = [], -np.inf
+    for i, t in enumerate(traj.times.tolist()):
+        if t - last >= step - 1e-3:
+            keep.append(i)
+            last = t
+    return traj.select(torch.tensor(keep))
+
+
+@pytest.mark.parametrize("name,step", [("fr1", None), ("fr1", 0.1), ("desk", None),
+                                       ("desk", 0.1)])
+def test_auto_knots_within_1_5x_of_scipy(tmp_path, name, step):
+    """Issue 20: `fit FILE` with its defaults, held-out errors within 1.5x of scipy's
+    CubicSpline + RotationSpline through the same fitted poses (the shipped subsamples, as
+    they are and at 10 Hz, car-like)."""
+    from scipy.interpolate import CubicSpline
+    from scipy.spatial.transform import RotationSpline
+
+    source = SHIPPED if name == "fr1" else DESK
+    traj = io.read_trajectory(source)
+    if step is not None:
+        traj = _subsample(traj, step)
+    path = _write_tum(tmp_path / "in.txt", traj)
+    out = tmp_path / "o"
+    assert main(["fit", str(path), "--out", str(out), "--no-plots", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    t, p = traj.times.numpy(), traj.translations.numpy()
+    rot = Rotation.from_quat(traj.rotations.numpy()[:, [1, 2, 3, 0]])
+    fit = np.zeros(len(t), dtype=bool)
+    fit[::2] = True
+    fit[-1] = True
+    p_ref = CubicSpline(t[fit], p[fit])(t[~fit])
+    r_ref = RotationSpline(t[fit], rot[fit])(t[~fit])
+    scipy = {"translation_mm": 1e3 * np.linalg.norm(p_ref - p[~fit], axis=1),
+             "rotation_deg": np.rad2deg((r_ref.inv() * rot[~fit]).magnitude())}
+    for key, ref in scipy.items():
+        ours = summary["heldout_errors"][key]["mean"]
+        assert ours < 1.5 * ref.mean(), (key, ours, ref.mean())

@@ -13,24 +13,44 @@ import sys
 __all__ = ["main"]
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
+def _int_at_least(low: int):
+    """An argparse type: an integer >= ``low`` (the message says which bound)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+        return value
+    parse.__name__ = f"integer >= {low}"
+    return parse
 
 
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text}")
-    return value
+def _float_above(low: float, strict: bool):
+    """An argparse type: a finite number > ``low`` (``strict``) or >= ``low``."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (value > low if strict else value >= low) or value == float("inf"):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'>' if strict else '>='} "
+                                             f"{low:g}, got {text}")
+        return value
+    parse.__name__ = "number"
+    return parse
+
+
+_positive_int = _int_at_least(1)
+_non_negative_int = _int_at_least(0)
+_non_negative_float = _float_above(0.0, strict=False)
+_positive_float = _float_above(0.0, strict=True)
+
+
+def _spacing(text: str) -> float | str:
+    """``--knot-spacing``: ``auto`` or seconds > 0."""
+    return "auto" if text.strip().lower() == "auto" else _positive_float(text)
 
 
 class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
@@ -90,18 +110,9 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _positive_float(text: str) -> float:
-    value = _non_negative_float(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    return 0 if text.strip() == "0" else _positive_int(text)
-
-
 def _add_fit_parser(sub) -> None:
+    from .demo.fit_file import DEFAULTS
+
     fit = sub.add_parser(
         "fit", help="fit a dual-quaternion B-spline to a trajectory file (TUM, KITTI, EuRoC)",
         description="Fit a dual-quaternion B-spline to the poses of a trajectory file in its "
@@ -109,34 +120,45 @@ def _add_fit_parser(sub) -> None:
                     "to --out the trajectory resampled with velocities and accelerations "
                     "(trajectory.csv, SI units), the module's state_dict (spline.pt), "
                     "summary.json and figures (components, speed and angular rate, "
-                    "residuals; need matplotlib: pip install 'torch_dq[plot]'). Malformed "
-                    "files end with a one-line error naming the file and the line (exit "
-                    "status 1).",
+                    "residuals; need matplotlib: pip install 'torch_dq[plot]'). The input is "
+                    "never written to, and an output folder holding earlier results is "
+                    "refused without --overwrite. Errors end in one line: a malformed file "
+                    "names the file and the line (exit status 1); options the data cannot "
+                    "satisfy name a value that works (exit status 2, as bad options).",
         formatter_class=_DefaultsHelp)
     fit.add_argument("file", metavar="FILE", help="trajectory file")
-    fit.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
+    fit.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"),
+                     default=DEFAULTS["format"],
                      help="file format: TUM 't x y z qx qy qz qw', KITTI 3x4 pose rows "
                           "(with --times), EuRoC ground-truth CSV; auto: from the content")
     fit.add_argument("--times", metavar="TIMES_FILE", default=None,
                      help="KITTI: the times file (one time in seconds per line)")
-    fit.add_argument("--knot-spacing", metavar="SECONDS", type=_positive_float, default=0.1,
-                     help="seconds between knots")
-    fit.add_argument("--degree", type=_positive_int, default=3, help="B-spline degree")
-    fit.add_argument("--holdout", metavar="K", type=_positive_int, default=2,
+    fit.add_argument("--knot-spacing", metavar="SECONDS|auto", type=_spacing,
+                     default=DEFAULTS["knot_spacing"],
+                     help="seconds between knots; auto: chosen from the fitted poses alone "
+                          "(the largest spacing whose errors on every other fitted pose, "
+                          "fitted on the rest, are within 5%% of the best)")
+    fit.add_argument("--degree", type=_positive_int, default=DEFAULTS["degree"],
+                     help="B-spline degree")
+    fit.add_argument("--holdout", metavar="K", type=_positive_int, default=DEFAULTS["holdout"],
                      help="fit every K-th pose (and the last), report errors on the others "
                           "(1: fit all, report the fit residuals)")
-    fit.add_argument("--steps", metavar="N", type=_non_negative_int, default=50,
+    fit.add_argument("--steps", metavar="N", type=_non_negative_int, default=DEFAULTS["steps"],
                      help="maximum refinement steps of torch_dq.nn.fit after the "
                           "least-squares start (0: none)")
     fit.add_argument("--rate", metavar="HZ", type=_positive_float, default=None,
                      help="resampling rate of trajectory.csv (default: the file's median "
                           "rate)")
-    fit.add_argument("--duplicates", choices=("error", "first"), default="error",
+    fit.add_argument("--duplicates", choices=("error", "first"),
+                     default=DEFAULTS["duplicates"],
                      help="repeated timestamps: an error, or keep the first pose")
-    fit.add_argument("--dtype", choices=("float32", "float64"), default="float64",
+    fit.add_argument("--dtype", choices=("float32", "float64"),
+                     default=str(DEFAULTS["dtype"]).replace("torch.", ""),
                      help="dtype of the B-spline (times stay float64)")
     fit.add_argument("--threads", type=_positive_int, default=1, help="torch intra-op threads")
-    fit.add_argument("--out", metavar="DIR", default="torch_dq_fit", help="output folder")
+    fit.add_argument("--out", metavar="DIR", default=DEFAULTS["out"], help="output folder")
+    fit.add_argument("--overwrite", action="store_true",
+                     help="replace the results of an earlier run in --out (never the input)")
     fit.add_argument("--no-plots", action="store_true", help="skip the figures")
     fit.add_argument("--quiet", action="store_true", help="print nothing but warnings")
 
@@ -145,17 +167,18 @@ def _fit(args) -> int:
     """``python -m torch_dq fit``: errors in the file or the options end in one line."""
     import torch
 
-    from .demo.fit_file import run_fit
+    from .demo.fit_file import OptionError, run_fit
 
     torch.set_num_threads(args.threads)
     try:
         run_fit(args.file, format=args.format, times=args.times, duplicates=args.duplicates,
                 knot_spacing=args.knot_spacing, degree=args.degree, holdout=args.holdout,
                 steps=args.steps, rate=args.rate, dtype=getattr(torch, args.dtype),
-                out=args.out, plots=not args.no_plots, verbose=not args.quiet)
+                out=args.out, overwrite=args.overwrite, plots=not args.no_plots,
+                verbose=not args.quiet)
     except (ValueError, OSError) as exc:
         print(f"torch-dq fit: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, OptionError) else 1
     return 0
 
 
@@ -167,9 +190,9 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The exit status: 0 on success (also when matplotlib is missing: the figures are
-        skipped with a warning), 2 on bad arguments, 1 when ``fit`` meets a malformed or
-        unreadable file or options the data cannot satisfy (one line on stderr, no
-        traceback).
+        skipped with a one-line notice), 2 on bad arguments or options the data cannot
+        satisfy (``fit``: the message names a value that works), 1 when ``fit`` meets a
+        malformed or unreadable file (one line on stderr, no traceback).
     """
     parser = _parser()
     args = parser.parse_args(argv)

@@ -12,7 +12,7 @@ the caller: it splits the poses it is given once more,
    start :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (no refinement: O(N) per
    candidate, so the search takes a second on 10^4 poses) and measures the mean rotation
    angle and translation error at the inner-check poses;
-3. keeps the *largest* spacing whose two errors are both within ``tolerance`` (5 %) of the
+3. keeps the *largest* spacing whose two errors are both within ``tolerance`` (2 %) of the
    best of their kind: the smoothest curve that fits as well as the best one, which does
    not chase noise;
 4. scales it from the inner fit's density to that of all the poses given (twice as dense:
@@ -33,7 +33,8 @@ from torch import Tensor
 
 from . import _checks, dualquat, losses
 
-__all__ = ["GRID_RATIO", "SpacingSearch", "choose_knot_spacing", "knot_spacing_search"]
+__all__ = ["GRID_RATIO", "SpacingSearch", "choose_knot_spacing", "finest_spacing",
+           "knot_spacing_search", "n_ctrl", "round_down", "round_up"]
 
 #: Ratio between consecutive candidate spacings.
 GRID_RATIO = 2 ** 0.25
@@ -84,7 +85,7 @@ class SpacingSearch:
                 f"fitted poses")
 
 
-def _n_ctrl(duration: float, spacing: float, degree: int) -> int:
+def n_ctrl(duration: float, spacing: float, degree: int) -> int:
     """Control points of clamped uniform knots at most ``spacing`` apart over ``duration``."""
     return math.ceil(duration / spacing - 1e-9) + degree
 
@@ -107,15 +108,24 @@ def round_up(value: float, digits: int = 4) -> float:
     return float(f"{up:.{digits}g}")
 
 
+def round_down(value: float, digits: int = 4) -> float:
+    """``value`` rounded down to ``digits`` significant digits (for an upper bound that a
+    hint states: followed literally, it must work)."""
+    if not (math.isfinite(value) and value > 0):
+        return value
+    scale = 10.0 ** (digits - 1 - math.floor(math.log10(value)))
+    return float(f"{math.floor(value * scale + 1e-9) / scale:.{digits}g}")
+
+
 def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: float,
             degree: int) -> tuple[float, float]:
     """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``."""
     from . import nn  # the layers sit above this module
 
     t = times[fit]
-    n_ctrl = _n_ctrl(float(t[-1] - t[0]), spacing, degree)
     q, p = dualquat.to_rt(poses[fit])
-    spline = nn.BSpline.from_poses(q, p, t, n_ctrl=n_ctrl, degree=degree)
+    spline = nn.BSpline.from_poses(q, p, t, n_ctrl=n_ctrl(float(t[-1] - t[0]), spacing, degree),
+                                   degree=degree)
     with torch.no_grad():
         pred = spline(times[check]).to(poses.dtype)
     rot = losses.rotation_angle(pred, poses[check]).double()
@@ -154,7 +164,7 @@ def _check_args(fn: str, times: Tensor, poses: Tensor, degree: int, tolerance: f
 
 
 def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
-                        tolerance: float = 0.05) -> SpacingSearch:
+                        tolerance: float = 0.02) -> SpacingSearch:
     r"""The knot spacing search of :func:`choose_knot_spacing`, with what it tried.
 
     Args and Raises: as :func:`choose_knot_spacing`.
@@ -172,7 +182,7 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     candidates: list[float] = []
     rot: list[float] = []
     trans: list[float] = []
-    while len(candidates) < MAX_CANDIDATES and _n_ctrl(duration, spacing, degree) > degree:
+    while len(candidates) < MAX_CANDIDATES and n_ctrl(duration, spacing, degree) > degree:
         r, p = _scores(times, poses, fit, check, spacing, degree)
         candidates.append(spacing)
         rot.append(r)
@@ -198,7 +208,7 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
 
 
 def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
-                        tolerance: float = 0.05) -> float:
+                        tolerance: float = 0.02) -> float:
     r"""Seconds between knots for a B-spline fitted to these poses, chosen from the data.
 
     Splits the poses into an inner fit (even indices and the last) and an inner check (the
@@ -215,7 +225,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
         times: ``(N,)`` strictly increasing times (float64 UNIX seconds welcome).
         poses: ``(N, 8)`` unit dual quaternions at ``times``.
         degree: B-spline degree.
-        tolerance: relative margin on the best errors (default 5 %).
+        tolerance: relative margin on the best errors (default 2 %).
 
     Returns:
         The spacing in the unit of ``times``; with it, ``n_ctrl = ceil(duration / spacing) +

@@ -20,6 +20,9 @@ import torch
 from torch import Tensor
 
 from .. import curves, dualquat
+from ._common import align as _align
+from ._common import evaluate as _evaluate
+from ._common import import_matplotlib
 
 __all__ = ["import_matplotlib", "plot_axode", "plot_components", "plot_frames", "plot_loss"]
 
@@ -39,15 +42,6 @@ _DPI = 120
 AXODE_MARGIN = 0.05
 
 
-def import_matplotlib():
-    """``(Figure, FigureCanvasAgg)``; raises ImportError when matplotlib is missing."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3d projection)
-
-    return Figure, FigureCanvasAgg
-
-
 def _save(fig, canvas_cls, path: str) -> str:
     canvas_cls(fig)
     fig.savefig(path, dpi=_DPI, bbox_inches="tight", pad_inches=0.15)
@@ -56,18 +50,6 @@ def _save(fig, canvas_cls, path: str) -> str:
 
 def _np(x: Tensor):
     return x.detach().cpu().double().numpy()
-
-
-def _evaluate(module, t: Tensor) -> Tensor:
-    """Poses of a fitted layer at times ``t`` (the caller's seconds), float64 on the CPU."""
-    with torch.no_grad():
-        return module(t.to(module.control_points.device)).cpu().double()
-
-
-def _align(x: Tensor, ref: Tensor) -> Tensor:
-    """``x`` with each element's sign flipped to face ``ref`` (same transforms)."""
-    dot = (x[..., :4] * ref[..., :4]).sum(-1, keepdim=True)
-    return torch.where(dot < 0, -x, x)
 
 
 def _abscissae(module) -> Tensor:

@@ -47,12 +47,10 @@ from torch import Tensor
 from .. import losses
 from .. import nn as dqnn
 from . import plots as _plots
+from ._common import PLOT_HINT, evaluate, no_matplotlib, pose_errors
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
-
-#: What to run when matplotlib is missing.
-PLOT_HINT = "pip install 'torch_dq[plot]'"
 
 #: The figures the demo writes (when matplotlib is available).
 FIGURES = ("fig1_components.png", "frames_3d.png", "axode.png", "loss.png")
@@ -78,16 +76,10 @@ class _Fit:
 
 
 def _errors(pred: Tensor, truth: Tensor) -> dict:
-    """Mean and max rotation (deg) and translation (mm) errors."""
-    rot = torch.rad2deg(losses.rotation_angle(pred, truth)).double()
-    trans = losses.translation_error(pred, truth).double()
+    """Mean and max rotation (deg) and translation (mm: the knee's unit) errors."""
+    rot, trans = pose_errors(pred.cpu().double(), truth.cpu().double())
     return {"rot_deg_mean": float(rot.mean()), "rot_deg_max": float(rot.max()),
             "trans_mm_mean": float(trans.mean()), "trans_mm_max": float(trans.max())}
-
-
-def _evaluate(module, times: Tensor) -> Tensor:
-    with torch.no_grad():
-        return module(times)
 
 
 def _start(name: str, samples: KneeSamples, n_ctrl: int, degree: int):
@@ -103,9 +95,9 @@ def _fit_curve(name: str, samples: KneeSamples, n_ctrl: int, degree: int, fit_kw
                held_out: Tensor, truth: Tensor) -> _Fit:
     begin = time.perf_counter()
     module, deg = _start(name, samples, n_ctrl, degree)
-    init_errors = _errors(_evaluate(module, held_out), truth)
+    init_errors = _errors(evaluate(module, held_out), truth)
     history = dqnn.fit(module, samples.times, samples.poses, **fit_kwargs)
-    errors = _errors(_evaluate(module, held_out), truth)
+    errors = _errors(evaluate(module, held_out), truth)
     return _Fit(name, module, history, init_errors, errors, time.perf_counter() - begin, deg,
                 n_ctrl)
 
@@ -246,10 +238,7 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
         try:
             Figure, Canvas = _plots.import_matplotlib()
         except ImportError:
-            msg = (f"matplotlib is not installed: no figures were written (the table and "
-                   f"summary.json were). Install the plotting extra with:  {PLOT_HINT}")
-            summary["warnings"].append(msg)
-            print(f"warning: {msg}", file=sys.stderr)
+            summary["warnings"].append(no_matplotlib("torch-dq demo"))
         else:
             by_name = {f.name: f for f in fits}
             paths = [os.path.join(out, name) for name in FIGURES]
@@ -272,8 +261,5 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
         print(_table(summary), file=stream)
         files = ", ".join(summary["figures"] + ["summary.json"])
         print(f"\nwrote {files} to {os.path.abspath(out)}", file=stream)
-        if plots and not summary["figures"]:
-            print(f"figures skipped: matplotlib is missing; install it with  {PLOT_HINT}",
-                  file=stream)
         print(f"total time {summary['seconds_total']:.1f} s", file=stream)
     return summary
