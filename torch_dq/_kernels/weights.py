@@ -239,13 +239,14 @@ def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: An
         out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes, dual)
     if 0 < n_small < small.numel() // 4:
         # A few series elements (eager, CPU): the series on those alone, put into the
-        # closed forms (out of place: a double backward may have saved the closed forms).
+        # closed forms (out of place where autograd records: a double backward may have
+        # saved the closed forms; in place otherwise, saving a copy of each weight).
         at = (small > 0).nonzero(as_tuple=True)
         shape = small.shape
         series = _series(s.expand(shape)[at], s2.expand(shape)[at], y.expand(shape)[at],
                          derivatives, time_slopes, dual)
-        out = tuple(e if e is None else torch.index_put(e, at, x)
-                    for x, e in zip(series, out, strict=True))
+        put = torch.index_put if torch.is_grad_enabled() else torch.index_put_
+        out = tuple(e if e is None else put(e, at, x) for x, e in zip(series, out, strict=True))
     elif 0 < n_small < small.numel() or n_small < 0:
         series = _series(s, s2, y, derivatives, time_slopes, dual)
         out = tuple(x if x is None else _select(small, x, e)
