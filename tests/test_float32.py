@@ -1,27 +1,28 @@
-"""float32 accuracy: every row of the README's "Numerical guarantees" float32 column.
+"""float32 accuracy: every row of the registry (``registry.OPS``) against its float32 bound,
+and the further distributions the README's "Numerical guarantees" float32 column quotes.
 
-Each figure is the largest absolute error of a float32 evaluation against the float64
-evaluation of the same float32-rounded inputs (so only the arithmetic is measured, not the
-rounding of the inputs), over a stated, seeded input distribution. Quaternion and dual
-quaternion outputs are compared up to their sign. The bounds below are the measured maxima
-(in the comments, torch 2.13 CPU) with a margin of about 1.5x; the README quotes the
-measurements.
+Each figure is the largest error of a float32 evaluation against the float64 evaluation of
+the same float32-rounded inputs (so only the arithmetic is measured, not the rounding of the
+inputs), relative to ``max(1, |value|)`` (the absolute error for outputs of unit scale).
+Quaternion and dual quaternion outputs are compared up to their sign, angles modulo 2 pi.
+The bounds (``Op.f32``) are the measured maxima (torch 2.13 CPU) with a margin of about 1.5x.
 
-Distributions:
-- rotations: 2e5 uniform random unit quaternions (normalised Gaussian 4-vectors);
-- vectors for ``rotate``: uniform in the ball of radius 5;
-- poses: uniform rotations with Gaussian translations (sigma 1, so |t| up to ~5);
-- ``sclerp``: 2e5 random pairs of such poses, ``t`` uniform in [0, 1], extrapolated
-  ``t`` uniform in [-0.7, 1.7], and near-degenerate pairs ``b = a exp(xi)`` with
-  ``|xi| ~ 10^-k``, ``k`` uniform in 2..9;
-- curves: 200 random 8-point control polygons (a random walk of twists with rotation
-  steps of ~0.5 rad), 257 times in [0, 1], translations of scale 1 and 10.
+Distributions: the registry's sampler (``registry.KINDS``), 2e5 elements per row (2e3
+control polygons for the curve rows): uniform random rotations, poses with Gaussian
+translations (sigma 1), ``t`` uniform in [0, 1]. The README's further rows:
+- ``rotate``: vectors uniform in the ball of radius 5;
+- ``sclerp``: ``t`` extrapolated to [-0.7, 1.7], and near-degenerate pairs ``b = a exp(xi)``
+  with ``|xi| ~ 10^-k``, ``k`` uniform in 2..9;
+- ``to_euler`` / ``from_euler``: all 24 sequences;
+- curves: 200 random 8-point control polygons (a random walk of twists with rotation steps
+  of ~0.5 rad), 257 times in [0, 1], translations of scale 1 and 10.
 """
 
 import math
 
 import pytest
 import torch
+from registry import OPS, outs, sample_args
 
 import torch_dq.dualquat as dq
 from torch_dq import curves, quat
@@ -29,15 +30,58 @@ from torch_dq import curves, quat
 F64 = torch.float64
 N = 200_000
 SEQS = [a + b + c for a in "xyz" for b in "xyz" for c in "xyz" if a != b != c]
+BOUNDED = [op for op in OPS if op.f32 is not None]
 
 
 def _rounded(x):
     return x.float().double()
 
 
-def _unit_quat(gen, n=N):
-    q = torch.randn(n, 4, generator=gen, dtype=F64)
-    return _rounded(q / q.norm(dim=-1, keepdim=True))
+def _err(f, *args, signed=False, periodic=False):
+    """Max error of f in float32 against f in float64 on the same inputs, relative to
+    ``max(1, |ref|)``; ``signed``: (dual) quaternions compared up to their sign;
+    ``periodic``: angles compared modulo 2 pi."""
+    err = 0.0
+    for out, ref in zip(outs(f(*(a.float() for a in args))), outs(f(*args)), strict=True):
+        assert out.dtype == torch.float32
+        out = out.double()
+        if signed:
+            flip = (out[..., :4] * ref[..., :4]).sum(-1, keepdim=True) < 0
+            out = torch.where(flip, -out, out)
+        d = (out - ref).abs()
+        if periodic:
+            d = torch.minimum(d, 2 * math.pi - d)
+        err = max(err, (d / ref.abs().clamp(min=1.0)).max().item())
+    return err
+
+
+@pytest.mark.parametrize("op", BOUNDED, ids=[op.id for op in BOUNDED])
+def test_registry_float32_bound(op):
+    gen = torch.Generator().manual_seed(20261123)
+    args = [_rounded(a) for a in sample_args(op, (N // 100 if op.curve else N,), gen)]
+    err = _err(op.fn, *args, signed=op.signed or op.curve, periodic=op.periodic)
+    assert err <= op.f32, (op.id, err)
+
+
+def test_rotate_in_the_ball_of_radius_5():
+    """Measured 1.5e-6 (absolute; 2.9e-7 relative to |v| <= 5)."""
+    gen = torch.Generator().manual_seed(20261123)
+    q = _rounded(quat.normalize(torch.randn(N, 4, generator=gen, dtype=F64)))
+    v = torch.randn(N, 3, generator=gen, dtype=F64)
+    r = 5 * torch.rand(N, 1, generator=gen, dtype=F64) ** (1 / 3)
+    v = _rounded(v / v.norm(dim=-1, keepdim=True) * r)
+    ref = quat.rotate(q, v)
+    assert (quat.rotate(q.float(), v.float()).double() - ref).abs().max() < 2.2e-6
+
+
+def test_euler_all_sequences():
+    """All 24 sequences, both ways (measured: to_euler 6.9e-7, from_euler 1.8e-7)."""
+    gen = torch.Generator().manual_seed(20261123)
+    q = _rounded(quat.normalize(torch.randn(N // 4, 4, generator=gen, dtype=F64)))
+    for seq in SEQS + [s.upper() for s in SEQS]:
+        angles = _rounded(quat.to_euler(q, seq))
+        assert _err(lambda a, seq=seq: quat.from_euler(a, seq), angles, signed=True) < 3e-7
+        assert _err(lambda x, seq=seq: quat.to_euler(x, seq), q, periodic=True) < 1e-6, seq
 
 
 def _poses(gen, n=N, scale=1.0):
@@ -46,112 +90,7 @@ def _poses(gen, n=N, scale=1.0):
     return _rounded(dq.from_rt(q / q.norm(dim=-1, keepdim=True), t))
 
 
-def _err(f, *args, signed=False):
-    """Max abs error of f in float32 against f in float64 on the same inputs; with
-    ``signed``, the output is a (dual) quaternion compared up to its sign."""
-    ref = f(*args)
-    out = f(*(a.float() for a in args))
-    assert out.dtype == torch.float32
-    out = out.double()
-    if signed:
-        flip = (out[..., :4] * ref[..., :4]).sum(-1, keepdim=True) < 0
-        out = torch.where(flip, -out, out)
-    return (out - ref).abs().max().item()
-
-
-@pytest.fixture(scope="module")
-def rotations():
-    gen = torch.Generator().manual_seed(20261123)
-    return _unit_quat(gen), _unit_quat(gen), gen
-
-
-QUAT_BOUNDS = {  # name: (bound, measured)
-    "mul": (2e-7, 1.3e-7),
-    "to_matrix": (6e-7, 3.7e-7),
-    "from_matrix": (2e-7, 1.3e-7),
-    "to_rotvec": (8e-7, 4.9e-7),
-    "from_rotvec": (3e-7, 1.9e-7),
-    "to_axis_angle": (4e-7, 2.4e-7),
-    "log": (8e-7, 5.4e-7),
-    "exp": (5e-7, 2.9e-7),
-    "slerp": (5e-7, 3.0e-7),
-    "from_euler": (3e-7, 1.8e-7),
-    "to_euler": (1e-6, 6.9e-7),  # 24 sequences
-    "rotate": (2.2e-6, 1.5e-6),  # |v| <= 5: 2.9e-7 relative
-}
-
-
-def test_quat_float32(rotations):
-    q, q1, gen = rotations
-    t = _rounded(torch.rand(N, generator=gen, dtype=F64))
-    v = torch.randn(N, 3, generator=gen, dtype=F64)
-    v = _rounded(v / v.norm(dim=-1, keepdim=True) * 5 * torch.rand(N, 1, generator=gen,
-                                                                   dtype=F64) ** (1 / 3))
-    errs = {
-        "mul": _err(quat.mul, q, q1, signed=True),
-        "to_matrix": _err(quat.to_matrix, q),
-        "from_matrix": _err(quat.from_matrix, _rounded(quat.to_matrix(q)), signed=True),
-        "to_rotvec": _err(quat.to_rotvec, q),
-        "from_rotvec": _err(quat.from_rotvec, _rounded(quat.to_rotvec(q)), signed=True),
-        "to_axis_angle": _err(lambda x: quat.to_axis_angle(x)[1], q),
-        "log": _err(quat.log, q),
-        "exp": _err(quat.exp, _rounded(quat.log(q)), signed=True),
-        "slerp": _err(quat.slerp, q, q1, t, signed=True),
-        "rotate": _err(quat.rotate, q, v),
-        "from_euler": 0.0,
-        "to_euler": 0.0,
-    }
-    for seq in SEQS + [s.upper() for s in SEQS]:
-        errs["from_euler"] = max(errs["from_euler"], _err(
-            lambda a, seq=seq: quat.from_euler(a, seq), _rounded(quat.to_euler(q, seq)),
-            signed=True))
-        # Angles wrap at +-pi: an error of 2 pi - e is an error of e.
-        ref, out = quat.to_euler(q, seq), quat.to_euler(q.float(), seq).double()
-        d = (out - ref).abs()
-        errs["to_euler"] = max(errs["to_euler"], torch.minimum(d, 2 * math.pi - d).max().item())
-    over = {k: (e, QUAT_BOUNDS[k][0]) for k, e in errs.items() if not e < QUAT_BOUNDS[k][0]}
-    assert not over, over
-
-
-DQ_BOUNDS = {  # name: (bound, measured)
-    "mul": (5e-7, 3.3e-7),
-    "apply": (1.2e-6, 8.1e-7),
-    "apply_line": (1.6e-6, 1.1e-6),
-    "to_matrix": (7e-7, 4.4e-7),
-    "from_matrix": (4e-7, 2.8e-7),
-    "log": (2e-6, 1.4e-6),
-    "exp": (1.2e-6, 8.2e-7),
-    "normalize": (5e-7, 2.9e-7),
-    "inv": (8e-7, 5.6e-7),
-    "to_screw": (4e-7, 2.2e-7),
-}
-
-
-def test_dualquat_float32():
-    gen = torch.Generator().manual_seed(1)
-    x, y = _poses(gen), _poses(gen)
-    p = _rounded(torch.randn(N, 3, generator=gen, dtype=F64))
-    line = p / p.norm(dim=-1, keepdim=True)
-    moment = _rounded(torch.linalg.cross(torch.randn(N, 3, generator=gen, dtype=F64), line,
-                                         dim=-1))
-    errs = {
-        "mul": _err(dq.mul, x, y, signed=True),
-        "apply": _err(dq.apply, x, p),
-        "apply_line": _err(lambda *a: torch.cat(dq.apply_line(*a), -1), x, _rounded(line),
-                           moment),
-        "to_matrix": _err(dq.to_matrix, x),
-        "from_matrix": _err(dq.from_matrix, _rounded(dq.to_matrix(x)), signed=True),
-        "log": _err(dq.log, x),
-        "exp": _err(dq.exp, _rounded(dq.log(x)), signed=True),
-        "normalize": _err(dq.normalize, _rounded(1.1 * x), signed=True),
-        "inv": _err(dq.inv, x, signed=True),
-        "to_screw": _err(lambda z: dq.to_screw(z)[2], x),
-    }
-    over = {k: (e, DQ_BOUNDS[k][0]) for k, e in errs.items() if not e < DQ_BOUNDS[k][0]}
-    assert not over, over
-
-
-def test_sclerp_float32():
+def test_sclerp_extrapolated_and_near_degenerate():
     gen = torch.Generator().manual_seed(2)
     a, b = _poses(gen), _poses(gen)
     t = _rounded(torch.rand(N, generator=gen, dtype=F64))
@@ -160,7 +99,6 @@ def test_sclerp_float32():
     xi = torch.randn(N, 6, generator=gen, dtype=F64) * 10.0 ** -k
     near = _rounded(dq.mul(a, dq.exp(xi)))
     errs = {
-        "t in [0, 1]": (_err(dq.sclerp, a, b, t, signed=True), 8e-7),  # measured 5.0e-7
         "t in [-0.7, 1.7]": (_err(dq.sclerp, a, b, t_out, signed=True), 1.5e-6),  # 1.0e-6
         "near-degenerate": (_err(dq.sclerp, a, near, t, signed=True), 4e-7),  # 2.4e-7
     }
@@ -170,7 +108,8 @@ def test_sclerp_float32():
 
 @pytest.mark.parametrize(("scale", "bound"), [(1.0, 1.5e-6), (10.0, 1.2e-5)])
 def test_curves_float32(scale, bound):
-    """Measured: bezier 9.1e-7 / bspline 5.6e-7 at scale 1; 8.5e-6 / 4.8e-6 at scale 10."""
+    """Smooth random-walk polygons (absolute errors). Measured: bezier 9.1e-7 / bspline
+    5.6e-7 at scale 1; 8.5e-6 / 4.8e-6 at scale 10."""
     gen = torch.Generator().manual_seed(3)
     B, n = 200, 8
     q = torch.randn(B, 4, generator=gen, dtype=F64)
@@ -182,5 +121,8 @@ def test_curves_float32(scale, bound):
     ctrl = _rounded(torch.stack(ctrl, -2))
     t = _rounded(torch.linspace(0, 1, 257, dtype=F64))
     for f in (curves.bezier, curves.bspline):
-        err = _err(f, ctrl, t, signed=True)
+        ref = f(ctrl, t)
+        out = f(ctrl.float(), t.float()).double()
+        flip = (out[..., :4] * ref[..., :4]).sum(-1, keepdim=True) < 0
+        err = (torch.where(flip, -out, out) - ref).abs().max().item()
         assert err < bound, (f.__name__, scale, err)

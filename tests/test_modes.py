@@ -7,17 +7,19 @@ Status (each line is asserted below):
   and a ``torch_dq.nn`` layer compile without graph breaks, forward and backward, and
   match eager (backend ``aot_eager`` here to stay fast; one inductor test). The plain
   algebra (``mul``, ``exp``, ``log``, ...) has no custom op and no branch on values.
-  The value checks of ``check=True`` read values on the host and break the graph.
-- ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` / ``jvp``: supported (the custom autograd
-  ops define vmap rules and a forward-mode rule); ``jacrev`` and ``jacfwd`` agree with the
-  eager Jacobian, ``jvp`` with central differences. bezier/bspline need ``check=False``
-  under ``vmap`` (the checks are data-dependent).
+  The value checks that need the host are skipped under compile (times outside the
+  domain give NaN), so the default arguments compile with ``fullgraph=True`` too.
+- ``torch.func.vmap`` / ``jacrev`` / ``jacfwd`` / ``jvp``, on every row of the one registry
+  (``registry.OPS``, both B-spline forms included): supported (under these transforms the
+  curves run their plain-op path); ``vmap`` equals the batched call, ``jacrev`` and
+  ``jacfwd`` the eager Jacobian, ``jvp`` central differences. bezier/bspline need
+  ``check=False`` under ``vmap`` over ``t`` (the checks are data-dependent).
 - ``torch.jit`` (deprecated by PyTorch, which prints a DeprecationWarning for it) is not
   tested: use ``torch.compile`` or ``torch.export``.
 - The time derivatives, kinematics and IMU readings of ``torch_dq.curves`` compile with
   ``fullgraph=True`` too (plain ops, no custom op), forward and backward.
-- CUDA: same results as on the CPU (skipped without a GPU).
-- Determinism: the same inputs give bitwise equal outputs and gradients run to run, with
+- CUDA: every registry row gives the same results as on the CPU (skipped without a GPU).
+- Determinism: every registry row gives bitwise equal outputs and gradients run to run, with
   ``torch.use_deterministic_algorithms(True)`` as well, and the eager chunking of large
   batches does not change a single bit.
 """
@@ -27,6 +29,7 @@ import shutil
 
 import pytest
 import torch
+from registry import DIFFERENTIABLE, IDS, OPS, flat, sample_args
 from strategies import unit_dq
 
 import torch_dq.dualquat as dq
@@ -36,6 +39,7 @@ from torch_dq._kernels import layout
 
 F64 = torch.float64
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+DIFF_IDS = [o.id for o in DIFFERENTIABLE]
 
 
 def _data(gen):
@@ -43,45 +47,39 @@ def _data(gen):
     t = torch.rand(5, generator=gen, dtype=F64) * 1.4 - 0.2
     ctrl = unit_dq((2, 5), gen)
     times = torch.linspace(0, 1, 6, dtype=F64)
-    xi = torch.randn(5, 6, generator=gen, dtype=F64)
-    return a, b, t, ctrl, times, xi
-
-
-# name -> (function of tensors returning a tensor, indices into _data's tuple)
-FNS = {
-    "sclerp": (dq.sclerp, (0, 1, 2)),
-    "sclerp_long": (lambda a, b, t: dq.sclerp(a, b, t, shortest=False), (0, 1, 2)),
-    "angle": (lambda a, b: torch.stack(tuple(dq.angle(a, b)), -1), (0, 1)),
-    "bezier": (lambda c, t: curves.bezier(c, t, check=False), (3, 4)),
-    "bspline": (lambda c, t: curves.bspline(c, t, check=False), (3, 4)),
-    "mul": (dq.mul, (0, 1)),
-    "exp": (dq.exp, (5,)),
-    "log": (dq.log, (0,)),
-    "dlb": (lambda a, b: dq.dlb(torch.tensor([0.3, 0.7], dtype=F64), torch.stack((a, b), -2)),
-            (0, 1)),
-}
-
-
-def _args(name, gen):
-    data = _data(gen)
-    return [data[i] for i in FNS[name][1]]
+    return a, b, t, ctrl, times
 
 
 # Compiled functions, kept small (compilation time grows with the unrolled levels).
 COMPILED = {
     "sclerp": (dq.sclerp, lambda d: (d[0], d[1], d[2])),
-    "angle": (FNS["angle"][0], lambda d: (d[0], d[1])),
-    "bezier": (FNS["bezier"][0], lambda d: (d[3][:, :3], d[4])),
+    "angle": (lambda a, b: torch.stack(tuple(dq.angle(a, b)), -1), lambda d: (d[0], d[1])),
+    "bezier": (lambda c, t: curves.bezier(c, t, check=False), lambda d: (d[3][:, :3], d[4])),
     "bspline": (lambda c, t: curves.bspline(c, t, degree=2, check=False),
                 lambda d: (d[3][:, :4], d[4])),
 }
 
 
+def _curve_args(gen):
+    """Two control polygons of 5 poses and 6 times in [0, 1]."""
+    _, _, _, ctrl, times = _data(gen)
+    return ctrl, times
+
+
 def _grads(f, args):
+    """Outputs and the gradients of a weighted sum of them (one or several tensors)."""
     xs = [x.clone().requires_grad_() for x in args]
-    out = f(*xs)
-    w = torch.linspace(-1, 1, out.numel(), dtype=out.dtype).view(out.shape)
-    return out.detach(), torch.autograd.grad((w * out).sum(), xs)
+    got = f(*xs)
+    got = got if isinstance(got, tuple) else (got,)
+    diff = [o for o in got if o.requires_grad]
+    grads = [None] * len(xs)
+    if diff:  # is_unit: no differentiable output
+        loss = sum((torch.linspace(-1, 1, o.numel(), dtype=o.dtype).view(o.shape) * o).sum()
+                   for o in diff)
+        grads = torch.autograd.grad(loss, xs, allow_unused=True)
+    grads = [torch.zeros_like(x) if g is None else g for g, x in zip(grads, xs, strict=True)]
+    out = torch.cat([o.detach().reshape(-1).to(F64) for o in got])
+    return out, grads
 
 
 # ----------------------------------------------------------------------------- torch.compile
@@ -104,7 +102,7 @@ def test_compile_fullgraph_forward_backward(name, gen):
 def test_compile_curves_partial_check_false(name, grad, gen):
     """Issue 14: ``torch.compile(partial(curves.bspline, check=False), fullgraph=True)``
     compiles without graph breaks in inference and with gradients, and matches eager."""
-    c, t = _args(name, gen)
+    c, t = _curve_args(gen)
     c = c[:, :4]
     f = functools.partial(getattr(curves, name), check=False)
     torch._dynamo.reset()
@@ -123,7 +121,7 @@ def test_compile_curves_partial_check_false(name, grad, gen):
 def test_compile_derivatives_kinematics_imu(gen):
     """Time derivatives, world/body kinematics and IMU readings in one compiled graph,
     forward and backward."""
-    c, t = _args("bspline", gen)
+    c, t = _curve_args(gen)
     c = c[0, :3]
 
     def f(c, t):  # kept small: compilation time grows with the levels and the order
@@ -140,17 +138,17 @@ def test_compile_derivatives_kinematics_imu(gen):
         assert (g - r).abs().max() <= 1e-10
 
 
-def test_compile_with_value_checks_breaks_the_graph(gen):
-    """Documented: ``check=True`` reads values on the host, so fullgraph fails; the
-    default (graph breaks allowed) still compiles and matches."""
-    c, t = _args("bezier", gen)
+def test_compile_default_checks_skipped_outside_times_nan(gen):
+    """API.md: the default arguments compile with ``fullgraph=True`` (the value checks that
+    need a host sync are skipped under compile) and times outside the domain give NaN
+    there, never a silent extrapolation; the times inside match eager."""
+    c, _ = _curve_args(gen)
     c = c[:, :2]
+    t = torch.tensor([0.0, 0.5, 1.0, 1.5], dtype=F64)
     torch._dynamo.reset()
-    with pytest.raises(Exception, match=r"(?i)graph break|tolist|data-dependent|Unsupported"):
-        torch.compile(curves.bezier, backend="aot_eager", fullgraph=True)(c, t)
-    torch._dynamo.reset()
-    out = torch.compile(curves.bezier, backend="aot_eager")(c, t)
-    assert (out - curves.bezier(c, t)).abs().max() <= 1e-14
+    out = torch.compile(curves.bezier, backend="aot_eager", fullgraph=True)(c, t)
+    assert torch.isnan(out[:, 3]).all()
+    assert (out[:, :3] - curves.bezier(c, t[:3])).abs().max() <= 1e-14
 
 
 def test_compile_nn_layer(gen):
@@ -180,7 +178,7 @@ def _cxx():
 @pytest.mark.filterwarnings("ignore:`torch.jit.script_method` is deprecated:DeprecationWarning")
 def test_compile_inductor_sclerp(gen):
     """The default backend (inductor, C++ on CPU): sclerp forward and backward."""
-    a, b, t = _args("sclerp", gen)
+    a, b, t = _data(gen)[:3]
     torch._dynamo.reset()
     compiled = torch.compile(dq.sclerp, fullgraph=True)
     out, grads = _grads(compiled, (a, b, t))
@@ -192,26 +190,36 @@ def test_compile_inductor_sclerp(gen):
 
 # ----------------------------------------------------------------------------- torch.func
 
-@pytest.mark.parametrize("name", FNS)
-def test_vmap_matches_batched_call(name, gen):
-    f = FNS[name][0]
-    args = _args(name, gen)
-    curve = name in ("bezier", "bspline")
-    in_dims = (0, None) if curve else 0  # curves: map over the curves, share the times
-    out = torch.func.vmap(f, in_dims=in_dims)(*args)
-    assert (out - f(*args)).abs().max() <= 1e-15
-    if name == "sclerp":  # map over t only, and nested maps
-        a, b, t = args
-        out = torch.func.vmap(lambda s: dq.sclerp(a, b, s))(t[:, None].expand(5, 5))
-        assert (out - dq.sclerp(a, b, t[:, None])).abs().max() <= 1e-15
-        nested = torch.func.vmap(torch.func.vmap(dq.sclerp))(a[None], b[None], t[None])
-        assert (nested[0] - f(*args)).abs().max() <= 1e-15
+def _registry_args(o, gen, n=3):
+    return sample_args(o, (n,), gen)
+
+
+@pytest.mark.parametrize("o", OPS, ids=IDS)
+def test_vmap_matches_batched_call(o, gen):
+    """vmap over the batch of every registry row (curves: over the control polygons, the
+    times shared) equals the batched call."""
+    f = flat(o)
+    args = _registry_args(o, gen)
+    for got, want in zip(torch.func.vmap(f)(*args), f(*args), strict=True):
+        assert got.dtype == want.dtype
+        if want.dtype == torch.bool:
+            assert torch.equal(got, want)
+        else:
+            assert (got - want).abs().max() <= 1e-15 * want.abs().max().clamp(min=1)
+
+
+def test_vmap_nested_and_over_t(gen):
+    a, b, t = _data(gen)[:3]
+    out = torch.func.vmap(lambda s: dq.sclerp(a, b, s))(t[:, None].expand(5, 5))
+    assert (out - dq.sclerp(a, b, t[:, None])).abs().max() <= 1e-15
+    nested = torch.func.vmap(torch.func.vmap(dq.sclerp))(a[None], b[None], t[None])
+    assert (nested[0] - dq.sclerp(a, b, t)).abs().max() <= 1e-15
 
 
 def test_vmap_curves_value_checks(gen):
     """The value checks on ``t`` run when ``t`` is shared; mapped over ``t`` they are
     data-dependent and refused: use ``check=False`` (documented)."""
-    c, t = _args("bezier", gen)
+    c, t = _curve_args(gen)
     out = torch.func.vmap(curves.bezier, in_dims=(0, None))(c, t)  # the readable scheme
     assert (out - curves.bezier(c, t)).abs().max() <= 1e-14
     with pytest.raises(RuntimeError, match=r"curves\.bezier: .* pass check=False"):
@@ -220,56 +228,58 @@ def test_vmap_curves_value_checks(gen):
     assert (out - curves.bezier(c, t)).abs().max() <= 1e-14
 
 
-@pytest.mark.parametrize("name", FNS)
-def test_jacrev_and_jacfwd_match_eager_jacobian(name, gen):
-    f = FNS[name][0]
-    args = [x[:2] for x in _args(name, gen)]  # small Jacobians
+@pytest.mark.parametrize("o", DIFFERENTIABLE, ids=DIFF_IDS)
+def test_jacrev_and_jacfwd_match_eager_jacobian(o, gen):
+    """torch.func's reverse and forward Jacobians (the plain-op path) equal the eager
+    Jacobian of the default path (fused kernels where the row has one)."""
+    f = flat(o)
+    args = _registry_args(o, gen, n=2)  # small Jacobians
     argnums = tuple(range(len(args)))
     rev = torch.func.jacrev(f, argnums=argnums)(*args)
     fwd = torch.func.jacfwd(f, argnums=argnums)(*args)
     ref = torch.autograd.functional.jacobian(f, tuple(args))
-    for r, w, e in zip(rev, fwd, ref, strict=True):
-        assert torch.isfinite(r).all()
-        assert (r - e).abs().max() <= 1e-12
-        assert (w - e).abs().max() <= 1e-12
+    for r_out, w_out, e_out in zip(rev, fwd, ref, strict=True):
+        for r, w, e in zip(r_out, w_out, e_out, strict=True):
+            scale = e.abs().max().clamp(min=1)
+            assert torch.isfinite(r).all()
+            assert (r - e).abs().max() <= 1e-12 * scale
+            assert (w - e).abs().max() <= 1e-12 * scale
 
 
-@pytest.mark.parametrize("name", FNS)
-def test_jvp_matches_finite_differences(name, gen):
-    f = FNS[name][0]
-    args = _args(name, gen)
+@pytest.mark.parametrize("o", DIFFERENTIABLE, ids=DIFF_IDS)
+def test_jvp_matches_finite_differences(o, gen):
+    """Forward-mode AD (``torch.func.jvp``) against central differences."""
+    f = flat(o)
+    args = _registry_args(o, gen)
     tangents = [torch.randn(x.shape, generator=gen, dtype=F64) for x in args]
-    if name in ("bezier", "bspline"):  # keep the times inside [0, 1]
-        args[1] = args[1] * 0.8 + 0.1
     out, tangent = torch.func.jvp(f, tuple(args), tuple(tangents))
     h = 1e-6
     plus = f(*(x + h * v for x, v in zip(args, tangents, strict=True)))
     minus = f(*(x - h * v for x, v in zip(args, tangents, strict=True)))
-    assert (out - f(*args)).abs().max() <= 1e-15
-    assert ((tangent - (plus - minus) / (2 * h)).abs() / tangent.abs().clamp(min=1)).max() < 1e-7
+    for o_, t_, p, m, e in zip(out, tangent, plus, minus, f(*args), strict=True):
+        assert (o_ - e).abs().max() <= 1e-15 * e.abs().max().clamp(min=1)
+        fd = (p - m) / (2 * h)
+        assert ((t_ - fd).abs() / t_.abs().clamp(min=1)).max() < 1e-7, o.id
 
 
 # ----------------------------------------------------------------------------- CUDA
 
 @CUDA
-@pytest.mark.parametrize("name", FNS)
-def test_cuda_matches_cpu(name, gen):
-    f = FNS[name][0]
-    args = _args(name, gen)
-    if name == "dlb":
-        f = lambda a, b: dq.dlb(torch.tensor([0.3, 0.7], dtype=F64, device=a.device),  # noqa: E731
-                                torch.stack((a, b), -2))
+@pytest.mark.parametrize("o", OPS, ids=IDS)
+def test_cuda_matches_cpu(o, gen):
+    f = flat(o)
+    args = _registry_args(o, gen)
     out, grads = _grads(f, [x.cuda() for x in args])
     ref, ref_grads = _grads(f, args)
-    assert out.device.type == "cuda"
-    assert (out.cpu() - ref).abs().max() <= 1e-13
+    assert (out.cpu() - ref).abs().max() <= 1e-13 * ref.abs().max().clamp(min=1)
     for g, r in zip(grads, ref_grads, strict=True):
-        assert (g.cpu() - r).abs().max() <= 1e-11
+        assert g.device.type == "cuda"
+        assert (g.cpu() - r).abs().max() <= 1e-11 * r.abs().max().clamp(min=1)
 
 
 @CUDA
 def test_cuda_compile_and_half(gen):
-    a, b, t = (x.cuda() for x in _args("sclerp", gen))
+    a, b, t = (x.cuda() for x in _data(gen)[:3])
     torch._dynamo.reset()
     out = torch.compile(dq.sclerp, backend="aot_eager", fullgraph=True)(a, b, t)
     assert (out - dq.sclerp(a, b, t)).abs().max() <= 1e-14
@@ -285,12 +295,12 @@ def test_bitwise_deterministic(deterministic, gen):
     previous = torch.are_deterministic_algorithms_enabled()
     torch.use_deterministic_algorithms(deterministic)
     try:
-        for name, (f, _) in FNS.items():
-            args = _args(name, gen)
-            out1, g1 = _grads(f, args)
-            out2, g2 = _grads(f, args)
-            assert torch.equal(out1, out2), name
-            assert all(torch.equal(x, y) for x, y in zip(g1, g2, strict=True)), name
+        for o in OPS:
+            args = _registry_args(o, gen)
+            out1, g1 = _grads(flat(o), args)
+            out2, g2 = _grads(flat(o), args)
+            assert torch.equal(out1, out2), o.id
+            assert all(torch.equal(x, y) for x, y in zip(g1, g2, strict=True)), o.id
     finally:
         torch.use_deterministic_algorithms(previous)
 
@@ -303,8 +313,9 @@ def test_chunking_is_bitwise_invisible(gen):
     out, grads = _grads(dq.sclerp, (a, b, t))
     out2, grads2 = _grads(dq.sclerp, (a, b, t))
     assert torch.equal(out, out2) and all(map(torch.equal, grads, grads2))
+    out = out.view(n, 8)
     tail = slice(n - 1000, n)  # the last chunk alone, as one small batch
-    small, small_grads = _grads(dq.sclerp, (a[tail], b[tail], t[tail]))
+    small = dq.sclerp(a[tail], b[tail], t[tail])
     w = torch.linspace(-1, 1, out.numel(), dtype=F64).view(out.shape)[tail]
     xs = [x[tail].clone().requires_grad_() for x in (a, b, t)]
     small_grads = torch.autograd.grad((w * dq.sclerp(*xs)).sum(), xs)

@@ -1,10 +1,10 @@
 """Reliability of the public functional API: bad input, empty and degenerate input,
 non-finite values, half precision, aliasing, and property fuzzing.
 
-``OPS`` lists every public tensor function of ``torch_dq.quat``, ``torch_dq.dualquat`` and
-``torch_dq.curves`` with a sampler per argument (``test_registry_covers_the_public_api``
-keeps it complete); most tests walk it programmatically, so a new public function needs one
-registry row. The policies checked here (API.md "Conventions"):
+Most tests walk ``registry.OPS``, the one registry of every public tensor function of
+``torch_dq.quat``, ``dualquat``, ``curves`` and ``losses`` (both B-spline forms included),
+with its one sampler (``test_registry_covers_the_public_api`` keeps it complete), so a new
+public function needs one registry row. The policies checked here (API.md "Conventions"):
 
 - bad arguments raise ``ValueError`` (shape, broadcasting, values) or ``TypeError`` (not a
   tensor, non-floating or complex dtype, mixed dtypes or devices) with a message
@@ -23,14 +23,13 @@ registry row. The policies checked here (API.md "Conventions"):
 
 import math
 import re
-from dataclasses import dataclass
 
 import pytest
 import torch
 from hypothesis import given
 from hypothesis import strategies as st
+from registry import DIFFERENTIABLE, EVENT, FACTORIES, IDS, MODULES, OPS, TIMES, outs, sample
 from strategies import dual_quats, quats, raises_exactly
-from torch import Tensor
 
 import torch_dq.dual as D
 import torch_dq.dualquat as dq
@@ -40,145 +39,11 @@ from torch_dq.dual import Dual
 F64 = torch.float64
 N = 4  # batch size of the registry samples; element 1 is the one made bad
 OTHERS = [0, 2, 3]
-# Times exactly representable in every dtype, so half-precision runs see the same times.
-TIMES = (0.0, 0.125, 0.25, 0.5, 0.75, 0.875, 1.0)
 # Half precision: max |out - ref| / max(1, |ref|) against float64 on the rounded inputs.
 # Measured maxima over the registry: float16 4.7e-4 (dualquat.log), bfloat16 3.8e-3
 # (quat.exp), i.e. 0.48 and 0.49 eps: results rounded once, from float32.
 F16_TOL = 0.5 * torch.finfo(torch.float16).eps + 2e-5  # 5.1e-4
 BF16_TOL = 0.5 * torch.finfo(torch.bfloat16).eps + 2e-5  # 3.9e-3
-
-
-# ----------------------------------------------------------------------------- registry
-
-def _unit(x):
-    return x / x.norm(dim=-1, keepdim=True)
-
-
-def sample(kind, batch, gen):
-    """A valid float64 argument of ``kind`` with batch shape ``batch``."""
-    def randn(*s):
-        return torch.randn((*batch, *s), generator=gen, dtype=F64)
-
-    def pose(*s):
-        return dq.from_rt(_unit(randn(*s, 4)), randn(*s, 3))
-
-    makers = {
-        "dq": lambda: pose(), "q": lambda: _unit(randn(4)), "vec": lambda: randn(3),
-        "dir": lambda: _unit(randn(3)), "twist": lambda: randn(6),
-        "pose7": lambda: torch.cat((randn(3), _unit(randn(4))), -1),
-        "rot": lambda: quat.to_matrix(_unit(randn(4))), "hom": lambda: dq.to_matrix(pose()),
-        "scalar": lambda: torch.rand(batch, generator=gen, dtype=F64),
-        "weights": lambda: torch.rand((*batch, 3), generator=gen, dtype=F64) + 0.1,
-        "poses": lambda: pose(3), "ctrl": lambda: pose(5),
-    }
-    return makers[kind]()
-
-
-# kind -> event shape (the trailing dims that are not batch)
-EVENT = {"dq": (8,), "q": (4,), "vec": (3,), "dir": (3,), "twist": (6,), "pose7": (7,),
-         "rot": (3, 3), "hom": (4, 4), "scalar": (), "weights": (3,), "poses": (3, 8),
-         "ctrl": (5, 8)}
-
-
-@dataclass(frozen=True)
-class Op:
-    name: str  # public name, as in error messages
-    fn: object  # called positionally with the tensors of ``args``
-    args: tuple  # ((argument name, kind), ...)
-    variant: str = ""  # options of a second row for the same function
-    curve: bool = False  # output (..., T, 8): dependence is per time and up to sign
-
-    @property
-    def id(self):
-        return f"{self.name}({self.variant})" if self.variant else self.name
-
-
-def _times(c):
-    return torch.tensor(TIMES, dtype=c.dtype if isinstance(c, Tensor) else F64)
-
-
-def _outs(r):
-    """Flat list of the output tensors of a call (a ``Dual`` gives its two parts)."""
-    if isinstance(r, Tensor):
-        return [r]
-    if isinstance(r, Dual):
-        return [r.real, r.dual]
-    return [o for x in r for o in _outs(x)]
-
-
-Q2, DQ2 = (("a", "q"), ("b", "q")), (("a", "dq"), ("b", "dq"))
-OPS = [
-    Op("quat.mul", quat.mul, Q2),
-    Op("quat.conj", quat.conj, (("q", "q"),)),
-    Op("quat.inv", quat.inv, (("q", "q"),)),
-    Op("quat.norm", quat.norm, (("q", "q"),)),
-    Op("quat.normalize", quat.normalize, (("q", "q"),)),
-    Op("quat.dot", quat.dot, Q2),
-    Op("quat.rotate", quat.rotate, (("q", "q"), ("v", "vec"))),
-    Op("quat.slerp", quat.slerp, (("q0", "q"), ("q1", "q"), ("t", "scalar"))),
-    Op("quat.slerp", lambda a, b, t: quat.slerp(a, b, t, shortest=False),
-       (("q0", "q"), ("q1", "q"), ("t", "scalar")), "shortest=False"),
-    Op("quat.exp", quat.exp, (("q", "q"),)),
-    Op("quat.log", quat.log, (("q", "q"),)),
-    Op("quat.from_matrix", quat.from_matrix, (("R", "rot"),)),
-    Op("quat.to_matrix", quat.to_matrix, (("q", "q"),)),
-    Op("quat.from_axis_angle", quat.from_axis_angle, (("axis", "dir"), ("angle", "scalar"))),
-    Op("quat.to_axis_angle", quat.to_axis_angle, (("q", "q"),)),
-    Op("quat.from_rotvec", quat.from_rotvec, (("rotvec", "vec"),)),
-    Op("quat.to_rotvec", quat.to_rotvec, (("q", "q"),)),
-    Op("quat.from_euler", lambda a: quat.from_euler(a, "ZXZ"), (("angles", "vec"),)),
-    Op("quat.from_euler", lambda a: quat.from_euler(a, "xyz"), (("angles", "vec"),), "xyz"),
-    Op("quat.to_euler", lambda q: quat.to_euler(q, "zxz"), (("q", "q"),)),
-    Op("quat.to_euler", lambda q: quat.to_euler(q, "XYZ"), (("q", "q"),), "XYZ"),
-    Op("quat.from_xyzw", quat.from_xyzw, (("q", "q"),)),
-    Op("quat.to_xyzw", quat.to_xyzw, (("q", "q"),)),
-    Op("dualquat.mul", dq.mul, DQ2),
-    Op("dualquat.conj", dq.conj, (("x", "dq"),)),
-    Op("dualquat.conj_dual", dq.conj_dual, (("x", "dq"),)),
-    Op("dualquat.conj_full", dq.conj_full, (("x", "dq"),)),
-    Op("dualquat.inv", dq.inv, (("x", "dq"),)),
-    Op("dualquat.norm", dq.norm, (("x", "dq"),)),
-    Op("dualquat.dot", dq.dot, DQ2),
-    Op("dualquat.normalize", dq.normalize, (("x", "dq"),)),
-    Op("dualquat.is_unit", dq.is_unit, (("x", "dq"),)),
-    Op("dualquat.from_rt", dq.from_rt, (("q", "q"), ("t", "vec"))),
-    Op("dualquat.to_rt", dq.to_rt, (("x", "dq"),)),
-    Op("dualquat.from_matrix", dq.from_matrix, (("T", "hom"),)),
-    Op("dualquat.to_matrix", dq.to_matrix, (("x", "dq"),)),
-    Op("dualquat.from_pose7", dq.from_pose7, (("p", "pose7"),)),
-    Op("dualquat.to_pose7", dq.to_pose7, (("x", "dq"),)),
-    Op("dualquat.from_screw", dq.from_screw,
-       (("axis", "dir"), ("moment", "vec"), ("theta", "scalar"), ("d", "scalar"))),
-    Op("dualquat.to_screw", dq.to_screw, (("x", "dq"),)),
-    Op("dualquat.exp", dq.exp, (("xi", "twist"),)),
-    Op("dualquat.log", dq.log, (("x", "dq"),)),
-    Op("dualquat.apply", dq.apply, (("x", "dq"), ("points", "vec"))),
-    Op("dualquat.apply_line", dq.apply_line,
-       (("x", "dq"), ("direction", "dir"), ("moment", "vec"))),
-    Op("dualquat.angle", dq.angle, DQ2),
-    Op("dualquat.sclerp", dq.sclerp, (*DQ2, ("t", "scalar"))),
-    Op("dualquat.sclerp", lambda a, b, t: dq.sclerp(a, b, t, shortest=False),
-       (*DQ2, ("t", "scalar")), "shortest=False"),
-    Op("dualquat.dlb", dq.dlb, (("weights", "weights"), ("xs", "poses"))),
-    Op("curves.bezier", lambda c: curves.bezier(c, _times(c)), (("ctrl", "ctrl"),), curve=True),
-    Op("curves.bspline", lambda c: curves.bspline(c, _times(c), degree=2),
-       (("ctrl", "ctrl"),), curve=True),
-    Op("curves.twists", curves.twists, (("x", "dq"), ("dx", "dq"))),
-    Op("curves.twists", lambda x, v: curves.twists(x, v, frame="spatial"),
-       (("x", "dq"), ("dx", "dq")), "spatial"),
-    Op("curves.screw_axis", curves.screw_axis, (("omega", "vec"), ("v", "vec"))),
-    Op("curves.bezier_derivatives", lambda c: curves.bezier_derivatives(c, _times(c), 3),
-       (("ctrl", "ctrl"),), curve=True),
-    Op("curves.bspline_derivatives",
-       lambda c: curves.bspline_derivatives(c, _times(c), 2, degree=2), (("ctrl", "ctrl"),),
-       curve=True),
-    Op("curves.kinematics", curves.kinematics, (("x", "dq"), ("dx", "dq"), ("ddx", "dq"))),
-    Op("curves.kinematics", lambda x, v, a: curves.kinematics(x, v, a, frame="body"),
-       (("x", "dq"), ("dx", "dq"), ("ddx", "dq")), "body"),
-    Op("curves.imu", curves.imu, (("x", "dq"), ("dx", "dq"), ("ddx", "dq"))),
-]
-IDS = [op.id for op in OPS]
 
 
 def _args(op, gen, batch=(N,)):
@@ -189,22 +54,14 @@ def _clone(args):
     return [a.clone() for a in args]
 
 
-# The continuous-time functions of issue 13: their rows (or their own policy file) come with
-# that work; listed here so that the check below keeps guarding every other function.
-PENDING = {"curves.bezier_derivatives", "curves.bspline_derivatives", "curves.kinematics",
-           "curves.imu"}
-
-
 def test_registry_covers_the_public_api():
-    """Every public tensor function of quat, dualquat and curves faces the policies below:
-    a new function without a row in OPS fails here."""
-    covered = {op.name for op in OPS} | PENDING
-    factories = {"quat.identity", "dualquat.identity", "curves.clamped_uniform_knots",
-                 "curves.velocity"}  # no tensor input / takes a callable: tested apart
-    for mod, prefix in ((quat, "quat"), (dq, "dualquat"), (curves, "curves")):
+    """Every public tensor function of quat, dualquat, curves and losses faces the policies
+    below: a new function without a row in ``registry.OPS`` fails here."""
+    covered = {op.name for op in OPS}
+    for prefix, mod in MODULES.items():
         for name in mod.__all__:
             full = f"{prefix}.{name}"
-            assert full in covered or full in factories, full
+            assert full in covered or full in FACTORIES, full
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -383,8 +240,8 @@ def test_empty_batch(op, gen):
     """A batch of 0 elements runs (no reduction over an empty batch raises) and returns
     empty outputs of the right shapes."""
     args = _args(op, gen, batch=(0,))
-    full = _outs(op.fn(*_args(op, gen, batch=(2,))))
-    for out, ref in zip(_outs(op.fn(*args)), full, strict=True):
+    full = outs(op.fn(*_args(op, gen, batch=(2,))))
+    for out, ref in zip(outs(op.fn(*args)), full, strict=True):
         assert out.shape == (0, *ref.shape[1:]) and out.dtype == ref.dtype
 
 
@@ -473,17 +330,17 @@ def _dependence(op, out, ref, pert):
 
 def _check_non_finite(op, gen, values, exempt=lambda *_: False):
     args = _args(op, gen)
-    ref = _outs(op.fn(*args))
+    ref = outs(op.fn(*args))
     checked = 0
     for i, x in enumerate(args):
         for c in range(x[1].numel()):
             pert = _clone(args)
             pert[i][1].view(-1)[c] += 0.37
-            po = _outs(op.fn(*pert))
+            po = outs(op.fn(*pert))
             for bad in values:
                 xs = _clone(args)
                 xs[i][1].view(-1)[c] = bad
-                for k, (o, r, p) in enumerate(zip(_outs(op.fn(*xs)), ref, po, strict=True)):
+                for k, (o, r, p) in enumerate(zip(outs(op.fn(*xs)), ref, po, strict=True)):
                     where = (op.name, i, c, bad, k)
                     assert torch.equal(o[OTHERS], r[OTHERS]), where  # other elements untouched
                     if o.dtype == torch.bool:  # is_unit: False for non-finite input
@@ -516,9 +373,6 @@ def test_inf_reaches_its_element_only_and_never_comes_back_finite(op, gen):
     _check_non_finite(op, gen, (math.inf, -math.inf), exempt)
 
 
-DIFFERENTIABLE = [op for op in OPS if op.name != "dualquat.is_unit"]  # is_unit: bool
-
-
 @pytest.mark.parametrize("op", DIFFERENTIABLE, ids=[op.id for op in DIFFERENTIABLE])
 def test_non_finite_does_not_reach_other_gradients(op, gen):
     """Backward through a batch with a NaN or inf element: the gradients of the other
@@ -527,8 +381,8 @@ def test_non_finite_does_not_reach_other_gradients(op, gen):
 
     def grads(xs):
         xs = [x.clone().requires_grad_() for x in xs]
-        outs = [o for o in _outs(op.fn(*xs)) if o.requires_grad]
-        loss = sum(o[OTHERS].sum() for o in outs)
+        diff = [o for o in outs(op.fn(*xs)) if o.requires_grad]
+        loss = sum(o[OTHERS].sum() for o in diff)
         gs = torch.autograd.grad(loss, xs, allow_unused=True)
         return [torch.zeros_like(x) if g is None else g for g, x in zip(gs, xs, strict=True)]
 
@@ -584,7 +438,7 @@ def test_dual_functions_nan_is_local_and_inf_follows_torch(name):
                     torch.randn(N, generator=g, dtype=F64))
 
     args = [draw() for _ in range(nargs)]
-    ref = _outs(f(*args))
+    ref = outs(f(*args))
     for i in range(nargs):
         for part in ("real", "dual"):
             for bad in (math.nan, math.inf, -math.inf):
@@ -592,7 +446,7 @@ def test_dual_functions_nan_is_local_and_inf_follows_torch(name):
                 getattr(xs[i], part)[1] = bad
                 pert = [Dual(a.real.clone(), a.dual.clone()) for a in args]
                 getattr(pert[i], part)[1] += 0.1
-                for o, r, p in zip(_outs(f(*xs)), ref, _outs(f(*pert)), strict=True):
+                for o, r, p in zip(outs(f(*xs)), ref, outs(f(*pert)), strict=True):
                     assert torch.equal(o[OTHERS], r[OTHERS])
                     if math.isnan(bad) and p[1] != r[1]:
                         assert torch.isnan(o[1])
@@ -608,10 +462,10 @@ def test_half_precision(op, dtype, gen):
     """float16/bfloat16 in, same dtype out, correctly rounded from float32: within half an
     eps of float64 on the rounded inputs (relative to ``max(1, |value|)``)."""
     args = [a.to(dtype) for a in _args(op, gen, batch=(32,))]
-    outs = _outs(op.fn(*args))
-    refs = _outs(op.fn(*[a.double() for a in args]))
+    got = outs(op.fn(*args))
+    refs = outs(op.fn(*[a.double() for a in args]))
     tol = F16_TOL if dtype == torch.float16 else BF16_TOL
-    for o, r in zip(outs, refs, strict=True):
+    for o, r in zip(got, refs, strict=True):
         if r.dtype == torch.bool:
             assert o.dtype == torch.bool
             continue
@@ -648,7 +502,7 @@ def test_dual_half_precision():
         for name, f in DUAL_FNS.items():
             args = (xl,) * f.__code__.co_argcount
             refs = (xr,) * len(args)
-            for o, r in zip(_outs(f(*args)), _outs(f(*refs)), strict=True):
+            for o, r in zip(outs(f(*args)), outs(f(*refs)), strict=True):
                 assert o.dtype == dtype
                 err = ((o.double() - r).abs() / r.abs().clamp(min=1.0)).max().item()
                 assert err <= 2 * torch.finfo(dtype).eps, (name, dtype, err)
@@ -661,11 +515,11 @@ def test_dual_half_precision():
 def test_inputs_unmodified_and_outputs_not_aliased(op, dtype, gen):
     args = [a.to(dtype) for a in _args(op, gen)]
     snapshot = _clone(args)
-    outs = _outs(op.fn(*args))
+    got = outs(op.fn(*args))
     for a, s in zip(args, snapshot, strict=True):
         assert torch.equal(a, s)
     storages = {a.untyped_storage().data_ptr() for a in args}
-    for o in outs:
+    for o in got:
         assert o.untyped_storage().data_ptr() not in storages, op.name
         o.add_(1) if o.dtype != torch.bool else o.logical_not_()  # writable, independent
     for a, s in zip(args, snapshot, strict=True):
@@ -719,7 +573,7 @@ def _draw(data, kind, batch=2):
         v = tensor([data.draw(_vecs(3, -1, 1)) for _ in range(batch)])
         n = v.norm(dim=-1, keepdim=True)
         return torch.where(n > 1e-3, v / n.clamp(min=1e-3), tensor([0.0, 0.0, 1.0]))
-    if kind == "vec":
+    if kind in ("vec", "rotvec"):
         return tensor([data.draw(_vecs(3)) for _ in range(batch)])
     if kind == "twist":
         return tensor([data.draw(_vecs(3, -3, 3)) + data.draw(_vecs(3)) for _ in range(batch)])
@@ -747,11 +601,11 @@ def test_fuzz_valid_input_gives_finite_values_and_gradients(op, data):
     """Valid input (unit poses incl. identity, half turns, 1e-9 rotations, translations up
     to 100): forward values and reverse-mode gradients are finite."""
     args = [a.requires_grad_() for a in _fuzz_args(op, data)]
-    outs = _outs(op.fn(*args))
-    for o in outs:
+    got = outs(op.fn(*args))
+    for o in got:
         if o.dtype != torch.bool:
             assert torch.isfinite(o).all(), op.name
-    diff = [o for o in outs if o.requires_grad]
+    diff = [o for o in got if o.requires_grad]
     if diff:
         weights = [torch.linspace(-1, 1, o.numel(), dtype=o.dtype).view(o.shape) for o in diff]
         grads = torch.autograd.grad(sum((w * o).sum() for w, o in zip(weights, diff,
@@ -777,7 +631,7 @@ def test_fuzz_sign_invariance(x, y, p, t):
     for f in (dq.to_matrix, dq.log, lambda z: dq.apply(z, p), lambda z: dq.apply_line(z, p, p),
               lambda z: dq.to_screw(z), lambda z: quat.to_rotvec(z[:4]),
               lambda z: quat.to_matrix(z[:4]), lambda z: quat.rotate(z[:4], p)):
-        for a, b in zip(_outs(f(x)), _outs(f(-x)), strict=True):
+        for a, b in zip(outs(f(x)), outs(f(-x)), strict=True):
             assert (a - b).abs().max() <= tol * max(1.0, p.norm().item()) ** 2
     if abs(float(x[:4] @ y[:4])) < 1e-9:
         return  # a 180-degree relative rotation: both paths are shortest (a tie)
