@@ -1,0 +1,449 @@
+"""The cumulative B-spline form (Kim-Kim-Shin, issue 20): ``torch_dq._cumulative`` (basis,
+jets, the fused ``poses``) and the readable reference ``curves._kim_kim_shin``.
+
+Independent references: scipy's B-spline basis (``BSpline`` with unit coefficient vectors)
+and the 4x4-matrix product ``T_0 prod_j expm(Bt_j logm(T_{j-1}^-1 T_j))`` with scipy's
+``expm``/``logm``, its exact time derivatives (Leibniz rule on ``expm(w L)``, checked
+against central finite differences), and pypose's ``bspline`` on uniform knots.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.interpolate as si
+import scipy.linalg as sl
+import torch
+from strategies import unit_quat
+
+import torch_dq.dualquat as dq
+from torch_dq import _cumulative, curves
+from torch_dq._core import align_chain, knot_span
+
+F64 = torch.float64
+
+
+# ----------------------------------------------------------------------------- inputs
+
+def chain(n, gen, spread=0.6, scale=1.0, dtype=F64):
+    """``n`` poses, each a screw motion of moderate angle (< 2.4 rad) from the previous one,
+    with random signs (not sign-aligned)."""
+    xi = torch.randn(n, 6, generator=gen, dtype=F64)
+    xi[:, :3] *= spread
+    xi[:, :3] *= torch.clamp(2.4 / xi[:, :3].norm(dim=-1, keepdim=True), max=1.0)
+    xi[:, 3:] *= scale
+    start = dq.from_rt(unit_quat((), gen), torch.randn(3, generator=gen, dtype=F64))
+    out = [start]
+    for k in range(1, n):
+        out.append(dq.mul(out[-1], dq.exp(xi[k])))
+    signs = torch.where(torch.rand(n, generator=gen, dtype=F64) < 0.5, -1.0, 1.0)
+    return (torch.stack(out) * signs[:, None]).to(dtype)
+
+
+def knot_vector(kind, n, p, gen):
+    """``n + p + 1`` knots: clamped uniform, unclamped uniform, non-uniform (random
+    gaps), or non-uniform with a repeated interior knot (multiplicity ``min(p, 2)``)."""
+    if kind == "clamped":
+        return curves.clamped_uniform_knots(n, p, dtype=F64, domain=(0.0, 2.0))
+    if kind == "uniform":
+        return torch.arange(n + p + 1, dtype=F64) * 0.5 - 1.0
+    gaps = 0.2 + torch.rand(n + p, generator=gen, dtype=F64)
+    knots = torch.cat((torch.zeros(1, dtype=F64), gaps.cumsum(0)))
+    if kind == "repeated":
+        i = p + (n - p) // 2  # an interior knot, repeated
+        for k in range(1, min(p, 2)):
+            knots[i + k] = knots[i]
+        knots = torch.cummax(knots, 0).values
+    return knots
+
+
+KNOT_KINDS = ("clamped", "uniform", "nonuniform", "repeated")
+
+
+def span_inputs(ctrl, knots, p, t, order):
+    """Spans, weights and gathered sign-aligned control points, as the curves pass them."""
+    r = knot_span(knots, t, p)
+    weights = _cumulative.basis(knots, r, t, p, order)
+    points = align_chain(ctrl)[r[..., None] - p + torch.arange(p + 1)]
+    return points, weights
+
+
+def domain_times(knots, p, count, margin=0.0):
+    n = knots.shape[0] - p - 1
+    lo, hi = float(knots[p]), float(knots[n])
+    return torch.linspace(lo - margin, hi + margin, count, dtype=F64)
+
+
+# ----------------------------------------------------------------------------- scipy references
+
+def cumulative_basis_np(knots, p, t, nu):
+    """``(T, n)``: column ``j`` is ``sum_{l >= j} B_{l,p}`` (or its ``nu``-th derivative)
+    from scipy, extrapolating the end pieces outside the domain."""
+    knots = np.asarray(knots)
+    n = len(knots) - p - 1
+    cols = np.zeros((len(t), n))
+    if nu <= p:
+        for l in range(n):
+            cols[:, l] = si.BSpline(knots, np.eye(n)[l], p, extrapolate=True)(t, nu)
+    return np.flip(np.cumsum(np.flip(cols, 1), 1), 1)
+
+
+def matrix_jets_np(ctrl, knots, p, t, order):
+    """The matrix form ``T_0 prod_j expm(w_j L_j)``, ``L_j = logm(T_{j-1}^-1 T_j)``, and its
+    exact time derivatives ``0..order`` at ``t`` (Leibniz rule; ``d/dt expm(w L) =
+    expm(w L) L w'``). Returns ``(order + 1, T, 4, 4)``."""
+    M = dq.to_matrix(ctrl).numpy()
+    logs = [np.real(sl.logm(np.linalg.solve(M[j - 1], M[j]))) for j in range(1, len(M))]
+    W = [cumulative_basis_np(knots, p, t, nu) for nu in range(order + 1)]
+    out = np.zeros((order + 1, len(t), 4, 4))
+    for i in range(len(t)):
+        X = [M[0]] + [np.zeros((4, 4))] * order
+        for j, L in enumerate(logs, start=1):
+            w = [W[nu][i, j] for nu in range(order + 1)] + [0.0] * 3
+            if w[0] == 0.0 or (abs(w[0] - 1.0) < 1e-14 and not any(w[1:])):
+                X = [x @ (np.eye(4) if w[0] == 0.0 else sl.expm(L)) for x in X]  # constant
+                continue
+            E = sl.expm(w[0] * L)
+            L2 = L @ L
+            dE = [E, E @ L * w[1], E @ (L2 * w[1] ** 2 + L * w[2]),
+                  E @ (L2 @ L * w[1] ** 3 + 3.0 * L2 * w[1] * w[2] + L * w[3])]
+            X = [sum(math.comb(k, m) * X[m] @ dE[k - m] for m in range(k + 1))
+                 for k in range(order + 1)]
+        out[:, i] = X
+    return out
+
+
+def matrix_jets_torch(jet):
+    """The time derivatives of ``to_matrix(x(t))`` from the jets of ``x`` (nested forward
+    mode through the Taylor polynomial ``sum_k x^(k) h^k / k!``): ``(order + 1, T, 4, 4)``."""
+    order = len(jet) - 1
+
+    def mat(h):
+        x = sum(jet[k] * h ** k / math.factorial(k) for k in range(order + 1))
+        return dq.to_matrix(x)
+
+    h = torch.zeros((), dtype=jet[0].dtype)
+    out, f = [mat(h)], mat
+    for _ in range(order):
+        f = torch.func.jacfwd(f)
+        out.append(f(h))
+    return torch.stack(out).detach().numpy()
+
+
+# ----------------------------------------------------------------------------- basis
+
+@pytest.mark.parametrize("kind", KNOT_KINDS)
+@pytest.mark.parametrize("p", [1, 2, 3, 4, 5])
+def test_basis_matches_scipy(gen, kind, p):
+    n = p + 4
+    knots = knot_vector(kind, n, p, gen)
+    t = domain_times(knots, p, 41, margin=0.3)  # extrapolates beyond both ends
+    r = knot_span(knots, t, p)
+    got = _cumulative.basis(knots, r, t, p, 3)
+    cols = (r[:, None] - p + torch.arange(1, p + 1)).numpy()
+    for nu in range(4):
+        ref = np.take_along_axis(cumulative_basis_np(knots.numpy(), p, t.numpy(), nu), cols, 1)
+        scale = max(1.0, np.abs(ref).max())
+        assert got[nu].shape == (41, p)
+        assert np.abs(got[nu].numpy() - ref).max() <= 1e-11 * scale, nu
+
+
+def test_basis_batched_times_and_gradcheck(gen):
+    p, n = 3, 7
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 6).reshape(2, 3)
+    r = knot_span(knots, t, p)
+    flat = _cumulative.basis(knots, r.reshape(-1), t.reshape(-1), p, 2)
+    for a, b in zip(_cumulative.basis(knots, r, t, p, 2), flat, strict=True):
+        assert a.shape == (2, 3, p) and torch.equal(a.reshape(-1, p), b)
+
+    def f(t, knots):
+        return tuple(_cumulative.basis(knots, r, t, p, 2))
+
+    inputs = (t.clone().requires_grad_(), knots.clone().requires_grad_())
+    assert torch.autograd.gradcheck(f, inputs)
+    assert torch.autograd.gradgradcheck(f, inputs)
+
+
+# ----------------------------------------------------------------------------- the curve
+
+@pytest.mark.parametrize("kind", KNOT_KINDS)
+@pytest.mark.parametrize("p", [1, 2, 3, 4, 5])
+def test_curve_matches_matrix_reference(gen, kind, p):
+    n = p + 3
+    ctrl = chain(n, gen)
+    knots = knot_vector(kind, n, p, gen)
+    t = domain_times(knots, p, 9)
+    points, weights = span_inputs(ctrl, knots, p, t, 0)
+    ref = matrix_jets_np(ctrl, knots.numpy(), p, t.numpy(), 0)[0]
+    for x in (_cumulative.jets(points, weights, 0)[0],
+              curves._kim_kim_shin(points, weights[0]),
+              _cumulative.poses(align_chain(ctrl), knot_span(knots, t, p) - p, weights[0].T)):
+        assert np.abs(dq.to_matrix(x).numpy() - ref).max() <= 1e-10
+    # the same motion whatever the signs of the control points
+    flipped = ctrl * torch.where(torch.arange(n) % 2 == 0, -1.0, 1.0).to(F64)[:, None]
+    points2, _ = span_inputs(flipped, knots, p, t, 0)
+    x2 = curves._kim_kim_shin(points2, weights[0])
+    assert np.abs(dq.to_matrix(x2).numpy() - ref).max() <= 1e-10
+
+
+@pytest.mark.parametrize("p", [2, 3, 5])
+def test_derivatives_match_matrix_reference(gen, p):
+    n = p + 3
+    ctrl = chain(n, gen)
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 7, margin=-0.05)
+    points, weights = span_inputs(ctrl, knots, p, t, 3)
+    jet = _cumulative.jets(points, weights, 3)
+    got = matrix_jets_torch(jet)
+    ref = matrix_jets_np(ctrl, knots.numpy(), p, t.numpy(), 3)
+    for k in range(4):
+        assert np.abs(got[k] - ref[k]).max() <= 1e-10 * max(1.0, np.abs(ref[k]).max()), k
+    # lower orders: the same leading coefficients
+    for order in range(3):
+        lower = _cumulative.jets(points, weights, order)
+        assert all(torch.allclose(a, b, rtol=0, atol=1e-13) for a, b in zip(lower, jet))
+
+
+def test_matrix_derivative_reference_matches_finite_differences(gen):
+    """The exact matrix reference above against central differences of the matrix curve
+    (a degree-8 polynomial through 9 samples)."""
+    p, n = 3, 6
+    ctrl = chain(n, gen)
+    knots = knot_vector("nonuniform", n, p, gen).numpy()
+    t0, h, steps = float(knots[p] + knots[p + 1]) / 2, 2e-3, np.arange(-4, 5)
+    vals = matrix_jets_np(ctrl, knots, p, t0 + h * steps, 0)[0].reshape(9, 16)
+    coef = np.linalg.solve(np.vander(steps * h, 9, increasing=True), vals)
+    exact = matrix_jets_np(ctrl, knots, p, np.array([t0]), 3)[:, 0].reshape(4, 16)
+    for k in range(4):
+        fd = math.factorial(k) * coef[k]
+        assert np.abs(fd - exact[k]).max() <= 1e-6 * max(1.0, np.abs(exact[k]).max()), k
+
+
+@pytest.mark.parametrize("shape", [(4,), (2, 3)])
+def test_pypose_on_uniform_knots(gen, shape):
+    """pypose's cubic ``bspline`` (SE3 ``(tx, ty, tz, qx, qy, qz, qw)``, time ``s`` from 0
+    per segment) is our cubic on the knots ``0, 1, ..., n + 3`` at ``t = s + 3``."""
+    pp = pytest.importorskip("pypose")
+    n, interval = 8, 0.25
+    ctrl = align_chain(chain(math.prod(shape) * n, gen).reshape(*shape, n, 8))
+    out = pp.bspline(pp.SE3(dq.to_pose7(ctrl)), interval)  # (..., (n - 3) / interval + 1, 7)
+    s = torch.arange(out.shape[-2], dtype=F64) * interval
+    knots = torch.arange(n + 4, dtype=F64)
+    t = s + 3.0
+    r = knot_span(knots, t, 3)
+    weights = _cumulative.basis(knots, r, t, 3, 0)[0]
+    flat = ctrl.reshape(-1, n, 8)
+    ours = torch.stack([curves._kim_kim_shin(c[r[:, None] - 3 + torch.arange(4)], weights)
+                        for c in flat]).reshape(*shape, -1, 8)
+    ref = dq.to_matrix(dq.from_pose7(out.tensor()))
+    assert ref.shape == (*shape, 21, 4, 4)
+    assert float((dq.to_matrix(ours) - ref).abs().max()) <= 1e-10
+
+
+# ----------------------------------------------------------------------------- smoothness
+
+def test_continuity_across_simple_knots(gen):
+    """At a simple interior knot the cumulative form's derivatives of order < p agree from
+    both sides (the left limit is the left span's polynomial continuation), and the p-th
+    jumps; the De Boor form's acceleration jumps."""
+    n = 8
+    ctrl = chain(n, gen)
+    for p in (3, 4, 5):
+        knots = knot_vector("nonuniform", n, p, gen)
+        u = knots[p + 1:n]  # the interior knots
+        r = knot_span(knots, u, p)
+        for side in (r - 1, r):  # left span (continued to u) and right span
+            pts = align_chain(ctrl)[side[:, None] - p + torch.arange(p + 1)]
+            jet = _cumulative.jets(pts, _cumulative.basis(knots, side, u, p, 3), 3)
+            if side is r:
+                right = jet
+            else:
+                left = jet
+        for k in range(4):
+            jump = float((left[k] - right[k]).abs().max())
+            scale = float(right[k].abs().max())
+            if k < p:
+                assert jump <= 1e-10 * max(1.0, scale), (p, k, jump)
+            else:
+                assert jump >= 1e-3 * scale, (p, k, jump)  # the p-th derivative jumps
+
+
+def test_de_boor_acceleration_jumps_at_knots(gen):
+    """The paper's De Boor form (curves.bspline_derivatives' default) is C^1 only: its
+    acceleration jumps at a simple knot by a measurable amount (the cumulative form's does
+    not, test above)."""
+    n, p = 8, 3
+    ctrl = chain(n, gen)
+    knots = knot_vector("nonuniform", n, p, gen)
+    u = knots[p + 1:n]
+    left = curves.bspline_derivatives(ctrl, u - 1e-9, order=2, degree=p, knots=knots)
+    right = curves.bspline_derivatives(ctrl, u, order=2, degree=p, knots=knots)
+    assert float((left[1] - right[1]).abs().max()) <= 1e-7  # velocity continuous
+    jump = (left[2] - right[2]).norm(dim=-1).max()
+    assert float(jump) >= 1e-3 * float(right[2].norm(dim=-1).max())
+
+
+# ----------------------------------------------------------------------------- autograd
+
+def degenerate_chain(gen, kind):
+    """A sign-aligned cubic chain with a static segment (equal neighbours) or a neighbour
+    a half turn away (``c`` the relative motion's real part: 0 exactly, or ``1e-3``)."""
+    ctrl = align_chain(chain(6, gen))
+    if kind == "generic":
+        return ctrl
+    if kind == "static":
+        ctrl[3] = ctrl[2]
+    else:
+        axis = torch.nn.functional.normalize(torch.randn(3, generator=gen, dtype=F64), dim=0)
+        c = 0.0 if kind == "half_turn" else 1e-3
+        rel = dq.from_rt(torch.cat((torch.tensor([c], dtype=F64), math.sqrt(1 - c * c) * axis)),
+                         torch.randn(3, generator=gen, dtype=F64))
+        ctrl[3] = dq.mul(ctrl[2], rel)
+    return ctrl
+
+
+@pytest.mark.parametrize("kind", ["generic", "static", "near_half_turn"])
+def test_gradcheck_wrt_control_points_and_t(gen, kind):
+    """First and second derivatives of the jets (order 2, then 1) and of the fused poses
+    with respect to the control points and t, at generic points, at a static segment (the
+    log of the identity) and next to a half turn between neighbours."""
+    p = 3
+    ctrl = degenerate_chain(gen, kind)[1:6]  # the degenerate pair is ctrl[1], ctrl[2]
+    knots = torch.tensor([0.0, 0.1, 0.3, 0.6, 1.0, 1.2, 1.5, 1.9, 2.0], dtype=F64)
+    t = torch.tensor([0.7, 1.1], dtype=F64)  # one time in each span
+    r = knot_span(knots, t, p)
+    idx = r[:, None] - p + torch.arange(p + 1)
+
+    def jets(order):
+        return lambda c, t: tuple(_cumulative.jets(c[idx], _cumulative.basis(
+            knots, r, t, p, order), order))
+
+    def fused(c, t):
+        return _cumulative.poses(c, r - p, _cumulative.basis(knots, r, t, p, 0)[0].T)
+
+    inputs = (ctrl.clone().requires_grad_(), t.clone().requires_grad_())
+    assert torch.autograd.gradcheck(jets(2), inputs, fast_mode=True)
+    for fn in (jets(1), fused):
+        assert torch.autograd.gradgradcheck(fn, inputs, fast_mode=True)
+    assert torch.autograd.gradcheck(fused, inputs)
+
+
+def test_half_turn_gradients_are_finite_one_sided(gen):
+    """At a half turn between neighbours the shortest path switches; the gradients there are
+    finite and those of one side (a neighbour pushed by 1e-9 towards that side)."""
+    p = 3
+    knots = knot_vector("uniform", 6, p, gen)
+    t = domain_times(knots, p, 5)
+    r = knot_span(knots, t, p)
+    weights = _cumulative.basis(knots, r, t, p, 1)
+    base = degenerate_chain(gen, "half_turn")
+
+    def grads(ctrl):
+        c = ctrl.clone().requires_grad_()
+        x, dx = _cumulative.jets(c[r[:, None] - p + torch.arange(p + 1)], weights, 1)
+        fused = _cumulative.poses(c, r - p, weights[0].T)
+        return torch.cat([torch.autograd.grad(y.square().sum(), c, retain_graph=True)[0].ravel()
+                          for y in (x, dx, fused)])
+
+    at = grads(base)
+    assert torch.isfinite(at).all()
+    sides = []
+    rel = dq.mul(dq.conj(base[2]), base[3])
+    for eps in (1e-8, -1e-8):  # a turn of ctrl[3] about the relative motion's axis
+        turn = dq.exp(torch.cat((eps * rel[1:4], torch.zeros(3, dtype=F64))))
+        moved = base.clone()
+        moved[3] = dq.mul(base[3], turn)
+        sides.append(float((grads(moved) - at).abs().max() / at.abs().max()))
+    assert min(sides) <= 1e-5, sides
+
+
+def test_fused_poses_match_reference_gradients(gen):
+    """The fused op against the readable reference: values, gradients and second
+    derivatives, with several curves in one flat control tensor; a NaN control point of
+    one curve leaves the other curve's gradients finite."""
+    p, n = 3, 7
+    ctrl = torch.cat((align_chain(chain(n, gen)), align_chain(chain(n, gen))))
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 11)
+    r = knot_span(knots, t, p)
+    first = torch.cat((r - p, r - p + n))
+    w = _cumulative.basis(knots, r, t, p, 0)[0].T.repeat(1, 2).requires_grad_()
+    c = ctrl.clone().requires_grad_()
+    fused = _cumulative.poses(c, first, w)
+    ref = curves._kim_kim_shin(c[first[:, None] + torch.arange(p + 1)], w.T)
+    assert float((fused - ref).detach().abs().max()) <= 1e-14
+    g = torch.randn(fused.shape, generator=gen, dtype=F64)
+    a = torch.autograd.grad(fused, (c, w), g, create_graph=True)
+    b = torch.autograd.grad(ref, (c, w), g, create_graph=True)
+    assert all(float((x - y).detach().abs().max()) <= 1e-12 for x, y in zip(a, b, strict=True))
+    v = torch.randn(c.shape, generator=gen, dtype=F64)
+    a2 = torch.autograd.grad((a[0] * v).sum() + a[1].sum(), (c, w))
+    b2 = torch.autograd.grad((b[0] * v).sum() + b[1].sum(), (c, w))
+    assert all(float((x - y).abs().max()) <= 1e-10 for x, y in zip(a2, b2, strict=True))
+
+    bad = ctrl.clone()
+    bad[n + 2] = float("nan")
+    bad.requires_grad_()
+    out = _cumulative.poses(bad, first, w.detach())
+    assert torch.isfinite(out[: t.shape[0]]).all() and torch.isnan(out[t.shape[0]:]).any()
+    grad = torch.autograd.grad(out[: t.shape[0]].sum(), bad)[0]
+    assert torch.isfinite(grad[:n]).all()
+
+
+def test_forward_mode_and_transforms_match_reverse(gen):
+    p, n = 3, 6
+    ctrl = align_chain(chain(n, gen))
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 4)
+    r = knot_span(knots, t, p)
+    idx = r[:, None] - p + torch.arange(p + 1)
+
+    def f(ctrl, t):
+        return torch.cat(_cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 2), 2))
+
+    fwd = torch.func.jacfwd(f, argnums=(0, 1))(ctrl, t)
+    rev = torch.autograd.functional.jacobian(f, (ctrl, t))
+    assert all(float((a - b).abs().max()) <= 1e-12 for a, b in zip(fwd, rev, strict=True))
+    tangent = torch.randn(ctrl.shape, generator=gen, dtype=F64)
+    with torch.autograd.forward_ad.dual_level():
+        dual = torch.autograd.forward_ad.make_dual(ctrl, tangent)
+        jvp = torch.autograd.forward_ad.unpack_dual(f(dual, t)).tangent
+    assert float((jvp - (rev[0] * tangent).sum((-2, -1))).abs().max()) <= 1e-12
+
+
+def test_unix_time_knots_with_float32_control_points(gen):
+    """float64 UNIX-second knots and times with float32 control points: the weights are
+    computed in float64 and rounded, so the float32 curve is the float64 one to float32
+    rounding (local times computed in float32 would be off by whole knot intervals)."""
+    p, n = 3, 8
+    ctrl = align_chain(chain(n, gen))
+    base = 1.7e9
+    knots = base + knot_vector("nonuniform", n, p, gen) * 0.05
+    t = domain_times(knots, p, 13)
+    r = knot_span(knots, t, p)
+    points = ctrl[r[:, None] - p + torch.arange(p + 1)]
+    weights = _cumulative.basis(knots, r, t, p, 2)
+    ref = _cumulative.jets(points, weights, 2)
+    low = _cumulative.jets(points.float(), [w.float() for w in weights], 2)
+    fused = _cumulative.poses(ctrl.float(), r - p, weights[0].T.float())
+    for k, (a, b) in enumerate(zip(low, ref, strict=True)):
+        assert a.dtype == torch.float32
+        assert float((a.double() - b).abs().max()) <= 2e-5 * max(1.0, float(b.abs().max())), k
+    assert float((fused.double() - ref[0]).abs().max()) <= 2e-5
+
+
+def test_jets_compile_fullgraph(gen):
+    p, n = 2, 4
+    ctrl = align_chain(chain(n, gen))
+    knots = knot_vector("uniform", n, p, gen)
+    t = domain_times(knots, p, 3)
+    r = knot_span(knots, t, p)
+    idx = r[:, None] - p + torch.arange(p + 1)
+
+    def f(ctrl, t):
+        return _cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 1), 1)
+
+    compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
+    for a, b in zip(compiled(ctrl, t), f(ctrl, t), strict=True):
+        assert float((a - b).abs().max()) <= 1e-13
