@@ -102,7 +102,8 @@ def _starts(problem: Problem, ctrl: Tensor) -> list[Tensor]:
             if slot.free is None:
                 continue
             v = vals[name].to(torch.float64)
-            v = v.expand(*batch, *v.shape[v.dim() - (0 if slot.kind == "offset" else 1):])
+            event = v.shape[v.dim() - (0 if slot.kind == "offset" else 1):]
+            v = v.expand(torch.Size((*batch, *event)))
             bound = term.max_time_offset if slot.kind == "offset" else math.inf
             problem.add(i, name, slot.free, slot.kind, slot.dim, v.clone(), bound)
             if slot.free.value is None:
@@ -276,7 +277,7 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
                                                                   obj.reshape(Bf))
             sel = acc.reshape(batch)
             new_ctrl = torch.where(sel[..., None, None], tc, new_ctrl)
-            new_values = [torch.where(sel.reshape(*batch, *(1,) * (v.dim() - len(batch))),
+            new_values = [torch.where(sel.reshape(torch.Size((*batch, *(1,) * (v.dim() - len(batch))))),
                                       a, v) for a, v in zip(tv, new_values, strict=True)]
             new_obj = torch.where(sel, to, new_obj)
             new_data = torch.where(sel, td, new_data)

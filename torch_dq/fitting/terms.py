@@ -438,39 +438,43 @@ class Gyro(_Imu):
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
-    """Time offset maximising the correlation of the measured and predicted rate norms
-    (rotation and bias free), on a grid of 81 offsets refined by a parabola."""
+    """Time offset maximising the correlation of the measured and predicted angular rate
+    norms (free of rotation and bias): the predicted norm on a grid of ``max / 20`` spacing,
+    interpolated at the shifted sample times for 81 offsets, the best refined by a
+    parabola."""
     m = term.max_time_offset
     like = torch.empty((), dtype=torch.float64, device=term.sigma.device)
     if m == 0.0:
         return like.new_zeros(())
-    t = term.times
-    stride = max(1, t.shape[-1] // 2000)
-    t = t[..., ::stride]
-    meas = term.readings[..., ::stride, :].norm(dim=-1)
-    valid = term.mask[..., ::stride]
+    t, meas, valid = term.times, term.readings.norm(dim=-1), term.mask.to(torch.float64)
     lo, hi = trajectory.domain
-    offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
-    shifted = (t[..., None, :] + offsets[:, None]).clamp(lo, hi)  # (..., 81, N')
+    a, b = max(lo, float(t.min()) - m), min(hi, float(t.max()) + m)
+    g = torch.linspace(a, b, max(2, int((b - a) / (m / 20.0)) + 2), dtype=torch.float64,
+                       device=t.device)
     with torch.no_grad():
-        c = ctrl if ctrl is None else ctrl.detach()
-        x, dx = trajectory.derivatives(shifted, 1, ctrl=c)
-        pred = curves.kinematics(x, dx, frame="body").angular_velocity.norm(dim=-1)
-    pred = pred.to(torch.float64)
-    w = valid[..., None, :].to(torch.float64).expand(pred.shape)
+        x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.norm(dim=-1)
+    rate = rate.to(torch.float64)
+    offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
+    s = ((t[..., None, :] + offsets[:, None]).clamp(a, b) - a) / (g[1] - g[0])
+    j = s.floor().clamp(0, g.shape[0] - 2)
+    fr = s - j
+    j = j.long()
+    r = rate[..., None, :].expand(*s.shape[:-1], g.shape[0])
+    pred = torch.gather(r, -1, j) * (1 - fr) + torch.gather(r, -1, j + 1) * fr
+    w = valid[..., None, :].expand(pred.shape)
     meas = meas[..., None, :].expand(pred.shape)
 
     def centred(v):
         return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
 
-    a, b = centred(pred), centred(meas)
-    corr = (a * b).sum(-1) / ((a * a).sum(-1) * (b * b).sum(-1)).sqrt().clamp_min(1e-300)
+    u, v = centred(pred), centred(meas)
+    corr = (u * v).sum(-1) / ((u * u).sum(-1) * (v * v).sum(-1)).sqrt().clamp_min(1e-300)
     k = corr.argmax(-1).clamp(1, 79)
     c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = torch.where(denom < 0, 0.5 * (c0 - c2) / denom.clamp(max=-1e-300), 0.0)
-    step = offsets[1] - offsets[0]
-    return (offsets[k] + frac.clamp(-1, 1) * step).clamp(-m, m)
+    return (offsets[k] + frac.clamp(-1, 1) * (offsets[1] - offsets[0])).clamp(-m, m)
 
 
 class Accel(_Imu):

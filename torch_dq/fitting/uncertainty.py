@@ -165,7 +165,7 @@ class Estimate:
                 torch.isinf(C).any()) else torch.full((C.shape[0], 3, 3), torch.inf)
         s = C.diagonal(dim1=-2, dim2=-1).clamp_min(0.0).sqrt()
         b = self._problem.batch
-        return s.reshape(*b) if q.kind == "offset" else s.reshape(*b, s.shape[-1])
+        return s.reshape(b) if q.kind == "offset" else s.reshape(*b, s.shape[-1])
 
     # -- trajectory uncertainties
     def _along(self, t: Tensor, k: int, output) -> Tensor:
