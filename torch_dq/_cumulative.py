@@ -42,7 +42,6 @@ from torch import Tensor
 from typing import cast
 
 from . import _taylor
-from ._kernels import layout
 from ._kernels.layout import chunks, from_rows, to_rows
 from ._kernels.sclerp import Frame, combine, frame, vjp_rows
 from ._kernels.sclerp import weights as screw_weights
@@ -52,6 +51,7 @@ from ._numerics import safe_denominator
 __all__ = ["basis", "jets", "poses"]
 
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
+POSES_CHUNK = 16384  # times per eager chunk of the fused poses (fewer, larger ops than 8192)
 
 
 def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
@@ -238,7 +238,7 @@ class _Poses(torch.autograd.Function):
         rows = to_rows(ctrl)
         rel, table = _pair_table(rows)
         parts = []
-        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+        for i in chunks(first.shape[0], POSES_CHUNK):
             E = _chunk_powers(rel, table, first[i], w[:, i])[-1]
             x = rows.index_select(1, first[i])
             for j in range(E.shape[0]):
@@ -263,7 +263,7 @@ class _Poses(torch.autograd.Function):
         used = torch.zeros_like(grad_rel[:, 0], dtype=torch.bool)
         grad_w = []
         at_cd = torch.tensor([0, 4], device=ctrl.device)
-        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+        for i in chunks(first.shape[0], POSES_CHUNK):
             R, fr, ws, E = _chunk_powers(rel, table, first[i], w[:, i], True, need_w)
             p, n = w[:, i].shape
             prefix = [rows.index_select(1, first[i])]
