@@ -17,6 +17,7 @@ from torch._dynamo.testing import CompileCounterWithBackend
 
 import torch_dq.dualquat as dq
 from torch_dq import curves
+from torch_dq.nn import BSpline
 
 SIZES = (5, 9)  # the second size would recompile if the sample axis were specialised
 
@@ -106,3 +107,15 @@ def test_bspline_derivatives_compile_as_one_graph(gen):
         assert torch.allclose(out, ref, rtol=0, atol=1e-13)
         assert torch.allclose(grad, ref_grad, rtol=0, atol=1e-11)
     assert (infer_count.frame_count, train_count.frame_count) == (1, 1)
+
+
+def test_compile_with_default_arguments(gen):
+    """torch.compile(module, fullgraph=True) failed in 0.2 on the default check=True (a
+    data-dependent branch); now the host-sync check is skipped under compile (outside
+    times give NaN) and the graph equals eager inside the domain."""
+    torch._dynamo.reset()
+    module = BSpline(dq.exp(0.4 * torch.randn(6, 6, generator=gen, dtype=torch.float64)), knots=5.0 + 2.0 * curves.clamped_uniform_knots(6, 3, dtype=torch.float64))
+    t = torch.tensor([5.0, 5.5, 7.0, 9.0], dtype=torch.float64)
+    out = torch.compile(module, fullgraph=True)(t)
+    torch.testing.assert_close(out[:3], module(t[:3]), rtol=0, atol=1e-12)
+    assert torch.isnan(out[3]).all()

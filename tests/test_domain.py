@@ -1,0 +1,275 @@
+"""The time model's domain rules (API.md, nn and curves): the tolerance at the ends,
+extrapolate=True, NaN where checks are skipped, torch.compile with the default arguments,
+meta tensors; and saving whole modules (from_state_dict, torch.save).
+
+References are independent: numpy De Boor / De Casteljau over screw interpolation of 4x4
+matrices (tests/references.py, pytransform3d's exponential coordinates)."""
+
+import io
+import math
+
+import numpy as np
+import pytest
+import torch
+from references import casteljau_np, deboor_np, sclerp_mat
+from strategies import unit_dq
+
+import torch_dq.dualquat as dq
+from torch_dq import curves
+from torch_dq.nn import Bezier, BSpline, Curve
+
+F64 = torch.float64
+
+
+def knots_on(n, degree, t0, t1):
+    return t0 + (t1 - t0) * curves.clamped_uniform_knots(n, degree, dtype=F64)
+
+
+def near_chain(n, gen, step=0.4):
+    """Control points whose neighbours differ by moderate screw motions (no half turns)."""
+    xi = torch.randn(n, 6, generator=gen, dtype=F64) * step
+    return dq.normalize(torch.stack([dq.exp(xi[: i + 1].sum(0)) for i in range(n)]))
+
+
+def tol(t0, t1, dtype):
+    """API.md's tolerance, written out."""
+    return max(1e-9 * (t1 - t0), 4 * torch.finfo(dtype).eps * max(abs(t0), abs(t1)))
+
+
+# ----------------------------------------------------------------------------- the tolerance
+
+@pytest.mark.parametrize("t0, t1", [(10.0, 12.0), (1.7e9, 1.7e9 + 30.0), (-3.0, -1.0)])
+def test_a_rounding_outside_is_evaluated_at_the_end(gen, t0, t1):
+    """0.2 raised on t = 12.000000000001 for [10, 12]: times within the tolerance now give
+    the end pose; beyond it the error names the domain and extrapolate=True."""
+    spline = BSpline(near_chain(6, gen), knots=knots_on(6, 3, t0, t1))
+    bez = Bezier(near_chain(4, gen), domain=(t0, t1))
+    eps = tol(t0, t1, F64)
+    for module in (spline, bez):
+        ends = torch.tensor([t0, t1], dtype=F64)
+        ref = module(ends)
+        inside = torch.tensor([t0 - 0.5 * eps, t1 + 0.5 * eps], dtype=F64)
+        torch.testing.assert_close(module(inside), ref, rtol=0, atol=0)
+        for bad in (t0 - 3 * eps, t1 + 3 * eps):
+            with pytest.raises(ValueError, match=r"module's time domain.*extrapolate=True"):
+                module(torch.tensor([bad], dtype=F64))
+    k = knots_on(6, 3, t0, t1)
+    ctrl = near_chain(6, gen)
+    x = curves.bspline(ctrl, torch.tensor([t1 + 0.5 * eps], dtype=F64), knots=k)
+    torch.testing.assert_close(x, curves.bspline(ctrl, k[-1:], knots=k), rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"^curves\.bspline_derivatives: t must lie in the "
+                                         r"domain .*or pass extrapolate=True"):
+        curves.bspline_derivatives(ctrl, torch.tensor([t1 + 3 * eps], dtype=F64), knots=k)
+
+
+def test_float32_times_use_their_own_eps():
+    """A float32 t on [10, 12]: 4 float32 ulps of 12 are accepted, 1e-3 is not."""
+    spline = BSpline(dq.identity((5,)), knots=knots_on(5, 2, 10.0, 12.0).float(), degree=2)
+    step = 4 * torch.finfo(torch.float32).eps * 12.0
+    t = torch.tensor([12.0 + 0.9 * step, 10.0 - 0.9 * step])
+    assert t[0] > 12.0 and t[1] < 10.0  # representable, really outside
+    assert torch.isfinite(spline(t)).all()
+    with pytest.raises(ValueError, match="extrapolate"):
+        spline(torch.tensor([12.001]))
+
+
+def test_gradient_with_respect_to_t_passes_at_the_clamped_ends(gen):
+    """Times moved onto an end keep d/dt (the value is the end's, the derivative flows)."""
+    spline = BSpline(near_chain(6, gen), knots=knots_on(6, 3, 0.0, 2.0))
+    t = torch.tensor([2.0 + 1e-12], dtype=F64, requires_grad=True)
+    (g,) = torch.autograd.grad(spline(t)[..., 5].sum(), t)
+    t_end = torch.tensor([2.0], dtype=F64, requires_grad=True)
+    (g_end,) = torch.autograd.grad(spline(t_end)[..., 5].sum(), t_end)
+    torch.testing.assert_close(g, g_end)
+    assert g.abs() > 0
+
+
+# ----------------------------------------------------------------------------- extrapolate
+
+def _mats(ctrl):
+    return dq.to_matrix(ctrl).numpy()
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_extrapolate_continues_the_end_spans(gen, degree):
+    """extrapolate=True evaluates De Boor's scheme of the end spans outside the domain: the
+    numpy scheme over 4x4 screw interpolation (alphas outside [0, 1])."""
+    n = 6
+    ctrl = near_chain(n, gen)
+    k = knots_on(n, degree, 1.0, 3.0)
+    t = torch.tensor([0.7, 0.95, 3.05, 3.4], dtype=F64)
+    ref = np.stack([deboor_np(_mats(ctrl), k.numpy(), degree, s, sclerp_mat) for s in t.tolist()])
+    got = curves.bspline(ctrl, t, degree, k, extrapolate=True)
+    np.testing.assert_allclose(dq.to_matrix(got).numpy(), ref, atol=1e-10)
+    spline = BSpline(ctrl, degree, k, extrapolate=True)
+    np.testing.assert_allclose(dq.to_matrix(spline(t)).detach().numpy(), ref, atol=1e-10)
+    strict = BSpline(ctrl, degree, k)
+    np.testing.assert_allclose(dq.to_matrix(strict(t, extrapolate=True)).detach().numpy(), ref,
+                               atol=1e-10)
+    with pytest.raises(ValueError, match="extrapolate=True"):
+        strict(t)
+    # derivatives continue the same polynomial pieces: finite differences of the reference
+    h = 1e-5
+    x, dx = strict.derivatives(t, order=1, extrapolate=True)
+    fd = [(deboor_np(_mats(ctrl), k.numpy(), degree, s + h, sclerp_mat)
+           - deboor_np(_mats(ctrl), k.numpy(), degree, s - h, sclerp_mat)) / (2 * h)
+          for s in t.tolist()]
+    dT = _dmatrix(x, dx)
+    np.testing.assert_allclose(dT, np.stack(fd), atol=1e-7)
+
+
+def _dmatrix(x, dx):
+    """d/dt of the 4x4 matrix of x(t) from x and dx (forward mode of dq.to_matrix)."""
+    _, out = torch.func.jvp(dq.to_matrix, (x.detach(),), (dx.detach(),))
+    return out.numpy()
+
+
+def test_bezier_extrapolate_is_de_casteljau_outside(gen):
+    ctrl = near_chain(4, gen)
+    t = torch.tensor([-0.5, 2.5], dtype=F64)
+    got = curves.bezier(ctrl, t, domain=(0.0, 2.0), extrapolate=True)
+    ref = np.stack([casteljau_np(_mats(ctrl), s / 2.0, sclerp_mat) for s in t.tolist()])
+    np.testing.assert_allclose(dq.to_matrix(got).numpy(), ref, atol=1e-10)
+    bez = Bezier(ctrl, domain=(0.0, 2.0))
+    np.testing.assert_allclose(dq.to_matrix(bez(t, extrapolate=True)).detach().numpy(), ref,
+                               atol=1e-10)
+
+
+# ----------------------------------------------------------------------------- skipped checks
+
+def test_unchecked_times_outside_give_nan_per_element(gen):
+    """check=False: 0.2 extrapolated silently; now NaN for those times only, the others
+    unchanged (and times within the tolerance at the ends)."""
+    ctrl = near_chain(6, gen)
+    k = knots_on(6, 3, 0.0, 2.0)
+    t = torch.tensor([-0.1, 0.0, 1.0, 2.0 + 1e-12, 2.5], dtype=F64)
+    ref = curves.bspline(ctrl, torch.tensor([0.0, 1.0, 2.0], dtype=F64), knots=k)
+    for x in (curves.bspline(ctrl, t, knots=k, check=False),
+              curves.bspline_derivatives(ctrl, t, order=1, knots=k, check=False)[0],
+              BSpline(ctrl, knots=k, check=False)(t),
+              BSpline(ctrl, knots=k, check=False, form="cumulative")(t)):
+        nan = torch.isnan(x).all(-1)
+        assert nan.tolist() == [True, False, False, False, True]
+    x = BSpline(ctrl, knots=k, check=False)(t)
+    torch.testing.assert_close(x[1:4], ref, rtol=0, atol=1e-15)
+    b = Bezier(ctrl[:3], domain=(0.0, 2.0), check=False)(t)
+    assert torch.isnan(b).all(-1).tolist() == [True, False, False, False, True]
+
+
+@pytest.mark.parametrize("knots", [True, False])
+def test_meta_tensors(knots):
+    """0.2: "Cannot copy out of meta tensor" with meta knots, "Tensor.item() cannot be
+    called on meta tensors" without; check=True on meta blamed "this transform"."""
+    ctrl = dq.identity((5,)).to("meta")
+    kw = {"knots": curves.clamped_uniform_knots(5, 3).to("meta")} if knots else {}
+    spline = BSpline(ctrl, **kw)
+    t = torch.empty(7, device="meta")
+    assert spline(t).shape == (7, 8) and spline(t).device.type == "meta"
+    assert all(x.shape == (7, 8) for x in spline.derivatives(t, order=3))
+    assert Bezier(ctrl)(t).shape == (7, 8)
+    assert curves.bspline(ctrl, t).shape == (7, 8)
+
+
+# ----------------------------------------------------------------------------- saving
+
+@pytest.mark.parametrize("form", ["de_boor", "cumulative"])
+def test_from_state_dict_rebuilds_without_knowing_the_shape(gen, form):
+    k = torch.tensor([0.0, 0.0, 0.0, 0.4, 0.5, 1.3, 2.0, 2.0, 2.0], dtype=F64) + 1.7e9
+    src = BSpline(unit_dq((2, 6), gen, scale=2.0).float(), degree=2, knots=k, form=form)
+    with torch.no_grad():  # a raw tensor off the manifold, as after training
+        src.parametrizations.ctrl.original.mul_(1.3)
+    state = src.state_dict()
+    dst = BSpline.from_state_dict(state)
+    assert isinstance(dst, Curve)
+    assert (dst.degree, dst.form, dst.n_ctrl, dst.domain) == (2, form, 6, src.domain)
+    assert dst.control_points.dtype == torch.float32
+    t = 1.7e9 + torch.linspace(0.0, 2.0, 9, dtype=F64)
+    assert torch.equal(dst(t), src(t))
+    assert torch.equal(dst.knots, src.knots)
+    bez = Bezier(unit_dq((5,), gen), domain=(3.0, 4.5))
+    assert torch.equal(Bezier.from_state_dict(bez.state_dict())(t[:1] * 0 + 4.0),
+                       bez(t[:1] * 0 + 4.0))
+    with pytest.raises(ValueError, match=r"from_state_dict: expected a state_dict of "
+                                         r"nn.BSpline"):
+        BSpline.from_state_dict({"weight": torch.zeros(3)})
+    with pytest.raises(TypeError, match="mapping"):
+        BSpline.from_state_dict([1, 2])
+    with pytest.raises(ValueError, match="degree-2 spline.*from_state_dict"):
+        BSpline(dq.identity((6,)), degree=3).load_state_dict(state)
+
+
+def test_torch_save_of_a_whole_module(gen):
+    """torch.save(module) was refused (parametrized modules do not pickle)."""
+    for src in (BSpline(near_chain(6, gen), knots=knots_on(6, 3, 2.0, 5.0), form="cumulative",
+                        check=False),
+                Bezier(near_chain(4, gen), domain=(2.0, 5.0), extrapolate=True)):
+        buf = io.BytesIO()
+        torch.save(src, buf)
+        buf.seek(0)
+        dst = torch.load(buf, weights_only=False)
+        assert type(dst).__name__ == type(src).__name__
+        assert (dst.check, dst.extrapolate, dst.domain) == (src.check, src.extrapolate,
+                                                           src.domain)
+        t = torch.linspace(2.0, 5.0, 7, dtype=F64)
+        assert torch.equal(dst(t), src(t))
+
+
+# ----------------------------------------------------------------------------- forms
+
+def test_form_is_state_and_every_evaluation_follows_it(gen):
+    """BSpline(form=...) evaluates, differentiates and accepts ctrl= in its form; the form
+    is saved and loaded; an unknown form is a clear ValueError."""
+    ctrl, k = near_chain(7, gen), knots_on(7, 3, 0.0, 3.0)
+    t = torch.linspace(0.0, 3.0, 11, dtype=F64)
+    spline = BSpline(ctrl, knots=k, form="cumulative")
+    ref = curves.bspline_derivatives(ctrl, t, order=2, knots=k, form="cumulative")
+    other = curves.bspline(ctrl, t, knots=k)
+    assert (ref[0] - other).abs().max() > 1e-4  # the forms differ
+    torch.testing.assert_close(spline(t), ref[0], rtol=0, atol=1e-12)
+    for a, b in zip(spline.derivatives(t, order=2), ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-10)
+    moved = near_chain(7, gen)
+    torch.testing.assert_close(spline(t, ctrl=moved),
+                               curves.bspline(moved, t, knots=k, form="cumulative"),
+                               rtol=0, atol=1e-12)
+    gyro, _ = spline.imu(t)
+    torch.testing.assert_close(gyro, curves.imu(*ref)[0], rtol=0, atol=1e-10)
+    dst = BSpline(dq.identity((7,), dtype=F64))
+    dst.load_state_dict(spline.state_dict())
+    assert dst.form == "cumulative"
+    with pytest.raises(ValueError, match=r"^nn\.BSpline: form must be 'de_boor'.*got 'kkS'"):
+        BSpline(ctrl, form="kkS")
+    with pytest.raises(ValueError, match=r"^curves\.bspline: form must be"):
+        curves.bspline(ctrl, t, form=None)
+    with pytest.raises(ValueError, match=r"from_poses: form must be"):
+        BSpline.from_poses(*dq.to_rt(ctrl), torch.arange(7.0, dtype=F64), n_ctrl=4,
+                           form="x")
+
+
+@pytest.mark.parametrize("form", ["de_boor", "cumulative"])
+def test_from_poses_is_exact_on_a_constant_screw_motion(form):
+    """Both forms linearize to the Euclidean B-spline in a chart: the least-squares start
+    reproduces a constant screw motion exp(t xi) (pytransform3d's exponential) exactly."""
+    import pytransform3d.transformations as pt
+
+    xi = np.array([0.3, -0.2, 0.5, 1.0, 0.4, -0.3])
+    times = torch.linspace(0.0, 4.0, 41, dtype=F64)
+    T = np.stack([pt.transform_from_exponential_coordinates(s * xi) for s in times.tolist()])
+    spline = BSpline.from_matrices(torch.from_numpy(T), times, n_ctrl=9, form=form)
+    assert spline.form == form
+    s = torch.linspace(0.0, 4.0, 17, dtype=F64)
+    ref = np.stack([pt.transform_from_exponential_coordinates(v * xi) for v in s.tolist()])
+    np.testing.assert_allclose(dq.to_matrix(spline(s)).detach().numpy(), ref, atol=1e-9)
+
+
+def test_time_model_is_one_object(gen):
+    """The layers' time lives in one object: origin, relative knots, domain and Greville
+    abscissae agree with the absolute knots."""
+    k = knots_on(6, 2, 1.7e9, 1.7e9 + 10.0)
+    spline = BSpline(dq.identity((6,), dtype=F64), degree=2, knots=k)
+    tm = spline.time_model
+    assert tm.origin == 1.7e9 and tm.degree == 2
+    assert tm.domain() == spline.domain == (1.7e9, 1.7e9 + 10.0)
+    ref = np.array([k[j + 1:j + 3].mean().item() for j in range(6)])
+    np.testing.assert_allclose(spline.greville().numpy(), ref, rtol=0, atol=1e-6)
+    assert math.isclose(Bezier(dq.identity((3,)), domain=(2.0, 6.0)).greville()[1].item(), 4.0)
