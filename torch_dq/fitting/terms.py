@@ -438,38 +438,40 @@ class Gyro(_Imu):
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
-    """Time offset maximising the correlation of the measured and predicted angular rate
-    norms (free of rotation and bias): the predicted norm on a grid of ``max / 20`` spacing,
-    interpolated at the shifted sample times for 81 offsets, the best refined by a
+    """Time offset maximising the correlation of the measured and predicted body angular
+    rates (each axis centred: free of the bias): the prediction on a grid of ``max / 20``
+    spacing, interpolated at the shifted sample times for 81 offsets, the best refined by a
     parabola."""
     m = term.max_time_offset
     like = torch.empty((), dtype=torch.float64, device=term.sigma.device)
     if m == 0.0:
         return like.new_zeros(())
-    t, meas, valid = term.times, term.readings.norm(dim=-1), term.mask.to(torch.float64)
+    t, meas, valid = term.times, term.readings, term.mask.to(torch.float64)
     lo, hi = trajectory.domain
     a, b = max(lo, float(t.min()) - m), min(hi, float(t.max()) + m)
     g = torch.linspace(a, b, max(2, int((b - a) / (m / 20.0)) + 2), dtype=torch.float64,
                        device=t.device)
     with torch.no_grad():
         x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
-        rate = curves.kinematics(x, dx, frame="body").angular_velocity.norm(dim=-1)
-    rate = rate.to(torch.float64)
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
     offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
     s = ((t[..., None, :] + offsets[:, None]).clamp(a, b) - a) / (g[1] - g[0])
     j = s.floor().clamp(0, g.shape[0] - 2)
     fr = s - j
-    j = j.long()
-    r = rate[..., None, :].expand(*s.shape[:-1], g.shape[0])
-    pred = torch.gather(r, -1, j) * (1 - fr) + torch.gather(r, -1, j + 1) * fr
-    w = valid[..., None, :].expand(pred.shape)
-    meas = meas[..., None, :].expand(pred.shape)
+    j = j.long()[..., None]  # (..., 81, N, 1): rate (..., G, 3) gathered per sample
+    r = rate[..., None, :, :].expand(*s.shape[:-1], g.shape[0], 3)
+    fr = fr[..., None]
+    pred = (torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr)
+    pred = pred.transpose(-1, -2)  # (..., 81, 3, N)
+    w = valid[..., None, None, :].expand(pred.shape)
+    meas = meas.transpose(-1, -2)[..., None, :, :].expand(pred.shape)
 
     def centred(v):
         return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
 
     u, v = centred(pred), centred(meas)
-    corr = (u * v).sum(-1) / ((u * u).sum(-1) * (v * v).sum(-1)).sqrt().clamp_min(1e-300)
+    corr = (u * v).sum((-1, -2)) / ((u * u).sum((-1, -2)) * (v * v).sum((-1, -2))).sqrt(
+    ).clamp_min(1e-300)
     k = corr.argmax(-1).clamp(1, 79)
     c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
