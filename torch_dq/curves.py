@@ -309,6 +309,18 @@ def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
     return out.view(*batch, T, 8)
 
 
+def _fused_cumulative(ctrl: Tensor, r: Tensor, weights: Tensor, degree: int,
+                      batch: torch.Size) -> Tensor:
+    """The cumulative form through its fused op (:func:`torch_dq._cumulative.poses`), which
+    reads the ``degree + 1`` points from ``c_{r-p}`` on and each pair's relative motion once."""
+    n, T, B = ctrl.shape[-2], r.shape[-1], batch.numel()
+    flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
+    offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1)
+    first = (r - degree + offsets).expand(*batch, T).reshape(B * T)
+    w = weights.expand(*batch, T, degree).reshape(B * T, degree).T
+    return _cumulative.poses(flat, first, w).view(*batch, T, 8)
+
+
 # ----------------------------------------------------------------------------- time derivatives
 
 JET_CHUNK = 16384  # times per eager chunk of the jet scheme (its temporaries stay in cache)
@@ -512,7 +524,11 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
     r = dom.span(rel)
     if form == "cumulative":
-        return _cumulative_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
+        weights = _cumulative.basis(dom.knots.to(rel.dtype), r, rel, p, 0)[0].to(dtype)
+        if _kernels.fused_path(ctrl_c, weights):
+            return _fused_cumulative(ctrl_c, r, weights, p, batch).to(ctrl.dtype)
+        points = _span_points(ctrl_c, r, p, batch)
+        return _cumulative.jets(points, [weights], 0)[0].to(ctrl.dtype)
     alphas = [alpha for alpha, _ in dom.de_boor_levels(rel, r, dtype)]
     if _kernels.fused_path(ctrl_c, *alphas):
         return _fused_bspline(ctrl_c, r, alphas, p, batch).to(ctrl.dtype)
