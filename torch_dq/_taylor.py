@@ -305,13 +305,18 @@ def dq_rows(a: Tensor, b: Tensor) -> Tensor:
 def dq_mul(a: Jet, b: Jet) -> Jet:
     r"""Leibniz (Cauchy) product of two dual-quaternion jets of component rows ``(8, ...)``:
     :math:`(ab)_k = \sum_{i + j = k} a_i b_j` with the dual-quaternion product (not
-    commutative: ``a`` on the left)."""
+    commutative: ``a`` on the left). All nonzero pairs ``(a_i, b_j)`` go through one
+    product of stacked rows (a few large ops instead of many small ones)."""
+    pairs = [(i, k - i) for k in range(len(a)) for i in range(k + 1)
+             if a[i] is not None and b[k - i] is not None]
+    if not pairs:
+        return [None] * len(a)
+    shape = torch.broadcast_shapes(*(x.shape for x in (*a, *b) if x is not None))
+    prod = dq_rows(torch.stack([cast(Tensor, a[i]).expand(shape) for i, _ in pairs], 1),
+                   torch.stack([cast(Tensor, b[j]).expand(shape) for _, j in pairs], 1))
     out: Jet = []
     for k in range(len(a)):
-        acc: Tensor | None = None
-        for i in range(k + 1):
-            x, y = a[i], b[k - i]
-            if x is not None and y is not None:
-                acc = dq_rows(x, y) if acc is None else acc + dq_rows(x, y)
-        out.append(acc)
+        at = [m for m, (i, j) in enumerate(pairs) if i + j == k]
+        out.append(None if not at else prod[:, at[0]] if len(at) == 1
+                   else prod[:, at[0]:at[-1] + 1].sum(1))
     return out
