@@ -180,3 +180,59 @@ def test_reported_stds_agree_with_monte_carlo_scatter():
     for e, s in pairs:
         ratio = np.sqrt((e**2).mean()) / np.sqrt((s**2).mean())
         assert 0.7 < ratio < 1.3, ratio
+
+
+# ----------------------------------------------------------------------------- Jacobians
+
+def test_gauss_newton_system_equals_dense_autograd(gen):
+    """Band, coupling and nuisance blocks and gradients of the Gauss-Newton system (exact
+    per-span Jacobians) against J^T J and J^T r of torch.autograd.functional.jacobian through
+    the layer's public path, every term and nuisance kind estimated."""
+    from torch_dq.fitting.estimate import _starts
+    from torch_dq.fitting.problem import Problem
+
+    t = grid(0.0, 2.0, 5)
+    ti = grid(0.3, 1.7, 5)
+    x = noisy_poses(poses_of(t), gen, 0.01, 0.01)
+    spline = start_spline(t, x, 0.4)
+    e = dq.exp(torch.tensor([0.1, -0.2, 0.05, 0.02, 0.01, -0.03], dtype=F64))
+    gy, ac = imu_of(ti.numpy())
+    terms = [Poses(t, dq.mul(x, e), rot_sigma=0.01, trans_sigma=0.02, extrinsic=True),
+             Positions(t[1:-1], dq.to_rt(x)[1][1:-1] + randn(gen, 9, 3, scale=0.01),
+                       sigma=0.01,
+                       lever_arm=True, time_offset=Free(0.01)),
+             RelativePoses(t[:-2], t[2:], dq.mul(dq.conj(x[:-2]), x[2:]), rot_sigma=0.02,
+                           trans_sigma=0.02),
+             Gyro(ti, gy, sigma=0.01, bias=True, time_offset=0.02),
+             Accel(ti, ac, sigma=0.1, bias=True, gravity=9.81)]
+    ctrl = spline.control_points.detach()
+    problem = Problem(spline, terms, ctrl.shape[:-2])
+    values = _starts(problem, ctrl)
+    values = [v + 0.01 if v.shape[-1:] != (8,) else v for v in values]
+    w = problem.width(values)
+    assert w == 5  # relative poses 0.4 s (a knot span) apart: one more control point
+    sys_ = problem.system(ctrl, values, w)
+    n, m = ctrl.shape[0], problem.m
+
+    def residuals(dc, dn):
+        c, v = problem.retract(ctrl, values, dc, dn)
+        return torch.cat([term.evaluate(spline, c, problem.term_values(i, v)).reshape(-1)
+                          for i, term in enumerate(terms)])
+
+    zc, zn = torch.zeros(n, 6, dtype=F64), torch.zeros(m, dtype=F64)
+    Jc, Jn = torch.autograd.functional.jacobian(residuals, (zc, zn), vectorize=True)
+    J = torch.cat((Jc.reshape(-1, 6 * n), Jn), -1)
+    H, r = J.T @ J, residuals(zc, zn)
+    g = J.T @ r
+    for k in range(n):
+        for d in range(w):
+            if k + d < n:
+                torch.testing.assert_close(sys_.band[0, k, d],
+                                           H[6 * k:6 * k + 6, 6 * (k + d):6 * (k + d) + 6],
+                                           rtol=1e-7, atol=1e-7)
+    assert H[:6 * n, :6 * n].reshape(n, 6, n, 6).abs().amax((1, 3)).triu(w).max() == 0
+    torch.testing.assert_close(sys_.cn[0].reshape(6 * n, m), H[:6 * n, 6 * n:], rtol=1e-7,
+                               atol=1e-7)
+    torch.testing.assert_close(sys_.nn[0], H[6 * n:, 6 * n:], rtol=1e-7, atol=1e-7)
+    torch.testing.assert_close(sys_.gc[0].reshape(-1), g[:6 * n], rtol=1e-7, atol=1e-7)
+    torch.testing.assert_close(sys_.gn[0], g[6 * n:], rtol=1e-7, atol=1e-7)
