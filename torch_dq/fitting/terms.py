@@ -128,14 +128,14 @@ class Term(torch.nn.Module):
         self.N = n
 
     def _fill_times(self, fn: str, name: str, t: Tensor, mask: Tensor) -> Tensor:
-        """Masked times replaced by the row's first valid time; checks finite, sorted."""
-        m = mask if t.dim() == mask.dim() else mask.all(0) if mask.dim() > 1 else mask
-        if t.dim() == 1 and mask.dim() > 1:
-            m = mask.any(0)
+        """Masked times replaced by the previous valid one (the first valid one before it),
+        so that they stay sorted; checks finite and non-decreasing valid times."""
+        m = mask if t.dim() == mask.dim() else mask.any(0)
         if not bool(torch.isfinite(t[m.expand(t.shape)]).all()):
             _checks.fail(fn, f"{name} must be finite")
         first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
-        filled = torch.where(m, t, first)
+        filled = torch.where(m, t, -torch.inf).cummax(-1).values
+        filled = torch.where(torch.isinf(filled), first, filled)
         if len(self._names) == 1 and bool((filled[..., 1:] < filled[..., :-1]).any()):
             _checks.fail(fn, f"{name} must be non-decreasing")
         return filled
