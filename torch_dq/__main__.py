@@ -137,9 +137,13 @@ def _add_fit_parser(sub) -> None:
                      default=DEFAULTS["knot_spacing"],
                      help="seconds between knots; auto: chosen from the fitted poses alone "
                           "(the largest spacing whose errors on every other fitted pose, "
-                          "fitted on the rest, are within 5%% of the best)")
+                          "fitted on the rest, are within 2%% of the best)")
     fit.add_argument("--degree", type=_positive_int, default=DEFAULTS["degree"],
                      help="B-spline degree")
+    fit.add_argument("--form", choices=("de_boor", "cumulative"), default=DEFAULTS["form"],
+                     help="B-spline form: de_boor, the paper's De Boor pyramid of sclerps (C1 "
+                          "at knots); cumulative, Kim-Kim-Shin's product of screw powers (C2 "
+                          "for a cubic: continuous accelerations, for IMU work)")
     fit.add_argument("--holdout", metavar="K", type=_positive_int, default=DEFAULTS["holdout"],
                      help="fit every K-th pose (and the last), report errors on the others "
                           "(1: fit all, report the fit residuals)")
@@ -172,7 +176,8 @@ def _fit(args) -> int:
     torch.set_num_threads(args.threads)
     try:
         run_fit(args.file, format=args.format, times=args.times, duplicates=args.duplicates,
-                knot_spacing=args.knot_spacing, degree=args.degree, holdout=args.holdout,
+                knot_spacing=args.knot_spacing, degree=args.degree, form=args.form,
+                holdout=args.holdout,
                 steps=args.steps, rate=args.rate, dtype=getattr(torch, args.dtype),
                 out=args.out, overwrite=args.overwrite, plots=not args.no_plots,
                 verbose=not args.quiet)

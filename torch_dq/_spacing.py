@@ -34,7 +34,7 @@ from torch import Tensor
 from . import _checks, dualquat, losses
 
 __all__ = ["GRID_RATIO", "SpacingSearch", "choose_knot_spacing", "finest_spacing",
-           "knot_spacing_search", "n_ctrl", "round_down", "round_up"]
+           "knot_spacing_search", "n_ctrl", "refinement_check", "round_down", "round_up"]
 
 #: Ratio between consecutive candidate spacings.
 GRID_RATIO = 2 ** 0.25
@@ -59,6 +59,9 @@ class SpacingSearch:
             ratios to their minima).
         tolerance: the relative margin used.
         n_fit: poses of the inner fit; ``n_check``: poses of the inner check.
+        degree: the B-spline degree.
+        n_ctrl_fit: control points of the chosen candidate on the inner fit.
+        form: the B-spline form (``"de_boor"`` or ``"cumulative"``).
     """
 
     spacing: float
@@ -70,6 +73,15 @@ class SpacingSearch:
     tolerance: float
     n_fit: int
     n_check: int
+    degree: int
+    n_ctrl_fit: int
+    form: str
+
+    @property
+    def near_limit(self) -> bool:
+        """The chosen candidate has more control points than 80 % of the inner fit's poses
+        (where a refinement may chase noise: see :func:`refinement_check`)."""
+        return self.n_ctrl_fit > 0.8 * self.n_fit
 
     def reason(self) -> str:
         """Why this spacing, in a sentence (the command line prints it; units: seconds,
@@ -117,20 +129,29 @@ def round_down(value: float, digits: int = 4) -> float:
     return float(f"{math.floor(value * scale + 1e-9) / scale:.{digits}g}")
 
 
-def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: float,
-            degree: int) -> tuple[float, float]:
-    """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``."""
+def _start(times: Tensor, poses: Tensor, spacing: float, degree: int, form: str):
+    """The least-squares start with knots at most ``spacing`` apart over ``times``."""
     from . import nn  # the layers sit above this module
 
-    t = times[fit]
-    q, p = dualquat.to_rt(poses[fit])
-    spline = nn.BSpline.from_poses(q, p, t, n_ctrl=n_ctrl(float(t[-1] - t[0]), spacing, degree),
-                                   degree=degree)
+    q, p = dualquat.to_rt(poses)
+    return nn.BSpline.from_poses(q, p, times, degree=degree, form=form,
+                                 n_ctrl=n_ctrl(float(times[-1] - times[0]), spacing, degree))
+
+
+def _errors_at(spline, times: Tensor, poses: Tensor) -> tuple[float, float]:
+    """Mean rotation (rad) and translation errors of ``spline`` at these poses."""
     with torch.no_grad():
-        pred = spline(times[check]).to(poses.dtype)
-    rot = losses.rotation_angle(pred, poses[check]).double()
-    trans = losses.translation_error(pred, poses[check]).double()
+        pred = spline(times).to(poses.dtype)
+    rot = losses.rotation_angle(pred, poses).double()
+    trans = losses.translation_error(pred, poses).double()
     return float(rot.mean()), float(trans.mean())
+
+
+def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: float,
+            degree: int, form: str) -> tuple[float, float]:
+    """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``."""
+    spline = _start(times[fit], poses[fit], spacing, degree, form)
+    return _errors_at(spline, times[check], poses[check])
 
 
 def _inner_split(n: int) -> tuple[Tensor, Tensor]:
@@ -164,7 +185,7 @@ def _check_args(fn: str, times: Tensor, poses: Tensor, degree: int, tolerance: f
 
 
 def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
-                        tolerance: float = 0.02) -> SpacingSearch:
+                        tolerance: float = 0.02, form: str = "de_boor") -> SpacingSearch:
     r"""The knot spacing search of :func:`choose_knot_spacing`, with what it tried.
 
     Args and Raises: as :func:`choose_knot_spacing`.
@@ -174,6 +195,8 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     """
     fn = "choose_knot_spacing"
     _check_args(fn, times, poses, degree, tolerance)
+    if form not in ("de_boor", "cumulative"):
+        _checks.fail(fn, f"form must be 'de_boor' or 'cumulative', got {form!r}")
     times = times.detach().double()
     poses = poses.detach()
     fit, check = _inner_split(times.shape[0])
@@ -183,11 +206,11 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     rot: list[float] = []
     trans: list[float] = []
     while len(candidates) < MAX_CANDIDATES and n_ctrl(duration, spacing, degree) > degree:
-        r, p = _scores(times, poses, fit, check, spacing, degree)
+        r, p = _scores(times, poses, fit, check, spacing, degree, form)
         candidates.append(spacing)
         rot.append(r)
         trans.append(p)
-        if r > 4 * min(rot) + 1e-12 and p > 4 * min(trans) + 1e-12:
+        if r > 2 * min(rot) + 1e-12 and p > 2 * min(trans) + 1e-12:
             break  # well past the best: coarser knots only get worse
         spacing = round_up(spacing * GRID_RATIO)
     rot_best, trans_best = min(rot), min(trans)
@@ -204,11 +227,42 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     spacing = max(round_up(candidates[chosen] * scale),
                   finest_spacing(whole, times.shape[0], degree))
     return SpacingSearch(spacing, tuple(candidates), tuple(rot), tuple(trans), chosen, best,
-                         float(tolerance), int(fit.shape[0]), int(check.shape[0]))
+                         float(tolerance), int(fit.shape[0]), int(check.shape[0]), degree,
+                         n_ctrl(duration, candidates[chosen], degree), form)
+
+
+def refinement_check(times: Tensor, poses: Tensor, search: SpacingSearch,
+                     steps: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    r"""Does refining the start help? The inner hold-out of ``search``, before and after.
+
+    Near the data limit (``n_ctrl`` close to the number of poses) a least-squares fit can
+    chase the noise between samples: this fits the inner split at the chosen candidate, once
+    as the start and once refined by :func:`torch_dq.nn.fit` (``steps``), and measures both
+    at the inner check.
+
+    Args:
+        times, poses: as given to :func:`knot_spacing_search`.
+        search: its result.
+        steps: refinement steps.
+
+    Returns:
+        ``((rot, trans) of the start, (rot, trans) refined)``: mean errors (rad, the poses'
+        unit) at the inner check.
+    """
+    from . import nn
+
+    times = times.detach().double()
+    fit, check = _inner_split(times.shape[0])
+    spline = _start(times[fit], poses[fit], search.candidates[search.chosen], search.degree,
+                    search.form)
+    before = _errors_at(spline, times[check], poses[check])
+    nn.fit(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
+           verbose=False)
+    return before, _errors_at(spline, times[check], poses[check])
 
 
 def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
-                        tolerance: float = 0.02) -> float:
+                        tolerance: float = 0.02, form: str = "de_boor") -> float:
     r"""Seconds between knots for a B-spline fitted to these poses, chosen from the data.
 
     Splits the poses into an inner fit (even indices and the last) and an inner check (the
@@ -226,6 +280,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
         poses: ``(N, 8)`` unit dual quaternions at ``times``.
         degree: B-spline degree.
         tolerance: relative margin on the best errors (default 2 %).
+        form: the B-spline form the curve will use (:class:`torch_dq.nn.BSpline`).
 
     Returns:
         The spacing in the unit of ``times``; with it, ``n_ctrl = ceil(duration / spacing) +
@@ -233,7 +288,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
 
     Raises:
         ValueError: bad shapes, non-finite or unsorted times, non-finite poses, fewer than
-            ``2 (degree + 2)`` poses, a bad ``degree`` or ``tolerance``.
+            ``2 (degree + 2)`` poses, a bad ``degree``, ``tolerance`` or ``form``.
         TypeError: non-floating tensors.
 
     Example:
@@ -244,4 +299,4 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
         >>> 0.05 <= h <= 2.0
         True
     """
-    return knot_spacing_search(times, poses, degree, tolerance=tolerance).spacing
+    return knot_spacing_search(times, poses, degree, tolerance=tolerance, form=form).spacing

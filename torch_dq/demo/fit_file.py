@@ -23,13 +23,9 @@ message names a value that works (hints are rounded so that, used literally, the
 Matplotlib is optional (``pip install 'torch_dq[plot]'``): without it the figures are
 skipped with a one-line notice.
 
-Reload the fitted curve with::
+Reload the fitted curve (control points, degree, knots, form, time origin) with::
 
-    spline = nn.BSpline(dq.identity((n_ctrl,), dtype=torch.float64), degree=degree)
-    spline.load_state_dict(torch.load("spline.pt"))  # knots and time origin included
-
-(``n_ctrl`` and ``degree`` are in ``summary.json``; the command prints this with the
-numbers filled in).
+    spline = torch_dq.nn.BSpline.from_state_dict(torch.load("spline.pt"))
 
 Example:
     >>> from torch_dq.demo.fit_file import run_fit
@@ -117,7 +113,9 @@ class FitResult:
 
 # ----------------------------------------------------------------------------- options
 
-def _check_options(knot_spacing, degree, holdout, steps, rate) -> None:
+def _check_options(knot_spacing, degree, form, holdout, steps, rate) -> None:
+    if form not in ("de_boor", "cumulative"):
+        raise ValueError(f"fit: form must be 'de_boor' or 'cumulative', got {form!r}")
     for name, value, low in (("degree", degree, 1), ("holdout", holdout, 1), ("steps", steps, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"fit: {name} must be an int >= {low}, got {value!r}")
@@ -184,32 +182,42 @@ def _split(n: int, holdout: int, degree: int) -> tuple[Tensor, Tensor]:
 
 # ----------------------------------------------------------------------------- fit
 
-def _knot_spacing(times: Tensor, poses: Tensor, degree: int, knot_spacing) -> tuple[float, str]:
-    """The knot spacing (s) for the fitted poses, and why."""
+def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spacing,
+                  steps: int) -> tuple[float, str, int]:
+    """The knot spacing (s) for the fitted poses, why, and the refinement steps to take."""
     n, duration = times.shape[0], float(times[-1] - times[0])
     finest = _spacing.finest_spacing(duration, n, degree)
     if knot_spacing == "auto":
         if n < 2 * (degree + 2):
             return finest, (f"the finest that {n} fitted poses determine (too few to choose "
-                            f"by an inner hold-out)")
-        search = _spacing.knot_spacing_search(times, poses, degree)
-        return search.spacing, search.reason()
+                            f"by an inner hold-out)"), steps
+        search = _spacing.knot_spacing_search(times, poses, degree, form=form)
+        if steps and search.near_limit:  # close to interpolation: does refining help?
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                (r0, p0), (r1, p1) = _spacing.refinement_check(times, poses, search, steps)
+            if r1 > r0 and p1 > p0:
+                return search.spacing, (f"{search.reason()}; no refinement: on the inner "
+                                        f"split it raised the errors from {math.degrees(r0):.3g}"
+                                        f" deg, {1e3 * p0:.3g} mm to {math.degrees(r1):.3g} "
+                                        f"deg, {1e3 * p1:.3g} mm"), 0
+        return search.spacing, search.reason(), steps
     n_ctrl = _spacing.n_ctrl(duration, knot_spacing, degree)
     if n_ctrl > n:
         raise OptionError(f"a knot every {knot_spacing:g} s over {duration:.3f} s needs "
                           f"{n_ctrl} control points, more than the {n} fitted poses: pass "
                           f"--knot-spacing {finest:g} or more (or auto), or a lower --holdout")
-    return float(knot_spacing), "as given (--knot-spacing)"
+    return float(knot_spacing), "as given (--knot-spacing)", steps
 
 
-def _fit(train: io.Trajectory, poses: Tensor, spacing: float, degree: int, steps: int,
-         dtype: torch.dtype, verbose: bool) -> tuple[Any, Any, dict]:
+def _fit(train: io.Trajectory, poses: Tensor, spacing: float, degree: int, form: str,
+         steps: int, dtype: torch.dtype, verbose: bool) -> tuple[Any, Any, dict]:
     """The least-squares start, then ``steps`` of :func:`torch_dq.nn.fit`: (spline, history
     or None, timings in seconds)."""
     n_ctrl = _spacing.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     start = time.perf_counter()
     spline = dqnn.BSpline.from_poses(train.rotations.to(dtype), train.translations.to(dtype),
-                                     train.times, n_ctrl=n_ctrl, degree=degree)
+                                     train.times, n_ctrl=n_ctrl, degree=degree, form=form)
     init_s = time.perf_counter() - start
     history = None
     if steps > 0:
@@ -273,10 +281,8 @@ def _describe_input(say, path: str, traj: io.Trajectory, spacing_hint: float | N
     return info
 
 
-def _reload_text(path: str, n_ctrl: int, degree: int, dtype: torch.dtype) -> str:
-    return (f"spline = torch_dq.nn.BSpline(torch_dq.dualquat.identity(({n_ctrl},), "
-            f"dtype=torch.{str(dtype).replace('torch.', '')}), degree={degree}); "
-            f"spline.load_state_dict(torch.load({path!r}))")
+def _reload_text(path: str) -> str:
+    return f"spline = torch_dq.nn.BSpline.from_state_dict(torch.load({path!r}))"
 
 
 # ----------------------------------------------------------------------------- write
@@ -323,13 +329,13 @@ def _notices(caught: list[warnings.WarningMessage]) -> list[str]:
 
 
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
-                     degree: int, steps: int, rate: float, dtype: torch.dtype,
+                     degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
                      verbose: bool) -> tuple[FitResult, dict]:
     poses = traj.poses()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spline, history, seconds = _fit(traj.select(fit_idx), poses[fit_idx], spacing, degree,
-                                        steps, dtype, verbose)
+                                        form, steps, dtype, verbose)
     pred = evaluate(spline, traj.times)
     rot, trans = pose_errors(pred, poses)
     grid = _resampling(float(traj.times[0]), float(traj.times[-1]), rate)
@@ -347,7 +353,8 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
 
 def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             times: str | os.PathLike[str] | Tensor | None = None, duplicates: str = "error",
-            knot_spacing: float | str = "auto", degree: int = 3, holdout: int = 2,
+            knot_spacing: float | str = "auto", degree: int = 3, form: str = "de_boor",
+            holdout: int = 2,
             steps: int = 50, rate: float | None = None, dtype: torch.dtype = torch.float64,
             out: str = "torch_dq_fit", overwrite: bool = False, plots: bool = True,
             verbose: bool = True) -> dict:
@@ -362,6 +369,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             degree``), or ``"auto"`` (default): chosen from the fitted poses alone by
             :func:`torch_dq._spacing.choose_knot_spacing`.
         degree: B-spline degree.
+        form: the B-spline form (:class:`torch_dq.nn.BSpline`): ``"de_boor"`` (the paper's
+            De Boor pyramid of sclerps, C1 at knots) or ``"cumulative"`` (Kim-Kim-Shin, C2
+            for a cubic: continuous accelerations, for IMU work).
         holdout: fit every ``holdout``-th pose (and the last), hold the others out
             (``1``: fit them all).
         steps: maximum steps of :func:`torch_dq.nn.fit` (``0``: keep the least-squares
@@ -388,7 +398,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         ValueError: bad argument types or ranges.
         OSError: unreadable file, unwritable output folder.
     """
-    _check_options(knot_spacing, degree, holdout, steps, rate)
+    _check_options(knot_spacing, degree, form, holdout, steps, rate)
     path, out = os.fspath(path), os.fspath(out)
     inputs = [path] + ([os.fspath(times)] if isinstance(times, (str, os.PathLike)) else [])
     _check_out(out, inputs, overwrite, plots)
@@ -400,15 +410,17 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
     fit_idx, held_idx = _split(len(traj), holdout, degree)
     train = traj.select(fit_idx)
-    spacing, why = _knot_spacing(train.times, train.poses(), degree, knot_spacing)
+    spacing, why, steps = _knot_spacing(train.times, train.poses(), degree, form,
+                                        knot_spacing, steps)
     info = _describe_input(say, path, traj, spacing)
     n_ctrl = _spacing.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     say(f"knot spacing {spacing:g} s: {why}")
-    say(f"B-spline: degree {degree}, {n_ctrl} control points, fitted to {len(fit_idx)} poses "
+    say(f"B-spline ({form} form): degree {degree}, {n_ctrl} control points, fitted to "
+        f"{len(fit_idx)} poses "
         f"(1 in {holdout}), {len(held_idx)} held out")
     rate_hz = info["median_rate_hz"] if rate is None else float(rate)
-    result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, steps, rate_hz,
-                                   dtype, verbose)
+    result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, steps,
+                                   rate_hz, dtype, verbose)
     fit["seconds"]["read"] = read_s
     heldout = _errors(result.pred, result.poses, result.report_idx)
     say(f"fit: {fit['steps']} step{'s' * (fit['steps'] != 1)} in "
@@ -417,7 +429,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     _print_errors(say, result, heldout)
     summary: dict[str, Any] = {
         "input": {**info, "format": format},
-        "model": {"class": "torch_dq.nn.BSpline", "degree": degree, "n_ctrl": n_ctrl,
+        "model": {"class": "torch_dq.nn.BSpline", "degree": degree, "form": form,
+                  "n_ctrl": n_ctrl,
                   "knot_spacing_s": spacing, "knot_spacing_reason": why,
                   "dtype": str(dtype).replace("torch.", ""),
                   "domain_s": list(result.spline.domain)},
@@ -429,7 +442,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         "seconds": fit["seconds"],
         "resampled": {"rate_hz": rate_hz, "samples": len(result.grid)},
         "warnings": fit["warnings"],
-        "reload": _reload_text(os.path.join(out, "spline.pt"), n_ctrl, degree, dtype),
+        "reload": _reload_text(os.path.join(out, "spline.pt")),
     }
     paths = _write(out, path, result, summary, plots)
     say(f"wrote {', '.join(sorted(paths))} to {out}")
