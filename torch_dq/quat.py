@@ -289,8 +289,9 @@ def slerp(q0: Tensor, q1: Tensor, t: Tensor | float, shortest: bool = True) -> T
     Returns:
         ``(..., 4)`` quaternions, batch shape broadcast of ``q0``, ``q1`` and ``t``.
 
-    Singular points: at ``q0 == q1`` the value and its derivatives of every order are
-    exact (the weights are evaluated from the squared angle, a smooth function). With
+    Singular points: at ``q0 == q1`` (and with ``shortest=True`` at ``q0 == -q1``) the value
+    and its derivatives of every order are exact (the weights are analytic functions of the
+    cosine, or of the squared angle, evaluated by power series there). With
     ``shortest=False`` and ``q1`` close to ``-q0`` the great circle is ill-conditioned (the
     path is still a unit great circle through ``q0``, but its direction has error about
     ``eps / (pi - angle)``). For ``q1 == -q0`` (within ``eps``) every great circle is a
