@@ -318,3 +318,133 @@ def test_imu_improves_velocity_over_poses_alone(gen):
         res[name] = (float((v - v_true).norm(dim=-1).mean()), float(std.mean()))
         assert float(((v - v_true).abs() / std).max()) < 5.0
     assert res["imu"][0] < 0.5 * res["poses"][0] and res["imu"][1] < 0.5 * res["poses"][1]
+
+
+# ----------------------------------------------------------------------------- what cannot be known
+
+def _small(gen):
+    t = grid(0.0, 2.0, 10)
+    ti = grid(0.2, 1.8, 20)
+    x = poses_of(t)
+    gy, ac = imu_of(ti.numpy())
+    pos = dq.to_rt(x)[1]
+    return t, ti, x, gy, ac, pos, start_spline(t, x, 0.4)
+
+
+@pytest.mark.parametrize(("build", "match"), [
+    (lambda t, ti, x, gy, ac, pos: [Poses(t, x, rot_sigma=1, trans_sigma=1, extrinsic=True)],
+     "extrinsic is undetermined"),
+    (lambda t, ti, x, gy, ac, pos: [Poses(t, x, rot_sigma=1, trans_sigma=1, time_offset=True),
+                                    Gyro(ti, gy, sigma=1, time_offset=True)],
+     "every term's time_offset"),
+    (lambda t, ti, x, gy, ac, pos: [Gyro(ti, gy, sigma=1), Accel(ti, ac, sigma=1)],
+     "absolute pose"),
+    (lambda t, ti, x, gy, ac, pos: [RelativePoses(t[:-1], t[1:], dq.mul(dq.conj(x[:-1]), x[1:]),
+                                                  rot_sigma=1, trans_sigma=1)],
+     "absolute pose"),
+    (lambda t, ti, x, gy, ac, pos: [Positions(t, pos, sigma=1)], "rotation is undetermined"),
+    (lambda t, ti, x, gy, ac, pos: [Positions(t, pos, sigma=1), Gyro(ti, gy, sigma=1)],
+     "rotation is undetermined"),
+    (lambda t, ti, x, gy, ac, pos: [Positions(t, pos, sigma=1, lever_arm=True)],
+     "lever_arm is undetermined"),
+    (lambda t, ti, x, gy, ac, pos: [Positions(t, pos, sigma=1),
+                                    Accel(ti, ac, sigma=1, bias=True, gravity=9.81)],
+     "accelerometer bias and the gravity direction"),
+])
+def test_structurally_undetermined_parameters_raise_before_solving(gen, build, match):
+    *data, spline = _small(gen)
+    before = spline.control_points.detach().clone()
+    with pytest.raises(ValueError, match=match):
+        estimate(spline, build(*data), verbose=False)
+    assert torch.equal(spline.control_points.detach(), before)
+
+
+def test_three_fixed_lever_arms_determine_rotation(gen):
+    """Three markers at non-collinear lever arms fix the rotation: no error, and the fit
+    recovers the analytic rotation."""
+    t, _, x, *_ = _small(gen)
+    q, p = dq.to_rt(x)
+    arms = [torch.tensor(a, dtype=F64) for a in ((0, 0, 0), (0.5, 0, 0), (0, 0.5, 0))]
+    terms = [Positions(t, p + quat.rotate(q, a), sigma=0.001, lever_arm=a) for a in arms]
+    spline = start_spline(t, dq.from_rt(quat.identity((21,), dtype=F64), p), 0.4)
+    estimate(spline, terms, prior=0.0, verbose=False)  # from identity rotations
+    from torch_dq.losses import rotation_angle
+    assert float(rotation_angle(spline(t), x).detach().max()) < 3e-3
+
+
+def test_unobservable_time_offset_gives_inf_and_a_warning(gen):
+    """A constant rotation rate carries no information on a gyroscope's clock offset: its
+    standard deviation is inf with a warning, never the prior's value."""
+    t, ti = grid(0.0, 2.0, 10), grid(0.2, 1.8, 20)
+    xi = torch.tensor([0.0, 0.0, 0.7, 0.3, 0.0, 0.0], dtype=F64)
+    x = dq.exp(t[:, None] * xi)
+    gyro = Gyro(ti, xi[:3].expand(33, 3), sigma=0.01, time_offset=Free(0.0))
+    cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)
+    est = estimate(start_spline(t, x, 0.4), [cam, gyro], verbose=False)
+    with pytest.warns(RuntimeWarning, match="Gyro.time_offset"):
+        assert math.isinf(float(est.std(gyro, "time_offset")))
+
+
+def test_known_time_offset_prior_gives_its_std(gen):
+    """The same offset with a Gaussian prior (a Free's prior_std): finite, the prior's."""
+    t, ti = grid(0.0, 2.0, 10), grid(0.2, 1.8, 20)
+    xi = torch.tensor([0.0, 0.0, 0.7, 0.3, 0.0, 0.0], dtype=F64)
+    x = dq.exp(t[:, None] * xi)
+    gyro = Gyro(ti, xi[:3].expand(33, 3), sigma=0.01, time_offset=Free(0.0, prior_std=0.02))
+    cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)
+    est = estimate(start_spline(t, x, 0.4), [cam, gyro], verbose=False)
+    assert float(est.std(gyro, "time_offset")) == pytest.approx(0.02, rel=1e-3)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+def test_terms_validate_their_arguments():
+    t = grid(0.0, 1.0, 10)
+    x = poses_of(t)
+    y = torch.zeros(11, 3, dtype=F64)
+    with pytest.raises(ValueError, match="rot_sigma is required"):
+        Poses(t, x, rot_sigma=None, trans_sigma=1.0)
+    with pytest.raises(TypeError):
+        Poses(t, x, 0.1, 0.1)  # sigmas are keyword-only
+    with pytest.raises(ValueError, match="sigma must be positive"):
+        Positions(t, y, sigma=-1.0)
+    with pytest.raises(ValueError, match=r"\(3,\) tensor"):
+        Gyro(t, y, sigma=torch.ones(2))
+    with pytest.raises(ValueError, match="times of shape"):
+        Gyro(t[:-1], y, sigma=1.0)
+    with pytest.raises(ValueError, match="must be finite"):
+        Gyro(t, y.index_fill(0, torch.tensor([3]), float("nan")), sigma=1.0)
+    with pytest.raises(ValueError, match="non-decreasing"):
+        Gyro(t.flip(0), y, sigma=1.0)
+    with pytest.raises(ValueError, match="mask must have"):
+        Gyro(t, y, sigma=1.0, mask=torch.ones(10, dtype=torch.bool))
+    with pytest.raises(TypeError, match="mask must be a bool"):
+        Gyro(t, y, sigma=1.0, mask=torch.ones(11))
+    with pytest.raises(ValueError, match="robust must be"):
+        Gyro(t, y, sigma=1.0, robust="tukey")
+    with pytest.raises(ValueError, match="bias must be None"):
+        Gyro(t, y, sigma=1.0, bias="yes")
+    with pytest.raises(ValueError, match=r"bias of shape \(\.\.\., 3\)"):
+        Gyro(t, y, sigma=1.0, bias=torch.zeros(2, dtype=F64))
+    with pytest.raises(ValueError, match="unit dual quaternions"):
+        Poses(t, x, rot_sigma=1, trans_sigma=1, extrinsic=2 * dq.identity(dtype=F64))
+    with pytest.raises(TypeError, match="floating-point"):
+        Positions(t, y.long(), sigma=1.0)
+    ok = Gyro(t, y.index_fill(0, torch.tensor([3]), float("nan")), sigma=1.0,
+              mask=torch.arange(11) != 3)  # a masked NaN is fine
+    assert bool(ok.mask.sum() == 10)
+
+
+def test_estimate_validates_domain_and_arguments(gen):
+    t, ti, x, gy, *_ = _small(gen)
+    spline = start_spline(t, x, 0.4)
+    cam = Poses(t, x, rot_sigma=1, trans_sigma=1)
+    with pytest.raises(ValueError, match="max_time_offset"):
+        estimate(spline, [cam, Gyro(t, poses_of(t)[:, :3], sigma=1, time_offset=True)],
+                 verbose=False)  # gyro at the ends, widened by 0.1 s
+    with pytest.raises(ValueError, match="steps must be"):
+        estimate(spline, [cam], steps=-1)
+    with pytest.raises(TypeError, match="curve layer"):
+        estimate(torch.nn.Linear(2, 2), [cam])
+    with pytest.raises(TypeError, match="non-empty list"):
+        estimate(spline, [])

@@ -43,15 +43,15 @@ def check(fn: str, terms: list[Term]) -> None:
         names = sorted({type(t).__name__ for t in terms})
         _checks.fail(fn, f"the absolute pose (position and heading) is undetermined: "
                          f"{', '.join(names)} measure only motion; add Poses or Positions")
+    for t in positions:
+        if t.slots()["lever_arm"].estimated and not (poses or inertial or relative):
+            _checks.fail(fn, "the lever_arm is undetermined by positions alone (R(t) l "
+                             "trades against the body's rotation); add Poses or an IMU")
     absolute_rotation = bool(poses) or _rotation_from_positions(positions)
     if not poses and not absolute_rotation and not any(isinstance(t, Accel) for t in terms):
         _checks.fail(fn, "the trajectory's rotation is undetermined by positions alone "
                          "(a point's track does not fix the body's rotation); add Poses, an "
                          "IMU, or Positions of three non-collinear fixed lever arms")
-    for t in positions:
-        if t.slots()["lever_arm"].estimated and not (poses or inertial or relative):
-            _checks.fail(fn, "the lever_arm is undetermined by positions alone (R(t) l "
-                             "trades against the body's rotation); add Poses or an IMU")
     for t in terms:
         if isinstance(t, Accel) and t.slots()["bias"].estimated and t.slots()[
                 "gravity"].estimated and not absolute_rotation:

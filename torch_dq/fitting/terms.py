@@ -136,7 +136,9 @@ class Term(torch.nn.Module):
         first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
         filled = torch.where(m, t, -torch.inf).cummax(-1).values
         filled = torch.where(torch.isinf(filled), first, filled)
-        if len(self._names) == 1 and bool((filled[..., 1:] < filled[..., :-1]).any()):
+        mm = m.expand(t.shape)
+        if len(self._names) == 1 and bool((mm[..., 1:] & (t[..., 1:] < filled[..., :-1]))
+                                          .any()):
             _checks.fail(fn, f"{name} must be non-decreasing")
         return filled
 

@@ -12,8 +12,9 @@ covariance is the inverse of ``[[A, C], [C^T, N]]``:
 ``A^{-1}`` is only needed on the band (the selected inverse of
 :class:`~torch_dq.fitting._banded.BandedCholesky`), ``Z`` by one banded solve with ``m``
 columns: no dense inverse. ``S`` is inverted through its eigen-decomposition: a direction
-with an eigenvalue below ``1e-9`` of the largest (no information) gets an infinite
-variance and a warning, never a value chosen by the numerical prior.
+with an eigenvalue below ``1e-9`` of the largest, or below ``1e-12`` of the largest diagonal
+entry of ``A`` (no information at float64 precision), gets an infinite variance and a
+warning, never a value chosen by the numerical prior.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from .nuisance import gravity_basis
 __all__ = ["Estimate"]
 
 _NULL = 1e-9  # relative eigenvalue of the Schur complement below which a direction is unknown
+_FLOOR = 1e-12  # ... or below this fraction of the largest control-point information
 
 
 class Estimate:
@@ -98,7 +100,8 @@ class Estimate:
         S = 0.5 * (S + S.mT)
         lam, V = torch.linalg.eigh(S)
         top = lam.amax(-1, keepdim=True).clamp_min(0.0)
-        bad = (lam <= _NULL * top) | ~ok[:, None]
+        scale = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).amax((-1, -2))[:, None]
+        bad = (lam <= _NULL * top) | (lam <= _FLOOR * scale) | ~ok[:, None]
         self._V = V
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
