@@ -402,3 +402,100 @@ def test_fit_of_another_module_casts_times():
     target = dq.exp(s[:, None] * torch.tensor([0.0, 0.0, 0.5, 0.2, 0.0, 0.0], dtype=F64))
     history = fit(Screw(), s, target, lr=0.05, steps=100, verbose=False)
     assert history.optimizer == "adam" and history.final_loss < 1e-2 * history.loss[0]
+
+
+# ----------------------------------------------------------------------------- issue 22 defects
+
+@pytest.mark.parametrize("optimizer", ["adam", "sgd", "lbfgs", "lm"])
+def test_non_finite_target_raises_and_leaves_the_module(optimizer):
+    """0.2 wrote NaN into the module (adam, sgd, lbfgs) for one NaN target pose."""
+    s = torch.linspace(0.0, 1.0, 40, dtype=F64)
+    x = drive(s, laps=0.2, radius=1.0)
+    spline = BSpline.from_dualquats(x, s, n_ctrl=8)
+    before = spline.control_points.detach().clone()
+    bad = x.clone()
+    bad[7, 2] = float("nan")
+    with pytest.raises(ValueError, match="poses must be finite.*index \\(7,\\)"):
+        fit(spline, s, bad, optimizer=optimizer, verbose=False)
+    assert torch.equal(spline.control_points.detach(), before)
+
+
+def test_lm_normalizes_targets_far_from_the_origin():
+    """0.2: targets written with 4 decimals (|q| - 1 up to 6e-5) 1e5 m from the origin ended
+    11 m off with a loss 1e7 times the start's. The fit now never ends worse than it started
+    and reports the loss it minimises."""
+    s = torch.linspace(0.0, 10.0, 101, dtype=F64)
+    x = dq.mul(dq.from_rt(torch.tensor([1.0, 0, 0, 0], dtype=F64),
+                          torch.tensor([1e5, -1e5, 10.0], dtype=F64)),
+               drive(s, laps=0.3, radius=5.0))
+    q, p = dq.to_rt(x)
+    q4 = torch.round(q * 1e4) / 1e4  # slightly non-unit
+    assert float((q4.norm(dim=-1) - 1).abs().max()) > 1e-5
+    spline = BSpline.from_poses(q4 / q4.norm(dim=-1, keepdim=True), p, s, n_ctrl=24)
+    # the dual quaternion of the rounded (non-unit) quaternions, as a file would give it
+    target = torch.cat((q4, 0.5 * quat.mul(torch.cat((torch.zeros_like(p[:, :1]), p), -1), q4)),
+                       -1)
+    start = float(pose_loss(spline(s), dq.normalize(target)))
+    history = fit(spline, s, target, verbose=False)
+    assert history.final_loss <= start * (1 + 1e-9)
+    assert history.loss[0] == pytest.approx(start, rel=1e-6)
+    assert float(translation_error(spline(s), x).detach().max()) < 0.05
+
+
+def test_auto_with_a_custom_loss_or_module_picks_a_torch_optimizer():
+    """0.2 raised a bare KeyError: 'auto'."""
+    s = torch.linspace(0.0, 1.0, 20, dtype=F64)
+    x = drive(s, laps=0.1, radius=1.0)
+    spline = BSpline.from_dualquats(x, s, n_ctrl=5)
+
+    def custom(a, b):
+        return translation_error(a, b).mean()
+
+    history = fit(spline, s, x, loss=custom, steps=3, verbose=False)
+    assert history.optimizer == "adam" and history.steps == 3
+
+
+def test_auto_with_lr_builds_what_history_says(monkeypatch):
+    """0.2 built LBFGS with lr= while history.optimizer said adam."""
+    s = torch.linspace(0.0, 1.0, 20, dtype=F64)
+    x = drive(s, laps=0.1, radius=1.0)
+    spline = BSpline.from_dualquats(x, s, n_ctrl=5)
+    built = []
+    real = torch.optim.Adam
+
+    class Spy(real):
+        def __init__(self, *args, **kwargs):
+            built.append(kwargs.get("lr"))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(torch.optim, "Adam", Spy)
+    history = fit(spline, s, x, lr=0.003, steps=2, verbose=False)
+    assert history.optimizer == "adam" and built == [0.003]
+
+
+def test_lbfgs_says_what_stopped_it():
+    """From an exact start LBFGS's own tolerance_grad stops it before any move: 0.2 said
+    converged=True; now the history names the tolerance and is not converged."""
+    s = torch.linspace(0.0, 1.0, 30, dtype=F64)
+    x = drive(s, laps=0.1, radius=1.0)
+    spline = BSpline.from_dualquats(x, s, n_ctrl=5)
+    fit(spline, s, x, verbose=False)  # at the optimum
+    history = fit(spline, s, x, optimizer="lbfgs", verbose=False)
+    assert not history.converged and "tolerance_grad" in history.reason
+
+
+def test_terms_drive_a_torch_optimizer_loop():
+    """term.cost is differentiable: Adam on a spline's raw control points lowers it."""
+    s = torch.linspace(0.0, 2.0, 41, dtype=F64)
+    x = drive(s, laps=0.2, radius=1.0)
+    spline = BSpline.from_dualquats(x, s, n_ctrl=8)
+    target = dq.mul(x, dq.exp(torch.full((41, 6), 0.02, dtype=F64)))
+    term = fitting.Poses(s, target, rot_sigma=0.01, trans_sigma=0.01, robust="huber")
+    opt = torch.optim.Adam(spline.parameters(), lr=1e-3)
+    first = float(term.cost(spline))
+    for _ in range(20):
+        opt.zero_grad()
+        term.cost(spline).backward()
+        opt.step()
+    assert float(term.cost(spline)) < 0.5 * first
+    assert term(spline).shape == (41, 6)
