@@ -26,6 +26,7 @@ which the choice never saw. The spacing is in the time unit of ``times`` (second
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -149,8 +150,11 @@ def _errors_at(spline, times: Tensor, poses: Tensor) -> tuple[float, float]:
 
 def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: float,
             degree: int, form: str) -> tuple[float, float]:
-    """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``."""
-    spline = _start(times[fit], poses[fit], spacing, degree, form)
+    """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``
+    (the start's warnings about coarse knots are the search's business: silenced)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spline = _start(times[fit], poses[fit], spacing, degree, form)
     return _errors_at(spline, times[check], poses[check])
 
 
