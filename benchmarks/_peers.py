@@ -200,3 +200,14 @@ def pypose_train_step(init: torch.Tensor, target_at, interval: float):
         opt.step()
 
     return step, count
+
+
+def pypose_bspline_curve(ctrl: torch.Tensor, interval: float):
+    """pypose's cumulative cubic B-spline of ``ctrl`` ``(N, 8)`` on its own uniform grid:
+    ``(s, poses)``, the times ``s`` in ``[0, N - 3]`` and the poses ``(len(s), 8)`` in
+    torch_dq's layout (for the agreement note of the cumulative rows)."""
+    pp = _need("pypose")
+    with torch.no_grad():
+        P = pp.bspline(_pp_se3(ctrl, False), interval=interval, extrapolate=False)
+    s = torch.arange(P.shape[-2], dtype=ctrl.dtype, device=ctrl.device) * interval
+    return s, dq.from_pose7(P.tensor())
