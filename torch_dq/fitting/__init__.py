@@ -28,7 +28,9 @@ Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
 
 import torch
 
-from ._lsq import bspline_basis, check_determined, check_times, least_squares_start
+from .._spacing import choose_knot_spacing
+from .._start import bspline_basis, check_determined, least_squares_start
+from .._start import check_sample_times as check_times
 from .estimate import estimate
 from .fit import FitHistory, fit
 from .nuisance import Free
@@ -38,4 +40,4 @@ from .uncertainty import Estimate
 
 __all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
            "RelativePoses", "Term", "bspline_basis", "check_determined", "check_times",
-           "chi_quantile", "estimate", "fit", "least_squares_start"]
+           "chi_quantile", "choose_knot_spacing", "estimate", "fit", "least_squares_start"]

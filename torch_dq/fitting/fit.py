@@ -17,7 +17,8 @@ from torch import Tensor
 
 from .. import _checks, dualquat
 from ..losses import pose_loss
-from ._lsq import check_determined, check_times
+from .._start import check_determined
+from .._start import check_sample_times as check_times
 from .estimate import estimate, progress
 from .terms import Poses
 
