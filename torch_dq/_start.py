@@ -23,6 +23,7 @@ minimises the form's own residuals.
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 from torch import Tensor
@@ -35,6 +36,12 @@ __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squ
 
 _MAX_WINDOW_ELEMENTS = 1 << 22  # bound on (windows x samples x unknowns) per chunk
 _START_PRIOR = 1e-3  # pull of the windowed least squares towards the anchors (see below)
+# Largest rotation (rad) across one window of the start: the twists lifted into a window's
+# chart hold rotations up to a full turn (2 pi) either side of it, but the translation part
+# (V(omega)^-1, poles at 2 pi) and charts off the middle of windows cut at the ends of the
+# trajectory leave less: measured on constant screw motions, windows of 8 rad are exact and
+# of 8.5 rad not.
+_MAX_WINDOW_TURN = 8.0
 
 
 # ----------------------------------------------------------------------------- checks
@@ -140,6 +147,27 @@ def _interpolate(x: Tensor, times: Tensor, at: Tensor) -> Tensor:
     return dualquat.sclerp(x[..., r - 1, :], x[..., r, :], u.clamp(0.0, 1.0))
 
 
+def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> int:
+    """The reach ``a`` of the windows (:func:`least_squares_start`): the largest in
+    ``0..h`` whose ``2a + h + 1`` knot spans turn by less than ``_MAX_WINDOW_TURN`` at the
+    samples' fastest rotation rate; warns where even ``a = 0`` does not."""
+    if x.shape[-2] < 2 or anchors.shape[0] < 2:
+        return h
+    q = x[..., :4]  # sign-aligned: the relative rotation's real part is the dot, >= 0
+    dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1).abs().clamp(max=1.0)
+    rate = float((2.0 * torch.acos(dots) / (times[1:] - times[:-1])).max())
+    spacing = float((anchors[1:] - anchors[:-1]).max())  # the knot spacing, about
+    turn = rate * spacing  # rad per knot span
+    if turn * (h + 1) > _MAX_WINDOW_TURN:
+        ok = 0.9 * _MAX_WINDOW_TURN / (h + 1) / rate  # followed literally, it works
+        warnings.warn(f"the poses turn at up to {rate:.3g} rad/s, {turn:.3g} rad per knot "
+                      f"span of {spacing:.3g}: the least-squares start is unreliable above "
+                      f"{_MAX_WINDOW_TURN / (h + 1):.3g} rad per span; use knots at most "
+                      f"{ok:.3g} apart", UserWarning, stacklevel=6)
+        return 0
+    return max(0, min(h, int((_MAX_WINDOW_TURN / max(turn, 1e-300) - h - 1) // 2)))
+
+
 def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
                         anchors: Tensor) -> Tensor:
     r"""Control points fit to poses by windowed least squares in local charts.
@@ -147,8 +175,9 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     The anchors :math:`a_j` are the poses interpolated (``sclerp`` between the neighbouring
     samples) at the times ``anchors[j]``. Control point ``k`` is :math:`c_k \exp(C_k)`: the
     chart :math:`c_k` is the pose interpolated at the middle time of a window of samples
-    around ``k`` (those whose support overlaps control points ``k - p .. k + p``, ``p + 1``
-    the support width; all samples for a global basis), and :math:`C_k` the coefficient of
+    around ``k`` (those whose support starts at control points ``k - p - a .. k + a``,
+    ``p + 1`` the support width; all samples for a global basis), and :math:`C_k` the
+    coefficient of
     control point ``k`` in the linear least-squares fit
     :math:`\min \sum_i |\sum_j B_j(t_i) C_j - \log(c_k^{-1} x_i)|^2` over that window
     (relative rotations up to a full turn either side of the chart). A weak prior pulls every
@@ -158,6 +187,12 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     of and inside a time gap longer than a knot span) on the screw-motion bridge between
     the neighbouring samples instead of letting them run off. Exact for a constant screw
     motion (its anchors are the exact control points).
+
+    The window reach ``a`` is ``p`` (windows of ``3p + 1`` knot spans) unless the poses
+    turn fast: a window must turn less than about a full turn either side of its chart, so
+    ``a`` shrinks down to 0 (``p + 1`` spans) where the samples turn by more than about
+    1 rad per knot span, and beyond ``8 / (p + 1)`` rad per span (where even those
+    windows wrap) a ``UserWarning`` names the rate found and the knot spacing that works.
 
     Args:
         x: ``(..., N, 8)`` unit dual quaternions, float64 (any signs).
@@ -176,8 +211,9 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     anchor = _interpolate(x, times, anchors)  # (..., n, 8)
     dev = x.device
     ks = torch.arange(n, device=dev)
-    lo = torch.searchsorted(first, ks - 2 * h, right=False)
-    hi = torch.searchsorted(first, ks + h, right=True)
+    a = _window_reach(x, times, anchors, h)
+    lo = torch.searchsorted(first, ks - h - a, right=False)
+    hi = torch.searchsorted(first, ks + a, right=True)
     # The chart of each window: the pose interpolated at the middle time of its samples (the
     # lifted twists hold relative rotations up to a full turn either side of it; a Bézier
     # curve's window is every sample, charted at the middle of the trajectory).

@@ -35,6 +35,8 @@ first and last non-empty ones, local parameters run outside ``[0, 1]``).
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -111,7 +113,10 @@ class KnotDomain:
         return k[..., self.degree], k[..., self.n]
 
     def domain(self) -> tuple[float, float]:
-        """The absolute domain ``(t0, t1)`` as Python floats (one host read; unbatched)."""
+        """The absolute domain ``(t0, t1)`` as Python floats (one host read; unbatched;
+        NaN for meta knots, which hold no values)."""
+        if self.knots.device.type == "meta":
+            return math.nan, math.nan
         lo, hi = torch.stack(self.ends(torch.float64)).tolist()
         return float(self.origin) + lo, float(self.origin) + hi
 

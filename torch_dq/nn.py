@@ -262,9 +262,10 @@ class _Compat01:
 
 # ----------------------------------------------------------------------------- constructors
 
-class _Constructors:
-    """The constructors of every curve layer: from poses (the least-squares start of
-    :mod:`torch_dq._start`), matrices, dual quaternions, and from a saved ``state_dict``."""
+class _Construction:
+    """Making a curve layer: from poses (the least-squares start of :mod:`torch_dq._start`),
+    matrices, dual quaternions; and saving: the extra state, :meth:`from_state_dict`,
+    pickling."""
 
     _name: str
 
@@ -282,7 +283,17 @@ class _Constructors:
         def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
                              ) -> dict[str, Any]: ...
 
+        check: bool
+        extrapolate: bool
+        training: bool
+
         def load_state_dict(self, state_dict: Mapping[str, Any]) -> Any: ...
+
+        def state_dict(self) -> dict[str, Any]: ...
+
+        def _state(self) -> dict[str, Any]: ...
+
+        def _restore(self, fn: str, state: dict[str, Any]) -> None: ...
 
     def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
         """Set the control points from the local least-squares start
@@ -332,6 +343,14 @@ class _Constructors:
                              f"{_checks.shape_str(x.shape)}")
         return cls._from_dq(fn, dualquat.normalize(x), times, **kwargs)
 
+    def get_extra_state(self) -> dict[str, Any]:
+        return {"origin": self._origin, **self._state()}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        fn = f"{self._name}.load_state_dict"
+        self._origin = _extra_float(fn, state, "origin")
+        self._restore(fn, state)
+
     @classmethod
     def from_state_dict(cls, state_dict: Mapping[str, Any], *, check: bool = True,
                         extrapolate: bool = False) -> Self:
@@ -375,9 +394,18 @@ class _Constructors:
         return module
 
 
+    def __reduce_ex__(self, protocol):
+        # Parametrized modules do not pickle (their class is made on the fly): rebuilt from
+        # the state_dict by from_state_dict, so torch.save(module) works.
+        settings = {"check": self.check, "extrapolate": self.extrapolate,
+                    "training": self.training}
+        return _rebuild, (parametrize.type_before_parametrizations(self),
+                          dict(self.state_dict()), settings)
+
+
 # ----------------------------------------------------------------------------- the contract
 
-class Curve(_Compat01, _Constructors, torch.nn.Module, abc.ABC):
+class Curve(_Compat01, _Construction, torch.nn.Module, abc.ABC):
     """A curve layer: learnable unit-dual-quaternion control points on a time model.
 
     The contract that :class:`Bezier` and :class:`BSpline` implement and that
@@ -505,14 +533,6 @@ class Curve(_Compat01, _Constructors, torch.nn.Module, abc.ABC):
     def domain(self) -> tuple[float, float]:
         """The module's time domain ``(start, end)`` in the caller's units (Python floats)."""
         return self.time_model.domain()
-
-    def get_extra_state(self) -> dict[str, Any]:
-        return {"origin": self._origin, **self._state()}
-
-    def set_extra_state(self, state: dict[str, Any]) -> None:
-        fn = f"{self._name}.load_state_dict"
-        self._origin = _extra_float(fn, state, "origin")
-        self._restore(fn, state)
 
     def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None) -> Tensor:
         """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, admitted by the time
@@ -674,15 +694,6 @@ class Curve(_Compat01, _Constructors, torch.nn.Module, abc.ABC):
         extra = "".join(f", {k}={v!r}" for k, v in self._state().items() if k != "length")
         return (f"n_ctrl={self.n_ctrl}{extra}, batch_shape={batch}, domain=({start!r}, "
                 f"{end!r}), dtype={raw.dtype}")
-
-    def __reduce_ex__(self, protocol):
-        # Parametrized modules do not pickle (their class is made on the fly): rebuilt from
-        # the state_dict by from_state_dict, so torch.save(module) works.
-        settings = {"check": self.check, "extrapolate": self.extrapolate,
-                    "training": self.training}
-        return _rebuild, (parametrize.type_before_parametrizations(self),
-                          dict(self.state_dict()), settings)
-
 
 # ----------------------------------------------------------------------------- the curves
 
