@@ -2,9 +2,10 @@
 jets, the fused ``poses``) and the readable reference ``curves._kim_kim_shin``.
 
 Independent references: scipy's B-spline basis (``BSpline`` with unit coefficient vectors)
-and the 4x4-matrix product ``T_0 prod_j expm(Bt_j logm(T_{j-1}^-1 T_j))`` with scipy's
-``expm``/``logm``, its exact time derivatives (Leibniz rule on ``expm(w L)``, checked
-against central finite differences), and pypose's ``bspline`` on uniform knots.
+and the 4x4-matrix product ``T_0 prod_j expm(Bt_j logm(T_{j-1}^-1 T_j))`` (closed-form
+``expm``/``logm`` checked against scipy's), its exact time derivatives (Leibniz rule on
+``expm(w L)``, checked against central finite differences), and pypose's ``bspline`` on
+uniform knots.
 """
 
 import math
@@ -14,6 +15,7 @@ import pytest
 import scipy.interpolate as si
 import scipy.linalg as sl
 import torch
+from pytransform3d import transformations as pt
 from strategies import unit_quat
 
 import torch_dq.dualquat as dq
@@ -88,22 +90,31 @@ def cumulative_basis_np(knots, p, t, nu):
     return np.flip(np.cumsum(np.flip(cols, 1), 1), 1)
 
 
+def twist_matrix(xi):
+    """The 4x4 matrix ``[[[omega]x, v], [0, 0]]`` of exponential coordinates ``(omega, v)``."""
+    L = np.zeros((4, 4))
+    L[:3, :3] = [[0.0, -xi[2], xi[1]], [xi[2], 0.0, -xi[0]], [-xi[1], xi[0], 0.0]]
+    L[:3, 3] = xi[3:]
+    return L
+
+
 def matrix_jets_np(ctrl, knots, p, t, order):
     """The matrix form ``T_0 prod_j expm(w_j L_j)``, ``L_j = logm(T_{j-1}^-1 T_j)``, and its
     exact time derivatives ``0..order`` at ``t`` (Leibniz rule; ``d/dt expm(w L) =
-    expm(w L) L w'``). Returns ``(order + 1, T, 4, 4)``."""
+    expm(w L) L w'``). Returns ``(order + 1, T, 4, 4)``. ``expm`` and ``logm`` of rigid
+    motions in closed form (pytransform3d's exponential coordinates; the same as scipy's
+    ``expm``/``logm``, checked below, and free of LAPACK calls that crawl on a busy
+    machine)."""
     M = dq.to_matrix(ctrl).numpy()
-    logs = [np.real(sl.logm(np.linalg.solve(M[j - 1], M[j]))) for j in range(1, len(M))]
+    xis = [pt.exponential_coordinates_from_transform(np.linalg.solve(M[j - 1], M[j]))
+           for j in range(1, len(M))]
     W = [cumulative_basis_np(knots, p, t, nu) for nu in range(order + 1)]
     out = np.zeros((order + 1, len(t), 4, 4))
     for i in range(len(t)):
         X = [M[0]] + [np.zeros((4, 4))] * order
-        for j, L in enumerate(logs, start=1):
+        for j, xi in enumerate(xis, start=1):
             w = [W[nu][i, j] for nu in range(order + 1)] + [0.0] * 3
-            if w[0] == 0.0 or (abs(w[0] - 1.0) < 1e-14 and not any(w[1:])):
-                X = [x @ (np.eye(4) if w[0] == 0.0 else sl.expm(L)) for x in X]  # constant
-                continue
-            E = sl.expm(w[0] * L)
+            E, L = pt.transform_from_exponential_coordinates(w[0] * xi), twist_matrix(xi)
             L2 = L @ L
             dE = [E, E @ L * w[1], E @ (L2 * w[1] ** 2 + L * w[2]),
                   E @ (L2 @ L * w[1] ** 3 + 3.0 * L2 * w[1] * w[2] + L * w[3])]
@@ -113,21 +124,45 @@ def matrix_jets_np(ctrl, knots, p, t, order):
     return out
 
 
+def test_closed_form_exp_log_match_scipy(gen):
+    """The reference's matrix exponential and logarithm are scipy's ``expm``/``logm``."""
+    M = dq.to_matrix(chain(4, gen)).numpy()
+    for j in range(1, 4):
+        rel = np.linalg.solve(M[j - 1], M[j])
+        xi = pt.exponential_coordinates_from_transform(rel)
+        L = np.real(sl.logm(rel))
+        assert np.abs(twist_matrix(xi) - L).max() <= 1e-12
+        assert np.abs(pt.transform_from_exponential_coordinates(0.37 * xi)
+                      - sl.expm(0.37 * L)).max() <= 1e-13
+
+
+def _quadratic_matrix(x):
+    """The 4x4 matrix of unit dual quaternions ``x (..., 8)`` as a homogeneous quadratic
+    form (bottom row left out): ``R`` from ``w^2 + x^2 - y^2 - z^2``-type entries,
+    ``t = 2 vec(d r*)``."""
+    w, a, b, c, dw, da, db, dc = np.moveaxis(x, -1, 0)
+    R = [[w * w + a * a - b * b - c * c, 2 * (a * b - w * c), 2 * (a * c + w * b)],
+         [2 * (a * b + w * c), w * w - a * a + b * b - c * c, 2 * (b * c - w * a)],
+         [2 * (a * c - w * b), 2 * (b * c + w * a), w * w - a * a - b * b + c * c]]
+    t = [2 * (-dw * a + da * w - db * c + dc * b), 2 * (-dw * b + db * w - dc * a + da * c),
+         2 * (-dw * c + dc * w - da * b + db * a)]
+    zero = np.zeros_like(w)
+    return np.stack([np.stack([*R[i], t[i]], -1) for i in range(3)]
+                    + [np.stack([zero] * 4, -1)], -2)
+
+
 def matrix_jets_torch(jet):
-    """The time derivatives of ``to_matrix(x(t))`` from the jets of ``x`` (nested forward
-    mode through the Taylor polynomial ``sum_k x^(k) h^k / k!``): ``(order + 1, T, 4, 4)``."""
-    order = len(jet) - 1
+    """The time derivatives of the matrix of ``x(t)`` from those of ``x``, by the Leibniz
+    rule on the quadratic form (polarised): ``(order + 1, T, 4, 4)``."""
+    xs = [v.detach().numpy() for v in jet]
 
-    def mat(h):
-        x = sum(jet[k] * h ** k / math.factorial(k) for k in range(order + 1))
-        return dq.to_matrix(x)
+    def bilinear(a, b):
+        return (_quadratic_matrix(a + b) - _quadratic_matrix(a - b)) / 4.0
 
-    h = torch.zeros((), dtype=jet[0].dtype)
-    out, f = [mat(h)], mat
-    for _ in range(order):
-        f = torch.func.jacfwd(f)
-        out.append(f(h))
-    return torch.stack(out).detach().numpy()
+    out = [sum(math.comb(k, i) * bilinear(xs[i], xs[k - i]) for i in range(k + 1))
+           for k in range(len(xs))]
+    out[0][..., 3, 3] = 1.0
+    return np.stack(out)
 
 
 # ----------------------------------------------------------------------------- basis
@@ -241,6 +276,29 @@ def test_pypose_on_uniform_knots(gen, shape):
     assert float((dq.to_matrix(ours) - ref).abs().max()) <= 1e-10
 
 
+@pytest.mark.parametrize("kind", ["clamped", "nonuniform"])
+@pytest.mark.parametrize("p", [1, 2, 3, 4, 5])
+def test_public_bspline_cumulative_matches_matrix_reference(gen, kind, p):
+    """``curves.bspline`` / ``bspline_derivatives`` with ``form="cumulative"``, batched
+    control points, inside the domain and extrapolated beyond both ends."""
+    n = p + 3
+    ctrl = torch.stack((chain(n, gen), chain(n, gen)))
+    knots = knot_vector(kind, n, p, gen)
+    for extrapolate, margin in ((False, 0.0), (True, 0.2)):
+        t = domain_times(knots, p, 7, margin)
+        x = curves.bspline(ctrl, t, degree=p, knots=knots, form="cumulative",
+                           extrapolate=extrapolate)
+        jet = curves.bspline_derivatives(ctrl, t, order=3, degree=p, knots=knots,
+                                         form="cumulative", extrapolate=extrapolate)
+        for b in range(2):
+            ref = matrix_jets_np(ctrl[b], knots.numpy(), p, t.numpy(), 3)
+            assert np.abs(dq.to_matrix(x[b]).numpy() - ref[0]).max() <= 1e-10
+            got = matrix_jets_torch([v[b] for v in jet])
+            for k in range(4):
+                scale = max(1.0, np.abs(ref[k]).max())
+                assert np.abs(got[k] - ref[k]).max() <= 1e-10 * scale, (extrapolate, k)
+
+
 # ----------------------------------------------------------------------------- smoothness
 
 def test_continuity_across_simple_knots(gen):
@@ -271,17 +329,23 @@ def test_continuity_across_simple_knots(gen):
 
 def test_de_boor_acceleration_jumps_at_knots(gen):
     """The paper's De Boor form (curves.bspline_derivatives' default) is C^1 only: its
-    acceleration jumps at a simple knot by a measurable amount (the cumulative form's does
-    not, test above)."""
+    acceleration jumps at a simple knot by a measurable amount; the cumulative form's,
+    through the same public function, does not."""
     n, p = 8, 3
     ctrl = chain(n, gen)
     knots = knot_vector("nonuniform", n, p, gen)
     u = knots[p + 1:n]
-    left = curves.bspline_derivatives(ctrl, u - 1e-9, order=2, degree=p, knots=knots)
-    right = curves.bspline_derivatives(ctrl, u, order=2, degree=p, knots=knots)
-    assert float((left[1] - right[1]).abs().max()) <= 1e-7  # velocity continuous
-    jump = (left[2] - right[2]).norm(dim=-1).max()
-    assert float(jump) >= 1e-3 * float(right[2].norm(dim=-1).max())
+
+    def jumps(form):
+        left, right = (curves.bspline_derivatives(ctrl, s, order=2, degree=p, knots=knots,
+                                                  form=form) for s in (u - 1e-9, u))
+        scale = float(right[2].norm(dim=-1).max())
+        return [float((a - b).norm(dim=-1).max()) / scale for a, b in zip(left, right)]
+
+    de_boor, cumulative = jumps("de_boor"), jumps("cumulative")
+    assert de_boor[1] <= 1e-7 and cumulative[1] <= 1e-7  # velocities continuous
+    assert de_boor[2] >= 1e-3  # the acceleration jumps
+    assert cumulative[2] <= 1e-7  # continuous: only jerk * 1e-9 s
 
 
 # ----------------------------------------------------------------------------- autograd
