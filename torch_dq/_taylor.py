@@ -24,6 +24,9 @@ from the jets of :math:`\theta = \arccos c`, :math:`\sin\theta`, :math:`\sin s\t
 :math:`F = \sum_k a_k(s)\,y^k`, :math:`G = \partial_y F`, :math:`y = 1 - c`,
 :math:`a_0 = s`, :math:`a_k = a_{k-1}(k^2 - s^2)/(k(2k + 1))`, with enough terms for the
 derivatives in :math:`y` that the jets need (:func:`_series`).
+
+:func:`dq_mul` is the Leibniz product of dual-quaternion jets (component rows), which the
+cumulative B-spline form (:mod:`torch_dq._cumulative`) needs for its product of powers.
 """
 
 from __future__ import annotations
