@@ -11,23 +11,27 @@ with :math:`B_{l,p}` the B-spline basis of degree ``p`` and each power
 :math:`x^w = \exp(w \log x)` the screw motion on the shortest path, i.e. eq. 11 from the
 identity, :math:`x^w = \mathrm{sclerp}(1, x, w)`. For ``t`` in the span
 :math:`u_r \le t < u_{r+1}` the cumulative weights are 1 for :math:`j \le r - p` and 0 for
-:math:`j > r`, and whole powers telescope (:math:`c_0 \prod_{j \le r-p} c_{j-1}^{-1} c_j =
-c_{r-p}`, exact because the chain is sign-aligned), so only the span's ``p + 1`` control
-points matter:
+:math:`j > r`. A whole power is the relative motion itself when its real part is
+non-negative (the shortest path), which sign alignment guarantees, so the whole powers
+telescope (:math:`c_0 \prod_{j \le r-p} c_{j-1}^{-1} c_j = c_{r-p}`) and only the span's
+``p + 1`` control points matter:
 
 .. math::
     X(t) = c_{r-p} \prod_{j=1}^{p}
         \big(c_{r-p+j-1}^{-1} c_{r-p+j}\big)^{\tilde B_{r-p+j}(t)}.
 
 The weights are polynomials of degree ``p`` on each span, and the curve is
-:math:`C^{p-1}` at a simple interior knot (the cumulative basis is, and each power is
-analytic in its weight): a cubic's accelerations are continuous, unlike the De Boor form's.
+:math:`C^{p-1}` at a simple interior knot, :math:`C^{p-m}` at a knot of multiplicity ``m``
+(as the cumulative basis, since each power is analytic in its weight): a cubic's
+accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
 
 - :func:`basis`: the cumulative weights of each time's span and their time derivatives.
 - :func:`jets`: the curve and its exact time derivatives from the span's control points and
   the weights, in truncated Taylor arithmetic (:mod:`torch_dq._taylor`): the power's jets
   are eq. 11's (:func:`torch_dq._taylor.sclerp` from the identity; the derivative of
   :math:`x^{w(t)}` is :math:`x^w \log(x)\, \dot w`), their product a Leibniz product.
+- :func:`poses`: the poses alone as one fused autograd op (eager reverse mode), with each
+  pair's relative motion and angle computed once and an analytic backward.
 
 The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 """
