@@ -435,7 +435,7 @@ def test_lm_normalizes_targets_far_from_the_origin():
     # the dual quaternion of the rounded (non-unit) quaternions, as a file would give it
     target = torch.cat((q4, 0.5 * quat.mul(torch.cat((torch.zeros_like(p[:, :1]), p), -1), q4)),
                        -1)
-    start = float(pose_loss(spline(s), dq.normalize(target)))
+    start = float(pose_loss(spline(s), dq.normalize(target)).detach())
     history = fit(spline, s, target, verbose=False)
     assert history.final_loss <= start * (1 + 1e-9)
     assert history.loss[0] == pytest.approx(start, rel=1e-6)
