@@ -544,3 +544,28 @@ def test_float32_derivatives_accuracy(gen):
     for k in range(4):
         err = max_err(got[k].double(), ref[k]) / max(1.0, float(ref[k].abs().max()))
         assert err <= 1e-6, (k, err)
+
+
+@pytest.mark.parametrize("gap", [1e-2, 1e-3, 1e-4])
+def test_rounding_of_accelerations_near_a_short_knot_span(gap):
+    """Issue 22: the De Boor form's linear acceleration loses accuracy as eps / gap^2 near a
+    short knot span (angular as eps / gap); the bound stated in bspline_derivatives holds,
+    and the cumulative form does not amplify rounding. float32 control points against the
+    float64 evaluation of the same (rounded) control points."""
+    g = torch.Generator().manual_seed(1)
+    ctrl = dq.exp(torch.randn(9, 6, dtype=F64, generator=g) * 0.5).float()
+    size = float(dq.to_rt(ctrl.double())[1].norm(dim=-1).max())
+    knots = torch.tensor([0, 0, 0, 0, 1, 2, 2 + gap, 3, 4, 5, 5, 5, 5], dtype=F64)
+    t = torch.cat((2 + gap * torch.tensor([0.1, 0.5, 0.9], dtype=F64),
+                   torch.tensor([1.5, 2.5], dtype=F64)))
+    eps = torch.finfo(torch.float32).eps
+    for form in ("de_boor", "cumulative"):
+        k32 = kinematics(*bspline_derivatives(ctrl, t, 2, knots=knots, form=form))
+        k64 = kinematics(*bspline_derivatives(ctrl.double(), t, 2, knots=knots, form=form))
+        lin = (k32.linear_acceleration.double() - k64.linear_acceleration).norm(dim=-1).max()
+        ang = (k32.angular_acceleration.double() - k64.angular_acceleration).norm(dim=-1).max()
+        if form == "de_boor":
+            assert lin <= 10 * eps * size / gap**2 and ang <= 4 * eps / gap
+        else:
+            scale = float(k64.linear_acceleration.norm(dim=-1).max())
+            assert lin <= 100 * eps * scale and ang <= 100 * eps * scale

@@ -44,8 +44,26 @@ CPU thread (float32, 100 control points, 10,000 times, cubic), forward + backwar
 about 4x (velocities), 10x (accelerations) and 18x (jerks) the pose-only forward + backward
 of the fused op.
 
-Value checks on knots, domain and times cost one device synchronisation; ``check=False``
-skips them (for ``torch.compile`` and tight loops).
+Two B-spline forms (``form=`` on :func:`bspline` and :func:`bspline_derivatives`):
+``"de_boor"`` (the default, the paper's pyramid of sclerps, :math:`C^1` at simple knots) and
+``"cumulative"`` (Kim-Kim-Shin: :math:`X(t) = c_0 \prod_{j \ge 1} (c_{j-1}^{-1} c_j)^{\tilde
+B_j(t)}` with the cumulative basis :math:`\tilde B_j = \sum_{l \ge j} B_{l,p}`, each power
+on the shortest path; :math:`C^{p-1}` at simple knots, so a cubic's accelerations and IMU
+readings are continuous; pypose's and basalt's form). Both read the same spans of the same
+sign-aligned control polygon (:func:`_kim_kim_shin` is the readable reference of the second,
+:mod:`torch_dq._cumulative` its basis, jets and fused op).
+
+Time model and domain rules: every function locates its times through one object
+(``torch_dq._time.KnotDomain``: spans, local parameters, domain checks). Times outside the
+domain ``[t0, t1]`` by at most ``tol = max(1e-9 (t1 - t0), 4 eps(t.dtype) max(|t0|, |t1|))``
+(roundings such as ``t0 + k dt``) are evaluated at the nearest end; times further out raise
+``ValueError`` naming the domain and the way out, unless ``extrapolate=True``, which
+continues the end spans (the end polynomials of the scheme, local parameters outside
+``[0, 1]``). The value checks on knots, domain and times cost one device synchronisation;
+``check=False`` skips them (tight loops), and so does ``torch.compile`` (a host sync would
+break the graph: ``torch.compile(fn, fullgraph=True)`` works with the default arguments) and
+meta tensors. Where they are skipped, times outside the tolerance give NaN poses (per
+element), never a silent extrapolation.
 """
 
 from __future__ import annotations
@@ -403,8 +421,11 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
             ``ctrl``. NaN times give NaN poses.
         domain: ``(t0, t1)`` with ``t0 < t1``, in the caller's time: two real numbers, two
             0-d tensors or a ``(2,)`` tensor (may be float64 with float32 ``ctrl``).
-        check: verify that ``t`` lies in ``domain`` up to a few ulps (one device
-            synchronisation); ``False`` skips it (e.g. under ``torch.compile``).
+        check: verify that ``t`` lies in ``domain`` up to the tolerance of the module
+            docstring (one device synchronisation); ``False`` skips it, and then times
+            further out give NaN. Skipped under ``torch.compile``.
+        extrapolate: evaluate De Casteljau's scheme at any ``t`` (local parameter outside
+            ``[0, 1]``) instead of the domain rules.
 
     Returns:
         ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
@@ -413,7 +434,7 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
     Raises:
         ValueError: ``ctrl`` not ``(..., n + 1, 8)`` with ``n + 1 >= 2``, ``t`` 0-d, batch
             shapes that do not broadcast, a malformed or empty ``domain``, ``t`` outside
-            the domain (with ``check``).
+            the domain beyond the tolerance (with ``check``, without ``extrapolate``).
         TypeError: non-floating tensors, tensors on another device than ``ctrl``.
 
     Example:
@@ -449,7 +470,8 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
         t: ``(T,)`` or ``(..., T)`` times in ``domain`` (as :func:`bezier`).
         order: highest derivative, an int in ``0..3``.
         domain: ``(t0, t1)`` in the caller's time (as :func:`bezier`).
-        check: verify that ``t`` lies in ``domain`` (one device synchronisation).
+        check: verify that ``t`` lies in ``domain`` (as :func:`bezier`).
+        extrapolate: as :func:`bezier`.
 
     Returns:
         ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as
@@ -586,7 +608,8 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     points give the quaternion De Boor curve with slerp; translation-only ones the Euclidean
     B-spline of the translations.
 
-    Smoothness: inside a span the curve is analytic in ``t``; at a simple interior knot of
+    Smoothness (``form="de_boor"``; ``"cumulative"`` is :math:`C^{p-1}`, module docstring):
+    inside a span the curve is analytic in ``t``; at a simple interior knot of
     degree ``p >= 2`` it is :math:`C^1` but in general not :math:`C^2` (the second derivative
     jumps; measured in ``tests/test_continuous_time.py``): each level of the scheme is a
     screw interpolation, not an affine combination, so the Euclidean :math:`C^{p-1}`
@@ -604,8 +627,13 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
             :func:`clamped_uniform_knots` on ``[0, 1]``. Differentiable (at times that are
             not knots).
         check: verify that the knots are finite, non-decreasing with a non-empty domain,
-            and that ``t`` lies in the domain up to a few ulps (one device
-            synchronisation); ``False`` skips these (e.g. under ``torch.compile``).
+            and that ``t`` lies in the domain up to the tolerance of the module docstring
+            (one device synchronisation); ``False`` skips these, and then times further
+            out give NaN. Skipped under ``torch.compile``.
+        extrapolate: continue the end spans beyond the domain (the first and last
+            non-empty spans' polynomials) instead of the domain rules.
+        form: ``"de_boor"`` (De Boor's pyramid, the paper's; default) or ``"cumulative"``
+            (Kim-Kim-Shin, :math:`C^{p-1}`; module docstring).
 
     Returns:
         ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
@@ -650,10 +678,21 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     left-hand ones at the domain's right end). The results are differentiable (reverse
     mode, twice; and in forward mode) with respect to ``ctrl``, ``t`` and the knots.
 
-    Smoothness at simple interior knots (:func:`bspline`): :math:`C^1` for degree
-    ``p >= 2``, so the velocities are continuous but the accelerations (second derivatives)
-    jump at the knots, even for cubic and quartic B-splines; only pure translations keep
-    the Euclidean :math:`C^{p-1}`.
+    Smoothness at simple interior knots (:func:`bspline`): with ``form="de_boor"``
+    :math:`C^1` for degree ``p >= 2``, so the velocities are continuous but the
+    accelerations (second derivatives) jump at the knots, even for cubic and quartic
+    B-splines (only pure translations keep the Euclidean :math:`C^{p-1}`); with
+    ``form="cumulative"`` :math:`C^{p-1}`, accelerations continuous for cubics.
+
+    Rounding near a short knot span: with ``form="de_boor"``, at times whose span (or a
+    neighbouring knot interval that enters its local parameters) has a length ``g`` much
+    shorter than the others, the linear acceleration carries a rounding error of about
+    ``10 eps L / g**2`` (``eps`` of ``ctrl``'s dtype, ``L`` the size of the control points'
+    translations; the local parameters' slopes ``1 / g`` multiply differences of rounded
+    control points) and the angular acceleration about ``4 eps / g`` (measured in
+    ``tests/test_continuous_time.py``; 0.2's figure: 3e-3 at ``g = 1e-6`` in float64).
+    ``form="cumulative"`` does not amplify rounding this way (its basis derivatives are
+    computed in the time dtype): prefer it for accelerations on nearly repeated knots.
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
@@ -662,6 +701,8 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
         degree: polynomial degree ``p >= 1``.
         knots: ``(n + degree + 1,)`` knots in the caller's time (as :func:`bspline`).
         check: the value checks of :func:`bspline` (one device synchronisation).
+        extrapolate: as :func:`bspline`.
+        form: ``"de_boor"`` or ``"cumulative"`` (as :func:`bspline`).
 
     Returns:
         ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as
