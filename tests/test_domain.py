@@ -273,3 +273,39 @@ def test_time_model_is_one_object(gen):
     ref = np.array([k[j + 1:j + 3].mean().item() for j in range(6)])
     np.testing.assert_allclose(spline.greville().numpy(), ref, rtol=0, atol=1e-6)
     assert math.isclose(Bezier(dq.identity((3,)), domain=(2.0, 6.0)).greville()[1].item(), 4.0)
+
+
+def test_time_model_holds_per_trajectory_origins_and_knots():
+    """The time model is built for batches of trajectories with their own times: (B, K)
+    knots and (B, 1) origins give, row by row, the spans, local parameters, De Boor levels
+    and checks of each trajectory's own time model; the spans agree with numpy's
+    searchsorted on each row's knots."""
+    from torch_dq._time import KnotDomain
+
+    rows = [curves.clamped_uniform_knots(6, 3, dtype=F64),
+            3.0 * torch.tensor([0, 0, 0, 0, 0.2, 0.7, 1, 1, 1, 1], dtype=F64)]
+    origin = torch.tensor([[10.0], [1.7e9]], dtype=F64)
+    batched = KnotDomain(torch.stack(rows), 3, origin)
+    t = torch.tensor([[10.1, 10.5, 11.0], [1.7e9, 1.7e9 + 1.0, 1.7e9 + 3.0]], dtype=F64)
+    rel = batched.prepare("test", t, F64, check=True, extrapolate=False, knots="knots",
+                          fix="inside")
+    r = batched.span(rel)
+    for i, k in enumerate(rows):
+        one = KnotDomain(k, 3, float(origin[i]))
+        rel_i = one.relative(t[i], F64)
+        torch.testing.assert_close(rel[i], rel_i, rtol=0, atol=0)
+        kn = k.numpy()
+        ref = np.minimum(np.searchsorted(kn, rel_i.numpy(), side="right") - 1,
+                         np.searchsorted(kn, kn[-4], side="left") - 1)
+        assert r[i].tolist() == ref.tolist()
+        _, u, slope = batched.locate(rel, F64)
+        _, u_i, slope_i = one.locate(rel_i, F64)
+        torch.testing.assert_close(u[i], u_i, rtol=0, atol=0)
+        for (a, s), (a_i, s_i) in zip(batched.de_boor_levels(rel, r, F64),
+                                      one.de_boor_levels(rel_i, one.span(rel_i), F64),
+                                      strict=True):
+            torch.testing.assert_close(a[i], a_i, rtol=0, atol=0)
+            torch.testing.assert_close(s[i], s_i, rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"domain \(per trajectory\).*extrapolate=True"):
+        batched.prepare("test", t + 5.0, F64, check=True, extrapolate=False, knots=None,
+                        fix="inside")
