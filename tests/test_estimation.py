@@ -259,7 +259,7 @@ def test_robust_kernels_resist_gross_outliers(gen, kernel):
         pos = Positions(t, meas, sigma=0.01, robust=robust)
         est = estimate(spline, [rot, pos], verbose=False)
         errors[robust] = float((dq.to_rt(spline(t))[1] - torch.from_numpy(p)).norm(dim=-1)
-                               .max())
+                               .detach().max())
         if robust:
             assert float(est.weights[pos][bad].max()) < 0.1
             assert float(est.weights[pos][~bad].min()) > 0.3
