@@ -7,6 +7,7 @@ Written once here so that :mod:`.runner`, :mod:`.plots`, :mod:`.fit_file` and
 from __future__ import annotations
 
 import sys
+import warnings
 
 import torch
 from torch import Tensor
@@ -14,7 +15,7 @@ from torch import Tensor
 from .. import losses
 
 __all__ = ["PLOT_HINT", "align", "evaluate", "import_matplotlib", "no_matplotlib",
-           "pose_errors"]
+           "pose_errors", "say_warnings"]
 
 #: What to run when matplotlib is missing.
 PLOT_HINT = "pip install 'torch_dq[plot]'"
@@ -62,3 +63,15 @@ def no_matplotlib(program: str, stream=None) -> str:
     message = f"matplotlib is not installed: figures skipped (install them with {PLOT_HINT})"
     print(f"{program}: warning: {message}", file=sys.stderr if stream is None else stream)
     return message
+
+
+def say_warnings(program: str, caught: list[warnings.WarningMessage]) -> list[str]:
+    """Each warning caught (``warnings.catch_warnings(record=True)``) once, as one line on
+    stderr without a source line; returns their texts (for the JSON summary)."""
+    seen: list[str] = []
+    for w in caught:
+        text = " ".join(str(w.message).split())
+        if text not in seen:
+            seen.append(text)
+            print(f"{program}: warning: {text}", file=sys.stderr)
+    return seen

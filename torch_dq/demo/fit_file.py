@@ -40,7 +40,6 @@ import inspect
 import json
 import math
 import os
-import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -51,7 +50,7 @@ from torch import Tensor
 
 from .. import _spacing, dualquat, io
 from .. import nn as dqnn
-from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors
+from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
            "run_fit"]
@@ -317,17 +316,6 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
 
 # ----------------------------------------------------------------------------- driver
 
-def _notices(caught: list[warnings.WarningMessage]) -> list[str]:
-    """Warnings raised during the fit, each once, as one line on stderr (no source line)."""
-    seen: list[str] = []
-    for w in caught:
-        text = " ".join(str(w.message).split())
-        if text not in seen:
-            seen.append(text)
-            print(f"torch-dq fit: warning: {text}", file=sys.stderr)
-    return seen
-
-
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
                      degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
                      verbose: bool) -> tuple[FitResult, dict]:
@@ -347,7 +335,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     fit = {"steps": history.steps if history else 0,
            "loss_start": history.loss[0] if history and history.loss else None,
            "loss_final": history.final_loss if history else None, "seconds": seconds,
-           "warnings": _notices(caught)}
+           "warnings": say_warnings("torch-dq fit", caught)}
     return result, fit
 
 

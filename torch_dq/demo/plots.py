@@ -83,11 +83,22 @@ def _true_axes(model, t: Tensor) -> dict:
     return _screw_axes(x, dx)
 
 
-def _legend_right(ax, handles=None, **kwargs):
+def _legend_right(ax, handles, labels, **kwargs):
+    """A legend right of ``ax``; a tuple of handles is drawn side by side (one entry in the
+    colours of the four components)."""
+    from matplotlib.legend_handler import HandlerTuple
+
     kw = {"loc": "center left", "bbox_to_anchor": (1.01, 0.5), "fontsize": 8.5,
-          "frameon": False}
+          "frameon": False, "handler_map": {tuple: HandlerTuple(ndivide=None, pad=0.0)},
+          "handlelength": 3.2}
     kw.update(kwargs)
-    return ax.legend(handles=handles, **kw) if handles else ax.legend(**kw)
+    return ax.legend(handles, labels, **kw)
+
+
+def _legend_below(ax, handles, ncol: int = 2):
+    """A legend under a 3-D axes, clear of its panes."""
+    return ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02),
+                     ncol=ncol, fontsize=8.5, frameon=False)
 
 
 # ----------------------------------------------------------------------------- Fig. 1
@@ -119,19 +130,19 @@ def plot_components(Figure, Canvas, path, fits, samples, model):
                         **_CTRL[f.name])
     by_name = {f.name: f for f in fits}
     for part, (ax, sym) in enumerate(zip(axes, ("r", "d"), strict=True)):
-        handles = [Line2D([], [], color=c, lw=2, label=f"${sym}_{n}$")
-                   for c, n in zip(colors, "wxyz", strict=True)]
-        for name in ("bezier", "bspline"):
+        handles: list[Any] = [Line2D([], [], color=c, lw=2) for c in colors]
+        labels = [f"${sym}_{n}$" for n in "wxyz"]
+        for name in ("bezier", "bspline"):  # each style in the colours of its curves
             if name in by_name:
-                f = by_name[name]
-                handles += [
-                    Line2D([], [], color="0.2", label=f"{CURVE_LABELS[name]} (degree {f.degree})",
-                           **_LINE[name]),
-                    Line2D([], [], color="0.2", ls="none", label=f"{CURVE_LABELS[name]} control "
-                           "points", **_CTRL[name])]
-        handles.append(Line2D([], [], color="0.4", ls="none", marker=".", alpha=0.6,
-                              label="noisy samples"))
-        _legend_right(ax, handles, title="component" if part == 0 else None)
+                handles += [tuple(Line2D([], [], color=c, **_LINE[name]) for c in colors),
+                            tuple(Line2D([], [], color=c, ls="none", **_CTRL[name])
+                                  for c in colors)]
+                labels += [f"{CURVE_LABELS[name]} (degree {by_name[name].degree})",
+                           f"{CURVE_LABELS[name]} control points"]
+        handles.append(tuple(Line2D([], [], color=c, ls="none", marker=".", alpha=0.6)
+                             for c in colors))
+        labels.append("noisy samples")
+        _legend_right(ax, handles, labels, title="component" if part == 0 else None)
         ax.grid(alpha=0.3)
     axes[0].set_title(r"Real part: rotation quaternion $r = (r_w, r_x, r_y, r_z)$")
     axes[0].set_ylabel("real part (unitless)")
@@ -157,10 +168,13 @@ def _set_equal_3d(ax, pts, pad: float = 5.0, min_span: float = 30.0, zoom: float
 
 
 def _label_3d(ax):
+    """Axis labels, and ticks in proportion to each axis's drawn length (a short axis gets
+    fewer, so that its labels do not crowd)."""
     from matplotlib.ticker import MaxNLocator
 
-    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-        axis.set_major_locator(MaxNLocator(5))
+    spans = [abs(hi - lo) for lo, hi in (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())]
+    for axis, span in zip((ax.xaxis, ax.yaxis, ax.zaxis), spans, strict=True):
+        axis.set_major_locator(MaxNLocator(max(2, round(5 * span / max(spans)))))
     ax.set_xlabel("x lateral (mm)", labelpad=8)
     ax.set_ylabel("y anterior (mm)", labelpad=8)
     ax.set_zlabel("z proximal (mm)", labelpad=8)
@@ -218,7 +232,7 @@ def plot_frames(Figure, Canvas, path, fit, samples, model):
         Line2D([], [], color="tab:purple", lw=4, alpha=0.35, label="tibial shaft (schematic)"),
         Line2D([], [], color="k", ls="none", marker="o", ms=5,
                label="femoral origin (epicondylar midpoint)")]
-    ax_leg.legend(handles=leg_handles, loc="upper left", fontsize=8.5)
+    _legend_below(ax_leg, leg_handles)
 
     # right: close-up, tibia frames evenly spaced along the fitted path
     paths(ax_zoom)
@@ -248,7 +262,7 @@ def plot_frames(Figure, Canvas, path, fit, samples, model):
     zoom_handles, _ = ax_zoom.get_legend_handles_labels()
     zoom_handles += [Line2D([], [], color=c, lw=2, label=f"frame axis {n}")
                      for c, n in zip(rgb, names, strict=True)]
-    ax_zoom.legend(handles=zoom_handles, loc="upper left", fontsize=8.5)
+    _legend_below(ax_zoom, zoom_handles)
     for ax, azim in ((ax_leg, -50), (ax_zoom, -25)):  # the close-up seen more from the side
         _label_3d(ax)
         ax.view_init(elev=14, azim=azim)
@@ -316,15 +330,14 @@ def plot_axode(Figure, Canvas, path, fits, samples, model):
         f = by_name[name]
         ax3.set_title(f"Axode of the fitted {CURVE_LABELS[name]} (degree {f.degree}, "
                       f"{f.n_ctrl} control points)", fontsize=11)
-        ax3.legend(handles=[
+        _legend_below(ax3, [
             Line2D([], [], color=cmap(0.6), lw=6, alpha=0.75,
                    label=f"fitted screw axes, ±{half:.0f} mm (colour: flexion)"),
             Line2D([], [], color="crimson", ls="--", label="true screw axis (one in ten)"),
             Line2D([], [], color="k", label="tibia origin path (true)"),
             Line2D([], [], color="0.45", lw=6, alpha=0.5, label="femoral shaft (schematic)"),
             Line2D([], [], color="k", ls="none", marker="o", ms=4,
-                   label="femoral origin (epicondylar midpoint)")],
-            loc="upper left", fontsize=8)
+                   label="femoral origin (epicondylar midpoint)")])
         if col == len(order) - 1:
             fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax3, shrink=0.6,
                          pad=0.08, label="flexion (deg)")

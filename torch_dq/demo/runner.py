@@ -38,6 +38,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,7 +48,7 @@ from torch import Tensor
 from .. import losses
 from .. import nn as dqnn
 from . import plots as _plots
-from ._common import PLOT_HINT, evaluate, no_matplotlib, pose_errors
+from ._common import PLOT_HINT, evaluate, no_matplotlib, pose_errors, say_warnings
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
@@ -121,7 +122,9 @@ def _loss_runs(fits: list[_Fit], samples: KneeSamples, fit_kwargs: dict) -> dict
     lr = fit_kwargs.get("lr")
     runs = {}
     for f in fits:
-        module, _ = _start(f.name, samples, f.n_ctrl, f.degree)
+        with warnings.catch_warnings():  # the same start as the fit's, whose warnings were said
+            warnings.simplefilter("ignore")
+            module, _ = _start(f.name, samples, f.n_ctrl, f.degree)
         kwargs = {**fit_kwargs, "optimizer": other, "verbose": False}
         kwargs.pop("lr", None)
         history = dqnn.fit(module, samples.times, samples.poses, **kwargs)
@@ -208,8 +211,10 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
     fit_kwargs = {"optimizer": optimizer, "steps": steps, "loss": loss, "verbose": verbose}
     if lr is not None:
         fit_kwargs["lr"] = lr
-    fits = [_fit_curve(name, samples, n_ctrl, degree, fit_kwargs, held_out, truth)
-            for name in ("bspline", "bezier")]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fits = [_fit_curve(name, samples, n_ctrl, degree, fit_kwargs, held_out, truth)
+                for name in ("bspline", "bezier")]
     noise_errors = _errors(samples.poses, samples.truth)
 
     summary: dict[str, Any] = {
@@ -231,7 +236,7 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
                             "converged": f.history.converged, "seconds": f.seconds}
                    for f in fits},
         "figures": [],
-        "warnings": [],
+        "warnings": say_warnings("torch-dq demo", caught),
     }
 
     if plots:
