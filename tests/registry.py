@@ -182,7 +182,7 @@ XDX = (("x", "dq"), ("dx", "dq"), ("ddx", "dq"))
 CTRL = (("ctrl", "ctrl"),)
 # Cones: an angle or a distance at zero (no second derivative there).
 CONE_EQUAL = {"equal": "a cone at zero", "opposite": "a cone at zero",
-              "identity": "a cone at zero"}
+              "identity": "a cone at zero", "translation": "a cone at zero"}
 SIGN_AT_HALF_TURN = {"half_turn": "w = 0: the canonical sign (w >= 0) jumps"}
 
 OPS = [
@@ -200,7 +200,8 @@ OPS = [
        kinks={"opposite": "q1 = -q0 without the short way: no unique path"}),
     Op("quat.exp", quat.exp, (("q", "q"),), signed=True, f32=5e-7),
     Op("quat.log", quat.log, (("q", "q"),), f32=8e-7),
-    Op("quat.from_matrix", quat.from_matrix, (("R", "rot"),), signed=True, f32=2e-7),
+    Op("quat.from_matrix", quat.from_matrix, (("R", "rot"),), signed=True, f32=2e-7,
+       kinks=SIGN_AT_HALF_TURN),
     Op("quat.to_matrix", quat.to_matrix, (("q", "q"),), f32=6e-7),
     Op("quat.from_axis_angle", quat.from_axis_angle, (("axis", "dir"), ("angle", "scalar")),
        signed=True, f32=8e-8),
@@ -230,7 +231,8 @@ OPS = [
     Op("dualquat.is_unit", dq.is_unit, (("x", "dq"),)),
     Op("dualquat.from_rt", dq.from_rt, (("q", "q"), ("t", "vec")), signed=True, f32=2.4e-7),
     Op("dualquat.to_rt", dq.to_rt, (("x", "dq"),), f32=3.4e-7),
-    Op("dualquat.from_matrix", dq.from_matrix, (("T", "hom"),), signed=True, f32=4e-7),
+    Op("dualquat.from_matrix", dq.from_matrix, (("T", "hom"),), signed=True, f32=4e-7,
+       kinks=SIGN_AT_HALF_TURN),
     Op("dualquat.to_matrix", dq.to_matrix, (("x", "dq"),), f32=7e-7),
     Op("dualquat.from_pose7", dq.from_pose7, (("p", "pose7"),), signed=True, f32=2.5e-7),
     Op("dualquat.to_pose7", dq.to_pose7, (("x", "dq"),), f32=3.4e-7),
@@ -256,7 +258,8 @@ OPS = [
     Op("losses.rotation_angle", losses.rotation_angle, DQ2, f32=4e-7, kinks=CONE_EQUAL),
     Op("losses.squared_rotation_angle", losses.squared_rotation_angle, DQ2, f32=7e-7),
     Op("losses.translation_error", losses.translation_error, DQ2, f32=7e-7,
-       kinks={"equal": "a cone at zero", "opposite": "a cone at zero"}),
+       kinks={"equal": "a cone at zero", "opposite": "a cone at zero",
+              "identity": "a cone at zero"}),
     Op("losses.pose_loss", lambda a, b: losses.pose_loss(a, b, reduction="none"), DQ2,
        f32=9e-7),
     Op("curves.bezier", lambda c: curves.bezier(c, times(c)), CTRL, curve=True, f32=1.5e-6),
