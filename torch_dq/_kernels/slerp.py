@@ -63,7 +63,8 @@ def _host_branch(x: Tensor) -> bool:
     return x.device.type == "cpu" and not torch.compiler.is_compiling()
 
 
-def plain(q0: Tensor, q1: Tensor, t: Tensor, host_branch: bool = False) -> Tensor:
+def plain(q0: Tensor, q1: Tensor, t: Tensor, host_branch: bool = False,
+          out: Tensor | None = None) -> Tensor:
     """Slerp on the shortest path in plain torch ops (module docstring).
 
     Args:
@@ -71,13 +72,15 @@ def plain(q0: Tensor, q1: Tensor, t: Tensor, host_branch: bool = False) -> Tenso
         q1: ``(..., 4)`` unit quaternions, same shape as ``q0``.
         t: parameters broadcasting against the batch shape ``(...)``.
         host_branch: evaluate only the weights' branches in use (eager CPU; same bits).
+        out: ``(..., 4)`` tensor to write the result into (not differentiable; the fused
+            op's chunks of its result), or None.
 
     Returns:
         ``(..., 4)``.
     """
     c, sigma = _frame(q0, q1)
     F0, F1 = slerp_weights(c, t, host_branch=host_branch).F
-    return torch.addcmul(F0[..., None] * q0, (sigma * F1)[..., None], q1)
+    return torch.addcmul(F0[..., None] * q0, (sigma * F1)[..., None], q1, out=out)
 
 
 class _Slerp(torch.autograd.Function):
@@ -95,7 +98,7 @@ class _Slerp(torch.autograd.Function):
         out = torch.empty_like(q0)
         host = _host_branch(q0)
         for i in chunks(q0.shape[0]):
-            out[i] = plain(q0[i], q1[i], t if t.shape[0] == 1 else t[i], host)
+            plain(q0[i], q1[i], t if t.shape[0] == 1 else t[i], host, out=out[i])
         return out
 
     @staticmethod
@@ -127,8 +130,12 @@ def _vjp(q0: Tensor, q1: Tensor, t: Tensor, grad: Tensor, out0: Tensor, out1: Te
     (F0, F1), (G0, G1) = w.F, cast(Tensor, w.G)  # not None with derivatives
     p0, p1 = _dot(grad, q0), sigma * _dot(grad, q1)
     sL_c = (-sigma * (G0 * p0 + G1 * p1))[..., None]
-    out0.copy_(torch.addcmul(F0[..., None] * grad, sL_c, q1))
-    out1.copy_(torch.addcmul((sigma * F1)[..., None] * grad, sL_c, q0))
+    for dst, args in ((out0, (F0[..., None] * grad, sL_c, q1)),
+                      (out1, ((sigma * F1)[..., None] * grad, sL_c, q0))):
+        if torch.is_grad_enabled():  # a double backward records this: out= would not
+            dst.copy_(torch.addcmul(*args))
+        else:
+            torch.addcmul(*args, out=dst)
     if w.Fs is None:
         return None
     Fs0, Fs1 = w.Fs
