@@ -216,8 +216,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         trajectory.control_points = ctrl.to(trajectory.control_points.dtype)
     for q, v in zip(problem.params, values, strict=True):
         q.free.value = v.detach().clone()
-    system = problem.system(ctrl, values, problem.width(values))
-    return Estimate(problem, ctrl, values, system, history)
+    return Estimate(problem, ctrl, values, history)
 
 
 def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, tol: float,

@@ -83,7 +83,7 @@ class SpanEvaluator:
         tt = t.expand(shape).reshape(-1)
         first = first.expand(shape)
         if not self.bspline:
-            out = self.trajectory.derivatives(tt[:, None], order, ctrl=pts)
+            out = _evaluate(self.trajectory, tt[:, None], order, pts)
             return tuple(o[:, 0].reshape(*shape, 8) for o in out)
         f = first.reshape(-1)
         g = self.group[f]
@@ -96,8 +96,7 @@ class SpanEvaluator:
         for j, c in enumerate(counts):
             if c:
                 idx = perm[pos:pos + c]
-                outs.append(self.layers[j].derivatives(local[idx][:, None], order,
-                                                       ctrl=pts[idx]))
+                outs.append(_evaluate(self.layers[j], local[idx][:, None], order, pts[idx]))
                 pos += c
         inv = torch.empty_like(perm)
         inv[perm] = torch.arange(perm.shape[0], device=perm.device)
@@ -106,6 +105,13 @@ class SpanEvaluator:
             d = torch.cat([o[k][:, 0] for o in outs])[inv]
             res.append((d * (s[:, None] ** k).to(d.dtype)).reshape(*shape, 8))
         return tuple(res)
+
+
+def _evaluate(layer, t: Tensor, order: int, ctrl: Tensor) -> tuple[Tensor, ...]:
+    """``layer.derivatives`` (poses alone through ``forward``: the fused pose kernel)."""
+    if order == 0:
+        return (layer(t, ctrl=ctrl),)
+    return layer.derivatives(t, order, ctrl=ctrl)
 
 
 def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Tensor],

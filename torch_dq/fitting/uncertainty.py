@@ -47,29 +47,54 @@ class Estimate:
         steps: Levenberg-Marquardt iterations run.
         converged: ``(...)`` bool, True where a stopping test held.
         reason: what stopped it (one string per batch element, joined by ``"; "``).
-        chi2: per term (a dict keyed by the term) ``(...)`` sum of squared whitened
-            residuals of its unmasked samples (robust weights not applied).
-        dof: per term, the number of residual components of its unmasked samples ``(...)``.
-        weights: per term ``(..., N)`` robust weights at the optimum (0 where masked).
+        chi2, dof, weights: per term (dicts keyed by the term), see the properties.
     """
 
-    def __init__(self, problem, ctrl: Tensor, values: list[Tensor], system, history: dict,
-                 ) -> None:
+    def __init__(self, problem, ctrl: Tensor, values: list[Tensor], history: dict) -> None:
         self._problem, self._ctrl, self._values = problem, ctrl, values
-        batch = problem.batch
         self.loss: Tensor = history["loss"]
         self.final_loss: Tensor = self.loss[-1]
         self.objective: Tensor = history["objective"]
         self.steps: int = history["steps"]
         self.converged: Tensor = history["converged"]
         self.reason: str = history["reason"]
-        self.chi2, self.dof, self.weights = {}, {}, {}
-        for term, r, w in zip(problem.terms, system.residuals, system.weights, strict=True):
-            self.chi2[term] = (r * r).sum((-1, -2)).expand(batch)
-            self.dof[term] = (term.mask.sum(-1) * term.dim).expand(batch)
-            self.weights[term] = w.expand(*batch, w.shape[-1])
-        self._system = system
+        self._sys = None
         self._factored = False
+
+    @property
+    def _system(self):
+        """The data-only Gauss-Newton system at the optimum (built on first use)."""
+        if self._sys is None:
+            p = self._problem
+            self._sys = p.system(self._ctrl, self._values, p.width(self._values))
+        return self._sys
+
+    def _per_term(self, what: str) -> dict:
+        batch, s = self._problem.batch, self._system
+        out = {}
+        for term, r, w in zip(self._problem.terms, s.residuals, s.weights, strict=True):
+            if what == "chi2":
+                out[term] = (r * r).sum((-1, -2)).expand(batch)
+            elif what == "dof":
+                out[term] = (term.mask.sum(-1) * term.dim).expand(batch)
+            else:
+                out[term] = w.expand(*batch, w.shape[-1])
+        return out
+
+    @property
+    def chi2(self) -> dict:
+        """Per term ``(...)``: sum of squared whitened residuals of the unmasked samples."""
+        return self._per_term("chi2")
+
+    @property
+    def dof(self) -> dict:
+        """Per term ``(...)``: the number of residual components of the unmasked samples."""
+        return self._per_term("dof")
+
+    @property
+    def weights(self) -> dict:
+        """Per term ``(..., N)``: robust weights at the optimum (0 where masked)."""
+        return self._per_term("weights")
 
     def _ensure(self) -> None:
         """Factor the Gauss-Newton matrix on the first uncertainty asked for."""
