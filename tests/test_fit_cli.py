@@ -338,13 +338,16 @@ def test_knot_spacing_hint_is_rounded_up_on_10hz_data(tmp_path, capsys):
     assert summary["model"]["n_ctrl"] == summary["holdout"]["fitted"]  # the finest that works
 
 
-def test_rate_is_bounded_by_the_duration(tmp_path, capsys):
+def test_rate_is_bounded_by_the_duration(tmp_path, capsys, monkeypatch):
+    from torch_dq.demo import fit_file
+
+    monkeypatch.setattr(fit_file, "MAX_RESAMPLED", 2000)  # the bound's logic, on small files
     short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 30)))
     line, value, out = _hint_works(capsys, ["fit", str(short), "--rate", "1e9", "--out",
                                             str(tmp_path / "o"), "--quiet", "--no-plots",
                                             "--steps", "1"], "--rate")
     rows = json.loads((pathlib.Path(out) / "summary.json").read_text())["resampled"]["samples"]
-    assert 0.99e6 < rows <= 1_000_000
+    assert 1990 < rows <= 2000 and "more than 2000 samples" in line
 
 
 @pytest.mark.parametrize("option,value,says", [
