@@ -219,90 +219,104 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     return Estimate(problem, ctrl, values, history)
 
 
+class _LevenbergMarquardt:
+    """The iteration state: current point, objective, damping, per-element stopping."""
+
+    def __init__(self, problem: Problem, ctrl: Tensor, values: list[Tensor], prior: float,
+                 ) -> None:
+        self.p, self.start = problem, ctrl
+        self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
+        self.w = problem.width(values)
+        self.system = problem.system(ctrl, values, self.w)
+        diag0 = self.system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
+        self.mu = prior * diag0
+        self.ctrl, self.values = ctrl, values
+        self.data, self.obj = self.objective(ctrl, values)
+        self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64)
+        flat = self.obj.reshape(self.Bf)
+        self.active = torch.isfinite(flat) & (flat > 0)
+        self.reasons = ["" if a else "the cost is zero" if float(o) == 0 else _NONFINITE
+                        for o, a in zip(flat, self.active.tolist(), strict=True)]
+
+    def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
+        pull = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
+        return self.mu.reshape(self.batch) * (pull * pull).sum((-1, -2)) + self.p.prior_cost(v)
+
+    def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:
+        """Data cost and objective (data plus the pull and the Free priors), ``(...)``."""
+        data = torch.stack(self.p.data_cost(c, v)).sum(0)
+        return data, data + self._pull(c, v)
+
+    def _prior_gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the pull and the Free priors in the step charts."""
+        with torch.enable_grad():
+            dc = self.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
+            dn = self.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
+            extra = self._pull(*self.p.retract(self.ctrl, self.values, dc, dn))
+            gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
+        gn = torch.zeros_like(dn) if gn is None else gn
+        return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
+
+    def iteration(self, tol: float) -> None:
+        """One Gauss-Newton system, damped trials until each element accepts or gives up."""
+        pc, pn = self._prior_gradient()
+        gc, gn = self.system.gc + pc, self.system.gn + pn
+        solver = _Solver(self.p, self.system, self.mu)
+        pending = self.active.clone()
+        batch, Bf = self.batch, self.Bf
+        new = [self.ctrl, self.values, self.obj, self.data]
+        for _ in range(_MAX_REJECTIONS):
+            dc, dn, ok = solver.step(self.lam, gc, gn)
+            ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)
+            tc, tv = self.p.retract(self.ctrl, self.values, dc.reshape(*batch, self.n, 6),
+                                    dn.reshape(*batch, self.p.m))
+            td, to = self.objective(tc, tv)
+            acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
+                                                                  self.obj.reshape(Bf))
+            sel = acc.reshape(batch)
+            new[0] = torch.where(sel[..., None, None], tc, new[0])
+            new[1] = [torch.where(sel.reshape(torch.Size((*batch, *(1,) * (v.dim() - len(batch)
+                                                                         )))), a, v)
+                      for a, v in zip(tv, new[1], strict=True)]
+            new[2], new[3] = torch.where(sel, to, new[2]), torch.where(sel, td, new[3])
+            pending &= ~acc
+            self.lam = torch.where(pending, self.lam * 10.0, self.lam)
+            if not bool(pending.any()):
+                break
+        small = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
+                                          <= tol * new[2].reshape(Bf))
+        for b in range(Bf):
+            if bool(pending[b]):
+                self.reasons[b] = "no damped step lowers the cost (a numerical minimum)"
+            elif bool(small[b]):
+                self.reasons[b] = f"the relative decrease fell below tol={tol!r}"
+        self.active &= ~(pending | small)
+        self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
+        self.ctrl, self.values, self.obj, self.data = new
+
+
 def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, tol: float,
              prior: float, bar):
     """The Levenberg-Marquardt loop; returns the final point and its history."""
-    batch, Bf, n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
-    start = ctrl
-    mu = None
-
-    def objective(c, v):
-        data = torch.stack(problem.data_cost(c, v)).sum(0)
-        pull = dualquat.log(dualquat.mul(dualquat.conj(start), c))
-        return data, data + mu.reshape(batch) * (pull * pull).sum((-1, -2)) + \
-            problem.prior_cost(v)
-
-    def pull_gradient(c, v):
-        with torch.enable_grad():
-            dc = c.new_zeros(*batch, n, 6).requires_grad_()
-            dn = c.new_zeros(*batch, problem.m).requires_grad_()
-            c2, v2 = problem.retract(c, v, dc, dn)
-            pull = dualquat.log(dualquat.mul(dualquat.conj(start), c2))
-            extra = mu.reshape(batch) * (pull * pull).sum((-1, -2)) + problem.prior_cost(v2)
-            gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
-        gn = torch.zeros_like(dn) if gn is None else gn
-        return gc.reshape(Bf, n, 6), gn.reshape(Bf, problem.m)
-
-    w = problem.width(values)
-    system = problem.system(ctrl, values, w)
-    diag0 = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
-    mu = prior * diag0
-    data, obj = objective(ctrl, values)
-    losses, objectives = [data.clone()], [obj.clone()]
-    lam = torch.full((Bf,), 1e-4, dtype=torch.float64)
-    active = torch.isfinite(obj.reshape(Bf)) & (obj.reshape(Bf) > 0)
-    reasons = ["the cost is zero" if float(o) == 0 else _NONFINITE
-               for o in obj.reshape(Bf)]
-    reasons = [r if not a else "" for r, a in zip(reasons, active.tolist(), strict=True)]
+    lm = _LevenbergMarquardt(problem, ctrl, values, prior)
+    losses, objectives = [lm.data.clone()], [lm.obj.clone()]
     done = 0
     for k in range(steps):
-        if not bool(active.any()):
+        if not bool(lm.active.any()):
             break
         done = k + 1
         if k:
-            system = problem.system(ctrl, values, w)
-        pc, pn = pull_gradient(ctrl, values)
-        gc, gn = system.gc + pc, system.gn + pn
-        solver = _Solver(problem, system, mu)
-        pending = active.clone()
-        new_ctrl, new_values, new_obj, new_data = ctrl, values, obj, data
-        for _ in range(_MAX_REJECTIONS):
-            dc, dn, ok = solver.step(lam, gc, gn)
-            ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)
-            tc, tv = problem.retract(ctrl, values, dc.reshape(*batch, n, 6),
-                                     dn.reshape(*batch, problem.m))
-            td, to = objective(tc, tv)
-            acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
-                                                                  obj.reshape(Bf))
-            sel = acc.reshape(batch)
-            new_ctrl = torch.where(sel[..., None, None], tc, new_ctrl)
-            new_values = [torch.where(sel.reshape(torch.Size((*batch, *(1,) * (v.dim() - len(batch))))),
-                                      a, v) for a, v in zip(tv, new_values, strict=True)]
-            new_obj = torch.where(sel, to, new_obj)
-            new_data = torch.where(sel, td, new_data)
-            pending &= ~acc
-            lam = torch.where(pending, lam * 10.0, lam)
-            if not bool(pending.any()):
-                break
-        decrease = (obj - new_obj).reshape(Bf)
-        small = active & ~pending & (decrease <= tol * new_obj.reshape(Bf))
-        for b in range(Bf):
-            if bool(pending[b]):
-                reasons[b] = "no damped step lowers the cost (a numerical minimum)"
-            elif bool(small[b]):
-                reasons[b] = f"the relative decrease fell below tol={tol!r}"
-        active &= ~(pending | small)
-        lam = torch.where(pending, lam, (lam / 10.0).clamp_min(1e-12))
-        ctrl, values, obj, data = new_ctrl, new_values, new_obj, new_data
-        losses.append(data.clone())
-        objectives.append(obj.clone())
+            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+        lm.iteration(tol)
+        losses.append(lm.data.clone())
+        objectives.append(lm.obj.clone())
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(loss=f"{float(data.sum()):.3e}")
-    converged = torch.tensor([r not in ("", _NONFINITE) for r in reasons]) & ~active
-    reasons = [r or f"steps={steps} reached" for r in reasons]
+            bar.set_postfix(loss=f"{float(lm.data.sum()):.3e}")
+    converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons]) & ~lm.active
+    reasons = [r or f"steps={steps} reached" for r in lm.reasons]
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
     history = {"loss": torch.stack(losses), "objective": torch.stack(objectives),
-               "steps": done, "reason": reason, "converged": converged.reshape(batch)}
-    return ctrl, values, history
+               "steps": done, "reason": reason, "converged": converged.reshape(problem.batch)}
+    return lm.ctrl, lm.values, history
