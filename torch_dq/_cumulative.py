@@ -261,39 +261,38 @@ class _Poses(torch.autograd.Function):
         need_w = ctx.needs_input_grad[2]
         rows = to_rows(ctrl)
         rel, table = _pair_table(rows)
-        # accumulated per control point and per pair, (M, 8) and (M - 1, 8): index_add
-        # over the first dim adds contiguous rows of 8 (fast), unlike over component rows
-        grad_ctrl, grad_rel = torch.zeros_like(ctrl), ctrl.new_zeros(ctrl.shape[0] - 1, 8)
-        used = torch.zeros_like(grad_rel[:, 0], dtype=torch.bool)
+        # accumulated as component rows, per control point (8, M) and per pair (8, M - 1)
+        grad_rows, grad_rel = torch.zeros_like(rows), torch.zeros_like(rel)
+        used = torch.zeros_like(rel[0], dtype=torch.bool)
         grad_w = []
-        at_cd = torch.tensor([0, 4], device=ctrl.device)
         for i in chunks(first.shape[0], POSES_CHUNK):
             R, fr, ws, E = _chunk_powers(rel, table, first[i], w[:, i], True, need_w)
-            p, n = w[:, i].shape
             prefix = [rows.index_select(1, first[i])]
-            for j in range(p - 1):
+            for j in range(E.shape[0] - 1):
                 prefix.append(_taylor.dq_rows(prefix[-1], E[j]))
             G, gE = to_rows(grad[i]), []
-            for j in range(p - 1, -1, -1):
+            for j in range(E.shape[0] - 1, -1, -1):
                 G, g = _mul_vjp(prefix[j], E[j], G)
                 gE.append(g)
             ct = vjp_rows(_identity_rows(rel)[:, 0], R, fr, cast(WeightSlopes, ws),
                           torch.stack(gE[::-1]), frame_terms=False)
             # From the identity, c = sigma R_w and delta = sigma S_w: the frame terms are
             # the (sigma-scaled) sensitivities added to the real and dual scalar parts.
-            g_rel = ct.b.index_add(1, at_cd, torch.stack((ct.c, ct.delta), 1))
-            idx = (first[i] + torch.arange(p, device=first.device)[:, None]).reshape(-1)
-            grad_rel = grad_rel.index_add(0, idx, g_rel.transpose(1, 2).reshape(p * n, 8))
-            used = used.index_fill(0, idx, True)
-            grad_ctrl = grad_ctrl.index_add(0, first[i], G.T)
+            g_rel = ct.b.index_add(1, ct.c.new_tensor([0, 4], dtype=torch.long),
+                                   torch.stack((ct.c, ct.delta), 1))
+            for j in range(E.shape[0]):  # pair first + j of each time
+                grad_rel = grad_rel.index_add(1, first[i] + j, g_rel[j])
+                used = used.index_fill(0, first[i] + j, True)
+            grad_rows = grad_rows.index_add(1, first[i], G)
             if need_w:
                 grad_w.append(cast(Tensor, ct.t))
         # rel = c_i^* c_{i+1}; pairs that no time reads are zeroed (a NaN stays in its curve)
         A, B = (torch.where(used, x, 0.0) for x in (rows[:, :-1], rows[:, 1:]))
-        g_conj, g_next = _mul_vjp(_conj_rows(A), B, grad_rel.T)
+        g_conj, g_next = _mul_vjp(_conj_rows(A), B, grad_rel)
         zero = torch.zeros_like(g_next[:, :1])
-        grad_rows = torch.cat((_conj_rows(g_conj), zero), 1) + torch.cat((zero, g_next), 1)
-        grad_ctrl = grad_ctrl + from_rows(grad_rows)
+        grad_rows = (grad_rows + torch.cat((_conj_rows(g_conj), zero), 1)
+                     + torch.cat((zero, g_next), 1))
+        grad_ctrl = from_rows(grad_rows)
         return grad_ctrl, None, torch.cat(grad_w, -1) if need_w else None
 
 
