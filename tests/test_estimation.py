@@ -448,3 +448,17 @@ def test_estimate_validates_domain_and_arguments(gen):
         estimate(torch.nn.Linear(2, 2), [cam])
     with pytest.raises(TypeError, match="non-empty list"):
         estimate(spline, [])
+
+
+def test_bezier_trajectory_with_a_biased_gyro(gen):
+    """A Bézier curve (every sample touches every control point: one dense band) with poses
+    and a biased gyroscope: the bias within 4 reported standard deviations."""
+    tc, ti = grid(0.0, 1.5, 20), grid(0.2, 1.3, 50)
+    x = noisy_poses(poses_of(tc), gen, 0.002, 0.002)
+    gy = imu_of(ti.numpy(), (0.03, -0.01, 0.02))[0] + randn(gen, 56, 3, scale=0.005)
+    curve = Bezier.from_dualquats(x, tc, n_ctrl=7)
+    gyro = Gyro(ti, gy, sigma=0.005, bias=True)
+    est = estimate(curve, [Poses(tc, x, rot_sigma=0.002, trans_sigma=0.002), gyro],
+                   verbose=False)
+    within(gyro.bias, [0.03, -0.01, 0.02], est.std(gyro, "bias"))
+    assert est.pose_std(tc[:3]).shape == (3, 6)

@@ -26,7 +26,7 @@ Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
     [0.01, 0.0, -0.02]
 """
 
-import torch
+import torch  # noqa: F401  (the examples' namespace)
 
 from .._spacing import choose_knot_spacing
 from .._start import bspline_basis, check_determined, least_squares_start

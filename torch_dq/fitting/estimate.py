@@ -187,6 +187,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
 
     Example:
         >>> import torch_dq.dualquat as dq
+        >>> from torch_dq.fitting import Poses
         >>> from torch_dq.nn import BSpline
         >>> t = torch.linspace(0.0, 2.0, 41, dtype=torch.float64)
         >>> truth = dq.exp(t[:, None] * torch.tensor([0.0, 0, 1.0, 0.5, 0, 0],
