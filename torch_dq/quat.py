@@ -97,7 +97,9 @@ def _log(q: Tensor) -> Tensor:
     # On the negative real axis (v = 0, w < 0) the direction of v is undefined: use x.
     # (q = 0 gives theta = atan2(0, 0) = 0.)
     axis_line = (v2 == 0) & (w <= 0)
-    theta = torch.atan2(torch.zeros_like(w), w)
+    # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
+    # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
+    theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
     vec = torch.where(axis_line[..., None], theta[..., None] * p.new_tensor([1.0, 0.0, 0.0]),
                       v * scale[..., None])
     n2 = v2 + w2
