@@ -147,16 +147,19 @@ def _interpolate(x: Tensor, times: Tensor, at: Tensor) -> Tensor:
     return dualquat.sclerp(x[..., r - 1, :], x[..., r, :], u.clamp(0.0, 1.0))
 
 
-def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> int:
-    """The reach ``a`` of the windows (:func:`least_squares_start`): the largest in
-    ``0..h`` whose ``2a + h + 1`` knot spans turn by less than ``_MAX_WINDOW_TURN`` at the
-    samples' fastest rotation rate; warns where even ``a = 0`` does not."""
+def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int]:
+    """The reach ``a`` of the windows (:func:`least_squares_start`) of each trajectory of
+    the sign-aligned ``x`` (flattened batch): the largest in ``0..h`` whose ``2a + h + 1``
+    knot spans turn by less than ``_MAX_WINDOW_TURN`` at the trajectory's fastest rotation
+    rate; warns where even ``a = 0`` does not."""
+    count = x.shape[:-2].numel()
     if x.shape[-2] < 2 or anchors.shape[0] < 2:
-        return h
+        return [h] * count
     q = x[..., :4]  # sign-aligned: the relative rotation's real part is the dot, >= 0
     dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1).abs().clamp(max=1.0)
-    rate = float((2.0 * torch.acos(dots) / (times[1:] - times[:-1])).max())
+    rates = (2.0 * torch.acos(dots) / (times[1:] - times[:-1])).amax(-1).reshape(count)
     spacing = float((anchors[1:] - anchors[:-1]).max())  # the knot spacing, about
+    rate = float(rates.max())
     turn = rate * spacing  # rad per knot span
     if turn * (h + 1) > _MAX_WINDOW_TURN:
         ok = 0.9 * _MAX_WINDOW_TURN / (h + 1) / rate  # followed literally, it works
@@ -164,8 +167,8 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> int:
                       f"span of {spacing:.3g}: the least-squares start is unreliable above "
                       f"{_MAX_WINDOW_TURN / (h + 1):.3g} rad per span; use knots at most "
                       f"{ok:.3g} apart", UserWarning, stacklevel=6)
-        return 0
-    return max(0, min(h, int((_MAX_WINDOW_TURN / max(turn, 1e-300) - h - 1) // 2)))
+    return [max(0, min(h, int((_MAX_WINDOW_TURN / max(r * spacing, 1e-300) - h - 1) // 2)))
+            for r in rates.tolist()]
 
 
 def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
@@ -205,13 +208,24 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     Returns:
         ``(..., n, 8)`` float64 unit dual quaternions.
     """
+    x = align_chain(x)
+    reach = _window_reach(x, times, anchors, values.shape[1] - 1)
+    if len(set(reach)) > 1:  # trajectories of a batch turning at different rates
+        flat = x.reshape(-1, *x.shape[-2:])
+        out = [_windowed(flat[b], times, first, values, n, anchors, a)
+               for b, a in enumerate(reach)]
+        return torch.stack(out).view(*x.shape[:-2], n, 8)
+    return _windowed(x, times, first, values, n, anchors, reach[0])
+
+
+def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
+              anchors: Tensor, a: int) -> Tensor:
+    """:func:`least_squares_start` on the sign-aligned ``x`` with windows of reach ``a``."""
     N, w = values.shape
     h = w - 1
-    x = align_chain(x)
     anchor = _interpolate(x, times, anchors)  # (..., n, 8)
     dev = x.device
     ks = torch.arange(n, device=dev)
-    a = _window_reach(x, times, anchors, h)
     lo = torch.searchsorted(first, ks - h - a, right=False)
     hi = torch.searchsorted(first, ks + a, right=True)
     # The chart of each window: the pose interpolated at the middle time of its samples (the

@@ -164,7 +164,7 @@ def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
     """``state[key]`` of a saved extra state: a finite real number (``> 0`` if ``positive``)."""
     value = state.get(key) if isinstance(state, dict) else None
     if (isinstance(value, bool) or not isinstance(value, numbers.Real)
-            or not math.isfinite(value) or (positive and not value > 0)):
+            or not math.isfinite(value) or (positive and not float(value) > 0)):
         _checks.fail(fn, f"expected a finite{' positive' if positive else ''} {key!r} in the "
                          f"extra state, got {state!r}")
     return float(value)
@@ -206,7 +206,7 @@ def _rebuild(cls: type[Curve], state: dict[str, Any], settings: dict[str, bool])
     return module.train(settings["training"])
 
 
-class _Compat01:
+class _Compat01(torch.nn.Module):
     """What 0.1 code needs (deprecated, with a ``DeprecationWarning``): loading a 0.1
     ``state_dict`` (a ``time_range`` buffer and knots on the domain it maps onto),
     :meth:`normalize_time` and :attr:`time_range`."""
@@ -214,8 +214,10 @@ class _Compat01:
     _name: str
 
     if TYPE_CHECKING:
-        domain: tuple[float, float]
         parametrizations: _Parametrizations
+
+        @property
+        def domain(self) -> tuple[float, float]: ...
 
         def _convert_01(self, state_dict: dict[str, Any], prefix: str, start: float,
                         end: float) -> None: ...
@@ -227,7 +229,7 @@ class _Compat01:
                           DeprecationWarning, stacklevel=4)
             start, end = (float(v) for v in state_dict.pop(prefix + "time_range").tolist())
             self._convert_01(state_dict, prefix, start, end)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)  # type: ignore[misc]
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @staticmethod
     def _time_range_knots(fn: str, k64: Tensor, degree: int, time_range) -> Tensor:
@@ -262,7 +264,7 @@ class _Compat01:
 
 # ----------------------------------------------------------------------------- constructors
 
-class _Construction:
+class _Construction(torch.nn.Module):
     """Making a curve layer: from poses (the least-squares start of :mod:`torch_dq._start`),
     matrices, dual quaternions; and saving: the extra state, :meth:`from_state_dict`,
     pickling."""
@@ -270,26 +272,32 @@ class _Construction:
     _name: str
 
     if TYPE_CHECKING:
-        time_model: KnotDomain
-        _min_samples: int
-        n_ctrl: int
         _origin: float
-        control_points: Tensor
+        check: bool
+        extrapolate: bool
+
+        @property
+        def time_model(self) -> KnotDomain: ...
+
+        @property
+        def _min_samples(self) -> int: ...
+
+        @property
+        def n_ctrl(self) -> int: ...
+
+        @property
+        def control_points(self) -> Tensor: ...
+
+        @control_points.setter
+        def control_points(self, value: Tensor) -> None: ...
 
         @classmethod
-        def _from_dq(cls, fn: str, x: Tensor, times: Tensor, **kwargs: Any) -> Self: ...
+        def _from_dq(cls, fn: str, x: Tensor, times: Tensor, *args: Any,
+                     **kwargs: Any) -> Self: ...
 
         @classmethod
         def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
                              ) -> dict[str, Any]: ...
-
-        check: bool
-        extrapolate: bool
-        training: bool
-
-        def load_state_dict(self, state_dict: Mapping[str, Any]) -> Any: ...
-
-        def state_dict(self) -> dict[str, Any]: ...
 
         def _state(self) -> dict[str, Any]: ...
 
@@ -389,7 +397,7 @@ class _Construction:
                              f"{_RAW!r}, got keys {sorted(state_dict)}")
         kwargs = cls._args_from_state(fn, state_dict, raw)
         ctrl = dualquat.identity(tuple(raw.shape[:-1]), dtype=raw.dtype, device=raw.device)
-        module = cls(ctrl, check=check, extrapolate=extrapolate, **kwargs)  # type: ignore[call-arg]
+        module = cls(ctrl, check=check, extrapolate=extrapolate, **kwargs)
         module.load_state_dict(dict(state_dict))
         return module
 
@@ -405,7 +413,7 @@ class _Construction:
 
 # ----------------------------------------------------------------------------- the contract
 
-class Curve(_Compat01, _Construction, torch.nn.Module, abc.ABC):
+class Curve(_Compat01, _Construction, abc.ABC):
     """A curve layer: learnable unit-dual-quaternion control points on a time model.
 
     The contract that :class:`Bezier` and :class:`BSpline` implement and that
@@ -477,7 +485,7 @@ class Curve(_Compat01, _Construction, torch.nn.Module, abc.ABC):
 
     @classmethod
     @abc.abstractmethod
-    def _from_dq(cls, fn: str, x: Tensor, times: Tensor, **kwargs: Any) -> Self:
+    def _from_dq(cls, fn: str, x: Tensor, times: Tensor, *args: Any, **kwargs: Any) -> Self:
         """A module fit to unit dual quaternions ``x`` at ``times`` (``from_poses``)."""
 
     # -- control points
