@@ -1,14 +1,56 @@
 r"""Continuous-time estimation: trajectories from the measurements of several sensors.
 
-A trajectory (a :class:`torch_dq.nn.BSpline` or :class:`torch_dq.nn.Bezier`) is estimated
-from timestamped measurements, each kind a term (:class:`Poses`, :class:`Positions`,
-:class:`RelativePoses`, :class:`Gyro`, :class:`Accel`; :mod:`~torch_dq.fitting.terms`) with
-its noise, robust kernel (:mod:`~torch_dq.fitting.robust`) and nuisance parameters
-(:class:`Free`; :mod:`~torch_dq.fitting.nuisance`), by :func:`estimate`
-(:mod:`~torch_dq.fitting.estimate`), which returns an :class:`Estimate` with the
-uncertainties (:mod:`~torch_dq.fitting.uncertainty`). :func:`fit` refines a curve on poses
-alone (Levenberg-Marquardt as :func:`estimate` with one :class:`Poses` term, or a torch
-optimizer).
+A trajectory (a :class:`torch_dq.nn.BSpline` or :class:`torch_dq.nn.Bezier`, ``x(t) = (R(t),
+p(t))`` body to world) is estimated by :func:`estimate` from timestamped measurements, each
+kind a term (a :class:`torch.nn.Module` holding its data, noise and nuisance parameters);
+:func:`estimate` returns an :class:`Estimate` with the uncertainties. :func:`fit` refines a
+curve on poses alone (Levenberg-Marquardt as :func:`estimate` with one :class:`Poses` term,
+or a torch optimizer).
+
+**Terms.** Residuals are predicted minus measured, divided by the sigmas (required,
+keyword-only: a float or one per axis). ``t' = t + dt`` is a sample's time in the
+trajectory's clock (``dt`` its term's ``time_offset``).
+
+============== ==================================== =========================================
+term           prediction                           residual frame
+============== ==================================== =========================================
+Poses          ``x(t') e`` (sensor mount ``e``)     rotation vector of ``R_m^T R R_e``
+                                                    (sensor axes), translation (world)
+Positions      ``R(t') l + p(t')`` (lever arm)      world
+RelativePoses  ``x(t'_from)^-1 x(t'_to)``           rotation: to-frame, translation: from-frame
+Gyro           ``R^T w + b_g``                      body
+Accel          ``R^T (a - g) + b_a``                body
+============== ==================================== =========================================
+
+**Nuisance parameters** (``extrinsic``, ``lever_arm``, ``bias``, ``gravity``,
+``time_offset``): ``None`` / ``False`` absent, a tensor or float fixed, ``True`` /
+``"estimate"`` estimated from a default start, a :class:`Free` estimated from its start
+with an optional Gaussian prior; one :class:`Free` given to several terms is one parameter.
+Each is stepped, and its uncertainty reported, in a chart:
+
+============  ==========  ====  ================================================
+kind          value       dim   chart
+============  ==========  ====  ================================================
+bias, lever   ``(3,)``    3     ``v + delta``
+time_offset   ``()``      1     ``dt + delta`` (seconds; bounded by
+                                ``max_time_offset``)
+extrinsic     ``(8,)``    6     ``e exp(delta)`` (body-frame twist)
+gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
+                                plane orthogonal to ``g`` (its norm is kept; its standard
+                                deviations are reported in world axes, ``(3,)``)
+============  ==========  ====  ================================================
+
+**Robust kernels** on a sample's whitened residual norm ``s``: ``None`` (:math:`s^2`),
+``"huber"`` (:math:`s^2` up to ``k``, :math:`2 k s - k^2` beyond) and ``"cauchy"``
+(:math:`k^2 \log(1 + s^2 / k^2)`), with the default ``k`` the 95 % quantile of the chi
+distribution of the residual's dimension (:func:`chi_quantile`: 2.7955 for 3, 3.5485 for 6);
+:func:`estimate` applies them by iteratively reweighted least squares.
+
+**Jacobians** are exact: a pose of a degree-``p`` B-spline in a knot span depends on the
+span's ``p + 1`` control points and knots only, i.e. it is the value of a one-span layer; each
+sample gets its own copy of its span's control points, moved by its own step, and one
+reverse pass over ``k`` copies gives every sample's ``k`` Jacobian rows through the layers'
+public ``derivatives`` (spans with the same knot pattern share a layer).
 
 Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
     >>> import torch_dq.dualquat as dq
@@ -31,12 +73,17 @@ import torch  # noqa: F401  (the examples' namespace)
 from .._spacing import choose_knot_spacing
 from .._start import bspline_basis, check_determined, least_squares_start
 from .._start import check_sample_times as check_times
-from .estimate import estimate
-from .fit import FitHistory, fit
-from .nuisance import Free
-from .robust import chi_quantile
-from .terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
-from .uncertainty import Estimate
+from ._estimate import estimate
+from ._fit import FitHistory, fit
+from ._nuisance import Free
+from ._robust import chi_quantile
+from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
+from ._uncertainty import Estimate
+
+for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses, Term,
+             chi_quantile, estimate, fit):
+    _obj.__module__ = __name__  # the public home of the names (and of their documentation)
+del _obj
 
 __all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
            "RelativePoses", "Term", "bspline_basis", "check_determined", "check_times",

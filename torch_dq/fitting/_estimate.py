@@ -1,9 +1,9 @@
 r""":func:`estimate`: Levenberg-Marquardt over a trajectory and the terms' nuisance parameters.
 
-Each iteration linearizes every term exactly (:mod:`~torch_dq.fitting.local`), weights the
+Each iteration linearizes every term exactly , weights the
 samples by the robust kernels at the current residuals (iteratively reweighted least
 squares), and solves the damped Gauss-Newton system: the banded control-point block is
-factored (:class:`~torch_dq.fitting._banded.BandedCholesky`), the ``m`` nuisance steps come
+factored (``BandedCholesky``), the ``m`` nuisance steps come
 from their ``m x m`` Schur complement and the control-point steps by back-substitution,
 :math:`O((N + n) m + m^3)`. A step is accepted where it lowers the robust cost plus priors
 (per batch element), the damping grows tenfold otherwise.
@@ -20,11 +20,11 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from . import structure
+from . import _structure as structure
 from ._banded import BandedCholesky
-from .problem import Problem
-from .terms import Term
-from .uncertainty import Estimate
+from ._problem import Problem
+from ._terms import Term
+from ._uncertainty import Estimate
 
 __all__ = ["estimate"]
 
@@ -158,7 +158,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`, a pull towards the start that keeps control
     points without data (time gaps) where the start put them and changes a well-determined
     fit by about ``prior`` times its distance from the start. Levenberg-Marquardt in local
-    charts (``c_k exp(delta_k)`` and the nuisance charts of :mod:`~torch_dq.fitting.nuisance`),
+    charts (``c_k exp(delta_k)`` and the nuisance charts of :mod:`torch_dq.fitting`),
     exact Jacobians, steps accepted on the robust cost (module docstring). The trajectory's
     control points are updated in place (rounded once to its dtype; the solve runs in
     float64), the nuisance values are read on the terms afterwards (``term.bias``, ...).
@@ -182,7 +182,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     Raises:
         ValueError: bad arguments, terms times outside the domain (widened by an estimated
             time offset's ``max_time_offset``), parameters the terms cannot determine
-            (:mod:`~torch_dq.fitting.structure`), batch shapes that do not match.
+            , batch shapes that do not match.
         TypeError: a trajectory that is not a curve layer, terms that are not terms.
 
     Example:

@@ -10,7 +10,7 @@ covariance is the inverse of ``[[A, C], [C^T, N]]``:
     \Sigma_{cc} = A^{-1} + Z \Sigma_{nn} Z^T, \qquad \Sigma_{cn} = -Z \Sigma_{nn}.
 
 ``A^{-1}`` is only needed on the band (the selected inverse of
-:class:`~torch_dq.fitting._banded.BandedCholesky`), ``Z`` by one banded solve with ``m``
+``BandedCholesky``), ``Z`` by one banded solve with ``m``
 columns: no dense inverse. ``S`` is inverted through its eigen-decomposition: a direction
 with an eigenvalue below ``1e-9`` of the largest, or below ``1e-12`` of the largest diagonal
 entry of ``A`` (no information at float64 precision), gets an infinite variance and a
@@ -26,8 +26,8 @@ from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
 from ._banded import BandedCholesky
-from .local import sample_jacobians
-from .nuisance import gravity_basis
+from ._local import sample_jacobians
+from ._nuisance import gravity_basis
 
 __all__ = ["Estimate"]
 

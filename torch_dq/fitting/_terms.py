@@ -3,7 +3,7 @@ r"""Measurement terms: timestamped data of one sensor, its noise and nuisance pa
 Each term is a :class:`torch.nn.Module`; ``term(trajectory, ctrl=None)`` returns the
 whitened residuals ``(..., N, k)`` (predicted minus measured, divided by the sigmas; zero
 for masked samples) and ``term.cost(trajectory, ctrl=None)`` the robust cost
-:math:`\sum_i \rho(|r_i|)` per batch element (:mod:`torch_dq.fitting.robust`), both
+:math:`\sum_i \rho(|r_i|)` per batch element (:mod:`torch_dq.fitting`), both
 differentiable with respect to the control points, for a torch optimizer loop. With
 ``x(t) = (R(t), p(t))`` the trajectory (body to world) and ``t' = t + dt`` the sample's
 time in the trajectory's clock:
@@ -37,8 +37,8 @@ import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
-from . import robust as _robust
-from .nuisance import Slot
+from . import _robust
+from ._nuisance import Slot
 
 __all__ = ["Accel", "Gyro", "Poses", "Positions", "RelativePoses", "Term"]
 

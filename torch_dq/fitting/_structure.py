@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from .. import _checks
-from .terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
+from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
 
 __all__ = ["check"]
 

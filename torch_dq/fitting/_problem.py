@@ -3,7 +3,7 @@ the Gauss-Newton system in block form.
 
 Unknowns: a body-frame step ``delta_k`` (6) per control point, ``c_k <- c_k exp(delta_k)``,
 and the chart steps of the ``m`` estimated nuisance parameters
-(:mod:`~torch_dq.fitting.nuisance`). With ``J`` the whitened Jacobian and ``W`` the robust
+. With ``J`` the whitened Jacobian and ``W`` the robust
 weights, the Gauss-Newton matrix has three blocks: the control-point band
 ``A_cc (..., n, w, 6, 6)`` (a sample touches ``w`` consecutive control points), the coupling
 ``A_cn (..., n, 6, m)`` and ``A_nn (..., m, m)``; the gradient ``g = J^T W r``.
@@ -17,10 +17,10 @@ import torch
 from torch import Tensor
 
 from .. import dualquat
-from . import robust as _robust
-from .local import SpanEvaluator, sample_jacobians
-from .nuisance import Free, chart_distance, retract
-from .terms import Term
+from . import _robust
+from ._local import SpanEvaluator, sample_jacobians
+from ._nuisance import Free, chart_distance, retract
+from ._terms import Term
 
 __all__ = ["Param", "Problem", "System"]
 

@@ -19,8 +19,8 @@ from .. import _checks, dualquat
 from ..losses import pose_loss
 from .._start import check_determined
 from .._start import check_sample_times as check_times
-from .estimate import estimate, progress
-from .terms import Poses
+from ._estimate import estimate, progress
+from ._terms import Poses
 
 __all__ = ["FitHistory", "fit"]
 
