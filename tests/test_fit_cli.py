@@ -459,3 +459,72 @@ def test_cumulative_form_has_continuous_accelerations(tmp_path):
             scale = float(spline.kinematics(knots).linear_acceleration.norm(dim=-1).max())
         jumps[form] = float((after - before).norm(dim=-1).max()) / scale
     assert jumps["cumulative"] < 1e-5 < jumps["de_boor"], jumps
+
+
+# ----------------------------------------------------------------------------- --imu
+
+def _imu_motion(t):
+    """A motion with closed-form angular velocity and acceleration (scipy rotations):
+    R = Rz(a(t)) Ry(b(t)), w = a' z + b' Rz(a) y (world), p and p'' written out."""
+    a, da = 0.8 * np.sin(0.9 * t) + 0.3 * t, 0.72 * np.cos(0.9 * t) + 0.3
+    b, db = 0.4 * np.sin(1.3 * t), 0.52 * np.cos(1.3 * t)
+    Rz = Rotation.from_rotvec(np.outer(a, [0.0, 0.0, 1.0]))
+    R = Rz * Rotation.from_rotvec(np.outer(b, [0.0, 1.0, 0.0]))
+    w = da[:, None] * np.array([0.0, 0.0, 1.0]) + db[:, None] * Rz.apply([0.0, 1.0, 0.0])
+    p = np.stack((np.sin(t), np.cos(0.7 * t), 0.2 * np.sin(2 * t)), -1)
+    acc = np.stack((-np.sin(t), -0.49 * np.cos(0.7 * t), -0.8 * np.sin(2 * t)), -1)
+    return R, p, w, acc
+
+
+def _write_imu_case(folder, bg, ba, dt, seed=0):
+    """Poses at 20 Hz (TUM) and an IMU at 100 Hz whose stamp t reads the motion at t + dt."""
+    rng = np.random.default_rng(seed)
+    tc = np.arange(0.0, 6.0001, 0.05)
+    R, p, _, _ = _imu_motion(tc)
+    R = Rotation.from_rotvec(1e-3 * rng.normal(size=(len(tc), 3))) * R
+    p = p + 1e-3 * rng.normal(size=p.shape)
+    np.savetxt(folder / "poses.txt", np.column_stack((tc, p, R.as_quat())), fmt="%.12g")
+    ti = np.arange(0.0, 6.0001, 0.01)
+    R, _, w, acc = _imu_motion(ti + dt)
+    gyro = R.inv().apply(w) + bg + 2e-3 * rng.normal(size=w.shape)
+    force = R.inv().apply(acc - np.array([0.0, 0.0, -9.81])) + ba + 2e-2 * rng.normal(
+        size=acc.shape)
+    np.savetxt(folder / "imu.txt", np.column_stack((ti, gyro, force)), fmt="%.12g",
+               header="t gx gy gz ax ay az")
+
+
+def test_imu_biases_and_offset_recovered(tmp_path, capsys):
+    bg, ba, dt = np.array([0.01, -0.02, 0.005]), np.array([0.1, -0.05, 0.2]), 0.01
+    _write_imu_case(tmp_path, bg, ba, dt)
+    out = tmp_path / "o"
+    assert main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"),
+                 "--time-offset", "estimate", "--form", "cumulative", "--out", str(out),
+                 "--no-plots"]) == 0
+    stdout = capsys.readouterr().out
+    for label in ("gyro bias [rad/s]", "accel bias [m/s^2]", "gravity", "time offset [ms]"):
+        assert label in stdout
+    imu = json.loads((out / "summary.json").read_text())["imu"]
+    for key, truth in (("gyro_bias_rad_s", bg), ("accel_bias_m_s2", ba)):
+        value, std = np.array(imu[key]["value"]), np.array(imu[key]["std"])
+        assert np.all(std > 0) and np.all(np.abs(value - truth) < 5 * std + 0.1 * np.abs(
+            truth)), (key, value, std)
+    off = imu["time_offset_s"]
+    assert abs(off["value"] - dt) < 5 * off["std"] + 1e-3, off
+    g = np.array(imu["gravity_m_s2"]["value"])
+    np.testing.assert_allclose(g, [0.0, 0.0, -9.81], atol=0.02)
+
+
+def test_imu_file_errors_are_one_line(tmp_path, capsys):
+    _write_imu_case(tmp_path, np.zeros(3), np.zeros(3), 0.0)
+    poses = str(tmp_path / "poses.txt")
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0.0 0 0 0 0 0 9.81\n0.01 0 0 0 0 9.81\n")
+    assert main(["fit", poses, "--imu", str(bad), "--out", str(tmp_path / "a"), "--quiet"]) == 1
+    assert f"{bad}, line 2: expected 7 columns" in _error_line(capsys)
+    late = tmp_path / "late.txt"
+    late.write_text("".join(f"{100 + 0.01 * k} 0 0 0 0 0 9.81\n" for k in range(50)))
+    assert main(["fit", poses, "--imu", str(late), "--out", str(tmp_path / "b"), "--quiet"]) == 2
+    assert "0 IMU samples lie within the poses' time span" in _error_line(capsys)
+    assert main(["fit", poses, "--time-offset", "estimate", "--out", str(tmp_path / "c"),
+                 "--quiet"]) == 2
+    assert "needs an IMU file: pass --imu" in _error_line(capsys)

@@ -160,6 +160,13 @@ def _add_fit_parser(sub) -> None:
                      default=str(DEFAULTS["dtype"]).replace("torch.", ""),
                      help="dtype of the B-spline (times stay float64)")
     fit.add_argument("--threads", type=_positive_int, default=1, help="torch intra-op threads")
+    fit.add_argument("--imu", metavar="IMU_FILE", default=None,
+                     help="an IMU file on the poses' clock (EuRoC imu0/data.csv, or 't gx gy "
+                          "gz ax ay az' in s, rad/s, m/s^2): fit poses and IMU together and "
+                          "print the biases, gravity (and offset) with standard deviations; "
+                          "best with --form cumulative")
+    fit.add_argument("--time-offset", choices=("estimate",), default=None,
+                     help="with --imu: estimate the IMU's clock offset (at most 0.1 s)")
     fit.add_argument("--out", metavar="DIR", default=DEFAULTS["out"], help="output folder")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace the results of an earlier run in --out (never the input)")
@@ -179,7 +186,8 @@ def _fit(args) -> int:
                 knot_spacing=args.knot_spacing, degree=args.degree, form=args.form,
                 holdout=args.holdout,
                 steps=args.steps, rate=args.rate, dtype=getattr(torch, args.dtype),
-                out=args.out, overwrite=args.overwrite, plots=not args.no_plots,
+                out=args.out, overwrite=args.overwrite, imu=args.imu,
+                time_offset=args.time_offset, plots=not args.no_plots,
                 verbose=not args.quiet)
     except (ValueError, OSError) as exc:
         print(f"torch-dq fit: error: {' '.join(str(exc).split())}", file=sys.stderr)

@@ -253,14 +253,14 @@ def refinement_check(times: Tensor, poses: Tensor, search: SpacingSearch,
         ``((rot, trans) of the start, (rot, trans) refined)``: mean errors (rad, the poses'
         unit) at the inner check.
     """
-    from . import nn
+    from .fitting import fit as refine  # fitting sits above this module
 
     times = times.detach().double()
     fit, check = _inner_split(times.shape[0])
     spline = _start(times[fit], poses[fit], search.candidates[search.chosen], search.degree,
                     search.form)
     before = _errors_at(spline, times[check], poses[check])
-    nn.fit(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
+    refine(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
            verbose=False)
     return before, _errors_at(spline, times[check], poses[check])
 

@@ -36,6 +36,7 @@ Example:
 
 from __future__ import annotations
 
+import functools
 import inspect
 import json
 import math
@@ -50,7 +51,7 @@ from torch import Tensor
 
 from .. import _spacing, dualquat, io
 from .. import nn as dqnn
-from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
+from ._common import OptionError, evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
            "run_fit"]
@@ -63,13 +64,6 @@ OUTPUTS = ("trajectory.csv", "spline.pt", "summary.json")
 
 #: At most this many rows in ``trajectory.csv`` (``--rate`` is bounded by the duration).
 MAX_RESAMPLED = 1_000_000
-
-
-class OptionError(ValueError):
-    """Options that this data cannot satisfy (the message says what to pass instead).
-
-    The command line ends with it in one line and exit status 2, as for a bad option.
-    """
 
 
 @dataclass
@@ -318,12 +312,15 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
 
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
                      degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
-                     verbose: bool) -> tuple[FitResult, dict]:
+                     verbose: bool, refine=None) -> tuple[FitResult, dict]:
+    """Fit (and ``refine(spline, times, poses)``, e.g. with an IMU), then measure and
+    resample the curve."""
     poses = traj.poses()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spline, history, seconds = _fit(traj.select(fit_idx), poses[fit_idx], spacing, degree,
                                         form, steps, dtype, verbose)
+        extra = refine(spline, traj.times[fit_idx], poses[fit_idx]) if refine else None
     pred = evaluate(spline, traj.times)
     rot, trans = pose_errors(pred, poses)
     grid = _resampling(float(traj.times[0]), float(traj.times[-1]), rate)
@@ -335,7 +332,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     fit = {"steps": history.steps if history else 0,
            "loss_start": history.loss[0] if history and history.loss else None,
            "loss_final": history.final_loss if history else None, "seconds": seconds,
-           "warnings": say_warnings("torch-dq fit", caught)}
+           "warnings": say_warnings("torch-dq fit", caught), "imu": extra}
     return result, fit
 
 
@@ -344,8 +341,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             knot_spacing: float | str = "auto", degree: int = 3, form: str = "de_boor",
             holdout: int = 2,
             steps: int = 50, rate: float | None = None, dtype: torch.dtype = torch.float64,
-            out: str = "torch_dq_fit", overwrite: bool = False, plots: bool = True,
-            verbose: bool = True) -> dict:
+            out: str = "torch_dq_fit", overwrite: bool = False,
+            imu: str | os.PathLike[str] | None = None, time_offset: str | None = None,
+            plots: bool = True, verbose: bool = True) -> dict:
     r"""Fit a B-spline to a trajectory file, measure it on held-out poses, write the results.
 
     Args:
@@ -370,6 +368,13 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         out: output folder (created).
         overwrite: replace the results of an earlier run in ``out`` (the input file is
             never written, whatever this says).
+        imu: an IMU file (:func:`torch_dq.io.read_imu`) on the poses' clock: the curve is
+            then refined on the fitted poses and the IMU together
+            (:func:`torch_dq.demo.fit_imu.fit_with_imu`; biases, gravity and their standard
+            deviations printed and in the summary). Prefer ``form="cumulative"`` (continuous
+            accelerations).
+        time_offset: with ``imu``: ``None`` (the clocks agree) or ``"estimate"`` (one
+            offset for the gyroscope and the accelerometer, at most 0.1 s).
         plots: write the figures (needs matplotlib).
         verbose: print the report and show the progress bar.
 
@@ -387,8 +392,12 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         OSError: unreadable file, unwritable output folder.
     """
     _check_options(knot_spacing, degree, form, holdout, steps, rate)
+    if time_offset not in (None, "estimate"):
+        raise ValueError(f"fit: time_offset must be None or 'estimate', got {time_offset!r}")
+    if time_offset and imu is None:
+        raise OptionError("--time-offset estimate needs an IMU file: pass --imu IMU_FILE")
     path, out = os.fspath(path), os.fspath(out)
-    inputs = [path] + ([os.fspath(times)] if isinstance(times, (str, os.PathLike)) else [])
+    inputs = [path] + [os.fspath(f) for f in (times, imu) if isinstance(f, (str, os.PathLike))]
     _check_out(out, inputs, overwrite, plots)
     say = print if verbose else (lambda *a, **k: None)
     begin = time.perf_counter()
@@ -407,8 +416,14 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         f"{len(fit_idx)} poses "
         f"(1 in {holdout}), {len(held_idx)} held out")
     rate_hz = info["median_rate_hz"] if rate is None else float(rate)
+    refine = None
+    if imu is not None:
+        from .fit_imu import fit_with_imu
+
+        refine = functools.partial(fit_with_imu, imu=imu, time_offset=time_offset,
+                                   steps=max(steps, 1), say=say)
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, steps,
-                                   rate_hz, dtype, verbose)
+                                   rate_hz, dtype, verbose, refine)
     fit["seconds"]["read"] = read_s
     heldout = _errors(result.pred, result.poses, result.report_idx)
     say(f"fit: {fit['steps']} step{'s' * (fit['steps'] != 1)} in "
@@ -426,7 +441,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
                     "errors_on": "held-out poses" if len(held_idx) else "fitted poses"},
         "heldout_errors": heldout,
         "fit_errors": _errors(result.pred, result.poses, fit_idx),
-        "fit": {k: v for k, v in fit.items() if k not in ("seconds", "warnings")},
+        "fit": {k: v for k, v in fit.items() if k not in ("seconds", "warnings", "imu")},
+        "imu": fit["imu"],
         "seconds": fit["seconds"],
         "resampled": {"rate_hz": rate_hz, "samples": len(result.grid)},
         "warnings": fit["warnings"],
