@@ -223,7 +223,8 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
     history = FitHistory(optimizer=name or type(optimizer).__name__)
     start = time.perf_counter()
     if name == "lm":
-        _lm(fn, module, t_in, target, _pose_loss_weights(loss), steps, tol, prior, history)
+        _lm(fn, module, t_in, target, _pose_loss_weights(loss), (steps, tol, prior, verbose),
+            history)
         with torch.no_grad():
             history.final_loss = float(loss(module(t_in), target))
     else:
@@ -278,7 +279,7 @@ def _resolve_optimizer(fn: str, optimizer, curve: bool, loss, lr) -> str | None:
 
 
 def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float],
-        steps: int, tol: float, prior: float, history: FitHistory) -> None:
+        settings: tuple, history: FitHistory) -> None:
     """``estimate`` with one :class:`Poses` term whose squared whitened residuals are the
     per-pose terms of ``pose_loss`` (sigmas ``1 / sqrt(weight)``)."""
     like = module.control_points
@@ -292,7 +293,8 @@ def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float]
     wr, wt = weights
     term = Poses(t, target, rot_sigma=wr ** -0.5 if wr > 0 else math.inf,
                  trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
-    est = estimate(module, [term], steps=steps, tol=tol, prior=prior, verbose=False)
+    steps, tol, prior, verbose = settings
+    est = estimate(module, [term], steps=steps, tol=tol, prior=prior, verbose=verbose)
     count = target.shape[:-1].numel()
     history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
         float(est.objective[0].sum()) / count]

@@ -188,9 +188,9 @@ class Estimate:
         q = self._param(term, name)
         C = self.cov((term, name)).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
-        if M is not None:
-            C = M @ torch.where(torch.isinf(C), torch.inf, C) @ M.mT if not bool(
-                torch.isinf(C).any()) else torch.full((C.shape[0], 3, 3), torch.inf)
+        if M is not None:  # gravity: from its 2-d chart to world axes
+            finite = torch.isfinite(C).all(-1).all(-1)[:, None, None]
+            C = torch.where(finite, M @ torch.where(finite, C, 0.0) @ M.mT, torch.inf)
         s = C.diagonal(dim1=-2, dim2=-1).clamp_min(0.0).sqrt()
         b = self._problem.batch
         return s.reshape(b) if q.kind == "offset" else s.reshape(*b, s.shape[-1])
