@@ -39,11 +39,10 @@ The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 from torch import Tensor
-
-from typing import cast
 
 from . import _taylor
 from ._kernels.layout import chunks, from_rows, to_rows
@@ -192,7 +191,7 @@ def _mul_vjp(U: Tensor, V: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
     with :math:`a \cdot (bc) = (a c^*) \cdot b = (b^* a) \cdot c`,
     :math:`\bar U = (g_r v_r^* + g_d v_d^*,\ g_d v_r^*)` and
     :math:`\bar V = (u_r^* g_r + u_d^* g_d,\ u_r^* g_d)`."""
-    q = _taylor._qmul_rows
+    q = _taylor.qmul_rows
     Vc, Uc = _conj_rows(V), _conj_rows(U)
     gr, gd = G[:4], G[4:]
     gU = torch.cat((q(gr, Vc[:4]) + q(gd, Vc[4:]), q(gd, Vc[:4])))

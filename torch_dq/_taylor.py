@@ -39,7 +39,7 @@ from torch import Tensor
 
 from ._kernels import fused_path
 
-__all__ = ["dq_mul", "dq_rows", "mul", "sclerp"]
+__all__ = ["dq_mul", "dq_rows", "mul", "qmul_rows", "sclerp"]
 
 def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
     r"""Number of series terms and switch point in :math:`y = 1 - \cos\theta` for jets of
@@ -288,7 +288,7 @@ def derivatives(jet: Jet) -> list[Tensor]:
             for k, x in enumerate(jet)]
 
 
-def _qmul_rows(a: Tensor, b: Tensor) -> Tensor:
+def qmul_rows(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton product of quaternions as component rows ``(4, ...)`` (``w, x, y, z``)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -301,8 +301,8 @@ def _qmul_rows(a: Tensor, b: Tensor) -> Tensor:
 def dq_rows(a: Tensor, b: Tensor) -> Tensor:
     r"""Dual-quaternion product :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
     ``(8, ...)`` (broadcast)."""
-    return torch.cat((_qmul_rows(a[:4], b[:4]),
-                      _qmul_rows(a[:4], b[4:]) + _qmul_rows(a[4:], b[:4])))
+    return torch.cat((qmul_rows(a[:4], b[:4]),
+                      qmul_rows(a[:4], b[4:]) + qmul_rows(a[4:], b[:4])))
 
 
 def dq_mul(a: Jet, b: Jet) -> Jet:
