@@ -85,6 +85,7 @@ for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, Relative
     _obj.__module__ = __name__  # the public home of the names (and of their documentation)
 del _obj
 
+# bspline_basis, check_determined, check_times and least_squares_start stay importable from
+# here (0.2's names); they are documented where they live, torch_dq._start.
 __all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
-           "RelativePoses", "Term", "bspline_basis", "check_determined", "check_times",
-           "chi_quantile", "choose_knot_spacing", "estimate", "fit", "least_squares_start"]
+           "RelativePoses", "Term", "chi_quantile", "choose_knot_spacing", "estimate", "fit"]

@@ -161,8 +161,9 @@ class Term(torch.nn.Module):
         """The samples' times, one ``(N,)`` or ``(B, N)`` tensor per time argument."""
         return [getattr(self, name) for name in self._names]
 
-    def slots(self) -> dict[str, Slot]:
-        """The nuisance parameters by name (absent, fixed or estimated)."""
+    def slots(self) -> dict:
+        """The nuisance parameters by name (absent, fixed or estimated), a dict of
+        ``str -> Slot`` (the resolved argument: ``fixed`` tensor or ``free`` parameter)."""
         return dict(self._slots)
 
     def default_start(self, name: str, trajectory, ctrl: Tensor | None,
