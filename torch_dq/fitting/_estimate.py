@@ -141,7 +141,7 @@ class _Solver:
         rhs = -gn + torch.einsum("bnim,bni->bm", s.cn, y)
         L, info = torch.linalg.cholesky_ex(0.5 * (S + S.mT))
         ok = ok & (info == 0)
-        eye = torch.eye(m, dtype=S.dtype)
+        eye = torch.eye(m, dtype=S.dtype, device=S.device)
         L = torch.where((info == 0)[:, None, None], L, eye)
         dn = torch.cholesky_solve(rhs[..., None], L)[..., 0]
         dc = -y - torch.einsum("bnim,bm->bni", Z, dn)
@@ -233,7 +233,7 @@ class _LevenbergMarquardt:
         self.mu = prior * diag0
         self.ctrl, self.values = ctrl, values
         self.data, self.obj = self.objective(ctrl, values)
-        self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64)
+        self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64, device=ctrl.device)
         flat = self.obj.reshape(self.Bf)
         self.active = torch.isfinite(flat) & (flat > 0)
         self.reasons = ["" if a else "the cost is zero" if float(o) == 0 else _NONFINITE
@@ -314,7 +314,8 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
         if bar is not None:
             bar.update(1)
             bar.set_postfix(loss=f"{float(lm.data.sum()):.3e}")
-    converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons]) & ~lm.active
+    converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons],
+                             device=lm.active.device) & ~lm.active
     reasons = [r or f"steps={steps} reached" for r in lm.reasons]
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))

@@ -40,6 +40,7 @@ class SpanEvaluator:
         self.trajectory = trajectory
         self.n = trajectory.n_ctrl
         self.bspline = isinstance(trajectory, BSpline)
+        self.device = trajectory.control_points.device
         if not self.bspline:
             self.support = self.n
             return

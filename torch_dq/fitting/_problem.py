@@ -85,7 +85,7 @@ class Problem:
     def term_values(self, i: int, values: list[Tensor]) -> dict[str, Tensor]:
         """Nuisance values of term ``i`` (estimated ones from ``values``, by param)."""
         term = self.terms[i]
-        like = torch.empty((), dtype=torch.float64, device=values[0].device if values else None)
+        like = torch.empty((), dtype=torch.float64, device=self.spans.device)
         out = {}
         for name, slot in term.slots().items():
             p = self.index.get((i, name))
@@ -114,7 +114,7 @@ class Problem:
 
     def prior_cost(self, values: list[Tensor]) -> Tensor:
         """Gaussian priors of the :class:`Free` parameters that have ``prior_std``."""
-        total = torch.zeros(self.batch, dtype=torch.float64)
+        total = torch.zeros(self.batch, dtype=torch.float64, device=self.spans.device)
         for p, v in zip(self.params, values, strict=True):
             if p.free.prior_std is not None:
                 std = torch.as_tensor(p.free.prior_std, dtype=v.dtype, device=v.device)
@@ -124,7 +124,7 @@ class Problem:
 
     def prior_information(self) -> Tensor:
         """``(m,)`` diagonal Gauss-Newton information of the Free priors (0 where none)."""
-        info = torch.zeros(self.m, dtype=torch.float64)
+        info = torch.zeros(self.m, dtype=torch.float64, device=self.spans.device)
         for p in self.params:
             if p.free.prior_std is not None:
                 std = torch.as_tensor(p.free.prior_std, dtype=torch.float64)

@@ -162,7 +162,8 @@ class Estimate:
             return None
         g = self._values[self._problem.params.index(q)].reshape(-1, 3)
         cross = torch.linalg.cross(g[:, :, None].expand(-1, 3, 3),
-                                   torch.eye(3, dtype=g.dtype).expand(g.shape[0], 3, 3),
+                                   torch.eye(3, dtype=g.dtype, device=g.device).expand(
+                                       g.shape[0], 3, 3),
                                    dim=1)  # [g]x columns: g x e_j
         return -cross @ gravity_basis(g)  # d(Exp(B d) g)/dd = -[g]x B
 
@@ -172,9 +173,10 @@ class Estimate:
         self._ensure()
         p = self._problem
         qs = [self._param(t, n) for t, n in items] if items else p.params
-        cols = torch.cat([torch.arange(q.offset, q.offset + q.dim) for q in qs])
+        dev = self._V.device
+        cols = torch.cat([torch.arange(q.offset, q.offset + q.dim, device=dev) for q in qs])
         Bf = self._V.shape[0]
-        E = torch.eye(p.m, dtype=self._V.dtype)[cols].expand(Bf, -1, -1)
+        E = torch.eye(p.m, dtype=self._V.dtype, device=dev)[cols].expand(Bf, -1, -1)
         a = E @ self._V
         prod = a[:, :, None, :] * a[:, None, :, :]
         big = (a.abs() > 1e-8)[:, :, None, :] & (a.abs() > 1e-8)[:, None, :, :]
@@ -226,7 +228,7 @@ class Estimate:
         Sw = self._chol.window_covariance(f, sup)
         var = torch.einsum("btij,btjl,btil->bti", J, Sw, J)
         if p.m:
-            idx = (f[..., None] + torch.arange(sup)).clamp(max=n - 1)
+            idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
             Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
                 Bf, T * sup, 6, p.m)).reshape(Bf, T, sup * 6, p.m)
             var = var + self._quadratic(J @ Zw)
