@@ -237,7 +237,8 @@ def test_derivatives_match_matrix_reference(gen, p):
     # lower orders: the same leading coefficients
     for order in range(3):
         lower = _cumulative.jets(points, weights, order)
-        assert all(torch.allclose(a, b, rtol=0, atol=1e-13) for a, b in zip(lower, jet))
+        assert all(torch.allclose(a, b, rtol=0, atol=1e-13)
+                   for a, b in zip(lower, jet[:order + 1], strict=True))
 
 
 def test_matrix_derivative_reference_matches_finite_differences(gen):
@@ -340,7 +341,7 @@ def test_de_boor_acceleration_jumps_at_knots(gen):
         left, right = (curves.bspline_derivatives(ctrl, s, order=2, degree=p, knots=knots,
                                                   form=form) for s in (u - 1e-9, u))
         scale = float(right[2].norm(dim=-1).max())
-        return [float((a - b).norm(dim=-1).max()) / scale for a, b in zip(left, right)]
+        return [float((a - b).norm(dim=-1).max()) / scale for a, b in zip(left, right, strict=True)]
 
     de_boor, cumulative = jumps("de_boor"), jumps("cumulative")
     assert de_boor[1] <= 1e-7 and cumulative[1] <= 1e-7  # velocities continuous
