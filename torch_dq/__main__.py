@@ -65,7 +65,7 @@ class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
 
 def _parser() -> argparse.ArgumentParser:
     from . import __version__
-    from .demo.runner import FIT_DEFAULTS
+    from .demo.runner import DEFAULTS
 
     parser = argparse.ArgumentParser(
         prog="torch-dq", description="torch_dq: differentiable unit dual quaternions.")
@@ -79,24 +79,29 @@ def _parser() -> argparse.ArgumentParser:
                     "and summary.json to --out. Figures need matplotlib: "
                     "pip install 'torch_dq[plot]'.",
         formatter_class=_DefaultsHelp)
-    demo.add_argument("--out", default="torch_dq_demo", help="output folder")
-    demo.add_argument("--n-ctrl", type=_positive_int, default=8,
+    demo.add_argument("--out", default=DEFAULTS["out"], help="output folder")
+    demo.add_argument("--n-ctrl", type=_positive_int, default=DEFAULTS["n_ctrl"],
                       help="control points of each curve (the Bezier degree is n-ctrl - 1)")
-    demo.add_argument("--degree", type=_positive_int, default=3, help="B-spline degree")
-    demo.add_argument("--steps", type=_positive_int, default=FIT_DEFAULTS["steps"],
+    demo.add_argument("--degree", type=_positive_int, default=DEFAULTS["degree"],
+                      help="B-spline degree")
+    demo.add_argument("--steps", type=_positive_int, default=DEFAULTS["steps"],
                       help="maximum optimizer steps per curve, as in torch_dq.nn.fit")
-    demo.add_argument("--seed", type=int, default=0, help="seed of the pose noise")
-    demo.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
-    demo.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+    demo.add_argument("--seed", type=int, default=DEFAULTS["seed"], help="seed of the pose noise")
+    demo.add_argument("--device", default=DEFAULTS["device"],
+                      help="torch device, e.g. cpu or cuda")
+    demo.add_argument("--dtype", choices=("float32", "float64"),
+                      default=str(DEFAULTS["dtype"]).replace("torch.", ""),
                       help="floating dtype of the fit")
-    demo.add_argument("--samples", type=_positive_int, default=100,
+    demo.add_argument("--samples", type=_positive_int, default=DEFAULTS["n_samples"],
                       help="number of noisy poses (>= 2)")
-    demo.add_argument("--rot-noise", type=_non_negative_float, default=1.0,
+    demo.add_argument("--rot-noise", type=_non_negative_float,
+                      default=DEFAULTS["rot_noise_deg"],
                       help="rotation noise per axis (degrees)")
-    demo.add_argument("--trans-noise", type=_non_negative_float, default=1.0,
+    demo.add_argument("--trans-noise", type=_non_negative_float,
+                      default=DEFAULTS["trans_noise_mm"],
                       help="translation noise per axis (mm)")
     demo.add_argument("--optimizer", choices=("auto", "lm", "adam", "lbfgs", "sgd"),
-                      default=FIT_DEFAULTS["optimizer"],
+                      default=DEFAULTS["optimizer"],
                       help="optimizer of torch_dq.nn.fit, started from the least-squares fit "
                            "of from_poses (loss.png also shows a second optimizer)")
     demo.add_argument("--lr", type=float, default=None,

@@ -51,7 +51,8 @@ from torch import Tensor
 
 from .. import _spacing, dualquat, io
 from .. import nn as dqnn
-from ._common import OptionError, evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
+from ._common import (OptionError, evaluate, import_matplotlib, no_matplotlib, pose_errors,
+                      say_warnings)
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
            "run_fit"]

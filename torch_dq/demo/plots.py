@@ -187,29 +187,13 @@ def _equal_arc_times(p: Tensor, t: Tensor, n: int) -> Tensor:
     return t[idx.clamp(max=len(t) - 1)]
 
 
-def plot_frames(Figure, Canvas, path, fit, samples, model):
-    """The tibia relative to the femur along the fitted B-spline (femur frame, mm)."""
+def _plot_leg(ax_leg, fit, model, paths, p_true) -> None:
+    """The frames figure's left panel: the tibial shaft at a few flexion angles (no frames:
+    they would crowd), the femoral shaft and the paths (``paths(ax)`` draws them)."""
     from matplotlib.lines import Line2D
 
     f64 = torch.float64
-    fig = Figure(figsize=(14.0, 7.4), layout="constrained")
-    ax_leg = fig.add_subplot(1, 2, 1, projection="3d", computed_zorder=False)
-    ax_zoom = fig.add_subplot(1, 2, 2, projection="3d", computed_zorder=False)
-    rgb = ("tab:red", "tab:green", "tab:blue")
-    names = ("x (lateral)", "y (anterior)", "z (proximal)")
-    dense = torch.linspace(0.0, model.duration_s, 400, dtype=f64)
-    p_fit = dualquat.to_rt(_evaluate(fit.module, dense))[1]
-    p_true = dualquat.to_rt(model.poses(dense))[1]
-    p_obs = samples.translations.cpu().double()
     shaft = 60.0
-
-    def paths(ax):
-        ax.plot(*_np(p_true).T, color="k", lw=1.2, ls="--", zorder=3,
-                label="tibia origin, true motion")
-        ax.plot(*_np(p_fit).T, color="darkorange", lw=2.5, zorder=3,
-                label="tibia origin, fitted B-spline")
-
-    # left: the leg, the tibial shaft at a few flexion angles (no frames: they would crowd)
     ax_leg.plot([0, 0], [0, 0], [0, shaft], color="0.45", lw=7, alpha=0.5, zorder=1)
     times = torch.linspace(0.0, model.duration_s, 7, dtype=f64)
     x = _evaluate(fit.module, times)
@@ -233,6 +217,30 @@ def plot_frames(Figure, Canvas, path, fit, samples, model):
         Line2D([], [], color="k", ls="none", marker="o", ms=5,
                label="femoral origin (epicondylar midpoint)")]
     _legend_below(ax_leg, leg_handles)
+
+
+def plot_frames(Figure, Canvas, path, fit, samples, model):
+    """The tibia relative to the femur along the fitted B-spline (femur frame, mm)."""
+    from matplotlib.lines import Line2D
+
+    f64 = torch.float64
+    fig = Figure(figsize=(14.0, 7.4), layout="constrained")
+    ax_leg = fig.add_subplot(1, 2, 1, projection="3d", computed_zorder=False)
+    ax_zoom = fig.add_subplot(1, 2, 2, projection="3d", computed_zorder=False)
+    rgb = ("tab:red", "tab:green", "tab:blue")
+    names = ("x (lateral)", "y (anterior)", "z (proximal)")
+    dense = torch.linspace(0.0, model.duration_s, 400, dtype=f64)
+    p_fit = dualquat.to_rt(_evaluate(fit.module, dense))[1]
+    p_true = dualquat.to_rt(model.poses(dense))[1]
+    p_obs = samples.translations.cpu().double()
+
+    def paths(ax):
+        ax.plot(*_np(p_true).T, color="k", lw=1.2, ls="--", zorder=3,
+                label="tibia origin, true motion")
+        ax.plot(*_np(p_fit).T, color="darkorange", lw=2.5, zorder=3,
+                label="tibia origin, fitted B-spline")
+
+    _plot_leg(ax_leg, fit, model, paths, p_true)
 
     # right: close-up, tibia frames evenly spaced along the fitted path
     paths(ax_zoom)
@@ -280,6 +288,44 @@ def _sagittal(axes: dict) -> tuple[Tensor, Tensor]:
     pierce = c + s[..., None] * l
     tilt = torch.rad2deg(torch.acos(l[..., 0].abs().clamp(max=1.0)))
     return pierce, tilt
+
+
+def _plot_sagittal(fig, grid, order, truth, fitted, by_name, flex) -> None:
+    """The axode figure's lower row: where the screw axes cross the mid-sagittal plane, and
+    their tilt against flexion, true and fitted."""
+    ax_s = fig.add_subplot(grid[1, 0])
+    ax_t = fig.add_subplot(grid[1, 1] if len(order) > 1 else grid[1, 0])
+    pt, tilt_t = _sagittal(truth)
+    ax_s.plot(_np(pt[:, 1]), _np(pt[:, 2]), color="k", ls="--", lw=1.2, label="true motion")
+    ax_t.plot(flex, _np(tilt_t), color="k", ls="--", lw=1.2, label="true motion")
+    marks = [0, len(flex) // 2, len(flex) - 1]
+    ax_s.plot(_np(pt[marks, 1]), _np(pt[marks, 2]), "ko", ms=4)
+    for i in marks:
+        ax_s.annotate(f"{flex[i]:.0f}°", (float(pt[i, 1]), float(pt[i, 2])), fontsize=8,
+                      textcoords="offset points", xytext=(5, -10))
+    for name in order:
+        p, tilt = _sagittal(fitted[name])
+        style = {"color": _CURVE_COLOR[name], **_LINE[name]}
+        label = f"fitted {CURVE_LABELS[name]} (degree {by_name[name].degree})"
+        ax_s.plot(_np(p[:, 1]), _np(p[:, 2]), label=label, **style)
+        ax_s.plot(_np(p[marks, 1]), _np(p[marks, 2]), "o", ms=5, mfc="none",
+                  color=_CURVE_COLOR[name])
+        ax_t.plot(flex, _np(tilt), label=label, **style)
+    ax_s.plot([], [], "o", color="0.3", mfc="none", ms=5,
+              label="fitted axes at the marked flexions")
+    ax_s.set_xlabel("y anterior (mm)")
+    ax_s.set_ylabel("z proximal (mm)")
+    ax_s.set_title("Where the screw axis crosses the mid-sagittal plane x = 0\n"
+                   "(the ends of a curve fitted to noisy poses are the least certain)",
+                   fontsize=10.5)
+    ax_s.set_aspect("equal", adjustable="datalim")
+    ax_s.grid(alpha=0.3)
+    ax_s.legend(fontsize=8.5)
+    ax_t.set_xlabel("flexion (deg)")
+    ax_t.set_ylabel("tilt from the medial-lateral axis (deg)")
+    ax_t.set_title("Screw axis tilt (from the coupled internal rotation)", fontsize=10.5)
+    ax_t.grid(alpha=0.3)
+    ax_t.legend(fontsize=8.5)
 
 
 def plot_axode(Figure, Canvas, path, fits, samples, model):
@@ -342,39 +388,7 @@ def plot_axode(Figure, Canvas, path, fits, samples, model):
             fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax3, shrink=0.6,
                          pad=0.08, label="flexion (deg)")
 
-    ax_s = fig.add_subplot(grid[1, 0])
-    ax_t = fig.add_subplot(grid[1, 1] if len(order) > 1 else grid[1, 0])
-    pt, tilt_t = _sagittal(truth)
-    ax_s.plot(_np(pt[:, 1]), _np(pt[:, 2]), color="k", ls="--", lw=1.2, label="true motion")
-    ax_t.plot(flex, _np(tilt_t), color="k", ls="--", lw=1.2, label="true motion")
-    marks = [0, len(t) // 2, len(t) - 1]
-    ax_s.plot(_np(pt[marks, 1]), _np(pt[marks, 2]), "ko", ms=4)
-    for i in marks:
-        ax_s.annotate(f"{flex[i]:.0f}°", (float(pt[i, 1]), float(pt[i, 2])), fontsize=8,
-                      textcoords="offset points", xytext=(5, -10))
-    for name in order:
-        p, tilt = _sagittal(fitted[name])
-        style = {"color": _CURVE_COLOR[name], **_LINE[name]}
-        label = f"fitted {CURVE_LABELS[name]} (degree {by_name[name].degree})"
-        ax_s.plot(_np(p[:, 1]), _np(p[:, 2]), label=label, **style)
-        ax_s.plot(_np(p[marks, 1]), _np(p[marks, 2]), "o", ms=5, mfc="none",
-                  color=_CURVE_COLOR[name])
-        ax_t.plot(flex, _np(tilt), label=label, **style)
-    ax_s.plot([], [], "o", color="0.3", mfc="none", ms=5,
-              label="fitted axes at the marked flexions")
-    ax_s.set_xlabel("y anterior (mm)")
-    ax_s.set_ylabel("z proximal (mm)")
-    ax_s.set_title("Where the screw axis crosses the mid-sagittal plane x = 0\n"
-                   "(the ends of a curve fitted to noisy poses are the least certain)",
-                   fontsize=10.5)
-    ax_s.set_aspect("equal", adjustable="datalim")
-    ax_s.grid(alpha=0.3)
-    ax_s.legend(fontsize=8.5)
-    ax_t.set_xlabel("flexion (deg)")
-    ax_t.set_ylabel("tilt from the medial-lateral axis (deg)")
-    ax_t.set_title("Screw axis tilt (from the coupled internal rotation)", fontsize=10.5)
-    ax_t.grid(alpha=0.3)
-    ax_t.legend(fontsize=8.5)
+    _plot_sagittal(fig, grid, order, truth, fitted, by_name, flex)
     lo, hi = 100 * AXODE_MARGIN, 100 * (1 - AXODE_MARGIN)
     fig.suptitle("Instantaneous screw axis of the knee flexion in the femur frame, "
                  f"{lo:.0f}-{hi:.0f}% of the motion (paper's Fig. 2 idea)")

@@ -51,7 +51,7 @@ from . import plots as _plots
 from ._common import PLOT_HINT, evaluate, no_matplotlib, pose_errors, say_warnings
 from .knee import KneeModel, KneeSamples, sample_poses
 
-__all__ = ["FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
+__all__ = ["DEFAULTS", "FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
 
 #: The figures the demo writes (when matplotlib is available).
 FIGURES = ("fig1_components.png", "frames_3d.png", "axode.png", "loss.png")
@@ -240,31 +240,50 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
     }
 
     if plots:
-        try:
-            Figure, Canvas = _plots.import_matplotlib()
-        except ImportError:
-            summary["warnings"].append(no_matplotlib("torch-dq demo"))
-        else:
-            by_name = {f.name: f for f in fits}
-            paths = [os.path.join(out, name) for name in FIGURES]
-            _plots.plot_components(Figure, Canvas, paths[0], fits, samples, model)
-            _plots.plot_frames(Figure, Canvas, paths[1], by_name["bspline"], samples, model)
-            _plots.plot_axode(Figure, Canvas, paths[2], fits, samples, model)
-            _plots.plot_loss(Figure, Canvas, paths[3], _loss_runs(fits, samples, fit_kwargs),
-                             trans_weight)
-            summary["figures"] = [os.path.basename(p) for p in paths]
-
+        summary["figures"] = _figures(out, fits, samples, model, fit_kwargs, trans_weight,
+                                      summary["warnings"])
     summary["seconds_total"] = time.perf_counter() - t_start
     with open(os.path.join(out, "summary.json"), "w", encoding="utf-8") as fh:
         json.dump(summary, fh, indent=2)
     if verbose:
-        print(f"torch_dq demo: knee flexion 0-{model.flexion_deg:g} deg, {n_samples} noisy "
-              f"poses (noise {rot_noise_deg:g} deg, {trans_noise_mm:g} mm per axis), seed "
-              f"{seed}, {optimizer} up to {steps} steps on {device} "
-              f"({summary['settings']['dtype']})", file=stream)
-        print(f"errors vs the noise-free motion at {n_held} held-out times:\n", file=stream)
-        print(_table(summary), file=stream)
-        files = ", ".join(summary["figures"] + ["summary.json"])
-        print(f"\nwrote {files} to {os.path.abspath(out)}", file=stream)
-        print(f"total time {summary['seconds_total']:.1f} s", file=stream)
+        _report(summary, model, out, stream)
     return summary
+
+
+def _figures(out: str, fits: list[_Fit], samples: KneeSamples, model: KneeModel,
+             fit_kwargs: dict, trans_weight: float, notes: list[str]) -> list[str]:
+    """Write :data:`FIGURES` (the names written; none, with a note, without matplotlib)."""
+    try:
+        Figure, Canvas = _plots.import_matplotlib()
+    except ImportError:
+        notes.append(no_matplotlib("torch-dq demo"))
+        return []
+    by_name = {f.name: f for f in fits}
+    paths = [os.path.join(out, name) for name in FIGURES]
+    _plots.plot_components(Figure, Canvas, paths[0], fits, samples, model)
+    _plots.plot_frames(Figure, Canvas, paths[1], by_name["bspline"], samples, model)
+    _plots.plot_axode(Figure, Canvas, paths[2], fits, samples, model)
+    _plots.plot_loss(Figure, Canvas, paths[3], _loss_runs(fits, samples, fit_kwargs),
+                     trans_weight)
+    return [os.path.basename(p) for p in paths]
+
+
+def _report(summary: dict, model: KneeModel, out: str, stream) -> None:
+    """Print the settings, the error table and what was written."""
+    s = summary["settings"]
+    print(f"torch_dq demo: knee flexion 0-{model.flexion_deg:g} deg, {s['n_samples']} noisy "
+          f"poses (noise {s['rot_noise_deg']:g} deg, {s['trans_noise_mm']:g} mm per axis), "
+          f"seed {s['seed']}, {s['optimizer']} up to {s['steps']} steps on {s['device']} "
+          f"({s['dtype']})", file=stream)
+    print(f"errors vs the noise-free motion at {s['n_held_out']} held-out times:\n",
+          file=stream)
+    print(_table(summary), file=stream)
+    files = ", ".join(summary["figures"] + ["summary.json"])
+    print(f"\nwrote {files} to {os.path.abspath(out)}", file=stream)
+    print(f"total time {summary['seconds_total']:.1f} s", file=stream)
+
+
+#: The defaults of :func:`run_demo` (``n_ctrl``, ``degree``, ``n_samples``, ...), read from its
+#: signature: ``python -m torch_dq demo`` takes its defaults from here.
+DEFAULTS = {name: p.default for name, p in inspect.signature(run_demo).parameters.items()
+            if p.default is not inspect.Parameter.empty}
