@@ -615,7 +615,7 @@ def _eqs4_5(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     r"""Eqs. 4 and 5 on broadcast ``a, b (..., 8)``, in plain torch ops (smooth to every
     order for :math:`0 < \theta < \pi`): ``(theta, theta_hat, degenerate)``, where
     ``degenerate`` marks :math:`\sin\theta` below the eq. 6 threshold (``theta_hat`` there is
-    a placeholder). The fused op :func:`torch_dq._kernels.dual_angle.dual_angle` computes the
+    a placeholder). The fused op ``torch_dq._kernels.dual_angle.dual_angle`` computes the
     same; :func:`angle` documents the conventions."""
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     # eq. 1: q0 . q1 = c + eps delta, with c = P . R and delta = P . S + R . Q.
@@ -729,7 +729,7 @@ def sclerp(a: Tensor, b: Tensor, t: Tensor | float, shortest: bool = True) -> Te
 def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     r"""Eq. 11 on broadcast ``a, b (..., 8)`` and ``t (...)``, in plain torch ops.
 
-    The reference for the fused :func:`torch_dq._kernels.sclerp.sclerp` (same formula on
+    The reference for the fused ``torch_dq._kernels.sclerp.sclerp`` (same formula on
     component rows) and what :func:`sclerp` runs under ``torch.func`` transforms.
 
     With :math:`a = P + \epsilon Q`, :math:`b = R + \epsilon S` and the dual scalar product
@@ -742,7 +742,7 @@ def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     .. math::
         q(t) = F_0 a + F_1 b - \epsilon\,\delta\,(G_0 P + G_1 R),\qquad s_0 = 1 - t,\ s_1 = t.
 
-    ``F`` and ``G`` (:func:`torch_dq._kernels.weights.screw_weights`) are one power series
+    ``F`` and ``G`` (``torch_dq._kernels.weights.screw_weights``) are one power series
     in :math:`1 - \cos\theta` near 0 (no 0/0 at equal rotations, where this is the paper's
     linear branch :math:`(1 - t) a + t b`) and closed forms elsewhere: analytic in
     :math:`c`, so every derivative, to any order, is right.

@@ -171,7 +171,7 @@ class DualQuaternion:
 
     @property
     def shape(self) -> torch.Size:
-        """Batch shape: the tensor's shape without the trailing 8."""
+        """The batch shape (the tensor's shape without the trailing 8)."""
         return self._tensor.shape[:-1]
 
     @property
