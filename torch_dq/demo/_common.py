@@ -14,18 +14,11 @@ from torch import Tensor
 
 from .. import losses
 
-__all__ = ["PLOT_HINT", "OptionError", "align", "evaluate", "import_matplotlib", "no_matplotlib",
+__all__ = ["PLOT_HINT", "align", "evaluate", "import_matplotlib", "no_matplotlib",
            "pose_errors", "say_warnings"]
 
 #: What to run when matplotlib is missing.
 PLOT_HINT = "pip install 'torch_dq[plot]'"
-
-
-class OptionError(ValueError):
-    """Options that this data cannot satisfy (the message says what to pass instead).
-
-    The command line ends with it in one line and exit status 2, as for a bad option.
-    """
 
 
 def pose_errors(pred: Tensor, truth: Tensor) -> tuple[Tensor, Tensor]:

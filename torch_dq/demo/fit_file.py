@@ -51,8 +51,7 @@ from torch import Tensor
 
 from .. import _spacing, dualquat, io
 from .. import nn as dqnn
-from ._common import (OptionError, evaluate, import_matplotlib, no_matplotlib, pose_errors,
-                      say_warnings)
+from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
            "run_fit"]
@@ -65,6 +64,13 @@ OUTPUTS = ("trajectory.csv", "spline.pt", "summary.json")
 
 #: At most this many rows in ``trajectory.csv`` (``--rate`` is bounded by the duration).
 MAX_RESAMPLED = 1_000_000
+
+
+class OptionError(ValueError):
+    """Options that this data cannot satisfy (the message says what to pass instead).
+
+    The command line ends with it in one line and exit status 2, as for a bad option.
+    """
 
 
 @dataclass

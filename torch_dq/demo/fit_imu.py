@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from .. import dualquat, fitting, io
-from ._common import OptionError
+from .fit_file import OptionError
 
 __all__ = ["GRAVITY", "fit_with_imu"]
 
