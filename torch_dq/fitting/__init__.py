@@ -46,6 +46,14 @@ gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis o
 distribution of the residual's dimension (:func:`chi_quantile`: 2.7955 for 3, 3.5485 for 6);
 :func:`estimate` applies them by iteratively reweighted least squares.
 
+**Batches.** Control points ``(B, n, 8)`` with terms whose data carry the leading ``B``
+(times ``(B, N)`` of their own or shared ``(N,)``; ``mask`` for unequal counts) are ``B``
+independent problems solved together, with per-problem damping and stopping. A larger batch
+shards across processes (or GPUs) without communication during the solve: each process
+estimates its rows and the results are gathered with ``torch.distributed.all_gather``
+(``tests/test_estimation_distributed.py`` runs it on two CPU processes with the gloo
+backend).
+
 **Jacobians** are exact: a pose of a degree-``p`` B-spline in a knot span depends on the
 span's ``p + 1`` control points and knots only, i.e. it is the value of a one-span layer; each
 sample gets its own copy of its span's control points, moved by its own step, and one
