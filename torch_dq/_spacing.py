@@ -271,7 +271,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
 
     Splits the poses into an inner fit (even indices and the last) and an inner check (the
     others), fits the least-squares start (:meth:`torch_dq.nn.BSpline.from_poses`) on the
-    inner fit for a geometric grid of spacings (ratio :data:`GRID_RATIO`, from the finest
+    inner fit for a geometric grid of spacings (ratio :math:`2^{1/4}`, from the finest
     that the inner fit determines, ``n_ctrl <= N / 2``), takes the largest spacing whose
     mean rotation and translation errors at the inner check are both within ``tolerance``
     of the best ones, and scales it to the density of all ``N`` poses (never below the

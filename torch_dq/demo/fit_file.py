@@ -6,7 +6,7 @@ in the file's own seconds, UNIX seconds included), then
 1. *split*: every ``holdout``-th pose (and the last) is fitted, the others are held out to
    measure the fit (``holdout=1``: fit all, report the fit residuals);
 2. *fit*: chooses the knot spacing from the fitted poses alone
-   (:func:`torch_dq._spacing.choose_knot_spacing`, ``knot_spacing="auto"``, the default) or
+   (:func:`torch_dq.fitting.choose_knot_spacing`, ``knot_spacing="auto"``, the default) or
    takes the one given, builds the least-squares start
    :meth:`torch_dq.nn.BSpline.from_poses` and refines it with :func:`torch_dq.nn.fit`
    (progress bar on a terminal, tqdm optional);
@@ -15,7 +15,7 @@ in the file's own seconds, UNIX seconds included), then
 4. *write*: to the output folder ``trajectory.csv`` (the curve resampled at ``rate`` Hz with
    world-frame velocities and accelerations, :func:`torch_dq.io.write_csv`), ``spline.pt``
    (the module's ``state_dict``), ``summary.json`` and the figures of
-   :mod:`torch_dq.demo.fit_plots`.
+   ``torch_dq.demo.fit_plots``.
 
 The input is never written to; a folder holding the results of an earlier run is refused
 unless ``overwrite=True``. Options the data cannot satisfy raise :class:`OptionError`, whose
@@ -107,7 +107,8 @@ class FitResult:
 
     @property
     def report_idx(self) -> Tensor:
-        """The poses whose errors are reported: the held-out ones (the fitted if none)."""
+        """Indices of the poses whose errors are reported (the held-out ones; the fitted
+        ones when none is held out)."""
         return self.held_idx if len(self.held_idx) else self.fit_idx
 
 
@@ -360,7 +361,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         duplicates: ``"error"`` or ``"first"`` (keep the first pose of a repeated time).
         knot_spacing: seconds between knots (``n_ctrl = ceil(duration / knot_spacing) +
             degree``), or ``"auto"`` (default): chosen from the fitted poses alone by
-            :func:`torch_dq._spacing.choose_knot_spacing`.
+            :func:`torch_dq.fitting.choose_knot_spacing`.
         degree: B-spline degree.
         form: the B-spline form (:class:`torch_dq.nn.BSpline`): ``"de_boor"`` (the paper's
             De Boor pyramid of sclerps, C1 at knots) or ``"cumulative"`` (Kim-Kim-Shin, C2
@@ -377,7 +378,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             never written, whatever this says).
         imu: an IMU file (:func:`torch_dq.io.read_imu`) on the poses' clock: the curve is
             then refined on the fitted poses and the IMU together
-            (:func:`torch_dq.demo.fit_imu.fit_with_imu`; biases, gravity and their standard
+            (``torch_dq.demo.fit_imu.fit_with_imu``; biases, gravity and their standard
             deviations printed and in the summary). Prefer ``form="cumulative"`` (continuous
             accelerations).
         time_offset: with ``imu``: ``None`` (the clocks agree) or ``"estimate"`` (one
