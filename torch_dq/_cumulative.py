@@ -45,7 +45,7 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels.layout import chunks, from_rows, to_rows
+from ._kernels.layout import chunks, from_rows, rows_into, to_rows
 from ._kernels.sclerp import Frame, combine, frame, vjp_rows
 from ._kernels.sclerp import weights as screw_weights
 from ._kernels.weights import Angle, WeightSlopes, angle
@@ -240,14 +240,14 @@ class _Poses(torch.autograd.Function):
     def forward(ctrl: Tensor, first: Tensor, w: Tensor) -> Tensor:
         rows = to_rows(ctrl)
         rel, table = _pair_table(rows)
-        parts = []
+        out = ctrl.new_empty(first.shape[0], 8)
         for i in chunks(first.shape[0], POSES_CHUNK):
             E = _chunk_powers(rel, table, first[i], w[:, i])[-1]
             x = rows.index_select(1, first[i])
             for j in range(E.shape[0]):
                 x = _taylor.dq_rows(x, E[j])
-            parts.append(from_rows(x))
-        return torch.cat(parts)
+            rows_into(out[i], x)
+        return out
 
     @staticmethod
     def setup_context(ctx, inputs, output):
