@@ -32,9 +32,14 @@ extensions = [
     "myst_nb",  # MyST markdown pages and .ipynb notebooks (includes myst_parser)
 ]
 
-# Notebooks are stored without outputs and are executed by tests/test_notebooks.py; the
-# docs render their text and code as stored and never start a kernel (offline, fast).
-nb_execution_mode = "off"
+# Notebooks are stored without outputs (tests/test_notebooks.py executes them and checks
+# their figures). The docs execute them once and render their outputs and figures; the
+# executed notebooks are cached in docs/_build/.jupyter_cache (keyed by the code cells),
+# so later builds, the test suite's included, reuse them while the code is unchanged.
+nb_execution_mode = "cache"
+nb_execution_cache_path = os.path.join(ROOT, "docs", "_build", ".jupyter_cache")
+nb_execution_timeout = 600
+nb_execution_raise_on_error = True
 myst_enable_extensions = ["dollarmath", "amsmath"]
 myst_heading_anchors = 3
 

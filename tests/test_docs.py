@@ -1,10 +1,13 @@
 """The reference documentation builds with warnings as errors, covers every public name, and
 its examples run.
 
-The build is ``sphinx-build -W --keep-going -b html docs <tmp>`` (Sphinx, autodoc, napoleon,
-myst-nb): a malformed docstring, a broken cross-reference, a page missing from a toctree or a
-notebook that does not parse fails it. Skipped, with the reason, when the ``docs`` extra is
-not installed.
+The build is ``sphinx-build -W --keep-going -n -b html docs <tmp>`` (Sphinx, autodoc,
+napoleon, myst-nb) with ``nitpicky = True``: a malformed docstring, a cross-reference that
+does not resolve (to torch_dq, or to an outside name missing from ``docs/conf.py``'s
+``EXTERNAL`` table), a page missing from a toctree or a notebook that does not execute fails
+it. The notebooks are executed by the build (cached in ``docs/_build/.jupyter_cache``) and
+their pages show their outputs and figures. Skipped, with the reason, when the ``docs`` extra
+is not installed.
 """
 
 import doctest
@@ -50,7 +53,7 @@ def html(tmp_path_factory) -> pathlib.Path:
                                          "pip install -e '.[docs]'")
     pytest.importorskip("myst_nb", reason="the docs build needs myst-nb (the docs extra)")
     out = tmp_path_factory.mktemp("docs")
-    cmd = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
+    cmd = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-n", "-q", "-b", "html",
            "-d", str(out / "doctrees"), str(DOCS), str(out / "html")]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert res.returncode == 0, f"sphinx-build failed:\n{res.stdout}\n{res.stderr}"
@@ -62,6 +65,39 @@ def test_docs_build_writes_every_page(html):
         assert (html / f"{page}.html").is_file(), page
     for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
         assert (html / "notebooks" / f"{nb.stem}.html").is_file(), nb.name
+
+
+def test_notebook_pages_show_their_figures(html):
+    """Each notebook page carries the figures the notebook draws (rendered outputs)."""
+    for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
+        page = (html / "notebooks" / f"{nb.stem}.html").read_text(encoding="utf-8")
+        assert re.search(r'<img[^>]+src="[^"]+\.png"', page), f"{nb.name}: no figure rendered"
+
+
+def test_architecture_page_says_which_path_runs_where(html):
+    page = (html / "architecture.html").read_text(encoding="utf-8")
+    for text in ("plain-op path", "torch.func", "check=False", "KnotDomain"):
+        assert text in page, text
+    for target in ("torch_dq.dualquat._eq11", "torch_dq.curves._de_boor",
+                   "torch_dq._time.KnotDomain"):
+        assert f'id="{target}"' in page, target
+
+
+# Files the docs, the docstrings and the changelog may cite by name.
+_CITED = re.compile(r"\b([A-Za-z_][\w/]*\.(?:md|rst|ipynb|toml|cfg))\b")
+
+
+def test_no_reference_to_missing_files():
+    """Every ``name.md`` (``.rst``, ``.ipynb``, ...) cited in the docs, the library's
+    docstrings and the changelog exists in the repository (e.g. the contract is
+    ``docs/api_contract.md``, not an ``API.md`` the repository does not have)."""
+    sources = [*DOCS.glob("*.md"), *(DOCS / "api").glob("*.rst"), ROOT / "CHANGELOG.md",
+               *(ROOT / "torch_dq").rglob("*.py")]
+    names = {p.name for p in ROOT.rglob("*") if ".git" not in p.parts}
+    missing = sorted({f"{src.relative_to(ROOT)}: {m}" for src in sources
+                      for m in _CITED.findall(src.read_text(encoding="utf-8"))
+                      if m.rsplit("/", 1)[-1] not in names})
+    assert not missing, missing
 
 
 @pytest.mark.parametrize("module", [m for m in _public_modules() if m != "torch_dq"])

@@ -139,9 +139,9 @@ def test_compile_derivatives_kinematics_imu(gen):
 
 
 def test_compile_default_checks_skipped_outside_times_nan(gen):
-    """API.md: the default arguments compile with ``fullgraph=True`` (the value checks that
-    need a host sync are skipped under compile) and times outside the domain give NaN
-    there, never a silent extrapolation; the times inside match eager."""
+    """docs/api_contract.md: the default arguments compile with ``fullgraph=True`` (the
+    value checks that need a host sync are skipped under compile) and times outside the
+    domain give NaN there, never a silent extrapolation; the times inside match eager."""
     c, _ = _curve_args(gen)
     c = c[:, :2]
     t = torch.tensor([0.0, 0.5, 1.0, 1.5], dtype=F64)

@@ -24,6 +24,7 @@ EXPECTED = {
     "04_fitting_and_learning": ["04_fit_losses.png", "04_mlp_predictions.png"],
     "05_knee_axode": ["05_knee_angles.png", "05_axode.png"],
     "06_real_trajectory": ["06_heldout_errors.png", "06_kinematics.png", "06_imu.png"],
+    "07_estimation": ["07_trajectory.png", "07_kinematics.png"],
 }
 
 

@@ -4,7 +4,8 @@ non-finite values, half precision, aliasing, and property fuzzing.
 Most tests walk ``registry.OPS``, the one registry of every public tensor function of
 ``torch_dq.quat``, ``dualquat``, ``curves`` and ``losses`` (both B-spline forms included),
 with its one sampler (``test_registry_covers_the_public_api`` keeps it complete), so a new
-public function needs one registry row. The policies checked here (API.md "Conventions"):
+public function needs one registry row. The policies checked here (docs/api_contract.md,
+"Conventions"):
 
 - bad arguments raise ``ValueError`` (shape, broadcasting, values) or ``TypeError`` (not a
   tensor, non-floating or complex dtype, mixed dtypes or devices) with a message

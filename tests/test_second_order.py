@@ -1,4 +1,4 @@
-"""Second derivatives at and near the degenerate points (API.md, "Second order").
+"""Second derivatives at and near the degenerate points (docs/api_contract.md, "Second order").
 
 Gauss-Newton, Laplace approximations and Newton steps in an ``x exp(xi)`` chart evaluate
 Hessians exactly at the degenerate points (zero rotation, equal poses, zero error). For each

@@ -94,8 +94,8 @@ def nan_unless(finite: Tensor, x: Tensor) -> Tensor:
 
     For results with a finite limit as an input component goes to infinity (``q / |q|``,
     ``atan2(|v|, w)``, ``2 / |q|^2``): a non-finite input must come back as NaN, never as
-    a plausible finite number (API.md). Apply it to a reduced quantity (a norm) where
-    possible: the mask costs one pass over it.
+    a plausible finite number (docs/api_contract.md). Apply it to a reduced quantity (a
+    norm) where possible: the mask costs one pass over it.
     """
     return torch.where(finite, x, torch.nan)
 
