@@ -108,6 +108,15 @@ class SpanEvaluator:
         return tuple(res)
 
 
+def tangent_step(points: Tensor, delta: Tensor) -> Tensor:
+    r"""``points exp(delta)`` to first order in ``delta``: :math:`c + c\,(0, \omega/2, 0,
+    v/2)` (the derivative of the rigid-motion exponential at zero), for Jacobians at
+    ``delta = 0`` (exact there; cheaper than the exponential)."""
+    zero = delta.new_zeros(*delta.shape[:-1], 1)
+    lin = torch.cat((zero, 0.5 * delta[..., :3], zero, 0.5 * delta[..., 3:]), dim=-1)
+    return points + dualquat.mul(points, lin)
+
+
 def _evaluate(layer, t: Tensor, order: int, ctrl: Tensor) -> tuple[Tensor, ...]:
     """``layer.derivatives`` (poses alone through ``forward``: the fused pose kernel)."""
     if order == 0:

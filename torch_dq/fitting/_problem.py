@@ -18,7 +18,7 @@ from torch import Tensor
 
 from .. import dualquat
 from . import _robust
-from ._local import SpanEvaluator, sample_jacobians
+from ._local import SpanEvaluator, sample_jacobians, tangent_step
 from ._nuisance import Free, chart_distance, retract
 from ._terms import Term
 
@@ -209,7 +209,7 @@ class Problem:
             ctrl.new_zeros(*shape, N, self.index[(i, name)].dim) for name in est]
 
         def residual(lv):
-            pts = dualquat.mul(gathered, dualquat.exp(lv[0]))
+            pts = tangent_step(gathered, lv[0])
             p = term.per_sample(vals, kinds)
             for name, d in zip(est, lv[1:], strict=True):
                 p[name] = retract(kinds[name], p[name], d)

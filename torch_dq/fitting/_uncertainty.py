@@ -26,7 +26,7 @@ from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
 from ._banded import BandedCholesky
-from ._local import sample_jacobians
+from ._local import sample_jacobians, tangent_step
 from ._nuisance import gravity_basis
 
 __all__ = ["Estimate"]
@@ -218,7 +218,7 @@ class Estimate:
         ref = [d.detach() for d in spans.derivatives(pts, t, first, 2)]
 
         def out(lv):
-            d = spans.derivatives(dualquat.mul(pts, dualquat.exp(lv[0])), t, first, 2)
+            d = spans.derivatives(tangent_step(pts, lv[0]), t, first, 2)
             return output(d, ref)
 
         _, (J,) = sample_jacobians(out, [ctrl.new_zeros(*shape, T, sup, 6)], k)
