@@ -475,6 +475,9 @@ def test_forward_mode_and_transforms_match_reverse(gen):
         dual = torch.autograd.forward_ad.make_dual(ctrl, tangent)
         jvp = torch.autograd.forward_ad.unpack_dual(f(dual, t)).tangent
     assert float((jvp - (rev[0] * tangent).sum((-2, -1))).abs().max()) <= 1e-12
+    batch = torch.stack((ctrl, align_chain(chain(n, gen))))
+    mapped = torch.func.vmap(f, in_dims=(0, None))(batch, t)
+    assert torch.equal(mapped, torch.stack([f(c, t) for c in batch]))
 
 
 def test_unix_time_knots_with_float32_control_points(gen):
