@@ -2,7 +2,8 @@ r"""Symmetric positive definite block-banded matrices: Cholesky, solves, selecte
 
 A matrix of ``n`` block rows of size ``s`` whose block ``(k, k + d)`` vanishes for
 ``d >= w`` is stored as its upper band ``band (..., n, w, s, s)`` (block ``(k, k + d)`` at
-``band[..., k, d]``). Grouping ``g = w - 1`` consecutive block rows makes it
+``band[..., k, d]``). Grouping ``g`` consecutive block rows (a multiple of ``w - 1``, about
+16: fewer sequential steps on larger dense blocks) makes it
 block-tridiagonal with diagonal blocks ``D_j`` and sub-diagonal blocks ``E_j`` (group ``j``
 against group ``j - 1``), whose block :math:`LDL^T` factorisation is
 
@@ -26,6 +27,8 @@ import torch
 from torch import Tensor
 
 __all__ = ["BandedCholesky"]
+
+_GROUP_ROWS = 16  # block rows per group (a multiple of w - 1): Python steps vs dense work
 
 
 def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
@@ -67,6 +70,7 @@ class BandedCholesky:
         beyond = torch.arange(n, device=dev)[:, None] + torch.arange(w, device=dev) >= n
         band = band.masked_fill(beyond[:, :, None, None], 0.0)
         g = max(w - 1, 1)
+        g *= max(1, min(_GROUP_ROWS // g, -(-n // g)))  # fewer, larger groups: fewer steps
         G = -(-n // g)
         pad = G * g - n
         if pad:  # identity rows after the last block row
