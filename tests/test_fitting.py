@@ -492,10 +492,10 @@ def test_terms_drive_a_torch_optimizer_loop():
     target = dq.mul(x, dq.exp(torch.full((41, 6), 0.02, dtype=F64)))
     term = fitting.Poses(s, target, rot_sigma=0.01, trans_sigma=0.01, robust="huber")
     opt = torch.optim.Adam(spline.parameters(), lr=1e-3)
-    first = float(term.cost(spline))
+    first = float(term.cost(spline).detach())
     for _ in range(20):
         opt.zero_grad()
         term.cost(spline).backward()
         opt.step()
-    assert float(term.cost(spline)) < 0.5 * first
+    assert float(term.cost(spline).detach()) < 0.5 * first
     assert term(spline).shape == (41, 6)
