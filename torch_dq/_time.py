@@ -271,7 +271,8 @@ class KnotDomain:
 
     # -- the Euclidean basis
     def basis(self, rel: Tensor) -> tuple[Tensor, Tensor]:
-        """Cox-de Boor basis at relative times ``rel (T,)``: see :func:`bspline_basis`."""
+        """Cox-de Boor basis at relative times ``rel (T,)``: ``(first, values)`` as
+        ``bspline_basis`` of this module returns them."""
         return bspline_basis(rel, self.knots.to(rel.dtype), self.degree, self.span(rel))
 
     def greville(self) -> Tensor:

@@ -256,7 +256,7 @@ class _Compat01(torch.nn.Module):
 
     @property
     def time_range(self) -> Tensor:
-        """Deprecated: the :attr:`~Curve.domain` as a float64 ``(2,)`` tensor."""
+        """The :attr:`~Curve.domain` as a float64 ``(2,)`` tensor (deprecated since 0.2)."""
         _deprecated(f"{self._name}.time_range", "use module.domain")
         like = self.parametrizations.ctrl.original
         return torch.tensor(self.domain, dtype=torch.float64, device=like.device)
@@ -371,8 +371,8 @@ class _Construction(torch.nn.Module):
 
         Args:
             state_dict: what ``module.state_dict()`` returned (or ``torch.load`` of it).
-            check: the new module's :attr:`~Curve.check`.
-            extrapolate: the new module's :attr:`~Curve.extrapolate`.
+            check: the new module's ``check``.
+            extrapolate: the new module's ``extrapolate``.
 
         Returns:
             A module equal to the saved one (same outputs at every time).
@@ -571,7 +571,7 @@ class Curve(_Compat01, _Construction, abc.ABC):
                 used instead of the module's own, projected like them; ``n`` must be the
                 module's.
             extrapolate: continue the end spans beyond the domain (default: the module's
-                :attr:`extrapolate`); otherwise the domain rules of the module docstring.
+                ``extrapolate``); otherwise the domain rules of the module docstring.
 
         Returns:
             ``(..., T, 8)`` unit dual quaternions of the control points' dtype.
@@ -671,7 +671,7 @@ class Curve(_Compat01, _Construction, abc.ABC):
 
         Args:
             t: ``(T,)`` times in the domain (caller's units; the domain rules apply, checked
-                whatever :attr:`check`), any floating dtype.
+                whatever ``check``), any floating dtype.
 
         Returns:
             ``(first, values)``: ``(T,)`` int64 and ``(T, w)`` float64.
@@ -814,7 +814,7 @@ class Bezier(Curve):
                 floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
                 float32 rounding of the time since the first sample).
             n_ctrl: number of control points, ``2 <= n_ctrl <= N`` (degree ``n_ctrl - 1``).
-            check: the module's :attr:`~Curve.check`.
+            check: the module's ``check``.
 
         Returns:
             The module, with control points of the dtype and device of ``rotations``.
@@ -1018,7 +1018,7 @@ class BSpline(Curve):
             n_ctrl: number of control points, ``degree < n_ctrl <= N``.
             degree: polynomial degree ``>= 1`` (3: cubic).
             form: ``"de_boor"`` (default) or ``"cumulative"`` (see :class:`BSpline`).
-            check: the module's :attr:`~Curve.check`.
+            check: the module's ``check``.
 
         Returns:
             The module, with control points of the dtype and device of ``rotations``.
