@@ -15,6 +15,7 @@ import math
 import numbers
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -60,7 +61,7 @@ def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[
         _checks.fail(fn, f"steps must be an int >= 0, got {steps!r}")
     for name, v in (("tol", tol), ("prior", prior)):
         if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (
-                math.isfinite(v) and v >= 0):
+                math.isfinite(v) and float(v) >= 0):
             _checks.fail(fn, f"{name} must be a finite real number >= 0, got {v!r}")
     _checks.flag(fn, "verbose", verbose)
     return list(terms)
@@ -78,8 +79,8 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
             a, b = -term.max_time_offset, term.max_time_offset
             what = f"widened by max_time_offset={term.max_time_offset!r}"
         else:
-            dt = float(term.time_offset) if slot.fixed is not None and \
-                term.time_offset.numel() == 1 else 0.0
+            fixed = slot.fixed
+            dt = float(fixed) if fixed is not None and fixed.numel() == 1 else 0.0
             a = b = dt
             what = f"shifted by time_offset={dt!r}" if dt else ""
         for t in term.times_list():
@@ -265,7 +266,7 @@ class _LevenbergMarquardt:
         solver = _Solver(self.p, self.system, self.mu)
         pending = self.active.clone()
         batch, Bf = self.batch, self.Bf
-        new = [self.ctrl, self.values, self.obj, self.data]
+        new: list[Any] = [self.ctrl, self.values, self.obj, self.data]
         for _ in range(_MAX_REJECTIONS):
             dc, dn, ok = solver.step(self.lam, gc, gn)
             ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)

@@ -55,11 +55,10 @@ class SpanEvaluator:
         uniq, group = torch.unique(key, dim=0, return_inverse=True)
         rep = [int((group == g).nonzero()[0]) for g in range(uniq.shape[0])]
         form = getattr(trajectory, "form", "de_boor")
-        extra = {} if form == "de_boor" else {"form": form}
         like = trajectory.control_points.detach()
         self.layers = [BSpline(dualquat.identity((p + 1,), dtype=torch.float64,
                                               device=like.device),
-                            degree=p, knots=pattern[j].to(like.device), **extra)
+                            degree=p, knots=pattern[j].to(like.device), form=form)
                        for j in rep]
         dev = like.device
         self.group = group.to(dev)  # per span r - p
@@ -145,7 +144,7 @@ def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Te
     with torch.enable_grad():
         lv = [x.detach().expand(k, *x.shape).clone().requires_grad_() for x in leaves]
         r = residual(lv)
-        picked = sum(r[j, ..., j].sum() for j in range(k))
+        picked = torch.stack([r[j, ..., j].sum() for j in range(k)]).sum()
         grads = torch.autograd.grad(picked, lv, allow_unused=True)
     out = []
     for j, (g, x) in enumerate(zip(grads, lv, strict=True)):

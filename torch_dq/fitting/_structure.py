@@ -12,8 +12,8 @@ __all__ = ["check"]
 
 def _rotation_from_positions(positions: list[Positions]) -> bool:
     """Fixed lever arms of several position terms span a plane (3 non-collinear points)."""
-    arms = [p.lever_arm.reshape(-1, 3)[0] for p in positions
-            if not p.slots()["lever_arm"].estimated]
+    arms = [p.slots()["lever_arm"].value(torch.empty((), dtype=torch.float64)).reshape(-1, 3)[0]
+            for p in positions if not p.slots()["lever_arm"].estimated]
     if len(arms) < 3:
         return False
     A = torch.stack([a.cpu().double() for a in arms[1:]]) - arms[0].cpu().double()
@@ -52,8 +52,8 @@ def check(fn: str, terms: list[Term]) -> None:
         _checks.fail(fn, "the trajectory's rotation is undetermined by positions alone "
                          "(a point's track does not fix the body's rotation); add Poses, an "
                          "IMU, or Positions of three non-collinear fixed lever arms")
-    for t in terms:
-        if isinstance(t, Accel) and t.slots()["bias"].estimated and t.slots()[
+    for term in terms:
+        if isinstance(term, Accel) and term.slots()["bias"].estimated and term.slots()[
                 "gravity"].estimated and not absolute_rotation:
             _checks.fail(fn, "the accelerometer bias and the gravity direction are "
                              "undetermined together without absolute rotation (R^T g + b); "

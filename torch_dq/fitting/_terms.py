@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from typing import TYPE_CHECKING, cast
 
 import torch
 from torch import Tensor
@@ -71,6 +72,15 @@ class Term(torch.nn.Module):
     order = 0
     _fn = "fitting.Term"
 
+    if TYPE_CHECKING:  # buffers (registered in __init__ and the subclasses)
+        mask: Tensor
+        sigma: Tensor
+        times: Tensor
+        rotations: Tensor
+        translations: Tensor
+        positions: Tensor
+        readings: Tensor
+
     def __init__(self, times: list[Tensor], names: list[str], data: Tensor, event: int,
                  sigma: Tensor, *, time_offset, max_time_offset, robust, robust_k,
                  mask) -> None:
@@ -82,12 +92,12 @@ class Term(torch.nn.Module):
         if robust_k is None:
             robust_k = _robust.chi_quantile(self.dim)
         if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
-                math.isfinite(robust_k) and robust_k > 0):
+                math.isfinite(robust_k) and float(robust_k) > 0):
             _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
         self.robust_k = float(robust_k)
         if isinstance(max_time_offset, bool) or not isinstance(
                 max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
-                                                       and max_time_offset >= 0):
+                                                       and float(max_time_offset) >= 0):
             _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
                              f"{max_time_offset!r}")
         self.max_time_offset = float(max_time_offset)
@@ -510,7 +520,7 @@ class Accel(_Imu):
                          mask=mask)
         self._magnitude: float | None = None
         if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
-            if not (math.isfinite(gravity) and gravity > 0):
+            if not (math.isfinite(gravity) and float(gravity) > 0):
                 _checks.fail(fn, f"a gravity magnitude must be positive and finite, got "
                                  f"{gravity!r}")
             self._magnitude = float(gravity)
@@ -545,4 +555,5 @@ class Accel(_Imu):
         k = curves.kinematics(x, dx, ddx, frame="body")
         q = dualquat.to_rt(x)[0]
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
-        return k.linear_acceleration - g + p["bias"] - self.readings.to(g.dtype)
+        a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
+        return a - g + p["bias"] - self.readings.to(g.dtype)

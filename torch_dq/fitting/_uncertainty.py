@@ -20,6 +20,7 @@ warning, never a value chosen by the numerical prior.
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import torch
 from torch import Tensor
@@ -251,6 +252,8 @@ class Estimate:
         angular acceleration and linear acceleration at ``t`` (world axes)."""
         def output(d, ref):
             k = curves.kinematics(d[0], d[1], d[2])
-            return torch.cat(tuple(k), -1)
+            parts = [k.angular_velocity, k.linear_velocity, k.angular_acceleration,
+                     k.linear_acceleration]
+            return torch.cat([cast(Tensor, v) for v in parts], -1)
 
         return self._along(t, 12, output)
