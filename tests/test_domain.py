@@ -309,3 +309,42 @@ def test_time_model_holds_per_trajectory_origins_and_knots():
     with pytest.raises(ValueError, match=r"domain \(per trajectory\).*extrapolate=True"):
         batched.prepare("test", t + 5.0, F64, check=True, extrapolate=False, knots=None,
                         fix="inside")
+
+
+def test_times_whose_dtype_cannot_resolve_the_domain_raise():
+    """float32 UNIX seconds (steps of 128 s on a 30 s domain) were accepted silently (all
+    rounded onto one end); now a ValueError says to pass float64."""
+    k = knots_on(5, 3, 1.7e9, 1.7e9 + 30.0)
+    spline = BSpline(dq.identity((5,)), knots=k)
+    t64 = torch.tensor([1.7e9 + 3.0], dtype=F64)
+    assert spline(t64).shape == (1, 8)
+    for call in (lambda: spline(t64.float()), lambda: spline.derivatives(t64.float()),
+                 lambda: curves.bspline(dq.identity((5,)), t64.float(), knots=k)):
+        with pytest.raises(ValueError, match=r"t is torch\.float32, whose values near "
+                                             r"1700000030 are 128 apart.*pass t as "
+                                             r"torch\.float64"):
+            call()
+    # narrow dtypes near 0 are the caller's choice of precision: accepted
+    for low in (torch.float16, torch.bfloat16):
+        assert curves.bspline(dq.identity((5,)).to(low), torch.rand(4).to(low)).shape == (4, 8)
+
+
+def test_repr_names_the_layer():
+    assert repr(BSpline(dq.identity((5,)))).startswith("BSpline(\n  n_ctrl=5, degree=3")
+    assert repr(Bezier(dq.identity((3,)))).startswith("Bezier(")
+
+
+def test_from_poses_chooses_n_ctrl_from_the_data(gen):
+    """n_ctrl=None (the default) asks the knot chooser instead of a silent 8: a motion with
+    detail every ~0.5 s over 20 s gets more than 8 control points, and the fit is close."""
+    s = torch.linspace(0.0, 20.0, 401, dtype=F64)
+    xi = torch.stack((0.3 * torch.sin(3 * s), 0.2 * torch.cos(2 * s), 0.1 * s,
+                      torch.sin(s), 0.5 * s, torch.cos(4 * s)), -1)
+    x = dq.exp(xi)
+    spline = BSpline.from_dualquats(x, s)
+    assert 8 < spline.n_ctrl <= 401
+    with torch.no_grad():
+        err = (dq.to_rt(spline(s))[1] - dq.to_rt(x)[1]).norm(dim=-1).max()
+    assert err < 0.05
+    with pytest.raises(ValueError, match="n_ctrl=None chooses the knots from one trajectory"):
+        BSpline.from_dualquats(torch.stack((x, x)), s)

@@ -68,8 +68,10 @@ def check_sample_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
     if bad[1]:
         hint = ""
         if times.dtype != torch.float64:  # absolute timestamps collapse in float32
-            ulp = float(tt.abs().max()) * torch.finfo(times.dtype).eps
-            hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g}; pass absolute "
+            end = tt.abs().max().cpu()
+            ulp = float(torch.nextafter(end, end * 2) - end)  # the spacing at the largest time
+            hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g} (the times' "
+                    f"units); pass absolute "
                     f"timestamps such as UNIX seconds as float64)")
         _checks.fail(fn, "times must be strictly increasing" + hint)
     return times

@@ -46,6 +46,9 @@ from ._numerics import safe_denominator, threshold
 __all__ = ["KnotDomain", "bspline_basis", "checks_possible"]
 
 _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (API.md)
+# Coarsest step of t's dtype at the ends of a domain far from 0 (absolute timestamps),
+# relative to its length, that the checks accept: float32 UNIX seconds do not pass.
+_MIN_RESOLUTION = 1e-3
 EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"
 
 
@@ -163,11 +166,12 @@ class KnotDomain:
         every evaluation."""
         rel = self.relative(t, dtype)
         if check and checks_possible(rel, self.knots):
-            self.check(fn, rel, knots=knots, extrapolate=extrapolate, fix=fix, what=what)
+            self.check(fn, rel, knots=knots, extrapolate=extrapolate, fix=fix, what=what,
+                       t_dtype=t.dtype)
         return self.admit(rel, extrapolate)
 
     def check(self, fn: str, rel: Tensor, *, knots: str | None, extrapolate: bool, fix: str,
-              what: str = "the domain") -> None:
+              what: str = "the domain", t_dtype: torch.dtype | None = None) -> None:
         """All value checks with one host synchronisation: the knots (finite,
         non-decreasing, non-empty domain; ``knots`` names them in the message, ``"knots"``
         or ``"domain"``, ``None``: not checked), and unless ``extrapolate`` the times within
@@ -177,6 +181,8 @@ class KnotDomain:
         lo, hi = self.ends()
         flags = [~torch.isfinite(k).all(), (k[..., 1:] < k[..., :-1]).any(),
                  ~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi)).all()] if knots else []
+        if t_dtype is not None:  # t's own dtype must resolve the domain (UNIX seconds)
+            flags.append(self._unresolved(t_dtype).any())
         if not extrapolate:
             flags.append(self._outside(rel.detach()).any())
         if not flags:
@@ -196,8 +202,33 @@ class KnotDomain:
         if knots and bad[2]:
             _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = "
                              f"{self._ends_str(rel.dtype)}")
+        if t_dtype is not None and bad[3 if knots else 0]:
+            self._fail_unresolved(fn, t_dtype)
         if not extrapolate and bad[-1]:
             self._fail_outside(fn, rel.detach(), what, fix)
+
+    def _scale_and_length(self) -> tuple[Tensor, Tensor]:
+        lo, hi = self.ends(torch.float64)
+        origin = torch.as_tensor(self.origin, dtype=torch.float64, device=lo.device)
+        origin = origin.squeeze(-1) if origin.dim() else origin
+        return torch.maximum((lo + origin).abs(), (hi + origin).abs()), hi - lo
+
+    def _unresolved(self, t_dtype: torch.dtype) -> Tensor:
+        """Whether absolute times (ends beyond 10 lengths of the domain from 0) of
+        ``t_dtype`` step by more than ``_MIN_RESOLUTION`` of the domain's length at its ends
+        (float32 UNIX seconds: steps of 128 s). Times near 0 in a narrow dtype (bfloat16 on
+        ``[0, 1]``) are the caller's choice of precision, not a lost origin."""
+        scale, length = self._scale_and_length()
+        return ((torch.finfo(t_dtype).eps * scale > _MIN_RESOLUTION * length)
+                & (scale > 10.0 * length))
+
+    def _fail_unresolved(self, fn: str, t_dtype: torch.dtype) -> None:
+        scale, length = (float(v.max()) for v in self._scale_and_length())
+        end = torch.tensor(scale, dtype=t_dtype)
+        step = float(torch.nextafter(end, end * 2) - end)
+        _checks.fail(fn, f"t is {t_dtype}, whose values near {scale:.10g} are {step:.3g} apart "
+                         f"(t's units), more than {_MIN_RESOLUTION:g} of the domain's length "
+                         f"{length:.4g}: pass t as torch.float64")
 
     def _ends_str(self, dtype: torch.dtype) -> str:
         if self.knots.dim() > 1:
