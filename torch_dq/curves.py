@@ -631,7 +631,8 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
             (one device synchronisation); ``False`` skips these, and then times further
             out give NaN. Skipped under ``torch.compile``.
         extrapolate: continue the end spans beyond the domain (the first and last
-            non-empty spans' polynomials) instead of the domain rules.
+            non-empty spans' polynomials) instead of the domain rules: accurate only a
+            fraction of a knot spacing beyond the ends, no prediction of the motion.
         form: ``"de_boor"`` (De Boor's pyramid, the paper's; default) or ``"cumulative"``
             (Kim-Kim-Shin, :math:`C^{p-1}`; module docstring).
 
