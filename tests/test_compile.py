@@ -114,7 +114,9 @@ def test_compile_with_default_arguments(gen):
     data-dependent branch); now the host-sync check is skipped under compile (outside
     times give NaN) and the graph equals eager inside the domain."""
     torch._dynamo.reset()
-    module = BSpline(dq.exp(0.4 * torch.randn(6, 6, generator=gen, dtype=torch.float64)), knots=5.0 + 2.0 * curves.clamped_uniform_knots(6, 3, dtype=torch.float64))
+    ctrl = dq.exp(0.4 * torch.randn(6, 6, generator=gen, dtype=torch.float64))
+    knots = 5.0 + 2.0 * curves.clamped_uniform_knots(6, 3, dtype=torch.float64)
+    module = BSpline(ctrl, knots=knots)
     t = torch.tensor([5.0, 5.5, 7.0, 9.0], dtype=torch.float64)
     out = torch.compile(module, fullgraph=True)(t)
     torch.testing.assert_close(out[:3], module(t[:3]), rtol=0, atol=1e-12)

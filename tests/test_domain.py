@@ -1,4 +1,4 @@
-"""The time model's domain rules (API.md, nn and curves): the tolerance at the ends,
+"""The time model's domain rules (docs/api_contract.md, nn and curves): the tolerance at the ends,
 extrapolate=True, NaN where checks are skipped, torch.compile with the default arguments,
 meta tensors; and saving whole modules (from_state_dict, torch.save).
 
@@ -32,7 +32,7 @@ def near_chain(n, gen, step=0.4):
 
 
 def tol(t0, t1, dtype):
-    """API.md's tolerance, written out."""
+    """The contract's tolerance (docs/api_contract.md), written out."""
     return max(1e-9 * (t1 - t0), 4 * torch.finfo(dtype).eps * max(abs(t0), abs(t1)))
 
 

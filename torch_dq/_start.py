@@ -47,7 +47,8 @@ _MAX_WINDOW_TURN = 8.0
 # ----------------------------------------------------------------------------- checks
 
 def check_sample_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
-    """Check sample times: ``(N,)`` finite strictly increasing times (``N >= 2``, ``N == n`` if given).
+    """Check sample times: ``(N,)`` finite, strictly increasing (``N >= 2``; ``N == n`` if
+    given).
 
     Returns:
         ``times`` unchanged.
@@ -155,7 +156,7 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int
     knot spans turn by less than ``_MAX_WINDOW_TURN`` at the trajectory's fastest rotation
     rate; warns where even ``a = 0`` does not."""
     count = x.shape[:-2].numel()
-    if x.shape[-2] < 2 or anchors.shape[0] < 2:
+    if x.shape[-2] < 2 or anchors.shape[0] <= h + 1:  # a global basis (Bézier): one chart
         return [h] * count
     q = x[..., :4]  # sign-aligned: the relative rotation's real part is the dot, >= 0
     dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1).abs().clamp(max=1.0)

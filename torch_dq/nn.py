@@ -395,8 +395,9 @@ class _Construction(torch.nn.Module):
         Example:
             >>> import torch_dq.dualquat as dq
             >>> saved = BSpline(dq.identity((7,)), degree=2, form="cumulative").state_dict()
-            >>> BSpline.from_state_dict(saved).extra_repr()
-            "n_ctrl=7, degree=2, form='cumulative', batch_shape=(), domain=(0.0, 1.0), dtype=torch.float32"
+            >>> loaded = BSpline.from_state_dict(saved)
+            >>> loaded.n_ctrl, loaded.degree, loaded.form, loaded.domain
+            (7, 2, 'cumulative', (0.0, 1.0))
         """
         fn = f"{cls._name}.from_state_dict"
         if not isinstance(state_dict, Mapping):
