@@ -24,6 +24,8 @@ from .. import dualquat
 
 __all__ = ["SpanEvaluator"]
 
+_COPY_ELEMENTS = 1 << 21  # leaf elements times copies above which rows are separate passes
+
 
 class SpanEvaluator:
     """Span structure of a curve layer (B-spline or Bézier) and per-sample evaluation.
@@ -141,13 +143,24 @@ def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Te
     Returns:
         ``r (..., N, k)`` (detached) and per leaf ``(..., N, k, *event_j)``.
     """
+    copies = k if leaves[0].numel() * k <= _COPY_ELEMENTS else 1
     with torch.enable_grad():
-        lv = [x.detach().expand(k, *x.shape).clone().requires_grad_() for x in leaves]
+        lv = [x.detach().expand(copies, *x.shape).clone().requires_grad_() for x in leaves]
         r = residual(lv)
-        picked = torch.stack([r[j, ..., j].sum() for j in range(k)]).sum()
-        grads = torch.autograd.grad(picked, lv, allow_unused=True)
+        if copies == k:  # one pass: copy j feeds component j
+            picked = torch.stack([r[j, ..., j].sum() for j in range(k)]).sum()
+            grads = torch.autograd.grad(picked, lv, allow_unused=True)
+            rows = [[torch.zeros_like(x) if g is None else g for g, x in zip(grads, lv,
+                                                                             strict=True)]]
+        else:  # large inputs: k passes over one copy (its temporaries stay smaller)
+            rows = []
+            for j in range(k):
+                grads = torch.autograd.grad(r[0, ..., j].sum(), lv, allow_unused=True,
+                                            retain_graph=j < k - 1)
+                rows.append([torch.zeros_like(x) if g is None else g
+                             for g, x in zip(grads, lv, strict=True)])
     out = []
-    for j, (g, x) in enumerate(zip(grads, lv, strict=True)):
-        g = torch.zeros_like(x) if g is None else g
-        out.append(g.movedim(0, -3 if j == 0 else -2))
+    for i in range(len(lv)):
+        g = rows[0][i] if copies == k else torch.cat([row[i] for row in rows])
+        out.append(g.movedim(0, -3 if i == 0 else -2))
     return r[0].detach(), out
