@@ -586,7 +586,8 @@ def _draw(data, kind, batch=2):
 
 
 def _fuzz_args(op, data):
-    args = [_draw(data, kind) for _, kind in op.args]
+    # One curve per example for the curve rows (each of its 5 control points drawn apart).
+    args = [_draw(data, kind, batch=1 if op.curve else 2) for _, kind in op.args]
     if op.name == "curves.screw_axis":  # a twist at rest has no axis (documented NaN)
         args[0] = args[0] + torch.where(args[0].norm(dim=-1, keepdim=True) < 0.1, 1.0, 0.0)
     if op.variant == "shortest=False":
