@@ -39,6 +39,13 @@ def full_run(tmp_path_factory):
     return status, out, buf.getvalue(), rate
 
 
+def _read_csv(path):
+    """trajectory.csv as its first line says to read it (numpy.genfromtxt, skip_header)."""
+    first = pathlib.Path(path).read_text().splitlines()[0]
+    skip = int(first.split("skip_header=")[1].rstrip(")"))
+    return np.genfromtxt(path, delimiter=",", names=True, skip_header=skip)
+
+
 def test_fit_writes_every_output(full_run):
     status, out, stdout, _ = full_run
     assert status == 0
@@ -70,7 +77,7 @@ def test_heldout_errors_next_to_scipy(full_run):
     scipy_mm = 1e3 * np.linalg.norm(p_ref - p[~fit], axis=1)
     scipy_deg = np.rad2deg((r_ref.inv() * Rotation.from_quat(xyzw[~fit])).magnitude())
     ours = summary["heldout_errors"]
-    csv = np.genfromtxt(out / "trajectory.csv", delimiter=",", names=True)
+    csv = _read_csv(out / "trajectory.csv")
     assert csv["t"][0] == pytest.approx(t[0], abs=1e-9) and csv["t"][-1] <= t[-1]
     for key, ref in (("translation_mm", scipy_mm), ("rotation_deg", scipy_deg)):
         for stat in ("mean", "median"):  # issue 20's bar: within 1.5x of scipy's
@@ -80,15 +87,17 @@ def test_heldout_errors_next_to_scipy(full_run):
     model = summary["model"]
     assert model["n_ctrl"] == int(np.ceil((t[-1] - t[0]) / model["knot_spacing_s"] - 1e-9)) + 3
     assert model["n_ctrl"] <= fit.sum()
-    assert "within 2 % of the best" in model["knot_spacing_reason"]
+    reason = model["knot_spacing_reason"]
+    assert reason.startswith("tried ") and f"{model['knot_spacing_s']:.4g} s" in reason
 
 
 def test_csv_derivatives_match_finite_differences(full_run):
     _, out, _, rate = full_run
     text = (out / "trajectory.csv").read_text().splitlines()
-    assert text[0].split(",") == list(io.CSV_COLUMNS)
+    assert text[3].split(",") == [*io.CSV_COLUMNS, "in_gap"]  # after 3 comment lines
     assert "[m/s]" in text[1] and "[rad/s]" in text[1] and "world frame" in text[1]
-    d = np.genfromtxt(out / "trajectory.csv", delimiter=",", names=True)
+    assert "in_gap" in text[1] and text[0].startswith("# 3 comment lines")
+    d = _read_csv(out / "trajectory.csv")
     t = d["t"]
     np.testing.assert_allclose(np.diff(t), 1.0 / rate, rtol=0, atol=2e-7)  # UNIX s in float64
     p = np.stack([d[c] for c in "xyz"], -1)
@@ -125,7 +134,7 @@ def test_state_dict_reloads_the_same_curve(full_run):
     assert reload in stdout and "BSpline.from_state_dict" in reload
     spline = nn.BSpline.from_state_dict(torch.load(out / "spline.pt"))
     assert spline.n_ctrl == summary["model"]["n_ctrl"] and spline.form == "de_boor"
-    d = np.genfromtxt(out / "trajectory.csv", delimiter=",", names=True)
+    d = _read_csv(out / "trajectory.csv")
     t = torch.from_numpy(d["t"][::50].copy())
     with torch.no_grad():
         p = dq.to_rt(spline(t))[1].numpy()
@@ -172,15 +181,21 @@ def test_malformed_file_one_line(tmp_path, capsys):
         bad[index] = edit(rows[index])
         path = tmp_path / f"{name}.txt"
         path.write_text("\n".join(bad) + "\n")
-        assert main(["fit", str(path), "--out", str(tmp_path / "o"), *QUICK]) == 1
+        assert main(["fit", str(path), "--out", str(tmp_path / "o"), *QUICK]) == 2
         line = _error_line(capsys)
         assert f"{path}, line {index + 1}: " in line and message in line, line
     empty = tmp_path / "empty.txt"
     empty.write_text("# nothing\n")
-    assert main(["fit", str(empty), *QUICK]) == 1
+    assert main(["fit", str(empty), *QUICK]) == 2
     assert "no data" in _error_line(capsys)
-    assert main(["fit", str(tmp_path / "missing.txt"), *QUICK]) == 1
+    assert main(["fit", str(tmp_path / "missing.txt"), *QUICK]) == 2
     assert "missing.txt" in _error_line(capsys)
+    assert main(["fit", str(tmp_path), "--out", str(tmp_path / "o"), *QUICK]) == 2  # a folder
+    assert str(tmp_path) in _error_line(capsys)
+    binary = tmp_path / "binary.txt"
+    binary.write_bytes(b"\xff\xfe\x00\x81" * 50)
+    assert main(["fit", str(binary), "--out", str(tmp_path / "o"), *QUICK]) == 2
+    assert "binary.txt" in _error_line(capsys)
 
 
 def test_options_the_data_cannot_satisfy(tmp_path, capsys):
@@ -193,7 +208,7 @@ def test_options_the_data_cannot_satisfy(tmp_path, capsys):
     kitti = tmp_path / "00.txt"
     io.write_trajectory(kitti, io.read_trajectory(short), format="kitti",
                         times_path=tmp_path / "t.txt")
-    assert main(["fit", str(kitti), "--quiet"]) == 1
+    assert main(["fit", str(kitti), "--quiet"]) == 2
     assert "carry no times" in _error_line(capsys)
     with pytest.raises(SystemExit) as info:  # argparse: status 2
         main(["fit", str(short), "--knot-spacing", "0"])
@@ -206,7 +221,7 @@ def test_subprocess_exit_status_without_traceback(tmp_path):
     bad.write_text("\n".join([*rows[:10], "1 2 3"]) + "\n")
     run = subprocess.run([sys.executable, "-m", "torch_dq", "fit", str(bad)],
                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    assert run.returncode == 1
+    assert run.returncode == 2
     assert "Traceback" not in run.stderr
     assert run.stderr.strip() == (f"torch-dq fit: error: {bad}, line 11: expected 8 columns "
                                   f"(timestamp tx ty tz qx qy qz qw), got 3")
@@ -223,8 +238,7 @@ def test_float32_module_matches_float64(tmp_path):
                      *QUICK]) == 0
         summary = json.loads((out / "summary.json").read_text())
         assert summary["model"]["dtype"] == dtype
-        runs[dtype] = (summary, np.genfromtxt(out / "trajectory.csv", delimiter=",",
-                                              names=True))
+        runs[dtype] = (summary, _read_csv(out / "trajectory.csv"))
     (s32, c32), (s64, c64) = runs["float32"], runs["float64"]
     np.testing.assert_array_equal(c32["t"], c64["t"])
     for c in ("x", "y", "z"):
@@ -519,7 +533,7 @@ def test_imu_file_errors_are_one_line(tmp_path, capsys):
     poses = str(tmp_path / "poses.txt")
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 0 0 0 0 0 9.81\n0.01 0 0 0 0 9.81\n")
-    assert main(["fit", poses, "--imu", str(bad), "--out", str(tmp_path / "a"), "--quiet"]) == 1
+    assert main(["fit", poses, "--imu", str(bad), "--out", str(tmp_path / "a"), "--quiet"]) == 2
     assert f"{bad}, line 2: expected 7 columns" in _error_line(capsys)
     late = tmp_path / "late.txt"
     late.write_text("".join(f"{100 + 0.01 * k} 0 0 0 0 0 9.81\n" for k in range(50)))
@@ -528,3 +542,74 @@ def test_imu_file_errors_are_one_line(tmp_path, capsys):
     assert main(["fit", poses, "--time-offset", "estimate", "--out", str(tmp_path / "c"),
                  "--quiet"]) == 2
     assert "needs an IMU file: pass --imu" in _error_line(capsys)
+
+
+# ----------------------------------------------------------------------------- new-user trial
+
+def test_gap_in_warnings_and_marked_in_the_csv(tmp_path, capsys):
+    """A gap longer than 2 knot spacings: a warning in summary.json (one gap: singular), and
+    the rows inside it marked in_gap = 1 (comments before the header row)."""
+    import csv
+
+    traj = io.read_trajectory(SHIPPED).select(slice(0, 200))  # 4 s at 50 Hz
+    keep = torch.cat((torch.arange(0, 80), torch.arange(130, 200)))  # a 1 s gap
+    path = _write_tum(tmp_path / "gap.txt", traj.select(keep))
+    out = tmp_path / "o"
+    assert main(["fit", str(path), "--format", "TUM", "--knot-spacing", "0.1", "--steps", "1",
+                 "--out", str(out), "--no-plots"]) == 0
+    stdout = capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    notes = [w for w in summary["warnings"] if "longer than 2 knot spacings" in w]
+    assert len(notes) == 1 and notes[0].startswith("1 gap between poses") and "in_gap" in notes[0]
+    assert notes[0] in stdout and summary["input"]["gaps_over_2_knot_spacings"] == 1
+    lines = (out / "trajectory.csv").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    assert head == 3 and lines[head].split(",") == [*io.CSV_COLUMNS, "in_gap"]
+    assert any("in_gap 1 inside a gap" in line for line in lines[:head])
+    # what pandas.read_csv(path, comment="#") does: skip the comment lines, header, rows
+    rows = list(csv.reader(line for line in lines if not line.startswith("#")))
+    assert rows[0] == [*io.CSV_COLUMNS, "in_gap"] and all(len(r) == len(rows[0]) for r in rows)
+    d = _read_csv(out / "trajectory.csv")
+    np.testing.assert_array_equal(np.array([float(r[0]) for r in rows[1:]]), d["t"])
+    t = traj.times.numpy()
+    inside = (d["t"] > t[79]) & (d["t"] < t[130])
+    np.testing.assert_array_equal(d["in_gap"], inside.astype(float))
+    assert inside.sum() > 40
+
+
+def test_no_gap_no_warning(tmp_path):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    out = tmp_path / "o"
+    assert main(["fit", str(short), "--out", str(out), "--no-plots", *QUICK]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["warnings"] == [] and summary["input"]["gaps_over_2_knot_spacings"] == 0
+    assert not _read_csv(out / "trajectory.csv")["in_gap"].any()
+
+
+def test_default_rate_is_rounded_to_a_nominal_value(tmp_path):
+    """The median rate 50.0000477 Hz of the shipped file resamples at exactly 50 Hz; --rate
+    is used as given."""
+    from torch_dq.demo.fit_file import _nominal_rate
+
+    assert _nominal_rate(100.00009536752259) == 100.0
+    assert _nominal_rate(303.035) == 303.0
+    assert _nominal_rate(9.6455) == 9.65 and _nominal_rate(123.4567) == 123.5
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    for rate, expected in ((None, 50.0), ("33.3", 33.3)):
+        out = tmp_path / f"o{rate}"
+        args = ["fit", str(short), "--out", str(out), "--no-plots", *QUICK]
+        assert main(args + (["--rate", rate] if rate else [])) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["resampled"]["rate_hz"] == expected
+        t = _read_csv(out / "trajectory.csv")["t"]
+        grid = t[0] + np.arange(len(t)) / expected  # 1 ulp at UNIX times: 2.4e-7 s
+        np.testing.assert_allclose(t, grid, rtol=0, atol=2.5e-7)  # 50.0000477: 1.1e-6 off
+
+
+def test_knot_spacing_longer_than_the_duration_is_refused(tmp_path, capsys):
+    short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    line, value, out = _hint_works(capsys, ["fit", str(short), "--knot-spacing", "100", "--out",
+                                            str(tmp_path / "o"), "--quiet", "--no-plots",
+                                            "--steps", "1"], "--knot-spacing")
+    assert "100 s is longer than the 1.180 s that the fitted poses span" in line
+    assert float(value) <= 1.18

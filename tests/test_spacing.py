@@ -59,10 +59,40 @@ def test_search_reports_what_it_tried():
     for j in range(i + 1, len(s.candidates)):
         assert (s.rot_mean[j] > 1.02 * min(s.rot_mean)
                 or s.trans_mean[j] > 1.02 * min(s.trans_mean))
-    assert (s.n_fit, s.n_check) == (151, 150)  # even indices (the last among them), odd ones
-    assert "within 2 % of the best" in s.reason()
-    # the spacing for all poses: the candidate scaled to their density (about half)
-    assert 0.45 < s.spacing / s.candidates[i] < 0.55
+    assert (s.n_fit, s.n_check, s.n) == (241, 60, 301)  # every 5th pose (from index 2) checks
+    assert s.scale == pytest.approx(240 / 300)
+    assert s.reason().startswith(f"tried {len(s.candidates)} spacings from "
+                                 f"{s.candidates[0]:.4g} s to {s.candidates[-1]:.4g} s")
+    assert s.reason().endswith(f"{s.spacing:.4g} s")  # ends with the spacing chosen
+
+
+def test_noise_limited_spacing_is_not_halved():
+    """Where noise limits the spacing (slow motion, noisy poses), the candidate chosen on
+    80 % of the poses is scaled only by that density ratio, not halved."""
+    t, x = _motion(0.1, n=401, noise=0.01)
+    s = knot_spacing_search(t, x)
+    assert not s.data_limited and s.chosen > _spacing.DATA_LIMIT_STEPS
+    assert s.spacing == _spacing.round_up(s.candidates[s.chosen] * s.scale)
+    assert 0.78 < s.spacing / s.candidates[s.chosen] < 0.82
+    assert "within 2 % of the lowest" in s.reason() and "density ratio 0.8" in s.reason()
+
+
+def test_data_limited_spacing_is_the_finest():
+    """Where the errors still fall at the finest spacing the inner fit allows (fast motion,
+    clean poses), the spacing is the finest all the poses determine."""
+    t, x = _motion(1.5, n=101, noise=1e-4)
+    s = knot_spacing_search(t, x)
+    assert s.data_limited and s.chosen <= _spacing.DATA_LIMIT_STEPS
+    assert s.spacing == _spacing.finest_spacing(10.0, 101, 3)
+    assert "the data, not their noise, limit the spacing" in s.reason()
+
+
+def test_inner_split_every_fifth():
+    fit, check = _spacing._inner_split(13)
+    assert check.tolist() == [2, 7]  # never the first or the last
+    assert fit.tolist() == [0, 1, 3, 4, 5, 6, 8, 9, 10, 11, 12]
+    fit, check = _spacing._inner_split(8)
+    assert check.tolist() == [2] and fit[-1] == 7
 
 
 def test_inner_check_errors_against_numpy():
@@ -73,11 +103,12 @@ def test_inner_check_errors_against_numpy():
     t, x = _motion(0.3, n=81, noise=0.003)
     s = knot_spacing_search(t, x)
     h = s.candidates[0]
-    fit = np.arange(0, 81, 2)
-    check = np.arange(1, 81, 2)
+    check = np.arange(2, 80, 5)
+    fit = np.setdiff1d(np.arange(81), check)
     q, p = dq.to_rt(x)
     spline = nn.BSpline.from_poses(q[fit], p[fit], t[fit],
                                    n_ctrl=math.ceil(10.0 / h - 1e-9) + 3)
+    assert s.n_fit == len(fit) and s.n_check == len(check)
     with torch.no_grad():
         qs, ps = dq.to_rt(spline(t[check]))
     r = Rotation.from_quat(qs.numpy()[:, [1, 2, 3, 0]])

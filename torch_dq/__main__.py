@@ -127,12 +127,13 @@ def _add_fit_parser(sub) -> None:
                     "summary.json and figures (components, speed and angular rate, "
                     "residuals; need matplotlib: pip install 'torch_dq[plot]'). The input is "
                     "never written to, and an output folder holding earlier results is "
-                    "refused without --overwrite. Errors end in one line: a malformed file "
-                    "names the file and the line (exit status 1); options the data cannot "
-                    "satisfy name a value that works (exit status 2, as bad options).",
+                    "refused without --overwrite. Errors end in one line on stderr and exit "
+                    "status 2: a malformed file names the file and the line, an unreadable "
+                    "one says why, and options the data cannot satisfy name a value that "
+                    "works.",
         formatter_class=_DefaultsHelp)
     fit.add_argument("file", metavar="FILE", help="trajectory file")
-    fit.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"),
+    fit.add_argument("--format", type=str.lower, choices=("auto", "tum", "kitti", "euroc"),
                      default=DEFAULTS["format"],
                      help="file format: TUM 't x y z qx qy qz qw', KITTI 3x4 pose rows "
                           "(with --times), EuRoC ground-truth CSV; auto: from the content")
@@ -140,12 +141,13 @@ def _add_fit_parser(sub) -> None:
                      help="KITTI: the times file (one time in seconds per line)")
     fit.add_argument("--knot-spacing", metavar="SECONDS|auto", type=_spacing,
                      default=DEFAULTS["knot_spacing"],
-                     help="seconds between knots; auto: chosen from the fitted poses alone "
-                          "(the largest spacing whose errors on every other fitted pose, "
-                          "fitted on the rest, are within 2%% of the best)")
+                     help="seconds between knots, at most the duration; auto: chosen from "
+                          "the fitted poses alone (the largest spacing whose errors on every "
+                          "5th fitted pose, fitted on the rest, are within 2%% of the best)")
     fit.add_argument("--degree", type=_positive_int, default=DEFAULTS["degree"],
                      help="B-spline degree")
-    fit.add_argument("--form", choices=("de_boor", "cumulative"), default=DEFAULTS["form"],
+    fit.add_argument("--form", type=str.lower, choices=("de_boor", "cumulative"),
+                     default=DEFAULTS["form"],
                      help="B-spline form: de_boor, the paper's De Boor pyramid of sclerps (C1 "
                           "at knots); cumulative, Kim-Kim-Shin's product of screw powers (C2 "
                           "for a cubic: continuous accelerations, for IMU work)")
@@ -157,8 +159,8 @@ def _add_fit_parser(sub) -> None:
                           "least-squares start (0: none)")
     fit.add_argument("--rate", metavar="HZ", type=_positive_float, default=None,
                      help="resampling rate of trajectory.csv (default: the file's median "
-                          "rate)")
-    fit.add_argument("--duplicates", choices=("error", "first"),
+                          "rate, rounded to a round value within 0.1%%, e.g. 100 Hz)")
+    fit.add_argument("--duplicates", type=str.lower, choices=("error", "first"),
                      default=DEFAULTS["duplicates"],
                      help="repeated timestamps: an error, or keep the first pose")
     fit.add_argument("--dtype", choices=("float32", "float64"),
@@ -180,10 +182,11 @@ def _add_fit_parser(sub) -> None:
 
 
 def _fit(args) -> int:
-    """``python -m torch_dq fit``: errors in the file or the options end in one line."""
+    """``python -m torch_dq fit``: errors in the file or the options end in one line and
+    exit status 2."""
     import torch
 
-    from .demo.fit_file import OptionError, run_fit
+    from .demo.fit_file import run_fit
 
     torch.set_num_threads(args.threads)
     try:
@@ -196,7 +199,7 @@ def _fit(args) -> int:
                 verbose=not args.quiet)
     except (ValueError, OSError) as exc:
         print(f"torch-dq fit: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2 if isinstance(exc, OptionError) else 1
+        return 2
     return 0
 
 
@@ -209,8 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     Returns:
         The exit status: 0 on success (also when matplotlib is missing: the figures are
         skipped with a one-line notice), 2 on bad arguments or options the data cannot
-        satisfy (``fit``: the message names a value that works), 1 when ``fit`` meets a
-        malformed or unreadable file (one line on stderr, no traceback).
+        satisfy (``fit``: the message names a value that works) and when ``fit`` meets a
+        malformed or unreadable file: one line on stderr, no traceback.
     """
     parser = _parser()
     args = parser.parse_args(argv)

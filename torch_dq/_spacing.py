@@ -5,19 +5,24 @@ seconds between knots of a B-spline fitted to timestamped poses, so that nobody 
 it by hand (kontiki ships a helper with the same aim). It never looks at poses held out by
 the caller: it splits the poses it is given once more,
 
-1. *inner fit*: every other pose (the even indices, and the last); *inner check*: the
-   others;
+1. *inner fit*: all but every :data:`CHECK_EVERY`-th pose (80 % of them, the first and the
+   last included); *inner check*: the others, each between two fitted neighbours, as the
+   caller's held-out poses are;
 2. for each candidate spacing (a geometric grid, from the finest the inner fit determines,
    ``n_ctrl <= N_inner``, upwards in steps of :data:`GRID_RATIO`), builds the least-squares
    start :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (no refinement: O(N) per
-   candidate, so the search takes a second on 10^4 poses) and measures the mean rotation
+   candidate, so the search takes seconds on 10^4 poses) and measures the mean rotation
    angle and translation error at the inner-check poses;
 3. keeps the *largest* spacing whose two errors are both within ``tolerance`` (2 %) of the
    best of their kind: the smoothest curve that fits as well as the best one, which does
    not chase noise;
-4. scales it from the inner fit's density to that of all the poses given (twice as dense:
-   where the data limit the spacing, all of them allow about half), never below the finest
-   spacing they determine (``n_ctrl <= N``).
+4. for all the poses given: where that candidate is within :data:`DATA_LIMIT_STEPS` grid
+   steps of the finest (*data-limited*: the errors still fall as the knots get as fine as
+   the data allow, as on 10 Hz car-like data), the finest spacing all the poses determine
+   (``n_ctrl = N``); elsewhere (*noise-limited*) the candidate scaled by the density ratio
+   (about 0.8), never below that finest. The best spacing of a regression spline does not
+   scale with the density where noise matters (theory: as ``N^(-1/(2p+3))``); halving it,
+   as an even/odd split would ask, fits knots to the noise and makes the derivatives noisy.
 
 The errors of the whole curve are then measured by the caller on its own held-out poses,
 which the choice never saw. The spacing is in the time unit of ``times`` (seconds).
@@ -34,11 +39,22 @@ from torch import Tensor
 
 from . import _checks, dualquat, losses
 
-__all__ = ["GRID_RATIO", "SpacingSearch", "choose_knot_spacing", "finest_spacing",
-           "knot_spacing_search", "n_ctrl", "refinement_check", "round_down", "round_up"]
+__all__ = ["CHECK_EVERY", "DATA_LIMIT_STEPS", "GRID_RATIO", "SpacingSearch",
+           "choose_knot_spacing", "finest_spacing", "knot_spacing_search", "n_ctrl",
+           "refinement_check", "round_down", "round_up"]
 
 #: Ratio between consecutive candidate spacings.
 GRID_RATIO = 2 ** 0.25
+
+#: The inner check takes every ``CHECK_EVERY``-th pose: the inner fit keeps 80 % of the
+#: density, so the spacing chosen there needs little scaling (the best spacing of a
+#: regression spline does not scale with the density where noise matters).
+CHECK_EVERY = 5
+
+#: A candidate chosen within this many grid steps of the finest that the inner fit
+#: determines means the data limit the spacing (the errors still fall, or are noisy, as the
+#: knots get as fine as the data allow): then the finest that all the poses determine.
+DATA_LIMIT_STEPS = 2
 
 #: At most this many candidates (from the finest up: a factor 2^(24/4) = 64 in spacing).
 MAX_CANDIDATES = 25
@@ -49,9 +65,9 @@ class SpacingSearch:
     """What :func:`knot_spacing_search` tried and chose.
 
     Attributes:
-        spacing: the chosen spacing for all the poses (the time unit of ``times``): the
-            chosen candidate scaled from the inner fit's density to all the poses' (about
-            half), at least the finest they determine, rounded up to 4 digits.
+        spacing: the chosen spacing for all the poses (the time unit of ``times``), rounded
+            up to 4 digits: the finest they determine when ``data_limited``, else the chosen
+            candidate scaled by ``scale`` (never below that finest).
         candidates: the spacings tried on the inner fit, increasing.
         rot_mean: mean rotation error (rad) of each candidate at the inner-check poses.
         trans_mean: mean translation error (the poses' unit) of each, likewise.
@@ -59,10 +75,13 @@ class SpacingSearch:
         best: index of the candidate with the lowest errors (the smallest worse of the two
             ratios to their minima).
         tolerance: the relative margin used.
-        n_fit: poses of the inner fit; ``n_check``: poses of the inner check.
+        n_fit: poses of the inner fit; ``n_check``: poses of the inner check; ``n``: all.
         degree: the B-spline degree.
         n_ctrl_fit: control points of the chosen candidate on the inner fit.
         form: the B-spline form (``"de_boor"`` or ``"cumulative"``).
+        data_limited: the chosen candidate is within :data:`DATA_LIMIT_STEPS` grid steps
+            of the finest the inner fit determines.
+        scale: the inner fit's mean time step over that of all the poses (about 0.8).
     """
 
     spacing: float
@@ -74,9 +93,12 @@ class SpacingSearch:
     tolerance: float
     n_fit: int
     n_check: int
+    n: int
     degree: int
     n_ctrl_fit: int
     form: str
+    data_limited: bool
+    scale: float
 
     @property
     def near_limit(self) -> bool:
@@ -85,17 +107,27 @@ class SpacingSearch:
         return self.n_ctrl_fit > 0.8 * self.n_fit
 
     def reason(self) -> str:
-        """Why this spacing, in a sentence (the command line prints it; units: seconds,
-        metres)."""
-        i = self.chosen
-        return (f"{self.candidates[i]:.4g} s was the largest of {len(self.candidates)} "
-                f"spacings tried ({self.candidates[0]:.4g}-{self.candidates[-1]:.4g} s) on "
-                f"every other fitted pose ({self.n_fit}) whose errors at the other "
-                f"{self.n_check} are within {100 * self.tolerance:g} % of the best (mean "
-                f"{math.degrees(self.rot_mean[i]):.3g} deg, {1e3 * self.trans_mean[i]:.3g} "
-                f"mm; best {math.degrees(min(self.rot_mean)):.3g} deg, "
-                f"{1e3 * min(self.trans_mean):.3g} mm); scaled to the density of all the "
-                f"fitted poses")
+        """What was tried, what was chosen and why, in two sentences (the command line
+        prints it; units: seconds, degrees, millimetres for metre poses)."""
+        i, c = self.chosen, self.candidates
+        tried = (f"tried {len(c)} spacings from {c[0]:.4g} s to {c[-1]:.4g} s (ratio 2^(1/4)),"
+                 f" each fitted to {self.n_fit} of the {self.n} poses and checked on the "
+                 f"other {self.n_check}")
+        within = (self.rot_mean[i] <= (1 + self.tolerance) * min(self.rot_mean) + 1e-15
+                  and self.trans_mean[i] <= (1 + self.tolerance) * min(self.trans_mean) + 1e-15)
+        how = (f"is the largest whose mean errors ({{}}) are within {100 * self.tolerance:g} % "
+               f"of" if within else "has the best balance of mean errors ({}) against")
+        chosen = (f"{c[i]:.4g} s " + how.format(f"{math.degrees(self.rot_mean[i]):.3g} deg, "
+                                                f"{1e3 * self.trans_mean[i]:.3g} mm") +
+                  f" the lowest "
+                  f"({math.degrees(min(self.rot_mean)):.3g} deg, "
+                  f"{1e3 * min(self.trans_mean):.3g} mm)")
+        if self.data_limited:
+            return (f"{tried}; {chosen}, within {DATA_LIMIT_STEPS} steps of the finest those "
+                    f"{self.n_fit} poses determine: the data, not their noise, limit the "
+                    f"spacing, so the finest all {self.n} poses determine: {self.spacing:.4g} s")
+        return (f"{tried}; {chosen}: noise, not the data, limits it, so it is scaled only by "
+                f"the density ratio {self.scale:.3g}: {self.spacing:.4g} s")
 
 
 def n_ctrl(duration: float, spacing: float, degree: int) -> int:
@@ -159,11 +191,12 @@ def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: f
 
 
 def _inner_split(n: int) -> tuple[Tensor, Tensor]:
-    """Even indices and the last (inner fit), the others (inner check)."""
-    fit = torch.zeros(n, dtype=torch.bool)
-    fit[::2] = True
-    fit[-1] = True
-    return fit.nonzero().squeeze(1), (~fit).nonzero().squeeze(1)
+    """Indices of the inner fit (all but every :data:`CHECK_EVERY`-th pose; the first and
+    the last among them) and of the inner check (the others)."""
+    check = torch.zeros(n, dtype=torch.bool)
+    check[CHECK_EVERY // 2::CHECK_EVERY] = True
+    check[0] = check[-1] = False
+    return (~check).nonzero().squeeze(1), check.nonzero().squeeze(1)
 
 
 def _check_args(fn: str, times: Tensor, poses: Tensor, degree: int, tolerance: float) -> None:
@@ -224,15 +257,15 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     ok = [i for i, (r, p) in enumerate(zip(rot, trans, strict=True))
           if r <= (1 + tolerance) * rot_best + 1e-15 and p <= (1 + tolerance) * trans_best + 1e-15]
     chosen = max(ok) if ok else best
-    # The inner fit has half the poses: scale to the density of all of them, never past
-    # what they determine.
     whole = float(times[-1] - times[0])
+    finest = finest_spacing(whole, times.shape[0], degree)
     scale = (whole / (times.shape[0] - 1)) / (duration / (fit.shape[0] - 1))
-    spacing = max(round_up(candidates[chosen] * scale),
-                  finest_spacing(whole, times.shape[0], degree))
+    limited = chosen <= DATA_LIMIT_STEPS
+    spacing = finest if limited else max(round_up(candidates[chosen] * scale), finest)
     return SpacingSearch(spacing, tuple(candidates), tuple(rot), tuple(trans), chosen, best,
-                         float(tolerance), int(fit.shape[0]), int(check.shape[0]), degree,
-                         n_ctrl(duration, candidates[chosen], degree), form)
+                         float(tolerance), int(fit.shape[0]), int(check.shape[0]),
+                         int(times.shape[0]), degree,
+                         n_ctrl(duration, candidates[chosen], degree), form, limited, scale)
 
 
 def refinement_check(times: Tensor, poses: Tensor, search: SpacingSearch,
@@ -269,15 +302,16 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
                         tolerance: float = 0.02, form: str = "de_boor") -> float:
     r"""Seconds between knots for a B-spline fitted to these poses, chosen from the data.
 
-    Splits the poses into an inner fit (even indices and the last) and an inner check (the
-    others), fits the least-squares start (:meth:`torch_dq.nn.BSpline.from_poses`) on the
-    inner fit for a geometric grid of spacings (ratio :math:`2^{1/4}`, from the finest
-    that the inner fit determines, ``n_ctrl <= N / 2``), takes the largest spacing whose
-    mean rotation and translation errors at the inner check are both within ``tolerance``
-    of the best ones, and scales it to the density of all ``N`` poses (never below the
-    finest they determine). Pass only the poses you fit: poses held out to measure
-    the fit must not be among them. Costs one O(N) least-squares start per candidate (about
-    a second for 10^4 poses).
+    Splits the poses into an inner fit (all but every 5th) and an inner check (every 5th),
+    fits the least-squares start (:meth:`torch_dq.nn.BSpline.from_poses`) on the inner fit
+    for a geometric grid of spacings (ratio :math:`2^{1/4}`, from the finest that the inner
+    fit determines), and takes the largest spacing whose mean rotation and translation
+    errors at the inner check are both within ``tolerance`` of the best ones. Within two grid
+    steps of the finest (the data limit the spacing) it returns the finest spacing all ``N``
+    poses determine; otherwise (noise limits it) the spacing scaled by the density ratio
+    (about 0.8), never below that finest (see :mod:`torch_dq._spacing`). Pass only the poses
+    you fit: poses held out to measure the fit must not be among them. Costs one O(N)
+    least-squares start per candidate (seconds for 10^4 poses).
 
     Args:
         times: ``(N,)`` strictly increasing times (float64 UNIX seconds welcome).

@@ -193,6 +193,10 @@ def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spa
             return finest, (f"the finest that {n} fitted poses determine (too few to choose "
                             f"by an inner hold-out)"), steps
         search = _spacing.knot_spacing_search(times, poses, degree, form=form)
+        if steps and search.data_limited:
+            return search.spacing, (f"{search.reason()}; no refinement: with about as many "
+                                    f"control points as poses, the least-squares start "
+                                    f"already fits them, and refining chases their noise"), 0
         if steps and search.near_limit:  # close to interpolation: does refining help?
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -203,6 +207,11 @@ def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spa
                                         f" deg, {1e3 * p0:.3g} mm to {math.degrees(r1):.3g} "
                                         f"deg, {1e3 * p1:.3g} mm"), 0
         return search.spacing, search.reason(), steps
+    if knot_spacing > duration:
+        raise OptionError(f"--knot-spacing {knot_spacing:g} s is longer than the "
+                          f"{duration:.3f} s that the fitted poses span: pass --knot-spacing "
+                          f"{_spacing.round_down(duration):g} or less (a single knot span), "
+                          f"or auto")
     n_ctrl = _spacing.n_ctrl(duration, knot_spacing, degree)
     if n_ctrl > n:
         raise OptionError(f"a knot every {knot_spacing:g} s over {duration:.3f} s needs "
@@ -225,6 +234,16 @@ def _fit(train: io.Trajectory, poses: Tensor, spacing: float, degree: int, form:
         history = dqnn.fit(spline, train.times, poses.to(dtype), steps=steps, verbose=verbose)
     return spline, history, {"least_squares_start": init_s,
                              "fit_total": time.perf_counter() - start}
+
+
+def _nominal_rate(rate: float) -> float:
+    """``rate`` (Hz) with the fewest significant digits (1 to 6) within 0.1 % of it, so
+    that the resampling grid steps by a round number (100.0000954 Hz -> 100 Hz)."""
+    for digits in range(1, 7):
+        nominal = float(f"{rate:.{digits}g}")
+        if abs(nominal - rate) <= 1e-3 * rate:
+            return nominal
+    return rate
 
 
 def _resampling(t0: float, t1: float, rate: float) -> Tensor:
@@ -262,24 +281,37 @@ def _print_errors(say, result: FitResult, errors: dict) -> None:
         say(f"  {label:<32}{s['mean']:9.3f}{s['median']:9.3f}{s['max']:9.3f}")
 
 
-def _describe_input(say, path: str, traj: io.Trajectory, spacing_hint: float | None) -> dict:
+def _describe_input(say, path: str, traj: io.Trajectory) -> dict:
     n, t0 = len(traj), float(traj.times[0])
     duration = float(traj.times[-1]) - t0
-    steps = torch.diff(traj.times)
-    rate = 1.0 / float(steps.median())
+    rate = 1.0 / float(torch.diff(traj.times).median())
     origin = f", from UNIX time {t0:.6f} s" if t0 > 1e8 else ""
     say(f"torch_dq fit: {path}: {n} poses over {duration:.3f} s ({rate:.4g} Hz){origin}")
-    info = {"file": path, "poses": n, "start_time_s": t0, "duration_s": duration,
+    return {"file": path, "poses": n, "start_time_s": t0, "duration_s": duration,
             "median_rate_hz": rate}
-    if spacing_hint is not None:
-        gaps = steps > 2 * spacing_hint
-        info["gaps_over_2_knot_spacings"] = int(gaps.sum())
-        if bool(gaps.any()):
-            worst = int(steps.argmax())
-            say(f"note: {int(gaps.sum())} gaps between poses longer than 2 knot spacings (the "
-                f"longest {float(steps[worst]):.3f} s after "
-                f"{float(traj.times[worst]) - t0:.3f} s): the curve bridges them smoothly")
-    return info
+
+
+def _gap_note(traj: io.Trajectory, spacing: float) -> tuple[int, str | None]:
+    """How many gaps between poses are longer than 2 knot spacings, and a note saying so
+    (``None`` when there is none)."""
+    steps = torch.diff(traj.times)
+    count = int((steps > 2 * spacing).sum())
+    if not count:
+        return 0, None
+    worst = int(steps.argmax())
+    return count, (f"{count} gap{'s' * (count != 1)} between poses longer than 2 knot "
+                   f"spacings ({2 * spacing:.4g} s; the longest {float(steps[worst]):.3f} s, "
+                   f"{float(traj.times[worst] - traj.times[0]):.3f} s after the first pose): "
+                   f"the curve bridges {'them' if count != 1 else 'it'} smoothly, without "
+                   f"data (trajectory.csv marks such rows in_gap = 1)")
+
+
+def _in_gap(grid: Tensor, times: Tensor, spacing: float) -> Tensor:
+    """``(M,)`` bool: the grid times strictly inside a gap between consecutive poses longer
+    than 2 knot spacings."""
+    i = torch.searchsorted(times, grid, right=True).clamp(1, times.shape[0] - 1)
+    lo, hi = times[i - 1], times[i]
+    return (hi - lo > 2 * spacing) & (grid > lo) & (grid < hi)
 
 
 def _reload_text(path: str) -> str:
@@ -288,17 +320,36 @@ def _reload_text(path: str) -> str:
 
 # ----------------------------------------------------------------------------- write
 
+def _write_csv(path: str, result: FitResult, spacing: float, about: str) -> None:
+    """``trajectory.csv``: comment lines, then the header row (:data:`torch_dq.io.CSV_COLUMNS`
+    and ``in_gap``), then one row per grid time (:func:`torch_dq.io.write_csv`'s rows, with
+    ``in_gap`` 0 or 1 appended)."""
+    q, p = dualquat.to_rt(result.x)
+    io.write_csv(path, io.Trajectory(result.grid, q, p), result.kin)  # then rearranged
+    with open(path, encoding="utf-8") as f:
+        header, units, *rows = f.read().splitlines()
+    gap = _in_gap(result.grid, result.traj.times, spacing).tolist()
+    comments = [units + f"; in_gap 1 inside a gap between poses longer than 2 knot spacings "
+                        f"({2 * spacing:.4g} s: no data there, the curve bridges it), else 0",
+                "# " + about]
+    count = len(comments) + 1
+    comments.insert(0, f"# {count} comment lines, then the header row: read with "
+                       f"pandas.read_csv(path, comment='#') or numpy.genfromtxt(path, "
+                       f"delimiter=',', names=True, skip_header={count})")
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("\n".join(comments + [header + ",in_gap"]
+                          + [f"{row},{int(g)}" for row, g in zip(rows, gap, strict=True)]) + "\n")
+
+
 def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -> dict:
     """Write the resampled CSV, the state dict, the figures and ``summary.json``."""
     os.makedirs(out, exist_ok=True)
     paths = {name: os.path.join(out, name) for name in OUTPUTS}
-    q, p = dualquat.to_rt(result.x)
     model = summary["model"]
-    io.write_csv(paths["trajectory.csv"], io.Trajectory(result.grid, q, p), result.kin,
-                 comments=[f"torch_dq fit of {path}: B-spline of degree {model['degree']}, "
-                           f"{model['n_ctrl']} control points (a knot every "
-                           f"{model['knot_spacing_s']:g} s), resampled at "
-                           f"{summary['resampled']['rate_hz']:.6g} Hz"])
+    _write_csv(paths["trajectory.csv"], result, model["knot_spacing_s"],
+               f"torch_dq fit of {path}: B-spline of degree {model['degree']}, "
+               f"{model['n_ctrl']} control points (a knot every {model['knot_spacing_s']:g} "
+               f"s), resampled at {summary['resampled']['rate_hz']:.9g} Hz")
     torch.save(result.spline.state_dict(), paths["spline.pt"])
     if plots:
         try:
@@ -417,13 +468,16 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     train = traj.select(fit_idx)
     spacing, why, steps = _knot_spacing(train.times, train.poses(), degree, form,
                                         knot_spacing, steps)
-    info = _describe_input(say, path, traj, spacing)
+    info = _describe_input(say, path, traj)
+    info["gaps_over_2_knot_spacings"], gap_note = _gap_note(traj, spacing)
+    if gap_note:
+        say(f"note: {gap_note}")
     n_ctrl = _spacing.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     say(f"knot spacing {spacing:g} s: {why}")
     say(f"B-spline ({form} form): degree {degree}, {n_ctrl} control points, fitted to "
         f"{len(fit_idx)} poses "
         f"(1 in {holdout}), {len(held_idx)} held out")
-    rate_hz = info["median_rate_hz"] if rate is None else float(rate)
+    rate_hz = _nominal_rate(info["median_rate_hz"]) if rate is None else float(rate)
     refine = None
     if imu is not None:
         from .fit_imu import fit_with_imu
@@ -453,7 +507,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         "imu": fit["imu"],
         "seconds": fit["seconds"],
         "resampled": {"rate_hz": rate_hz, "samples": len(result.grid)},
-        "warnings": fit["warnings"],
+        "warnings": fit["warnings"] + ([gap_note] if gap_note else []),
         "reload": _reload_text(os.path.join(out, "spline.pt")),
     }
     paths = _write(out, path, result, summary, plots)
