@@ -85,7 +85,8 @@ class FitResult:
         pred: ``(N, 8)`` the curve at every pose's time (float64).
         rot_deg, trans_mm: ``(N,)`` the curve's error at every pose.
         grid: ``(M,)`` the resampling times; ``x`` the curve there, ``kin`` its world-frame
-            kinematics (float64).
+            kinematics (float64); ``in_gap`` ``(M,)`` bool: inside a gap between poses longer
+            than 2 knot spacings (no data there).
     """
 
     traj: io.Trajectory
@@ -99,6 +100,7 @@ class FitResult:
     grid: Tensor
     x: Tensor
     kin: Any
+    in_gap: Tensor
 
     @property
     def t0(self) -> float:
@@ -328,7 +330,7 @@ def _write_csv(path: str, result: FitResult, spacing: float, about: str) -> None
     io.write_csv(path, io.Trajectory(result.grid, q, p), result.kin)  # then rearranged
     with open(path, encoding="utf-8") as f:
         header, units, *rows = f.read().splitlines()
-    gap = _in_gap(result.grid, result.traj.times, spacing).tolist()
+    gap = result.in_gap.tolist()
     comments = [units + f"; in_gap 1 inside a gap between poses longer than 2 knot spacings "
                         f"({2 * spacing:.4g} s: no data there, the curve bridges it), else 0",
                 "# " + about]
@@ -387,7 +389,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
         kin = spline.kinematics(grid)
     kin = type(kin)(*(None if v is None else v.double() for v in kin))
     result = FitResult(traj, poses, fit_idx, held_idx, spline, pred, rot, 1e3 * trans, grid,
-                       evaluate(spline, grid), kin)
+                       evaluate(spline, grid), kin, _in_gap(grid, traj.times, spacing))
     fit = {"steps": history.steps if history else 0,
            "loss_start": history.loss[0] if history and history.loss else None,
            "loss_final": history.final_loss if history else None, "seconds": seconds,

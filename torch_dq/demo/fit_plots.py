@@ -108,6 +108,10 @@ def plot_kinematics(Figure, Canvas, path: str, r) -> str:
             (axes[1], fd_rate, omega, "C3", "B-spline |ω| (exact derivative)",
              "angular rate [deg/s]", "Angular rate")):
         ax.plot(rel, curve, color=color, lw=1.6, alpha=0.8, label=label, zorder=2)
+        if bool(r.in_gap.any()):
+            ax.fill_between(rel, 0, 1, where=r.in_gap.numpy(), color="0.85", zorder=1,
+                            transform=ax.get_xaxis_transform(),
+                            label="no poses (gap > 2 knot spacings)")
         ax.plot(mid, fd, ".", color="k", ms=1.8, zorder=3,
                 label=f"finite differences of the poses ({step_ms:.0f} ms apart)")
         # outliers of the differences (gaps, glitches) would squash the curve: clip the view
