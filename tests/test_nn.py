@@ -562,26 +562,33 @@ def test_fit_optimizer_choices(kind, gen):
               "matrices": dict(optimizer="adam", steps=20)}[kind]
     poses = dq.to_matrix(target) if kind == "matrices" else target
     history = fit(spline, times, poses, verbose=False, **kwargs)
-    assert history.steps == len(history.loss) == kwargs["steps"]
+    # LBFGS may stop before its steps when its own tests hold, and says so (issue 22)
+    assert history.steps == len(history.loss) == kwargs["steps"] or (
+        kind == "lbfgs" and "LBFGS made no progress" in history.reason)
     assert history.final_loss < history.loss[0] and history.seconds > 0
     assert is_unit(spline.control_points)
 
 
 def test_fit_early_stopping(gen):
+    """The stopping test ends the loop (converged, with the reason); LBFGS from an exact
+    start makes no progress and says so instead of claiming convergence (issue 22)."""
     times = torch.linspace(0, 2, 30, dtype=F64)
     spline = BSpline.from_dualquats(truth(times), times, n_ctrl=6)
     history = fit(spline, times, truth(times), optimizer="lbfgs", steps=100, tol=1e-3,
                   window=2, verbose=False)
-    assert history.converged and history.steps < 100
+    assert not history.converged and "LBFGS made no progress" in history.reason
+    history = fit(spline, times, truth(times), optimizer="adam", steps=100, tol=0.5,
+                  window=2, verbose=False)
+    assert history.converged and history.steps < 100 and "tol" in history.reason
 
 
 def test_fit_progress_bar(monkeypatch, capsys, gen):
     times = torch.linspace(0, 1, 10, dtype=F64)
     spline = BSpline(dq.identity((4,), dtype=F64))
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
-    for optimizer in ("adam", "lm"):
+    for optimizer, name in (("adam", "torch_dq.fit"), ("lm", "torch_dq.estimate")):
         fit(spline, times, truth(times), optimizer, steps=3, verbose=True)
-        assert "torch_dq.fit" in capsys.readouterr().err
+        assert name in capsys.readouterr().err  # fit's LM is estimate with one Poses term
     fit(spline, times, truth(times), steps=3, verbose=False)
     assert capsys.readouterr().err == ""
     monkeypatch.setitem(sys.modules, "tqdm", None)  # tqdm not installed: no bar, no error

@@ -158,20 +158,33 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int
     count = x.shape[:-2].numel()
     if x.shape[-2] < 2 or anchors.shape[0] <= h + 1:  # a global basis (Bézier): one chart
         return [h] * count
-    q = x[..., :4]  # sign-aligned: the relative rotation's real part is the dot, >= 0
-    dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1).abs().clamp(max=1.0)
-    rates = (2.0 * torch.acos(dots) / (times[1:] - times[:-1])).amax(-1).reshape(count)
+    q = x[..., :4]
     spacing = float((anchors[1:] - anchors[:-1]).max())  # the knot spacing, about
-    rate = float(rates.max())
-    turn = rate * spacing  # rad per knot span
+    # Turn per knot span from samples one span apart (noise adds noise / spacing, not
+    # noise / sample interval); past ~2 rad such pairs may alias (angles wrap at pi), and
+    # then consecutive samples tell.
+    j = torch.searchsorted(times, times + spacing).clamp(max=times.shape[0] - 1)
+    pair = _angle_rate(q, q[..., j, :], times[j] - times) * spacing
+    fine = _angle_rate(q[..., :-1, :], q[..., 1:, :], times[1:] - times[:-1]) * spacing
+    turns = torch.where(pair < 2.0, pair, torch.maximum(pair, fine)).reshape(count)
+    turn = float(turns.max())  # rad per knot span
+    rate = turn / spacing
     if turn * (h + 1) > _MAX_WINDOW_TURN:
         ok = 0.9 * _MAX_WINDOW_TURN / (h + 1) / rate  # followed literally, it works
         warnings.warn(f"the poses turn at up to {rate:.3g} rad/s, {turn:.3g} rad per knot "
                       f"span of {spacing:.3g}: the least-squares start is unreliable above "
                       f"{_MAX_WINDOW_TURN / (h + 1):.3g} rad per span; use knots at most "
                       f"{ok:.3g} apart", UserWarning, stacklevel=6)
-    return [max(0, min(h, int((_MAX_WINDOW_TURN / max(r * spacing, 1e-300) - h - 1) // 2)))
-            for r in rates.tolist()]
+    return [max(0, min(h, int((_MAX_WINDOW_TURN / max(r, 1e-300) - h - 1) // 2)))
+            for r in turns.tolist()]
+
+
+def _angle_rate(a: Tensor, b: Tensor, dt: Tensor) -> Tensor:
+    """Largest rotation rate ``angle(a_i, b_i) / dt_i`` over the samples (``dt > 0``) of
+    each trajectory, ``(...)``, for unit quaternions ``a, b (..., N, 4)``."""
+    dots = (a * b).sum(-1).abs().clamp(max=1.0)
+    rate = 2.0 * torch.acos(dots) / torch.where(dt > 0, dt, 1.0)
+    return torch.where(dt > 0, rate, 0.0).amax(-1)
 
 
 def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
