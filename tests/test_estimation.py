@@ -69,9 +69,9 @@ def grid(t0, t1, hz):
     return torch.linspace(t0, t1, int(round((t1 - t0) * hz)) + 1, dtype=F64)
 
 
-def start_spline(t, x, spacing=0.2):
+def start_spline(t, x, spacing=0.2, form="de_boor"):
     n = math.ceil((float(t[-1]) - float(t[0])) / spacing) + 3
-    return BSpline.from_dualquats(x, t, n_ctrl=n)
+    return BSpline.from_dualquats(x, t, n_ctrl=n, form=form)
 
 
 def randn(gen, *shape, scale=1.0):
@@ -97,7 +97,7 @@ def imu_problem(gen, *, offset=0.01, bg=(0.01, -0.02, 0.005), ba=(0.1, -0.05, 0.
                   time_offset=clock),
              Accel(ti, ac + randn(gen, *ac.shape, scale=0.05), sigma=0.05, bias=True,
                    time_offset=clock, gravity=gravity)]
-    return start_spline(tc, x, 0.1), terms
+    return start_spline(tc, x, 0.1, "cumulative"), terms  # C2: accelerations continuous
 
 
 def within(value, ref, std, k=4.0):
@@ -317,7 +317,7 @@ def test_imu_improves_velocity_over_poses_alone(gen):
     v_true = torch.from_numpy(truth(tq.numpy())[3])
     res = {}
     for name, terms in (("poses", [cam]), ("imu", [cam, *imu])):
-        spline = start_spline(tc, x, 0.4)
+        spline = start_spline(tc, x, 0.4, "cumulative")
         est = estimate(spline, terms, verbose=False)
         v = spline.kinematics(tq).linear_velocity.detach()
         std = est.kinematics_std(tq)[:, 3:6]
@@ -386,7 +386,7 @@ def test_unobservable_time_offset_gives_inf_and_a_warning(gen):
     x = dq.exp(t[:, None] * xi)
     gyro = Gyro(ti, xi[:3].expand(33, 3), sigma=0.01, time_offset=Free(0.0))
     cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)
-    est = estimate(start_spline(t, x, 0.4), [cam, gyro], verbose=False)
+    est = estimate(start_spline(t, x, 0.4), [cam, gyro], steps=2, verbose=False)  # exact data
     with pytest.warns(RuntimeWarning, match="Gyro.time_offset"):
         assert math.isinf(float(est.std(gyro, "time_offset")))
 
@@ -398,7 +398,7 @@ def test_known_time_offset_prior_gives_its_std(gen):
     x = dq.exp(t[:, None] * xi)
     gyro = Gyro(ti, xi[:3].expand(33, 3), sigma=0.01, time_offset=Free(0.0, prior_std=0.02))
     cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)
-    est = estimate(start_spline(t, x, 0.4), [cam, gyro], verbose=False)
+    est = estimate(start_spline(t, x, 0.4), [cam, gyro], steps=2, verbose=False)
     assert float(est.std(gyro, "time_offset")) == pytest.approx(0.02, rel=1e-3)
 
 
@@ -439,6 +439,108 @@ def test_terms_validate_their_arguments():
     ok = Gyro(t, y.index_fill(0, torch.tensor([3]), float("nan")), sigma=1.0,
               mask=torch.arange(11) != 3)  # a masked NaN is fine
     assert bool(ok.mask.sum() == 10)
+
+
+@pytest.mark.parametrize("make", [
+    lambda t, y: Gyro(t, y, sigma=1.0),
+    lambda t, y: Accel(t, y, sigma=1.0),
+    lambda t, y: Positions(t, y, sigma=1.0),
+    lambda t, y: Poses(t, dq.identity((t.shape[0],), dtype=F64), rot_sigma=1, trans_sigma=1),
+    lambda t, y: RelativePoses(t, t, dq.identity((t.shape[0],), dtype=F64), rot_sigma=1,
+                               trans_sigma=1),
+])
+def test_float32_unix_times_are_refused(make):
+    """10 s at 200 Hz stamped 1.7e9 + s: float32 rounds every stamp to one value (spacing
+    128 s there); each term refuses it and names float64; the float64 times and float32
+    times near zero are accepted."""
+    t = 1.7e9 + grid(0.0, 10.0, 200)
+    y = torch.zeros(t.shape[0], 3, dtype=F64)
+    assert torch.unique(t.float()).numel() == 1  # the trap
+    with pytest.raises(ValueError, match=r"torch.float32 cannot resolve these times.*"
+                                         r"spacing at 1.7e\+09 is 128.*torch.float64"):
+        make(t.float(), y)
+    make(t, y)
+    make((t - 1.7e9).float(), y)
+
+
+def test_coarse_float32_times_are_refused_without_collapsing():
+    """float32 times at 1e5 s over a 1 s span: distinct after rounding, but resolved to
+    7.8e-3 s only (0.8 % of the span): refused."""
+    t = (1e5 + grid(0.0, 1.0, 50)).float()
+    assert torch.unique(t).numel() > 1
+    with pytest.raises(ValueError, match="cannot resolve"):
+        Gyro(t, torch.zeros(51, 3), sigma=1.0)
+
+
+def test_messages_name_the_first_bad_sample():
+    t = grid(0.0, 1.0, 10)
+    y = torch.zeros(11, 3, dtype=F64)
+    swapped = t.clone()
+    swapped[[4, 5]] = swapped[[5, 4]]
+    with pytest.raises(ValueError, match=r"times\[5\] = 0.4 is before an earlier one \(0.5, "
+                                         r"sample 4\); sort"):
+        Gyro(swapped, y, sigma=1.0)
+    with pytest.raises(ValueError, match=r"times\[1, 5\] = 0.4 is before"):
+        Gyro(torch.stack((t, swapped)), y.expand(2, 11, 3), sigma=1.0)
+    with pytest.raises(ValueError, match="measurements must be finite: sample 6 is not"):
+        Accel(t, y.index_fill(0, torch.tensor([6, 8]), float("inf")), sigma=1.0)
+    with pytest.raises(ValueError, match="times must be finite: sample 2 is not"):
+        Gyro(t.index_fill(0, torch.tensor([2]), float("nan")), y, sigma=1.0)
+    assert Gyro(t, y, sigma=1.0, robust="Huber").robust == "huber"
+    assert Positions(t, y, sigma=1.0, robust="CAUCHY").robust == "cauchy"
+
+
+def test_accel_with_a_c1_spline_warns_once(gen):
+    """de Boor B-splines (degree >= 2) are only C1: an Accel term warns (once per estimate)
+    and names form='cumulative'; the cumulative form and terms without Accel do not."""
+    t, ti, x, gy, ac, _, spline = _small(gen)
+    terms = [Poses(t, x, rot_sigma=0.01, trans_sigma=0.01), Accel(ti, ac, sigma=0.1)]
+    with pytest.warns(UserWarning, match="form='cumulative'") as record:
+        estimate(spline, terms, steps=1, verbose=False)
+    assert len([w for w in record if "only C1" in str(w.message)]) == 1
+    estimate(start_spline(t, x, 0.4, "cumulative"), terms, steps=1, verbose=False)
+    estimate(spline, [terms[0], Gyro(ti, gy, sigma=0.1)], steps=1, verbose=False)
+
+
+def test_estimate_repr_and_parameter_order(gen):
+    """The summary names steps, reason, final loss and chi2/dof per term; ``parameters``
+    lists cov's rows (a shared Free once): the gyro's time offset 1 and bias 3, then the
+    accelerometer's bias 3 and gravity 2; cov's diagonal blocks match std() of each."""
+    t, ti, x, gy, ac, _, _ = _small(gen)
+    clock = Free(0.0)
+    cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)
+    gyro = Gyro(ti, gy, sigma=0.01, bias=True, time_offset=clock)
+    acc = Accel(ti, ac, sigma=0.1, bias=True, time_offset=clock, gravity=9.81)
+    est = estimate(start_spline(t, x, 0.4, "cumulative"), [cam, gyro, acc], steps=1,
+                   verbose=False)
+    text = repr(est)
+    assert text.startswith("Estimate(steps=1, reason=") and "final_loss=" in text
+    for term in (cam, gyro, acc):
+        ratio = float(est.chi2[term]) / int(est.dof[term])
+        assert f"{type(term).__name__}: {ratio:.3g}" in text
+    assert est.parameters == [(gyro, "time_offset", 1), (gyro, "bias", 3), (acc, "bias", 3),
+                              (acc, "gravity", 2)]
+    C, start = est.cov(), 0
+    for term, name, size in est.parameters:
+        block = C[start:start + size, start:start + size].diagonal().sqrt()
+        if name != "gravity":  # gravity's std is reported in world axes, cov in its chart
+            torch.testing.assert_close(block, est.std(term, name).reshape(size))
+        start += size
+    assert start == C.shape[-1] == 9
+
+
+def test_verbose_prints_one_line_per_step_without_a_terminal(gen, capsys):
+    t, _, x, *_, spline = _small(gen)
+    est = estimate(spline, [Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)], steps=2, tol=0.0)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == est.steps >= 1
+    assert lines[0].startswith("torch_dq.estimate: step 1: cost ") and "damping" in lines[0]
+
+
+def test_term_constructors_have_their_class_docs():
+    for cls in (Poses, Positions, RelativePoses, Gyro, Accel):
+        assert cls.__init__.__doc__ == cls.__doc__ and "Args:" in cls.__doc__
+    assert "Initialize internal Module state" not in fitting.Term.__init__.__doc__
 
 
 def test_estimate_validates_domain_and_arguments(gen):

@@ -1,6 +1,6 @@
 r""":func:`estimate`: Levenberg-Marquardt over a trajectory and the terms' nuisance parameters.
 
-Each iteration linearizes every term exactly , weights the
+Each iteration linearizes every term exactly, weights the
 samples by the robust kernels at the current residuals (iteratively reweighted least
 squares), and solves the damped Gauss-Newton system: the banded control-point block is
 factored (``BandedCholesky``), the ``m`` nuisance steps come
@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import numbers
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -24,7 +25,7 @@ from .. import _checks, dualquat
 from . import _structure as structure
 from ._banded import BandedCholesky
 from ._problem import Problem
-from ._terms import Term
+from ._terms import Accel, Term
 from ._uncertainty import Estimate
 
 __all__ = ["estimate"]
@@ -92,6 +93,34 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                                  f"[{lo!r}, {hi!r}]: got [{float(t.min()) + a!r}, "
                                  f"{float(t.max()) + b!r}]; extend the trajectory or lower "
                                  f"max_time_offset")
+
+
+def _warn_c1(trajectory, terms: list[Term]) -> None:
+    """Warn when an Accel term reads the accelerations of a C1 (de Boor) B-spline."""
+    from ..nn import BSpline
+    if (isinstance(trajectory, BSpline) and trajectory.form == "de_boor"
+            and trajectory.degree >= 2 and any(isinstance(t, Accel) for t in terms)):
+        warnings.warn(f"fitting.estimate: an Accel term with a degree-{trajectory.degree} "
+                      f"B-spline of form='de_boor', which is only C1 (its accelerations jump "
+                      f"at the knots); build it with form='cumulative' for IMU work",
+                      UserWarning, stacklevel=3)
+
+
+class _Lines:
+    """Progress without a terminal: one plain line per step on stderr (tqdm's methods)."""
+
+    def __init__(self) -> None:
+        self.k = 0
+
+    def update(self, n: int) -> None:
+        self.k += n
+
+    def set_postfix(self, loss: str, damping: str) -> None:
+        print(f"torch_dq.estimate: step {self.k}: cost {loss}, damping {damping}",
+              file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        pass
 
 
 def _starts(problem: Problem, ctrl: Tensor) -> list[Tensor]:
@@ -175,15 +204,21 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         steps: maximum number of iterations (0: only the uncertainties at the start).
         tol: stop when an accepted step lowers the objective by at most ``tol`` relatively.
         prior: weight of the pull towards the start (see above), ``>= 0``.
-        verbose: a tqdm progress bar when stderr is a terminal and tqdm is installed.
+        verbose: progress on stderr: a tqdm bar when stderr is a terminal and tqdm is
+            installed, otherwise one line per step (step, cost, damping).
 
     Returns:
         :class:`~torch_dq.fitting.Estimate`.
 
     Raises:
         ValueError: bad arguments, terms times outside the domain (widened by an estimated
-            time offset's ``max_time_offset``), parameters the terms cannot determine
-            , batch shapes that do not match.
+            time offset's ``max_time_offset``), parameters the terms cannot determine, batch
+            shapes that do not match.
+
+    Warns:
+        UserWarning: an :class:`~torch_dq.fitting.Accel` term with a B-spline of
+            ``form="de_boor"`` and degree >= 2 (only C1: its accelerations jump at the
+            knots); ``form="cumulative"`` is smooth there.
         TypeError: a trajectory that is not a curve layer, terms that are not terms.
 
     Example:
@@ -193,7 +228,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         >>> t = torch.linspace(0.0, 2.0, 41, dtype=torch.float64)
         >>> truth = dq.exp(t[:, None] * torch.tensor([0.0, 0, 1.0, 0.5, 0, 0],
         ...                                          dtype=torch.float64))
-        >>> spline = BSpline.from_dualquats(truth, t, n_ctrl=8)
+        >>> spline = BSpline.from_dualquats(truth, t, n_ctrl=8)  # from_poses on (8,) poses
         >>> est = estimate(spline, [Poses(t, truth, rot_sigma=0.01, trans_sigma=0.01)],
         ...                verbose=False)
         >>> bool(est.final_loss < 1e-6)
@@ -205,9 +240,12 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     ctrl = trajectory.control_points.detach().to(torch.float64)
     batch = ctrl.shape[:-2]
     _check_domains(fn, trajectory, terms, batch)
+    _warn_c1(trajectory, terms)
     problem = Problem(trajectory, terms, batch)
     values = _starts(problem, ctrl)
     bar = progress(int(steps), verbose and sys.stderr.isatty(), "torch_dq.estimate")
+    if verbose and bar is None:
+        bar = _Lines()
     try:
         ctrl, values, history = _iterate(problem, ctrl, values, int(steps), float(tol),
                                          float(prior), bar)
@@ -314,7 +352,8 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
         objectives.append(lm.obj.clone())
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(loss=f"{float(lm.data.sum()):.3e}")
+            bar.set_postfix(loss=f"{float(lm.data.sum()):.6e}",
+                            damping=f"{float(lm.lam.max()):.1e}")
     converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons],
                              device=lm.active.device) & ~lm.active
     reasons = [r or f"steps={steps} reached" for r in lm.reasons]

@@ -294,7 +294,8 @@ def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float]
     term = Poses(t, target, rot_sigma=wr ** -0.5 if wr > 0 else math.inf,
                  trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
     steps, tol, prior, verbose = settings
-    est = estimate(module, [term], steps=steps, tol=tol, prior=prior, verbose=verbose)
+    est = estimate(module, [term], steps=steps, tol=tol, prior=prior,
+                   verbose=verbose and sys.stderr.isatty())  # fit: a bar on a terminal only
     count = target.shape[:-1].numel()
     history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
         float(est.objective[0].sum()) / count]

@@ -2,8 +2,8 @@ r"""The least-squares problem of :func:`~torch_dq.fitting.estimate`: parameters,
 the Gauss-Newton system in block form.
 
 Unknowns: a body-frame step ``delta_k`` (6) per control point, ``c_k <- c_k exp(delta_k)``,
-and the chart steps of the ``m`` estimated nuisance parameters
-. With ``J`` the whitened Jacobian and ``W`` the robust
+and the chart steps of the ``m`` estimated nuisance parameters.
+With ``J`` the whitened Jacobian and ``W`` the robust
 weights, the Gauss-Newton matrix has three blocks: the control-point band
 ``A_cc (..., n, w, 6, 6)`` (a sample touches ``w`` consecutive control points), the coupling
 ``A_cn (..., n, 6, m)`` and ``A_nn (..., m, m)``; the gradient ``g = J^T W r``.

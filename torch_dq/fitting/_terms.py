@@ -61,6 +61,38 @@ def _sigma(fn: str, name: str, value, k: int) -> Tensor:
     return s.expand(k).clone()
 
 
+def _first_index(bad: Tensor) -> tuple[int, ...]:
+    """Index of the first True entry of ``bad`` (row-major)."""
+    return tuple(int(v) for v in torch.nonzero(bad)[0].tolist())
+
+
+def _at(i: tuple[int, ...]) -> str:
+    return "[" + ", ".join(str(v) for v in i) + "]"
+
+
+def _first_bad(fn: str, message: str, bad: Tensor, hint: str = "") -> None:
+    """Fail with ``message`` naming the first sample where ``bad (..., N)`` holds."""
+    if bool(bad.any()):
+        i = _first_index(bad)
+        where = f"sample {i[-1]}" + (f" of batch element {_at(i[:-1])}" if len(i) > 1 else "")
+        _checks.fail(fn, f"{message}: {where} is not{hint}")
+
+
+def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
+    """Fail when the times' dtype cannot resolve them: its spacing at the largest time
+    above ``1e-4`` of the time span (float32 UNIX timestamps round to steps of 128 s)."""
+    if t.dtype == torch.float64 or valid.sum() < 2:
+        return
+    v = t[valid].to(torch.float64)
+    end = t[valid].abs().max()
+    ulp = float(torch.nextafter(end, torch.full_like(end, math.inf)) - end)
+    span = float(v.max() - v.min())
+    if ulp > 1e-4 * span:
+        _checks.fail(fn, f"{t.dtype} cannot resolve these {name}: its spacing at "
+                         f"{float(end):.6g} is {ulp:.3g} (the times' units), more than 1e-4 of "
+                         f"their span ({span:.3g} as rounded); pass times as torch.float64")
+
+
 class Term(torch.nn.Module):
     """Shared machinery of the measurement terms (see the module docstring).
 
@@ -84,11 +116,14 @@ class Term(torch.nn.Module):
     def __init__(self, times: list[Tensor], names: list[str], data: Tensor, event: int,
                  sigma: Tensor, *, time_offset, max_time_offset, robust, robust_k,
                  mask) -> None:
+        """Check and store the samples' times, data, sigmas and options (called by the
+        subclasses, whose class docstrings describe the arguments)."""
         super().__init__()
         fn = self._fn
-        if robust not in _robust.KERNELS:
+        kernel = robust.lower() if isinstance(robust, str) else robust
+        if kernel not in _robust.KERNELS:
             _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
-        self.robust = robust
+        self.robust = kernel
         if robust_k is None:
             robust_k = _robust.chi_quantile(self.dim)
         if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
@@ -127,9 +162,9 @@ class Term(torch.nn.Module):
         mask = mask.expand(data.shape[:data.dim() - event])
         if not bool(mask.any(-1).all()):
             _checks.fail(fn, "mask leaves no sample (in some batch element)")
-        sel = mask.reshape(*mask.shape, *(1,) * event).expand(data.shape)
-        if not bool(torch.isfinite(data.detach()[sel]).all()):
-            _checks.fail(fn, "the measurements must be finite (mask the samples that are not)")
+        finite = torch.isfinite(data.detach()).reshape(*mask.shape, -1).all(-1)
+        _first_bad(fn, "the measurements must be finite", mask & ~finite,
+                   " (mask the samples that are not)")
         self.register_buffer("mask", mask.clone())
         self.register_buffer("sigma", sigma)
         self._names = list(names)
@@ -141,15 +176,23 @@ class Term(torch.nn.Module):
         """Masked times replaced by the previous valid one (the first valid one before it),
         so that they stay sorted; checks finite and non-decreasing valid times."""
         m = mask if t.dim() == mask.dim() else mask.any(0)
-        if not bool(torch.isfinite(t[m.expand(t.shape)]).all()):
-            _checks.fail(fn, f"{name} must be finite")
+        mm = m.expand(t.shape)
+        _first_bad(fn, f"{name} must be finite", mm & ~torch.isfinite(t))
+        _check_resolution(fn, name, t, mm)
         first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
         filled = torch.where(m, t, -torch.inf).cummax(-1).values
         filled = torch.where(torch.isinf(filled), first, filled)
-        mm = m.expand(t.shape)
-        if len(self._names) == 1 and bool((mm[..., 1:] & (t[..., 1:] < filled[..., :-1]))
-                                          .any()):
-            _checks.fail(fn, f"{name} must be non-decreasing")
+        if len(self._names) == 1:
+            bad = torch.cat((torch.zeros_like(mm[..., :1]),
+                             mm[..., 1:] & (t[..., 1:] < filled[..., :-1])), -1)
+            if bool(bad.any()):
+                i = _first_index(bad)
+                row = t[i[:-1]][:i[-1]]
+                prev = int(torch.where(mm[i[:-1]][:i[-1]], row, -torch.inf).argmax())
+                _checks.fail(fn, f"{name} must be non-decreasing: {name}{_at(i)} = "
+                                 f"{t[i].item()!r} is before an earlier one ({row[prev].item()!r}"
+                                 f", sample {prev}); sort the samples (torch.argsort of the "
+                                 f"times)")
         return filled
 
     # -- nuisance values
@@ -557,3 +600,8 @@ class Accel(_Imu):
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
         a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
+
+
+for _cls in (Poses, Positions, RelativePoses, Gyro, Accel):  # help(Gyro.__init__): the args
+    _cls.__init__.__doc__ = _cls.__doc__
+del _cls

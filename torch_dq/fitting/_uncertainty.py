@@ -49,6 +49,7 @@ class Estimate:
         converged: ``(...)`` bool, True where a stopping test held.
         reason: what stopped it (one string per batch element, joined by ``"; "``).
         chi2, dof, weights: per term (dicts keyed by the term), see the properties.
+        parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
     def __init__(self, problem, ctrl: Tensor, values: list[Tensor], history: dict) -> None:
@@ -61,6 +62,27 @@ class Estimate:
         self.reason: str = history["reason"]
         self._sys = None
         self._factored = False
+
+    def __repr__(self) -> str:
+        loss = self.final_loss
+        loss_s = f"{float(loss):.6g}" if loss.dim() == 0 else f"<{tuple(loss.shape)} tensor>"
+        ratios = ", ".join(f"{type(t).__name__}: {float(c.sum()) / max(float(d.sum()), 1):.3g}"
+                           for (t, c), d in zip(self.chi2.items(), self.dof.values(),
+                                                strict=True))
+        return (f"Estimate(steps={self.steps}, reason={self.reason!r}, final_loss={loss_s}, "
+                f"chi2/dof={{{ratios}}})")
+
+    @property
+    def parameters(self) -> list[tuple]:
+        """The estimated nuisance parameters in the order of :meth:`cov`'s rows: a list of
+        ``(term, name, size)``, ``size`` the chart's dimension (bias, lever arm 3, time
+        offset 1, extrinsic 6, gravity 2); a shared :class:`~torch_dq.fitting.Free` appears
+        once, under the first term that holds it."""
+        p = self._problem
+        first = {}
+        for (i, name), q in p.index.items():
+            first.setdefault(id(q), (p.terms[i], name, q.dim))
+        return [first[id(q)] for q in p.params]
 
     @property
     def _system(self):
@@ -169,8 +191,16 @@ class Estimate:
         return -cross @ gravity_basis(g)  # d(Exp(B d) g)/dd = -[g]x B
 
     def cov(self, *items: tuple) -> Tensor:
-        """Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts (all
-        estimated parameters in order of first appearance when none are given)."""
+        """Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts.
+
+        Args:
+            items: ``(term, name)`` pairs, their rows in that order; none: every estimated
+                parameter, in the order of :attr:`parameters` (``(term, name, size)``,
+                ``size`` rows each).
+
+        Returns:
+            ``(..., k, k)``, ``k`` the sum of the sizes.
+        """
         self._ensure()
         p = self._problem
         qs = [self._param(t, n) for t, n in items] if items else p.params
