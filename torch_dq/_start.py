@@ -163,7 +163,7 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int
     # Turn per knot span from samples one span apart (noise adds noise / spacing, not
     # noise / sample interval); past ~2 rad such pairs may alias (angles wrap at pi), and
     # then consecutive samples tell.
-    j = torch.searchsorted(times, times + spacing).clamp(max=times.shape[0] - 1)
+    j = torch.searchsorted(times.contiguous(), times + spacing).clamp(max=times.shape[0] - 1)
     pair = _angle_rate(q, q[..., j, :], times[j] - times) * spacing
     fine = _angle_rate(q[..., :-1, :], q[..., 1:, :], times[1:] - times[:-1]) * spacing
     turns = torch.where(pair < 2.0, pair, torch.maximum(pair, fine)).reshape(count)
