@@ -48,10 +48,15 @@ from torch import Tensor
 from .. import losses
 from .. import nn as dqnn
 from . import plots as _plots
-from ._common import PLOT_HINT, evaluate, no_matplotlib, pose_errors, say_warnings
+from . import _common
+from ._common import evaluate, no_matplotlib, pose_errors, say_warnings
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["DEFAULTS", "FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
+
+#: The command that installs matplotlib for the figures, ``pip install 'torch_dq[plot]'``
+#: (the demo and the fit print it once when they skip their figures).
+PLOT_HINT = _common.PLOT_HINT
 
 #: The figures the demo writes (when matplotlib is available).
 FIGURES = ("fig1_components.png", "frames_3d.png", "axode.png", "loss.png")
