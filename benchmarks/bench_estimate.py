@@ -95,7 +95,7 @@ def bench_poses(N: int, n: int, M: int) -> None:
     clock = fitting.Free()
     terms = [cam, fitting.Gyro(ti, gyro, sigma=1e-3, bias=True, time_offset=clock),
              fitting.Accel(ti, acc, sigma=1e-2, bias=True, time_offset=clock, gravity=9.81)]
-    spline = BSpline.from_dualquats(meas, t, n_ctrl=n)
+    spline = BSpline.from_dualquats(meas, t, n_ctrl=n, form="cumulative")  # C2 for Accel
     base2 = base + imu_pass(spline, ti)
     secs, est = cpu(lambda: fitting.estimate(spline, terms, verbose=False))
     print(f"poses + IMU: N={N} M={M} n={n}: estimate {secs:.2f} s ({est.steps} steps); "
