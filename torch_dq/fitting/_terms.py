@@ -84,12 +84,14 @@ def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
     if t.dtype == torch.float64 or valid.sum() < 2:
         return
     v = t[valid].to(torch.float64)
-    end = t[valid].abs().max()
-    ulp = float(torch.nextafter(end, torch.full_like(end, math.inf)) - end)
+    end = float(v.abs().max())
+    if end == 0.0:
+        return
+    ulp = torch.finfo(t.dtype).eps * 2.0 ** math.floor(math.log2(end))
     span = float(v.max() - v.min())
     if ulp > 1e-4 * span:
         _checks.fail(fn, f"{t.dtype} cannot resolve these {name}: its spacing at "
-                         f"{float(end):.6g} is {ulp:.3g} (the times' units), more than 1e-4 of "
+                         f"{end:.6g} is {ulp:.3g} (the times' units), more than 1e-4 of "
                          f"their span ({span:.3g} as rounded); pass times as torch.float64")
 
 
