@@ -234,8 +234,10 @@ def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
             and fused_path(c0, s0))
     n_small = int(small.count_nonzero()) if host else -1
 
-    # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2).
-    c_safe = c if n_small == 0 else _scale(c, 1.0 - small)
+    # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2). Scaled
+    # even when no element is small, so that the backward sums the gradients of ``c`` in
+    # one order whatever the count (a NaN element must not change the others' bits).
+    c_safe = _scale(c, 1.0 - small)
     y_safe = _rsub(1.0, c_safe)
     sin_t = sqrt(mul(y_safe, _rsub(2.0, y_safe)))  # sin^2 = (1 - c)(1 + c)
     theta = acos(c_safe, sin_t)
