@@ -79,7 +79,7 @@ class Estimate:
         offset 1, extrinsic 6, gravity 2); a shared :class:`~torch_dq.fitting.Free` appears
         once, under the first term that holds it."""
         p = self._problem
-        first = {}
+        first: dict[int, tuple] = {}
         for (i, name), q in p.index.items():
             first.setdefault(id(q), (p.terms[i], name, q.dim))
         return [first[id(q)] for q in p.params]
