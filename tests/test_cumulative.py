@@ -20,7 +20,8 @@ from strategies import unit_quat
 
 import torch_dq.dualquat as dq
 from torch_dq import _cumulative, curves
-from torch_dq._core import align_chain, knot_span
+from torch_dq._core import align_chain
+from torch_dq._time import KnotDomain
 
 F64 = torch.float64
 
@@ -64,7 +65,7 @@ KNOT_KINDS = ("clamped", "uniform", "nonuniform", "repeated")
 
 def span_inputs(ctrl, knots, p, t, order):
     """Spans, weights and gathered sign-aligned control points, as the curves pass them."""
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     weights = _cumulative.basis(knots, r, t, p, order)
     points = align_chain(ctrl)[r[..., None] - p + torch.arange(p + 1)]
     return points, weights
@@ -173,7 +174,7 @@ def test_basis_matches_scipy(gen, kind, p):
     n = p + 4
     knots = knot_vector(kind, n, p, gen)
     t = domain_times(knots, p, 41, margin=0.3)  # extrapolates beyond both ends
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     got = _cumulative.basis(knots, r, t, p, 3)
     cols = (r[:, None] - p + torch.arange(1, p + 1)).numpy()
     for nu in range(4):
@@ -187,7 +188,7 @@ def test_basis_batched_times_and_gradcheck(gen):
     p, n = 3, 7
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 6).reshape(2, 3)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     flat = _cumulative.basis(knots, r.reshape(-1), t.reshape(-1), p, 2)
     for a, b in zip(_cumulative.basis(knots, r, t, p, 2), flat, strict=True):
         assert a.shape == (2, 3, p) and torch.equal(a.reshape(-1, p), b)
@@ -213,7 +214,7 @@ def test_curve_matches_matrix_reference(gen, kind, p):
     ref = matrix_jets_np(ctrl, knots.numpy(), p, t.numpy(), 0)[0]
     for x in (_cumulative.jets(points, weights, 0)[0],
               curves._kim_kim_shin(points, weights[0]),
-              _cumulative.poses(align_chain(ctrl), knot_span(knots, t, p) - p, weights[0].T)):
+              _cumulative.poses(align_chain(ctrl), KnotDomain(knots, p).span(t) - p, weights[0].T)):
         assert np.abs(dq.to_matrix(x).numpy() - ref).max() <= 1e-10
     # the same motion whatever the signs of the control points
     flipped = ctrl * torch.where(torch.arange(n) % 2 == 0, -1.0, 1.0).to(F64)[:, None]
@@ -267,7 +268,7 @@ def test_pypose_on_uniform_knots(gen, shape):
     s = torch.arange(out.shape[-2], dtype=F64) * interval
     knots = torch.arange(n + 4, dtype=F64)
     t = s + 3.0
-    r = knot_span(knots, t, 3)
+    r = KnotDomain(knots, 3).span(t)
     weights = _cumulative.basis(knots, r, t, 3, 0)[0]
     flat = ctrl.reshape(-1, n, 8)
     ours = torch.stack([curves._kim_kim_shin(c[r[:, None] - 3 + torch.arange(4)], weights)
@@ -311,7 +312,7 @@ def test_continuity_across_simple_knots(gen):
     for p in (3, 4, 5):
         knots = knot_vector("nonuniform", n, p, gen)
         u = knots[p + 1:n]  # the interior knots
-        r = knot_span(knots, u, p)
+        r = KnotDomain(knots, p).span(u)
         for side in (r - 1, r):  # left span (continued to u) and right span
             pts = align_chain(ctrl)[side[:, None] - p + torch.arange(p + 1)]
             jet = _cumulative.jets(pts, _cumulative.basis(knots, side, u, p, 3), 3)
@@ -377,7 +378,7 @@ def test_gradcheck_wrt_control_points_and_t(gen, kind):
     ctrl = degenerate_chain(gen, kind)[1:6]  # the degenerate pair is ctrl[1], ctrl[2]
     knots = torch.tensor([0.0, 0.1, 0.3, 0.6, 1.0, 1.2, 1.5, 1.9, 2.0], dtype=F64)
     t = torch.tensor([0.7, 1.1], dtype=F64)  # one time in each span
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     idx = r[:, None] - p + torch.arange(p + 1)
 
     def jets(order):
@@ -400,7 +401,7 @@ def test_half_turn_gradients_are_finite_one_sided(gen):
     p = 3
     knots = knot_vector("uniform", 6, p, gen)
     t = domain_times(knots, p, 5)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     weights = _cumulative.basis(knots, r, t, p, 1)
     base = degenerate_chain(gen, "half_turn")
 
@@ -431,7 +432,7 @@ def test_fused_poses_match_reference_gradients(gen):
     ctrl = torch.cat((align_chain(chain(n, gen)), align_chain(chain(n, gen))))
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 11)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     first = torch.cat((r - p, r - p + n))
     w = _cumulative.basis(knots, r, t, p, 0)[0].T.repeat(1, 2).requires_grad_()
     c = ctrl.clone().requires_grad_()
@@ -461,7 +462,7 @@ def test_forward_mode_and_transforms_match_reverse(gen):
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 4)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     idx = r[:, None] - p + torch.arange(p + 1)
 
     def f(ctrl, t):
@@ -489,7 +490,7 @@ def test_unix_time_knots_with_float32_control_points(gen):
     base = 1.7e9
     knots = base + knot_vector("nonuniform", n, p, gen) * 0.05
     t = domain_times(knots, p, 13)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     points = ctrl[r[:, None] - p + torch.arange(p + 1)]
     weights = _cumulative.basis(knots, r, t, p, 2)
     ref = _cumulative.jets(points, weights, 2)
@@ -506,7 +507,7 @@ def test_jets_compile_fullgraph(gen):
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("uniform", n, p, gen)
     t = domain_times(knots, p, 3)
-    r = knot_span(knots, t, p)
+    r = KnotDomain(knots, p).span(t)
     idx = r[:, None] - p + torch.arange(p + 1)
 
     def f(ctrl, t):

@@ -14,7 +14,7 @@ from torch import Tensor
 from ._numerics import compute_dtype, even
 
 __all__ = [
-    "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "knot_span", "lift", "qconj",
+    "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "lift", "qconj",
     "qmul", "qrotate", "split", "translation", "twist_translation",
 ]
 
@@ -121,15 +121,3 @@ def twist_translation(omega: Tensor, t: Tensor) -> Tensor:
     c3 = even("se3_c3", (omega * omega).sum(-1, keepdim=True))
     wxt = torch.linalg.cross(omega, t, dim=-1)
     return t - 0.5 * wxt + c3 * torch.linalg.cross(omega, wxt, dim=-1)
-
-
-def knot_span(knots: Tensor, t: Tensor, degree: int) -> Tensor:
-    """Span ``r`` of each time, ``knots[r] <= t < knots[r + 1]`` with ``r`` in
-    ``[degree, n - 1]`` (``n = len(knots) - degree - 1``); at and beyond ``knots[n]`` the
-    last non-empty span, so the right end of the domain is a left limit. Used by De Boor's
-    scheme (:mod:`torch_dq.curves`) and the B-spline basis (:mod:`torch_dq.fitting`)."""
-    p, n = degree, knots.shape[-1] - degree - 1
-    inner = knots[p + 1:n]
-    r = p + torch.searchsorted(inner, t.detach().contiguous(), right=True)
-    r_end = p + torch.searchsorted(inner, knots[n:n + 1].detach(), right=False)
-    return torch.minimum(r, r_end)

@@ -103,7 +103,7 @@ def basis(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int) -> list[
         knots: ``(K,)`` non-decreasing knots (uniform or not, clamped or not, repeated
             interior knots allowed), in the time dtype.
         r: ``(..., T)`` int64 spans, ``knots[r] <= t < knots[r + 1]``, ``r`` in
-            ``[p, n - 1]`` (:func:`torch_dq._core.knot_span`).
+            ``[p, n - 1]`` (``torch_dq._time.KnotDomain.span``).
         t: ``(..., T)`` times in ``knots``' dtype. Times outside their span give the
             polynomial continuation of the span's pieces (extrapolation).
         degree: ``p >= 1``.
