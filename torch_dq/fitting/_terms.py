@@ -95,6 +95,12 @@ def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
                          f"their span ({span:.3g} as rounded); pass times as torch.float64")
 
 
+def _nuisance(name: str, doc: str) -> property:
+    """A read-only property: the current value of the term's nuisance parameter ``name``
+    (detached; None where the term has none)."""
+    return property(lambda self: self._value(name), doc=doc)
+
+
 class Term(torch.nn.Module):
     """Shared machinery of the measurement terms (see the module docstring).
 
@@ -205,12 +211,11 @@ class Term(torch.nn.Module):
         v = slot.value(torch.empty((), dtype=torch.float64, device=self.sigma.device))
         return None if v is None else v.detach()
 
-    @property
-    def time_offset(self) -> Tensor | None:
-        """The time offset ``dt`` (seconds; the sample stamped ``t`` is compared with the
-        trajectory at ``t + dt``): fixed, estimated, its start, or None (default start not
-        yet computed)."""
-        return self._value("time_offset")
+    time_offset = _nuisance(
+        "time_offset",
+        "The time offset ``dt`` (seconds; the sample stamped ``t`` is compared with the "
+        "trajectory at ``t + dt``): fixed, estimated, its start, or None (default start not yet "
+        "computed).")
 
     def times_list(self) -> list[Tensor]:
         """The samples' times, one ``(N,)`` or ``(B, N)`` tensor per time argument."""
@@ -283,12 +288,51 @@ def _pose_data(fn: str, name: str, poses: Tensor) -> Tensor:
     return poses.detach()
 
 
+def _vector_data(fn: str, name: str, x: Tensor) -> Tensor:
+    """``x`` checked as ``(..., N, 3)`` samples (detached)."""
+    _checks.tensor(fn, name, x, 3)
+    if x.dim() < 2:
+        _checks.fail(fn, f"expected (..., N, 3) {name}, got {_checks.shape_str(x.shape)}")
+    return x.detach()
+
+
+def _masked(x: Tensor, mask: Tensor | None, fill: Tensor | float) -> Tensor:
+    """``x (..., N, k)`` with the masked-out samples replaced by ``fill`` (harmless values)."""
+    return x if mask is None else torch.where(mask[..., None], x, fill)
+
+
 def _rotation_residual(q_meas: Tensor, q: Tensor) -> Tensor:
     """Rotation vector of ``R_m^T R`` (in ``q``'s frame)."""
     return quat.to_rotvec(quat.mul(quat.conj(q_meas.to(q.dtype)), q))
 
 
-class Poses(Term):
+class _PoseTerm(Term):
+    """A term measuring poses: rotation residual (radians) then translation difference."""
+
+    dim = 6
+
+    def _store_poses(self, times: list[Tensor], names: list[str], poses: Tensor, rot_sigma,
+                     trans_sigma, **common) -> None:
+        """Validate ``poses`` and the two sigmas, set up the term, keep the measured poses
+        (normalized; masked samples replaced by the identity) as ``rotations`` and
+        ``translations``."""
+        fn = self._fn
+        x = _pose_data(fn, "poses", poses)
+        sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
+                           _sigma(fn, "trans_sigma", trans_sigma, 3)))
+        Term.__init__(self, times, names, x, 1, sigma, **common)
+        safe = _masked(x, common["mask"], dualquat.identity(dtype=x.dtype, device=x.device))
+        q, t = dualquat.to_rt(dualquat.normalize(safe))
+        self.register_buffer("rotations", q)
+        self.register_buffer("translations", t)
+
+    def _pose_residual(self, x: Tensor) -> Tensor:
+        q, t = dualquat.to_rt(x)
+        return torch.cat((_rotation_residual(self.rotations, q),
+                          t - self.translations.to(t.dtype)), dim=-1)
+
+
+class Poses(_PoseTerm):
     r"""Poses of a sensor mounted on the body at ``extrinsic`` ``e``: :math:`x(t) e`.
 
     Args:
@@ -314,39 +358,26 @@ class Poses(Term):
         ...              trans_sigma=0.001)
     """
 
-    dim = 6
     _fn = "fitting.Poses"
 
     def __init__(self, times: Tensor, poses: Tensor, *, rot_sigma, trans_sigma,
                  extrinsic=None, time_offset=None, max_time_offset: float = 0.1,
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
-        fn = self._fn
-        x = _pose_data(fn, "poses", poses)
-        sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
-                           _sigma(fn, "trans_sigma", trans_sigma, 3)))
-        safe = x if mask is None else torch.where(mask[..., None], x, dualquat.identity(
-            dtype=x.dtype, device=x.device))
-        super().__init__([times], ["times"], x, 1, sigma, time_offset=time_offset,
-                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                         mask=mask)
-        q, t = dualquat.to_rt(dualquat.normalize(safe))
-        self.register_buffer("rotations", q)
-        self.register_buffer("translations", t)
-        self._slots["extrinsic"] = Slot(fn, "extrinsic", "pose", extrinsic)
+        self._store_poses([times], ["times"], poses, rot_sigma, trans_sigma,
+                          time_offset=time_offset, max_time_offset=max_time_offset,
+                          robust=robust, robust_k=robust_k, mask=mask)
+        self._slots["extrinsic"] = Slot(self._fn, "extrinsic", "pose", extrinsic)
 
-    @property
-    def extrinsic(self) -> Tensor | None:
-        """The sensor mount ``e`` ``(..., 8)`` (body to sensor pose on the body)."""
-        return self._value("extrinsic")
+    extrinsic = _nuisance(
+        "extrinsic",
+        "The sensor mount ``e`` ``(..., 8)`` (body to sensor pose on the body).")
 
     def _residual(self, ev, p):
         x = ev[0][0]
         if self._slots["extrinsic"].present:
             x = dualquat.mul(x, p["extrinsic"])
-        q, t = dualquat.to_rt(x)
-        return torch.cat((_rotation_residual(self.rotations, q),
-                          t - self.translations.to(t.dtype)), dim=-1)
+        return self._pose_residual(x)
 
 
 class Positions(Term):
@@ -370,22 +401,14 @@ class Positions(Term):
                  time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
                  robust_k: float | None = None, mask: Tensor | None = None) -> None:
         fn = self._fn
-        _checks.tensor(fn, "positions", positions, 3)
-        if positions.dim() < 2:
-            _checks.fail(fn, f"expected (..., N, 3) positions, got "
-                             f"{_checks.shape_str(positions.shape)}")
+        positions = _vector_data(fn, "positions", positions)
         super().__init__([times], ["times"], positions, 1, _sigma(fn, "sigma", sigma, 3),
                          time_offset=time_offset, max_time_offset=max_time_offset,
                          robust=robust, robust_k=robust_k, mask=mask)
-        safe = positions.detach() if mask is None else torch.where(
-            mask[..., None], positions.detach(), 0.0)
-        self.register_buffer("positions", safe)
+        self.register_buffer("positions", _masked(positions, mask, 0.0))
         self._slots["lever_arm"] = Slot(fn, "lever_arm", "vector", lever_arm)
 
-    @property
-    def lever_arm(self) -> Tensor | None:
-        """The lever arm ``l`` ``(..., 3)`` in body axes."""
-        return self._value("lever_arm")
+    lever_arm = _nuisance("lever_arm", "The lever arm ``l`` ``(..., 3)`` in body axes.")
 
     def _residual(self, ev, p):
         q, t = dualquat.to_rt(ev[0][0])
@@ -394,7 +417,7 @@ class Positions(Term):
         return pred - self.positions.to(t.dtype)
 
 
-class RelativePoses(Term):
+class RelativePoses(_PoseTerm):
     r"""Relative poses (odometry) :math:`x(t_{from})^{-1} x(t_{to})`.
 
     Args:
@@ -409,31 +432,19 @@ class RelativePoses(Term):
     ``rot_sigma``, translation difference in from-frame axes over ``trans_sigma``.
     """
 
-    dim = 6
     _fn = "fitting.RelativePoses"
 
     def __init__(self, times_from: Tensor, times_to: Tensor, poses: Tensor, *, rot_sigma,
                  trans_sigma, time_offset=None, max_time_offset: float = 0.1,
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
-        fn = self._fn
-        x = _pose_data(fn, "poses", poses)
-        sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
-                           _sigma(fn, "trans_sigma", trans_sigma, 3)))
-        super().__init__([times_from, times_to], ["times_from", "times_to"], x, 1, sigma,
-                         time_offset=time_offset, max_time_offset=max_time_offset,
-                         robust=robust, robust_k=robust_k, mask=mask)
-        safe = x if mask is None else torch.where(mask[..., None], x, dualquat.identity(
-            dtype=x.dtype, device=x.device))
-        q, t = dualquat.to_rt(dualquat.normalize(safe))
-        self.register_buffer("rotations", q)
-        self.register_buffer("translations", t)
+        self._store_poses([times_from, times_to], ["times_from", "times_to"], poses, rot_sigma,
+                          trans_sigma, time_offset=time_offset,
+                          max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
+                          mask=mask)
 
     def _residual(self, ev, p):
-        z = dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0])
-        q, t = dualquat.to_rt(z)
-        return torch.cat((_rotation_residual(self.rotations, q),
-                          t - self.translations.to(t.dtype)), dim=-1)
+        return self._pose_residual(dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0]))
 
 
 class _Imu(Term):
@@ -443,22 +454,13 @@ class _Imu(Term):
 
     def __init__(self, times, readings, sigma, bias, **kwargs) -> None:
         fn = self._fn
-        _checks.tensor(fn, "readings", readings, 3)
-        if readings.dim() < 2:
-            _checks.fail(fn, f"expected (..., N, 3) readings, got "
-                             f"{_checks.shape_str(readings.shape)}")
+        readings = _vector_data(fn, "readings", readings)
         super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
                          **kwargs)
-        mask = kwargs.get("mask")
-        safe = readings.detach() if mask is None else torch.where(
-            mask[..., None], readings.detach(), 0.0)
-        self.register_buffer("readings", safe)
+        self.register_buffer("readings", _masked(readings, kwargs.get("mask"), 0.0))
         self._slots["bias"] = Slot(fn, "bias", "vector", bias)
 
-    @property
-    def bias(self) -> Tensor | None:
-        """The bias ``(..., 3)`` (body axes), added to the ideal reading."""
-        return self._value("bias")
+    bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
 
 class Gyro(_Imu):
@@ -577,10 +579,7 @@ class Accel(_Imu):
                              "fitting.Free")
         self._slots["gravity"] = Slot(fn, "gravity", "gravity", gravity)
 
-    @property
-    def gravity(self) -> Tensor | None:
-        """Gravity ``(..., 3)`` in world axes (fixed or estimated)."""
-        return self._value("gravity")
+    gravity = _nuisance("gravity", "Gravity ``(..., 3)`` in world axes (fixed or estimated).")
 
     def default_start(self, name, trajectory, ctrl, values):
         if name != "gravity":
