@@ -45,7 +45,7 @@ from ._numerics import safe_denominator, threshold
 
 __all__ = ["KnotDomain", "bspline_basis", "checks_possible"]
 
-_REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (API.md)
+_REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_contract.md)
 # Coarsest step of t's dtype at the ends of a domain far from 0 (absolute timestamps),
 # relative to its length, that the checks accept: float32 UNIX seconds do not pass.
 _MIN_RESOLUTION = 1e-3
