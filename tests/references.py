@@ -1,9 +1,20 @@
-"""Independent numpy references shared by the curve tests: screw interpolation of 4x4
-transforms (pytransform3d's exponential coordinates) and the textbook De Casteljau and
-De Boor schemes over any interpolation, written without torch_dq."""
+"""Independent references shared by the tests, written without torch_dq: the Hamilton product
+in plain torch, screw interpolation of 4x4 transforms (pytransform3d's exponential
+coordinates) and the textbook De Casteljau and De Boor schemes over any interpolation."""
 
 import numpy as np
 import pytransform3d.transformations as pt
+import torch
+
+
+def hamilton(a, b):
+    """Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``, written out in torch."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw), -1)
 
 
 def sclerp_mat(Ta, Tb, s):
