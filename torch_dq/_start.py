@@ -171,10 +171,11 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int
     rate = turn / spacing
     if turn * (h + 1) > _MAX_WINDOW_TURN:
         ok = 0.9 * _MAX_WINDOW_TURN / (h + 1) / rate  # followed literally, it works
-        warnings.warn(f"the poses turn at up to {rate:.3g} rad/s, {turn:.3g} rad per knot "
-                      f"span of {spacing:.3g}: the least-squares start is unreliable above "
+        warnings.warn(f"the poses turn at up to {rate:.3g} rad per unit of time (rad/s for "
+                      f"times in seconds), {turn:.3g} rad per knot span of {spacing:.3g}: the "
+                      f"least-squares start is unreliable above "
                       f"{_MAX_WINDOW_TURN / (h + 1):.3g} rad per span; use knots at most "
-                      f"{ok:.3g} apart", UserWarning, stacklevel=6)
+                      f"{ok:.3g} apart (in the times' units)", UserWarning, stacklevel=6)
     return [max(0, min(h, int((_MAX_WINDOW_TURN / max(r, 1e-300) - h - 1) // 2)))
             for r in turns.tolist()]
 
