@@ -508,16 +508,19 @@ def _write_imu_case(folder, bg, ba, dt, seed=0):
 
 
 def test_imu_biases_and_offset_recovered(tmp_path, capsys):
+    """With --imu and no --form, the curve is the C2 cumulative form (no C1 warning)."""
     bg, ba, dt = np.array([0.01, -0.02, 0.005]), np.array([0.1, -0.05, 0.2]), 0.01
     _write_imu_case(tmp_path, bg, ba, dt)
     out = tmp_path / "o"
     assert main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"),
-                 "--time-offset", "estimate", "--form", "cumulative", "--out", str(out),
-                 "--no-plots"]) == 0
+                 "--time-offset", "estimate", "--out", str(out), "--no-plots"]) == 0
     stdout = capsys.readouterr().out
     for label in ("gyro bias [rad/s]", "accel bias [m/s^2]", "gravity", "time offset [ms]"):
         assert label in stdout
-    imu = json.loads((out / "summary.json").read_text())["imu"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["model"]["form"] == "cumulative"
+    assert not any("cumulative" in w for w in summary["warnings"]), summary["warnings"]
+    imu = summary["imu"]
     for key, truth in (("gyro_bias_rad_s", bg), ("accel_bias_m_s2", ba)):
         value, std = np.array(imu[key]["value"]), np.array(imu[key]["std"])
         assert np.all(std > 0) and np.all(np.abs(value - truth) < 5 * std + 0.1 * np.abs(

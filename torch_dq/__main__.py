@@ -150,7 +150,8 @@ def _add_fit_parser(sub) -> None:
                      default=DEFAULTS["form"],
                      help="B-spline form: de_boor, the paper's De Boor pyramid of sclerps (C1 "
                           "at knots); cumulative, Kim-Kim-Shin's product of screw powers (C2 "
-                          "for a cubic: continuous accelerations, for IMU work)")
+                          "for a cubic: continuous accelerations, for IMU work); default: "
+                          "cumulative with --imu, else de_boor")
     fit.add_argument("--holdout", metavar="K", type=_positive_int, default=DEFAULTS["holdout"],
                      help="fit every K-th pose (and the last), report errors on the others "
                           "(1: fit all, report the fit residuals)")
@@ -170,8 +171,8 @@ def _add_fit_parser(sub) -> None:
     fit.add_argument("--imu", metavar="IMU_FILE", default=None,
                      help="an IMU file on the poses' clock (EuRoC imu0/data.csv, or 't gx gy "
                           "gz ax ay az' in s, rad/s, m/s^2): fit poses and IMU together and "
-                          "print the biases, gravity (and offset) with standard deviations; "
-                          "best with --form cumulative")
+                          "print the biases, gravity (and offset) with standard deviations "
+                          "(on the cumulative form unless --form says otherwise)")
     fit.add_argument("--time-offset", choices=("estimate",), default=None,
                      help="with --imu: estimate the IMU's clock offset (at most 0.1 s)")
     fit.add_argument("--out", metavar="DIR", default=DEFAULTS["out"], help="output folder")

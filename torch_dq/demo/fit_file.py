@@ -399,7 +399,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
 
 def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             times: str | os.PathLike[str] | Tensor | None = None, duplicates: str = "error",
-            knot_spacing: float | str = "auto", degree: int = 3, form: str = "de_boor",
+            knot_spacing: float | str = "auto", degree: int = 3, form: str | None = None,
             holdout: int = 2,
             steps: int = 50, rate: float | None = None, dtype: torch.dtype = torch.float64,
             out: str = "torch_dq_fit", overwrite: bool = False,
@@ -418,7 +418,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         degree: B-spline degree.
         form: the B-spline form (:class:`torch_dq.nn.BSpline`): ``"de_boor"`` (the paper's
             De Boor pyramid of sclerps, C1 at knots) or ``"cumulative"`` (Kim-Kim-Shin, C2
-            for a cubic: continuous accelerations, for IMU work).
+            for a cubic: continuous accelerations, for IMU work); ``None`` (default):
+            ``"cumulative"`` with ``imu``, else ``"de_boor"``.
         holdout: fit every ``holdout``-th pose (and the last), hold the others out
             (``1``: fit them all).
         steps: maximum steps of :func:`torch_dq.nn.fit` (``0``: keep the least-squares
@@ -432,8 +433,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         imu: an IMU file (:func:`torch_dq.io.read_imu`) on the poses' clock: the curve is
             then refined on the fitted poses and the IMU together
             (``torch_dq.demo.fit_imu.fit_with_imu``; biases, gravity and their standard
-            deviations printed and in the summary). Prefer ``form="cumulative"`` (continuous
-            accelerations).
+            deviations printed and in the summary), on the cumulative form unless ``form``
+            says otherwise (continuous accelerations).
         time_offset: with ``imu``: ``None`` (the clocks agree) or ``"estimate"`` (one
             offset for the gyroscope and the accelerometer, at most 0.1 s).
         plots: write the figures (needs matplotlib).
@@ -452,6 +453,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         ValueError: bad argument types or ranges.
         OSError: unreadable file, unwritable output folder.
     """
+    if form is None:
+        form = "cumulative" if imu is not None else "de_boor"
     _check_options(knot_spacing, degree, form, holdout, steps, rate)
     if time_offset not in (None, "estimate"):
         raise ValueError(f"fit: time_offset must be None or 'estimate', got {time_offset!r}")
