@@ -63,12 +63,17 @@ def knot_vector(kind, n, p, gen):
 KNOT_KINDS = ("clamped", "uniform", "nonuniform", "repeated")
 
 
+def spans(knots, t, p):
+    """The span ``r`` of each time and the indices ``(..., p + 1)`` of its control points
+    ``r - p .. r``."""
+    r = KnotDomain(knots, p).span(t)
+    return r, r[..., None] - p + torch.arange(p + 1)
+
+
 def span_inputs(ctrl, knots, p, t, order):
     """Spans, weights and gathered sign-aligned control points, as the curves pass them."""
-    r = KnotDomain(knots, p).span(t)
-    weights = _cumulative.basis(knots, r, t, p, order)
-    points = align_chain(ctrl)[r[..., None] - p + torch.arange(p + 1)]
-    return points, weights
+    r, idx = spans(knots, t, p)
+    return align_chain(ctrl)[idx], _cumulative.basis(knots, r, t, p, order)
 
 
 def domain_times(knots, p, count, margin=0.0):
@@ -378,8 +383,7 @@ def test_gradcheck_wrt_control_points_and_t(gen, kind):
     ctrl = degenerate_chain(gen, kind)[1:6]  # the degenerate pair is ctrl[1], ctrl[2]
     knots = torch.tensor([0.0, 0.1, 0.3, 0.6, 1.0, 1.2, 1.5, 1.9, 2.0], dtype=F64)
     t = torch.tensor([0.7, 1.1], dtype=F64)  # one time in each span
-    r = KnotDomain(knots, p).span(t)
-    idx = r[:, None] - p + torch.arange(p + 1)
+    r, idx = spans(knots, t, p)
 
     def jets(order):
         return lambda c, t: tuple(_cumulative.jets(c[idx], _cumulative.basis(
@@ -401,13 +405,13 @@ def test_half_turn_gradients_are_finite_one_sided(gen):
     p = 3
     knots = knot_vector("uniform", 6, p, gen)
     t = domain_times(knots, p, 5)
-    r = KnotDomain(knots, p).span(t)
+    r, idx = spans(knots, t, p)
     weights = _cumulative.basis(knots, r, t, p, 1)
     base = degenerate_chain(gen, "half_turn")
 
     def grads(ctrl):
         c = ctrl.clone().requires_grad_()
-        x, dx = _cumulative.jets(c[r[:, None] - p + torch.arange(p + 1)], weights, 1)
+        x, dx = _cumulative.jets(c[idx], weights, 1)
         fused = _cumulative.poses(c, r - p, weights[0].T)
         return torch.cat([torch.autograd.grad(y.square().sum(), c, retain_graph=True)[0].ravel()
                           for y in (x, dx, fused)])
@@ -462,8 +466,7 @@ def test_forward_mode_and_transforms_match_reverse(gen):
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 4)
-    r = KnotDomain(knots, p).span(t)
-    idx = r[:, None] - p + torch.arange(p + 1)
+    r, idx = spans(knots, t, p)
 
     def f(ctrl, t):
         return torch.cat(_cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 2), 2))
@@ -490,8 +493,8 @@ def test_unix_time_knots_with_float32_control_points(gen):
     base = 1.7e9
     knots = base + knot_vector("nonuniform", n, p, gen) * 0.05
     t = domain_times(knots, p, 13)
-    r = KnotDomain(knots, p).span(t)
-    points = ctrl[r[:, None] - p + torch.arange(p + 1)]
+    r, idx = spans(knots, t, p)
+    points = ctrl[idx]
     weights = _cumulative.basis(knots, r, t, p, 2)
     ref = _cumulative.jets(points, weights, 2)
     low = _cumulative.jets(points.float(), [w.float() for w in weights], 2)
@@ -507,8 +510,7 @@ def test_jets_compile_fullgraph(gen):
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("uniform", n, p, gen)
     t = domain_times(knots, p, 3)
-    r = KnotDomain(knots, p).span(t)
-    idx = r[:, None] - p + torch.arange(p + 1)
+    r, idx = spans(knots, t, p)
 
     def f(ctrl, t):
         return _cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 1), 1)
