@@ -207,6 +207,51 @@ def test_write_csv_columns_and_units(tmp_path):
                          comments="#").dtype.names == io.CSV_COLUMNS[:8]
 
 
+def test_write_csv_extra_columns_and_comments_first(tmp_path):
+    """Extra columns after CSV_COLUMNS (bool as 0/1, floats at 15 digits), their notes on
+    the units line, and the comment block first with its own count: the file reads back
+    with numpy (skip_header=count) and with a plain line parser (pandas' comment='#')."""
+    t, rot, p = _known(n=9, seed=6)
+    traj = io.Trajectory(torch.from_numpy(t), torch.from_numpy(_wxyz(rot)), torch.from_numpy(p))
+    flag = torch.tensor([0, 1, 1, 0, 0, 0, 1, 0, 0], dtype=torch.bool)
+    score = np.linspace(-1.0, 1.0, 9) / 3.0
+    path = tmp_path / "extra.csv"
+    io.write_csv(path, traj, None, ["source: test", "second"], comments_first=True,
+                 extra_columns={"in_gap": (flag, "in_gap 1 inside a gap"),
+                                "score": (score, "score [1]")})
+    lines = path.read_text().splitlines()
+    assert lines[0] == ("# 4 comment lines, then the header row: read with "
+                        "pandas.read_csv(path, comment='#') or numpy.genfromtxt(path, "
+                        "delimiter=',', names=True, skip_header=4)")
+    assert lines[1].startswith("# units (SI") and lines[1].endswith(
+        "(body to world); in_gap 1 inside a gap; score [1]")
+    assert lines[2:4] == ["# source: test", "# second"]
+    assert lines[4] == ",".join([*io.CSV_COLUMNS[:8], "in_gap", "score"])
+    rows = [line.split(",") for line in lines[5:]]
+    assert len(rows) == 9 and [r[8] for r in rows] == [str(int(v)) for v in flag.tolist()]
+    data = np.genfromtxt(path, delimiter=",", names=True, skip_header=4)
+    np.testing.assert_array_equal(data["in_gap"], flag.numpy().astype(float))
+    np.testing.assert_allclose(data["score"], score, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(data["t"], t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.stack([data[c] for c in "xyz"], -1), p, rtol=1e-14)
+    # the default layout keeps the header first, with the notes on the units line
+    io.write_csv(path, traj, extra_columns={"in_gap": (flag, "in_gap note")})
+    header, units = path.read_text().splitlines()[:2]
+    assert header == ",".join([*io.CSV_COLUMNS[:8], "in_gap"]) and units.endswith("; in_gap note")
+    for bad, kind, match in (({"x": (flag, "n")}, ValueError, "new identifier"),
+                             ({"a b": (flag, "n")}, ValueError, "new identifier"),
+                             ({"g": (flag[:3], "n")}, ValueError, r"expected \(9,\) values"),
+                             ({"g": flag}, TypeError, r"pair \(values, note: str\)"),
+                             ({"g": ([0] * 9, "n")}, TypeError, "tensor or a numpy array"),
+                             ([("g", (flag, "n"))], TypeError, "must be a mapping")):
+        with pytest.raises(kind, match=match):
+            io.write_csv(path, traj, extra_columns=bad)
+    with pytest.raises(TypeError, match="comments_first to be a bool"):
+        io.write_csv(path, traj, comments_first="yes")
+    with pytest.raises(TypeError, match="comments must be a sequence of str"):
+        io.write_csv(path, traj, comments="one line")
+
+
 def test_writer_argument_errors(tmp_path):
     t, rot, p = _known(n=3)
     traj = io.Trajectory(torch.from_numpy(t), torch.from_numpy(_wxyz(rot)), torch.from_numpy(p))

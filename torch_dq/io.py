@@ -627,17 +627,59 @@ def _ns_text(t: float) -> str:
     raise AssertionError(f"no decimal text for {t!r}")  # pragma: no cover (17 digits do)
 
 
+def _extra_columns(fn: str, extra, n: int, taken: Sequence[str]
+                   ) -> tuple[list[str], list[np.ndarray], list[str], list[str]]:
+    """Names, ``(N, 1)`` float64 values, formats and unit notes of ``extra_columns``."""
+    if not hasattr(extra, "items"):
+        _checks.fail(fn, f"extra_columns must be a mapping name -> (values, note), got "
+                         f"{type(extra).__name__}", TypeError)
+    names, values, fmts, notes = [], [], [], []
+    for name, item in extra.items():
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) \
+                or name in taken or name in names:
+            _checks.fail(fn, f"extra_columns: a column name must be a new identifier (not one "
+                             f"of {', '.join(taken)}), got {name!r}")
+        if not isinstance(item, tuple) or len(item) != 2 or not isinstance(item[1], str):
+            _checks.fail(fn, f"extra_columns[{name!r}] must be a pair (values, note: str), "
+                             f"got {item!r}", TypeError)
+        x, note = item
+        if not isinstance(x, (Tensor, np.ndarray)):
+            _checks.fail(fn, f"extra_columns[{name!r}] values must be a tensor or a numpy "
+                             f"array, got {type(x).__name__}", TypeError)
+        a = x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
+        if a.dtype.kind not in "biuf":
+            _checks.fail(fn, f"extra_columns[{name!r}] values must be bool, integer or "
+                             f"floating, got dtype {a.dtype}", TypeError)
+        if a.shape != (n,):
+            _checks.fail(fn, f"expected ({n},) values for extra_columns[{name!r}], got "
+                             f"{_checks.shape_str(a.shape)}")
+        names.append(name)
+        values.append(a.astype(np.float64)[:, None])
+        fmts.append("%.15g" if a.dtype.kind == "f" else "%d")
+        notes.append(note)
+    return names, values, fmts, notes
+
+
 def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: object = None,
-              comments: Sequence[str] = ()) -> None:
+              comments: Sequence[str] = (), *, extra_columns=None,
+              comments_first: bool = False) -> None:
     r"""Write a (resampled) trajectory with its velocities and accelerations as CSV.
 
-    The first line is the header row :data:`CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz,
-    vx, vy, vz, wx, wy, wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit
-    quaternion, m/s, rad/s, m/s², rad/s²; all vectors in the world frame: ``v = dp/dt``,
-    ``w`` with ``dR/dt = [w]x R``, ``a = d²p/dt²``, ``alpha = dw/dt``), then ``#`` comment
-    lines (the units, then ``comments``), then one row per time. Readable with
-    ``numpy.genfromtxt(path, delimiter=",", names=True)``, ``numpy.loadtxt(path,
-    delimiter=",", skiprows=1)`` or ``pandas.read_csv(path, comment="#")``.
+    The columns are :data:`CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy,
+    wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit quaternion, m/s,
+    rad/s, m/s², rad/s²; all vectors in the world frame: ``v = dp/dt``, ``w`` with
+    ``dR/dt = [w]x R``, ``a = d²p/dt²``, ``alpha = dw/dt``), then the ``extra_columns``.
+    The ``#`` comment block holds the units line (each extra column's note appended to it)
+    and then ``comments``. By default the file opens with the header row, then the comment
+    block, then one row per time: readable with ``numpy.genfromtxt(path, delimiter=",",
+    names=True)``, ``numpy.loadtxt(path, delimiter=",", skiprows=1)`` or
+    ``pandas.read_csv(path, comment="#")``. With ``comments_first=True`` the comment block
+    comes first, opened by a line that counts the comment lines ``c`` and says how to read
+    the file (``pandas.read_csv(path, comment='#')`` or ``numpy.genfromtxt(path,
+    delimiter=',', names=True, skip_header=c)``), then the header row and the rows.
+
+    Times are written with 9 decimals (nanoseconds, UNIX seconds included), other floats
+    with 15 significant digits, bool and integer extra columns as integers.
 
     Args:
         path: the file to (over)write.
@@ -648,13 +690,32 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
             :func:`torch_dq.curves.kinematics` returns); ``None`` writes the pose columns
             only.
         comments: extra lines for the comment block (e.g. the source file).
+        extra_columns: a mapping ``name -> (values, note)`` of columns written after the
+            others, in its order: ``values`` an ``(N,)`` tensor or numpy array (bool,
+            integer or floating), ``note`` the column's meaning and unit, appended to the
+            units line as ``"; " + note``. Names are identifiers not in
+            :data:`CSV_COLUMNS`.
+        comments_first: put the comment block (and the line counting it) before the header
+            row.
+
+    Raises:
+        ValueError: shapes that do not match ``N`` times, kinematics without accelerations,
+            a bad or repeated extra column name.
+        TypeError: a ``trajectory`` that is not a :class:`Trajectory`, non-floating tensors,
+            extra columns that are not ``(values, note)`` pairs of numbers.
 
     Example:
         >>> k = spline.kinematics(traj.times)  # doctest: +SKIP
         >>> write_csv("resampled.csv", traj, k)  # doctest: +SKIP
+        >>> write_csv("resampled.csv", traj, k, ["source: run 3"],  # doctest: +SKIP
+        ...           extra_columns={"valid": (mask, "valid 1 where measured, else 0")},
+        ...           comments_first=True)
     """
     fn = "io.write_csv"
     t, q, p = _trajectory_arrays(fn, trajectory)
+    _checks.flag(fn, "comments_first", comments_first)
+    if isinstance(comments, str) or not all(isinstance(c, str) for c in comments):
+        _checks.fail(fn, "comments must be a sequence of str (one per line)", TypeError)
     columns = [t[:, None], p, q]
     names = list(CSV_COLUMNS[:8])
     if kinematics is not None:
@@ -675,6 +736,19 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
     if kinematics is not None:
         units += ("; vx, vy, vz [m/s]; wx, wy, wz angular velocity [rad/s]; ax, ay, az "
                   "[m/s^2]; alpha_x, alpha_y, alpha_z angular acceleration [rad/s^2]")
-    header = "\n".join([",".join(names), "# " + units] + ["# " + c for c in comments])
+    fmt = ["%.9f"] + ["%.15g"] * (len(names) - 1)
+    if extra_columns is not None:
+        more, values, fmts, notes = _extra_columns(fn, extra_columns, t.shape[0], CSV_COLUMNS)
+        names, columns, fmt = names + more, columns + values, fmt + fmts
+        units = "; ".join([units, *notes])
+    lines = ["# " + units] + ["# " + c for c in comments]
+    if comments_first:
+        count = len(lines) + 1
+        lines.insert(0, f"# {count} comment lines, then the header row: read with "
+                        f"pandas.read_csv(path, comment='#') or numpy.genfromtxt(path, "
+                        f"delimiter=',', names=True, skip_header={count})")
+        header = "\n".join(lines + [",".join(names)])
+    else:
+        header = "\n".join([",".join(names)] + lines)
     np.savetxt(path, np.concatenate(columns, axis=1), delimiter=",", header=header,
-               comments="", fmt=["%.9f"] + ["%.15g"] * (len(names) - 1))
+               comments="", fmt=fmt)

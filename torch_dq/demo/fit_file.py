@@ -323,24 +323,14 @@ def _reload_text(path: str) -> str:
 # ----------------------------------------------------------------------------- write
 
 def _write_csv(path: str, result: FitResult, spacing: float, about: str) -> None:
-    """``trajectory.csv``: comment lines, then the header row (:data:`torch_dq.io.CSV_COLUMNS`
-    and ``in_gap``), then one row per grid time (:func:`torch_dq.io.write_csv`'s rows, with
-    ``in_gap`` 0 or 1 appended)."""
+    """``trajectory.csv`` (:func:`torch_dq.io.write_csv`): the comment lines (the units with
+    the ``in_gap`` note, then ``about``), the header row (:data:`torch_dq.io.CSV_COLUMNS`
+    and ``in_gap``), then one row per grid time."""
     q, p = dualquat.to_rt(result.x)
-    io.write_csv(path, io.Trajectory(result.grid, q, p), result.kin)  # then rearranged
-    with open(path, encoding="utf-8") as f:
-        header, units, *rows = f.read().splitlines()
-    gap = result.in_gap.tolist()
-    comments = [units + f"; in_gap 1 inside a gap between poses longer than 2 knot spacings "
-                        f"({2 * spacing:.4g} s: no data there, the curve bridges it), else 0",
-                "# " + about]
-    count = len(comments) + 1
-    comments.insert(0, f"# {count} comment lines, then the header row: read with "
-                       f"pandas.read_csv(path, comment='#') or numpy.genfromtxt(path, "
-                       f"delimiter=',', names=True, skip_header={count})")
-    with open(path, "w", encoding="utf-8") as f:
-        f.write("\n".join(comments + [header + ",in_gap"]
-                          + [f"{row},{int(g)}" for row, g in zip(rows, gap, strict=True)]) + "\n")
+    note = (f"in_gap 1 inside a gap between poses longer than 2 knot spacings "
+            f"({2 * spacing:.4g} s: no data there, the curve bridges it), else 0")
+    io.write_csv(path, io.Trajectory(result.grid, q, p), result.kin, [about],
+                 extra_columns={"in_gap": (result.in_gap, note)}, comments_first=True)
 
 
 def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -> dict:
