@@ -103,6 +103,107 @@ def _pose_loss_weights(loss) -> tuple[float, float] | None:
     return None
 
 
+# ----------------------------------------------------------------------------- problem
+
+class FitProblem:
+    r"""What :func:`fit` minimises, built once and shared by all its optimizers.
+
+    It holds the module and its trainable parameters, the times as the module takes them
+    (checked once against the curve's domain and, on their basis, for Schoenberg-Whitney),
+    the normalised targets and the cost: :meth:`cost` is what every optimizer minimises and
+    what :class:`FitHistory` reports. Its kind follows ``loss``:
+
+    - *term* (:attr:`term` a :class:`~torch_dq.fitting.Poses`): a curve layer with
+      :func:`~torch_dq.losses.pose_loss` or a ``functools.partial`` of it setting
+      ``rot_weight`` / ``trans_weight``. The weights are the term's inverse variances
+      (sigmas ``weight ** -0.5``), so :meth:`cost`, the term's cost over the number of
+      poses, is ``pose_loss(module(times), targets)``. Levenberg-Marquardt runs
+      :func:`~torch_dq.fitting.estimate` on this term (its whitened residuals and Jacobian
+      blocks); the torch optimizers minimise the same ``term.cost``.
+    - *callable* (:attr:`term` None): any other ``loss`` (a user callable has no residuals
+      for Gauss-Newton), or a module that is not a curve layer: :meth:`cost` is
+      ``loss(module(times), targets)``, for the torch optimizers only.
+
+    Args:
+        fn: the public name for messages.
+        module: the module fitted.
+        times: ``(N,)`` strictly increasing times in the module's time.
+        poses: ``(..., N, 8)`` dual quaternions or ``(..., N, 4, 4)`` matrices (finite).
+        loss: the loss (see above).
+        exact: check the samples determine every control point (Schoenberg-Whitney) even
+            when there are fewer control points than samples (unregularised least squares).
+
+    Raises:
+        ValueError: non-finite or badly shaped poses, bad times (also outside a curve
+            layer's domain), a module without trainable parameters, an underdetermined
+            curve, targets whose batch does not broadcast with the curve's.
+        TypeError: non-floating tensors.
+    """
+
+    def __init__(self, fn: str, module: torch.nn.Module, times: Tensor, poses: Tensor,
+                 loss: Callable[[Tensor, Tensor], Tensor], exact: bool = False) -> None:
+        from ..nn import Curve
+        poses = _check_poses(fn, poses)
+        check_times(fn, times, poses.shape[-2])
+        self.module, self.loss = module, loss
+        self.params = [p for p in module.parameters() if p.requires_grad]
+        if not self.params:
+            _checks.fail(fn, "module has no parameters that require grad")
+        weights = None
+        if isinstance(module, Curve):
+            like = module.control_points
+            self.batch = like.shape[:-2]  # the control points' batch shape
+            _check_basis(fn, module, times, exact)
+            self.times = times.detach().to(like.device)
+            weights = _pose_loss_weights(loss)
+        else:
+            like = self.params[0]
+            self.times = times.detach().to(dtype=like.dtype, device=like.device)
+        self.target = dualquat.normalize(poses.detach().to(dtype=like.dtype,
+                                                           device=like.device))
+        self.term = None if weights is None else self._term(fn, weights)
+
+    def _term(self, fn: str, weights: tuple[float, float]) -> Poses:
+        """The :class:`Poses` term of ``pose_loss`` with these weights; the targets take the
+        batch shape they broadcast to with the control points'."""
+        try:
+            batch = torch.broadcast_shapes(self.batch, self.target.shape[:-2])
+        except RuntimeError:
+            _checks.fail(fn, f"batch shapes do not broadcast: poses "
+                             f"{_checks.shape_str(self.target.shape[:-2])}, the module's "
+                             f"control points {_checks.shape_str(self.batch)}")
+        self.target = self.target.expand(*batch, *self.target.shape[-2:])
+        wr, wt = weights
+        return Poses(self.times, self.target, rot_sigma=wr ** -0.5 if wr > 0 else math.inf,
+                     trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
+
+    def cost(self) -> Tensor:
+        """The 0-d cost of the module's current parameters (differentiable)."""
+        if self.term is None:
+            return self.loss(self.module(self.times), self.target)
+        return self.term.cost(self.module).sum() / self.target.shape[:-1].numel()
+
+    def levenberg_marquardt(self, fn: str, steps: int, tol: float, prior: float,
+                            verbose: bool, history: FitHistory) -> None:
+        """:func:`~torch_dq.fitting.estimate` on :attr:`term`; fills ``history``."""
+        assert self.term is not None  # "lm" needs a curve and pose_loss (_resolve_optimizer)
+        if self.target.shape[:-2] != self.batch:
+            _checks.fail(fn, f"optimizer='lm' needs poses with the module's batch shape "
+                             f"{_checks.shape_str(self.batch)}, got poses "
+                             f"{_checks.shape_str(self.target.shape)}")
+        est = estimate(self.module, [self.term], steps=steps, tol=tol, prior=prior,
+                       verbose=verbose and sys.stderr.isatty())  # a bar on a terminal only
+        count = self.target.shape[:-1].numel()
+        history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
+            float(est.objective[0].sum()) / count]
+        history.steps = est.steps
+        history.converged = bool(est.converged.all())
+        history.reason = est.reason
+        history.best_step = est.steps
+        with torch.no_grad():
+            history.final_loss = float(self.cost())
+
+
 # ----------------------------------------------------------------------------- fit
 
 def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
@@ -114,18 +215,24 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
     r"""Fit a curve module to timestamped poses; the module ends at the best iterate seen.
 
     Minimises ``loss(module(times), poses)`` (``times`` in the module's own time, the
-    caller's units, exactly as for ``module(times)``) over the module's parameters.
+    caller's units, exactly as for ``module(times)``) over the module's parameters. Every
+    optimizer works on one problem built once (the normalised targets, the times' basis,
+    the cost), and the loss reported is the one minimised. For a curve layer with
+    :func:`~torch_dq.losses.pose_loss` (or a ``functools.partial`` of it setting
+    ``rot_weight`` / ``trans_weight``) that cost is a :class:`~torch_dq.fitting.Poses`
+    term's, with sigmas ``weight ** -0.5`` (its value is ``pose_loss``'s); any other
+    ``loss`` callable, or another module, is evaluated as ``loss(module(times), targets)``
+    and needs a torch optimizer.
 
     - ``optimizer="lm"``: Levenberg-Marquardt on a :class:`~torch_dq.nn.BSpline` or
-      :class:`~torch_dq.nn.Bezier`, stepping in local charts ``ctrl_k exp(delta_k)``
-      (body-frame twists: the fit does not depend on where the world origin is), with the
-      Gauss-Newton matrix of the residuals (rotation vector and translation difference,
-      whose squared norm is ``pose_loss``'s term) assembled from forward-mode products
-      and solved block-tridiagonally in :math:`O(n)`; it only accepts steps that lower the
-      loss. Needs ``loss`` to be :func:`~torch_dq.losses.pose_loss` or a
-      ``functools.partial`` of it setting ``rot_weight`` / ``trans_weight``. One step is one
-      Gauss-Newton iteration; stops when a step lowers the loss by at most ``tol``
-      relatively, or when no damping gives a decrease. Regularised: the objective adds
+      :class:`~torch_dq.nn.Bezier`: :func:`~torch_dq.fitting.estimate` with that
+      :class:`~torch_dq.fitting.Poses` term (steps in local charts ``ctrl_k exp(delta_k)``,
+      body-frame twists, so the fit does not depend on where the world origin is; exact
+      Jacobians of the rotation-vector and translation residuals, whose squared norm is
+      ``pose_loss``'s term; a banded Gauss-Newton matrix factored in :math:`O(n)`); it only
+      accepts steps that lower the objective. One step is one Gauss-Newton iteration;
+      stops when a step lowers the objective by at most ``tol`` relatively, or when no
+      damping gives a decrease. Regularised: the objective adds
       ``prior`` times the mean data curvature times :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`
       (a pull towards the control points ``c^0`` the fit started from), which keeps the
       control points that the samples barely or do not determine (a time gap longer than a
@@ -199,40 +306,19 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
         _checks.fail(fn, f"prior must be a finite real number >= 0, got {prior!r}")
     if not callable(loss):
         _checks.fail(fn, f"expected a callable for loss, got {type(loss).__name__}", TypeError)
-    poses = _check_poses(fn, poses)
-    check_times(fn, times, poses.shape[-2])
-    params = [p for p in module.parameters() if p.requires_grad]
-    if not params:
-        _checks.fail(fn, "module has no parameters that require grad")
     from ..nn import Curve
-    curve = isinstance(module, Curve)
-    name = _resolve_optimizer(fn, optimizer, curve, loss, lr)
-    like = module.control_points if curve else params[0]
-    if curve:
-        try:
-            first, values = module.basis(times.detach())
-        except ValueError as e:  # times outside the module's domain: say who was called
-            raise ValueError(f"{fn}: {e}") from None
-        if module.n_ctrl > values.shape[0] or (name == "lm" and prior == 0):
-            check_determined(fn, first.cpu(), values.cpu(), module.n_ctrl,
-                             getattr(module, "knots", None))
-        t_in = times.detach().to(like.device)
-    else:
-        t_in = times.detach().to(dtype=like.dtype, device=like.device)
-    target = dualquat.normalize(poses.detach().to(dtype=like.dtype, device=like.device))
+    name = _resolve_optimizer(fn, optimizer, isinstance(module, Curve), loss, lr)
+    problem = FitProblem(fn, module, times, poses, loss, exact=name == "lm" and prior == 0)
     history = FitHistory(optimizer=name or type(optimizer).__name__)
     start = time.perf_counter()
     if name == "lm":
-        _lm(fn, module, t_in, target, _pose_loss_weights(loss), (steps, tol, prior, verbose),
-            history)
-        with torch.no_grad():
-            history.final_loss = float(loss(module(t_in), target))
+        problem.levenberg_marquardt(fn, steps, tol, prior, verbose, history)
     else:
         bar = progress(steps, verbose and sys.stderr.isatty(), "torch_dq.fit")
         try:
-            opt = _make_optimizer(fn, name if name is not None else optimizer, params, lr)
-            _torch_loop(module, t_in, target, opt, params, steps, tol, window, loss, history,
-                        bar)
+            opt = _make_optimizer(fn, name if name is not None else optimizer,
+                                  problem.params, lr)
+            _torch_loop(problem, opt, steps, tol, window, history, bar)
         finally:
             if bar is not None:
                 bar.close()
@@ -254,6 +340,19 @@ def _check_poses(fn: str, poses) -> Tensor:
         _checks.fail(fn, f"poses must be finite: {int(bad.sum())} non-finite pose(s), the "
                          f"first at index {tuple(where)}; drop or mask them before fitting")
     return poses
+
+
+def _check_basis(fn: str, module, times: Tensor, exact: bool) -> None:
+    """Times inside the curve's domain; with more control points than samples, or for the
+    unregularised least squares (``exact``), samples that determine every control point
+    (Schoenberg-Whitney, on the times' basis)."""
+    try:
+        first, values = module.basis(times.detach())
+    except ValueError as e:  # times outside the module's domain: say who was called
+        raise ValueError(f"{fn}: {e}") from None
+    if module.n_ctrl > values.shape[0] or exact:
+        check_determined(fn, first.cpu(), values.cpu(), module.n_ctrl,
+                         getattr(module, "knots", None))
 
 
 def _resolve_optimizer(fn: str, optimizer, curve: bool, loss, lr) -> str | None:
@@ -278,49 +377,24 @@ def _resolve_optimizer(fn: str, optimizer, curve: bool, loss, lr) -> str | None:
     return name
 
 
-def _lm(fn: str, module, t: Tensor, target: Tensor, weights: tuple[float, float],
-        settings: tuple, history: FitHistory) -> None:
-    """``estimate`` with one :class:`Poses` term whose squared whitened residuals are the
-    per-pose terms of ``pose_loss`` (sigmas ``1 / sqrt(weight)``)."""
-    like = module.control_points
-    if target.shape[:-2] != like.shape[:-2]:
-        try:
-            target = target.expand(*like.shape[:-2], *target.shape[-2:])
-        except RuntimeError:
-            _checks.fail(fn, f"optimizer='lm' needs poses with the module's batch shape "
-                             f"{_checks.shape_str(like.shape[:-2])}, got poses "
-                             f"{_checks.shape_str(target.shape)}")
-    wr, wt = weights
-    term = Poses(t, target, rot_sigma=wr ** -0.5 if wr > 0 else math.inf,
-                 trans_sigma=wt ** -0.5 if wt > 0 else math.inf)
-    steps, tol, prior, verbose = settings
-    est = estimate(module, [term], steps=steps, tol=tol, prior=prior,
-                   verbose=verbose and sys.stderr.isatty())  # fit: a bar on a terminal only
-    count = target.shape[:-1].numel()
-    history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
-        float(est.objective[0].sum()) / count]
-    history.steps = est.steps
-    history.converged = bool(est.converged.all())
-    history.reason = est.reason
-    history.best_step = est.steps
-
-
 def _check_count(fn: str, name: str, value) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
         _checks.fail(fn, f"{name} must be an int >= 1, got {value!r}")
     return int(value)
 
 
-def _torch_loop(module, t: Tensor, target: Tensor, opt, params: list, steps: int, tol: float,
-                window: int, loss, history: FitHistory, bar) -> None:
-    """``optimizer.step(closure)`` loop with early stopping; restores the best iterate (the
-    start when no finite loss was seen), so the module never ends worse than it came in."""
+def _torch_loop(problem: FitProblem, opt, steps: int, tol: float, window: int,
+                history: FitHistory, bar) -> None:
+    """``optimizer.step(closure)`` loop on ``problem.cost()`` with early stopping; restores
+    the best iterate (the start when no finite loss was seen), so the module never ends
+    worse than it came in."""
+    params = problem.params
     initial = [p.detach().clone() for p in params]
     best: dict[str, Any] = {"loss": math.inf, "params": None, "step": 0}
 
     def closure():
         opt.zero_grad(set_to_none=True)
-        value = loss(module(t), target)
+        value = problem.cost()
         v = float(value.detach())
         if v < best["loss"]:  # the parameters that gave it, before the step changes them
             best.update(loss=v, params=[p.detach().clone() for p in params],
@@ -351,7 +425,7 @@ def _torch_loop(module, t: Tensor, target: Tensor, opt, params: list, steps: int
             history.reason = "zero loss" if value == 0.0 else (
                 f"relative change over window={window} steps below tol={tol!r}")
             break
-    _restore(module, t, target, loss, params, initial, best, history)
+    _restore(problem, initial, best, history)
 
 
 def _stalled(opt) -> str:
@@ -365,15 +439,16 @@ def _stalled(opt) -> str:
     return f"{type(opt).__name__} step left the parameters unchanged"
 
 
-def _restore(module, t, target, loss, params, initial, best, history) -> None:
+def _restore(problem: FitProblem, initial: list[Tensor], best: dict[str, Any],
+             history: FitHistory) -> None:
     """Put back the best parameters seen (or the start), set ``final_loss``."""
     with torch.no_grad():
-        final = float(loss(module(t), target))
+        final = float(problem.cost())
         saved = best["params"] if best["params"] is not None else initial
         if not final <= best["loss"]:
-            for p, value in zip(params, saved, strict=True):
+            for p, value in zip(problem.params, saved, strict=True):
                 p.copy_(value)
-            final = float(loss(module(t), target))
+            final = float(problem.cost())
             history.best_step = best["step"]
         else:
             history.best_step = history.steps
