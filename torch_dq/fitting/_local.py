@@ -20,7 +20,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from .. import dualquat
+from .. import curves, dualquat
 
 __all__ = ["SpanEvaluator"]
 
@@ -29,6 +29,11 @@ _COPY_ELEMENTS = 1 << 21  # leaf elements times copies above which rows are sepa
 
 class SpanEvaluator:
     """Span structure of a curve layer (B-spline or Bézier) and per-sample evaluation.
+
+    Reads the layer's time model (:class:`torch_dq._time.KnotDomain`): knots ``(K,)``
+    shared by every trajectory, or ``(..., K)`` with per-trajectory origins (each
+    trajectory's spans with their own knots; spans of any trajectory with the same knot
+    pattern share one group). Span ids: ``row (n - p) + first``.
 
     Args:
         trajectory: a :class:`torch_dq.nn.BSpline` or :class:`torch_dq.nn.Bezier`.
@@ -39,74 +44,91 @@ class SpanEvaluator:
 
     def __init__(self, trajectory) -> None:
         from ..nn import BSpline
-        self.trajectory = trajectory
-        self.n = trajectory.n_ctrl
+        self.domain = dom = trajectory.time_model
+        self.n, p = dom.n, dom.degree
         self.bspline = isinstance(trajectory, BSpline)
-        self.device = trajectory.control_points.device
-        if not self.bspline:
-            self.support = self.n
-            return
-        p = trajectory.degree
+        self.form = getattr(trajectory, "form", "de_boor")
         self.support = p + 1
-        K = trajectory.knots.detach().to(torch.float64).cpu()
-        K = K - K[p]
-        spans = torch.arange(self.n - p) + p  # r = p .. n - 1
-        pattern = torch.stack([K[r - p:r + p + 2] - K[r] for r in spans.tolist()])
-        h = (K[spans + 1] - K[spans])[:, None]
-        key = torch.round(pattern / torch.where(h > 0, h, 1.0) * 1e9)
-        uniq, group = torch.unique(key, dim=0, return_inverse=True)
+        self.device = trajectory.control_points.device
+        K = dom.knots.detach().to(torch.float64)
+        self.rows = torch.arange(K[..., 0].numel(), device=K.device).reshape(K.shape[:-1])
+        K = K.reshape(-1, K.shape[-1])
+        origin = torch.as_tensor(dom.origin, dtype=torch.float64, device=K.device)
+        self.origin = origin.reshape(-1).expand(K.shape[0])  # per row
+        win = K.unfold(-1, 2 * p + 2, 1)  # (rows, n - p, 2 p + 2): span r = p + first
+        self.start = win[..., p].reshape(-1)  # u_r relative to its row's origin
+        h = win[..., p + 1].reshape(-1) - self.start
+        pattern = win.reshape(-1, 2 * p + 2) - self.start[:, None]
+        h = torch.where(h > 0, h, 1.0)
+        key = torch.round(pattern / h[:, None] * 1e9)
+        uniq, group = torch.unique(key.cpu(), dim=0, return_inverse=True)
+        self.group = group.to(K.device)
         rep = [int((group == g).nonzero()[0]) for g in range(uniq.shape[0])]
-        form = getattr(trajectory, "form", "de_boor")
-        like = trajectory.control_points.detach()
-        self.layers = [BSpline(dualquat.identity((p + 1,), dtype=torch.float64,
-                                              device=like.device),
-                            degree=p, knots=pattern[j].to(like.device), form=form)
-                       for j in rep]
-        dev = like.device
-        self.group = group.to(dev)  # per span r - p
-        self.scale = (h[rep][group, 0] / h[:, 0]).to(dev)  # rep span length / own
-        self.start = (K[spans] + 0.0).to(dev)  # u_r relative to u_p
-        self.length = h[rep, 0].to(dev)  # span length of each group's layer
-        self.origin = float(trajectory.knots[p])
+        self.patterns = [pattern[j] for j in rep]  # knots of each group's one-span curve
+        self.length = h[rep]  # span length of each group's curve
+        self.scale = self.length[self.group] / h  # group's span length / own
 
     def first(self, t: Tensor) -> Tensor:
-        """First control point ``(...)`` int64 of the span of each time ``t (...)``."""
+        """First control point ``(..., T)`` int64 of the span of each time ``t (..., T)``
+        (batched knots broadcast into the leading dims)."""
         if not self.bspline:
             return torch.zeros(t.shape, dtype=torch.int64, device=t.device)
-        first, _ = self.trajectory.basis(t.detach().reshape(-1))
-        return first.reshape(t.shape).to(t.device)
+        dom = self.domain
+        return dom.span(dom.relative(t.detach(), torch.float64)) - dom.degree
 
     def derivatives(self, points: Tensor, t: Tensor, first: Tensor, order: int,
                     ) -> tuple[Tensor, ...]:
         """Derivatives ``order + 1`` x ``(..., 8)`` at ``t (...)`` of the span whose control
-        points are ``points (..., support, 8)`` and first index ``first (...)``."""
-        shape = points.shape[:-2]
-        pts = points.reshape(-1, self.support, 8)
-        tt = t.expand(shape).reshape(-1)
-        first = first.expand(shape)
+        points are ``points (..., support, 8)`` and first index ``first``.
+
+        ``first``'s shape (from :meth:`first`) is the samples' shape: the trailing dims of
+        ``points.shape[:-2]``; leading dims beyond it (copies, a shared batch) are evaluated
+        with the same spans. ``t`` broadcasts against ``points.shape[:-2]``.
+        """
+        lead = points.shape[:-2]
+        first = first.expand(lead[len(lead) - first.dim():])
+        S = first.numel()
+        pts = points.reshape(-1, S, self.support, 8)
+        rel = t.expand(lead).reshape(-1, S).to(torch.float64)
+        row = self.rows[..., None].expand(first.shape).reshape(-1)
+        sid = row * (self.n - self.support + 1) + first.reshape(-1)
+        g, s = self.group[sid], self.scale[sid]
+        local = (rel - self.origin[row] - self.start[sid]) * s
+        local = torch.minimum(local.clamp_min(0.0), self.length[g])  # rounding
+        counts = torch.bincount(g, minlength=len(self.patterns))
+        used = counts.nonzero()[:, 0].tolist()
+        if len(used) == 1:
+            res = self._curve(used[0], pts.reshape(-1, self.support, 8),
+                              local.reshape(-1, 1), order)
+            res = [d.reshape(-1, S, 8) for d in res]
+        else:
+            perm = torch.argsort(g, stable=True)
+            outs = []
+            for j, idx in zip(used, perm.split(counts[used].tolist()), strict=True):
+                outs.append(self._curve(j, pts[:, idx].reshape(-1, self.support, 8),
+                                        local[:, idx].reshape(-1, 1), order))
+            inv = torch.empty_like(perm)
+            inv[perm] = torch.arange(S, device=perm.device)
+            res = [torch.cat([o[k].reshape(pts.shape[0], -1, 8) for o in outs], 1)[:, inv]
+                   for k in range(order + 1)]
+        return tuple((d * (s[:, None] ** k).to(d.dtype)).reshape(*lead, 8)
+                     for k, d in enumerate(res))
+
+    def _curve(self, j: int, ctrl: Tensor, t: Tensor, order: int) -> tuple[Tensor, ...]:
+        """Group ``j``'s one-span curve (a Bézier curve: the whole curve) on ``ctrl (M,
+        support, 8)`` at local times ``t (M, 1)``: ``order + 1`` x ``(M, 1, 8)`` (the
+        unchecked functional path: ``ctrl`` are tangent moves of unit control points)."""
         if not self.bspline:
-            out = _evaluate(self.trajectory, tt[:, None], order, pts)
-            return tuple(o[:, 0].reshape(*shape, 8) for o in out)
-        f = first.reshape(-1)
-        g = self.group[f]
-        s = self.scale[f].to(tt.dtype)
-        local = (tt - self.origin - self.start[f].to(tt.dtype)) * s
-        local = torch.minimum(local.clamp_min(0.0), self.length[g].to(tt.dtype))  # rounding
-        perm = torch.argsort(g)
-        counts = torch.bincount(g, minlength=len(self.layers)).tolist()
-        outs, pos = [], 0
-        for j, c in enumerate(counts):
-            if c:
-                idx = perm[pos:pos + c]
-                outs.append(_evaluate(self.layers[j], local[idx][:, None], order, pts[idx]))
-                pos += c
-        inv = torch.empty_like(perm)
-        inv[perm] = torch.arange(perm.shape[0], device=perm.device)
-        res = []
-        for k in range(order + 1):
-            d = torch.cat([o[k][:, 0] for o in outs])[inv]
-            res.append((d * (s[:, None] ** k).to(d.dtype)).reshape(*shape, 8))
-        return tuple(res)
+            dom = (0.0, float(self.length[0]))
+            if order == 0:
+                return (curves.bezier(ctrl, t, domain=dom, check=False, extrapolate=True),)
+            return curves.bezier_derivatives(ctrl, t, order=order, domain=dom, check=False,
+                                             extrapolate=True)
+        kw = dict(degree=self.support - 1, knots=self.patterns[j], check=False,
+                  extrapolate=True, form=self.form)
+        if order == 0:
+            return (curves.bspline(ctrl, t, **kw),)
+        return curves.bspline_derivatives(ctrl, t, order=order, **kw)
 
 
 def tangent_step(points: Tensor, delta: Tensor) -> Tensor:
@@ -116,13 +138,6 @@ def tangent_step(points: Tensor, delta: Tensor) -> Tensor:
     zero = delta.new_zeros(*delta.shape[:-1], 1)
     lin = torch.cat((zero, 0.5 * delta[..., :3], zero, 0.5 * delta[..., 3:]), dim=-1)
     return points + dualquat.mul(points, lin)
-
-
-def _evaluate(layer, t: Tensor, order: int, ctrl: Tensor) -> tuple[Tensor, ...]:
-    """``layer.derivatives`` (poses alone through ``forward``: the fused pose kernel)."""
-    if order == 0:
-        return (layer(t, ctrl=ctrl),)
-    return layer.derivatives(t, order, ctrl=ctrl)
 
 
 def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Tensor],

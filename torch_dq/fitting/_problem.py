@@ -146,47 +146,41 @@ class Problem:
     def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
         """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there."""
         Bf = max(self.batch.numel(), 1)
-        n, m = self.spans.n, self.m
-        band = ctrl.new_zeros(Bf * (n + w), w, 6, 6)
-        cn = ctrl.new_zeros(Bf * (n + w), 6, m)
-        nn = ctrl.new_zeros(Bf, m, m)
-        gc = ctrl.new_zeros(Bf * (n + w), 6)
-        gn = ctrl.new_zeros(Bf, m)
+        n, m, c = self.spans.n, self.m, 6 * w
+        G = Bf * (n + w)  # windows: batch row b, first control point f at b (n + w) + f
+        normal = ctrl.new_zeros(G, c + m + 1, c + m + 1)
         residuals, weights = [], []
-        for i, term in enumerate(self.terms):
+        for i in range(len(self.terms)):
             r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
             residuals.append(r)
             weights.append(wt)
-            N = r.shape[-2]
-            r = r.expand(*self.batch, N, r.shape[-1]).reshape(Bf, N, -1)
-            sw = wt.expand(*self.batch, N).reshape(Bf, N, 1).sqrt()
-            Jc = (Jc.expand(*self.batch, *Jc.shape[-4:]).reshape(Bf, N, -1, w, 6)
-                  * sw[..., None, None])
-            rows = (f0.expand(*self.batch, N).reshape(Bf, N)
-                    + (torch.arange(Bf, device=f0.device) * (n + w))[:, None])
-            rw = r * sw
-            upper = [(a, d) for a in range(w) for d in range(w - a)]
-            ia = torch.tensor([a for a, _ in upper], device=f0.device)
-            idd = torch.tensor([d for _, d in upper], device=f0.device)
-            blk = torch.einsum("bikpm,bikpq->bipmq", Jc[..., ia, :], Jc[..., ia + idd, :])
-            idx = ((rows[..., None] + ia) * w + idd).reshape(-1)
-            band.view(-1, 6, 6).index_add_(0, idx, blk.reshape(-1, 6, 6))
-            gc.index_add_(0, (rows[..., None] + torch.arange(w, device=f0.device)).reshape(-1),
-                          torch.einsum("bikam,bik->biam", Jc, rw).reshape(-1, 6))
-            Jn_all = ctrl.new_zeros(Bf, N, Jc.shape[2], m)
+            N, k = r.shape[-2:]
+            sw = wt.expand(*self.batch, N).reshape(Bf, N, 1, 1).sqrt()
+            cols = [Jc.expand(*self.batch, N, k, w, 6).reshape(Bf, N, k, c)]
+            Jn_all = ctrl.new_zeros(Bf, N, k, m)
             for name, J in Jn.items():
                 p = self.index[(i, name)]
-                Jn_all[..., p.offset:p.offset + p.dim] += (
-                    J.expand(*self.batch, *J.shape[-3:]).reshape(Bf, N, -1, p.dim)
-                    * sw[..., None])
-            if m:
-                blk = torch.einsum("bikam,bikq->biamq", Jc, Jn_all)
-                cn.index_add_(0, (rows[..., None] + torch.arange(w, device=f0.device))
-                              .reshape(-1), blk.reshape(-1, 6, m))
-                nn += torch.einsum("bikp,bikq->bpq", Jn_all, Jn_all)
-                gn += torch.einsum("bikp,bik->bp", Jn_all, rw)
-        keep = lambda x: x.reshape(Bf, n + w, *x.shape[1:])[:, :n]  # noqa: E731
-        return System(keep(band), keep(cn), nn, keep(gc), gn, residuals, weights)
+                Jn_all[..., p.offset:p.offset + p.dim] += J.expand(
+                    *self.batch, N, k, p.dim).reshape(Bf, N, k, p.dim)
+            cols += [Jn_all, r.expand(*self.batch, N, k).reshape(Bf, N, k, 1)]
+            Y = torch.cat(cols, dim=-1) * sw  # whitened, weighted rows [J_c | J_n | r]
+            keys = (f0.expand(*self.batch, N).reshape(Bf, N)
+                    + (torch.arange(Bf, device=f0.device) * (n + w))[:, None]).reshape(-1)
+            normal += _window_normal(keys, Y.reshape(Bf * N, k, -1), G)
+        normal = normal.reshape(Bf, n + w, c + m + 1, c + m + 1)
+        band = ctrl.new_zeros(Bf, n + w, w, 6, 6)
+        for a in range(w):  # window f's block (a, a + d) is the band's (f + a, d)
+            for d in range(w - a):
+                band[:, a:, d] += normal[:, :n + w - a, 6 * a:6 * a + 6,
+                                         6 * (a + d):6 * (a + d) + 6]
+        gc = ctrl.new_zeros(Bf, n + w, 6)
+        cn = ctrl.new_zeros(Bf, n + w, 6, m)
+        for a in range(w):  # window f's rows a go to control point f + a
+            gc[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, -1]
+            cn[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, c:c + m]
+        nn = normal[:, :, c:c + m, c:c + m].sum(1)
+        gn = normal[:, :, c:c + m, -1].sum(1)
+        return System(band[:, :n], cn[:, :n], nn, gc[:, :n], gn, residuals, weights)
 
     def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
         """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
@@ -226,3 +220,28 @@ class Problem:
         wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
         wt = wt * term.mask.to(wt.dtype)
         return r, wt, f0.expand(*shape, N), J[0], dict(zip(est, J[1:], strict=True))
+
+
+def _window_normal(keys: Tensor, Y: Tensor, G: int) -> Tensor:
+    r"""Per window :math:`\sum_i Y_i^T Y_i` ``(G, q, q)`` of the samples' rows ``Y (S, k,
+    q)`` with window ``keys (S,)`` (in ``0 .. G - 1``), by batched matrix products.
+
+    The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
+    per used window: at most about twice as many pages as used windows, the padding at
+    most ``S``), one product per page, the pages summed into their windows.
+    """
+    S, k, q = Y.shape
+    if S == 0:
+        return Y.new_zeros(G, q, q)
+    order = torch.argsort(keys, stable=True)
+    keys = keys[order]
+    counts = torch.bincount(keys, minlength=G)
+    P = -(-S // int((counts > 0).sum()))
+    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[keys]
+    pages = -(-counts // P)
+    first_page = torch.cumsum(pages, 0) - pages
+    X = Y.new_zeros(int(pages.sum()) * P, k, q)
+    X[first_page[keys] * P + pos] = Y[order]  # page first_page + pos // P, slot pos % P
+    X = X.reshape(-1, P * k, q)
+    owner = torch.repeat_interleave(torch.arange(G, device=keys.device), pages)
+    return Y.new_zeros(G, q, q).index_add_(0, owner, X.mT @ X)
