@@ -32,8 +32,9 @@ class SpanEvaluator:
 
     Reads the layer's time model (:class:`torch_dq._time.KnotDomain`): knots ``(K,)``
     shared by every trajectory, or ``(..., K)`` with per-trajectory origins (each
-    trajectory's spans with their own knots; spans of any trajectory with the same knot
-    pattern share one group). Span ids: ``row (n - p) + first``.
+    trajectory's spans with their own knots). Span ids: ``row (n - p) + first``. Every
+    sample is evaluated as a one-span curve with its span's knots (shifted to ``u_r = 0``),
+    all samples in one call whatever their spans.
 
     Args:
         trajectory: a :class:`torch_dq.nn.BSpline` or :class:`torch_dq.nn.Bezier`.
@@ -57,16 +58,8 @@ class SpanEvaluator:
         self.origin = origin.reshape(-1).expand(K.shape[0])  # per row
         win = K.unfold(-1, 2 * p + 2, 1)  # (rows, n - p, 2 p + 2): span r = p + first
         self.start = win[..., p].reshape(-1)  # u_r relative to its row's origin
-        h = win[..., p + 1].reshape(-1) - self.start
-        pattern = win.reshape(-1, 2 * p + 2) - self.start[:, None]
-        h = torch.where(h > 0, h, 1.0)
-        key = torch.round(pattern / h[:, None] * 1e9)
-        uniq, group = torch.unique(key.cpu(), dim=0, return_inverse=True)
-        self.group = group.to(K.device)
-        rep = [int((group == g).nonzero()[0]) for g in range(uniq.shape[0])]
-        self.patterns = [pattern[j] for j in rep]  # knots of each group's one-span curve
-        self.length = h[rep]  # span length of each group's curve
-        self.scale = self.length[self.group] / h  # group's span length / own
+        self.knots = win.reshape(-1, 2 * p + 2) - self.start[:, None]  # per span id
+        self.length = self.knots[:, p + 1]
 
     def first(self, t: Tensor) -> Tensor:
         """First control point ``(..., T)`` int64 of the span of each time ``t (..., T)``
@@ -89,46 +82,23 @@ class SpanEvaluator:
         first = first.expand(lead[len(lead) - first.dim():])
         S = first.numel()
         pts = points.reshape(-1, S, self.support, 8)
-        rel = t.expand(lead).reshape(-1, S).to(torch.float64)
         row = self.rows[..., None].expand(first.shape).reshape(-1)
         sid = row * (self.n - self.support + 1) + first.reshape(-1)
-        g, s = self.group[sid], self.scale[sid]
-        local = (rel - self.origin[row] - self.start[sid]) * s
-        local = torch.minimum(local.clamp_min(0.0), self.length[g])  # rounding
-        counts = torch.bincount(g, minlength=len(self.patterns))
-        used = counts.nonzero()[:, 0].tolist()
-        if len(used) == 1:
-            res = self._curve(used[0], pts.reshape(-1, self.support, 8),
-                              local.reshape(-1, 1), order)
-            res = [d.reshape(-1, S, 8) for d in res]
+        local = t.expand(lead).reshape(-1, S).to(torch.float64) - (
+            self.origin[row] + self.start[sid])
+        local = torch.minimum(local.clamp_min(0.0), self.length[sid])  # rounding
+        ctrl, tt = pts.reshape(-1, self.support, 8), local.reshape(-1, 1)
+        if self.bspline:
+            knots = self.knots[sid].expand(pts.shape[0], S, self.knots.shape[-1])
+            kw = dict(degree=self.support - 1, knots=knots.reshape(-1, knots.shape[-1]),
+                      check=False, extrapolate=True, form=self.form)
+            out = ((curves.bspline(ctrl, tt, **kw),) if order == 0 else
+                   curves.bspline_derivatives(ctrl, tt, order=order, **kw))
         else:
-            perm = torch.argsort(g, stable=True)
-            outs = []
-            for j, idx in zip(used, perm.split(counts[used].tolist()), strict=True):
-                outs.append(self._curve(j, pts[:, idx].reshape(-1, self.support, 8),
-                                        local[:, idx].reshape(-1, 1), order))
-            inv = torch.empty_like(perm)
-            inv[perm] = torch.arange(S, device=perm.device)
-            res = [torch.cat([o[k].reshape(pts.shape[0], -1, 8) for o in outs], 1)[:, inv]
-                   for k in range(order + 1)]
-        return tuple((d * (s[:, None] ** k).to(d.dtype)).reshape(*lead, 8)
-                     for k, d in enumerate(res))
-
-    def _curve(self, j: int, ctrl: Tensor, t: Tensor, order: int) -> tuple[Tensor, ...]:
-        """Group ``j``'s one-span curve (a Bézier curve: the whole curve) on ``ctrl (M,
-        support, 8)`` at local times ``t (M, 1)``: ``order + 1`` x ``(M, 1, 8)`` (the
-        unchecked functional path: ``ctrl`` are tangent moves of unit control points)."""
-        if not self.bspline:
-            dom = (0.0, float(self.length[0]))
-            if order == 0:
-                return (curves.bezier(ctrl, t, domain=dom, check=False, extrapolate=True),)
-            return curves.bezier_derivatives(ctrl, t, order=order, domain=dom, check=False,
-                                             extrapolate=True)
-        kw = dict(degree=self.support - 1, knots=self.patterns[j], check=False,
-                  extrapolate=True, form=self.form)
-        if order == 0:
-            return (curves.bspline(ctrl, t, **kw),)
-        return curves.bspline_derivatives(ctrl, t, order=order, **kw)
+            kw = dict(domain=(0.0, float(self.length[0])), check=False, extrapolate=True)
+            out = ((curves.bezier(ctrl, tt, **kw),) if order == 0 else
+                   curves.bezier_derivatives(ctrl, tt, order=order, **kw))
+        return tuple(d.reshape(*lead, 8) for d in out)
 
 
 def tangent_step(points: Tensor, delta: Tensor) -> Tensor:
