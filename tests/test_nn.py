@@ -680,9 +680,10 @@ def test_bad_constructor_arguments(gen):
         BSpline(dq.identity((5,)), knots=torch.linspace(0, 1, 8))
     with pytest.raises(ValueError, match="knots must be non-decreasing"):
         BSpline(dq.identity((5,)), knots=torch.linspace(1, 0, 9))
-    with pytest.raises(ValueError, match="domain must be two finite increasing times"):
+    with pytest.raises(ValueError, match=r"^nn\.Bezier: domain must be two finite times "
+                                         r"t0 < t1, got \(2\.0, 1\.0\)$"):
         Bezier(dq.identity((5,)), domain=(2.0, 1.0))
-    with pytest.raises(ValueError, match="domain must be two finite increasing times"):
+    with pytest.raises(ValueError, match=r"^nn\.Bezier: expected domain to be \(t0, t1\)"):
         Bezier(dq.identity((5,)), domain=(0.0, 1.0, 2.0))
     with pytest.raises(ValueError, match="domain"), pytest.warns(DeprecationWarning):
         Bezier(dq.identity((5,)), time_range=(0.0, math.inf))
@@ -710,8 +711,12 @@ def test_bad_from_poses_arguments():
         BSpline.from_poses(q, t, times[:-1])
     with pytest.raises(ValueError, match=r"at least 2 timestamped poses are needed, got N = 1"):
         BSpline.from_dualquats(truth(times[:1]), times[:1], n_ctrl=2, degree=1)
-    with pytest.raises(ValueError, match=r"1-D \(N,\) tensor for times, got shape \(20, 1\)"):
-        BSpline.from_poses(q, t, times[:, None])
+    with pytest.raises(ValueError, match=r"one time per pose: expected shape \(\.\.\., 20\) "
+                                         r"for the N = 20 poses, got shape \(20, 1\)"):
+        BSpline.from_poses(q, t, times[:, None])  # (B, N) times: a row per trajectory
+    with pytest.raises(ValueError, match=r"an \(N,\) or \(\.\.\., N\) tensor for times, got "
+                                         r"shape \(\)"):
+        BSpline.from_poses(q, t, times[0])
     with pytest.raises(ValueError, match=r"underdetermined: n_ctrl = 21.*N = 20"):
         BSpline.from_poses(q, t, times, n_ctrl=21)
     with pytest.raises(ValueError, match="rotations"):

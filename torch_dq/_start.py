@@ -46,26 +46,32 @@ _MAX_WINDOW_TURN = 8.0
 
 # ----------------------------------------------------------------------------- checks
 
-def check_sample_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
+def check_sample_times(fn: str, times: Tensor, n: int | None = None,
+                       batched: bool = False) -> Tensor:
     """Check sample times: ``(N,)`` finite, strictly increasing (``N >= 2``; ``N == n`` if
-    given).
+    given). With ``batched``, ``(..., N)`` times are accepted too: a row per trajectory,
+    each finite and strictly increasing (rows share ``N``).
 
     Returns:
         ``times`` unchanged.
     """
     _checks.tensor(fn, "times", times)
-    if times.dim() != 1:
-        _checks.fail(fn, f"expected a 1-D (N,) tensor for times, got shape "
+    if times.dim() != 1 and not (batched and times.dim() > 1):
+        expected = "an (N,) or (..., N)" if batched else "a 1-D (N,)"
+        _checks.fail(fn, f"expected {expected} tensor for times, got shape "
                          f"{_checks.shape_str(times.shape)}")
-    if n is not None and times.shape[0] != n:
-        _checks.fail(fn, f"times must hold one time per pose: expected shape ({n},) for the "
+    N = times.shape[-1]
+    if n is not None and N != n:
+        shape = f"({n},)" if times.dim() == 1 else f"(..., {n})"
+        _checks.fail(fn, f"times must hold one time per pose: expected shape {shape} for the "
                          f"N = {n} poses, got shape {_checks.shape_str(times.shape)}")
-    if times.shape[0] < 2:
-        _checks.fail(fn, f"at least 2 timestamped poses are needed, got N = {times.shape[0]}")
+    if N < 2:
+        _checks.fail(fn, f"at least 2 timestamped poses are needed, got N = {N}")
     tt = times.detach()
-    bad = torch.stack((~torch.isfinite(tt).all(), (tt[1:] <= tt[:-1]).any())).tolist()
+    finite, increasing = ~torch.isfinite(tt), tt[..., 1:] <= tt[..., :-1]
+    bad = torch.stack((finite.any(), increasing.any())).tolist()
     if bad[0]:
-        _checks.fail(fn, "times must be finite")
+        _checks.fail(fn, "times must be finite" + _row(finite))
     if bad[1]:
         hint = ""
         if times.dtype != torch.float64:  # absolute timestamps collapse in float32
@@ -74,8 +80,17 @@ def check_sample_times(fn: str, times: Tensor, n: int | None = None) -> Tensor:
             hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g} (the times' "
                     f"units); pass absolute "
                     f"timestamps such as UNIX seconds as float64)")
-        _checks.fail(fn, "times must be strictly increasing" + hint)
+        _checks.fail(fn, "times must be strictly increasing" + _row(increasing) + hint)
     return times
+
+
+def _row(bad: Tensor) -> str:
+    """For batched times, the message's tail naming the first row with a ``True`` in
+    ``bad``."""
+    if bad.dim() < 2:
+        return ""
+    row = tuple(int(i) for i in bad.any(-1).nonzero()[0])
+    return f" in each row, not so in row {row}"
 
 
 def check_determined(fn: str, first: Tensor, values: Tensor, n: int,

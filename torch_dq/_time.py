@@ -36,6 +36,8 @@ first and last non-empty ones, local parameters run outside ``[0, 1]``).
 from __future__ import annotations
 
 import math
+import numbers
+from typing import Literal, overload
 
 import torch
 from torch import Tensor
@@ -43,7 +45,7 @@ from torch import Tensor
 from . import _checks
 from ._numerics import safe_denominator, threshold
 
-__all__ = ["KnotDomain", "bspline_basis", "checks_possible"]
+__all__ = ["KnotDomain", "bspline_basis", "checks_possible", "time_pair"]
 
 _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_contract.md)
 # Coarsest step of t's dtype at the ends of a domain far from 0 (absolute timestamps),
@@ -76,6 +78,76 @@ def _take(knots: Tensor, idx: Tensor) -> Tensor:
     out = torch.take_along_dim(knots.expand(*lead, knots.shape[-1]),
                                flat.expand(*lead, flat.shape[-1]), -1)
     return out.view(*lead, *idx.shape[idx.dim() - 1 - extra:])
+
+
+def _malformed(fn: str, name: str, value) -> None:
+    _checks.fail(fn, f"expected {name} to be (t0, t1), two real numbers or a (2,) tensor, "
+                     f"got {value!r}")
+
+
+def _pair_end(fn: str, name: str, value, e, keep: bool) -> float | Tensor:
+    """One end of a pair: a 0-d floating tensor (kept if ``keep``, else read on the host), a
+    symbolic number under ``torch.compile(dynamic=True)`` (kept) or a real number."""
+    if isinstance(e, Tensor) and e.dim() == 0 and e.is_floating_point():
+        return e if keep else float(e)
+    if isinstance(e, torch.SymFloat | torch.SymInt):
+        return e  # type: ignore[return-value]  # math.isfinite would specialise on it
+    if not isinstance(e, numbers.Real) or isinstance(e, bool):
+        _malformed(fn, name, value)
+    return float(e)
+
+
+@overload
+def time_pair(fn: str, name: str, value, *, keep_tensors: Literal[False] = False,
+              ) -> tuple[float, float]: ...
+
+
+@overload
+def time_pair(fn: str, name: str, value, *, keep_tensors: Literal[True],
+              ) -> tuple[float | Tensor, float | Tensor]: ...
+
+
+def time_pair(fn: str, name: str, value, *, keep_tensors: bool = False,
+              ) -> tuple[float | Tensor, float | Tensor]:
+    """Parse a time span ``(t0, t1)``: the one parser of domains (``curves.bezier``'s
+    ``domain``, the layers' ``domain`` / ``time_range``, ``clamped_uniform_knots``).
+
+    Args:
+        fn: public name of the caller, for the messages.
+        name: the argument's name (``"domain"``, ``"time_range"``).
+        value: two real numbers, two 0-d floating tensors or a ``(2,)`` floating tensor.
+        keep_tensors: return tensor ends as 0-d tensors (differentiable; their values are
+            checked later, with ``t``: :meth:`KnotDomain.check` with ``knots="domain"``)
+            instead of reading them on the host.
+
+    Returns:
+        ``(t0, t1)``: Python floats, checked finite with ``t0 < t1``; with ``keep_tensors``
+        tensor ends stay 0-d tensors; symbolic ends (``torch.compile(dynamic=True)``) stay
+        as they are, unchecked.
+
+    Raises:
+        ValueError: not a pair of real numbers, a ``(2,)`` tensor of another shape, ends not
+            finite or not increasing.
+        TypeError: a non-floating tensor.
+    """
+    if isinstance(value, Tensor):
+        _checks.tensor(fn, name, value)
+        if value.shape != (2,):
+            _checks.fail(fn, f"expected a (2,) tensor for {name}, got shape "
+                             f"{_checks.shape_str(value.shape)}")
+        ends = (value[0], value[1])
+    else:
+        try:
+            ends = tuple(value)
+        except TypeError:
+            _malformed(fn, name, value)
+        if len(ends) != 2:
+            _malformed(fn, name, value)
+    t0, t1 = (_pair_end(fn, name, value, e, keep_tensors) for e in ends)
+    if (isinstance(t0, float) and isinstance(t1, float)
+            and not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1)):
+        _checks.fail(fn, f"{name} must be two finite times t0 < t1, got {value!r}")
+    return t0, t1
 
 
 class KnotDomain:
@@ -115,9 +187,15 @@ class KnotDomain:
         k = self.knots if dtype is None else self.knots.to(dtype)
         return k[..., self.degree], k[..., self.n]
 
-    def domain(self) -> tuple[float, float]:
-        """The absolute domain ``(t0, t1)`` as Python floats (one host read; unbatched;
-        NaN for meta knots, which hold no values)."""
+    def domain(self) -> tuple[float, float] | tuple[Tensor, Tensor]:
+        """The absolute domain ``(t0, t1)``: Python floats for ``(K,)`` knots (one host read;
+        NaN for meta knots, which hold no values); for ``(..., K)`` knots two float64
+        tensors of their batch shape, row ``b`` the domain of trajectory ``b``."""
+        if self.knots.dim() > 1:
+            lo, hi = self.ends(torch.float64)
+            origin = torch.as_tensor(self.origin, dtype=torch.float64, device=lo.device)
+            origin = origin.squeeze(-1) if origin.dim() else origin
+            return lo + origin, hi + origin
         if self.knots.device.type == "meta":
             return math.nan, math.nan
         lo, hi = torch.stack(self.ends(torch.float64)).tolist()
@@ -233,13 +311,30 @@ class KnotDomain:
     def _ends_str(self, dtype: torch.dtype) -> str:
         if self.knots.dim() > 1:
             return "(per trajectory)"
-        t0, t1 = self.domain()
+        t0, t1 = (float(e) for e in self.domain())
         return f"[{_fmt(t0, dtype)}, {_fmt(t1, dtype)}]"
+
+    def _first_out(self, rel: Tensor) -> tuple[Tensor, str]:
+        """For batched knots: the absolute times of the first trajectory with a time
+        outside its domain, and that domain for the message (``of trajectory (b,) [t0,
+        t1]``)."""
+        lead = torch.broadcast_shapes(rel.shape[:-1], self.knots.shape[:-1])
+        rel = rel.expand(*lead, rel.shape[-1])
+        row = tuple(int(i) for i in self._outside(rel).any(-1).nonzero()[0])
+        t0, t1 = (float(torch.as_tensor(e).expand(lead)[row]) for e in self.domain())
+        origin = torch.as_tensor(self.origin, dtype=torch.float64).to(rel.device)
+        origin = origin.expand(*lead, 1)[row] if origin.dim() else origin
+        ends = f"of trajectory {row} [{_fmt(t0, rel.dtype)}, {_fmt(t1, rel.dtype)}]"
+        return rel[row].to(torch.float64) + origin, ends
 
     def _fail_outside(self, fn: str, rel: Tensor, what: str, fix: str) -> None:
         dt = rel.dtype
-        absolute = rel.to(torch.float64) + (self.origin if not isinstance(self.origin, Tensor)
-                                            else self.origin.to(rel.device))
+        if self.knots.dim() > 1:  # name the first trajectory out, with its own domain
+            absolute, ends = self._first_out(rel)
+        else:
+            origin = (self.origin.to(rel.device) if isinstance(self.origin, Tensor)
+                      else self.origin)
+            absolute, ends = rel.to(torch.float64) + origin, self._ends_str(dt)
         finite = absolute[torch.isfinite(absolute)]
         n_bad = int((~torch.isfinite(absolute)).sum())
         if finite.numel():
@@ -249,7 +344,7 @@ class KnotDomain:
                 got += f" and t contains NaN/inf ({n_bad} values)"
         else:
             got = f"but t contains NaN/inf only ({n_bad} values)"
-        _checks.fail(fn, f"t must lie in {what} {self._ends_str(dt)}, {got}; {fix}, or "
+        _checks.fail(fn, f"t must lie in {what} {ends}, {got}; {fix}, or "
                          f"{EXTRAPOLATE_HINT}")
 
     # -- spans and local parameters
@@ -300,11 +395,31 @@ class KnotDomain:
             levels.append((alpha.to(dtype), slope.to(dtype)))
         return levels
 
+    def flat(self, r: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+        """The knots in ``dtype`` as one flat vector and the spans ``r`` (from :meth:`span`)
+        as indices into it, for the kernels that index one knot vector: ``(K,)`` knots and
+        ``r`` as they are; batched ``(..., K)`` knots expanded to ``r``'s batch and
+        flattened, each row's spans offset by ``row * K``."""
+        k = self.knots.to(dtype)
+        if k.dim() == 1:
+            return k, r
+        K, lead = k.shape[-1], r.shape[:-1]
+        offsets = torch.arange(0, lead.numel() * K, K, device=r.device).view(*lead, 1)
+        return k.expand(*lead, K).reshape(-1), r + offsets
+
     # -- the Euclidean basis
     def basis(self, rel: Tensor) -> tuple[Tensor, Tensor]:
-        """Cox-de Boor basis at relative times ``rel (T,)``: ``(first, values)`` as
-        ``bspline_basis`` of this module returns them."""
-        return bspline_basis(rel, self.knots.to(rel.dtype), self.degree, self.span(rel))
+        """Cox-de Boor basis at relative times ``rel (T,)`` (or ``(..., T)`` for batched
+        knots, broadcasting against their batch): ``(first, values)`` as ``bspline_basis``
+        of this module returns them, ``(..., T)`` and ``(..., T, p + 1)``, ``first`` indexing
+        each trajectory's own control points."""
+        r = self.span(rel)
+        if self.knots.dim() == 1:
+            return bspline_basis(rel, self.knots.to(rel.dtype), self.degree, r)
+        knots, flat_r = self.flat(r, rel.dtype)
+        first, values = bspline_basis(rel.expand(r.shape).reshape(-1), knots, self.degree,
+                                      flat_r.reshape(-1))
+        return first.view(r.shape) - (flat_r - r), values.view(*r.shape, -1)
 
     def greville(self) -> Tensor:
         """Greville abscissae ``mean(knots[j + 1 .. j + p])``, ``(..., n)`` relative, float64."""

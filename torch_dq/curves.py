@@ -68,7 +68,6 @@ element), never a silent extrapolation.
 
 from __future__ import annotations
 
-import math
 import numbers
 from collections.abc import Sequence
 
@@ -81,7 +80,7 @@ from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype
-from ._time import KnotDomain
+from ._time import KnotDomain, time_pair
 
 __all__ = [
     "bezier",
@@ -158,32 +157,11 @@ def _time_dtype(ctrl: Tensor, *times: Tensor) -> torch.dtype:
 
 def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor | float, Tensor | float]:
     """``domain`` as two Python floats (checked here) or two 0-d tensors (checked with t)."""
-    msg = f"expected domain to be (t0, t1), two real numbers or a (2,) tensor, got {domain!r}"
-    if isinstance(domain, Tensor):
-        _checks.tensor(fn, "domain", domain)
-        if domain.shape != (2,):
-            _checks.fail(fn, f"expected a (2,) tensor for domain, got shape "
-                             f"{_checks.shape_str(domain.shape)}")
-        _same_device(fn, ctrl, "domain", domain)
-        return domain[0], domain[1]
-    try:
-        t0, t1 = domain
-    except (TypeError, ValueError):
-        _checks.fail(fn, msg)
-    ends: list[Tensor | float] = []
-    for e in (t0, t1):
-        if isinstance(e, Tensor) and e.dim() == 0 and e.is_floating_point():
+    ends = time_pair(fn, "domain", domain, keep_tensors=True)
+    for e in ends:
+        if isinstance(e, Tensor):
             _same_device(fn, ctrl, "domain", e)
-            ends.append(e)
-        elif isinstance(e, numbers.Real) and not isinstance(e, bool):
-            ends.append(float(e))
-        else:
-            _checks.fail(fn, msg)
-    if all(isinstance(e, float) for e in ends) and not (math.isfinite(ends[0])
-                                                         and math.isfinite(ends[1])
-                                                         and ends[0] < ends[1]):
-        _checks.fail(fn, f"domain must be two finite times t0 < t1, got {domain!r}")
-    return ends[0], ends[1]
+    return ends
 
 
 # ----------------------------------------------------------------------------- knots
@@ -204,7 +182,8 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
         dtype: floating dtype (default: ``torch.get_default_dtype()``); use float64 for
             absolute timestamps such as UNIX seconds (float32 resolves 128 s at 1.7e9).
         device: device of the result.
-        domain: ``(t0, t1)``, two finite real numbers with ``t0 < t1``, in the caller's time.
+        domain: ``(t0, t1)``, two finite real numbers with ``t0 < t1`` (or a ``(2,)``
+            tensor, read on the host), in the caller's time.
 
     Returns:
         ``(n_ctrl + degree + 1,)`` non-decreasing knots.
@@ -223,17 +202,7 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
     dtype = torch.get_default_dtype() if dtype is None else dtype
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         _checks.fail(fn, f"expected a floating dtype, got {dtype!r}", TypeError)
-    try:
-        # Under torch.compile(dynamic=True) the ends may be symbolic (SymFloat / SymInt):
-        # kept as they are and not checked here (math.isfinite would specialise on them).
-        t0, t1 = (e if isinstance(e, torch.SymFloat | torch.SymInt) else float(e)
-                  for e in domain)
-        ok = not any(isinstance(e, bool) for e in domain) and len(domain) == 2
-    except (TypeError, ValueError, RuntimeError):
-        ok = False
-    concrete = ok and isinstance(t0, float) and isinstance(t1, float)
-    if not ok or (concrete and not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1)):
-        _checks.fail(fn, f"domain must be two finite real numbers t0 < t1, got {domain!r}")
+    t0, t1 = time_pair(fn, "domain", domain)  # symbolic ends under compile(dynamic=True)
     n_ctrl = int(n_ctrl)
     inner = torch.linspace(t0, t1, n_ctrl - degree + 1, dtype=dtype, device=device)[1:-1]
     return torch.cat((inner.new_full((degree + 1,), t0), inner, inner.new_full((degree + 1,), t1)))
@@ -512,26 +481,38 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
     if degree >= n:
         _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
                          f"got degree {degree}")
-    batch = _time_batch(fn, t, ctrl)
     fix = "evaluate inside it, pass knots that cover it"
     if knots is None:
+        batch = _time_batch(fn, t, ctrl)
         tdtype = _time_dtype(ctrl, t)
         knots = clamped_uniform_knots(n, degree, dtype=tdtype, device=ctrl.device)
         fix += " (default knots: clamped uniform on [0, 1])"
         validate = None
     else:
-        _checks.tensor(fn, "knots", knots)
-        _same_device(fn, ctrl, "knots", knots)
-        if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
-            _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
-                             f"{n + degree + 1} entries, got shape "
-                             f"{_checks.shape_str(knots.shape)}")
+        batch = _check_knots(fn, knots, ctrl, t, n + degree + 1)
         tdtype = _time_dtype(ctrl, t, knots)
         validate = "knots"
     dom = KnotDomain(knots.to(tdtype), degree)
     rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate,
                       fix=fix)
     return batch, dom, rel, form
+
+
+def _check_knots(fn: str, knots, ctrl: Tensor, t, size: int) -> torch.Size:
+    """Check ``knots`` ``(K,)`` or ``(..., K)`` (one row per trajectory) with ``K = size``,
+    and ``t``; the batch shape of ``ctrl``, ``t`` and the knots' rows, broadcast."""
+    _checks.tensor(fn, "knots", knots)
+    _same_device(fn, ctrl, "knots", knots)
+    if knots.dim() <= 1 and (knots.dim() == 0 or knots.shape[0] != size):
+        _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = {size} entries, got "
+                         f"shape {_checks.shape_str(knots.shape)}")
+    if knots.shape[-1] != size:
+        _checks.fail(fn, f"expected (..., n + degree + 1) = (..., {size}) knots (a row per "
+                         f"trajectory), got shape {_checks.shape_str(knots.shape)}")
+    batch = _time_batch(fn, t, ctrl)
+    if knots.dim() > 1:
+        batch = _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1), knots=(knots, 1))
+    return batch
 
 
 def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
@@ -546,7 +527,7 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
     r = dom.span(rel)
     if form == "cumulative":
-        weights = _cumulative.basis(dom.knots.to(rel.dtype), r, rel, p, 0)[0].to(dtype)
+        weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
         if _kernels.fused_path(ctrl_c, weights):
             return _fused_cumulative(ctrl_c, r, weights, p, batch).to(ctrl.dtype)
         points = _span_points(ctrl_c, r, p, batch)
@@ -576,7 +557,7 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
                      batch: torch.Size) -> list[Tensor]:
     """The cumulative form (:mod:`torch_dq._cumulative`): its basis in the time dtype, rounded
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers."""
-    weights = _cumulative.basis(dom.knots.to(rel.dtype), r, rel, dom.degree, order)
+    weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
     weights = [w.to(ctrl.dtype) for w in weights]
     return _cumulative.jets(_span_points(ctrl, r, dom.degree, batch), weights, order)
 

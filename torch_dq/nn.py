@@ -78,7 +78,7 @@ from torch import Tensor
 from torch.nn.utils import parametrize
 
 from . import _checks, _start, curves, dualquat, quat
-from ._time import KnotDomain
+from ._time import KnotDomain, time_pair
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -148,16 +148,19 @@ def _check_int(fn: str, name: str, value, low: int, what: str) -> int:
     return int(value)
 
 
-def _time_pair(fn: str, name: str, value) -> tuple[float, float]:
-    """Two finite increasing times ``(t0, t1)`` from a pair of numbers or a ``(2,)`` tensor."""
-    try:
-        pair = tuple(float(v) for v in (value.detach().cpu().tolist() if isinstance(
-            value, Tensor) else value))
-    except (TypeError, ValueError):
-        pair = ()
-    if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or not pair[0] < pair[1]:
-        _checks.fail(fn, f"{name} must be two finite increasing times (t0, t1), got {value!r}")
-    return pair[0], pair[1]
+def _check_knots(fn: str, knots, raw: Tensor, size: int, time_range) -> None:
+    """A layer's ``knots``: ``(K,)``, or ``(..., K)`` rows of trajectories whose batch
+    broadcasts with the control points' (``K = size``); no ``time_range`` with rows."""
+    _checks.tensor(fn, "knots", knots)
+    if knots.dim() == 0 or knots.shape[-1] != size:
+        _checks.fail(fn, f"expected a (n + degree + 1,) = ({size},) knots tensor of "
+                         f"n + degree + 1 = {size} entries, or (..., {size}) with a row per "
+                         f"trajectory, got shape {_checks.shape_str(knots.shape)}")
+    if knots.dim() > 1:
+        _checks.broadcast_batch(fn, ctrl=(raw, 2), knots=(knots, 1))
+        if time_range is not None:
+            _checks.fail(fn, "time_range (deprecated) rescales one knot vector; pass knots "
+                             "with a row per trajectory in the caller's time instead")
 
 
 def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
@@ -168,6 +171,19 @@ def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
         _checks.fail(fn, f"expected a finite{' positive' if positive else ''} {key!r} in the "
                          f"extra state, got {state!r}")
     return float(value)
+
+
+def _extra_origins(fn: str, state, knots: Tensor) -> Tensor:
+    """``state["origin"]`` of a layer with ``(..., K)`` knots: a finite float64 tensor
+    ``(..., 1)`` (one origin per trajectory), moved to the knots' device."""
+    value = state.get("origin") if isinstance(state, dict) else None
+    shape = (*knots.shape[:-1], 1)
+    if (not isinstance(value, Tensor) or value.dtype != torch.float64
+            or tuple(value.shape) != shape or not bool(torch.isfinite(value).all())):
+        _checks.fail(fn, f"expected a finite float64 'origin' tensor of shape "
+                         f"{_checks.shape_str(shape)} (one per trajectory) in the extra state, "
+                         f"got {state!r}")
+    return value.detach().to(knots.device)
 
 
 def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
@@ -195,13 +211,29 @@ def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
 
 def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> int:
     """``n_ctrl`` from the knot spacing chosen from the data (``from_poses(n_ctrl=None)``)."""
-    if x.dim() > 2:
+    if x.dim() > 2 or t64.dim() > 1:
+        batch = torch.broadcast_shapes(x.shape[:-2], t64.shape[:-1])
         _checks.fail(fn, f"n_ctrl=None chooses the knots from one trajectory's poses; pass "
-                         f"n_ctrl for a batch of shape {_checks.shape_str(x.shape[:-2])}")
+                         f"n_ctrl for a batch of shape {_checks.shape_str(batch)}")
     from ._spacing import choose_knot_spacing  # it builds layers: imported when used
 
     h = choose_knot_spacing(t64, x.detach().to(torch.float64).cpu(), degree, form=form)
     return min(math.ceil((float(t64[-1]) - float(t64[0])) / h) + degree, x.shape[-2])
+
+
+def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int) -> Tensor:
+    """The least-squares start of each trajectory of a batch on its own knots (rows of
+    ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
+    batch = torch.broadcast_shapes(x.shape[:-2], dom.knots.shape[:-1], rel.shape[:-1])
+    N, K = x.shape[-2], dom.knots.shape[-1]
+    rows = zip(x.expand(*batch, N, 8).reshape(-1, N, 8), rel.expand(*batch, N).reshape(-1, N),
+               dom.knots.expand(*batch, K).reshape(-1, K), strict=True)
+    out = []
+    for xb, tb, kb in rows:  # a constructor's loop: each row its own windows and charts
+        one = KnotDomain(kb, dom.degree)
+        first, values = one.basis(tb)
+        out.append(_start.least_squares_start(xb, tb, first, values, n, one.greville()))
+    return torch.stack(out).view(*batch, n, 8)
 
 
 # ----------------------------------------------------------------------------- 0.1 compatibility
@@ -228,7 +260,7 @@ class _Compat01(torch.nn.Module):
         parametrizations: _Parametrizations
 
         @property
-        def domain(self) -> tuple[float, float]: ...
+        def domain(self) -> tuple[float, float] | tuple[Tensor, Tensor]: ...
 
         def _convert_01(self, state_dict: dict[str, Any], prefix: str, start: float,
                         end: float) -> None: ...
@@ -247,7 +279,7 @@ class _Compat01(torch.nn.Module):
         """0.1's ``time_range=``: the knots mapped affinely so that the domain is it."""
         _deprecated(f"{fn}(time_range=...)", "pass knots in the caller's time (or build with "
                                              "from_poses)")
-        span = _time_pair(fn, "time_range", time_range)
+        span = time_pair(fn, "time_range", time_range)
         n = k64.shape[0] - degree - 1
         lo, hi = k64[degree], k64[n]
         k64 = span[0] + (k64 - lo) * ((span[1] - span[0]) / (hi - lo))
@@ -270,7 +302,10 @@ class _Compat01(torch.nn.Module):
         """The :attr:`~Curve.domain` as a float64 ``(2,)`` tensor (deprecated since 0.2)."""
         _deprecated(f"{self._name}.time_range", "use module.domain")
         like = self.parametrizations.ctrl.original
-        return torch.tensor(self.domain, dtype=torch.float64, device=like.device)
+        ends = self.domain
+        if isinstance(ends[0], Tensor):  # a row per trajectory: (..., 2)
+            return torch.stack(torch.broadcast_tensors(*ends), -1)
+        return torch.tensor(ends, dtype=torch.float64, device=like.device)
 
 
 # ----------------------------------------------------------------------------- constructors
@@ -283,7 +318,7 @@ class _Construction(torch.nn.Module):
     _name: str
 
     if TYPE_CHECKING:
-        _origin: float
+        _origin: float | Tensor
         check: bool
         extrapolate: bool
 
@@ -329,10 +364,14 @@ class _Construction(torch.nn.Module):
         if not bool(torch.isfinite(x64).all()):
             _checks.fail(fn, "the poses must be finite, with non-zero rotations")
         dom = self.time_model
-        dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, dom.origin)
+        origin = dom.origin.cpu() if isinstance(dom.origin, Tensor) else dom.origin
+        dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, origin)
         rel = dom.relative(t64, torch.float64)
-        first, values = dom.basis(rel)
-        ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville())
+        if dom.knots.dim() > 1:
+            ctrl = _start_rows(x64, rel, dom, n)
+        else:
+            first, values = dom.basis(rel)
+            ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville())
         self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
         return self
 
@@ -367,7 +406,11 @@ class _Construction(torch.nn.Module):
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         fn = f"{self._name}.load_state_dict"
-        self._origin = _extra_float(fn, state, "origin")
+        knots = self.time_model.knots
+        if knots.dim() > 1:  # a float64 origin per trajectory
+            self._origin = _extra_origins(fn, state, knots)
+        else:
+            self._origin = _extra_float(fn, state, "origin")
         self._restore(fn, state)
 
     @classmethod
@@ -453,7 +496,7 @@ class Curve(_Compat01, _Construction, abc.ABC):
         parametrizations: _Parametrizations
         check: bool
         extrapolate: bool
-        _origin: float
+        _origin: float | Tensor
 
     # -- the hooks of a curve
     @property
@@ -550,8 +593,10 @@ class Curve(_Compat01, _Construction, abc.ABC):
 
     # -- time
     @property
-    def domain(self) -> tuple[float, float]:
-        """The module's time domain ``(start, end)`` in the caller's units (Python floats)."""
+    def domain(self) -> tuple[float, float] | tuple[Tensor, Tensor]:
+        """The module's time domain ``(start, end)`` in the caller's units: Python floats;
+        for a :class:`BSpline` with a row of knots per trajectory two float64 tensors of
+        the knots' batch shape (row ``b``: trajectory ``b``'s domain)."""
         return self.time_model.domain()
 
     def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None) -> Tensor:
@@ -686,20 +731,27 @@ class Curve(_Compat01, _Construction, abc.ABC):
 
         Args:
             t: ``(T,)`` times in the domain (caller's units; the domain rules apply, checked
-                whatever ``check``), any floating dtype.
+                whatever ``check``), any floating dtype; for a module with a row of knots
+                per trajectory also ``(..., T)``, broadcasting against the knots' batch.
 
         Returns:
-            ``(first, values)``: ``(T,)`` int64 and ``(T, w)`` float64.
+            ``(first, values)``: ``(T,)`` int64 and ``(T, w)`` float64; with a row of
+            knots per trajectory ``(..., T)`` and ``(..., T, w)``, ``first`` indexing each
+            trajectory's own control points.
 
         Raises:
-            ValueError: ``t`` not 1-D, or outside the domain.
+            ValueError: ``t`` not 1-D (batched: not broadcastable), or outside the domain.
         """
         fn = f"{self._name}.basis"
         _checks.tensor(fn, "t", t)
-        if t.dim() != 1:
+        dom = self.time_model
+        if dom.knots.dim() > 1:  # a row per trajectory: (T,) or (..., T) times
+            if t.dim() < 1:
+                _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
+            _checks.broadcast_batch(fn, t=(t, 1), knots=(dom.knots, 1))
+        elif t.dim() != 1:
             _checks.fail(fn, f"expected a (T,) tensor for t, got shape "
                              f"{_checks.shape_str(t.shape)}")
-        dom = self.time_model
         rel = dom.prepare(fn, t.detach().to(dom.knots.device), torch.float64, check=True,
                           extrapolate=False, knots=None, what="the module's time domain",
                           fix="evaluate inside it")
@@ -718,8 +770,10 @@ class Curve(_Compat01, _Construction, abc.ABC):
         batch = _checks.shape_str(raw.shape[:-2])
         start, end = self.domain
         extra = "".join(f", {k}={v!r}" for k, v in self._state().items() if k != "length")
-        return (f"n_ctrl={self.n_ctrl}{extra}, batch_shape={batch}, domain=({start!r}, "
-                f"{end!r}), dtype={raw.dtype}")
+        domain = (f"({start!r}, {end!r})" if not isinstance(start, Tensor) else
+                  f"per trajectory {_checks.shape_str(start.shape)}")
+        return (f"n_ctrl={self.n_ctrl}{extra}, batch_shape={batch}, domain={domain}, "
+                f"dtype={raw.dtype}")
 
 # ----------------------------------------------------------------------------- the curves
 
@@ -767,14 +821,15 @@ class Bezier(Curve):
         if time_range is not None:
             _deprecated(f"{fn}(time_range=...)", "pass domain=(t0, t1)")
             domain = time_range
-        start, end = _time_pair(fn, "domain", domain)
+        start, end = time_pair(fn, "domain", domain)
         self._origin = start
         self._length = end - start
 
     @property
     def time_model(self) -> KnotDomain:
         raw = self.parametrizations.ctrl.original
-        return KnotDomain.bezier(self.n_ctrl, self._length, self._origin, device=raw.device)
+        return KnotDomain.bezier(self.n_ctrl, self._length, float(self._origin),
+                                 device=raw.device)
 
     @property
     def _min_samples(self) -> int:
@@ -806,6 +861,12 @@ class Bezier(Curve):
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4,
                  check: bool = True) -> Self:
         n = _check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
+        if isinstance(times, Tensor) and times.dim() > 1:
+            _checks.fail(fn, f"expected (N,) times shared by the batch, got shape "
+                             f"{_checks.shape_str(times.shape)}: a Bezier module has one domain "
+                             f"(t0, t1) for all its curves; for per-trajectory times use "
+                             f"BSpline.from_poses(..., n_ctrl={n}, degree={n - 1}), the same "
+                             f"curves (clamped knots) on each row's own domain")
         t64 = _start.check_sample_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
         module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
                      domain=(float(t64[0]), float(t64[-1])), check=check)
@@ -919,11 +980,7 @@ class BSpline(Curve):
                              f"degree {degree}")
         self.degree = degree
         if knots is not None:
-            _checks.tensor(fn, "knots", knots)
-            if knots.dim() != 1 or knots.shape[0] != n + degree + 1:
-                _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = "
-                                 f"{n + degree + 1} entries, got shape "
-                                 f"{_checks.shape_str(knots.shape)}")
+            _check_knots(fn, knots, raw, n + degree + 1, time_range)
         if knots is not None and knots.device.type == "meta":  # no values: origin 0
             self._origin = 0.0
             self.register_buffer("_knots", knots.to(dtype=raw.dtype, device=raw.device))
@@ -934,14 +991,22 @@ class BSpline(Curve):
         KnotDomain(k64, degree).check(fn, empty, knots="knots", extrapolate=True, fix="")
         if time_range is not None:
             k64 = self._time_range_knots(fn, k64, degree, time_range)
-        self._origin = float(k64[degree])
-        self.register_buffer("_knots", (k64 - self._origin).to(dtype=raw.dtype,
-                                                                 device=raw.device))
+        origin: float | Tensor = (float(k64[degree]) if k64.dim() == 1 else
+                                  k64[..., degree:degree + 1].to(raw.device))
+        self._origin = origin
+        self.register_buffer("_knots", (k64.to(raw.device) - origin).to(raw.dtype))
 
     @property
     def knots(self) -> Tensor:
-        """The ``(n + degree + 1,)`` knots in the caller's units (float64, module's device)."""
+        """The ``(n + degree + 1,)`` knots (``(..., n + degree + 1)``: a row per trajectory)
+        in the caller's units (float64, module's device)."""
         return self._knots.to(torch.float64) + self._origin
+
+    def _apply(self, fn, recurse=True):
+        out = super()._apply(fn, recurse)
+        if isinstance(self._origin, Tensor):  # per-row origins: float64 whatever .to() says
+            self._origin = self._origin.to(self._knots.device)
+        return out
 
     @property
     def time_model(self) -> KnotDomain:
@@ -971,7 +1036,10 @@ class BSpline(Curve):
         degree = extra.get("degree")
         if degree is None:
             degree = knots.shape[-1] - raw.shape[-2] - 1 if isinstance(knots, Tensor) else 3
-        return {"degree": degree, "form": extra.get("form", "de_boor")}
+        args = {"degree": degree, "form": extra.get("form", "de_boor")}
+        if isinstance(knots, Tensor) and knots.dim() > 1:  # a row per trajectory
+            args["knots"] = knots.to(torch.float64) + _extra_origins(fn, extra, knots)
+        return args
 
     def _convert_01(self, state_dict, prefix, start: float, end: float) -> None:
         p, n = self.degree, self.n_ctrl
@@ -996,13 +1064,22 @@ class BSpline(Curve):
                  degree: int = 3, form: str = "de_boor", check: bool = True) -> Self:
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
         form = curves.check_form(fn, form)
-        t64 = _start.check_sample_times(fn, times, x.shape[-2]).detach().to(torch.float64).cpu()
-        t0, t1 = float(t64[0]), float(t64[-1])
+        t64 = _start.check_sample_times(fn, times, x.shape[-2], batched=True)
+        t64 = t64.detach().to(torch.float64).cpu()
+        batch = x.shape[:-2]
+        t0: float | Tensor
+        t1: float | Tensor
+        if t64.dim() > 1:  # each trajectory its own times: its own knots and origin
+            batch = _checks.broadcast_batch(fn, poses=(x, 2), times=(t64, 1))
+            t64 = t64.expand(*batch, t64.shape[-1])
+            t0, t1 = t64[..., :1], t64[..., -1:]
+        else:
+            t0, t1 = float(t64[0]), float(t64[-1])
         if n_ctrl is None:  # chosen from the data
             n_ctrl = _chosen_n_ctrl(fn, x, t64, degree, form)
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
         knots = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
-        module = cls(dualquat.identity((*x.shape[:-2], n), dtype=x.dtype, device=x.device),
+        module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device),
                      degree=degree, knots=knots, form=form, check=check)
         return module._fill(fn, x, t64)
 
