@@ -32,6 +32,7 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
+_SETTLING = 1e-2  # relative decrease of a step below which the next one is predicted first
 
 
 def progress(total: int, enabled: bool, desc: str):
@@ -271,6 +272,7 @@ class _LevenbergMarquardt:
         diag0 = self.system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
         self.mu = prior * diag0
         self.solver = _Solver(problem, self.system, self.mu)
+        self.settling = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
         self.ctrl, self.values = ctrl, values
         self.data, self.obj = self.objective(ctrl, values)
         self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64, device=ctrl.device)
@@ -304,12 +306,16 @@ class _LevenbergMarquardt:
         """Stop the elements whose next step, as the last system predicts it (its damped
         Gauss-Newton matrix, the exact gradient here: one reverse pass instead of the
         Jacobians), lowers the objective by at most ``tol`` relatively: the model decrease
-        of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the half gradient)."""
+        of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the half gradient). Only after a
+        step that lowered the objective by at most ``_SETTLING`` relatively (after larger
+        ones the prediction would rarely stop and costs a pass of the costs)."""
+        if not bool((self.active & self.settling).any()):
+            return
         gc, gn = self._half_gradient(True)
         dc, dn, ok = self.solver.step(self.lam, gc, gn)
         pred = -2.0 * ((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
         obj = self.obj.reshape(self.Bf)
-        small = self.active & ok & torch.isfinite(pred) & (pred <= tol * obj)
+        small = self.active & self.settling & ok & torch.isfinite(pred) & (pred <= tol * obj)
         for b in small.nonzero()[:, 0].tolist():
             self.reasons[b] = (f"the relative decrease fell below tol={tol!r} (the next "
                                f"step's, predicted)")
@@ -350,6 +356,7 @@ class _LevenbergMarquardt:
                 self.reasons[b] = f"the relative decrease fell below tol={tol!r}"
         self.active &= ~(pending | small)
         self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
+        self.settling = (self.obj - new[2]).reshape(Bf) <= _SETTLING * new[2].reshape(Bf)
         self.ctrl, self.values, self.obj, self.data = new
 
 
