@@ -28,6 +28,10 @@ Shapes: control points ``(..., n, 8)`` and times ``(T,)`` or ``(..., T)``; the b
 (all but the last two of ``ctrl``, all but the last of ``t``) broadcast, and the curves
 are ``(..., T, 8)``. Every evaluation is vectorised over the batch, the control points and
 all ``T`` times at once (the only Python loop is over the levels of the scheme).
+Per-trajectory times: a B-spline's knots may be ``(..., K)``, a row per trajectory whose
+batch broadcasts with those of ``ctrl`` and ``t`` (e.g. ``ctrl (B, n, 8)``, ``t (B, T)``,
+``knots (B, K)``): each trajectory is evaluated on its own knots, and the domain rules hold
+per row (each row's tolerance from its own ends).
 
 Two implementations of each scheme: the readable level loops of this module
 (:func:`_de_casteljau`, :func:`_de_boor`, plain calls to ``sclerp``: the reference, exact to
@@ -604,9 +608,11 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
             broadcast with those of ``ctrl``.
         degree: polynomial degree ``p >= 1`` (1: piecewise sclerp, 3: cubic).
         knots: ``(n + degree + 1,)`` non-decreasing knots in the caller's time, on
-            ``ctrl``'s device, any floating dtype (float64 for UNIX seconds); default
-            :func:`clamped_uniform_knots` on ``[0, 1]``. Differentiable (at times that are
-            not knots).
+            ``ctrl``'s device, any floating dtype (float64 for UNIX seconds); or
+            ``(..., n + degree + 1)``, a row per trajectory, whose batch dims broadcast with
+            those of ``ctrl`` and ``t`` (each trajectory on its own knots and domain);
+            default :func:`clamped_uniform_knots` on ``[0, 1]``. Differentiable (at times
+            that are not knots).
         check: verify that the knots are finite, non-decreasing with a non-empty domain,
             and that ``t`` lies in the domain up to the tolerance of the module docstring
             (one device synchronisation); ``False`` skips these, and then times further
@@ -623,7 +629,8 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
 
     Raises:
         ValueError: ``ctrl`` not ``(..., n, 8)``, ``degree`` not an int in ``[1, n)``, knots
-            not 1-D with ``n + degree + 1`` entries, batch shapes that do not broadcast;
+            not ``(n + degree + 1,)`` or ``(..., n + degree + 1)``, batch shapes (of
+            ``ctrl``, ``t`` and the knots' rows) that do not broadcast;
             with ``check``: decreasing or non-finite knots, ``knots[degree] == knots[n]``,
             ``t`` outside the domain.
         TypeError: non-floating tensors, tensors on another device than ``ctrl``.
@@ -681,7 +688,8 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
         t: ``(T,)`` or ``(..., T)`` times in the knot domain (as :func:`bspline`).
         order: highest derivative, an int in ``0..3``.
         degree: polynomial degree ``p >= 1``.
-        knots: ``(n + degree + 1,)`` knots in the caller's time (as :func:`bspline`).
+        knots: ``(n + degree + 1,)`` knots in the caller's time, or ``(..., n + degree +
+            1)`` with a row per trajectory (as :func:`bspline`).
         check: the value checks of :func:`bspline` (one device synchronisation).
         extrapolate: as :func:`bspline`.
         form: ``"de_boor"`` or ``"cumulative"`` (as :func:`bspline`).

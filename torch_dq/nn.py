@@ -28,7 +28,12 @@ so ``module(times)`` is the fit at those very times. Absolute timestamps (UNIX s
 (the start of its domain) as a Python float (float64, saved in the ``state_dict`` as extra
 state and untouched by ``.to(dtype)``) and its knots relative to it, and evaluates
 ``t - origin`` in the wider of the two dtypes, so nothing is lost beyond the rounding of the
-time since the origin in the module's dtype. All of this is the time model
+time since the origin in the module's dtype. A batch of trajectories with times of their
+own (``from_poses`` with ``(B, N)`` times, or ``BSpline`` with ``(B, K)`` knots) holds a row
+of knots and a float64 origin per trajectory (a ``(B, 1)`` tensor that follows the module's
+device but keeps float64 under ``.to(dtype)``): ``module(t)`` with ``t (B, T)`` evaluates
+each trajectory at its own times, and ``.domain`` / ``.knots`` report per row. All of this is
+the time model
 (:class:`torch_dq._time.KnotDomain`), the one place where an origin is subtracted, a span
 searched or a domain checked.
 
@@ -891,7 +896,10 @@ class Bezier(Curve):
             translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
             times: ``(N,)`` strictly increasing finite times in the caller's units, any
                 floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
-                float32 rounding of the time since the first sample).
+                float32 rounding of the time since the first sample). Shared by the batch: a
+                Bezier module has one domain; for per-trajectory ``(B, N)`` times use
+                :meth:`BSpline.from_poses` with ``n_ctrl`` and ``degree = n_ctrl - 1`` (the
+                same curves: clamped knots), which holds a domain per row.
             n_ctrl: number of control points, ``2 <= n_ctrl <= N`` (degree ``n_ctrl - 1``).
             check: the module's ``check``.
 
@@ -937,19 +945,23 @@ class BSpline(Curve):
         degree: polynomial degree ``>= 1`` (3: cubic).
         knots: ``(n + degree + 1,)`` non-decreasing finite knots in the caller's units
             (any floating dtype; float64 for absolute timestamps) with
-            ``knots[degree] < knots[n]``; default clamped uniform on ``[0, 1]``
+            ``knots[degree] < knots[n]``; or ``(..., n + degree + 1)``, a row per
+            trajectory whose batch broadcasts with ``ctrl``'s (each row its own domain and
+            float64 origin ``knots[..., degree]``); default clamped uniform on ``[0, 1]``
             (:func:`torch_dq.curves.clamped_uniform_knots`). Meta knots are kept as they
             are (relative to origin 0, unchecked).
         form: ``"de_boor"`` (default) or ``"cumulative"``; every evaluation follows it.
         time_range: deprecated (0.1): ``(t0, t1)`` rescales the knots affinely so that the
-            domain becomes ``[t0, t1]``.
+            domain becomes ``[t0, t1]`` (``(K,)`` knots only).
         check: check at every call that ``t`` lies in the domain (one device sync; skipped
             under ``torch.compile``, where times outside give NaN).
         extrapolate: default of the evaluations' ``extrapolate=``: continue the end spans
             beyond the domain instead of the domain rules.
 
     Shape:
-        ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in the domain -> ``(..., T, 8)``.
+        ``forward(t)``: ``t`` ``(T,)`` or ``(..., T)`` in the domain -> ``(..., T, 8)``;
+        with knots ``(B, K)``, ``t (B, T)`` (row ``b`` in trajectory ``b``'s domain) or
+        ``(T,)`` (the same times for every row) -> ``(B, T, 8)``.
 
     Example:
         >>> import torch_dq.dualquat as dq
@@ -1089,7 +1101,9 @@ class BSpline(Curve):
                    check: bool = True) -> Self:
         r"""B-spline with ``n_ctrl`` control points fit to timestamped poses.
 
-        The knots are clamped uniform over ``[times[0], times[-1]]`` in the caller's units,
+        The knots are clamped uniform over ``[times[0], times[-1]]`` in the caller's units
+        (with ``(..., N)`` times, each trajectory's over ``[times[b, 0], times[b, -1]]``: a
+        row of knots and an origin per trajectory, and each row's own least-squares start),
         so ``spline(times)`` evaluates the fit at the sample times; for a knot every ``h``
         seconds, take ``n_ctrl = ceil((times[-1] - times[0]) / h) + degree``. The control
         points come from the local least-squares start (:mod:`torch_dq._start`): each
@@ -1107,16 +1121,20 @@ class BSpline(Curve):
         Args:
             rotations: ``(..., N, 4)`` quaternions ``(w, x, y, z)`` (normalised here) or
                 ``(..., N, 3, 3)`` rotation matrices; extra leading dims give a batch of
-                curves sharing the times.
+                curves (sharing ``(N,)`` times, or each with its row of ``(..., N)`` times).
             translations: ``(..., N, 3)``, same dtype and device as ``rotations``.
             times: ``(N,)`` strictly increasing finite times in the caller's units, any
                 floating dtype (float64 UNIX seconds with float32 poses lose nothing beyond
-                float32 rounding of the time since the first sample).
+                float32 rounding of the time since the first sample); or ``(..., N)``, a row
+                of such times per trajectory, whose batch broadcasts with the poses'. Rows
+                share ``N``: for unequal counts fit each trajectory separately, or pad and
+                leave the padding out with the estimation terms' ``mask``
+                (:mod:`torch_dq.fitting`).
             n_ctrl: number of control points, ``degree < n_ctrl <= N``; ``None`` (the
                 default): chosen from the data, ``ceil(duration / h) + degree`` with the
                 knot spacing ``h`` of :func:`torch_dq.fitting.choose_knot_spacing` (the
                 largest whose held-out error of the start is within 2 % of the best;
-                unbatched poses, at least ``2 (degree + 2)`` of them).
+                unbatched poses and ``(N,)`` times, at least ``2 (degree + 2)`` of them).
             degree: polynomial degree ``>= 1`` (3: cubic).
             form: ``"de_boor"`` (default) or ``"cumulative"`` (see :class:`BSpline`).
             check: the module's ``check``.
@@ -1125,8 +1143,9 @@ class BSpline(Curve):
             The module, with control points of the dtype and device of ``rotations``.
 
         Raises:
-            ValueError: bad shapes, non-increasing times, non-finite poses, an unknown
-                ``form``, more control points than samples (underdetermined).
+            ValueError: bad shapes, non-increasing times (the message names the first bad
+                row of ``(..., N)`` times), non-finite poses, an unknown ``form``, more
+                control points than samples (underdetermined), ``n_ctrl=None`` with a batch.
 
         Example:
             >>> import torch_dq.dualquat as dq
