@@ -493,7 +493,11 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
         fix += " (default knots: clamped uniform on [0, 1])"
         validate = None
     else:
-        batch = _check_knots(fn, knots, ctrl, t, n + degree + 1)
+        check_knots(fn, knots, ctrl, n + degree + 1)
+        _same_device(fn, ctrl, "knots", knots)
+        batch = _time_batch(fn, t, ctrl)
+        if knots.dim() > 1:
+            batch = _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1), knots=(knots, 1))
         tdtype = _time_dtype(ctrl, t, knots)
         validate = "knots"
     dom = KnotDomain(knots.to(tdtype), degree)
@@ -502,21 +506,19 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
     return batch, dom, rel, form
 
 
-def _check_knots(fn: str, knots, ctrl: Tensor, t, size: int) -> torch.Size:
-    """Check ``knots`` ``(K,)`` or ``(..., K)`` (one row per trajectory) with ``K = size``,
-    and ``t``; the batch shape of ``ctrl``, ``t`` and the knots' rows, broadcast."""
+def check_knots(fn: str, knots, ctrl: Tensor, size: int) -> None:
+    """Check the shape of ``knots`` for a B-spline on control points ``ctrl (..., n, 8)``:
+    ``(K,)``, or ``(..., K)`` with a row per trajectory whose batch broadcasts with
+    ``ctrl``'s, ``K = size = n + degree + 1``."""
     _checks.tensor(fn, "knots", knots)
-    _same_device(fn, ctrl, "knots", knots)
     if knots.dim() <= 1 and (knots.dim() == 0 or knots.shape[0] != size):
         _checks.fail(fn, f"expected a 1-D knots tensor of n + degree + 1 = {size} entries, got "
                          f"shape {_checks.shape_str(knots.shape)}")
     if knots.shape[-1] != size:
         _checks.fail(fn, f"expected (..., n + degree + 1) = (..., {size}) knots (a row per "
                          f"trajectory), got shape {_checks.shape_str(knots.shape)}")
-    batch = _time_batch(fn, t, ctrl)
     if knots.dim() > 1:
-        batch = _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1), knots=(knots, 1))
-    return batch
+        _checks.broadcast_batch(fn, ctrl=(ctrl, 2), knots=(knots, 1))
 
 
 def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,

@@ -153,21 +153,6 @@ def _check_int(fn: str, name: str, value, low: int, what: str) -> int:
     return int(value)
 
 
-def _check_knots(fn: str, knots, raw: Tensor, size: int, time_range) -> None:
-    """A layer's ``knots``: ``(K,)``, or ``(..., K)`` rows of trajectories whose batch
-    broadcasts with the control points' (``K = size``); no ``time_range`` with rows."""
-    _checks.tensor(fn, "knots", knots)
-    if knots.dim() == 0 or knots.shape[-1] != size:
-        _checks.fail(fn, f"expected a (n + degree + 1,) = ({size},) knots tensor of "
-                         f"n + degree + 1 = {size} entries, or (..., {size}) with a row per "
-                         f"trajectory, got shape {_checks.shape_str(knots.shape)}")
-    if knots.dim() > 1:
-        _checks.broadcast_batch(fn, ctrl=(raw, 2), knots=(knots, 1))
-        if time_range is not None:
-            _checks.fail(fn, "time_range (deprecated) rescales one knot vector; pass knots "
-                             "with a row per trajectory in the caller's time instead")
-
-
 def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
     """``state[key]`` of a saved extra state: a finite real number (``> 0`` if ``positive``)."""
     value = state.get(key) if isinstance(state, dict) else None
@@ -992,7 +977,10 @@ class BSpline(Curve):
                              f"degree {degree}")
         self.degree = degree
         if knots is not None:
-            _check_knots(fn, knots, raw, n + degree + 1, time_range)
+            curves.check_knots(fn, knots, raw, n + degree + 1)
+            if knots.dim() > 1 and time_range is not None:
+                _checks.fail(fn, "time_range (deprecated) rescales one knot vector; pass knots "
+                                 "with a row per trajectory in the caller's time instead")
         if knots is not None and knots.device.type == "meta":  # no values: origin 0
             self._origin = 0.0
             self.register_buffer("_knots", knots.to(dtype=raw.dtype, device=raw.device))
