@@ -7,8 +7,12 @@
   same trajectory far from the origin, time gaps, underdetermined problems, the best-iterate
   rule and float32 modules on UNIX timestamps.
 - The block-banded solver against a dense solve, the Jacobian against autograd.
+- Fits are compared with a known optimum, not with their start: the samples of a curve of
+  the family fitted back to it from a start away from it, numpy's least squares on scipy's
+  B-spline design matrix for poses of one rotation, scipy's splines on held-out poses.
 """
 
+import copy
 import functools
 import math
 from pathlib import Path
@@ -16,7 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from scipy.interpolate import BSpline as ScipyBSpline
 from scipy.interpolate import CubicSpline
+from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation, RotationSpline
 
 import torch_dq.dualquat as dq
@@ -36,6 +42,40 @@ def load_tum(name):
 
 def knot_count(t0, t1, spacing, degree=3):
     return math.ceil((t1 - t0) / spacing) + degree
+
+
+def lstsq_positions(t, p, knots, degree=3):
+    """Independent reference: the least-squares B-spline of the positions ``p (N, 3)`` alone
+    on the same knots (scipy's design matrix, times relative to the first, normal
+    equations): its ``(n, 3)`` control points and the fitted ``(N, 3)`` positions."""
+    t, knots = np.asarray(t, dtype=float), np.asarray(knots, dtype=float)
+    u = np.clip(t - t[0], knots[degree] - t[0], knots[-degree - 1] - t[0])  # end rounding
+    A = ScipyBSpline.design_matrix(u, knots - t[0], degree)
+    c = spsolve((A.T @ A).tocsc(), A.T @ np.asarray(p, dtype=float))
+    return c, A @ c
+
+
+def rms(x):
+    return float(np.sqrt(np.mean(np.square(np.asarray(x)))))
+
+
+def perturbed(spline, scale, seed):
+    """A copy of ``spline`` whose control points are moved by random body twists of size
+    ``scale`` (rad, length): a start away from the curve's own optimum."""
+    gen = torch.Generator().manual_seed(seed)
+    ctrl = spline.control_points.detach()
+    step = dq.exp(scale * torch.randn(*ctrl.shape[:-1], 6, generator=gen, dtype=ctrl.dtype))
+    other = copy.deepcopy(spline)
+    with torch.no_grad():
+        other.control_points = dq.mul(ctrl, step)
+    return other
+
+
+def same_curve(a, b, t):
+    """Largest rotation (rad) and translation differences of two curves at the times ``t``."""
+    with torch.no_grad():
+        x, y = a(t).double(), b(t).double()
+    return float(rotation_angle(x, y).max()), float(translation_error(x, y).max())
 
 
 def errors_mm_deg(q_wxyz, p, q_ref_xyzw, p_ref):
@@ -82,7 +122,7 @@ def test_tum_held_out_errors_within_3x_scipy(name, shipped, k):
     for dtype in (F64, F32):
         spline = BSpline.from_poses(q.to(dtype), P.to(dtype), times, n_ctrl=n)
         history = fit(spline, times, dq.from_rt(q, P).to(dtype), verbose=False)
-        assert history.optimizer == "lm" and history.final_loss <= history.loss[0]
+        assert history.optimizer == "lm"  # the reference is scipy's, on held-out poses
         with torch.no_grad():
             x = spline(torch.from_numpy(t[held])).double()
         qh, ph = dq.to_rt(x)
@@ -114,8 +154,9 @@ def test_long_loop_start_is_sane_and_lm_converges_with_1000_control_points():
     """Two laps of a 160 m circle over 250 s at 20 Hz, a knot every 0.25 s (1003 control
     points, 226 m across): the local least-squares start is within millimetres at held-out
     times (0.1's global linearisation about the middle pose: 135 m and 172 deg off here),
-    and Levenberg-Marquardt converges in a few steps (measured, 2-core CPU: start 0.1 s,
-    0.0076 mm / 5e-5 deg max; fit 3 steps in 2.5 s, 0.0004 mm)."""
+    and Levenberg-Marquardt, started 1e-3 (rad, m) away from this spline, fits the spline's
+    own samples (a curve of the family that contains them exactly: the known optimum) back
+    to it in a few steps (measured, 2-core CPU: start 0.1 s, 0.0076 mm / 5e-5 deg max)."""
     s = torch.arange(0.0, 250.0, 0.05, dtype=F64)
     x = drive(s)
     spline = BSpline.from_dualquats(x, s, n_ctrl=knot_count(0.0, float(s[-1]), 0.25))
@@ -126,19 +167,21 @@ def test_long_loop_start_is_sane_and_lm_converges_with_1000_control_points():
     truth = drive(mid, duration=float(s[-1]))  # the same closed form at held-out times
     assert float(translation_error(start, truth).max()) < 5e-3
     assert float(rotation_angle(start, truth).max()) < math.radians(0.05)
-    history = fit(spline, s, x, verbose=False)
-    assert history.converged and history.steps <= 10
-    assert history.final_loss <= history.loss[0]
     with torch.no_grad():
-        after = spline(mid)
-    assert float(translation_error(after, truth).max()) < 5e-3
+        exact = spline(s)
+    moved = perturbed(spline, 1e-3, seed=2)
+    assert min(same_curve(moved, spline, mid)) > 1e-4
+    history = fit(moved, s, exact, steps=4, prior=0.0, verbose=False)  # Gauss-Newton's
+    rot, trans = same_curve(moved, spline, mid)  # quadratic convergence: 1e-3, 1e-6, 1e-12
+    assert rot < 1e-9 and trans < 1e-9, (rot, trans)
 
 
 @pytest.mark.parametrize("offset", [500.0, 1e5])
 def test_fit_quality_does_not_depend_on_the_world_origin(offset):
     """The same loop at the origin, 500 m and 1e5 m (UTM-like) away: the start and the
     Levenberg-Marquardt fit give the same errors (float64), to 1e-6 m; the steps are the
-    same body-frame twists."""
+    same body-frame twists. Far away, the fit recovers a curve of the family from its own
+    samples."""
     s = torch.arange(0.0, 60.0, 0.1, dtype=F64)
     gen = torch.Generator().manual_seed(5)
     noise = dq.exp(torch.cat((0.002 * torch.randn(len(s), 3, generator=gen, dtype=F64),
@@ -155,31 +198,111 @@ def test_fit_quality_does_not_depend_on_the_world_origin(offset):
         results.append((start, history.final_loss, translation_error(y, x),
                         rotation_angle(y, x), history.steps))
     (s0, f0, t0, r0, k0), (s1, f1, t1, r1, k1) = results
-    assert f0 < s0 and k0 == k1
+    assert k0 == k1
     assert abs(s1 - s0) <= 1e-6 * s0 and abs(f1 - f0) <= 1e-6 * f0
     torch.testing.assert_close(t1, t0, rtol=0, atol=1e-7)  # float64 rounding at 1e5 m
     torch.testing.assert_close(r1, r0, rtol=0, atol=1e-8)
+    # against a known optimum, far from the origin: a curve of the family (the last fit) is
+    # fitted back from its own samples, started 1e-3 (rad, m) away
+    with torch.no_grad():
+        exact = spline(s)
+    moved = perturbed(spline, 1e-3, seed=3)
+    fit(moved, s, exact, steps=4, prior=0.0, verbose=False)
+    rot, trans = same_curve(moved, spline, s[:-1] + 0.05)
+    assert rot < 1e-9 and trans < 1e-8, (rot, trans)  # float64 rounding at 1e5 m: ~1e-11 m
 
 
 # ----------------------------------------------------------------------------- float32 + UNIX
 
 def test_fit_float32_module_on_unix_times_matches_float64():
-    """fit takes the module's own (UNIX) times; a float32 module fitted on float64 UNIX
-    seconds ends within float32 rounding of the float64 fit."""
+    """fit takes the module's own (UNIX) times. Against a known optimum: the samples of a
+    float64 curve of the family, fitted by Levenberg-Marquardt from a start 1e-3 away, give
+    that curve back, to float64 rounding with a float64 module and to float32 rounding with
+    a float32 one (measured 1e-7 rad, 1.4e-6 at a 5 m scale); Adam's losses on float32 follow
+    float64's."""
     s = torch.arange(0.0, 20.0, 0.1, dtype=F64)
     times = 1.7e9 + s
-    x = drive(s, laps=0.5, radius=5.0)
     n = knot_count(0.0, float(s[-1]), 0.5)
-    f64 = BSpline.from_dualquats(x, times, n_ctrl=n)
-    f32 = BSpline.from_dualquats(x.float(), times, n_ctrl=n)
-    for optimizer in ("lm", "adam"):
-        h64 = fit(f64, times, x, optimizer=optimizer, steps=5, verbose=False)
-        h32 = fit(f32, times, x.float(), optimizer=optimizer, steps=5, verbose=False)
-        assert h32.final_loss <= h32.loss[0] and h64.final_loss <= h64.loss[0]
+    truth = BSpline.from_dualquats(drive(s, laps=0.5, radius=5.0), times, n_ctrl=n)
     with torch.no_grad():
-        rot = rotation_angle(f32(times).double(), f64(times))
-        trans = translation_error(f32(times).double(), f64(times))
-    assert float(rot.max()) < 1e-5 and float(trans.max()) < 2e-5  # float32, 5 m scale
+        x = truth(times)
+    start = perturbed(truth, 1e-3, seed=4)
+    fitted = {}
+    for optimizer, kwargs in (("lm", dict(steps=4, prior=0.0)), ("adam", dict(steps=5, lr=1e-4))):
+        f64 = copy.deepcopy(start)
+        f32 = BSpline.from_dualquats(x.float(), times, n_ctrl=n)
+        with torch.no_grad():
+            f32.control_points = start.control_points.float()
+        h64 = fit(f64, times, x, optimizer=optimizer, verbose=False, **kwargs)
+        h32 = fit(f32, times, x.float(), optimizer=optimizer, verbose=False, **kwargs)
+        fitted[optimizer] = (f64, f32, h64, h32)
+    f64, f32, _, _ = fitted["lm"]
+    rot, trans = same_curve(f64, truth, times)
+    assert rot < 1e-12 and trans < 1e-12, (rot, trans)
+    rot, trans = same_curve(f32, truth, times)
+    assert rot < 1e-5 and trans < 2e-5, (rot, trans)  # float32, 5 m scale
+    f64, f32, h64, h32 = fitted["adam"]
+    np.testing.assert_allclose(h32.loss, h64.loss, rtol=1e-3)
+    rot, trans = same_curve(f32, f64, times)
+    assert rot < 1e-5 and trans < 2e-5, (rot, trans)
+
+
+# ----------------------------------------------------------------------------- known optima
+
+@pytest.mark.parametrize("form", ["de_boor", "cumulative"])
+def test_translation_only_fit_is_the_least_squares_spline(form):
+    """Against an independent least-squares solution: poses with one fixed rotation and
+    noisy translations. Where every rotation is the same, either form is the cubic B-spline
+    of its control points' translations, so the fit (rotations weighted 1e6: the rotation
+    control points stay put; prior=0) is numpy's least squares on scipy's design matrix of
+    the same knots (measured 3e-9 apart)."""
+    rng = np.random.default_rng(0)
+    s = np.linspace(0.0, 3.0, 60)
+    p = (np.stack([np.sin(2 * s), np.cos(3 * s), 0.5 * s**2], -1)
+         + 0.01 * rng.normal(size=(60, 3)))
+    q = quat.normalize(torch.tensor([0.9, 0.1, -0.3, 0.2], dtype=F64)).expand(60, 4)
+    x = dq.from_rt(q, torch.from_numpy(p))
+    spline = BSpline.from_dualquats(x, torch.from_numpy(s), n_ctrl=9, form=form)
+    c, fitted = lstsq_positions(s, p, spline.knots.numpy())
+    history = fit(spline, torch.from_numpy(s), x, loss=functools.partial(pose_loss,
+                                                                          rot_weight=1e6),
+                  prior=0.0, tol=1e-14, steps=10, verbose=False)
+    qc, tc = dq.to_rt(spline.control_points.detach())
+    np.testing.assert_allclose(tc.numpy(), c, rtol=0, atol=1e-7)
+    assert float(rotation_angle(dq.from_rt(qc, tc), dq.from_rt(q[:9], tc)).max()) < 1e-7
+    assert history.final_loss == pytest.approx(np.mean(np.sum((fitted - p) ** 2, -1)),
+                                               rel=1e-6)
+
+
+@pytest.mark.parametrize("optimizer", ["lm", "adam", "custom"])
+def test_reported_loss_is_the_loss_minimised(optimizer, gen):
+    """fit reports the loss it minimises at the parameters it returns: pose_loss with its
+    weights (rotation angles from scipy, translations from numpy) whichever optimizer, and a
+    user's loss callable as it is."""
+    s = torch.linspace(0.0, 2.0, 41, dtype=F64)
+    x = dq.mul(drive(s, laps=0.2, radius=1.0),
+               dq.exp(0.02 * torch.randn(41, 6, generator=gen, dtype=F64)))
+    spline = BSpline.from_dualquats(x, s, n_ctrl=8)
+    weighted = functools.partial(pose_loss, rot_weight=2.0, trans_weight=50.0)
+
+    def custom(a, b):
+        return translation_error(a, b).mean()
+
+    loss = custom if optimizer == "custom" else weighted
+    name = "adam" if optimizer == "custom" else optimizer
+    history = fit(spline, s, x, optimizer=name, loss=loss, steps=5, verbose=False)
+    with torch.no_grad():
+        y = spline(s)
+    qy, py = dq.to_rt(y)
+    qx, px = dq.to_rt(x)
+    dp = np.linalg.norm(py.numpy() - px.numpy(), axis=-1)
+    if optimizer == "custom":
+        assert history.final_loss == pytest.approx(float(np.mean(dp)), rel=1e-12)
+        return
+    angle = (Rotation.from_quat(quat.to_xyzw(qy).numpy()).inv()
+             * Rotation.from_quat(quat.to_xyzw(qx).numpy())).magnitude()
+    reference = float(np.mean(2.0 * angle**2 + 50.0 * dp**2))
+    assert history.final_loss == pytest.approx(reference, rel=1e-9)
 
 
 # ----------------------------------------------------------------------------- gaps, rank
@@ -306,20 +429,30 @@ def test_lm_accepts_only_decreasing_steps_and_weights(gen):
         fit(BSpline(dq.identity((4,), dtype=F64)), s / 4, x, prior=-1.0)
 
 
-def test_bezier_lm_fit(gen):
-    """Levenberg-Marquardt on a Bézier curve (a global basis: one dense block)."""
+def test_bezier_fit_recovers_a_bezier_curve():
+    """Levenberg-Marquardt on a Bézier curve (a global basis: one dense block) and LBFGS,
+    against a known optimum: the samples of a Bézier curve, from a start 1e-2 away, give the
+    curve back (LM without prior to float64 rounding, LBFGS to 1e-5); the default prior
+    moves the fit by about ``prior`` times the start's distance (measured 2e-3 times)."""
     s = torch.linspace(0.0, 1.0, 30, dtype=F64)
-    x = dq.mul(drive(s, laps=0.2, radius=1.0),
-               dq.exp(0.01 * torch.randn(30, 6, generator=gen, dtype=F64)))
-    bez = Bezier.from_dualquats(x, s, n_ctrl=5)
+    truth = Bezier.from_dualquats(drive(s, laps=0.2, radius=1.0), s, n_ctrl=5)
+    with torch.no_grad():
+        x = truth(s)
+    start = perturbed(truth, 1e-2, seed=5)
+    away = max(same_curve(start, truth, s))
+    assert away > 1e-2
+    bez = copy.deepcopy(start)
     history = fit(bez, s, x, prior=0.0, verbose=False)
-    assert history.optimizer == "lm" and history.final_loss < history.loss[0]
-    other = Bezier.from_dualquats(x, s, n_ctrl=5)
-    fit(other, s, x, optimizer="lbfgs", steps=30, verbose=False)
-    with torch.no_grad():  # both reach the same least-squares optimum
-        assert float(pose_loss(other(s), x)) >= history.final_loss * (1 - 1e-6)
-    regularised = Bezier.from_dualquats(x, s, n_ctrl=5)  # the default prior: a small bias
-    assert fit(regularised, s, x, verbose=False).final_loss <= history.final_loss * 1.001
+    assert history.optimizer == "lm" and history.final_loss < 1e-28
+    assert max(same_curve(bez, truth, s)) < 1e-12
+    other = copy.deepcopy(start)
+    tight = lambda p: torch.optim.LBFGS(p, tolerance_grad=1e-15, tolerance_change=1e-20,  # noqa: E731
+                                        line_search_fn="strong_wolfe")
+    fit(other, s, x, optimizer=tight, steps=3, verbose=False)
+    assert max(same_curve(other, truth, s)) < 1e-5
+    regularised = copy.deepcopy(start)
+    fit(regularised, s, x, verbose=False)  # prior=1e-3
+    assert max(same_curve(regularised, truth, s)) < 10 * 1e-3 * away
 
 
 # ----------------------------------------------------------------------------- linear algebra
@@ -367,27 +500,32 @@ def test_window_covariance_matches_the_dense_inverse(gen, n, w, width):
             np.testing.assert_allclose(S[b, f].numpy(), ref, rtol=1e-9, atol=1e-12)
 
 
-def test_lm_on_a_batch_of_curves_equals_one_by_one(gen):
-    """Batched control points (2, n, 8): one block-banded solve per curve, the same optimum
-    as fitting each curve alone (prior=0: the plain least squares)."""
+def test_lm_on_a_batch_of_curves_equals_one_by_one():
+    """Batched control points (2, n, 8): one block-banded solve per curve. Against a known
+    optimum: the samples of two curves of the family, from starts 1e-2 away, give both
+    curves back (prior=0: the plain least squares), as fitting each curve alone does."""
     s = torch.linspace(0.0, 2.0, 40, dtype=F64)
     xi = torch.tensor([[0.3, 0.0, 1.0, 0.5, 0.0, 0.2], [0.0, 0.4, -1.0, 0.1, 0.3, 0.2]],
                       dtype=F64)
-    x = dq.mul(dq.exp(s[:, None] * xi[:, None, :]),
-               dq.exp(0.01 * torch.randn(2, 40, 6, generator=gen, dtype=F64)))
-    both = BSpline.from_dualquats(x, s, n_ctrl=8)
+    truth = BSpline.from_dualquats(dq.exp(s[:, None] * xi[:, None, :]), s, n_ctrl=8)
+    with torch.no_grad():
+        x = truth(s)
+    start = perturbed(truth, 1e-2, seed=6)
+    both = copy.deepcopy(start)
     history = fit(both, s, x, prior=0.0, verbose=False)
-    assert history.final_loss < history.loss[0]
+    assert history.final_loss < 1e-28 and max(same_curve(both, truth, s)) < 1e-12
     for b in range(2):
         one = BSpline.from_dualquats(x[b], s, n_ctrl=8)
+        with torch.no_grad():
+            one.control_points = start.control_points[b]
         fit(one, s, x[b], prior=0.0, verbose=False)
         torch.testing.assert_close(both.control_points[b], one.control_points, rtol=0,
-                                   atol=1e-7)
+                                   atol=1e-12)
 
 
 def test_fit_of_another_module_casts_times():
     """A module that is not a curve layer: 'auto' picks Adam and the times are cast to its
-    parameters' dtype."""
+    parameters' dtype; Adam finds the screw motion that produced the poses."""
 
     class Screw(torch.nn.Module):
         def __init__(self):
@@ -399,9 +537,12 @@ def test_fit_of_another_module_casts_times():
             return dq.exp(t[:, None] * self.xi)
 
     s = torch.linspace(0.0, 1.0, 20, dtype=F64)
-    target = dq.exp(s[:, None] * torch.tensor([0.0, 0.0, 0.5, 0.2, 0.0, 0.0], dtype=F64))
-    history = fit(Screw(), s, target, lr=0.05, steps=100, verbose=False)
-    assert history.optimizer == "adam" and history.final_loss < 1e-2 * history.loss[0]
+    xi = torch.tensor([0.0, 0.0, 0.5, 0.2, 0.0, 0.0])
+    target = dq.exp(s[:, None] * xi.double())  # the module with xi contains it exactly
+    screw = Screw()
+    history = fit(screw, s, target, lr=0.05, steps=100, verbose=False)
+    assert history.optimizer == "adam"
+    torch.testing.assert_close(screw.xi.detach(), xi, rtol=0, atol=3e-3)  # measured 1.1e-3
 
 
 # ----------------------------------------------------------------------------- issue 22 defects
@@ -422,24 +563,30 @@ def test_non_finite_target_raises_and_leaves_the_module(optimizer):
 
 def test_lm_normalizes_targets_far_from_the_origin():
     """0.2: targets written with 4 decimals (|q| - 1 up to 6e-5) 1e5 m from the origin ended
-    11 m off with a loss 1e7 times the start's. The fit now never ends worse than it started
-    and reports the loss it minimises."""
+    11 m off with a loss 1e7 times the start's. Against a known optimum: the targets are a
+    curve of the family rounded, and the fit, reporting the loss it minimises, ends no worse
+    than that curve and within the rounding of it (measured 1.2e-4 rad, 8e-6 m)."""
     s = torch.linspace(0.0, 10.0, 101, dtype=F64)
-    x = dq.mul(dq.from_rt(torch.tensor([1.0, 0, 0, 0], dtype=F64),
-                          torch.tensor([1e5, -1e5, 10.0], dtype=F64)),
-               drive(s, laps=0.3, radius=5.0))
-    q, p = dq.to_rt(x)
+    far = dq.mul(dq.from_rt(torch.tensor([1.0, 0, 0, 0], dtype=F64),
+                            torch.tensor([1e5, -1e5, 10.0], dtype=F64)),
+                 drive(s, laps=0.3, radius=5.0))
+    truth = BSpline.from_dualquats(far, s, n_ctrl=24)
+    with torch.no_grad():
+        q, p = dq.to_rt(truth(s))
     q4 = torch.round(q * 1e4) / 1e4  # slightly non-unit
     assert float((q4.norm(dim=-1) - 1).abs().max()) > 1e-5
     spline = BSpline.from_poses(q4 / q4.norm(dim=-1, keepdim=True), p, s, n_ctrl=24)
     # the dual quaternion of the rounded (non-unit) quaternions, as a file would give it
     target = torch.cat((q4, 0.5 * quat.mul(torch.cat((torch.zeros_like(p[:, :1]), p), -1), q4)),
                        -1)
-    start = float(pose_loss(spline(s), dq.normalize(target)).detach())
+    with torch.no_grad():
+        start = float(pose_loss(spline(s), dq.normalize(target)))
+        optimum_bound = float(pose_loss(truth(s), dq.normalize(target)))
     history = fit(spline, s, target, verbose=False)
-    assert history.final_loss <= start * (1 + 1e-9)
     assert history.loss[0] == pytest.approx(start, rel=1e-6)
-    assert float(translation_error(spline(s), x).detach().max()) < 0.05
+    assert history.final_loss <= optimum_bound
+    rot, trans = same_curve(spline, truth, torch.linspace(0.0, 10.0, 1001, dtype=F64))
+    assert rot < 3e-4 and trans < 1e-4, (rot, trans)
 
 
 def test_auto_with_a_custom_loss_or_module_picks_a_torch_optimizer():
