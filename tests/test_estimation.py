@@ -303,6 +303,48 @@ def test_batched_problems_equal_separate_ones(gen):
         torch.testing.assert_close(est.pose_std(t[b, :5])[b], est_b.pose_std(t[b, :5]))
 
 
+def test_per_trajectory_knots_equal_separate_estimates(gen):
+    """Three trajectories on their own time ranges (per-trajectory knots and origins, from
+    (B, N) times; one starts at t = 100 s), poses and a gyro with its own bias each, in the
+    cumulative form: one batched estimate equals three separate ones (control points, bias,
+    losses, standard deviations); a time outside its own trajectory's domain (inside
+    another's) is refused, naming the trajectory."""
+    ranges = [(0.0, 3.0), (1.0, 2.5), (100.0, 102.0)]
+    t = torch.stack([torch.linspace(a, b, 31, dtype=F64) for a, b in ranges])
+    ti = torch.stack([torch.linspace(a + 0.2, b - 0.2, 60, dtype=F64) for a, b in ranges])
+    x = torch.stack([noisy_poses(poses_of(t[b] - t[b, 0]), gen, 0.01, 0.01)
+                     for b in range(3)])
+    gy = torch.stack([imu_of(ti[b].numpy() - float(t[b, 0]), (0.01 * b, 0.02, 0.0))[0]
+                      for b in range(3)]) + randn(gen, 3, 60, 3, scale=0.01)
+    spline = BSpline.from_dualquats(x, t, n_ctrl=9, form="cumulative")
+    assert spline.time_model.knots.shape == (3, 13)  # a row of knots per trajectory
+    one = [BSpline.from_dualquats(x[b], t[b], n_ctrl=9, form="cumulative") for b in range(3)]
+    for b in range(3):
+        torch.testing.assert_close(spline.control_points[b], one[b].control_points)
+    gyro = Gyro(ti, gy, sigma=0.01, bias=True)
+    est = estimate(spline, [Poses(t, x, rot_sigma=0.01, trans_sigma=0.01), gyro],
+                   verbose=False)
+    assert est.steps >= 2 and bool(est.converged.all())
+    for b in range(3):
+        gyro_b = Gyro(ti[b], gy[b], sigma=0.01, bias=True)
+        est_b = estimate(one[b], [Poses(t[b], x[b], rot_sigma=0.01, trans_sigma=0.01),
+                                  gyro_b], verbose=False)
+        torch.testing.assert_close(spline.control_points[b], one[b].control_points,
+                                   rtol=0, atol=1e-6)
+        torch.testing.assert_close(gyro.bias[b], gyro_b.bias, rtol=0, atol=1e-7)
+        torch.testing.assert_close(est.final_loss[b], est_b.final_loss, rtol=1e-7, atol=0)
+        torch.testing.assert_close(est.std(gyro, "bias")[b],
+                                   est_b.std(gyro_b, "bias"), rtol=1e-5, atol=0)
+        torch.testing.assert_close(est.kinematics_std(ti[:, 10:13])[b],
+                                   est_b.kinematics_std(ti[b, 10:13]), rtol=1e-5, atol=0)
+    bias = torch.tensor([[0.01 * b, 0.02, 0.0] for b in range(3)], dtype=F64)
+    assert bool(((gyro.bias - bias).abs() < 5 * est.std(gyro, "bias")).all())
+    late = t.clone()
+    late[1, -1] = 2.9  # inside trajectory 0's domain, past trajectory 1's end
+    with pytest.raises(ValueError, match=r"trajectory 1.*\[1\.0, 2\.5\]"):
+        estimate(spline, [Poses(late, x, rot_sigma=0.01, trans_sigma=0.01)], verbose=False)
+
+
 def test_imu_improves_velocity_over_poses_alone(gen):
     """Sparse noisy poses (5 Hz, 2 cm): the velocity of the fit with a 100 Hz IMU is closer
     to the analytic velocity than the poses-only fit, and its reported velocity standard

@@ -70,8 +70,9 @@ def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[
 
 
 def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) -> None:
-    """Times (widened by an estimated offset's bound) inside the trajectory's domain."""
-    lo, hi = trajectory.domain
+    """Times (widened by an estimated offset's bound) inside the trajectory's domain (per
+    trajectory for per-trajectory knots)."""
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64) for e in trajectory.domain)
     eps = torch.finfo(trajectory.control_points.dtype).eps
     tol = (1e-9 + 4 * eps) * (hi - lo)  # the layer's relative knots round in its dtype
     for term in terms:
@@ -89,10 +90,15 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
             if t.dim() == 2 and (len(batch) != 1 or t.shape[0] != batch[0]):
                 _checks.fail(fn, f"{name} times {_checks.shape_str(t.shape)} do not match the "
                                  f"trajectory's batch {_checks.shape_str(batch)}")
-            if float(t.min()) + a < lo - tol or float(t.max()) + b > hi + tol:
-                _checks.fail(fn, f"{name} times {what} leave the trajectory's domain "
-                                 f"[{lo!r}, {hi!r}]: got [{float(t.min()) + a!r}, "
-                                 f"{float(t.max()) + b!r}]; extend the trajectory or lower "
+            first, last = (x.to(torch.float64).cpu() for x in (t.amin(-1) + a, t.amax(-1) + b))
+            bad = ((first < lo - tol) | (last > hi + tol)).reshape(-1)
+            if bool(bad.any()):
+                i = int(bad.nonzero()[0, 0])
+                pick = lambda x: float(x.reshape(-1)[i] if x.numel() > 1 else x)  # noqa: E731
+                row = f" (trajectory {i})" if lo.dim() or t.dim() == 2 else ""
+                _checks.fail(fn, f"{name} times {what} leave the trajectory's domain{row} "
+                                 f"[{pick(lo)!r}, {pick(hi)!r}]: got [{pick(first)!r}, "
+                                 f"{pick(last)!r}]; extend the trajectory or lower "
                                  f"max_time_offset")
 
 

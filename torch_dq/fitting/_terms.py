@@ -507,19 +507,23 @@ def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
     if m == 0.0:
         return like.new_zeros(())
     t, meas, valid = term.times, term.readings, term.mask.to(torch.float64)
-    lo, hi = trajectory.domain
-    a, b = max(lo, float(t.min()) - m), min(hi, float(t.max()) + m)
-    g = torch.linspace(a, b, max(2, int((b - a) / (m / 20.0)) + 2), dtype=torch.float64,
-                       device=t.device)
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
+              for e in trajectory.domain)  # per trajectory for per-trajectory knots
+    a, b = torch.maximum(lo, t.amin(-1) - m), torch.minimum(hi, t.amax(-1) + m)
+    size = max(2, int(float(((b - a) / (m / 20.0)).max())) + 2)
+    g = a[..., None] + (b - a)[..., None] * torch.linspace(0.0, 1.0, size, dtype=torch.float64,
+                                                          device=t.device)
+    a, b = a[..., None, None], b[..., None, None]
     with torch.no_grad():
         x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
         rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
     offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
-    s = ((t[..., None, :] + offsets[:, None]).clamp(a, b) - a) / (g[1] - g[0])
-    j = s.floor().clamp(0, g.shape[0] - 2)
+    s = (torch.minimum(torch.maximum(t[..., None, :] + offsets[:, None], a), b) - a) / (
+        g[..., 1:2, None] - g[..., :1, None])
+    j = s.floor().clamp(0, size - 2)
     fr = s - j
     j = j.long()[..., None]  # (..., 81, N, 1): rate (..., G, 3) gathered per sample
-    r = rate[..., None, :, :].expand(*s.shape[:-1], g.shape[0], 3)
+    r = rate[..., None, :, :].expand(*s.shape[:-1], size, 3)
     fr = fr[..., None]
     pred = (torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr)
     pred = pred.transpose(-1, -2)  # (..., 81, 3, N)
