@@ -55,3 +55,29 @@ def test_start_warns_beyond_with_a_spacing_that_works():
     spline = BSpline.from_matrices(T, times, n_ctrl=math.ceil(6.0 / h) + 3)
     trans, rot = max_errors(spline, times, T)
     assert trans < 1e-9 and rot < 1e-9
+
+
+def test_sample_times_per_trajectory():
+    """check_sample_times: (N,) only by default (the estimation terms' times); with
+    batched=True rows of their own, each finite and strictly increasing, the message naming
+    the first bad row."""
+    from torch_dq._start import check_sample_times
+
+    rows = torch.stack((torch.linspace(0, 1, 5, dtype=F64), 1.7e9 + torch.arange(5, dtype=F64)))
+    assert check_sample_times("f", rows, 5, batched=True) is rows
+    with pytest.raises(ValueError, match=r"^f: expected a 1-D \(N,\) tensor for times"):
+        check_sample_times("f", rows, 5)
+    bad = rows.clone()
+    bad[1, 3] = bad[1, 2]
+    with pytest.raises(ValueError, match=r"^f: times must be strictly increasing in each row, "
+                                         r"not so in row \(1,\)$"):
+        check_sample_times("f", bad, batched=True)
+    bad = rows[None].repeat(2, 1, 1)
+    bad[1, 0, 4] = math.inf
+    with pytest.raises(ValueError, match=r"times must be finite in each row, not so in row "
+                                         r"\(1, 0\)"):
+        check_sample_times("f", bad, batched=True)
+    with pytest.raises(ValueError, match=r"expected shape \(\.\.\., 4\) for the N = 4 poses"):
+        check_sample_times("f", rows, 4, batched=True)
+    with pytest.raises(ValueError, match=r"float32 rounds these times to steps of 128"):
+        check_sample_times("f", rows.float(), batched=True)
