@@ -7,6 +7,7 @@ matrices (tests/references.py, pytransform3d's exponential coordinates)."""
 
 import io
 import math
+import re
 
 import numpy as np
 import pytest
@@ -349,3 +350,31 @@ def test_from_poses_chooses_n_ctrl_from_the_data(gen):
     assert err < 0.05
     with pytest.raises(ValueError, match="n_ctrl=None chooses the knots from one trajectory"):
         BSpline.from_dualquats(torch.stack((x, x)), s)
+
+
+@pytest.mark.parametrize("bad, message", [
+    ((2.0, 1.0), r"domain must be two finite times t0 < t1, got \(2\.0, 1\.0\)$"),
+    ((0.0, math.nan), r"domain must be two finite times t0 < t1, got \(0\.0, nan\)$"),
+    ((0.0, 1.0, 2.0), r"expected domain to be \(t0, t1\), two real numbers or a \(2,\) tensor"),
+    ("ab", r"expected domain to be \(t0, t1\), two real numbers or a \(2,\) tensor, got 'ab'"),
+    ((0.0, True), r"expected domain to be \(t0, t1\)"),
+    (torch.zeros(3, dtype=F64), r"expected a \(2,\) tensor for domain, got shape \(3,\)$"),
+])
+def test_one_parser_of_time_spans(bad, message):
+    """curves.bezier's domain, the layers' domain and clamped_uniform_knots' domain go through
+    one parser (_time.time_pair): the same input gives the same message everywhere."""
+    c = dq.identity((3,), dtype=F64)
+    t = torch.tensor([0.5], dtype=F64)
+    calls = {"curves.bezier": lambda: curves.bezier(c, t, domain=bad),
+             "nn.Bezier": lambda: Bezier(c, domain=bad),
+             "curves.clamped_uniform_knots": lambda: curves.clamped_uniform_knots(
+                 4, 3, domain=bad)}
+    for fn, call in calls.items():
+        with pytest.raises(ValueError, match="^" + re.escape(fn) + ": " + message):
+            call()
+    with pytest.raises(ValueError, match=r"^nn\.BSpline: time_range must be two finite times"), \
+            pytest.warns(DeprecationWarning):
+        BSpline(c, degree=2, time_range=(1.0, 1.0))
+    with pytest.raises(TypeError, match=r"^nn\.Bezier: expected a floating-point tensor for "
+                                        r"domain"):
+        Bezier(c, domain=torch.tensor([0, 1]))
