@@ -5,7 +5,7 @@ p(t))`` body to world) is estimated by :func:`estimate` from timestamped measure
 kind a term (a :class:`torch.nn.Module` holding its data, noise and nuisance parameters);
 :func:`estimate` returns an :class:`Estimate` with the uncertainties. :func:`fit` refines a
 curve on poses alone (Levenberg-Marquardt as :func:`estimate` with one :class:`Poses` term,
-or a torch optimizer).
+or a torch optimizer minimising that term's cost).
 
 **Terms.** Residuals are predicted minus measured, divided by the sigmas (required,
 keyword-only: a float or one per axis). ``t' = t + dt`` is a sample's time in the
