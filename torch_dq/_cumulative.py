@@ -45,10 +45,11 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels.layout import chunks, from_rows, rows_into, to_rows
-from ._kernels.sclerp import Frame, combine, frame, vjp_rows
+from ._kernels import products
+from ._kernels.layout import chunks, to_rows
+from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
-from ._kernels.weights import Angle, WeightSlopes, angle
+from ._kernels.weights import Angle, Weights, WeightSlopes, angle
 from ._numerics import safe_denominator
 
 __all__ = ["basis", "jets", "poses"]
@@ -186,113 +187,215 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
 
 # ----------------------------------------------------------------------------- fused poses
 
-def _mul_vjp(U: Tensor, V: Tensor, G: Tensor) -> tuple[Tensor, Tensor]:
-    r"""Cotangents of ``U`` and ``V`` for :math:`Z = UV` (rows ``(8, ...)``) at ``G``:
-    with :math:`a \cdot (bc) = (a c^*) \cdot b = (b^* a) \cdot c`,
-    :math:`\bar U = (g_r v_r^* + g_d v_d^*,\ g_d v_r^*)` and
-    :math:`\bar V = (u_r^* g_r + u_d^* g_d,\ u_r^* g_d)`."""
-    q = _taylor.qmul_rows
-    Vc, Uc = _conj_rows(V), _conj_rows(U)
-    gr, gd = G[:4], G[4:]
-    gU = torch.cat((q(gr, Vc[:4]) + q(gd, Vc[4:]), q(gd, Vc[:4])))
-    gV = torch.cat((q(Uc[:4], gr) + q(Uc[4:], gd), q(Uc[:4], gd)))
-    return gU, gV
+def _span_tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor]:
+    r"""Per span start ``f`` (``F = M - p`` of them), the products of the expanded form and
+    the relative motions' frames, as plain (differentiable) torch ops on ``F``-sized rows.
+
+    With :math:`R_j = c_{f+j-1}^{-1} c_{f+j}` and its power
+    :math:`R_j^{w} = \beta_j + \alpha_j R_j` (eq. 11 from the identity; the dual numbers
+    :math:`\beta = F_0 - \epsilon\delta G_0`, :math:`\alpha = \sigma (F_1 - \epsilon\delta
+    G_1)` commute with everything), the pose expands into
+    :math:`c_f \prod_j (\beta_j + \alpha_j R_j) = \sum_S w_S\, T_S`,
+    :math:`T_S = c_f \prod_{j \in S} R_j` (ascending ``j``) over the subsets ``S`` of
+    ``1..p``, :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S} \beta_j`.
+
+    Returns ``table (F * 2K, 8)``, ``K = 2^p``: rows ``f 2K + m`` the :math:`T_S` (bit
+    ``j - 1`` of ``m`` set where ``j`` is in ``S``) and rows ``f 2K + K + m`` their real
+    parts moved to the dual half (what a dual weight multiplies); and ``pairs (3, p, F)``:
+    the frames ``c, delta, sigma`` of the :math:`R_j` from the identity. Span starts that no
+    time reads are computed from zeros: a NaN control point of one curve cannot reach the
+    gradients of another through a span that straddles both.
+    """
+    F = ctrl.shape[0] - p
+    used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
+    idx = torch.arange(F, device=ctrl.device)[:, None] + torch.arange(p + 1, device=ctrl.device)
+    P = torch.where(used[:, None, None], ctrl[idx], 0.0)  # (F, p + 1, 8)
+    conj = P.new_tensor([1.0, -1.0, -1.0, -1.0] * 2)
+    rel = products.dq_mul(P[:, :-1] * conj, P[:, 1:])  # (F, p, 8)
+    right = products.right_matrix(rel).transpose(-1, -2)  # x R_j = x @ right[:, j]
+    T = P[:, :1]
+    for j in range(p):
+        T = torch.cat((T, T @ right[:, j]), 1)  # (F, 2^(j+1), 8)
+    shifted = torch.cat((torch.zeros_like(T[..., :4]), T[..., :4]), -1)
+    table = torch.cat((T, shifted), 1).reshape(-1, 8)
+    sigma = 1.0 - 2.0 * (rel[..., 0] < 0).to(rel.dtype)
+    return table, torch.stack((sigma * rel[..., 0], sigma * rel[..., 4], sigma)).transpose(1, 2)
 
 
-def _pair_table(rows: Tensor) -> tuple[Tensor, Tensor]:
-    """Relative motions :math:`c_i^{-1} c_{i+1}` ``(8, M - 1)`` of consecutive rows
-    ``(8, M)``, and their :class:`Frame` and :class:`Angle` from the identity ``(6, M - 1)``:
-    computed once per pair, gathered for every time that reads it."""
-    rel = _taylor.dq_rows(_conj_rows(rows[:, :-1]), rows[:, 1:])
-    fr = frame(_identity_rows(rows)[:, 0], rel, True)
-    return rel, torch.stack((*fr, *angle(fr.c)))
+def _subset_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
+    r"""The dual weights :math:`w_S` level by level: ``b_r, b_d (2, p, n)`` the real and
+    dual parts of :math:`(\beta_j, \alpha_j)`; level ``j`` holds the products over
+    ``1..j``, ``(2^j, n)`` each (index ``m``: bit ``i - 1`` set for :math:`\alpha_i`)."""
+    levels = [(b_r[:, 0], b_d[:, 0])]
+    for j in range(1, b_r.shape[1]):
+        w_r, w_d = levels[-1]
+        r, d = b_r[:, j, None], b_d[:, j, None]
+        levels.append(((w_r * r).flatten(0, 1),
+                       torch.addcmul(w_d * r, w_r, d).flatten(0, 1)))
+    return levels
 
 
-def _chunk_powers(rel: Tensor, table: Tensor, first: Tensor, w: Tensor,
-                  derivatives: bool = False, need_w: bool = False):
-    """The powers of one chunk: the gathered relative motions ``(p, 8, N)`` (``first`` the
-    index of each time's :math:`c_{r-p}`), their frames, weights and powers ``(p, 8, N)``."""
+def _subset_vjp(levels: list[tuple[Tensor, Tensor]], b_r: Tensor, b_d: Tensor,
+                g_last: Tensor) -> tuple[Tensor, Tensor]:
+    """Cotangents of ``b_r, b_d (2, p, n)`` from ``g_last (n, 2^(p+1))``, those of the last
+    level's real and dual parts side by side (as the bags' weights)."""
+    p = b_r.shape[1]
+    g_r, g_d = to_rows(g_last).chunk(2)
+    gb_r, gb_d = [], []
+    for j in range(p - 1, 0, -1):
+        w_r, w_d = levels[j - 1]
+        r, d = b_r[:, j, None], b_d[:, j, None]
+        g_r, g_d = g_r.unflatten(0, (2, -1)), g_d.unflatten(0, (2, -1))
+        gb_r.append((g_r * w_r + g_d * w_d).sum(1))
+        gb_d.append((g_d * w_r).sum(1))
+        g_r, g_d = torch.addcmul(g_r * r, g_d, d).sum(0), (g_d * r).sum(0)
+    gb_r.append(g_r)
+    gb_d.append(g_d)
+    return torch.stack(gb_r[::-1], 1), torch.stack(gb_d[::-1], 1)
+
+
+def _chunk_weights(full: Tensor, f: Tensor, w: Tensor, derivatives: bool = False,
+                   need_w: bool = False) -> tuple[Frame, Weights | WeightSlopes, Tensor]:
+    """The powers' frames (gathered per time), weights and the real parts ``b_r (2, p, n)``
+    of their dual factors of one chunk (``full (6 p, F)``: the pairs' frames and angles)."""
     p, n = w.shape
-    idx = (first + torch.arange(p, device=first.device)[:, None]).reshape(-1)
-    R = rel.index_select(1, idx).view(8, p, n).transpose(0, 1)
-    pairs = table.index_select(1, idx).view(6, p, n)
-    fr = Frame(*pairs[:3])
-    ws = screw_weights(fr, w, derivatives, need_w, Angle(*pairs[3:]))
-    return R, fr, ws, combine(_identity_rows(rel)[:, 0], R, fr, ws)
+    g = full.index_select(1, f).view(6, p, n)
+    fr = Frame(*g[:3])
+    ws = screw_weights(fr, w, derivatives, need_w, Angle(*g[3:]))
+    return fr, ws, torch.stack((ws.F[0], fr.sigma * ws.F[1]))
+
+
+def _dual_parts(sigma: Tensor, delta: Tensor, G: Tensor) -> Tensor:
+    r"""The dual parts ``b_d (2, p, n)`` of :math:`\beta, \alpha`: :math:`-\delta (G_0,
+    \sigma G_1)`."""
+    return -delta * torch.stack((G[0], sigma * G[1]))
+
+
+def _bags(f: Tensor, width: int, rows: int) -> Tensor:
+    """``(n, width)`` row indices ``f width + k`` of each time's block of a table of ``rows``
+    rows (int32 on CPU where they fit: several times faster to make than int64)."""
+    k = torch.arange(width, device=f.device)
+    if f.device.type == "cpu" and rows < 2**31:
+        k = k.int()
+    return torch.add(k, f[:, None].to(k.dtype), alpha=width)
+
+
+def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
+    """The chunk ``part`` of the forward's saved weights, a contiguous ``(3, 2, p, n)`` block
+    of the flat buffer ``kept`` (chunks one after the other)."""
+    p, N = shape
+    start, stop, _ = part.indices(N)
+    return kept[6 * p * start:6 * p * stop].view(3, 2, p, stop - start)
+
+
+def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
+    r""":math:`\sum_{n: f_n = s} W_n \otimes G_n` for every span start ``s``: ``W (n, k)``,
+    ``G (n, 8)`` -> ``(F, k, 8)``. Eager on CPU with non-decreasing ``f`` (sorted times): one
+    small matrix product per span (one host read of the spans' counts); otherwise the outer
+    products are scattered."""
+    if not torch.compiler.is_compiling() and f.device.type == "cpu" and f.shape[0] > 1:
+        if bool((f[1:] >= f[:-1]).all()):
+            counts = torch.bincount(f - f[0]).tolist()
+            starts = f.new_tensor([s for s, c in enumerate(counts) if c]) + f[0]
+            parts = [a.T @ b for a, b in zip(W.split(counts), G.split(counts), strict=True)
+                     if a.shape[0]]
+            return W.new_zeros(F, W.shape[1], 8).index_add(0, starts, torch.stack(parts))
+    return W.new_zeros(F, W.shape[1], 8).index_add(0, f, W[:, :, None] * G[:, None, :])
 
 
 class _Poses(torch.autograd.Function):
-    r"""The cumulative form's poses, fused: :math:`c_f \prod_{j=1}^p E_j`,
-    :math:`E_j = (c_{f+j-1}^{-1} c_{f+j})^{w_j}` (eq. 11 from the identity).
+    r"""The cumulative form's poses from the span tables (:func:`_span_tables`):
+    :math:`\sum_S w_S(t)\, T_S[f]`, one weighted bag of table rows per time
+    (``embedding_bag``), the weights from eq. 11's dual weights of each power.
 
-    Inputs: ``ctrl (M, 8)`` sign-aligned control points (flattened over curves),
-    ``first (N,)`` int64 (``f``, each time's first control point), ``w (p, N)``. Output
-    ``(N, 8)``. Component rows over cache-sized chunks; the relative motions and their
-    angles are computed once per pair of control points; the backward recomputes the
-    powers chunk by chunk (memory O(output)) and sums the pairs' sensitivities before
-    expanding them into control-point rows. Twice differentiable (the backward is plain
-    torch ops).
+    Inputs: ``table (F * 2K, 8)``, ``pairs (3, p, F)``, ``first (N,)`` int64 (each time's span
+    start ``f``), ``w (p, N)``, ``save``. Outputs: the poses ``(N, 8)``, in the caller's
+    layout (no row copies), and with ``save`` what the backward reads (not differentiable):
+    the bags' weights ``(N, 2K)`` and ``(b_r, G, H) (3, 2, p, N)``, memory about 4x the
+    poses'. The weights run over cache-sized chunks of component rows. The backward
+    returns the cotangents of the table and of the frames' ``c`` and ``delta``; autograd
+    carries them to the control points through the (small) tables. Where the backward is
+    itself differentiated, or the gradient of ``w`` is asked for, it recomputes the
+    weights from the inputs instead (plain torch ops: twice differentiable).
     """
 
     generate_vmap_rule = True
 
     @staticmethod
-    def forward(ctrl: Tensor, first: Tensor, w: Tensor) -> Tensor:
-        rows = to_rows(ctrl)
-        rel, table = _pair_table(rows)
-        out = ctrl.new_empty(first.shape[0], 8)
-        for i in chunks(first.shape[0], POSES_CHUNK):
-            E = _chunk_powers(rel, table, first[i], w[:, i])[-1]
-            x = rows.index_select(1, first[i])
-            for j in range(E.shape[0]):
-                x = _taylor.dq_rows(x, E[j])
-            rows_into(out[i], x)
-        return out
+    def forward(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor,
+                save: bool) -> tuple[Tensor, Tensor, Tensor]:
+        full = _full_pairs(pairs)
+        N, width = first.shape[0], table.shape[0] // pairs.shape[-1]
+        out = table.new_empty(N, 8)
+        bags = table.new_empty(N if save else 0, width)
+        kept = table.new_empty(6 * w.shape[0] * N if save else 0)
+        for i in chunks(N, POSES_CHUNK):
+            fr, ws, b_r = _chunk_weights(full, first[i], w[:, i], save, False)
+            w_r, w_d = _subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1]
+            W = torch.cat((w_r, w_d)).T
+            if save:
+                bags[i] = W
+                W = bags[i]
+                torch.stack((b_r, ws.G, cast(WeightSlopes, ws).H),
+                            out=_kept(kept, i, w.shape))
+            out[i] = torch.nn.functional.embedding_bag(
+                _bags(first[i], width, table.shape[0]), table, mode="sum", per_sample_weights=W)
+        return out, bags, kept
 
     @staticmethod
     def setup_context(ctx, inputs, output):
-        ctrl, first, w = inputs
-        ctx.save_for_backward(ctrl, first, w)
+        table, pairs, first, w, _ = inputs
+        ctx.mark_non_differentiable(*output[1:])
+        ctx.set_materialize_grads(False)
+        ctx.save_for_backward(table, pairs, first, w, *output[1:])
 
     @staticmethod
-    def backward(ctx, grad):
-        ctrl, first, w = ctx.saved_tensors
-        need_w = ctx.needs_input_grad[2]
-        rows = to_rows(ctrl)
-        rel, table = _pair_table(rows)
-        # accumulated as component rows, per control point (8, M) and per pair (8, M - 1)
-        grad_rows, grad_rel = torch.zeros_like(rows), torch.zeros_like(rel)
-        used = torch.zeros_like(rel[0], dtype=torch.bool)
-        grad_w = []
+    def backward(ctx, grad, *_):
+        if grad is None:  # only the (non-differentiable) saved weights were reached
+            return None, None, None, None, None
+        table, pairs, first, w, bags, kept = ctx.saved_tensors
+        need_w = ctx.needs_input_grad[3]
+        saved = bags.shape[0] > 0 and not need_w and not torch.is_grad_enabled()
+        full = _full_pairs(pairs)
+        p, F = pairs.shape[1:]
+        width = table.shape[0] // F
+        # table rows (f, k) -> columns: rows (f, component) of the transposed table
+        columns = table.view(F, width, 8).transpose(1, 2).reshape(F * 8, width)
+        grad = grad.contiguous()
+        g_pairs = torch.zeros_like(pairs[:2])
+        g_table, grad_w = table.new_zeros(F, width, 8), []
         for i in chunks(first.shape[0], POSES_CHUNK):
-            R, fr, ws, E = _chunk_powers(rel, table, first[i], w[:, i], True, need_w)
-            prefix = [rows.index_select(1, first[i])]
-            for j in range(E.shape[0] - 1):
-                prefix.append(_taylor.dq_rows(prefix[-1], E[j]))
-            G, gE = to_rows(grad[i]), []
-            for j in range(E.shape[0] - 1, -1, -1):
-                G, g = _mul_vjp(prefix[j], E[j], G)
-                gE.append(g)
-            ct = vjp_rows(_identity_rows(rel)[:, 0], R, fr, cast(WeightSlopes, ws),
-                          torch.stack(gE[::-1]), frame_terms=False)
-            # From the identity, c = sigma R_w and delta = sigma S_w: the frame terms are
-            # the (sigma-scaled) sensitivities added to the real and dual scalar parts.
-            g_rel = ct.b.index_add(1, ct.c.new_tensor([0, 4], dtype=torch.long),
-                                   torch.stack((ct.c, ct.delta), 1))
-            for j in range(E.shape[0]):  # pair first + j of each time
-                grad_rel = grad_rel.index_add(1, first[i] + j, g_rel[j])
-                used = used.index_fill(0, first[i] + j, True)
-            grad_rows = grad_rows.index_add(1, first[i], G)
-            if need_w:
-                grad_w.append(cast(Tensor, ct.t))
-        # rel = c_i^* c_{i+1}; pairs that no time reads are zeroed (a NaN stays in its curve)
-        A, B = (torch.where(used, x, 0.0) for x in (rows[:, :-1], rows[:, 1:]))
-        g_conj, g_next = _mul_vjp(_conj_rows(A), B, grad_rel)
-        zero = torch.zeros_like(g_next[:, :1])
-        grad_rows = (grad_rows + torch.cat((_conj_rows(g_conj), zero), 1)
-                     + torch.cat((zero, g_next), 1))
-        grad_ctrl = from_rows(grad_rows)
-        return grad_ctrl, None, torch.cat(grad_w, -1) if need_w else None
+            f, G = first[i], grad[i]
+            if saved:
+                sd = full.view(6, -1, F)[1:3].flatten(0, 1).index_select(1, f)
+                (delta, sigma), (b_r, wG, wH) = sd.view(2, p, -1), _kept(kept, i, w.shape)
+            else:
+                fr, ws, b_r = _chunk_weights(full, f, w[:, i], True, need_w)
+                sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, cast(WeightSlopes, ws).H
+            b_d = _dual_parts(sigma, delta, wG)
+            levels = _subset_levels(b_r, b_d)
+            W = bags[i] if saved else torch.cat(levels[-1]).T
+            g_table = g_table + _segment_outer(W, G, f, F)
+            gW = torch.nn.functional.embedding_bag(_bags(f, 8, columns.shape[0]), columns,
+                                                   mode="sum", per_sample_weights=G)
+            g_r, g_d = _subset_vjp(levels, b_r, b_d, gW)
+            # b_r = (F0, sigma F1), b_d = -delta (G0, sigma G1): sensitivities to F and G
+            sig = torch.stack((torch.ones_like(sigma), sigma))
+            gF, gG = sig * g_r, -delta * sig * g_d
+            g_delta = -(sig * wG * g_d).sum(0)
+            g_c = -(wG * gF + wH * gG).sum(0)  # dF/dc = -G, dG/dc = -H
+            g_pairs = g_pairs.index_add(2, f, torch.stack((g_c, g_delta)))
+            if need_w:  # s = (1 - w, w)
+                Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
+                grad_w.append((Fs[1] * gF[1] + Gs[1] * gG[1]) - (Fs[0] * gF[0] + Gs[0] * gG[0]))
+        g_pairs = torch.cat((g_pairs, torch.zeros_like(pairs[2:])))
+        return (g_table.view(-1, 8), g_pairs, None,
+                torch.cat(grad_w, -1) if need_w else None, None)
+
+
+def _full_pairs(pairs: Tensor) -> Tensor:
+    """``(6 p, F)``: the frames ``(3, p, F)`` and their :class:`Angle` rows."""
+    return torch.cat((pairs, torch.stack(angle(pairs[0])))).flatten(0, 1)
 
 
 def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
@@ -312,4 +415,6 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
         :func:`jets` instead, which this does not check.
     """
-    return _Poses.apply(ctrl, first, weights)
+    table, pairs = _span_tables(ctrl, first, weights.shape[0])
+    save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
+    return _Poses.apply(table, pairs, first, weights, save)[0]
