@@ -362,6 +362,24 @@ def test_messages_say_how_to_fix_the_input():
         fit(spline, t64 + 10.0, dq.from_rt(q, p).double(), verbose=False)
 
 
+def test_pose_batches_must_match_the_module():
+    """Targets whose batch does not broadcast with the control points' are refused by every
+    optimizer, naming both shapes; Levenberg-Marquardt needs the module's own batch."""
+    s = torch.linspace(0.0, 1.0, 20, dtype=F64)
+    x = drive(s, laps=0.1, radius=1.0)
+    pair = BSpline.from_dualquats(torch.stack((x, x)), s, n_ctrl=5)
+    for optimizer in ("adam", "lm"):
+        with pytest.raises(ValueError, match=r"^nn\.fit: batch shapes do not broadcast: poses "
+                                             r"\(3,\), the module's control points \(2,\)"):
+            fit(pair, s, x.expand(3, 20, 8), optimizer=optimizer, verbose=False)
+    single = BSpline.from_dualquats(x, s, n_ctrl=5)
+    with pytest.raises(ValueError, match=r"optimizer='lm' needs poses with the module's batch "
+                                         r"shape \(\), got poses \(2, 20, 8\)"):
+        fit(single, s, x.expand(2, 20, 8), optimizer="lm", verbose=False)
+    history = fit(single, s, x.expand(2, 20, 8), optimizer="adam", steps=2, verbose=False)
+    assert history.steps == 2  # a torch optimizer broadcasts one curve against both
+
+
 def test_check_determined_is_schoenberg_whitney():
     """The greedy interlacing test against the rank of the dense design matrix, for random
     sample sets (clustered, with holes) on clamped cubic knots."""
