@@ -16,8 +16,9 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "THRESHOLDS", "compute_dtype", "eps", "even", "nan_unless", "power_of_two_scale",
-    "safe_denominator", "safe_norm", "threshold",
+    "THRESHOLDS", "compute_dtype", "even", "nan_unless", "piecewise",
+    "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms", "select",
+    "series_mask", "threshold",
 ]
 
 
@@ -37,13 +38,14 @@ def _unit_atol(eps: float) -> float:
 #: The threshold table (jaxlie's ``get_epsilon``): every switch point and tolerance of the
 #: package, as a function of the machine epsilon ``eps`` of the dtype it applies to. Read an
 #: entry with :func:`threshold`; each line says where it is used and why it has that value.
-THRESHOLDS = {
+THRESHOLDS: dict[str, Callable[..., float]] = {
     # sin(theta) below which two rotations count as equal or opposite and eq. 6 replaces
     # eq. 5 in the dual angle: eq. 5's error eps |t| / sin(theta) reaches sqrt(eps) |t|.
     "dual_angle_degenerate": lambda eps: eps ** 0.5,
-    # y = 1 - cos(theta) below which the dual weights of eq. 11 use their power series
-    # (5 terms): series error sqrt(y) (y/2)^4 against the closed form's eps / sqrt(y).
-    "screw_series": lambda eps: (16.0 * eps) ** (1.0 / 5.0),
+    # y = 1 - cos(theta) below which the dual weights of eq. 11 use their power series in y
+    # (times max(1, s^2) when extrapolating), for jets of order ``order`` (0: the fused
+    # kernels); derivation and number of terms: screw_series_terms.
+    "screw_series": lambda eps, order=0: _screw_series(eps, order),
     # Relative tolerance of the curves' domain check on t (multiply by the domain's scale
     # max(|t0|, |t1|)): 4 ulps of rounding in the caller's time arithmetic are accepted.
     "domain_rtol": lambda eps: 4.0 * eps,
@@ -59,29 +61,63 @@ THRESHOLDS = {
     "opposite_real_parts": lambda eps: 8.0 * eps,
     # Default atol of dualquat.is_unit.
     "unit_atol": _unit_atol,
+    # x2 = theta^2 below which even() uses the series of an even function whose first
+    # neglected coefficient is c (derivation in even()).
+    "even_series": lambda eps, c: min(1.0, 0.25 * (eps / abs(c)) ** (1.0 / _EVEN_TERMS)),
     # scipy's gimbal-lock threshold of as_euler (a fixed 1e-7 rad, not eps-based: kept
     # for agreement with scipy in every dtype).
     "gimbal_lock": lambda eps: 1e-7,
 }
 
 
-def eps(dtype: torch.dtype) -> float:
-    """Machine epsilon of the compute dtype of ``dtype`` (float32's for float16/bfloat16)."""
-    return float(torch.finfo(compute_dtype(dtype)).eps)
+def screw_series_terms(order: int) -> int:
+    r"""Number ``N`` of terms :math:`a_0 \dots a_{N-1}` of the power series of eq. 11's weights
+    (:mod:`torch_dq._kernels.weights`) for jets of order ``order`` (:mod:`torch_dq._taylor`).
+
+    Order 0 is the fused kernels' case: ``F, G`` for the values and
+    :math:`H = \partial_y G`, :math:`F_s, G_s` for the gradients, 5 terms (fewest for their
+    hot path). Jets of order ``K >= 1`` take ``N = 6 + 2K``: their coefficients need
+    ``K + 1`` derivatives in :math:`y`, each of which costs the closed forms a division by
+    :math:`\sin^2\theta \approx 2y`, so their switch point moves up and the series needs
+    more terms to stay exact there. Switch points: :data:`THRESHOLDS` ``"screw_series"``.
+    """
+    return 5 if order == 0 else 6 + 2 * order
 
 
-def threshold(name: str, dtype: torch.dtype) -> float:
+def _screw_series(eps: float, order: int) -> float:
+    r"""Switch point in :math:`y = 1 - \cos\theta` of the weights' series with
+    :func:`screw_series_terms` ``(order)`` terms (:math:`a_k \approx s\,(y/2)^k`).
+
+    - Order 0 (5 terms, the kernels): the series of ``G`` loses about
+      :math:`\sqrt y\,(y/2)^4`, the closed form :math:`\epsilon/\sqrt y`; they meet at
+      :math:`y^5 = 16\epsilon`: 1.3e-3 in float64 (:math:`\theta` 2.9 degrees), 0.072 in
+      float32 (22 degrees, so that a smooth float32 trajectory needs no transcendental).
+    - Order ``K >= 1`` (``N = 6 + 2K`` terms): the ``j``-th derivative in ``y`` loses
+      :math:`N^j (y/2)^{N-j}` in the series and :math:`\epsilon / y^j` in the closed forms;
+      with :math:`j = K + 2` (one more than the ``K + 1`` the jets of ``G`` need, for their
+      reverse-mode gradients) they meet at :math:`y^N = \epsilon\, 2^N / N^{K+2}`: ``y``
+      0.010 to 0.035 in float64 (0.13 to 0.19 in float32), relative errors from 1e-13
+      (first derivatives) to 1e-10 (third) in float64.
+    """
+    if order == 0:
+        return (16.0 * eps) ** (1.0 / 5.0)
+    terms = screw_series_terms(order)
+    return (eps * 2.0**terms / terms ** (order + 2)) ** (1.0 / terms)
+
+
+def threshold(name: str, dtype: torch.dtype, *args: float) -> float:
     """Entry ``name`` of :data:`THRESHOLDS` for ``dtype``.
 
     Pass the dtype the compared quantity is computed in (the compute dtype, float32 for
     float16 input, unless the tolerance is about the input's own rounding, as in
-    ``dualquat.is_unit``).
+    ``dualquat.is_unit``). ``args``: the entry's further arguments (the jet order of
+    ``"screw_series"``, the first neglected coefficient of ``"even_series"``).
 
     Example:
         >>> threshold("dual_angle_degenerate", torch.float64)  # sqrt(eps)
         1.4901161193847656e-08
     """
-    return float(THRESHOLDS[name](torch.finfo(dtype).eps))
+    return float(THRESHOLDS[name](torch.finfo(dtype).eps, *args))
 
 
 def safe_denominator(x: Tensor, small: Tensor) -> Tensor:
@@ -100,7 +136,63 @@ def nan_unless(finite: Tensor, x: Tensor) -> Tensor:
     return torch.where(finite, x, torch.nan)
 
 
-def _series(coefficient: Callable[[int], float]) -> tuple[float, ...]:
+def series_mask(y: Tensor, scale: Tensor, switch: float) -> Tensor:
+    """Float 0/1 mask of the elements below a series' switch point: ``y max(1, scale) <
+    switch`` (``scale``: how the series' terms grow beyond ``y``, e.g. ``s^2``)."""
+    return (y * torch.clamp(scale, min=1.0) < switch).to(y.dtype)
+
+
+def select(mask: Tensor, x: Tensor | None, y: Tensor | None) -> Tensor | None:
+    """``where(mask, x, y)`` for a float 0/1 ``mask`` and finite ``x``, ``y`` (``None``: zero):
+    exact (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
+    if x is None:
+        return None if y is None else y * (1.0 - mask)
+    return x * mask if y is None else torch.addcmul(y * (1.0 - mask), x, mask)
+
+
+Parts = list[Tensor | None]  # the outputs of both branches of piecewise (None: zero)
+
+
+def piecewise(small: Tensor, host: bool, series: Callable[[Callable[[Tensor], Tensor]], Parts],
+              closed: Callable[[], Parts]) -> Parts:
+    """A series where the float 0/1 mask ``small`` holds, closed forms elsewhere (safe where:
+    ``closed`` must guard its inputs so that it is finite on the series' elements).
+
+    With ``host`` (eager on CPU: one host read of a count) only the branches that some
+    element takes are evaluated, and the series on its elements alone when they are few;
+    the result is the same to the bit. Otherwise (compiled, under ``torch.func``
+    transforms, on other devices) both run on every element, selected arithmetically.
+
+    Args:
+        small: float 0/1 mask, the shape of every output.
+        host: whether the count may be read.
+        series: the series' parts, given how to pick its inputs' elements (the identity or
+            an expansion to ``small.shape`` indexed at the series' elements).
+        closed: the closed forms' parts, on every element.
+
+    Returns:
+        The parts, each of ``small.shape`` (``None`` where both branches give ``None``).
+    """
+    n_small = int(small.count_nonzero()) if host else -1
+    if n_small == small.numel():
+        return series(lambda x: x)
+    out = closed()
+    if 0 < n_small < small.numel() // 4:
+        # Out of place where autograd records (a double backward may have saved the closed
+        # forms); in place otherwise (closed must return fresh tensors), saving a copy.
+        at = (small > 0).nonzero(as_tuple=True)
+        part = series(lambda x: x.expand(small.shape)[at])
+        put = torch.index_put if torch.is_grad_enabled() else torch.index_put_
+        return [e if e is None and x is None
+                else put(torch.zeros_like(small) if e is None else e, at,
+                         torch.zeros_like(at[0], dtype=small.dtype) if x is None else x)
+                for x, e in zip(part, out, strict=True)]
+    if n_small != 0:
+        return [select(small, x, e) for x, e in zip(series(lambda x: x), out, strict=True)]
+    return out
+
+
+def _coefficients(coefficient: Callable[[int], float]) -> tuple[float, ...]:
     return tuple(coefficient(k) for k in range(_EVEN_TERMS + 1))
 
 
@@ -114,20 +206,20 @@ _FACT = math.factorial
 #: term sets the switch point) and the closed form in theta.
 _EVEN = {
     # cos(theta)
-    "cos": (_series(lambda k: (-1) ** k / _FACT(2 * k)), torch.cos),
+    "cos": (_coefficients(lambda k: (-1) ** k / _FACT(2 * k)), torch.cos),
     # sin(theta) / theta
-    "sinc": (_series(lambda k: (-1) ** k / _FACT(2 * k + 1)), lambda th: torch.sin(th) / th),
+    "sinc": (_coefficients(lambda k: (-1) ** k / _FACT(2 * k + 1)), lambda th: torch.sin(th) / th),
     # atan(theta) / theta (series radius 1)
-    "atanc": (_series(lambda k: (-1) ** k / (2 * k + 1)), lambda th: torch.atan(th) / th),
+    "atanc": (_coefficients(lambda k: (-1) ** k / (2 * k + 1)), lambda th: torch.atan(th) / th),
     # (1 - cos theta) / theta^2: the c_1 of the SE(3) exponential
-    "se3_c1": (_series(lambda k: (-1) ** k / _FACT(2 * k + 2)),
+    "se3_c1": (_coefficients(lambda k: (-1) ** k / _FACT(2 * k + 2)),
                lambda th: (1.0 - torch.cos(th)) / (th * th)),
     # (theta - sin theta) / theta^3: the c_2 of the SE(3) exponential
-    "se3_c2": (_series(lambda k: (-1) ** k / _FACT(2 * k + 3)),
+    "se3_c2": (_coefficients(lambda k: (-1) ** k / _FACT(2 * k + 3)),
                lambda th: (th - torch.sin(th)) / (th * th * th)),
     # (1 - (theta / 2) cot(theta / 2)) / theta^2: the c_3 of the SE(3) logarithm, from
     # x cot x = sum_n (-1)^n B_2n (2x)^2n / (2n)! (series radius 2 pi)
-    "se3_c3": (_series(lambda k: (-1) ** k * _BERNOULLI[k + 1] / _FACT(2 * k + 2)),
+    "se3_c3": (_coefficients(lambda k: (-1) ** k * _BERNOULLI[k + 1] / _FACT(2 * k + 2)),
                lambda th: (1.0 - 0.5 * th / torch.tan(0.5 * th)) / (th * th)),
 }
 
@@ -142,16 +234,16 @@ def even(name: str, x2: Tensor) -> Tensor:
     right to all orders, in reverse, forward and nested modes.
 
     Below the switch point the series :math:`\sum_{k<K} c_k x_2^k` is used (its first
-    neglected term is below an ulp of the result: the switch is at
-    :math:`x_2 = \min(1, \frac14 (\epsilon / |c_K|)^{1/K})`, large, so that the closed
+    neglected term is below an ulp of the result: the switch, :data:`THRESHOLDS`
+    ``"even_series"``, is at :math:`x_2 = \min(1, \frac14 (\epsilon / |c_K|)^{1/K})`
+    (:math:`\epsilon` of the compute dtype), large, so that the closed
     form never meets the cancellation of its derivatives near 0; at most 1, where the
     alternating series would start to cancel). Above it, the closed form is
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
     where), so no branch ever produces a NaN or an infinite derivative.
     """
     coeffs, exact = _EVEN[name]
-    switch = min(1.0, 0.25 * (eps(x2.dtype) / abs(coeffs[-1])) ** (1.0 / _EVEN_TERMS))
-    small = x2 < switch
+    small = x2 < threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
     series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c

@@ -4,8 +4,8 @@ r"""Truncated Taylor arithmetic ("jets") and eq. 11 on jets (private; used by
 A jet of order ``K`` is a list of ``K + 1`` tensors, the normalised Taylor coefficients
 :math:`x_k = x^{(k)}(t) / k!` of a quantity along time. Sums are coefficient-wise; the other
 operations are the classical recurrences of automatic Taylor expansion (Griewank & Walther,
-*Evaluating Derivatives*, ch. 13): a product is a Cauchy product, and a quotient, a square
-root, :math:`\sin`/:math:`\cos` and :math:`\arccos` follow from the first-order ODE each
+*Evaluating Derivatives*, ch. 13): a product is a Cauchy product, and a quotient,
+:math:`\sin`/:math:`\cos` and :math:`\arccos` follow from the first-order ODE each
 satisfies. Every step is plain torch ops, so the jets are differentiable again (reverse
 mode, twice) with respect to everything they were computed from.
 
@@ -23,7 +23,13 @@ from the jets of :math:`\theta = \arccos c`, :math:`\sin\theta`, :math:`\sin s\t
 :math:`\cos s\theta`; near them (a removable singularity) from the power series
 :math:`F = \sum_k a_k(s)\,y^k`, :math:`G = \partial_y F`, :math:`y = 1 - c`,
 :math:`a_0 = s`, :math:`a_k = a_{k-1}(k^2 - s^2)/(k(2k + 1))`, with enough terms for the
-derivatives in :math:`y` that the jets need (:func:`_series`).
+derivatives in :math:`y` that the jets need
+(:func:`torch_dq._numerics.screw_series_terms`).
+
+This is the one implementation of eq. 11's weights (:func:`weights`; :func:`series`,
+:func:`closed`, :func:`angle`): a jet of order 0 is what the fused kernels evaluate, and
+:mod:`torch_dq._kernels.weights` calls these functions with one coefficient, adding the
+slopes their analytic backward needs.
 
 :func:`dq_mul` is the Leibniz product of dual-quaternion jets (component rows), which the
 cumulative B-spline form (:mod:`torch_dq._cumulative`) needs for its product of powers.
@@ -32,31 +38,15 @@ cumulative B-spline form (:mod:`torch_dq._cumulative`) needs for its product of 
 from __future__ import annotations
 
 import math
-from typing import cast
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
 
 from ._kernels import fused_path
+from ._numerics import piecewise, screw_series_terms, series_mask, threshold
 
 __all__ = ["dq_mul", "dq_rows", "mul", "qmul_rows", "sclerp"]
-
-def _series(order: int, dtype: torch.dtype) -> tuple[int, float]:
-    r"""Number of series terms and switch point in :math:`y = 1 - \cos\theta` for jets of
-    order ``K``.
-
-    Jets of ``G`` of order ``K`` need :math:`j = K + 1` derivatives of ``F`` in ``y``. With
-    ``N`` terms (:math:`a_k \approx s (y/2)^k`) the series loses about
-    :math:`N^j (y/2)^{N-j}` in them, the closed forms :math:`\epsilon / y^j`
-    (:math:`\sin^2\theta \approx 2y` divides once per derivative): balanced at
-    :math:`y^N = \epsilon\, 2^N / N^j`. ``N = 6 + 2K`` puts the switch at ``y`` 0.007 to
-    0.04 in float64 (0.08 to 0.2 in float32), with relative errors from ``3e-14`` (values)
-    to ``1e-10`` (third derivatives) in float64.
-    """
-    terms = 6 + 2 * order
-    eps = torch.finfo(dtype).eps
-    return terms, float((eps * 2.0**terms / terms ** (order + 2)) ** (1.0 / terms))
-
 
 Jet = list[Tensor | None]  # None: a coefficient known to be zero (skipped, never computed)
 
@@ -101,13 +91,13 @@ def div(a: Jet, b: Jet) -> Jet:
     return q
 
 
-def sqrt(a: Jet) -> Jet:
-    r""":math:`r = \sqrt a`: :math:`r_k = (a_k - \sum_{i=1}^{k-1} r_i r_{k-i}) / (2 r_0)`."""
-    r0 = torch.sqrt(cast(Tensor, a[0]))
-    r: Jet = [r0]
-    for k in range(1, len(a)):
-        r.append(_over(_dot(((r[i], r[k - i]) for i in range(1, k)), a[k], -1.0), 2.0 * r0))
-    return r
+def _sin_cos_next(phi: Jet, s: Jet, c: Jet) -> None:
+    """Appends the coefficient ``k = len(s)`` of :func:`sin_cos` to ``s`` and ``c`` (``phi``
+    known through ``k``)."""
+    k = len(s)
+    dphi = [_lin(phi[j], float(j)) for j in range(k + 1)]
+    s.append(_lin(_dot((dphi[j], c[k - j]) for j in range(1, k + 1)), 1.0 / k))
+    c.append(_lin(_dot((dphi[j], s[k - j]) for j in range(1, k + 1)), -1.0 / k))
 
 
 def sin_cos(phi: Jet) -> tuple[Jet, Jet]:
@@ -118,24 +108,9 @@ def sin_cos(phi: Jet) -> tuple[Jet, Jet]:
     phi0 = cast(Tensor, phi[0])
     s: Jet = [torch.sin(phi0)]
     c: Jet = [torch.cos(phi0)]
-    for k in range(1, len(phi)):
-        dphi = [_lin(phi[j], float(j)) for j in range(k + 1)]
-        s.append(_lin(_dot((dphi[j], c[k - j]) for j in range(1, k + 1)), 1.0 / k))
-        c.append(_lin(_dot((dphi[j], s[k - j]) for j in range(1, k + 1)), -1.0 / k))
+    for _ in range(1, len(phi)):
+        _sin_cos_next(phi, s, c)
     return s, c
-
-
-def acos(c: Jet, sin_theta: Jet) -> Jet:
-    r""":math:`\theta = \arccos c` given the jet of :math:`\sin\theta > 0`, from
-    :math:`c' = -\theta' \sin\theta`:
-    :math:`\theta_k = -(k c_k + \sum_{j=1}^{k-1} j \theta_j S_{k-j}) / (k S_0)`."""
-    S0 = cast(Tensor, sin_theta[0])
-    theta: Jet = [torch.atan2(S0, cast(Tensor, c[0]))]
-    for k in range(1, len(c)):
-        acc = _dot(((_lin(theta[j], float(j)), sin_theta[k - j]) for j in range(1, k)),
-                   _lin(c[k], float(k)))
-        theta.append(_over(_lin(acc, -1.0), k * S0))
-    return theta
 
 
 def _rsub(value: float, jet: Jet) -> Jet:
@@ -172,90 +147,136 @@ def _stack(pairs, dim: int = 0) -> Jet:
     return out
 
 
-def _select(mask: Tensor, x: Jet, y: Jet) -> Jet:
-    """``where(mask, x, y)`` coefficient-wise for a float 0/1 ``mask`` and finite ``x, y``:
-    exact (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
-    keep = 1.0 - mask
-    return [_dot(((a, mask),), _dot(((b, keep),))) for a, b in zip(x, y, strict=True)]
+# ----------------------------------------------------------------------------- eq. 11's weights
+
+class AngleJets(NamedTuple):
+    r"""Jets of :math:`\theta = \arccos c`, :math:`\sin\theta`, :math:`\cos\theta`."""
+
+    theta: Jet
+    sin: Jet
+    cos: Jet
 
 
-def _series_weights(y: Jet, s: Jet, terms: int) -> tuple[Jet, Jet]:
-    r"""Jets of ``F, G`` from ``terms`` terms of their power series in :math:`y = 1 - c`.
+def angle(c: Jet, guard: Tensor) -> AngleJets:
+    r""":class:`AngleJets` of the cosines ``c``, replaced by 0 (:math:`\theta = \pi/2`) where
+    the float 0/1 ``guard`` holds (the closed forms' safe inputs). From
+    :math:`c' = -\theta' \sin\theta`:
+    :math:`\theta_k = -(k c_k + \sum_{j=1}^{k-1} j \theta_j S_{k-j}) / (k S_0)`, interleaved
+    with :func:`sin_cos` of :math:`\theta` (order 0: ``acos``, then ``sin``, ``cos`` of the
+    same angle, so that the weights are exact at the ends, ``F(1) = 1``, ``G(1) = 0``)."""
+    c = _scale(c, 1.0 - guard)
+    theta0 = torch.acos(cast(Tensor, c[0]))
+    theta: Jet = [theta0]
+    S: Jet = [torch.sin(theta0)]
+    C: Jet = [torch.cos(theta0)]
+    for k in range(1, len(c)):
+        acc = _dot(((_lin(theta[j], float(j)), S[k - j]) for j in range(1, k)),
+                   _lin(c[k], float(k)))
+        theta.append(_over(_lin(acc, -1.0), k * cast(Tensor, S[0])))
+        _sin_cos_next(theta, S, C)
+    return AngleJets(theta, S, C)
 
-    Nested: with :math:`u_k = (k^2 - s^2) y` the recurrence of :math:`a_k` gives
-    :math:`F = s (1 + u_1 / (1 \cdot 3) (1 + u_2 / (2 \cdot 5) (\dots)))` and
-    :math:`G = \partial_y F = a_1 (1 + u_2 / (1 \cdot 5) (1 + u_3 / (2 \cdot 7) (\dots)))`,
-    :math:`a_1 = s (1 - s^2) / 3`: one jet product per term.
+
+class Series(NamedTuple):
+    """Jets of the series branch (:func:`series`)."""
+
+    F: Jet
+    G: Jet  # [] without G
+    a1: Jet  # s (1 - s^2) / 3
+    u: list[Jet]  # u_k = (k^2 - s^2) y for k = 1 .. N - 1
+
+
+def nested(u: list[Jet], j: int) -> Jet:
+    r""":math:`\partial_y^j F / (j!\,a_j)` as a nested product (``u``: :attr:`Series.u`).
+
+    The recurrence of :math:`a_k` gives :math:`\sum_{k \ge j} \frac{k!}{(k-j)!} a_k y^{k-j}
+    = j!\,a_j \big(1 + \frac{u_{j+1}}{1 \cdot (2j + 3)} \big(1 + \frac{u_{j+2}}{2 (2j + 5)}
+    (\dots)\big)\big)`: one fused multiply-add per term and coefficient.
     """
-    s2 = mul(s, s)
-    s2y = mul(s2, y)
-    u = {k: [_lin(a, float(k * k), b, -1.0) for a, b in zip(y, s2y, strict=True)]
-         for k in range(1, terms)}
-    nested = []
-    for j in (0, 1):
-        out: Jet | None = None
-        for k in range(terms - 1, j, -1):
-            term = u[k] if out is None else mul(u[k], out)
-            out = _plus(_scale(term, 1.0 / ((k - j) * (2 * k + 1))), 1.0)
-        assert out is not None  # terms >= 6: the loop ran
-        nested.append(out)
-    return mul(s, nested[0]), mul(_scale(mul(s, _rsub(1.0, s2)), 1.0 / 3.0), nested[1])
-
-
-def _put(x: Jet, at: tuple[Tensor, ...], values: Jet) -> Jet:
-    """``x`` with ``values`` put at the indices ``at`` (out of place), coefficient-wise."""
-    out: Jet = []
-    for e, v in zip(x, values, strict=True):
-        if e is None and v is None:
-            out.append(None)
+    out: Jet | None = None
+    for k in range(len(u), j, -1):
+        scale = 1.0 / ((k - j) * (2 * k + 1))  # (k / (k - j)) / (k (2k + 1))
+        uk = u[k - 1]
+        if out is None:
+            out = _plus(_scale(uk, scale), 1.0)
         else:
-            full = torch.zeros_like(cast(Tensor, v)) if e is None else e
-            out.append(torch.index_put(full, at, torch.zeros_like(cast(Tensor, e))
-                                       if v is None else v))
+            u0, out0 = cast(Tensor, uk[0]), cast(Tensor, out[0])
+            first: Jet = [torch.addcmul(u0.new_ones(()), u0, out0, value=scale)]
+            out = first + [_dot(((uk[i], out[m - i]) for i in range(m + 1)), value=scale)
+                           for m in range(1, len(out))]
+    assert out is not None  # j < N - 1: the loop ran
     return out
 
 
-def _weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
-    """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
-    ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``.
+def series(y: Jet, s: Jet, s2: Jet, terms: int, with_G: bool = True) -> Series:
+    r"""The series branch: jets of ``F`` (and ``G``) from ``terms`` terms of
+    :math:`F = \sum_k a_k y^k` (:mod:`torch_dq._kernels.weights`), ``y = 1 - c``,
+    ``s2 = s^2``: :math:`F = s\,` :func:`nested` ``(u, 0)``,
+    :math:`G = a_1\,` :func:`nested` ``(u, 1)``."""
+    s2ny = mul(s2, _scale(y, -1.0))
+    u = [[_lin(a, 1.0, b, float(k * k)) for a, b in zip(s2ny, y, strict=True)]
+         for k in range(1, terms)]
+    F = mul(s, nested(u, 0))
+    if not with_G:
+        return Series(F, [], [], u)
+    a1 = [None if x is None else x / 3.0 for x in mul(s, _rsub(1.0, s2))]
+    return Series(F, mul(a1, nested(u, 1)), a1, u)
 
-    The series branch runs where ``y max(1, s^2)`` is below the switch point. In eager mode
-    on CPU (one host read of a count) it is skipped when no element needs it and evaluated
-    on those elements alone when they are few; elsewhere (compiled, under ``torch.func``
-    transforms or forward AD, on other devices) on every element, selected arithmetically.
-    """
-    y = _rsub(1.0, c)
-    c0, s0, y0 = cast(Tensor, c[0]), cast(Tensor, s[0]), cast(Tensor, y[0])
-    terms, threshold = _series(len(c) - 1, c0.dtype)
-    # Non-finite cosines take the closed forms (NaN there): a bad element must not change
-    # which branches the others are computed with (their values and gradients stay bitwise).
-    small = ((y0 * torch.clamp(s0 * s0, min=1.0) < threshold) & y0.isfinite()).to(c0.dtype)
+
+class Closed(NamedTuple):
+    """Jets of the closed forms (:func:`closed`) and the intermediates the kernels reuse."""
+
+    F: Jet
+    G: Jet  # [] without G
+    st: Jet  # s theta
+    sin_st: Jet
+    cos_st: Jet  # [] without G
+    sin2: Jet  # sin^2 theta ([] without G)
+
+
+def closed(s: Jet, ang: AngleJets, with_G: bool = True) -> Closed:
+    r"""The closed forms :math:`F = \sin s\theta / \sin\theta`,
+    :math:`G = (s \cos s\theta - F \cos\theta) / \sin^2\theta` on the guarded angles
+    ``ang`` (without ``with_G``: ``F`` alone, order 0 only)."""
+    st = mul(s, ang.theta)
+    if not with_G:
+        sin_st: Jet = [torch.sin(cast(Tensor, st[0]))]
+        return Closed(div(sin_st, ang.sin), [], st, sin_st, [], [])
+    sin_st, cos_st = sin_cos(st)
+    F = div(sin_st, ang.sin)
+    sin2 = mul(ang.sin, ang.sin)
+    G = div(_sub(mul(s, cos_st), mul(F, ang.cos)), sin2)
+    return Closed(F, G, st, sin_st, cos_st, sin2)
+
+
+def weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
+    """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
+    ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``: the series where
+    ``y max(1, s^2)`` is below the switch point of their order, the closed forms elsewhere
+    (:func:`torch_dq._numerics.piecewise`; on guarded inputs: pairs in the series in both
+    rows see ``c = 0``). Order 0 is what the fused kernels compute
+    (:func:`torch_dq._kernels.weights.screw_weights`)."""
+    order = len(c) - 1
+    c0, s0 = cast(Tensor, c[0]), cast(Tensor, s[0])
+    y, s2 = _rsub(1.0, c), mul(s, s)
+    small = series_mask(cast(Tensor, y[0]), cast(Tensor, s2[0]),
+                        threshold("screw_series", c0.dtype, order))
     host = (small.device.type == "cpu" and not torch.compiler.is_compiling()
             and fused_path(c0, s0))
-    n_small = int(small.count_nonzero()) if host else -1
 
-    # Closed forms on safe inputs: the series elements see c = 0 (theta = pi / 2). Scaled
-    # even when no element is small, so that the backward sums the gradients of ``c`` in
-    # one order whatever the count (a NaN element must not change the others' bits).
-    c_safe = _scale(c, 1.0 - small)
-    y_safe = _rsub(1.0, c_safe)
-    sin_t = sqrt(mul(y_safe, _rsub(2.0, y_safe)))  # sin^2 = (1 - c)(1 + c)
-    theta = acos(c_safe, sin_t)
-    sin_st, cos_st = sin_cos(mul(s, theta))
-    F = div(sin_st, sin_t)
-    G = div(_sub(mul(s, cos_st), mul(F, c_safe)),
-            mul(sin_t, sin_t))
-    if n_small == 0:
-        return F, G
-    if 0 < n_small < small.numel() // 4:
-        # A few series elements: the series on those alone, put into the closed forms.
-        at = (small > 0).nonzero(as_tuple=True)
-        F_series, G_series = _series_weights(
-            [None if x is None else x.expand(small.shape)[at] for x in y],
-            [None if x is None else x.expand(small.shape)[at] for x in s], terms)
-        return _put(F, at, F_series), _put(G, at, G_series)
-    F_series, G_series = _series_weights(y, s, terms)
-    return _select(small, F_series, F), _select(small, G_series, G)
+    def series_parts(pick) -> list[Tensor | None]:
+        y_, s_, s2_ = ([None if x is None else pick(x) for x in jet] for jet in (y, s, s2))
+        out = series(y_, s_, s2_, screw_series_terms(order))
+        return [*out.F, *out.G]
+
+    def closed_parts() -> list[Tensor | None]:
+        # Guard the pairs whose rows both take the series: the others have y >= switch /
+        # max(s^2), so their closed forms are finite (one angle per pair, not per row).
+        out = closed(s, angle(c, small[0] * small[1]))
+        return [*out.F, *out.G]
+
+    parts = piecewise(small, host, series_parts, closed_parts)
+    return parts[:order + 1], parts[order + 1:]
 
 
 def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
@@ -274,7 +295,7 @@ def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
     delta = [None if d is None else d[1].sum(0) for d in dots]
     # s = 1 - t for a, t for b
     s = _stack(zip(_rsub(1.0, alpha), alpha, strict=True))
-    F, G = ([None if w is None else w[:, None] for w in jet] for jet in _weights(c, s))
+    F, G = ([None if w is None else w[:, None] for w in jet] for jet in weights(c, s))
     X = _stack(zip(A, B, strict=True))
     q = [None if x is None else x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
     GP = mul(G, [None if x is None else x[:, :4] for x in X])

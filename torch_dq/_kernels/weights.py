@@ -29,6 +29,11 @@ truncated series is used, elsewhere the closed forms
     H = \frac{(1 - s^2) F - 3 G \cos\theta}{\sin^2\theta},\quad
     F_s = \frac{\theta\cos s\theta}{\sin\theta},\quad
     G_s = \frac{\cos s\theta - s\theta\sin s\theta - F_s\cos\theta}{\sin^2\theta}.
+
+``F`` and ``G`` are computed once, on jets (:func:`torch_dq._taylor.weights`): the kernels
+call its series and closed forms with one Taylor coefficient and add :math:`H, F_s, G_s`.
+Switch point and number of terms: :data:`torch_dq._numerics.THRESHOLDS` ``"screw_series"``
+(order 0).
 """
 
 from __future__ import annotations
@@ -38,10 +43,10 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from .._numerics import threshold
+from .. import _taylor
+from .._numerics import Parts, piecewise, screw_series_terms, series_mask, threshold
 
-_Optional5 = tuple[Tensor, Tensor | None, Tensor | None, Tensor | None, Tensor | None]
-_TERMS = 5  # a_0 .. a_4: truncation error ~ (y / 2) ** 5 for |s| <= 1
+_TERMS = screw_series_terms(0)  # the kernels' series: a jet of order 0
 
 
 class Weights(NamedTuple):
@@ -84,20 +89,14 @@ class Angle(NamedTuple):
 
 
 def angle(c: Tensor) -> Angle:
-    r""":class:`Angle` of cosines ``c``, with ``c`` replaced by 0 (``theta = pi / 2``) where
-    :math:`c \ge 1` (equal rotations, or rounding above 1), the only cosines whose closed
-    forms are not finite; :func:`screw_weights` takes the series branch there for every
-    ``t``. The guard cannot be wider: with extrapolation (:math:`|s| > 1`) the closed forms
-    are selected down to :math:`1 - c` = threshold / :math:`s^2`, and need the true angle."""
-    at_one = (c >= 1.0).to(c.dtype)
-    theta = torch.acos(c * (1.0 - at_one))  # where(c >= 1, 0, c) without torch.where
-    return Angle(theta, torch.sin(theta), torch.cos(theta))
-
-
-def _select(mask: Tensor, x: Tensor, y: Tensor) -> Tensor:
-    """``where(mask, x, y)`` for a float 0/1 ``mask`` and finite ``x``, ``y``: exact
-    (``x * 1 + y * 0``) and several times faster than ``torch.where`` on CPU."""
-    return torch.addcmul(y * (1.0 - mask), x, mask)
+    r""":class:`Angle` of cosines ``c`` (:func:`torch_dq._taylor.angle` of order 0), with
+    ``c`` replaced by 0 (``theta = pi / 2``) where :math:`c \ge 1` (equal rotations, or
+    rounding above 1), the only cosines whose closed forms are not finite;
+    :func:`screw_weights` takes the series branch there for every ``t``. The guard cannot be
+    wider: with extrapolation (:math:`|s| > 1`) the closed forms are selected down to
+    :math:`1 - c` = threshold / :math:`s^2`, and need the true angle."""
+    jets = _taylor.angle([c], (c >= 1.0).to(c.dtype))
+    return Angle(*(cast(Tensor, x[0]) for x in jets))
 
 
 def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
@@ -107,37 +106,18 @@ def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
     return out
 
 
-def _nested(u: list[Tensor], j: int) -> Tensor:
-    r""":math:`\partial_y^j F / (j!\,a_j)` as a nested product.
-
-    With :math:`u_k = (k^2 - s^2) y` the recurrence gives
-    :math:`\sum_{k \ge j} \frac{k!}{(k-j)!} a_k y^{k-j} = j!\,a_j \big(1 + \frac{j+1}{1}
-    r_{j+1} y \big(1 + \frac{j+2}{2} r_{j+2} y (\dots)\big)\big)`,
-    :math:`r_k y = u_k / (k (2k + 1))`: one fused multiply-add per term.
-    """
-    out: Tensor | None = None
-    for k in range(_TERMS - 1, j, -1):
-        scale = 1.0 / ((k - j) * (2 * k + 1))  # (k / (k - j)) / (k (2k + 1))
-        out = 1.0 + scale * u[k] if out is None else torch.addcmul(u[0], u[k], out, value=scale)
-    assert out is not None  # j < _TERMS - 1: the loop ran
-    return out
-
-
-def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool,
-            dual: bool = True):
+def _series_branch(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool,
+                   dual: bool) -> Parts:
     """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``) near ``y = 0``; without
     ``dual`` only ``F`` (and ``G, Fs``), the others ``None``."""
-    # u[k] = (k^2 - s^2) y; u[0] holds ones for addcmul.
-    s2ny = s2 * -y
-    u = [torch.ones_like(s2ny)] + [torch.add(s2ny, y, alpha=k * k) for k in range(1, _TERMS)]
-    a1 = s * (1.0 - s2) / 3.0
-    F = s * _nested(u, 0)
-    G = a1 * _nested(u, 1) if dual or derivatives else None
+    series = _taylor.series([y], [s], [s2], _TERMS, with_G=dual or derivatives)
+    F, G = series.F[0], series.G[0] if series.G else None
     if not derivatives:
-        return F, G, None, None, None
-    H = 0.2 * a1 * (4.0 - s2) * _nested(u, 2) if dual else None
+        return [F, G, None, None, None]
+    a1 = cast(Tensor, series.a1[0])
+    H = 0.2 * a1 * (4.0 - s2) * cast(Tensor, _taylor.nested(series.u, 2)[0]) if dual else None
     if not time_slopes:
-        return F, G, H, None, None
+        return [F, G, H, None, None]
     # d a_k / ds by differentiating the recurrence a_k = a_{k-1} (k^2 - s^2) / (k (2k + 1)).
     a, da = [s], [torch.ones_like(s)]
     for k in range(1, _TERMS):
@@ -145,27 +125,28 @@ def _series(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bo
         da.append((da[-1] * (k * k - s2) - 2.0 * s * a[-1]) / d)
         a.append(a[-1] * (k * k - s2) / d)
     Gs = _horner([k * da[k] for k in range(1, _TERMS)], y) if dual else None
-    return F, G, H, _horner(da, y), Gs
+    return [F, G, H, _horner(da, y), Gs]
 
 
-def _closed(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool, dual: bool = True):
-    """Closed forms (module docstring) at the angles ``ang`` (``dual``: as :func:`_series`)."""
-    sin2 = ang.sin * ang.sin
-    st = s * ang.theta
-    sin_st = torch.sin(st)
-    F = sin_st / ang.sin
+def _closed_branch(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool,
+                   dual: bool) -> Parts:
+    """Closed forms (module docstring) at the angles ``ang`` (``dual``: as
+    :func:`_series_branch`)."""
+    jets = _taylor.AngleJets([ang.theta], [ang.sin], [ang.cos])
+    closed = _taylor.closed([s], jets, with_G=dual or derivatives)
+    F = cast(Tensor, closed.F[0])
     if not (dual or derivatives):
-        return F, None, None, None, None
-    cos_st = torch.cos(st)
-    G = (s * cos_st - F * ang.cos) / sin2
+        return [F, None, None, None, None]
+    G, sin2 = cast(Tensor, closed.G[0]), cast(Tensor, closed.sin2[0])
     if not derivatives:
-        return F, G, None, None, None
+        return [F, G, None, None, None]
     H = ((1.0 - s * s) * F - 3.0 * G * ang.cos) / sin2 if dual else None
     if not time_slopes:
-        return F, G, H, None, None
+        return [F, G, H, None, None]
+    st, sin_st, cos_st = (cast(Tensor, x[0]) for x in (closed.st, closed.sin_st, closed.cos_st))
     Fs = ang.theta * cos_st / ang.sin
     Gs = (cos_st - st * sin_st - Fs * ang.cos) / sin2 if dual else None
-    return F, G, H, Fs, Gs
+    return [F, G, H, Fs, Gs]
 
 
 def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
@@ -194,7 +175,7 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
         (``s = t``).
     """
     F, G, H, Fs, Gs = _weights(c, t, derivatives, time_slopes, ang, host_branch, dual=True)
-    G = cast(Tensor, G)  # computed with dual
+    F, G = cast(Tensor, F), cast(Tensor, G)  # computed with dual
     return WeightSlopes(F, G, cast(Tensor, H), Fs, Gs) if derivatives else Weights(F, G)
 
 
@@ -215,40 +196,26 @@ def slerp_weights(c: Tensor, t: Tensor, derivatives: bool = False, *, time_slope
         :class:`RotationWeights`, each ``(2, N)`` (or ``None`` where not asked for).
     """
     F, G, _, Fs, _ = _weights(c, t, derivatives, time_slopes, None, host_branch, dual=False)
-    return RotationWeights(F, G, Fs)
+    return RotationWeights(cast(Tensor, F), G, Fs)
 
 
 def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: Angle | None,
-             host_branch: bool, dual: bool) -> _Optional5:
-    """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``(F, G, H, Fs, Gs)``,
-    ``None`` where not computed."""
+             host_branch: bool, dual: bool) -> Parts:
+    """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``[F, G, H, Fs, Gs]``,
+    ``None`` where not computed.
+
+    The series where ``y max(1, s^2)`` (its terms scale like :math:`(s^2 y)^k`) is below the
+    switch point, the closed forms elsewhere, on guarded inputs (:func:`angle`: series
+    elements with ``c >= 1`` see ``theta = pi / 2``). No clamp: ``c > 1`` only occurs in the
+    series branch, and ``c < -1`` (opposite real parts with ``shortest=False``, undefined) or
+    an infinite ``c`` must give NaN, not a finite ``theta = pi``.
+    """
     s = torch.stack((1.0 - t, t))
     s2 = s * s
     y = 1.0 - c
-    # The series is accurate while y max(1, s^2) is small (its terms scale like (s^2 y)^k).
-    small = (y * torch.clamp(s2, min=1.0) < threshold("screw_series", c.dtype)).to(c.dtype)
-    # Closed forms on guarded inputs (series elements with y below the threshold see
-    # theta = pi / 2). Using sin and cos of the same theta makes the endpoints exact (s = 1:
-    # F = 1, G = 0). No clamp: c > 1 only occurs in the series branch, and c < -1
-    # (opposite real parts with shortest=False, undefined) or an infinite c must give NaN,
-    # not a finite theta = pi.
-    n_small = int(small.count_nonzero()) if host_branch else -1
-    if n_small == small.numel():
-        out = _series(s, s2, y, derivatives, time_slopes, dual)
-    else:
-        out = _closed(s, angle(c) if ang is None else ang, derivatives, time_slopes, dual)
-    if 0 < n_small < small.numel() // 4:
-        # A few series elements (eager, CPU): the series on those alone, put into the
-        # closed forms (out of place where autograd records: a double backward may have
-        # saved the closed forms; in place otherwise, saving a copy of each weight).
-        at = (small > 0).nonzero(as_tuple=True)
-        shape = small.shape
-        series = _series(s.expand(shape)[at], s2.expand(shape)[at], y.expand(shape)[at],
-                         derivatives, time_slopes, dual)
-        put = torch.index_put if torch.is_grad_enabled() else torch.index_put_
-        out = tuple(e if e is None else put(e, at, x) for x, e in zip(series, out, strict=True))
-    elif 0 < n_small < small.numel() or n_small < 0:
-        series = _series(s, s2, y, derivatives, time_slopes, dual)
-        out = tuple(x if x is None else _select(small, x, e)
-                    for x, e in zip(series, out, strict=True))
-    return cast(_Optional5, out)
+    small = series_mask(y, s2, threshold("screw_series", c.dtype))
+    return piecewise(
+        small, host_branch,
+        lambda pick: _series_branch(pick(s), pick(s2), pick(y), derivatives, time_slopes, dual),
+        lambda: _closed_branch(s, angle(c) if ang is None else ang, derivatives, time_slopes,
+                               dual))
