@@ -23,8 +23,9 @@ from torch import Tensor
 from .._numerics import nan_unless, safe_denominator, threshold
 
 
-class Frame(NamedTuple):
-    """The quantities eqs. 4-5 are built from, for a broadcast pair ``a, b (..., 8)``."""
+class Chords(NamedTuple):
+    r"""The chords :math:`R \mp P` of the real parts and the other quantities eqs. 4-5 are
+    built from, for a broadcast pair ``a, b (..., 8)``."""
 
     P: Tensor  #: real part of ``a``
     Q: Tensor  #: dual part of ``a``
@@ -55,8 +56,8 @@ class DualAngle(NamedTuple):
     degenerate: Tensor  #: where eq. 6 replaces eq. 5 (bool)
 
 
-def frame(a: Tensor, b: Tensor) -> Frame:
-    """The :class:`Frame` of a broadcast pair ``a, b (..., 8)``."""
+def chords(a: Tensor, b: Tensor) -> Chords:
+    """The :class:`Chords` of a broadcast pair ``a, b (..., 8)``."""
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     dm, dp = R - P, R + P
     u = torch.linalg.vector_norm(dm, dim=-1)
@@ -64,10 +65,10 @@ def frame(a: Tensor, b: Tensor) -> Frame:
     dm_hat = dm / safe_denominator(u, u == 0)[..., None]
     dp_hat = dp / safe_denominator(v, v == 0)[..., None]
     degenerate = 0.5 * u * v <= threshold("dual_angle_degenerate", a.dtype)
-    return Frame(P, Q, R, S, u, v, dm_hat, dp_hat, degenerate)
+    return Chords(P, Q, R, S, u, v, dm_hat, dp_hat, degenerate)
 
 
-def partials(f: Frame, theta_hat: Tensor) -> Partials:
+def partials(f: Chords, theta_hat: Tensor) -> Partials:
     r""":math:`\partial\theta/\partial(u, v) = (2v, -2u) / (u^2 + v^2)` and
     :math:`\partial\hat\theta/\partial(\delta, u, v) = (-2/(uv), -\hat\theta/u, -\hat\theta/v)`,
     zero in the eq. 6 region (where ``theta_hat`` is 0)."""
@@ -94,7 +95,7 @@ class _DualAngle(torch.autograd.Function):
 
     @staticmethod
     def forward(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        f = frame(a, b)
+        f = chords(a, b)
         delta = (f.P * f.S).sum(-1) + (f.R * f.Q).sum(-1)
         theta = nan_unless(torch.isfinite(f.u) & torch.isfinite(f.v), 2.0 * torch.atan2(f.u, f.v))
         sin_theta = 0.5 * safe_denominator(f.u * f.v, f.degenerate)
@@ -109,7 +110,7 @@ class _DualAngle(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_theta, g_hat, _):
         a, b, theta_hat = ctx.saved_tensors
-        f = frame(a, b)
+        f = chords(a, b)
         p = partials(f, theta_hat)
         # Scalar sensitivities to u = |R - P|, v = |R + P| and delta = P.S + R.Q, as columns.
         g_u = (g_theta * p.theta_u + g_hat * p.hat_u)[..., None]
