@@ -345,3 +345,24 @@ def test_bad_per_row_from_poses():
         BSpline(dq.identity((3, 5)), knots=row_knots(5, 3, ENDS[:2]))
     with pytest.raises(ValueError, match=r"time_range \(deprecated\) rescales one knot vector"):
         BSpline(dq.identity((2, 5)), knots=row_knots(5, 3, ENDS[:2]), time_range=(0.0, 1.0))
+
+
+def test_each_row_has_its_own_tolerance(gen):
+    """The tolerance max(1e-9 (t1 - t0), 4 eps max(|t0|, |t1|)) is each row's own: 1e-7
+    beyond the end is a rounding for UNIX seconds (tolerance ~1.5e-6) and is evaluated at
+    the end, but lies outside a [0, 1] row (tolerance 1e-9)."""
+    n, p = 5, 3
+    ctrl = chain((2,), n, gen)
+    knots = row_knots(n, p, [(0.0, 1.0), (1.7e9, 1.7e9 + 10.0)])
+    ends = knots[:, n:n + 1]
+    x = curves.bspline(ctrl, ends + torch.tensor([[0.0], [1e-7]], dtype=F64), knots=knots)
+    torch.testing.assert_close(x, curves.bspline(ctrl, ends, knots=knots), rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"domain of trajectory \(0,\) \[0, 1\]"):
+        curves.bspline(ctrl, ends + 1e-7, knots=knots)
+    times = torch.stack((torch.linspace(0.0, 1.0, 12, dtype=F64),
+                         torch.linspace(1.7e9, 1.7e9 + 10.0, 12, dtype=F64)))
+    q, t = screw_poses(times, torch.full((2, 6), 0.1, dtype=F64))
+    spline = BSpline.from_poses(q, t, times, n_ctrl=5)
+    spline(times[:, -1:] + torch.tensor([[0.0], [1e-7]], dtype=F64))
+    with pytest.raises(ValueError, match=r"module's time domain of trajectory \(0,\)"):
+        spline(times[:, -1:] + 1e-7)
