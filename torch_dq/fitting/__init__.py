@@ -72,7 +72,7 @@ Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
     ...             sigma=1e-3, bias=True)
     >>> spline = BSpline.from_dualquats(dq.exp(tc[:, None] * xi), tc, n_ctrl=23)
     >>> est = estimate(spline, [cam, gyro], verbose=False)
-    >>> [round(v, 3) for v in gyro.bias.tolist()]
+    >>> [round(v, 3) + 0.0 for v in gyro.bias.tolist()]  # + 0.0: no "-0.0"
     [0.01, 0.0, -0.02]
 """
 
