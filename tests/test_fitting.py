@@ -464,8 +464,8 @@ def test_bezier_fit_recovers_a_bezier_curve():
     assert history.optimizer == "lm" and history.final_loss < 1e-28
     assert max(same_curve(bez, truth, s)) < 1e-12
     other = copy.deepcopy(start)
-    tight = lambda p: torch.optim.LBFGS(p, tolerance_grad=1e-15, tolerance_change=1e-20,  # noqa: E731
-                                        line_search_fn="strong_wolfe")
+    tight = functools.partial(torch.optim.LBFGS, tolerance_grad=1e-15, tolerance_change=1e-20,
+                              line_search_fn="strong_wolfe")
     fit(other, s, x, optimizer=tight, steps=3, verbose=False)
     assert max(same_curve(other, truth, s)) < 1e-5
     regularised = copy.deepcopy(start)
