@@ -119,10 +119,10 @@ def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Te
     (one batched evaluation instead of ``k`` passes with their per-call overheads).
 
     Args:
-        residual: maps the leaves (each ``(k, ..., N, *event)``, zero) to ``(k, ..., N, k)``
+        residual: maps the leaves (each ``(k, ..., N, *event)``, copies of their values) to ``(k, ..., N, k)``
             residuals, sample ``i`` depending on the leaves' sample ``i`` only.
-        leaves: the per-sample steps, ``(..., N, *event_j)``; the first has a 2-d event
-            ``(w, 6)`` (a window of control points), the others a 1-d one.
+        leaves: the per-sample inputs, ``(..., N, *event_j)`` (the residuals' sample
+            shape, then any event shape).
         k: residual size.
 
     Returns:
@@ -147,5 +147,5 @@ def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Te
     out = []
     for i in range(len(lv)):
         g = rows[0][i] if copies == k else torch.cat([row[i] for row in rows])
-        out.append(g.movedim(0, -3 if i == 0 else -2))
+        out.append(g.movedim(0, r.dim() - 2))  # after the sample dims, before the event
     return r[0].detach(), out

@@ -24,6 +24,8 @@ from ._terms import Term
 
 __all__ = ["Param", "Problem", "System"]
 
+_CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
+
 
 @dataclass
 class Param:
@@ -199,27 +201,78 @@ class Problem:
             -2, window.expand(*shape, N, w).reshape(*shape, N * w, 1).expand(
                 *shape, N * w, 8)).reshape(*shape, N, w, 8)
         est = [name for name in vals if (i, name) in self.index]
-        leaves = [ctrl.new_zeros(*shape, N, w, 6)] + [
-            ctrl.new_zeros(*shape, N, self.index[(i, name)].dim) for name in est]
+        nuisance = [name for name in est if name != "time_offset"]  # read by the residual
+        offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
+        shift = term.per_sample(vals, kinds)["time_offset"]
+        with torch.no_grad():  # the span derivatives at the current point
+            derivs = [torch.stack(self._span_derivatives(gathered, off, t + shift, f,
+                                                         term.order), -2)
+                      for off, t, f in zip(offs, term.times_list(), firsts, strict=True)]
+        L = len(derivs)
 
         def residual(lv):
-            pts = tangent_step(gathered, lv[0])
             p = term.per_sample(vals, kinds)
-            for name, d in zip(est, lv[1:], strict=True):
+            for name, d in zip(nuisance, lv[L:], strict=True):
                 p[name] = retract(kinds[name], p[name], d)
-            derivs = []
-            for t, f in zip(term.times_list(), firsts, strict=True):
-                off = (f - f0)[..., None] + torch.arange(sup, device=f.device)
-                lead = pts.shape[:-3]
-                sel = torch.take_along_dim(pts, off.expand(*lead, N, sup)[..., None], dim=-2)
-                derivs.append(self.spans.derivatives(sel, t + p["time_offset"], f,
-                                                     term.order))
-            return term.residuals(derivs, p)
+            return term.residuals([d.unbind(-2) for d in lv[:L]], p)
 
-        r, J = sample_jacobians(residual, leaves, term.dim)
+        r, J = sample_jacobians(residual, derivs + [
+            ctrl.new_zeros(*shape, N, self.index[(i, name)].dim) for name in nuisance],
+            term.dim)
+        Jn = dict(zip(nuisance, J[L:], strict=True))
+        Jc, Jt = self._through_spans(gathered, offs, [t + shift for t in term.times_list()],
+                                     firsts, J[:L], term.order, "time_offset" in est)
+        if Jt is not None:
+            Jn["time_offset"] = Jt[..., None]
         wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
         wt = wt * term.mask.to(wt.dtype)
-        return r, wt, f0.expand(*shape, N), J[0], dict(zip(est, J[1:], strict=True))
+        return r, wt, f0.expand(*shape, N), Jc, Jn
+
+    def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
+                          order: int) -> tuple[Tensor, ...]:
+        """Derivatives at ``t`` of the spans ``first``, whose points are the window points
+        ``pts (..., N, w, 8)`` at offsets ``off (..., N, support)``."""
+        sup = self.spans.support
+        lead = pts.shape[:-3]
+        sel = torch.take_along_dim(pts, off.expand(*lead, off.shape[-2], sup)[..., None], dim=-2)
+        return self.spans.derivatives(sel, t, first, order)
+
+    def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
+                       firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
+                       ) -> tuple[Tensor, Tensor | None]:
+        r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
+        the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
+        with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
+        to the times (None otherwise: times without gradient take the cheaper path).
+
+        Chunks of ``_CHUNK >> order`` samples, each with its own window points (moved by
+        their own steps: the samples are independent), one forward and ``k`` reverse passes
+        (row ``j`` of ``Jd`` as the cotangent of pass ``j``): memory bounded by the chunk
+        whatever ``N``.
+        """
+        *shape, N, w, _ = gathered.shape
+        k = Jd[0].shape[-3]
+        Jc = gathered.new_zeros(*shape, N, k, w, 6)
+        Jt = gathered.new_zeros(*shape, N, k) if timed else None
+        size = max(1, _CHUNK >> order)
+        for a in range(0, N, size):
+            c = slice(a, a + size)
+            with torch.enable_grad():
+                dc = gathered.new_zeros(*shape, min(size, N - a), w, 6).requires_grad_()
+                dt = gathered.new_zeros(*shape, min(size, N - a)).requires_grad_(timed)
+                pts = tangent_step(gathered[..., c, :, :], dc)
+                D = [self._span_derivatives(pts, off[..., c, :], t[..., c] + dt, f[..., c],
+                                            order)
+                     for off, t, f in zip(offs, times, firsts, strict=True)]
+                for j in range(k):
+                    total = sum((d * J[..., c, j, o, :]).sum() for Dl, J in zip(D, Jd)
+                                for o, d in enumerate(Dl))
+                    grads = torch.autograd.grad(total, [dc, dt] if timed else [dc],
+                                                retain_graph=j < k - 1)
+                    Jc[..., c, j, :, :] = grads[0]
+                    if Jt is not None:
+                        Jt[..., c, j] = grads[1]
+        return Jc, Jt
 
 
 def _window_normal(keys: Tensor, Y: Tensor, G: int) -> Tensor:
