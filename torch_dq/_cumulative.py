@@ -215,7 +215,7 @@ def _span_tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor]:
     idx = torch.arange(F, device=ctrl.device)[:, None] + torch.arange(p + 1, device=ctrl.device)
     P = torch.where(used[:, None, None], ctrl[idx], 0.0)  # (F, p + 1, 8)
     conj = P.new_tensor([1.0, -1.0, -1.0, -1.0] * 2)
-    rel = products.dq_mul(P[:, :-1] * conj, P[:, 1:])  # (F, p, 8)
+    rel = (products.right_matrix(P[:, 1:]) @ (P[:, :-1] * conj)[..., None]).squeeze(-1)
     right = products.right_matrix(rel).transpose(-1, -2)  # x R_j = x @ right[:, j]
     T = P[:, :1]
     for j in range(p):
