@@ -296,28 +296,28 @@ class _LevenbergMarquardt:
         data = torch.stack(self.p.data_cost(c, v)).sum(0)
         return data, data + self._pull(c, v)
 
-    def _half_gradient(self, data: bool) -> tuple[Tensor, Tensor]:
-        """Half the gradient, in the step charts at the current point, of the pull and the
-        Free priors, plus the data cost when ``data`` (one reverse pass of the costs)."""
+    def _prior_gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the pull and the Free priors in the step charts."""
         with torch.enable_grad():
             dc = self.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
             dn = self.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
-            c, v = self.p.retract(self.ctrl, self.values, dc, dn)
-            extra = self.objective(c, v)[1] if data else self._pull(c, v)
+            extra = self._pull(*self.p.retract(self.ctrl, self.values, dc, dn))
             gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
         gn = torch.zeros_like(dn) if gn is None else gn
         return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
 
     def predicted_stop(self, tol: float) -> None:
         """Stop the elements whose next step, as the last system predicts it (its damped
-        Gauss-Newton matrix, the exact gradient here: one reverse pass instead of the
-        Jacobians), lowers the objective by at most ``tol`` relatively: the model decrease
+        Gauss-Newton matrix, the exact gradient here: one chained reverse pass of the
+        costs instead of the Jacobians' k), lowers the objective by at most ``tol`` relatively: the model decrease
         of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the half gradient). Only after a
         step that lowered the objective by at most ``_SETTLING`` relatively (after larger
         ones the prediction would rarely stop and costs a pass of the costs)."""
         if not bool((self.active & self.settling).any()):
             return
-        gc, gn = self._half_gradient(True)
+        gc, gn = self.p.gradient(self.ctrl, self.values, self.w)
+        pc, pn = self._prior_gradient()
+        gc, gn = gc + pc, gn + pn
         dc, dn, ok = self.solver.step(self.lam, gc, gn)
         pred = -2.0 * ((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
         obj = self.obj.reshape(self.Bf)
@@ -329,7 +329,7 @@ class _LevenbergMarquardt:
 
     def iteration(self, tol: float) -> None:
         """One Gauss-Newton system, damped trials until each element accepts or gives up."""
-        pc, pn = self._half_gradient(False)
+        pc, pn = self._prior_gradient()
         gc, gn = self.system.gc + pc, self.system.gn + pn
         self.solver = solver = _Solver(self.p, self.system, self.mu)
         pending = self.active.clone()

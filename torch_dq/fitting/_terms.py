@@ -518,29 +518,45 @@ def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
         x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
         rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
     offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
-    s = (torch.minimum(torch.maximum(t[..., None, :] + offsets[:, None], a), b) - a) / (
-        g[..., 1:2, None] - g[..., :1, None])
-    j = s.floor().clamp(0, size - 2)
-    fr = s - j
-    j = j.long()[..., None]  # (..., 81, N, 1): rate (..., G, 3) gathered per sample
-    r = rate[..., None, :, :].expand(*s.shape[:-1], size, 3)
-    fr = fr[..., None]
-    pred = (torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr)
-    pred = pred.transpose(-1, -2)  # (..., 81, 3, N)
-    w = valid[..., None, None, :].expand(pred.shape)
-    meas = meas.transpose(-1, -2)[..., None, :, :].expand(pred.shape)
+    step = g[..., 1:2, None] - g[..., :1, None]
+    w = valid[..., None, None, :]
+    v = _centred(meas.transpose(-1, -2)[..., None, :, :], w)
 
-    def centred(v):
-        return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
+    def shifted(o: Tensor) -> Tensor:  # grid positions (..., O, N) of the shifted samples
+        return (torch.minimum(torch.maximum(t[..., None, :] + o[:, None], a), b) - a) / step
 
-    u, v = centred(pred), centred(meas)
-    corr = (u * v).sum((-1, -2)) / ((u * u).sum((-1, -2)) * (v * v).sum((-1, -2))).sqrt(
-    ).clamp_min(1e-300)
+    # offsets in chunks of 9: the (..., 9, 3, N) temporaries stay small for long IMU logs
+    corr = torch.cat([_correlation(_interpolate(rate, shifted(o)), v, w)
+                      for o in offsets.split(9)], -1)
     k = corr.argmax(-1).clamp(1, 79)
     c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = torch.where(denom < 0, 0.5 * (c0 - c2) / denom.clamp(max=-1e-300), 0.0)
     return (offsets[k] + frac.clamp(-1, 1) * (offsets[1] - offsets[0])).clamp(-m, m)
+
+
+def _interpolate(rate: Tensor, s: Tensor) -> Tensor:
+    """``rate (..., G, 3)`` linearly interpolated at grid positions ``s (..., O, N)``:
+    ``(..., O, 3, N)``."""
+    j = s.floor().clamp(0, rate.shape[-2] - 2)
+    fr = (s - j)[..., None]
+    j = j.long()[..., None]  # (..., O, N, 1): rate gathered per sample
+    r = rate[..., None, :, :].expand(*s.shape[:-1], rate.shape[-2], 3)
+    pred = torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr
+    return pred.transpose(-1, -2)
+
+
+def _centred(v: Tensor, w: Tensor) -> Tensor:
+    """``v`` minus its ``w``-weighted mean over the last dim, times ``w``."""
+    return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
+
+
+def _correlation(pred: Tensor, v: Tensor, w: Tensor) -> Tensor:
+    """Correlation ``(..., O)`` of the centred predictions ``pred (..., O, 3, N)`` with the
+    centred measurements ``v``."""
+    u = _centred(pred, w)
+    return (u * v).sum((-1, -2)) / ((u * u).sum((-1, -2)) * (v * v).sum((-1, -2))).sqrt(
+    ).clamp_min(1e-300)
 
 
 class Accel(_Imu):
