@@ -6,7 +6,7 @@ Rows (float64, one thread, process CPU time):
    one pose-only forward+backward pass of the same spline at the pose times;
 2. poses + IMU: Gyro and Accel terms (biases, a shared clock offset, gravity direction)
    with M samples added; the baseline adds one order-2 ``derivatives`` forward+backward at
-   the IMU times;
+   the IMU times (in chunks of 1e5 times);
 3. B small problems (50 poses, 10 control points) as one batched ``estimate`` vs a loop.
 
 Usage: ``python benchmarks/bench_estimate.py [--poses 10000] [--ctrl 200] [--imu 100000]
@@ -64,11 +64,14 @@ def pose_pass(spline, t, target) -> float:
     return cpu(run)[0]
 
 
-def imu_pass(spline, t) -> float:
+def imu_pass(spline, t, chunk: int = 100_000) -> float:
+    """One order-2 ``derivatives`` forward+backward at the times ``t``, in chunks of times
+    (the gradients accumulate; memory bounded for 1e6 samples)."""
     ctrl = spline.control_points.detach().clone().requires_grad_()
 
     def run():
-        sum(d.sum() for d in spline.derivatives(t, 2, ctrl=ctrl)).backward()
+        for part in t.split(chunk):
+            sum(d.sum() for d in spline.derivatives(part, 2, ctrl=ctrl)).backward()
     return cpu(run)[0]
 
 
