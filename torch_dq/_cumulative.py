@@ -374,8 +374,9 @@ class _Poses(torch.autograd.Function):
                 sd = full.view(6, -1, F)[1:3].flatten(0, 1).index_select(1, f)
                 (delta, sigma), (b_r, wG, wH) = sd.view(2, p, -1), _kept(kept, i, w.shape)
             else:
-                fr, ws, b_r = _chunk_weights(full, f, w[:, i], True, need_w)
-                sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, cast(WeightSlopes, ws).H
+                fr, slopes, b_r = _chunk_weights(full, f, w[:, i], True, need_w)
+                ws = cast(WeightSlopes, slopes)
+                sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, ws.H
             b_d = _dual_parts(sigma, delta, wG)
             levels = _subset_levels(b_r, b_d)
             W = bags[i] if saved else torch.cat(levels[-1]).T
