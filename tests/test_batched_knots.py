@@ -164,12 +164,18 @@ def test_bad_knot_rows(gen):
         curves.bspline(ctrl, t, knots=torch.cat((knots, knots[:1])))
     bad = knots.clone()
     bad[1, 5] = 2.1  # decreasing in row 1
-    with pytest.raises(ValueError, match=r"^curves\.bspline: knots must be non-decreasing"):
+    with pytest.raises(ValueError, match=r"^curves\.bspline: knots must be non-decreasing "
+                                         r"\(trajectory \(1,\)\), got \[2\.0, "):
         curves.bspline(ctrl, t, knots=bad)
     flat = knots.clone()
-    flat[0] = 1.0  # empty domain in row 0
-    with pytest.raises(ValueError, match="knots give an empty domain"):
+    flat[1] = 2.5  # empty domain in row 1
+    with pytest.raises(ValueError, match=r"knots give an empty domain \[knots\[degree\], "
+                                         r"knots\[n\]\] = \[2\.5, 2\.5\] \(trajectory \(1,\)\)"):
         curves.bspline_derivatives(ctrl, t, knots=flat)
+    inf = knots.clone()
+    inf[1, 0] = -math.inf
+    with pytest.raises(ValueError, match=r"knots must be finite \(trajectory \(1,\)\)$"):
+        curves.bspline(ctrl, t, knots=inf)
     # the domain rules per row: row 1's times inside row 0's domain are outside its own
     with pytest.raises(ValueError, match=r"^curves\.bspline: t must lie in the domain of "
                                          r"trajectory \(1,\) \[2, 3\], got values in "

@@ -274,16 +274,35 @@ class KnotDomain:
             _checks.fail(fn, f"domain must be two finite times t0 < t1, got "
                              f"{self._ends_str(rel.dtype)}")
         if knots and bad[0]:
-            _checks.fail(fn, "knots must be finite")
+            _checks.fail(fn, "knots must be finite" + self._row_str(~torch.isfinite(k)))
         if knots and bad[1]:
-            _checks.fail(fn, f"knots must be non-decreasing, got {k.tolist()}")
+            decreasing = k[..., 1:] < k[..., :-1]
+            row = self._row_str(decreasing)
+            got = k[self._first_row(decreasing)] if row else k
+            _checks.fail(fn, f"knots must be non-decreasing{row}, got {got.tolist()}")
         if knots and bad[2]:
+            empty = ~(torch.isfinite(lo) & torch.isfinite(hi) & (lo < hi))[..., None]
+            if k.dim() > 1:
+                first = self._first_row(empty)
+                ends = f"[{lo[first].item()!r}, {hi[first].item()!r}]"
+            else:
+                ends = self._ends_str(rel.dtype)
             _checks.fail(fn, f"knots give an empty domain [knots[degree], knots[n]] = "
-                             f"{self._ends_str(rel.dtype)}")
+                             f"{ends}{self._row_str(empty)}")
         if t_dtype is not None and bad[3 if knots else 0]:
             self._fail_unresolved(fn, t_dtype)
         if not extrapolate and bad[-1]:
             self._fail_outside(fn, rel.detach(), what, fix)
+
+    @staticmethod
+    def _first_row(bad: Tensor) -> tuple[int, ...]:
+        """The batch index of the first row of ``bad (..., m)`` with a ``True``."""
+        return tuple(int(i) for i in bad.any(-1).nonzero()[0])
+
+    def _row_str(self, bad: Tensor) -> str:
+        """For batched knots, `` (trajectory (b,))``: the first row with a ``True`` in
+        ``bad (..., m)``; empty for ``(K,)`` knots."""
+        return f" (trajectory {self._first_row(bad)})" if bad.dim() > 1 else ""
 
     def _scale_and_length(self) -> tuple[Tensor, Tensor]:
         lo, hi = self.ends(torch.float64)
@@ -320,7 +339,7 @@ class KnotDomain:
         t1]``)."""
         lead = torch.broadcast_shapes(rel.shape[:-1], self.knots.shape[:-1])
         rel = rel.expand(*lead, rel.shape[-1])
-        row = tuple(int(i) for i in self._outside(rel).any(-1).nonzero()[0])
+        row = self._first_row(self._outside(rel))
         t0, t1 = (float(torch.as_tensor(e).expand(lead)[row]) for e in self.domain())
         origin = torch.as_tensor(self.origin, dtype=torch.float64).to(rel.device)
         origin = origin.expand(*lead, 1)[row] if origin.dim() else origin
