@@ -2,15 +2,14 @@ r"""Exact per-sample Jacobians of a curve layer from its spans (reverse mode).
 
 A pose of a degree-``p`` B-spline at ``t`` in the knot span ``[u_r, u_{r+1})`` depends on
 the control points ``r - p .. r`` and the knots ``u_{r-p+1} .. u_{r+p}`` only: it is the
-value of a one-span B-spline layer (``p + 1`` control points, knots
-``u_{r-p} .. u_{r+p+1}`` shifted to ``u_r = 0``, the same ``form``) at ``t - u_r``. Giving
-every sample its own copy of its span's control points, moved by its own local step
-``c_j exp(delta_{i,j})``, makes the samples independent: ``k`` reverse passes (one per
-residual component) give every sample's Jacobian with respect to its span's steps, exactly,
-through the layer's public ``derivatives(t, order, ctrl=...)``. Spans with the same knot
-pattern (to 1e-9 of the span, e.g. every interior span of uniform knots) share one layer;
-a span's time is mapped onto its layer's span and the derivatives scaled back. A Bézier
-curve is its own one-span layer (every pose depends on every control point).
+value of a one-span B-spline (``p + 1`` control points, knots ``u_{r-p} .. u_{r+p+1}``
+shifted to ``u_r = 0``, the same ``form``) at ``t - u_r``. Giving every sample its own copy
+of its span's control points, moved by its own local step ``c_j exp(delta_{i,j})``, makes
+the samples independent: reverse passes over all samples at once give every sample's
+Jacobian with respect to its span's steps, exactly (:class:`SpanEvaluator` evaluates all
+samples as one batch of one-span curves, each with its own span's knots; per-trajectory
+knots give each trajectory's spans their own). A Bézier curve is its own one-span curve
+(every pose depends on every control point).
 """
 
 from __future__ import annotations

@@ -299,9 +299,9 @@ class Problem:
                                             order)
                      for off, t, f in zip(offs, times, firsts, strict=True)]
                 for j in range(k):
-                    total = sum((d * J[..., c, j, o, :]).sum() for Dl, J in zip(D, Jd)
-                                for o, d in enumerate(Dl))
-                    grads = torch.autograd.grad(total, [dc, dt] if timed else [dc],
+                    total = torch.stack([(d * J[..., c, j, o, :]).sum() for Dl, J in
+                                         zip(D, Jd, strict=True) for o, d in enumerate(Dl)])
+                    grads = torch.autograd.grad(total.sum(), [dc, dt] if timed else [dc],
                                                 retain_graph=j < k - 1)
                     Jc[..., c, j, :, :] = grads[0]
                     if Jt is not None:
