@@ -4,6 +4,7 @@ r""":func:`fit`: refine a curve module on timestamped poses (a thin case of
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import numbers
 import sys
@@ -127,7 +128,8 @@ class FitProblem:
     Args:
         fn: the public name for messages.
         module: the module fitted.
-        times: ``(N,)`` strictly increasing times in the module's time.
+        times: ``(N,)`` strictly increasing times in the module's time, or ``(..., N)``
+            with a row per trajectory (for a curve layer, the control points' batch).
         poses: ``(..., N, 8)`` dual quaternions or ``(..., N, 4, 4)`` matrices (finite).
         loss: the loss (see above).
         exact: check the samples determine every control point (Schoenberg-Whitney) even
@@ -135,8 +137,9 @@ class FitProblem:
 
     Raises:
         ValueError: non-finite or badly shaped poses, bad times (also outside a curve
-            layer's domain), a module without trainable parameters, an underdetermined
-            curve, targets whose batch does not broadcast with the curve's.
+            layer's domain, or rows that are not the curve's trajectories), a module
+            without trainable parameters, an underdetermined curve, targets whose batch does
+            not broadcast with the curve's.
         TypeError: non-floating tensors.
     """
 
@@ -144,7 +147,7 @@ class FitProblem:
                  loss: Callable[[Tensor, Tensor], Tensor], exact: bool = False) -> None:
         from ..nn import Curve
         poses = _check_poses(fn, poses)
-        check_times(fn, times, poses.shape[-2])
+        check_times(fn, times, poses.shape[-2], batched=True)
         self.module, self.loss = module, loss
         self.params = [p for p in module.parameters() if p.requires_grad]
         if not self.params:
@@ -153,6 +156,7 @@ class FitProblem:
         if isinstance(module, Curve):
             like = module.control_points
             self.batch = like.shape[:-2]  # the control points' batch shape
+            _check_rows(fn, module, times, self.batch)
             _check_basis(fn, module, times, exact)
             self.times = times.detach().to(like.device)
             weights = _pose_loss_weights(loss)
@@ -253,9 +257,16 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
     Args:
         module: a :class:`~torch_dq.nn.Bezier` / :class:`~torch_dq.nn.BSpline` (or, with
             a torch optimizer, any module mapping ``(N,)`` times to ``(..., N, 8)`` poses).
-        times: ``(N,)`` strictly increasing times in the module's time. A curve layer
-            takes them as they are (float64 UNIX seconds with a float32 module are fine);
-            another module gets them cast to its parameters' dtype.
+        times: ``(N,)`` strictly increasing times in the module's time, shared by every
+            trajectory; or ``(..., N)``, each row strictly increasing, the times of one
+            trajectory: for a curve layer the batch must be its control points' ``(...,
+            n, 8)`` batch (a :class:`~torch_dq.nn.BSpline` from
+            :meth:`~torch_dq.nn.BSpline.from_poses` with ``(B, N)`` times, whose row ``b``
+            of knots covers ``times[b]``; or batched control points on one knot vector,
+            each row of times inside its domain), and the fit equals fitting each
+            trajectory alone with ``"lm"``. A curve layer takes times as they are (float64
+            UNIX seconds with a float32 module are fine); another module gets them cast
+            to its parameters' dtype.
         poses: ``(..., N, 8)`` unit dual quaternions or ``(..., N, 4, 4)`` homogeneous
             matrices, cast to the module's dtype and device.
         optimizer: see above.
@@ -277,6 +288,9 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
     Raises:
         ValueError: bad shapes, unknown optimizer name, bad ``steps``/``lr``/``tol``/
             ``window``, non-increasing times, times outside the module's domain,
+            ``(..., N)`` times whose batch is not the control points' (a single curve
+            takes ``(N,)`` times; build one curve per trajectory with
+            :meth:`~torch_dq.nn.BSpline.from_poses` and ``(B, N)`` times),
             ``"lm"`` with another loss or module, more control points than samples (and,
             with ``prior=0``, a control point whose support holds no sample of its own).
         TypeError: non-module ``module``, non-floating tensors, a factory that does not
@@ -342,17 +356,45 @@ def _check_poses(fn: str, poses) -> Tensor:
     return poses
 
 
+def _check_rows(fn: str, module, times: Tensor, batch: torch.Size) -> None:
+    """``(..., N)`` times: one row per trajectory, their batch the control points'."""
+    if times.dim() == 1 or times.shape[:-1] == batch:
+        return
+    if batch == torch.Size():
+        _checks.fail(fn, f"times {_checks.shape_str(times.shape)} give a row per trajectory "
+                         f"but the module is one curve (control points "
+                         f"{_checks.shape_str(module.control_points.shape)}): pass (N,) "
+                         f"times, or build one curve per row with "
+                         f"torch_dq.nn.BSpline.from_poses(..., times (B, N), ...)")
+    _checks.fail(fn, f"times {_checks.shape_str(times.shape)} must have a row per trajectory "
+                     f"of the module: expected shape (*{_checks.shape_str(batch)}, N) for "
+                     f"control points {_checks.shape_str(module.control_points.shape)}")
+
+
 def _check_basis(fn: str, module, times: Tensor, exact: bool) -> None:
     """Times inside the curve's domain; with more control points than samples, or for the
     unregularised least squares (``exact``), samples that determine every control point
-    (Schoenberg-Whitney, on the times' basis)."""
+    (Schoenberg-Whitney, on the times' basis), row by row for ``(..., N)`` times or a row
+    of knots per trajectory."""
+    t = times.detach()
+    knots = getattr(module, "knots", None)
+    rows = knots is not None and knots.dim() > 1  # the basis broadcasts times and knots
     try:
-        first, values = module.basis(times.detach())
+        first, values = module.basis(t if rows or t.dim() == 1 else t.reshape(-1))
     except ValueError as e:  # times outside the module's domain: say who was called
         raise ValueError(f"{fn}: {e}") from None
-    if module.n_ctrl > values.shape[0] or exact:
-        check_determined(fn, first.cpu(), values.cpu(), module.n_ctrl,
-                         getattr(module, "knots", None))
+    first, values = first.cpu(), values.cpu()
+    if not rows:  # one knot vector for every row of times
+        first, values = first.view(t.shape), values.view(*t.shape, -1)
+        knots = None if knots is None else knots.expand(*t.shape[:-1], -1)
+    if module.n_ctrl <= values.shape[-2] and not exact:
+        return
+    for row in itertools.product(*map(range, first.shape[:-1])):  # () for one row
+        try:
+            check_determined(fn, first[row], values[row], module.n_ctrl,
+                             None if knots is None else knots[row].cpu())
+        except ValueError as e:  # name the trajectory
+            raise ValueError(f"{e} (trajectory {row})" if row else str(e)) from None
 
 
 def _resolve_optimizer(fn: str, optimizer, curve: bool, loss, lr) -> str | None:
