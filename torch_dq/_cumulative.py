@@ -30,8 +30,11 @@ accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
   the weights, in truncated Taylor arithmetic (:mod:`torch_dq._taylor`): the power's jets
   are eq. 11's (:func:`torch_dq._taylor.sclerp` from the identity; the derivative of
   :math:`x^{w(t)}` is :math:`x^w \log(x)\, \dot w`), their product a Leibniz product.
-- :func:`poses`: the poses alone as one fused autograd op (eager reverse mode), with each
-  pair's relative motion and angle computed once and an analytic backward.
+- :func:`poses`: the poses alone as one fused autograd op (eager reverse mode and
+  ``torch.compile``): each power from the identity is :math:`\beta + \alpha x` with dual
+  numbers :math:`\alpha, \beta` (eq. 11's weights), so the product expands into a sum of
+  per-span products of control points (:func:`_span_tables`, computed once per span) with
+  per-time dual weights, one weighted sum of table rows per time; analytic backward.
 
 The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 """

@@ -14,6 +14,8 @@ runs each against its reference over random and degenerate inputs.
 - :mod:`.dual_angle`: eqs. 4-5 (reference: :func:`torch_dq.dualquat._eqs4_5`).
 - :mod:`.pyramid`: the fused De Casteljau / De Boor scheme (references in
   :mod:`torch_dq.curves`).
+- :mod:`.products`: dual-quaternion products as matrix products, for small batches (the
+  cumulative B-spline's span tables, :mod:`torch_dq._cumulative`).
 
 The dual sine and cosine (:class:`torch_dq.dual._SinCos`) follow the same dispatch.
 """
