@@ -69,12 +69,16 @@ def _lin(x: Tensor | None, a: float, y: Tensor | None = None, b: float = 1.0) ->
     if x is None:
         return None if y is None else (y if b == 1.0 else b * y)
     x = x if a == 1.0 else a * x
-    return x if y is None else (x + y if b == 1.0 else torch.add(x, y, alpha=b))
+    if y is None:
+        return x
+    return x + y if b == 1.0 else x - y if b == -1.0 else torch.add(x, y, alpha=b)
 
 
 def mul(a: Jet, b: Jet) -> Jet:
     r"""Cauchy product :math:`(ab)_k = \sum_{i + j = k} a_i b_j` of two jets (coefficients
     broadcast)."""
+    if len(a) == 1:  # order 0 (the fused kernels' weights): one product, no Python loop
+        return [None if a[0] is None or b[0] is None else a[0] * b[0]]
     return [_dot((a[i], b[k - i]) for i in range(k + 1)) for k in range(len(a))]
 
 
@@ -85,6 +89,8 @@ def _over(x: Tensor | None, d: Tensor) -> Tensor | None:
 def div(a: Jet, b: Jet) -> Jet:
     r""":math:`q = a / b`: :math:`q_k = (a_k - \sum_{i=1}^k b_i q_{k-i}) / b_0`."""
     b0 = cast(Tensor, b[0])
+    if len(a) == 1:  # order 0: one quotient, no Python loop
+        return [_over(a[0], b0)]
     q: Jet = []
     for k in range(len(a)):
         q.append(_over(_dot(((b[i], q[k - i]) for i in range(1, k + 1)), a[k], -1.0), b0))
@@ -125,6 +131,8 @@ def _plus(jet: Jet, value: float) -> Jet:
 
 def _scale(jet: Jet, value: float | Tensor) -> Jet:
     """The jet of ``value x`` for a constant ``value``."""
+    if isinstance(value, float) and value == -1.0:
+        return [None if x is None else -x for x in jet]
     return [None if x is None else value * x for x in jet]
 
 
@@ -193,18 +201,16 @@ def nested(u: list[Jet], j: int) -> Jet:
     = j!\,a_j \big(1 + \frac{u_{j+1}}{1 \cdot (2j + 3)} \big(1 + \frac{u_{j+2}}{2 (2j + 5)}
     (\dots)\big)\big)`: one fused multiply-add per term and coefficient.
     """
-    out: Jet | None = None
-    for k in range(len(u), j, -1):
+    last = len(u)  # u_k for k = 1 .. N - 1
+    out: Jet = _plus(_scale(u[-1], 1.0 / ((last - j) * (2 * last + 1))), 1.0)
+    one = cast(Tensor, out[0]).new_ones(())
+    for k in range(last - 1, j, -1):
         scale = 1.0 / ((k - j) * (2 * k + 1))  # (k / (k - j)) / (k (2k + 1))
         uk = u[k - 1]
-        if out is None:
-            out = _plus(_scale(uk, scale), 1.0)
-        else:
-            u0, out0 = cast(Tensor, uk[0]), cast(Tensor, out[0])
-            first: Jet = [torch.addcmul(u0.new_ones(()), u0, out0, value=scale)]
-            out = first + [_dot(((uk[i], out[m - i]) for i in range(m + 1)), value=scale)
-                           for m in range(1, len(out))]
-    assert out is not None  # j < N - 1: the loop ran
+        head = torch.addcmul(one, uk[0], out[0], value=scale)  # type: ignore[arg-type]
+        out = [head] if len(out) == 1 else [head, *(
+            _dot(((uk[i], out[m - i]) for i in range(m + 1)), value=scale)
+            for m in range(1, len(out)))]
     return out
 
 
