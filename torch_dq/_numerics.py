@@ -64,6 +64,16 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # x2 = theta^2 below which even() uses the series of an even function whose first
     # neglected coefficient is c (derivation in even()).
     "even_series": lambda eps, c: min(1.0, 0.25 * (eps / abs(c)) ** (1.0 / _EVEN_TERMS)),
+    # B-spline basis value above which a sample counts in the support of a control point
+    # (_start.check_determined, Schoenberg-Whitney): a control point whose values all lie
+    # below 2^12 eps has a normal-equations pivot below 2^24 eps^2 <~ eps of the largest
+    # (the values sum to 1), singular to working precision (9.1e-13 in float64).
+    "basis_nonzero": lambda eps: 4096.0 * eps,
+    # Rotation angle 2 atan2(|v|, w) in [0, 2 pi] within which of 2 pi a relative rotation
+    # counts as a full turn (angle - 2 pi, _start._chart_twists): a fixed 1e-6 rad, far
+    # above the rounding of the angle there in float64, and at least 4 ulps of 2 pi
+    # (8 pi eps: 3e-6 in float32, where 1e-6 would be 2 ulps).
+    "full_turn": lambda eps: max(1e-6, 8.0 * math.pi * eps),
     # scipy's gimbal-lock threshold of as_euler (a fixed 1e-7 rad, not eps-based: kept
     # for agreement with scipy in every dtype).
     "gimbal_lock": lambda eps: 1e-7,
