@@ -166,9 +166,8 @@ class Problem:
                     *self.batch, N, k, p.dim).reshape(Bf, N, k, p.dim)
             cols += [Jn_all, r.expand(*self.batch, N, k).reshape(Bf, N, k, 1)]
             Y = torch.cat(cols, dim=-1) * sw  # whitened, weighted rows [J_c | J_n | r]
-            keys = (f0.expand(*self.batch, N).reshape(Bf, N)
-                    + (torch.arange(Bf, device=f0.device) * (n + w))[:, None]).reshape(-1)
-            normal += _window_normal(keys, Y.reshape(Bf * N, k, -1), G)
+            normal += _window_normal(self._windows(f0, w).reshape(-1), Y.reshape(Bf * N, k, -1),
+                                     G)
         normal = normal.reshape(Bf, n + w, c + m + 1, c + m + 1)
         band = ctrl.new_zeros(Bf, n + w, w, 6, 6)
         for a in range(w):  # window f's block (a, a + d) is the band's (f + a, d)
@@ -195,15 +194,19 @@ class Problem:
         for i in range(len(self.terms)):
             _, f0, Jc, Jn = self._chained(i, ctrl, values, w, True)
             N = f0.shape[-1]
-            rows = (f0.expand(*self.batch, N).reshape(Bf, N)
-                    + (torch.arange(Bf, device=f0.device) * (n + w))[:, None])
-            gc.index_add_(0, (rows[..., None] + torch.arange(w, device=f0.device)).reshape(-1),
+            gc.index_add_(0, (self._windows(f0, w)[..., None] + torch.arange(w, device=f0.device)).reshape(-1),
                           Jc.expand(*self.batch, N, 1, w, 6).reshape(-1, 6))
             for name, J in Jn.items():
                 p = self.index[(i, name)]
                 gn[:, p.offset:p.offset + p.dim] += J.expand(*self.batch, N, 1, p.dim).reshape(
                     Bf, N, p.dim).sum(1)
         return gc.reshape(Bf, n + w, 6)[:, :n], gn
+
+    def _windows(self, f0: Tensor, w: int) -> Tensor:
+        """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
+        Bf, N = max(self.batch.numel(), 1), f0.shape[-1]
+        return (f0.expand(*self.batch, N).reshape(Bf, N)
+                + (torch.arange(Bf, device=f0.device) * (self.spans.n + w))[:, None])
 
     def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
         """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
