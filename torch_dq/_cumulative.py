@@ -82,7 +82,7 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
     # u_{r-p+1..r+p} as leading rows (2p, ..., T): every op below runs over contiguous rows
     # of times (a trailing dim of p + 1 is several times slower on CPU)
     offsets = torch.arange(1 - p, p + 1, device=r.device).view(-1, *[1] * r.dim())
-    K = knots[r + offsets]
+    K = knots.index_select(0, (r + offsets).reshape(-1)).view(2 * p, *r.shape)
     V = [torch.ones_like(t)[None]] + [torch.zeros_like(t)[None] for _ in range(order)]
     zero = torch.zeros_like(t)[None]
     for k in range(1, p + 1):
@@ -90,9 +90,10 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
         denom = right - left
         empty = denom <= 0  # never inside a non-empty span; 0 / 0 = 0 all the same
         safe = safe_denominator(denom, empty)
-        alpha = torch.where(empty, 0.0, (t - left) / safe)
-        slope = torch.where(empty, 0.0, 1.0 / safe)
+        keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
+        alpha = (t - left) / safe * keep
         # (alpha + slope h) V, truncated: the product by an affine function of t
+        slope = keep / safe
         aV = [alpha * V[0]] + [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
         V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
              for a, v in zip(aV, V, strict=True)]
