@@ -30,6 +30,7 @@ from torch import Tensor
 
 from . import _checks, dualquat
 from ._core import align_chain, twist_translation
+from ._numerics import threshold
 from ._time import KnotDomain, bspline_basis
 
 __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squares_start"]
@@ -115,7 +116,7 @@ def check_determined(fn: str, first: Tensor, values: Tensor, n: int,
         _checks.fail(fn, f"the fit is underdetermined: {n} control points for N = {N} "
                          f"samples; use at most {N} control points")
     first_l = first.tolist()
-    positive = (values > 1e-12).tolist()
+    positive = (values > threshold("basis_nonzero", values.dtype)).tolist()
     ks = torch.arange(n, device=first.device)
     lo = torch.searchsorted(first, ks - (w - 1), right=False).tolist()
     hi = torch.searchsorted(first, ks, right=True).tolist()
@@ -152,7 +153,8 @@ def _chart_twists(ref: Tensor, x: Tensor) -> Tensor:
     s = torch.linalg.vector_norm(v, dim=-1)
     theta = 2.0 * torch.atan2(s, w)  # in [0, 2 pi]
     axis = v / torch.where(s > 0, s, 1.0)[..., None]
-    theta = torch.where(theta > 2.0 * math.pi - 1e-6, theta - 2.0 * math.pi, theta)
+    full = 2.0 * math.pi - threshold("full_turn", theta.dtype)  # a turn within rounding
+    theta = torch.where(theta > full, theta - 2.0 * math.pi, theta)
     omega = theta[..., None] * axis
     return torch.cat((omega, twist_translation(omega, t)), dim=-1)
 
