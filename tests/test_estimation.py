@@ -592,6 +592,9 @@ def test_estimate_validates_domain_and_arguments(gen):
     with pytest.raises(ValueError, match="max_time_offset"):
         estimate(spline, [cam, Gyro(t, poses_of(t)[:, :3], sigma=1, time_offset=True)],
                  verbose=False)  # gyro at the ends, widened by 0.1 s
+    with pytest.raises(ValueError, match=r"^fitting\.estimate: Poses times leave the trajectory's "
+                                         r"domain .*drop those samples \(are the times in"):
+        estimate(spline, [Poses(t - 1e3, x, rot_sigma=1, trans_sigma=1)], verbose=False)
     with pytest.raises(ValueError, match="steps must be"):
         estimate(spline, [cam], steps=-1)
     with pytest.raises(TypeError, match="curve layer"):

@@ -96,10 +96,14 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                 i = int(bad.nonzero()[0, 0])
                 pick = lambda x: float(x.reshape(-1)[i] if x.numel() > 1 else x)  # noqa: E731
                 row = f" (trajectory {i})" if lo.dim() or t.dim() == 2 else ""
-                _checks.fail(fn, f"{name} times {what} leave the trajectory's domain{row} "
-                                 f"[{pick(lo)!r}, {pick(hi)!r}]: got [{pick(first)!r}, "
-                                 f"{pick(last)!r}]; extend the trajectory or lower "
-                                 f"max_time_offset")
+                fix = ("extend the trajectory or lower max_time_offset" if slot.estimated
+                       else "extend the trajectory or drop those samples")
+                if pick(last) - pick(first) < 1e-3 * (pick(hi) - pick(lo)) or (
+                        pick(first) > pick(hi) or pick(last) < pick(lo)):
+                    fix += " (are the times in the trajectory's units and origin?)"
+                _checks.fail(fn, f"{name} times{' ' + what if what else ''} leave the "
+                                 f"trajectory's domain{row} [{pick(lo)!r}, {pick(hi)!r}]: got "
+                                 f"[{pick(first)!r}, {pick(last)!r}]; {fix}")
 
 
 def _warn_c1(trajectory, terms: list[Term]) -> None:
