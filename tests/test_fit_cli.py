@@ -490,13 +490,13 @@ def _imu_motion(t):
     return R, p, w, acc
 
 
-def _write_imu_case(folder, bg, ba, dt, seed=0):
+def _write_imu_case(folder, bg, ba, dt, seed=0, pose_noise=1e-3):
     """Poses at 20 Hz (TUM) and an IMU at 100 Hz whose stamp t reads the motion at t + dt."""
     rng = np.random.default_rng(seed)
     tc = np.arange(0.0, 6.0001, 0.05)
     R, p, _, _ = _imu_motion(tc)
-    R = Rotation.from_rotvec(1e-3 * rng.normal(size=(len(tc), 3))) * R
-    p = p + 1e-3 * rng.normal(size=p.shape)
+    R = Rotation.from_rotvec(pose_noise * rng.normal(size=(len(tc), 3))) * R
+    p = p + pose_noise * rng.normal(size=p.shape)
     np.savetxt(folder / "poses.txt", np.column_stack((tc, p, R.as_quat())), fmt="%.12g")
     ti = np.arange(0.0, 6.0001, 0.01)
     R, _, w, acc = _imu_motion(ti + dt)
@@ -507,10 +507,13 @@ def _write_imu_case(folder, bg, ba, dt, seed=0):
                header="t gx gy gz ax ay az")
 
 
-def test_imu_biases_and_offset_recovered(tmp_path, capsys):
-    """With --imu and no --form, the curve is the C2 cumulative form (no C1 warning)."""
+@pytest.mark.parametrize("pose_noise", [1e-3, 0.0])
+def test_imu_biases_and_offset_recovered(tmp_path, capsys, pose_noise):
+    """With --imu and no --form, the curve is the C2 cumulative form (no C1 warning).
+    Noise-free poses make the automatic spacing data-limited (no refinement of the poses
+    alone): the IMU fit still runs to convergence."""
     bg, ba, dt = np.array([0.01, -0.02, 0.005]), np.array([0.1, -0.05, 0.2]), 0.01
-    _write_imu_case(tmp_path, bg, ba, dt)
+    _write_imu_case(tmp_path, bg, ba, dt, pose_noise=pose_noise)
     out = tmp_path / "o"
     assert main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"),
                  "--time-offset", "estimate", "--out", str(out), "--no-plots"]) == 0
@@ -521,10 +524,12 @@ def test_imu_biases_and_offset_recovered(tmp_path, capsys):
     assert summary["model"]["form"] == "cumulative"
     assert not any("cumulative" in w for w in summary["warnings"]), summary["warnings"]
     imu = summary["imu"]
+    # the IMU fit runs to convergence even where the automatic spacing gives the poses alone
+    # no refinement steps (it once stopped after 1 step with an accel bias 13 std off)
+    assert "steps=" not in imu["reason"] and imu["steps"] > 1, (imu["steps"], imu["reason"])
     for key, truth in (("gyro_bias_rad_s", bg), ("accel_bias_m_s2", ba)):
         value, std = np.array(imu[key]["value"]), np.array(imu[key]["std"])
-        assert np.all(std > 0) and np.all(np.abs(value - truth) < 5 * std + 0.1 * np.abs(
-            truth)), (key, value, std)
+        assert np.all(std > 0) and np.all(np.abs(value - truth) < 5 * std), (key, value, std)
     off = imu["time_offset_s"]
     assert abs(off["value"] - dt) < 5 * off["std"] + 1e-3, off
     g = np.array(imu["gravity_m_s2"]["value"])

@@ -461,6 +461,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
     fit_idx, held_idx = _split(len(traj), holdout, degree)
     train = traj.select(fit_idx)
+    requested_steps = steps  # the IMU fit takes them even where the poses alone need none
     spacing, why, steps = _knot_spacing(train.times, train.poses(), degree, form,
                                         knot_spacing, steps)
     info = _describe_input(say, path, traj)
@@ -478,7 +479,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         from .fit_imu import fit_with_imu
 
         refine = functools.partial(fit_with_imu, imu=imu, time_offset=time_offset,
-                                   steps=max(steps, 1), say=say)
+                                   steps=max(requested_steps, 1), say=say)
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, steps,
                                    rate_hz, dtype, verbose, refine)
     fit["seconds"]["read"] = read_s
