@@ -424,6 +424,8 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
         :func:`jets` instead, which this does not check.
     """
+    if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
+        return ctrl[:0] * 1
     table, pairs = _span_tables(ctrl, first, weights.shape[0])
     save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
     return _Poses.apply(table, pairs, first, weights, save)[0]
