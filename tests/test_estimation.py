@@ -9,6 +9,7 @@ synthesised from these formulas with seeded noise, biases, clock offsets and out
 """
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -431,6 +432,39 @@ def test_unobservable_time_offset_gives_inf_and_a_warning(gen):
     est = estimate(start_spline(t, x, 0.4), [cam, gyro], steps=2, verbose=False)  # exact data
     with pytest.warns(RuntimeWarning, match="Gyro.time_offset"):
         assert math.isinf(float(est.std(gyro, "time_offset")))
+
+
+def _lever_arm_estimate(t, x, marks, spacing):
+    """Poses and Positions(lever_arm=Free()) on a spline of the given knot spacing."""
+    pos = Positions(t, marks, sigma=0.002, lever_arm=Free())
+    cam = Poses(t, x, rot_sigma=0.002, trans_sigma=0.002)
+    return estimate(start_spline(t, x, spacing), [cam, pos], verbose=False), pos
+
+
+def test_time_gap_leaves_nuisance_stds_finite(gen):
+    """A 1 s gap over about seven knot spacings leaves control points without data: the
+    poses that read them get inf with the gap warning only, while the lever arm keeps the
+    std of the same data on knots that leave no control point undetermined."""
+    t = grid(0.0, 4.0, 20)
+    t = t[(t < 1.5) | (t > 2.5)]
+    q, p = dq.to_rt(poses_of(t))
+    arm = torch.tensor([0.1, -0.05, 0.2], dtype=F64)
+    marks = p + quat.rotate(q, arm.expand(len(t), 3)) + randn(gen, len(t), 3, scale=0.002)
+    x = noisy_poses(poses_of(t), gen, 0.002, 0.002)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est, pos = _lever_arm_estimate(t, x, marks, 0.15)
+        std = est.std(pos, "lever_arm")
+        pose = est.pose_std(torch.tensor([1.0, 1.3, 1.8, 2.0, 2.2, 2.7, 3.0], dtype=F64))
+    messages = [str(w.message) for w in caught]
+    assert messages and all("do not determine every control point" in m for m in messages)
+    ref_est, ref_pos = _lever_arm_estimate(t, x, marks, 0.6)  # no warning (pytest: error)
+    ref = ref_est.std(ref_pos, "lever_arm")
+    assert torch.isfinite(std).all() and torch.isfinite(ref).all()
+    torch.testing.assert_close(std, ref, rtol=0.3, atol=0.0)
+    within(pos.lever_arm, arm, std)
+    assert torch.isinf(pose[2:5]).all()
+    assert torch.isfinite(pose[[0, 1, 5, 6]]).all()
 
 
 def test_known_time_offset_prior_gives_its_std(gen):

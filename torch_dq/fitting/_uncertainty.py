@@ -14,7 +14,9 @@ covariance is the inverse of ``[[A, C], [C^T, N]]``:
 columns: no dense inverse. ``S`` is inverted through its eigen-decomposition: a direction
 with an eigenvalue below ``1e-9`` of the largest, or below ``1e-12`` of the largest diagonal
 entry of ``A`` (no information at float64 precision), gets an infinite variance and a
-warning, never a value chosen by the numerical prior.
+warning, never a value chosen by the numerical prior. Control points without data
+information (a time gap, an end without samples) have zero rows and columns in ``A`` and
+``C``: they are left out (their poses' uncertainties are inf), which leaves ``S`` exact.
 """
 
 from __future__ import annotations
@@ -34,6 +36,35 @@ __all__ = ["Estimate"]
 
 _NULL = 1e-9  # relative eigenvalue of the Schur complement below which a direction is unknown
 _FLOOR = 1e-12  # ... or below this fraction of the largest control-point information
+
+
+def _drop_undetermined(band: Tensor, cn: Tensor,
+                       scale: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Decouple the control points without data information (a time gap, an end without
+    samples): their rows and columns of the band and of the coupling are (numerically)
+    zero, so replacing their diagonal blocks by the identity and zeroing the rest leaves the
+    Schur complement over the others exact.
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` upper band of the control-point block.
+        cn: ``(Bf, n, 6, m)`` coupling with the nuisance parameters.
+        scale: ``(Bf, 1)`` the largest diagonal entry of the band.
+
+    Returns:
+        The band and coupling with those points decoupled, and ``free (Bf, n)`` bool, True
+        at the undetermined control points.
+    """
+    n, w = band.shape[1], band.shape[2]
+    free = (band[:, :, 0].abs().amax((-1, -2)) <= _FLOOR * scale) & (scale > 0)  # none: inf
+    if not bool(free.any()):
+        return band, cn, free
+    col = torch.arange(n, device=band.device)[:, None] + torch.arange(w, device=band.device)
+    hit = free[:, :, None] | free.gather(1, col.clamp(max=n - 1).reshape(1, -1).expand(
+        free.shape[0], -1)).reshape(-1, n, w)
+    band = band.masked_fill(hit[..., None, None], 0.0)
+    eye = torch.eye(band.shape[-1], dtype=band.dtype, device=band.device)
+    band[:, :, 0] = torch.where(free[..., None, None], eye, band[:, :, 0])
+    return band, cn.masked_fill(free[..., None, None], 0.0), free
 
 
 class Estimate:
@@ -129,12 +160,14 @@ class Estimate:
     def _factor(self, system) -> None:
         p = self._problem
         Bf = max(p.batch.numel(), 1)
-        self._chol = BandedCholesky(system.band)
+        scale = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).amax((-1, -2))[:, None]
+        band, cn, self._free = _drop_undetermined(system.band, system.cn, scale)
+        self._chol = BandedCholesky(band)
         ok = self._chol.ok
-        if not bool(ok.all()):
+        if not bool(ok.all()) or bool(self._free.any()):
             warnings.warn("fitting.Estimate: the data do not determine every control point "
-                          "(a time gap or an end without samples); the uncertainties of the "
-                          "affected batch elements are inf", RuntimeWarning, stacklevel=4)
+                          "(a time gap or an end without samples); the uncertainties that depend "
+                          "on them are inf", RuntimeWarning, stacklevel=4)
         self._ok = ok
         m = p.m
         if not m:
@@ -142,13 +175,12 @@ class Estimate:
             self._V = system.nn
             self._inv = system.nn.new_zeros(Bf, 0)
             return
-        self._Z = self._chol.solve(system.cn)  # (Bf, n, 6, m)
+        self._Z = self._chol.solve(cn)  # (Bf, n, 6, m)
         S = system.nn + torch.diag(p.prior_information()).to(system.nn)
-        S = S - torch.einsum("bnim,bniq->bmq", system.cn, self._Z)
+        S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
         S = 0.5 * (S + S.mT)
         lam, V = torch.linalg.eigh(S)
         top = lam.amax(-1, keepdim=True).clamp_min(0.0)
-        scale = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).amax((-1, -2))[:, None]
         bad = (lam <= _NULL * top) | (lam <= _FLOOR * scale) | ~ok[:, None]
         self._V = V
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
@@ -258,13 +290,15 @@ class Estimate:
         f = first.expand(*p.batch, T).reshape(Bf, T)
         Sw = self._chol.window_covariance(f, sup)
         var = torch.einsum("btij,btjl,btil->bti", J, Sw, J)
+        idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
         if p.m:
-            idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
             Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
                 Bf, T * sup, 6, p.m)).reshape(Bf, T, sup * 6, p.m)
             var = var + self._quadratic(J @ Zw)
         std = var.clamp_min(0.0).sqrt()
-        std = torch.where(self._ok[:, None, None], std, torch.inf)
+        known = self._ok[:, None] & ~self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(
+            Bf, T, sup).any(-1)
+        std = torch.where(known[..., None], std, torch.inf)
         return std.reshape(*p.batch, T, k)
 
     def pose_std(self, t: Tensor) -> Tensor:
