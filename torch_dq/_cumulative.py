@@ -288,6 +288,30 @@ def _bags(f: Tensor, width: int, rows: int) -> Tensor:
     return torch.add(k, f[:, None].to(k.dtype), alpha=width)
 
 
+def _weighted_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
+    """``(n, 8)``: :math:`\\sum_k W_{nk}` ``table[f_n width + k]``, ``W (n, width)``. Under
+    ``torch.compile`` a gather, product and sum that inductor fuses (``embedding_bag`` is an
+    aten fallback there, several times slower)."""
+    width = W.shape[1]
+    if torch.compiler.is_compiling():
+        return (table.view(-1, width, 8)[f] * W[:, :, None]).sum(1)
+    return torch.nn.functional.embedding_bag(_bags(f, width, table.shape[0]), table,
+                                             mode="sum", per_sample_weights=W)
+
+
+def _row_dots(table: Tensor, f: Tensor, G: Tensor, F: int) -> Tensor:
+    """``(n, width)``: the dot products of each time's table rows ``table[f_n width + k]``
+    with ``G (n, 8)`` (the cotangent of :func:`_weighted_rows`' weights). Under
+    ``torch.compile`` a fused gather and sum, otherwise ``embedding_bag`` over the
+    transposed table's rows ``(f, component)``."""
+    blocks = table.view(F, -1, 8)
+    if torch.compiler.is_compiling():  # components leading: inductor reduces across rows
+        return (blocks.permute(1, 2, 0)[..., f] * G.T).sum(1).T
+    columns = blocks.transpose(1, 2).reshape(F * 8, -1)
+    return torch.nn.functional.embedding_bag(_bags(f, 8, columns.shape[0]), columns,
+                                             mode="sum", per_sample_weights=G)
+
+
 def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
     """The chunk ``part`` of the forward's saved weights, a contiguous ``(3, 2, p, n)`` block
     of the flat buffer ``kept`` (chunks one after the other)."""
@@ -314,13 +338,14 @@ def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
 class _Poses(torch.autograd.Function):
     r"""The cumulative form's poses from the span tables (:func:`_span_tables`):
     :math:`\sum_S w_S(t)\, T_S[f]`, one weighted bag of table rows per time
-    (``embedding_bag``), the weights from eq. 11's dual weights of each power.
+    (:func:`_weighted_rows`), the weights from eq. 11's dual weights of each power.
 
     Inputs: ``table (F * 2K, 8)``, ``pairs (3, p, F)``, ``first (N,)`` int64 (each time's span
     start ``f``), ``w (p, N)``, ``save``. Outputs: the poses ``(N, 8)``, in the caller's
     layout (no row copies), and with ``save`` what the backward reads (not differentiable):
-    the bags' weights ``(N, 2K)`` and ``(b_r, G, H) (3, 2, p, N)``, memory about 4x the
-    poses'. The weights run over cache-sized chunks of component rows. The backward
+    the bags' weights ``(N, 2K)`` (``(0, 2K)`` under ``torch.compile``, whose backward
+    recomputes them in fused elementwise code) and ``(b_r, G, H) (3, 2, p, N)``, memory about
+    4x the poses'. The weights run over cache-sized chunks of component rows. The backward
     returns the cotangents of the table and of the frames' ``c`` and ``delta``; autograd
     carries them to the control points through the (small) tables. Where the backward is
     itself differentiated, or the gradient of ``w`` is asked for, it recomputes the
@@ -335,19 +360,20 @@ class _Poses(torch.autograd.Function):
         full = _full_pairs(pairs)
         N, width = first.shape[0], table.shape[0] // pairs.shape[-1]
         out = table.new_empty(N, 8)
-        bags = table.new_empty(N if save else 0, width)
+        # under torch.compile the backward recomputes the bags' weights (fused elementwise)
+        bags = table.new_empty(N if save and not torch.compiler.is_compiling() else 0, width)
         kept = table.new_empty(6 * w.shape[0] * N if save else 0)
         for i in chunks(N, POSES_CHUNK):
             fr, ws, b_r = _chunk_weights(full, first[i], w[:, i], save, False)
             w_r, w_d = _subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1]
             W = torch.cat((w_r, w_d)).T
-            if save:
+            if bags.shape[0]:
                 bags[i] = W
                 W = bags[i]
+            if save:
                 torch.stack((b_r, ws.G, cast(WeightSlopes, ws).H),
                             out=_kept(kept, i, w.shape))
-            out[i] = torch.nn.functional.embedding_bag(
-                _bags(first[i], width, table.shape[0]), table, mode="sum", per_sample_weights=W)
+            out[i] = _weighted_rows(table, first[i], W)
         return out, bags, kept
 
     @staticmethod
@@ -363,12 +389,10 @@ class _Poses(torch.autograd.Function):
             return None, None, None, None, None
         table, pairs, first, w, bags, kept = ctx.saved_tensors
         need_w = ctx.needs_input_grad[3]
-        saved = bags.shape[0] > 0 and not need_w and not torch.is_grad_enabled()
+        saved = kept.shape[0] > 0 and not need_w and not torch.is_grad_enabled()
         full = _full_pairs(pairs)
         p, F = pairs.shape[1:]
         width = table.shape[0] // F
-        # table rows (f, k) -> columns: rows (f, component) of the transposed table
-        columns = table.view(F, width, 8).transpose(1, 2).reshape(F * 8, width)
         grad = grad.contiguous()
         g_pairs = torch.zeros_like(pairs[:2])
         g_table, grad_w = table.new_zeros(F, width, 8), []
@@ -383,10 +407,9 @@ class _Poses(torch.autograd.Function):
                 sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, ws.H
             b_d = _dual_parts(sigma, delta, wG)
             levels = _subset_levels(b_r, b_d)
-            W = bags[i] if saved else torch.cat(levels[-1]).T
+            W = bags[i] if saved and bags.shape[0] else torch.cat(levels[-1]).T
             g_table = g_table + _segment_outer(W, G, f, F)
-            gW = torch.nn.functional.embedding_bag(_bags(f, 8, columns.shape[0]), columns,
-                                                   mode="sum", per_sample_weights=G)
+            gW = _row_dots(table, f, G, F)
             g_r, g_d = _subset_vjp(levels, b_r, b_d, gW)
             # b_r = (F0, sigma F1), b_d = -delta (G0, sigma G1): sensitivities to F and G
             sig = torch.stack((torch.ones_like(sigma), sigma))
