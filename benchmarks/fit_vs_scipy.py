@@ -49,5 +49,6 @@ for path in sys.argv[1:]:
         for key, ref in (("translation_mm", mm), ("rotation_deg", deg)):
             print(f"   {key:15s} ours mean {h[key]['mean']:.4f} median {h[key]['median']:.4f} | "
                   f"scipy mean {ref.mean():.4f} median {np.median(ref):.4f} | ratio mean "
-                  f"{h[key]['mean'] / ref.mean():.2f} median {h[key]['median'] / np.median(ref):.2f}",
+                  f"{h[key]['mean'] / ref.mean():.2f} median "
+                  f"{h[key]['median'] / np.median(ref):.2f}",
                   flush=True)

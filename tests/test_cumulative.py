@@ -461,19 +461,22 @@ def test_fused_poses_match_reference_gradients(gen):
     assert torch.isfinite(grad[:n]).all()
 
 
-def test_fused_poses_unsorted_times_match_reference(gen):
-    """The fused op's backward sums each span's table cotangent with one matrix product per
-    span for non-decreasing spans and by scattering otherwise: shuffled times (and repeated
-    ones) give the reference's values and gradients on both paths."""
+@pytest.mark.parametrize("count", [3, 45, 400])
+def test_fused_poses_unsorted_times_match_reference(gen, count):
+    """The fused op sums each span's table cotangent with one matrix product per span for
+    non-decreasing spans holding many times (400 times on 5 spans), by scattering otherwise
+    (shuffled or repeated times, 45 times), and with fewer times than twice the span starts
+    (3 times) runs the product of powers per time: every path gives the reference's values
+    and gradients."""
     p, n = 3, 8
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("nonuniform", n, p, gen)
-    t = domain_times(knots, p, 40)
-    t = torch.cat((t, t[:5]))[torch.randperm(45, generator=gen)]
+    t = domain_times(knots, p, count)
+    t = torch.cat((t, t[:2]))[torch.randperm(count + 2, generator=gen)]
     r = KnotDomain(knots, p).span(t)
     w = _cumulative.basis(knots, r, t, p, 0)[0].T
-    g = torch.randn(45, 8, generator=gen, dtype=F64)
-    for order in (torch.randperm(45, generator=gen), torch.argsort(r)):  # scattered, sorted
+    g = torch.randn(count + 2, 8, generator=gen, dtype=F64)
+    for order in (torch.randperm(count + 2, generator=gen), torch.argsort(r)):  # scattered, sorted
         c = ctrl.clone().requires_grad_()
         first = r[order] - p
         fused = _cumulative.poses(c, first, w[:, order])

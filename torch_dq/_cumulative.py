@@ -59,6 +59,7 @@ __all__ = ["basis", "jets", "poses"]
 
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
 POSES_CHUNK = 16384  # times per eager chunk of the fused poses (fewer, larger ops than 8192)
+TABLE_MIN_TIMES = 2  # times per span start below which the span tables do not pay
 
 
 def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
@@ -323,10 +324,10 @@ def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
 def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
     r""":math:`\sum_{n: f_n = s} W_n \otimes G_n` for every span start ``s``: ``W (n, k)``,
     ``G (n, 8)`` -> ``(F, k, 8)``. Eager on CPU with non-decreasing ``f`` (sorted times): one
-    small matrix product per span (one host read of the spans' counts); otherwise the outer
-    products are scattered."""
+    small matrix product per span (one host read of the spans' counts) where spans hold 32
+    times or more on average; otherwise the outer products are scattered."""
     if not torch.compiler.is_compiling() and f.device.type == "cpu" and f.shape[0] > 1:
-        if bool((f[1:] >= f[:-1]).all()):
+        if bool((f[1:] >= f[:-1]).all()) and int(f[-1] - f[0]) * 32 < f.shape[0]:
             counts = torch.bincount(f - f[0]).tolist()
             starts = f.new_tensor([s for s, c in enumerate(counts) if c]) + f[0]
             parts = [a.T @ b for a, b in zip(W.split(counts), G.split(counts), strict=True)
@@ -445,10 +446,18 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
         twice (reverse mode) with respect to ``ctrl`` and ``weights``. Under ``torch.func``
         transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
-        :func:`jets` instead, which this does not check.
+        :func:`jets` instead, which this does not check. With fewer than
+        ``TABLE_MIN_TIMES`` times per span start (e.g. the estimator's one-span copies of
+        each sample, where every time has a span of its own) the span tables cost more than
+        they save, and the product of powers runs per time (:func:`jets` at order 0).
     """
+    p = weights.shape[0]
     if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
         return ctrl[:0] * 1
-    table, pairs = _span_tables(ctrl, first, weights.shape[0])
+    if not torch.compiler.is_compiling() and (
+            first.shape[0] < TABLE_MIN_TIMES * (ctrl.shape[0] - p)):
+        points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
+        return jets(points, [weights.T], 0)[0]
+    table, pairs = _span_tables(ctrl, first, p)
     save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
     return _Poses.apply(table, pairs, first, weights, save)[0]

@@ -25,7 +25,8 @@ broadcast against the knots' batch dims. The B-spline *form* (De Boor or cumulat
 the time model's business: both forms read the same spans and local parameters.
 
 Domain rules (``docs/api_contract.md``): times outside the domain ``[t0, t1]`` (absolute,
-the origin added) by at most ``tol = max(1e-9 (t1 - t0), 4 eps(t.dtype) max(|t0|, |t1|))`` (plus the rounding
+the origin added) by at most
+``tol = max(1e-9 (t1 - t0), 4 eps(t.dtype) max(|t0|, |t1|))`` (plus the rounding
 of the stored relative knots) are evaluated at the nearest end; with checks on, times further
 out raise ``ValueError`` naming the domain and ``extrapolate=True``; with checks skipped
 (``check=False``, under ``torch.compile``, on meta tensors) they give NaN, never a silent

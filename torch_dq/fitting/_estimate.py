@@ -313,10 +313,11 @@ class _LevenbergMarquardt:
     def predicted_stop(self, tol: float) -> None:
         """Stop the elements whose next step, as the last system predicts it (its damped
         Gauss-Newton matrix, the exact gradient here: one chained reverse pass of the
-        costs instead of the Jacobians' k), lowers the objective by at most ``tol`` relatively: the model decrease
-        of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the half gradient). Only after a
-        step that lowered the objective by at most ``_SETTLING`` relatively (after larger
-        ones the prediction would rarely stop and costs a pass of the costs)."""
+        costs instead of the Jacobians' k), lowers the objective by at most ``tol``
+        relatively: the model decrease of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the
+        half gradient). Only after a step that lowered the objective by at most
+        ``_SETTLING`` relatively (after larger ones the prediction would rarely stop and
+        costs a pass of the costs)."""
         if not bool((self.active & self.settling).any()):
             return
         gc, gn = self.p.gradient(self.ctrl, self.values, self.w)

@@ -118,8 +118,8 @@ def sample_jacobians(residual: Callable[[list[Tensor]], Tensor], leaves: list[Te
     (one batched evaluation instead of ``k`` passes with their per-call overheads).
 
     Args:
-        residual: maps the leaves (each ``(k, ..., N, *event)``, copies of their values) to ``(k, ..., N, k)``
-            residuals, sample ``i`` depending on the leaves' sample ``i`` only.
+        residual: maps the leaves (each ``(k, ..., N, *event)``, copies of their values) to
+            ``(k, ..., N, k)`` residuals, sample ``i`` depending on the leaves' sample ``i`` only.
         leaves: the per-sample inputs, ``(..., N, *event_j)`` (the residuals' sample
             shape, then any event shape).
         k: residual size.

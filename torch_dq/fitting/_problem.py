@@ -194,7 +194,8 @@ class Problem:
         for i in range(len(self.terms)):
             _, f0, Jc, Jn = self._chained(i, ctrl, values, w, True)
             N = f0.shape[-1]
-            gc.index_add_(0, (self._windows(f0, w)[..., None] + torch.arange(w, device=f0.device)).reshape(-1),
+            cols = self._windows(f0, w)[..., None] + torch.arange(w, device=f0.device)
+            gc.index_add_(0, cols.reshape(-1),
                           Jc.expand(*self.batch, N, 1, w, 6).reshape(-1, 6))
             for name, J in Jn.items():
                 p = self.index[(i, name)]
