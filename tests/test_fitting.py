@@ -751,7 +751,8 @@ def test_per_row_times_must_be_the_module_rows():
     T, truth, x = _per_row_truth()
     for optimizer in ("lm", "adam"):
         with pytest.raises(ValueError, match=r"^nn\.fit: times \(3, 40\) must have a row per "
-                                             r"trajectory .*\(\*\(2,\), N\)"):
+                                             r"trajectory of the module: expected shape \(2, N\) for "
+                                             r"control points \(2, 8, 8\)$"):
             fit(truth, T[[0, 1, 1]], x[[0, 1, 1]], optimizer=optimizer, verbose=False)
     single = BSpline.from_dualquats(x[1], T[1], n_ctrl=8)
     with pytest.raises(ValueError, match=r"times \(2, 40\) give a row per trajectory but the "

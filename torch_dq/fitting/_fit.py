@@ -366,8 +366,9 @@ def _check_rows(fn: str, module, times: Tensor, batch: torch.Size) -> None:
                          f"{_checks.shape_str(module.control_points.shape)}): pass (N,) "
                          f"times, or build one curve per row with "
                          f"torch_dq.nn.BSpline.from_poses(..., times (B, N), ...)")
+    rows = ", ".join(str(b) for b in batch)
     _checks.fail(fn, f"times {_checks.shape_str(times.shape)} must have a row per trajectory "
-                     f"of the module: expected shape (*{_checks.shape_str(batch)}, N) for "
+                     f"of the module: expected shape ({rows}, N) for "
                      f"control points {_checks.shape_str(module.control_points.shape)}")
 
 
