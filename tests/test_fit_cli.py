@@ -323,7 +323,8 @@ def test_five_poses_with_defaults_one_line_with_working_hints(tmp_path, capsys):
     for option in ("--holdout", "--degree"):
         line, value, _ = _hint_works(capsys, ["fit", str(five), "--out", str(tmp_path / option),
                                               "--quiet", "--no-plots"], option)
-        assert "too few for a degree-3 B-spline" in line
+        assert "3 fitted poses (1 in 2 of 5, and the last) are too few for a degree-3 " \
+               "B-spline" in line
     assert value == "2"  # 3 fitted poses allow degree 2
     line, value, _ = _hint_works(capsys, ["fit", str(five), "--holdout", "4", "--out",
                                           str(tmp_path / "o"), "--quiet", "--no-plots"],

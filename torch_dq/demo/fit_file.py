@@ -174,7 +174,7 @@ def _split(n: int, holdout: int, degree: int) -> tuple[Tensor, Tensor]:
             ways.append(f"--holdout {ok[0]}" + (" (fit all)" if ok[0] == 1 else " or less"))
         if n_fit >= 2:
             ways.append(f"--degree {n_fit - 1}")
-        raise OptionError(f"{n_fit} fitted poses (every {holdout}th of {n}, and the last) are "
+        raise OptionError(f"{n_fit} fitted poses (1 in {holdout} of {n}, and the last) are "
                           f"too few for a degree-{degree} B-spline, which needs "
                           f"{degree + 1}: pass {' or '.join(ways)}")
     fitted = torch.zeros(n, dtype=torch.bool)
