@@ -25,9 +25,9 @@ from __future__ import annotations
 import torch
 import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
-from torch._C._functorch import is_functorch_wrapped_tensor
+from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-__all__ = ["fused_path"]
+__all__ = ["batched", "fused_path", "reference_vjp"]
 
 
 def fused_path(*tensors: Tensor) -> bool:
@@ -52,3 +52,36 @@ def fused_path(*tensors: Tensor) -> bool:
     if _forward_ad._current_level >= 0:
         return False
     return not any(is_functorch_wrapped_tensor(x) for x in tensors)
+
+
+def batched(*grads: Tensor | None) -> bool:
+    """Whether a fused op's backward runs with batched cotangents.
+
+    ``torch.autograd.functional.jacobian`` / ``hessian`` with ``vectorize=True`` and
+    ``torch.autograd.grad(..., is_grads_batched=True)`` run the backward under ``vmap``
+    after the forward has already taken the fused path. The fused backwards (chunk loops,
+    ``out=`` writes, host reads) cannot be batched; they return :func:`reference_vjp`
+    instead.
+
+    Args:
+        *grads: the backward's cotangents (``None`` for outputs without one).
+    """
+    return any(g is not None and (is_legacy_batchedtensor(g) or is_functorch_wrapped_tensor(g))
+               for g in grads)
+
+
+def reference_vjp(reference, inputs: tuple[Tensor, ...], grads):
+    """The vector-Jacobian product of a fused op's readable ``reference`` (plain torch ops)
+    at ``inputs``, for batched cotangents ``grads`` (:func:`batched`): exact, and
+    differentiable again (double backward, ``hessian(vectorize=True)``).
+
+    Args:
+        reference: function of ``inputs`` computing the op's outputs in plain ops.
+        inputs: the op's saved differentiable inputs.
+        grads: the cotangents, structured as ``reference``'s outputs.
+
+    Returns:
+        One cotangent per input.
+    """
+    _, vjp_fn = torch.func.vjp(reference, *inputs)
+    return vjp_fn(grads)

@@ -37,6 +37,7 @@ from typing import cast
 import torch
 from torch import Tensor
 
+from . import batched, reference_vjp
 from .layout import chunks
 from .weights import slerp_weights
 
@@ -108,6 +109,8 @@ class _Slerp(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         q0, q1, t = ctx.saved_tensors
+        if batched(grad):
+            return reference_vjp(plain, (q0, q1, t), grad)
         need_t = ctx.needs_input_grad[2]
         common = t.shape[0] == 1
         g0, g1 = torch.empty_like(q0), torch.empty_like(q1)
