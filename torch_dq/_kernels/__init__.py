@@ -66,6 +66,8 @@ def batched(*grads: Tensor | None) -> bool:
     Args:
         *grads: the backward's cotangents (``None`` for outputs without one).
     """
+    if torch.compiler.is_compiling():  # traced backwards are never batched this way
+        return False
     return any(g is not None and (is_legacy_batchedtensor(g) or is_functorch_wrapped_tensor(g))
                for g in grads)
 
