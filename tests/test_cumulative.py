@@ -486,6 +486,36 @@ def test_fused_poses_unsorted_times_match_reference(gen, count):
         assert float((a - b).abs().max()) <= 1e-12
 
 
+def test_fused_poses_runs_across_chunks_match_reference(gen, monkeypatch):
+    """Sorted times run per span (one matrix product per run of a span start) with chunk
+    boundaries inside runs (chunks of 37 times): values and gradients with respect to the
+    control points and the weights (first and second order) equal the reference's."""
+    monkeypatch.setattr(_cumulative, "POSES_CHUNK", 37)
+    p, n = 3, 7
+    ctrl = align_chain(chain(n, gen))
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 200)
+    r = KnotDomain(knots, p).span(t)
+    first = r - p
+    runs = _cumulative._runs(first)
+    assert runs is not None and len(runs) == 6  # chunks of 37 times
+    spans = [f for _, rs in runs for *_, f in rs]
+    assert len(spans) > len(set(spans))  # some span's run is split between two chunks
+    w = _cumulative.basis(knots, r, t, p, 0)[0].T.contiguous().requires_grad_()
+    c = ctrl.clone().requires_grad_()
+    fused = _cumulative.poses(c, first, w)
+    ref = curves._kim_kim_shin(c[first[:, None] + torch.arange(p + 1)], w.T)
+    assert float((fused - ref).detach().abs().max()) <= 1e-14
+    g = torch.randn(fused.shape, generator=gen, dtype=F64)
+    for create_graph in (False, True):
+        a = torch.autograd.grad(fused, (c, w), g, retain_graph=True, create_graph=create_graph)
+        b = torch.autograd.grad(ref, (c, w), g, retain_graph=True, create_graph=create_graph)
+        assert all(float((x - y).detach().abs().max()) <= 1e-12
+                   for x, y in zip(a, b, strict=True))
+    a = torch.autograd.grad(fused, c, g)[0]  # the first-order backward from saved weights
+    assert float((a - b[0]).detach().abs().max()) <= 1e-12
+
+
 def test_forward_mode_and_transforms_match_reverse(gen):
     p, n = 3, 6
     ctrl = align_chain(chain(n, gen))

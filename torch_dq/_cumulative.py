@@ -60,6 +60,7 @@ __all__ = ["basis", "jets", "poses"]
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
 POSES_CHUNK = 16384  # times per eager chunk of the fused poses (fewer, larger ops than 8192)
 TABLE_MIN_TIMES = 2  # times per span start below which the span tables do not pay
+RUN_MIN_TIMES = 32  # times per span start from which sorted times run per span (_runs)
 
 
 def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
@@ -246,10 +247,10 @@ def _subset_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
 
 def _subset_vjp(levels: list[tuple[Tensor, Tensor]], b_r: Tensor, b_d: Tensor,
                 g_last: Tensor) -> tuple[Tensor, Tensor]:
-    """Cotangents of ``b_r, b_d (2, p, n)`` from ``g_last (n, 2^(p+1))``, those of the last
-    level's real and dual parts side by side (as the bags' weights)."""
+    """Cotangents of ``b_r, b_d (2, p, n)`` from ``g_last (2^(p+1), n)``, those of the last
+    level's real and dual parts one above the other (as the bags' weights, in rows)."""
     p = b_r.shape[1]
-    g_r, g_d = to_rows(g_last).chunk(2)
+    g_r, g_d = g_last.chunk(2)
     gb_r, gb_d = [], []
     for j in range(p - 1, 0, -1):
         w_r, w_d = levels[j - 1]
@@ -301,16 +302,16 @@ def _weighted_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
 
 
 def _row_dots(table: Tensor, f: Tensor, G: Tensor, F: int) -> Tensor:
-    """``(n, width)``: the dot products of each time's table rows ``table[f_n width + k]``
-    with ``G (n, 8)`` (the cotangent of :func:`_weighted_rows`' weights). Under
+    """``(width, n)`` rows: the dot products of each time's table rows ``table[f_n width +
+    k]`` with ``G (n, 8)`` (the cotangent of :func:`_weighted_rows`' weights). Under
     ``torch.compile`` a fused gather and sum, otherwise ``embedding_bag`` over the
     transposed table's rows ``(f, component)``."""
     blocks = table.view(F, -1, 8)
     if torch.compiler.is_compiling():  # components leading: inductor reduces across rows
-        return (blocks.permute(1, 2, 0)[..., f] * G.T).sum(1).T
+        return (blocks.permute(1, 2, 0)[..., f] * G.T).sum(1)
     columns = blocks.transpose(1, 2).reshape(F * 8, -1)
-    return torch.nn.functional.embedding_bag(_bags(f, 8, columns.shape[0]), columns,
-                                             mode="sum", per_sample_weights=G)
+    return to_rows(torch.nn.functional.embedding_bag(
+        _bags(f, 8, columns.shape[0]), columns, mode="sum", per_sample_weights=G))
 
 
 def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
@@ -323,63 +324,119 @@ def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
 
 def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
     r""":math:`\sum_{n: f_n = s} W_n \otimes G_n` for every span start ``s``: ``W (n, k)``,
-    ``G (n, 8)`` -> ``(F, k, 8)``. Eager on CPU with non-decreasing ``f`` (sorted times): one
-    small matrix product per span (one host read of the spans' counts) where spans hold 32
-    times or more on average; otherwise the outer products are scattered."""
-    if not torch.compiler.is_compiling() and f.device.type == "cpu" and f.shape[0] > 1:
-        if bool((f[1:] >= f[:-1]).all()) and int(f[-1] - f[0]) * 32 < f.shape[0]:
-            counts = torch.bincount(f - f[0]).tolist()
-            starts = f.new_tensor([s for s, c in enumerate(counts) if c]) + f[0]
-            parts = [a.T @ b for a, b in zip(W.split(counts), G.split(counts), strict=True)
-                     if a.shape[0]]
-            return W.new_zeros(F, W.shape[1], 8).index_add(0, starts, torch.stack(parts))
+    ``G (n, 8)`` -> ``(F, k, 8)``, a scatter of the outer products (differentiable; sorted
+    times run per span instead, :func:`_runs`)."""
     return W.new_zeros(F, W.shape[1], 8).index_add(0, f, W[:, :, None] * G[:, None, :])
+
+
+Runs = list[tuple[slice, list[tuple[int, int, int]]]]
+
+
+def _runs(first: Tensor) -> Runs | None:
+    """The chunks of :data:`POSES_CHUNK` times, each with its runs ``(a, b, f)``: times
+    ``a <= i < b`` (absolute indices) of one span start ``f``; ``None`` unless eager on CPU
+    with non-decreasing ``first (N,)`` (sorted times) holding :data:`RUN_MIN_TIMES` times or
+    more per span start on average. Per run, the weighted sum of table rows and its
+    cotangents are then small matrix products on the weights' rows (no bag indices, no
+    transposes). Two host reads: the order check and the starts' counts."""
+    N = first.shape[0]
+    if torch.compiler.is_compiling() or first.device.type != "cpu" or N < 2:
+        return None
+    lo = int(first[0])
+    if (int(first[-1]) - lo) * RUN_MIN_TIMES >= N or not bool((first[1:] >= first[:-1]).all()):
+        return None
+    out: Runs = []
+    runs: list[tuple[int, int, int]] = []
+    a0 = a = 0
+    for f, count in enumerate(torch.bincount(first - lo).tolist(), lo):
+        b = a + count
+        while a < b:
+            stop = min(b, a0 + POSES_CHUNK)
+            runs.append((a, stop, f))
+            a = stop
+            if stop in (a0 + POSES_CHUNK, N):
+                out.append((slice(a0, stop), runs))
+                runs, a0 = [], stop
+    return out
+
+
+def _run_rows(blocks: Tensor, W: Tensor, part: slice, runs: list[tuple[int, int, int]],
+              out: Tensor) -> None:
+    """:func:`_weighted_rows` per run, in place: ``out[a:b] = W[:, a:b]^T blocks[f]`` for the
+    runs ``(a, b, f)`` of the chunk ``part``, ``W (width, n)`` its weights in rows, ``blocks
+    (F, width, 8)`` the table."""
+    for a, b, f in runs:
+        torch.mm(W[:, a - part.start:b - part.start].T, blocks[f], out=out[a:b])
+
+
+def _run_cotangents(blocks: Tensor, W: Tensor, grad: Tensor, part: slice,
+                    runs: list[tuple[int, int, int]], g_table: Tensor) -> Tensor:
+    """The cotangents of :func:`_run_rows`' weights, ``(width, n)`` rows (``blocks[f]
+    grad[a:b]^T`` per run), and in place the table's: ``W[:, a:b] grad[a:b]`` added to
+    ``g_table[f] (width, 8)`` (not differentiable: first-order backward only)."""
+    gW = W.new_empty(W.shape)
+    for a, b, f in runs:
+        cols = slice(a - part.start, b - part.start)
+        torch.mm(blocks[f], grad[a:b].T, out=gW[:, cols])
+        g_table[f].addmm_(W[:, cols], grad[a:b])
+    return gW
+
+
+def _run_sums(x: Tensor, runs: list[tuple[int, int, int]], total: Tensor) -> Tensor:
+    """``total (..., F)`` plus the sums of ``x (..., n)`` over each run's times, at its span
+    start (the chunk's runs in order, covering ``x``)."""
+    sums = torch.stack([y.sum(-1) for y in x.split([b - a for a, b, _ in runs], -1)], -1)
+    return total.index_add(-1, x.new_tensor([f for *_, f in runs], dtype=torch.long), sums)
 
 
 class _Poses(torch.autograd.Function):
     r"""The cumulative form's poses from the span tables (:func:`_span_tables`):
     :math:`\sum_S w_S(t)\, T_S[f]`, one weighted bag of table rows per time
-    (:func:`_weighted_rows`), the weights from eq. 11's dual weights of each power.
+    (:func:`_weighted_rows`, or per run of sorted times :func:`_run_rows`), the weights from
+    eq. 11's dual weights of each power.
 
     Inputs: ``table (F * 2K, 8)``, ``pairs (3, p, F)``, ``first (N,)`` int64 (each time's span
-    start ``f``), ``w (p, N)``, ``save``. Outputs: the poses ``(N, 8)``, in the caller's
-    layout (no row copies), and with ``save`` what the backward reads (not differentiable):
-    the bags' weights ``(N, 2K)`` (``(0, 2K)`` under ``torch.compile``, whose backward
+    start ``f``), ``w (p, N)``, ``save``, ``runs`` (:func:`_runs`, or ``None``). Outputs: the
+    poses ``(N, 8)``, in the caller's layout, and with ``save`` what the backward reads (not
+    differentiable): the bags' weights ``(N, 2K)`` (``(0, 2K)`` with ``runs``, whose backward
+    recomputes them from the last subset level, and under ``torch.compile``, whose backward
     recomputes them in fused elementwise code) and ``(b_r, G, H) (3, 2, p, N)``, memory about
-    4x the poses'. The weights run over cache-sized chunks of component rows. The backward
-    returns the cotangents of the table and of the frames' ``c`` and ``delta``; autograd
-    carries them to the control points through the (small) tables. Where the backward is
-    itself differentiated, or the gradient of ``w`` is asked for, it recomputes the
-    weights from the inputs instead (plain torch ops: twice differentiable).
+    2x (4x without ``runs``) the poses'. The weights run over cache-sized chunks of component
+    rows. The backward returns the cotangents of the table and of the frames' ``c`` and
+    ``delta``; autograd carries them to the control points through the (small) tables.
+    Where the backward is itself differentiated, or the gradient of ``w`` is asked for, it
+    recomputes the weights from the inputs instead (plain torch ops: twice differentiable).
     """
 
     generate_vmap_rule = True
 
     @staticmethod
-    def forward(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor,
-                save: bool) -> tuple[Tensor, Tensor, Tensor]:
+    def forward(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor, save: bool,
+                runs: Runs | None) -> tuple[Tensor, Tensor, Tensor]:
         full = _full_pairs(pairs)
         N, width = first.shape[0], table.shape[0] // pairs.shape[-1]
         out = table.new_empty(N, 8)
-        # under torch.compile the backward recomputes the bags' weights (fused elementwise)
-        bags = table.new_empty(N if save and not torch.compiler.is_compiling() else 0, width)
+        # with runs or under torch.compile the backward recomputes the bags' weights
+        keep = save and runs is None and not torch.compiler.is_compiling()
+        bags = table.new_empty(N if keep else 0, width)
         kept = table.new_empty(6 * w.shape[0] * N if save else 0)
-        for i in chunks(N, POSES_CHUNK):
+        for i, run in _parts(N, runs):
             fr, ws, b_r = _chunk_weights(full, first[i], w[:, i], save, False)
-            w_r, w_d = _subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1]
-            W = torch.cat((w_r, w_d)).T
-            if bags.shape[0]:
-                bags[i] = W
-                W = bags[i]
+            W = torch.cat(_subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1])
             if save:
                 torch.stack((b_r, ws.G, cast(WeightSlopes, ws).H),
                             out=_kept(kept, i, w.shape))
-            out[i] = _weighted_rows(table, first[i], W)
+            if run is not None:
+                _run_rows(table.view(-1, width, 8), W, i, run, out)
+                continue
+            if bags.shape[0]:
+                bags[i] = W.T
+            out[i] = _weighted_rows(table, first[i], bags[i] if bags.shape[0] else W.T)
         return out, bags, kept
 
     @staticmethod
     def setup_context(ctx, inputs, output):
-        table, pairs, first, w, _ = inputs
+        table, pairs, first, w, _, ctx.runs = inputs
         ctx.mark_non_differentiable(*output[1:])
         ctx.set_materialize_grads(False)
         ctx.save_for_backward(table, pairs, first, w, *output[1:])
@@ -387,17 +444,18 @@ class _Poses(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad, *_):
         if grad is None:  # only the (non-differentiable) saved weights were reached
-            return None, None, None, None, None
+            return None, None, None, None, None, None
         table, pairs, first, w, bags, kept = ctx.saved_tensors
-        need_w = ctx.needs_input_grad[3]
-        saved = kept.shape[0] > 0 and not need_w and not torch.is_grad_enabled()
+        need_w, plain = ctx.needs_input_grad[3], not torch.is_grad_enabled()
+        saved = kept.shape[0] > 0 and not need_w and plain
+        runs = ctx.runs if plain else None  # the runs' products are not differentiable
         full = _full_pairs(pairs)
         p, F = pairs.shape[1:]
         width = table.shape[0] // F
         grad = grad.contiguous()
         g_pairs = torch.zeros_like(pairs[:2])
         g_table, grad_w = table.new_zeros(F, width, 8), []
-        for i in chunks(first.shape[0], POSES_CHUNK):
+        for i, run in _parts(first.shape[0], runs):
             f, G = first[i], grad[i]
             if saved:
                 sd = full.view(6, -1, F)[1:3].flatten(0, 1).index_select(1, f)
@@ -408,22 +466,34 @@ class _Poses(torch.autograd.Function):
                 sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, ws.H
             b_d = _dual_parts(sigma, delta, wG)
             levels = _subset_levels(b_r, b_d)
-            W = bags[i] if saved and bags.shape[0] else torch.cat(levels[-1]).T
-            g_table = g_table + _segment_outer(W, G, f, F)
-            gW = _row_dots(table, f, G, F)
+            if run is not None:
+                gW = _run_cotangents(table.view(F, width, 8), torch.cat(levels[-1]), grad, i,
+                                     run, g_table)
+            else:
+                W = bags[i] if saved and bags.shape[0] else torch.cat(levels[-1]).T
+                g_table = g_table + _segment_outer(W, G, f, F)
+                gW = _row_dots(table, f, G, F)
             g_r, g_d = _subset_vjp(levels, b_r, b_d, gW)
             # b_r = (F0, sigma F1), b_d = -delta (G0, sigma G1): sensitivities to F and G
             sig = torch.stack((torch.ones_like(sigma), sigma))
             gF, gG = sig * g_r, -delta * sig * g_d
             g_delta = -(sig * wG * g_d).sum(0)
             g_c = -(wG * gF + wH * gG).sum(0)  # dF/dc = -G, dG/dc = -H
-            g_pairs = g_pairs.index_add(2, f, torch.stack((g_c, g_delta)))
+            g_cd = torch.stack((g_c, g_delta))
+            g_pairs = (_run_sums(g_cd, run, g_pairs) if run is not None
+                       else g_pairs.index_add(2, f, g_cd))
             if need_w:  # s = (1 - w, w)
                 Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
                 grad_w.append((Fs[1] * gF[1] + Gs[1] * gG[1]) - (Fs[0] * gF[0] + Gs[0] * gG[0]))
         g_pairs = torch.cat((g_pairs, torch.zeros_like(pairs[2:])))
         return (g_table.view(-1, 8), g_pairs, None,
-                torch.cat(grad_w, -1) if need_w else None, None)
+                torch.cat(grad_w, -1) if need_w else None, None, None)
+
+
+def _parts(N: int, runs: Runs | None) -> Runs | list[tuple[slice, None]]:
+    """The chunks of the fused op: ``runs`` (:func:`_runs`) if given, else
+    :func:`~torch_dq._kernels.layout.chunks` of :data:`POSES_CHUNK` times, without runs."""
+    return runs if runs is not None else [(i, None) for i in chunks(N, POSES_CHUNK)]
 
 
 def _full_pairs(pairs: Tensor) -> Tensor:
@@ -460,4 +530,4 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         return jets(points, [weights.T], 0)[0]
     table, pairs = _span_tables(ctrl, first, p)
     save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
-    return _Poses.apply(table, pairs, first, weights, save)[0]
+    return _Poses.apply(table, pairs, first, weights, save, _runs(first))[0]
