@@ -57,6 +57,7 @@ from ._numerics import safe_denominator
 
 __all__ = ["basis", "jets", "poses"]
 
+BASIS_CHUNK = 16384  # times per eager chunk of the basis (2x faster than 1e5 at once)
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
 POSES_CHUNK = 16384  # times per eager chunk of the fused poses (fewer, larger ops than 8192)
 TABLE_MIN_TIMES = 2  # times per span start below which the span tables do not pay
@@ -94,9 +95,10 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
         safe = safe_denominator(denom, empty)
         keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
         alpha = (t - left) / safe * keep
-        # (alpha + slope h) V, truncated: the product by an affine function of t
-        slope = keep / safe
-        aV = [alpha * V[0]] + [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
+        aV = [alpha * V[0]]
+        if order:  # (alpha + slope h) V, truncated: the product by an affine function of t
+            slope = keep / safe
+            aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
         V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
              for a, v in zip(aV, V, strict=True)]
     return V
@@ -126,9 +128,13 @@ def basis(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int) -> list[
         respect to ``t`` and ``knots``. Each is a view of ``(p, ..., T)`` rows (its
         transpose, what the kernels read, is contiguous).
     """
-    V = _span_basis(knots, r, t, degree, order)
-    return [(math.factorial(k) * v[1:].flip(0).cumsum(0).flip(0)).movedim(0, -1)
-            for k, v in enumerate(V)]
+    r, t = torch.broadcast_tensors(r, t)
+    flat_r, flat_t = r.reshape(-1), t.reshape(-1)
+    parts = [[math.factorial(k) * v[1:].flip(0).cumsum(0).flip(0)
+              for k, v in enumerate(_span_basis(knots, flat_r[i], flat_t[i], degree, order))]
+             for i in chunks(flat_r.shape[0], BASIS_CHUNK)]  # cache-sized temporaries
+    return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(-1, *r.shape).movedim(0, -1)
+            for x in zip(*parts, strict=True)]
 
 
 def _identity_rows(like: Tensor) -> Tensor:
