@@ -49,7 +49,7 @@ from torch import Tensor
 
 from . import _taylor
 from ._kernels import products
-from ._kernels.layout import chunks, to_rows
+from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
 from ._kernels.weights import Angle, Weights, WeightSlopes, angle
@@ -370,21 +370,26 @@ def _run_rows(blocks: Tensor, W: Tensor, part: slice, runs: list[tuple[int, int,
               out: Tensor) -> None:
     """:func:`_weighted_rows` per run, in place: ``out[a:b] = W[:, a:b]^T blocks[f]`` for the
     runs ``(a, b, f)`` of the chunk ``part``, ``W (width, n)`` its weights in rows, ``blocks
-    (F, width, 8)`` the table."""
+    (F, width, 8)`` the table. The products are taken in rows, ``blocks[f]^T W[:, a:b]``
+    (about 3x faster than the transposed product on CPU), and copied into ``out`` once."""
+    rows = W.new_empty(8, W.shape[1])
     for a, b, f in runs:
-        torch.mm(W[:, a - part.start:b - part.start].T, blocks[f], out=out[a:b])
+        torch.mm(blocks[f].T, W[:, a - part.start:b - part.start],
+                 out=rows[:, a - part.start:b - part.start])
+    rows_into(out[part], rows)
 
 
 def _run_cotangents(blocks: Tensor, W: Tensor, grad: Tensor, part: slice,
                     runs: list[tuple[int, int, int]], g_table: Tensor) -> Tensor:
     """The cotangents of :func:`_run_rows`' weights, ``(width, n)`` rows (``blocks[f]
     grad[a:b]^T`` per run), and in place the table's: ``W[:, a:b] grad[a:b]`` added to
-    ``g_table[f] (width, 8)`` (not differentiable: first-order backward only)."""
+    ``g_table[f] (width, 8)`` (not differentiable: first-order backward only). ``grad``
+    is the chunk's, in rows ``(8, n)``."""
     gW = W.new_empty(W.shape)
     for a, b, f in runs:
         cols = slice(a - part.start, b - part.start)
-        torch.mm(blocks[f], grad[a:b].T, out=gW[:, cols])
-        g_table[f].addmm_(W[:, cols], grad[a:b])
+        torch.mm(blocks[f], grad[:, cols], out=gW[:, cols])
+        g_table[f].addmm_(W[:, cols], grad[:, cols].T)
     return gW
 
 
@@ -473,8 +478,8 @@ class _Poses(torch.autograd.Function):
             b_d = _dual_parts(sigma, delta, wG)
             levels = _subset_levels(b_r, b_d)
             if run is not None:
-                gW = _run_cotangents(table.view(F, width, 8), torch.cat(levels[-1]), grad, i,
-                                     run, g_table)
+                gW = _run_cotangents(table.view(F, width, 8), torch.cat(levels[-1]),
+                                     to_rows(G), i, run, g_table)
             else:
                 W = bags[i] if saved and bags.shape[0] else torch.cat(levels[-1]).T
                 g_table = g_table + _segment_outer(W, G, f, F)
