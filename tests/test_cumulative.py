@@ -516,6 +516,39 @@ def test_fused_poses_runs_across_chunks_match_reference(gen, monkeypatch):
     assert float((a - b[0]).detach().abs().max()) <= 1e-12
 
 
+def test_fused_poses_build_tables_of_starts_in_use(gen, monkeypatch):
+    """Eager, the span tables are built only for the span starts that some time reads (3 of
+    the 18 of three flattened curves): values and gradients equal the reference's, and a NaN
+    control point that no span in use reads changes nothing."""
+    built = []
+
+    def spy(ctrl, starts, p, used=None):
+        built.append(starts.tolist())
+        return span_tables(ctrl, starts, p, used)
+
+    span_tables = _cumulative._span_tables
+    monkeypatch.setattr(_cumulative, "_span_tables", spy)
+    p, n = 3, 7
+    ctrl = torch.cat([align_chain(chain(n, gen)) for _ in range(3)])
+    ctrl[9] = float("nan")  # curve 1, read by no time
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 40)
+    r = KnotDomain(knots, p).span(t)
+    keep = (r == p) | (r == n - 1)
+    first = torch.cat((r[keep] - p, r[keep][:5] - p + 2 * n))
+    assert len(set(first.tolist())) == 3
+    w = _cumulative.basis(knots, r[keep], t[keep], p, 0)[0].T
+    w = torch.cat((w, w[:, :5]), 1)
+    c = ctrl.clone().requires_grad_()
+    fused = _cumulative.poses(c, first, w)
+    assert built == [sorted(set(first.tolist()))]
+    ref = curves._kim_kim_shin(c[first[:, None] + torch.arange(p + 1)], w.T)
+    assert float((fused - ref).detach().abs().max()) <= 1e-14
+    g = torch.randn(fused.shape, generator=gen, dtype=F64)
+    a, b = (torch.autograd.grad(x, c, g)[0] for x in (fused, ref))
+    assert torch.isfinite(a).all() and float((a - b).abs().max()) <= 1e-12
+
+
 def test_forward_mode_and_transforms_match_reverse(gen):
     p, n = 3, 6
     ctrl = align_chain(chain(n, gen))

@@ -203,9 +203,11 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
 
 # ----------------------------------------------------------------------------- fused poses
 
-def _span_tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor]:
-    r"""Per span start ``f`` (``F = M - p`` of them), the products of the expanded form and
-    the relative motions' frames, as plain (differentiable) torch ops on ``F``-sized rows.
+def _span_tables(ctrl: Tensor, starts: Tensor, p: int,
+                 used: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    r"""Per span start ``f`` in ``starts (U,)`` (indices into ``ctrl (M, 8)``, at most
+    ``M - p``), the products of the expanded form and the relative motions' frames, as plain
+    (differentiable) torch ops on ``U``-sized rows.
 
     With :math:`R_j = c_{f+j-1}^{-1} c_{f+j}` and its power
     :math:`R_j^{w} = \beta_j + \alpha_j R_j` (eq. 11 from the identity; the dual numbers
@@ -215,17 +217,18 @@ def _span_tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor]:
     :math:`T_S = c_f \prod_{j \in S} R_j` (ascending ``j``) over the subsets ``S`` of
     ``1..p``, :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S} \beta_j`.
 
-    Returns ``table (F * 2K, 8)``, ``K = 2^p``: rows ``f 2K + m`` the :math:`T_S` (bit
-    ``j - 1`` of ``m`` set where ``j`` is in ``S``) and rows ``f 2K + K + m`` their real
-    parts moved to the dual half (what a dual weight multiplies); and ``pairs (3, p, F)``:
-    the frames ``c, delta, sigma`` of the :math:`R_j` from the identity. Span starts that no
-    time reads are computed from zeros: a NaN control point of one curve cannot reach the
-    gradients of another through a span that straddles both.
+    Returns ``table (U * 2K, 8)``, ``K = 2^p``: rows ``u 2K + m`` the :math:`T_S` of
+    ``starts[u]`` (bit ``j - 1`` of ``m`` set where ``j`` is in ``S``) and rows
+    ``u 2K + K + m`` their real parts moved to the dual half (what a dual weight
+    multiplies); and ``pairs (3, p, U)``: the frames ``c, delta, sigma`` of the
+    :math:`R_j` from the identity. Where ``used (U,)`` (bool) is given, the starts it marks
+    false (which no time reads) are computed from zeros: a NaN control point of one curve
+    cannot reach the gradients of another through a span that straddles both.
     """
-    F = ctrl.shape[0] - p
-    used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
-    idx = torch.arange(F, device=ctrl.device)[:, None] + torch.arange(p + 1, device=ctrl.device)
-    P = torch.where(used[:, None, None], ctrl[idx], 0.0)  # (F, p + 1, 8)
+    idx = starts[:, None] + torch.arange(p + 1, device=ctrl.device)
+    P = ctrl[idx]  # (U, p + 1, 8)
+    if used is not None:
+        P = torch.where(used[:, None, None], P, 0.0)
     conj = P.new_tensor([1.0, -1.0, -1.0, -1.0] * 2)
     rel = (products.right_matrix(P[:, 1:]) @ (P[:, :-1] * conj)[..., None]).squeeze(-1)
     right = products.right_matrix(rel).transpose(-1, -2)  # x R_j = x @ right[:, j]
@@ -406,15 +409,16 @@ class _Poses(torch.autograd.Function):
     (:func:`_weighted_rows`, or per run of sorted times :func:`_run_rows`), the weights from
     eq. 11's dual weights of each power.
 
-    Inputs: ``table (F * 2K, 8)``, ``pairs (3, p, F)``, ``first (N,)`` int64 (each time's span
-    start ``f``), ``w (p, N)``, ``save``, ``runs`` (:func:`_runs`, or ``None``). Outputs: the
-    poses ``(N, 8)``, in the caller's layout, and with ``save`` what the backward reads (not
-    differentiable): the bags' weights ``(N, 2K)`` (``(0, 2K)`` with ``runs``, whose backward
-    recomputes them from the last subset level, and under ``torch.compile``, whose backward
-    recomputes them in fused elementwise code) and ``(b_r, G, H) (3, 2, p, N)``, memory about
-    2x (4x without ``runs``) the poses'. The weights run over cache-sized chunks of component
-    rows. The backward returns the cotangents of the table and of the frames' ``c`` and
-    ``delta``; autograd carries them to the control points through the (small) tables.
+    Inputs: ``table (F * 2K, 8)``, ``pairs (3, p, F)`` of ``F`` span starts, ``first (N,)``
+    int64 (each time's start ``f``, an index into them), ``w (p, N)``, ``save``, ``runs``
+    (:func:`_runs`, or ``None``). Outputs: the poses ``(N, 8)``, in the caller's layout,
+    and with ``save`` what the backward reads (not differentiable): the bags' weights
+    ``(N, 2K)`` (``(0, 2K)`` with ``runs``, whose backward recomputes them from the last
+    subset level, and under ``torch.compile``, whose backward recomputes them in fused
+    elementwise code) and ``(b_r, G, H) (3, 2, p, N)``, memory about 2x (4x without
+    ``runs``) the poses'. The weights run over cache-sized chunks of component rows. The
+    backward returns the cotangents of the table and of the frames' ``c`` and ``delta``;
+    autograd carries them to the control points through the (small) tables.
     Where the backward is itself differentiated, or the gradient of ``w`` is asked for, it
     recomputes the weights from the inputs instead (plain torch ops: twice differentiable).
     """
@@ -527,18 +531,28 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
         twice (reverse mode) with respect to ``ctrl`` and ``weights``. Under ``torch.func``
         transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
-        :func:`jets` instead, which this does not check. With fewer than
-        ``TABLE_MIN_TIMES`` times per span start (e.g. the estimator's one-span copies of
-        each sample, where every time has a span of its own) the span tables cost more than
+        :func:`jets` instead, which this does not check. In eager mode the span tables
+        (:func:`_span_tables`, ``2^(p+1) x 8`` values each) are built for the span starts
+        in use only (memory at most ``N / TABLE_MIN_TIMES`` tables); with fewer than
+        ``TABLE_MIN_TIMES`` times per span start in use (e.g. the estimator's one-span
+        copies of each sample, where every time has a span of its own) they cost more than
         they save, and the product of powers runs per time (:func:`jets` at order 0).
+        Under ``torch.compile`` (no data-dependent sizes) every span start has a table.
     """
     p = weights.shape[0]
     if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
         return ctrl[:0] * 1
-    if not torch.compiler.is_compiling() and (
-            first.shape[0] < TABLE_MIN_TIMES * (ctrl.shape[0] - p)):
-        points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
-        return jets(points, [weights.T], 0)[0]
-    table, pairs = _span_tables(ctrl, first, p)
+    F = ctrl.shape[0] - p
+    used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
+    if torch.compiler.is_compiling():  # no data-dependent sizes: a table row per start
+        table, pairs = _span_tables(ctrl, torch.arange(F, device=ctrl.device), p, used)
+    else:
+        starts = used.nonzero()[:, 0]  # one host read
+        if first.shape[0] < TABLE_MIN_TIMES * starts.shape[0]:
+            points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
+            return jets(points, [weights.T], 0)[0]
+        if starts.shape[0] < F:  # index the tables of the starts in use
+            first = (used.cumsum(0) - 1)[first]
+        table, pairs = _span_tables(ctrl, starts, p)
     save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
     return _Poses.apply(table, pairs, first, weights, save, _runs(first))[0]
