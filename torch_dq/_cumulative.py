@@ -48,7 +48,7 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import products
+from ._kernels import batched, products, reference_vjp
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -82,23 +82,28 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
     polynomial in ``t``, so ``t`` outside the span gives the pieces' continuation.
     """
     p = degree
-    # u_{r-p+1..r+p} as leading rows (2p, ..., T): every op below runs over contiguous rows
-    # of times (a trailing dim of p + 1 is several times slower on CPU)
-    offsets = torch.arange(1 - p, p + 1, device=r.device).view(-1, *[1] * r.dim())
-    K = knots.index_select(0, (r + offsets).reshape(-1)).view(2 * p, *r.shape)
+    # alpha_i = (t - u_i) inv_k[i], inv_k[i] = 1 / (u_{i+k} - u_i) (0 where that is not
+    # positive: never inside a non-empty span; 0 / 0 = 0 all the same), from one table of
+    # the knots and their inverse differences, gathered once as leading rows (every op
+    # below then runs over contiguous rows of times: a trailing dim of p + 1 is several
+    # times slower on CPU)
+    L = knots.shape[0]
+    denom = torch.stack([torch.cat((knots[k:] - knots[:-k], knots.new_zeros(k)))
+                         for k in range(1, p + 1)])
+    empty = denom <= 0
+    inv = (~empty).to(knots.dtype) / safe_denominator(denom, empty)  # a product, no where
+    rows = [(0, o) for o in range(1 - p, 1)] + [(k * L, o) for k in range(1, p + 1)
+                                               for o in range(1 - k, 1)]
+    offsets = r.new_tensor([b + o for b, o in rows]).view(-1, *[1] * r.dim())
+    K = torch.cat((knots, inv.reshape(-1))).index_select(0, (r + offsets).reshape(-1))
+    K = K.view(len(rows), *r.shape)
     V = [torch.ones_like(t)[None]] + [torch.zeros_like(t)[None] for _ in range(order)]
     zero = torch.zeros_like(t)[None]
     for k in range(1, p + 1):
-        left, right = K[p - k:p], K[p:p + k]
-        denom = right - left
-        empty = denom <= 0  # never inside a non-empty span; 0 / 0 = 0 all the same
-        safe = safe_denominator(denom, empty)
-        keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
-        alpha = (t - left) / safe * keep
-        aV = [alpha * V[0]]
-        if order:  # (alpha + slope h) V, truncated: the product by an affine function of t
-            slope = keep / safe
-            aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
+        slope = K[p + k * (k - 1) // 2:p + k * (k + 1) // 2]  # inv_k[r-k+1..r]
+        alpha = (t - K[p - k:p]) * slope
+        aV = [alpha * V[0]]  # (alpha + slope h) V, truncated: the product by t's affine alpha
+        aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
         V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
              for a, v in zip(aV, V, strict=True)]
     return V
@@ -461,6 +466,10 @@ class _Poses(torch.autograd.Function):
         if grad is None:  # only the (non-differentiable) saved weights were reached
             return None, None, None, None, None, None
         table, pairs, first, w, bags, kept = ctx.saved_tensors
+        if batched(grad):  # under vmap (jacobian / hessian with vectorize=True)
+            g_table, g_pairs, g_w = reference_vjp(
+                lambda *x: _reference_poses(x[0], x[1], first, x[2]), (table, pairs, w), grad)
+            return g_table, g_pairs, None, g_w, None, None
         need_w, plain = ctx.needs_input_grad[3], not torch.is_grad_enabled()
         saved = kept.shape[0] > 0 and not need_w and plain
         runs = ctx.runs if plain else None  # the runs' products are not differentiable
@@ -505,6 +514,14 @@ class _Poses(torch.autograd.Function):
                 torch.cat(grad_w, -1) if need_w else None, None, None)
 
 
+def _reference_poses(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor) -> Tensor:
+    """:class:`_Poses`' poses ``(N, 8)`` in plain torch ops, unchunked (its backward's
+    reference under ``vmap``)."""
+    fr, ws, b_r = _chunk_weights(_full_pairs(pairs), first, w)
+    W = torch.cat(_subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1])
+    return (table.view(pairs.shape[-1], -1, 8)[first] * W.T[:, :, None]).sum(1)
+
+
 def _parts(N: int, runs: Runs | None) -> Runs | list[tuple[slice, None]]:
     """The chunks of the fused op: ``runs`` (:func:`_runs`) if given, else
     :func:`~torch_dq._kernels.layout.chunks` of :data:`POSES_CHUNK` times, without runs."""
@@ -531,13 +548,13 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
         twice (reverse mode) with respect to ``ctrl`` and ``weights``. Under ``torch.func``
         transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
-        :func:`jets` instead, which this does not check. In eager mode the span tables
-        (:func:`_span_tables`, ``2^(p+1) x 8`` values each) are built for the span starts
-        in use only (memory at most ``N / TABLE_MIN_TIMES`` tables); with fewer than
-        ``TABLE_MIN_TIMES`` times per span start in use (e.g. the estimator's one-span
-        copies of each sample, where every time has a span of its own) they cost more than
-        they save, and the product of powers runs per time (:func:`jets` at order 0).
-        Under ``torch.compile`` (no data-dependent sizes) every span start has a table.
+        :func:`jets` instead, which this does not check. With fewer than
+        ``TABLE_MIN_TIMES`` times per span start (``M - p`` of them; e.g. the estimator's
+        one-span copies of each sample, where every time has a span of its own) the span
+        tables cost more than they save, and the product of powers runs per time
+        (:func:`jets` at order 0). In eager mode the tables (:func:`_span_tables`,
+        ``2^(p+1) x 8`` values each) are built for the span starts in use only (at most
+        ``N``); under ``torch.compile`` (no data-dependent sizes) for every span start.
     """
     p = weights.shape[0]
     if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
@@ -547,10 +564,10 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
     if torch.compiler.is_compiling():  # no data-dependent sizes: a table row per start
         table, pairs = _span_tables(ctrl, torch.arange(F, device=ctrl.device), p, used)
     else:
-        starts = used.nonzero()[:, 0]  # one host read
-        if first.shape[0] < TABLE_MIN_TIMES * starts.shape[0]:
+        if first.shape[0] < TABLE_MIN_TIMES * F:
             points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
             return jets(points, [weights.T], 0)[0]
+        starts = used.nonzero()[:, 0]  # one host read
         if starts.shape[0] < F:  # index the tables of the starts in use
             first = (used.cumsum(0) - 1)[first]
         table, pairs = _span_tables(ctrl, starts, p)
