@@ -343,6 +343,7 @@ def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
     return W.new_zeros(F, W.shape[1], 8).index_add(0, f, W[:, :, None] * G[:, None, :])
 
 
+# chunks of the fused op, each with its runs (a, b, f) of times a <= i < b on span start f
 Runs = list[tuple[slice, list[tuple[int, int, int]]]]
 
 
