@@ -8,17 +8,22 @@ Notation and weights: :mod:`torch_dq._kernels.weights`. The pieces (:func:`frame
 
 There is no forward-mode rule: under ``torch.func`` transforms and forward AD the public
 functions run their readable references (:func:`torch_dq._kernels.fused_path`), so a
-forward-mode call that reaches this op anyway raises instead of returning zeros.
+forward-mode call that reaches this op anyway raises instead of returning zeros. The backward
+also runs under a vmap started after the forward (``torch.autograd.functional.jacobian(...,
+vectorize=True)``, ``is_grads_batched=True``): a batched cotangent's chunks are concatenated
+instead of written into the gradients.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
+from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-from .layout import chunks, coef, rows_into, to_rows
+from .layout import chunks, coef, dq_rows, from_rows, rows_into
 from .weights import Angle, Weights, WeightSlopes, screw_weights
 
 
@@ -141,7 +146,7 @@ class _Sclerp(torch.autograd.Function):
         a2, b2, t1 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1)
         out = torch.empty_like(a2)
         for i in chunks(t1.shape[0]):
-            rows_into(out[i], forward_rows(to_rows(a2[i]), to_rows(b2[i]), t1[i], shortest))
+            rows_into(out[i], forward_rows(dq_rows(a2[i]), dq_rows(b2[i]), t1[i], shortest))
         return out.view(a.shape)
 
     @staticmethod
@@ -155,19 +160,50 @@ class _Sclerp(torch.autograd.Function):
         a, b, t = ctx.saved_tensors
         need_t = ctx.needs_input_grad[2]
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
-        ga, gb = torch.empty_like(a2), torch.empty_like(b2)
-        gt = torch.empty_like(t1) if need_t else None
-        for i in chunks(t1.shape[0]):
-            A, B = to_rows(a2[i]), to_rows(b2[i])
-            fr = frame(A, B, ctx.shortest)
-            w = cast(WeightSlopes, weights(fr, t1[i], derivatives=True, time_slopes=need_t))
-            ct = vjp_rows(A, B, fr, w, to_rows(g2[i]))
-            rows_into(ga[i], ct.a)
-            rows_into(gb[i], ct.b)
-            if gt is not None:  # need_t
-                gt[i] = cast(Tensor, ct.t)  # not None with time_slopes=need_t
+        parts = chunks(t1.shape[0])
+        cts = (_chunk_vjp(a2[i], b2[i], t1[i], g2[i], ctx.shortest, need_t) for i in parts)
+        if not _batched(grad):
+            ga, gb, gt = _write_chunks(cts, parts, a2, need_t)
+        else:  # a transform's cotangent (a vmap over this backward): no writes into buffers
+            done = list(cts)
+            ga = torch.cat([from_rows(ct.a) for ct in done])
+            gb = torch.cat([from_rows(ct.b) for ct in done])
+            gt = torch.cat([cast(Tensor, ct.t) for ct in done]) if need_t else None
         grad_t = gt.view(t.shape) if gt is not None else None
         return ga.view(a.shape), gb.view(b.shape), grad_t, None
+
+
+def _batched(x: Tensor) -> bool:
+    """Whether ``x`` is a vmap's batched tensor (``torch.func.vmap``, or the legacy vmap of
+    ``torch.autograd.functional.jacobian(..., vectorize=True)``), into which plain buffers
+    cannot be written (never under ``torch.compile``, which traces the fused op unbatched)."""
+    if torch.compiler.is_compiling():
+        return False
+    return is_functorch_wrapped_tensor(x) or is_legacy_batchedtensor(x)
+
+
+def _chunk_vjp(a: Tensor, b: Tensor, t: Tensor, grad: Tensor, shortest: bool,
+               need_t: bool) -> Cotangents:
+    """:func:`vjp_rows` of one chunk of ``(n, 8)`` pairs, ``(n,)`` parameters and ``(n, 8)``
+    output cotangents (the cotangent of ``t`` only with ``need_t``)."""
+    A, B = dq_rows(a), dq_rows(b)
+    fr = frame(A, B, shortest)
+    w = cast(WeightSlopes, weights(fr, t, derivatives=True, time_slopes=need_t))
+    return vjp_rows(A, B, fr, w, dq_rows(grad))
+
+
+def _write_chunks(cts: Iterable[Cotangents], parts: list[slice], a: Tensor,
+                  need_t: bool) -> tuple[Tensor, Tensor, Tensor | None]:
+    """The chunks' cotangents written into ``(N, 8)``, ``(N, 8)`` and ``(N,)`` gradients
+    (saves concatenating them, a full extra pass over the gradients)."""
+    ga, gb = torch.empty_like(a), torch.empty_like(a)
+    gt = a.new_empty(a.shape[:1]) if need_t else None
+    for i, ct in zip(parts, cts, strict=True):
+        rows_into(ga[i], ct.a)
+        rows_into(gb[i], ct.b)
+        if gt is not None:  # need_t
+            gt[i] = cast(Tensor, ct.t)  # not None with time_slopes=need_t
+    return ga, gb, gt
 
 
 def sclerp(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
