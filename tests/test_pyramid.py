@@ -9,6 +9,7 @@ import pytest
 import torch
 from strategies import unit_dq
 
+from torch_dq import curves
 from torch_dq._kernels.pyramid import pyramid
 
 
@@ -43,3 +44,20 @@ def test_de_boor_op_saves_only_its_inputs(gen, T):
     # the backward runs from those alone
     grads = torch.autograd.grad(out.sum(), (ctrl, *alphas))
     assert all(torch.isfinite(g).all() for g in grads)
+
+
+@pytest.mark.parametrize("degree", [1, 3])
+def test_backward_under_vmap(gen, degree):
+    """``jacobian(vectorize=True)`` runs the op's backward under ``vmap`` (the forward took the
+    fused path): it equals the row-by-row jacobian, for the control points and the times."""
+    ctrl = unit_dq((6,), gen)
+    t = torch.tensor([0.0, 0.2, 0.5, 0.9], dtype=torch.float64)
+
+    def f(c, t):
+        return curves.bspline(c, t, degree=degree, check=False)
+
+    vec = torch.autograd.functional.jacobian(f, (ctrl, t), vectorize=True)
+    loop = torch.autograd.functional.jacobian(f, (ctrl, t))
+    for v, e in zip(vec, loop, strict=True):
+        assert e.abs().max() > 0.1
+        assert (v - e).abs().max() <= 1e-12 * e.abs().max()

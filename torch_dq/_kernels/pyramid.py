@@ -135,7 +135,9 @@ class _Pyramid(torch.autograd.Function):
         # output reads (e.g. the last point of one curve and the first of the next) are
         # zeroed, not multiplied by a zero sensitivity: a NaN in one curve stays there.
         A, B = (torch.where(used, x, 0.0) for x in (rows[:, :-1], rows[:, 1:]))
-        grad_a, grad_b = torch.zeros_like(A), torch.zeros_like(B)
+        # zeros like the gradient rows, which are batched where the backward runs under vmap
+        # (the frame terms are added in place)
+        grad_a, grad_b = (torch.zeros_like(grad_rows[:, 1:]) for _ in range(2))
         add_frame_terms(grad_a, grad_b, A, B, pair_c, pair_d)
         zero = torch.zeros_like(grad_a[:, :1])
         grad_rows = grad_rows + torch.cat((grad_a, zero), 1) + torch.cat((zero, grad_b), 1)
