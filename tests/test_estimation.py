@@ -383,6 +383,9 @@ def _small(gen):
 @pytest.mark.parametrize(("build", "match"), [
     (lambda t, ti, x, gy, ac, pos: [Poses(t, x, rot_sigma=1, trans_sigma=1, extrinsic=True)],
      "extrinsic is undetermined"),
+    (lambda t, ti, x, gy, ac, pos: [Poses(t, x, rot_sigma=1, trans_sigma=1, extrinsic=True),
+                                    Gyro(ti, gy, sigma=1)],
+     "extrinsic's translation is undetermined: a Gyro"),
     (lambda t, ti, x, gy, ac, pos: [Poses(t, x, rot_sigma=1, trans_sigma=1, time_offset=True),
                                     Gyro(ti, gy, sigma=1, time_offset=True)],
      "every term's time_offset"),
