@@ -247,6 +247,28 @@ def test_jacrev_and_jacfwd_match_eager_jacobian(o, gen):
 
 
 @pytest.mark.parametrize("o", DIFFERENTIABLE, ids=DIFF_IDS)
+def test_vectorized_jacobian_and_hessian(o, gen):
+    """``torch.autograd.functional.jacobian`` / ``hessian`` with ``vectorize=True`` (the
+    backward under ``vmap``, after the forward took the fused path) equal the loops of
+    ``vectorize=False``."""
+    f = flat(o)
+    args = tuple(_registry_args(o, gen, n=2))
+    for vec, loop in zip(torch.autograd.functional.jacobian(f, args, vectorize=True),
+                         torch.autograd.functional.jacobian(f, args), strict=True):
+        for v, e in zip(vec, loop, strict=True):
+            assert torch.isfinite(e).all() and (v - e).abs().max() <= 1e-12 * e.abs().max()
+
+    def scalar(*xs):
+        return sum((torch.sin(y) ** 2).sum() for y in f(*xs))
+
+    vec = torch.autograd.functional.hessian(scalar, args, vectorize=True)
+    loop = torch.autograd.functional.hessian(scalar, args)
+    for v_row, e_row in zip(vec, loop, strict=True):
+        for v, e in zip(v_row, e_row, strict=True):
+            assert (v - e).abs().max() <= 1e-12 * e.abs().max().clamp(min=1), o.id
+
+
+@pytest.mark.parametrize("o", DIFFERENTIABLE, ids=DIFF_IDS)
 def test_jvp_matches_finite_differences(o, gen):
     """Forward-mode AD (``torch.func.jvp``) against central differences."""
     f = flat(o)
