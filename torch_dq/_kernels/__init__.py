@@ -85,5 +85,5 @@ def reference_vjp(reference, inputs: tuple[Tensor, ...], grads):
     Returns:
         One cotangent per input.
     """
-    _, vjp_fn = torch.func.vjp(reference, *inputs)
+    vjp_fn = torch.func.vjp(reference, *inputs)[1]
     return vjp_fn(grads)

@@ -21,8 +21,8 @@ from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
-from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
+from . import batched
 from .layout import chunks, coef, dq_rows, from_rows, rows_into
 from .weights import Angle, Weights, WeightSlopes, screw_weights
 
@@ -162,7 +162,7 @@ class _Sclerp(torch.autograd.Function):
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
         parts = chunks(t1.shape[0])
         cts = (_chunk_vjp(a2[i], b2[i], t1[i], g2[i], ctx.shortest, need_t) for i in parts)
-        if not _batched(grad):
+        if not batched(grad):
             ga, gb, gt = _write_chunks(cts, parts, a2, need_t)
         else:  # a transform's cotangent (a vmap over this backward): no writes into buffers
             done = list(cts)
@@ -171,15 +171,6 @@ class _Sclerp(torch.autograd.Function):
             gt = torch.cat([cast(Tensor, ct.t) for ct in done]) if need_t else None
         grad_t = gt.view(t.shape) if gt is not None else None
         return ga.view(a.shape), gb.view(b.shape), grad_t, None
-
-
-def _batched(x: Tensor) -> bool:
-    """Whether ``x`` is a vmap's batched tensor (``torch.func.vmap``, or the legacy vmap of
-    ``torch.autograd.functional.jacobian(..., vectorize=True)``), into which plain buffers
-    cannot be written (never under ``torch.compile``, which traces the fused op unbatched)."""
-    if torch.compiler.is_compiling():
-        return False
-    return is_functorch_wrapped_tensor(x) or is_legacy_batchedtensor(x)
 
 
 def _chunk_vjp(a: Tensor, b: Tensor, t: Tensor, grad: Tensor, shortest: bool,
