@@ -622,3 +622,25 @@ def test_knot_spacing_longer_than_the_duration_is_refused(tmp_path, capsys):
                                             "--steps", "1"], "--knot-spacing")
     assert "100 s is longer than the 1.180 s that the fitted poses span" in line
     assert float(value) <= 1.18
+
+
+def test_imu_pose_noise_counts_the_fit_degrees_of_freedom():
+    """The pose noise that ``fit --imu`` takes from the pose fit's residuals: a least-squares
+    fit with n control points through N noisy poses leaves residuals smaller than the noise
+    by sqrt(1 - n / N); the sigma divides by the degrees of freedom left (here n / N = 1/2,
+    the plain RMS would read 0.71 of the truth)."""
+    from torch_dq import dualquat
+    from torch_dq.demo.fit_imu import _pose_sigmas
+    from torch_dq.nn import BSpline
+
+    gen = torch.Generator().manual_seed(3)
+    t = torch.linspace(0.0, 10.0, 2000, dtype=torch.float64)
+    angle = 0.3 * torch.sin(t)
+    q = torch.stack((torch.cos(angle / 2), 0 * t, 0 * t, torch.sin(angle / 2)), -1)
+    p = torch.stack((torch.sin(t), torch.cos(0.5 * t), 0.1 * t), -1)
+    noise = 1e-3
+    p_m = p + noise * torch.randn(p.shape, generator=gen, dtype=torch.float64)
+    spline = BSpline.from_poses(q, p_m, t, n_ctrl=1000)
+    rot, trans = _pose_sigmas(spline, t, dualquat.from_rt(q, p_m))
+    assert abs(trans / noise - 1.0) < 0.05
+    assert rot < 1e-5  # noise-free rotations stay at their floor

@@ -9,7 +9,7 @@ each IMU term with its bias estimated, gravity's direction estimated (magnitude
 ``time_offset="estimate"``, one clock offset shared by the gyroscope and the accelerometer.
 
 The noise levels are taken from the data, since the terms require them: the poses' from the
-pose-only fit's residuals at the fitted poses (their RMS per kind), the IMU's from its
+pose-only fit's residuals at the fitted poses (per kind, their sum of squares over the degrees of freedom the fit leaves), the IMU's from its
 readings' high-frequency scatter (the RMS of second differences over :math:`\sqrt 6`, per
 axis: white noise of standard deviation :math:`\sigma` gives :math:`6\sigma^2`). They are
 printed and written to ``summary.json`` with the estimates and their standard deviations.
@@ -42,14 +42,19 @@ def _imu_sigma(readings: Tensor) -> Tensor:
 
 
 def _pose_sigmas(spline, times: Tensor, poses: Tensor) -> tuple[float, float]:
-    """RMS rotation (rad) and per-axis translation residual of the pose fit at its poses."""
+    """Per-axis rotation (rad) and translation noise from the pose fit's residuals at its
+    poses: the residuals' sum of squares over their degrees of freedom (3 per pose and kind,
+    less 3 per control point: a fit with n control points through N poses leaves residuals
+    smaller than the noise by sqrt(1 - n / N))."""
     with torch.no_grad():
         q, p = dualquat.to_rt(spline(times).double())
     q_m, p_m = dualquat.to_rt(poses.double())
     dot = (q * q_m).sum(-1).abs().clamp(max=1.0)
     rot = 2 * torch.acos(dot)
-    rot_axis = float(rot.square().mean().sqrt()) / math.sqrt(3)
-    trans_axis = float((p - p_m).square().mean().sqrt())
+    n_poses, n_ctrl = rot.shape[-1], spline.control_points.shape[-2]
+    dof = 3.0 * max(n_poses - n_ctrl, 1)
+    rot_axis = math.sqrt(float(rot.square().sum()) / dof)
+    trans_axis = math.sqrt(float((p - p_m).square().sum()) / dof)
     return max(rot_axis, 1e-6), max(trans_axis, 1e-6)
 
 
