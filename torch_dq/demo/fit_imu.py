@@ -12,7 +12,8 @@ The noise levels are taken from the data, since the terms require them: the pose
 pose-only fit's residuals at the fitted poses (per kind, their sum of squares over the degrees
 of freedom the fit leaves), the IMU's from its readings' high-frequency scatter (the RMS of
 second differences over :math:`\sqrt 6`, per axis: white noise of standard deviation
-:math:`\sigma` gives :math:`6\sigma^2`). They are printed and written to ``summary.json`` with the estimates and their standard deviations.
+:math:`\sigma` gives :math:`6\sigma^2`). They are printed and written to ``summary.json``
+with the estimates and their standard deviations.
 """
 
 from __future__ import annotations
