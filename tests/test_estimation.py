@@ -652,3 +652,14 @@ def test_bezier_trajectory_with_a_biased_gyro(gen):
                    verbose=False)
     within(gyro.bias, [0.03, -0.01, 0.02], est.std(gyro, "bias"))
     assert est.pose_std(tc[:3]).shape == (3, 6)
+
+
+def test_time_offset_start_outside_its_bound_raises(gen):
+    """A Free time offset started beyond ``max_time_offset`` contradicts its own bound: a
+    ValueError naming both, before solving, the trajectory untouched."""
+    spline, (cam, gyro, _) = imu_problem(gen, offset=0.0, clock=Free(0.5))
+    before = spline.control_points.detach().clone()
+    with pytest.raises(ValueError, match=r"Gyro's time_offset starts at 0\.5 s, outside its "
+                                         r"max_time_offset=0\.1"):
+        estimate(spline, [cam, gyro], verbose=False)
+    assert torch.equal(spline.control_points.detach(), before)

@@ -146,6 +146,11 @@ def _starts(problem: Problem, ctrl: Tensor) -> list[Tensor]:
             event = v.shape[v.dim() - (0 if slot.kind == "offset" else 1):]
             v = v.expand(torch.Size((*batch, *event)))
             bound = term.max_time_offset if slot.kind == "offset" else math.inf
+            if bool((v.abs() > bound).any()):
+                _checks.fail("fitting.estimate", f"{type(term).__name__}'s time_offset starts "
+                             f"at {float(v.abs().max()):g} s, outside its max_time_offset="
+                             f"{bound!r}: start it inside [-{bound!r}, {bound!r}] or raise "
+                             f"max_time_offset")
             problem.add(i, name, slot.free, slot.kind, slot.dim, v.clone(), bound)
             if slot.free.value is None:
                 slot.free.value = v.clone()
