@@ -622,3 +622,37 @@ def test_jets_compile_fullgraph(gen):
     compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
     for a, b in zip(compiled(ctrl, t), f(ctrl, t), strict=True):
         assert float((a - b).abs().max()) <= 1e-13
+
+
+def test_no_times_give_empty_results():
+    """Empty time batches: empty poses and derivatives of the right shapes, batched too."""
+    gen = torch.Generator().manual_seed(0)
+    ctrl = dq.from_rt(unit_quat((8,), gen), torch.randn(8, 3, generator=gen, dtype=F64))
+    knots = torch.arange(12, dtype=F64)
+    none = torch.zeros(0, dtype=F64)
+    assert curves.bspline(ctrl, none, 3, knots, form="cumulative").shape == (0, 8)
+    assert [x.shape for x in curves.bspline_derivatives(
+        ctrl, none, 2, 3, knots, form="cumulative")] == [(0, 8)] * 3
+    out = curves.bspline(ctrl.expand(2, 8, 8), none.expand(2, 0), 3, knots, form="cumulative")
+    assert out.shape == (2, 0, 8)
+
+
+def test_basis_knot_gradients_ignore_unread_nan_knots():
+    """A NaN knot that no span reads (here trajectory 0's last knot, in flattened rows of
+    two trajectories' knots) leaves the knot gradients of the read knots finite and equal
+    to those of clean knots; the unread ones get 0."""
+    p = 3
+    clean = torch.tensor([0.0, 0, 0, 0, 1, 2, 3, 3, 3, 3], dtype=F64)
+    K = clean.shape[0]
+    t = torch.tensor([0.5, 1.5, 2.5], dtype=F64)
+    g = torch.linspace(-1.0, 1.0, 3 * p, dtype=F64).view(3, p)
+    grads = []
+    for bad in (float("nan"), 3.0):
+        knots = torch.cat((torch.cat((clean[:-1], clean.new_tensor([bad]))), clean))
+        knots.requires_grad_()
+        r = torch.tensor([3, 4, 5]) + K
+        v = _cumulative.basis(knots, r, t, p, 1)
+        grads.append(torch.autograd.grad((v[0] * g).sum() + (v[1] * g).sum(), knots)[0])
+    assert torch.equal(grads[0][:K], torch.zeros(K, dtype=F64))
+    assert torch.isfinite(grads[0]).all() and torch.equal(grads[0], grads[1])
+    assert grads[0][K:].abs().max() > 0.1

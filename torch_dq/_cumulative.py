@@ -82,28 +82,23 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
     polynomial in ``t``, so ``t`` outside the span gives the pieces' continuation.
     """
     p = degree
-    # alpha_i = (t - u_i) inv_k[i], inv_k[i] = 1 / (u_{i+k} - u_i) (0 where that is not
-    # positive: never inside a non-empty span; 0 / 0 = 0 all the same), from one table of
-    # the knots and their inverse differences, gathered once as leading rows (every op
-    # below then runs over contiguous rows of times: a trailing dim of p + 1 is several
-    # times slower on CPU)
-    L = knots.shape[0]
-    denom = torch.stack([torch.cat((knots[k:] - knots[:-k], knots.new_zeros(k)))
-                         for k in range(1, p + 1)])
-    empty = denom <= 0
-    inv = (~empty).to(knots.dtype) / safe_denominator(denom, empty)  # a product, no where
-    rows = [(0, o) for o in range(1 - p, 1)] + [(k * L, o) for k in range(1, p + 1)
-                                               for o in range(1 - k, 1)]
-    offsets = r.new_tensor([b + o for b, o in rows]).view(-1, *[1] * r.dim())
-    K = torch.cat((knots, inv.reshape(-1))).index_select(0, (r + offsets).reshape(-1))
-    K = K.view(len(rows), *r.shape)
+    # u_{r-p+1..r+p} as leading rows (2p, ..., T): every op below runs over contiguous rows
+    # of times (a trailing dim of p + 1 is several times slower on CPU)
+    offsets = torch.arange(1 - p, p + 1, device=r.device).view(-1, *[1] * r.dim())
+    K = knots.index_select(0, (r + offsets).reshape(-1)).view(2 * p, *r.shape)
     V = [torch.ones_like(t)[None]] + [torch.zeros_like(t)[None] for _ in range(order)]
     zero = torch.zeros_like(t)[None]
     for k in range(1, p + 1):
-        slope = K[p + k * (k - 1) // 2:p + k * (k + 1) // 2]  # inv_k[r-k+1..r]
-        alpha = (t - K[p - k:p]) * slope
-        aV = [alpha * V[0]]  # (alpha + slope h) V, truncated: the product by t's affine alpha
-        aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
+        left, right = K[p - k:p], K[p:p + k]
+        denom = right - left
+        empty = denom <= 0  # never inside a non-empty span; 0 / 0 = 0 all the same
+        safe = safe_denominator(denom, empty)
+        keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
+        alpha = (t - left) / safe * keep
+        aV = [alpha * V[0]]
+        if order:  # (alpha + slope h) V, truncated: the product by an affine function of t
+            slope = keep / safe
+            aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
         V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
              for a, v in zip(aV, V, strict=True)]
     return V
@@ -138,7 +133,7 @@ def basis(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int) -> list[
     parts = [[math.factorial(k) * v[1:].flip(0).cumsum(0).flip(0)
               for k, v in enumerate(_span_basis(knots, flat_r[i], flat_t[i], degree, order))]
              for i in chunks(flat_r.shape[0], BASIS_CHUNK)]  # cache-sized temporaries
-    return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(-1, *r.shape).movedim(0, -1)
+    return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(degree, *r.shape).movedim(0, -1)
             for x in zip(*parts, strict=True)]
 
 
@@ -353,7 +348,8 @@ def _runs(first: Tensor) -> Runs | None:
     with non-decreasing ``first (N,)`` (sorted times) holding :data:`RUN_MIN_TIMES` times or
     more per span start on average. Per run, the weighted sum of table rows and its
     cotangents are then small matrix products on the weights' rows (no bag indices, no
-    transposes). Two host reads: the order check and the starts' counts."""
+    transposes). Host reads: the first and last starts, the order check and the starts'
+    counts."""
     N = first.shape[0]
     if torch.compiler.is_compiling() or first.device.type != "cpu" or N < 2:
         return None
@@ -561,13 +557,13 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
     if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
         return ctrl[:0] * 1
     F = ctrl.shape[0] - p
+    if not torch.compiler.is_compiling() and first.shape[0] < TABLE_MIN_TIMES * F:
+        points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
+        return jets(points, [weights.T], 0)[0]
     used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
     if torch.compiler.is_compiling():  # no data-dependent sizes: a table row per start
         table, pairs = _span_tables(ctrl, torch.arange(F, device=ctrl.device), p, used)
     else:
-        if first.shape[0] < TABLE_MIN_TIMES * F:
-            points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
-            return jets(points, [weights.T], 0)[0]
         starts = used.nonzero()[:, 0]  # one host read
         if starts.shape[0] < F:  # index the tables of the starts in use
             first = (used.cumsum(0) - 1)[first]
