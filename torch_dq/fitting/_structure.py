@@ -37,11 +37,13 @@ def check(fn: str, terms: list[Term]) -> None:
                          "(x(t) e = (x(t) g)(g^-1 e) for any g); fix one Poses term's "
                          "extrinsic or add an IMU term")
     if any(t.slots()["extrinsic"].estimated for t in poses) and not (
-            fixed_poses or relative or positions or any(isinstance(t, Accel) for t in terms)):
+            fixed_poses or relative or any(isinstance(t, Accel) for t in terms) or any(
+                not t.slots()["lever_arm"].estimated for t in positions)):
         _checks.fail(fn, "the extrinsic's translation is undetermined: a Gyro measures "
-                         "rotation rates only (x(t) g with g a pure translation changes no "
-                         "reading); add an Accel, Positions or RelativePoses term, or fix "
-                         "one Poses term's extrinsic")
+                         "rotation rates only and an estimated lever arm absorbs it (x(t) g "
+                         "with g a pure translation changes no reading); add an Accel, "
+                         "RelativePoses or Positions term with a fixed lever_arm, or fix one "
+                         "Poses term's extrinsic")
     if all(t.slots()["time_offset"].estimated for t in terms):
         _checks.fail(fn, "every term's time_offset is estimated: no term defines the "
                          "trajectory's clock; fix one term's time_offset (None or a value)")
