@@ -22,6 +22,9 @@ The dual sine and cosine (:class:`torch_dq.dual._SinCos`) follow the same dispat
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import torch
 import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
@@ -72,7 +75,8 @@ def batched(*grads: Tensor | None) -> bool:
                for g in grads)
 
 
-def reference_vjp(reference, inputs: tuple[Tensor, ...], grads):
+def reference_vjp(reference: Callable[..., Any], inputs: tuple[Tensor, ...],
+                  grads: Any) -> tuple[Tensor, ...]:
     """The vector-Jacobian product of a fused op's readable ``reference`` (plain torch ops)
     at ``inputs``, for batched cotangents ``grads`` (:func:`batched`): exact, and
     differentiable again (double backward, ``hessian(vectorize=True)``).

@@ -49,7 +49,7 @@ def dq_rows(x: Tensor) -> Tensor:
     if (torch.compiler.is_compiling() or x.device.type != "cpu" or not x.is_contiguous()
             or x.dtype not in (torch.float32, torch.float64)):
         return to_rows(x)
-    eye = torch.eye(4, dtype=x.dtype)
+    eye = torch.eye(4, dtype=x.dtype, device=x.device)
     return torch.matmul(eye, x.view(-1, 2, 4).permute(1, 2, 0)).view(8, -1)
 
 
