@@ -305,9 +305,14 @@ def _weighted_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
     aten fallback there, several times slower)."""
     width = W.shape[1]
     if torch.compiler.is_compiling():
-        return (table.view(-1, width, 8)[f] * W[:, :, None]).sum(1)
+        return _gathered_rows(table, f, W)
     return torch.nn.functional.embedding_bag(_bags(f, width, table.shape[0]), table,
                                              mode="sum", per_sample_weights=W)
+
+
+def _gathered_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
+    """:func:`_weighted_rows` as a gather, product and sum of plain ops ``(n, 8)``."""
+    return (table.view(-1, W.shape[1], 8)[f] * W[:, :, None]).sum(1)
 
 
 def _row_dots(table: Tensor, f: Tensor, G: Tensor, F: int) -> Tensor:
@@ -516,7 +521,7 @@ def _reference_poses(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor) -> 
     reference under ``vmap``)."""
     fr, ws, b_r = _chunk_weights(_full_pairs(pairs), first, w)
     W = torch.cat(_subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1])
-    return (table.view(pairs.shape[-1], -1, 8)[first] * W.T[:, :, None]).sum(1)
+    return _gathered_rows(table, first, W.T)
 
 
 def _parts(N: int, runs: Runs | None) -> Runs | list[tuple[slice, None]]:
