@@ -208,7 +208,7 @@ def test_gauss_newton_system_equals_dense_autograd(gen, monkeypatch):
              Accel(ti, ac, sigma=0.1, bias=True, gravity=9.81)]
     ctrl = spline.control_points.detach()
     problem = Problem(spline, terms, ctrl.shape[:-2])
-    values = _starts(problem, ctrl)
+    values = _starts("fitting.estimate", problem, ctrl)
     values = [v + 0.01 if v.shape[-1:] != (8,) else v for v in values]
     w = problem.width(values)
     assert w == 5  # relative poses 0.4 s (a knot span) apart: one more control point

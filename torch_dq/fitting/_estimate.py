@@ -134,7 +134,7 @@ class _Lines:
         pass
 
 
-def _starts(problem: Problem, ctrl: Tensor) -> list[Tensor]:
+def _starts(fn: str, problem: Problem, ctrl: Tensor) -> list[Tensor]:
     """Register the estimated parameters and their start values (batch expanded)."""
     batch = problem.batch
     for i, term in enumerate(problem.terms):
@@ -147,7 +147,7 @@ def _starts(problem: Problem, ctrl: Tensor) -> list[Tensor]:
             v = v.expand(torch.Size((*batch, *event)))
             bound = term.max_time_offset if slot.kind == "offset" else math.inf
             if bool((v.abs() > bound).any()):
-                _checks.fail("fitting.estimate", f"{type(term).__name__}'s time_offset starts "
+                _checks.fail(fn, f"{type(term).__name__}'s time_offset starts "
                              f"at {float(v.abs().max()):g} s, outside its max_time_offset="
                              f"{bound!r}: start it inside [-{bound!r}, {bound!r}] or raise "
                              f"max_time_offset")
@@ -258,7 +258,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     _check_domains(fn, trajectory, terms, batch)
     _warn_c1(trajectory, terms)
     problem = Problem(trajectory, terms, batch)
-    values = _starts(problem, ctrl)
+    values = _starts(fn, problem, ctrl)
     bar = progress(int(steps), verbose and sys.stderr.isatty(), "torch_dq.estimate")
     if verbose and bar is None:
         bar = _Lines()

@@ -31,12 +31,12 @@ def check(fn: str, terms: list[Term]) -> None:
     fixed_poses = [t for t in poses if not t.slots()["extrinsic"].estimated]
     inertial = [t for t in terms if isinstance(t, (Gyro, Accel))]
     relative = [t for t in terms if isinstance(t, RelativePoses)]
-    if any(t.slots()["extrinsic"].estimated for t in poses) and not (
-            fixed_poses or inertial or relative):
+    extrinsic = len(fixed_poses) < len(poses)  # some Poses term's extrinsic is estimated
+    if extrinsic and not (fixed_poses or inertial or relative):
         _checks.fail(fn, "the extrinsic is undetermined: no term fixes the body frame "
                          "(x(t) e = (x(t) g)(g^-1 e) for any g); fix one Poses term's "
                          "extrinsic or add an IMU term")
-    if any(t.slots()["extrinsic"].estimated for t in poses) and not (
+    if extrinsic and not (
             fixed_poses or relative or any(isinstance(t, Accel) for t in terms) or any(
                 not t.slots()["lever_arm"].estimated for t in positions)):
         _checks.fail(fn, "the extrinsic's translation is undetermined: a Gyro measures "
