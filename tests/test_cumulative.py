@@ -565,6 +565,121 @@ def test_fused_poses_vectorized_jacobian(gen):
         assert float(loop.abs().max()) > 0 and float((vec - loop).abs().max()) <= 1e-12
 
 
+def _fused_and_jets(ctrl, knots, p, t, order, perm=None):
+    """The fused derivatives (span tables, weight jets) and the plain jets of the same
+    times (reordered by ``perm``), from leaf control points and weights."""
+    r = KnotDomain(knots, p).span(t)
+    r = r if perm is None else r[perm]
+    t = t if perm is None else t[perm]
+    w = [x.T.contiguous().requires_grad_() for x in _cumulative.basis(knots, r, t, p, order)]
+    c = ctrl.clone().requires_grad_()
+    first = r - p
+    fused = _cumulative.derivatives(c, first, w)
+    ref = _cumulative.jets(c[first[:, None] + torch.arange(p + 1)], [x.T for x in w], order)
+    return c, w, fused, ref
+
+
+@pytest.mark.parametrize("p", [1, 2, 3, 5])
+@pytest.mark.parametrize("count", [3, 45, 400])
+def test_fused_derivatives_match_jets(gen, p, count):
+    """The fused derivatives (time derivatives on the scalar dual weights of the span
+    tables' expansion, one weighted sum of table rows per order) against the plain
+    Leibniz/eq.-11 jets: values, gradients with respect to the control points and the
+    weights, and second derivatives, on sorted times (runs per span: 400 times), scattered
+    or repeated ones (45) and too few for the tables (3: the jets themselves), orders 1-3."""
+    n = p + 5
+    ctrl = align_chain(chain(n, gen))
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, count)
+    perm = None if count == 400 else torch.randperm(count, generator=gen).repeat(2)
+    for order in (1, 2, 3):
+        c, w, fused, ref = _fused_and_jets(ctrl, knots, p, t, order, perm)
+        assert len(fused) == order + 1
+        for k, (a, b) in enumerate(zip(fused, ref, strict=True)):
+            scale = max(1.0, float(b.detach().abs().max()))
+            assert float((a - b).detach().abs().max()) <= 1e-13 * scale, (order, k)
+        g = [torch.randn(x.shape, generator=gen, dtype=F64) for x in fused]
+        a = torch.autograd.grad(fused, (c, *w), g, create_graph=True)
+        b = torch.autograd.grad(ref, (c, *w), g, create_graph=True)
+        for x, y in zip(a, b, strict=True):
+            x, y = x.detach(), y.detach()
+            assert float((x - y).abs().max()) <= 1e-11 * max(1.0, float(y.abs().max()))
+        v = torch.randn(c.shape, generator=gen, dtype=F64)
+        a2 = torch.autograd.grad((a[0] * v).sum() + a[-1].sum(), (c, w[0]))
+        b2 = torch.autograd.grad((b[0] * v).sum() + b[-1].sum(), (c, w[0]))
+        for x, y in zip(a2, b2, strict=True):
+            assert float((x - y).abs().max()) <= 1e-10 * max(1.0, float(y.abs().max()))
+
+
+def test_fused_derivatives_static_segment_and_gradcheck(gen):
+    """Equal neighbouring control points (a robot standing still: the relative motion is the
+    identity, the weights' series branch) give finite derivatives and gradients equal to the
+    jets'; ``gradcheck`` and ``gradgradcheck`` of the fused op with respect to the control
+    points there and elsewhere."""
+    p, n = 3, 7
+    ctrl = align_chain(chain(n, gen))
+    ctrl[3] = ctrl[2]
+    ctrl[4] = ctrl[2]
+    knots = knot_vector("uniform", n, p, gen)
+    t = domain_times(knots, p, 60)
+    c, w, fused, ref = _fused_and_jets(ctrl, knots, p, t, 2)
+    g = [torch.randn(x.shape, generator=gen, dtype=F64) for x in fused]
+    a = torch.autograd.grad(fused, c, g)[0]
+    assert torch.isfinite(a).all()
+    assert float((a - torch.autograd.grad(ref, c, g)[0]).abs().max()) <= 1e-11
+    r = KnotDomain(knots, p).span(t[::6])
+    first = r - p
+    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t[::6], p, 2)]
+    ctrl = ctrl.clone().requires_grad_()
+    assert first.shape[0] >= 2 * (n - p)  # the tables' path, not the jets'
+
+    def f(c):
+        return torch.cat(_cumulative.derivatives(c, first, w))
+
+    assert torch.autograd.gradcheck(f, (ctrl,))
+    assert torch.autograd.gradgradcheck(f, (ctrl,))
+
+
+def test_fused_derivatives_vectorized_jacobian(gen):
+    """The weighted table rows' backward under ``vmap`` (``jacobian(vectorize=True)`` after
+    the fused forward) equals the loop of plain backwards."""
+    p = 3
+    ctrl = align_chain(chain(p + 2, gen))
+    knots = knot_vector("uniform", p + 2, p, gen)
+    t = domain_times(knots, p, 8)
+    r = KnotDomain(knots, p).span(t)
+    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t, p, 2)]
+
+    def f(c):
+        return torch.stack(_cumulative.derivatives(c, r - p, w))
+
+    vec = torch.autograd.functional.jacobian(f, ctrl, vectorize=True)
+    loop = torch.autograd.functional.jacobian(f, ctrl)
+    assert float(loop.abs().max()) > 0 and float((vec - loop).abs().max()) <= 1e-12
+
+
+def test_fused_derivatives_compile_fullgraph(gen):
+    """The fused derivatives under ``torch.compile(fullgraph=True)`` (a table per span
+    start, the weighted rows as gather, product and sum): the eager values and gradients."""
+    p, n = 3, 6
+    ctrl = align_chain(chain(n, gen))
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 20)
+    r = KnotDomain(knots, p).span(t)
+    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t, p, 2)]
+
+    def f(c):
+        return torch.stack(_cumulative.derivatives(c, r - p, w))
+
+    compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
+    c1, c2 = ctrl.clone().requires_grad_(), ctrl.clone().requires_grad_()
+    a, b = compiled(c1), f(c2)
+    assert float((a - b).detach().abs().max()) <= 1e-13
+    g = torch.randn(a.shape, generator=gen, dtype=F64)
+    ga, gb = torch.autograd.grad(a, c1, g)[0], torch.autograd.grad(b, c2, g)[0]
+    assert float((ga - gb).abs().max()) <= 1e-12
+
+
 def test_forward_mode_and_transforms_match_reverse(gen):
     p, n = 3, 6
     ctrl = align_chain(chain(n, gen))

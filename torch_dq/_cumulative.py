@@ -35,6 +35,10 @@ accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
   numbers :math:`\alpha, \beta` (eq. 11's weights), so the product expands into a sum of
   per-span products of control points (:func:`_span_tables`, computed once per span) with
   per-time dual weights, one weighted sum of table rows per time; analytic backward.
+- :func:`derivatives`: the poses and their time derivatives the same way: the tables are
+  constant on a span, so the derivatives fall on the scalar dual weights alone (jets of
+  ``(2, p, n)`` rows instead of dual-quaternion jets), each order one weighted sum of table
+  rows with an analytic backward (:class:`_Rows`); :func:`jets` is its plain-op reference.
 
 The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 """
@@ -55,7 +59,7 @@ from ._kernels.sclerp import weights as screw_weights
 from ._kernels.weights import Angle, Weights, WeightSlopes, angle
 from ._numerics import safe_denominator
 
-__all__ = ["basis", "jets", "poses"]
+__all__ = ["basis", "derivatives", "jets", "poses"]
 
 BASIS_CHUNK = 16384  # times per eager chunk of the basis (2x faster than 1e5 at once)
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
@@ -561,17 +565,164 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
     p = weights.shape[0]
     if first.shape[0] == 0:  # no times (an empty batch): an empty output tied to ctrl
         return ctrl[:0] * 1
-    F = ctrl.shape[0] - p
-    if not torch.compiler.is_compiling() and first.shape[0] < TABLE_MIN_TIMES * F:
+    if _per_time(ctrl, first, p):
         points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
         return jets(points, [weights.T], 0)[0]
-    used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
-    if torch.compiler.is_compiling():  # no data-dependent sizes: a table row per start
-        table, pairs = _span_tables(ctrl, torch.arange(F, device=ctrl.device), p, used)
-    else:
-        starts = used.nonzero()[:, 0]  # one host read
-        if starts.shape[0] < F:  # index the tables of the starts in use
-            first = (used.cumsum(0) - 1)[first]
-        table, pairs = _span_tables(ctrl, starts, p)
+    table, pairs, first = _tables(ctrl, first, p)
     save = torch.is_grad_enabled() and (ctrl.requires_grad or weights.requires_grad)
     return _Poses.apply(table, pairs, first, weights, save, _runs(first))[0]
+
+
+def _per_time(ctrl: Tensor, first: Tensor, p: int) -> bool:
+    """Whether the product of powers runs per time (:func:`jets`): eager, with fewer than
+    :data:`TABLE_MIN_TIMES` times per span start, where the span tables cost more than they
+    save (e.g. the estimator's one-span copies of each sample)."""
+    return (not torch.compiler.is_compiling()
+            and first.shape[0] < TABLE_MIN_TIMES * (ctrl.shape[0] - p))
+
+
+def _tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`_span_tables` of the span starts that ``first`` reads, and ``first`` as
+    indices into them. Eager: the starts in use only (one host read); under
+    ``torch.compile`` (no data-dependent sizes) a table per start, unused ones from zeros."""
+    F = ctrl.shape[0] - p
+    used = torch.zeros(F, dtype=torch.bool, device=ctrl.device).index_fill(0, first, True)
+    if torch.compiler.is_compiling():
+        table, pairs = _span_tables(ctrl, torch.arange(F, device=ctrl.device), p, used)
+        return table, pairs, first
+    starts = used.nonzero()[:, 0]  # one host read
+    if starts.shape[0] < F:  # index the tables of the starts in use
+        first = (used.cumsum(0) - 1)[first]
+    table, pairs = _span_tables(ctrl, starts, p)
+    return table, pairs, first
+
+
+# ----------------------------------------------------------------------------- fused derivatives
+
+def _weight_jets(pairs: Tensor, f: Tensor, w: list[Tensor]) -> list[Tensor]:
+    r"""The bags' weights of :func:`_span_tables`' expansion and their time derivatives,
+    ``(2K, n)`` per order (real parts above dual parts), at times reading the span starts
+    ``f (n,)``, from the normalised Taylor coefficients ``w (p, n)`` of the cumulative
+    basis.
+
+    The span's frames are constant in time, so only the powers' dual weights
+    :math:`\beta_j = F(1 - w_j) - \epsilon\delta_j G(1 - w_j)`,
+    :math:`\alpha_j = \sigma_j (F(w_j) - \epsilon\delta_j G(w_j))` move: their jets are
+    eq. 11's weights on jets (:func:`torch_dq._taylor.weights`) at a constant angle, and
+    :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S} \beta_j` a Cauchy product of
+    dual-number jets (:func:`_subset_levels` on jets). Plain torch ops on ``(2, p, n)`` rows.
+    """
+    c, delta, sigma = pairs.index_select(2, f)
+    s: _taylor.Jet = [torch.stack((1.0 - w[0], w[0])), *(torch.stack((-x, x)) for x in w[1:])]
+    F, G = _taylor.weights([c, *[None] * (len(w) - 1)], s)
+    sig = torch.stack((torch.ones_like(sigma), sigma))
+    b_r = [cast(Tensor, x) * sig for x in F]
+    b_d = [cast(Tensor, x) * (-delta * sig) for x in G]
+    w_r: _taylor.Jet = [x[:, 0] for x in b_r]
+    w_d: _taylor.Jet = [x[:, 0] for x in b_d]
+    for j in range(1, c.shape[0]):
+        r: _taylor.Jet = [x[:, j, None] for x in b_r]
+        d: _taylor.Jet = [x[:, j, None] for x in b_d]
+        w_r, w_d = ([cast(Tensor, x).flatten(0, 1) for x in _taylor.mul(r, w_r)],
+                    [(cast(Tensor, x) + cast(Tensor, y)).flatten(0, 1)
+                     for x, y in zip(_taylor.mul(r, w_d), _taylor.mul(d, w_r), strict=True)])
+    return [math.factorial(k) * torch.cat((cast(Tensor, x), cast(Tensor, y)))
+            for k, (x, y) in enumerate(zip(w_r, w_d, strict=True))]
+
+
+class _Rows(torch.autograd.Function):
+    r"""Weighted sums of table rows, :math:`\sum_k W_{l k n}` ``table[first[n] width + k]``
+    for each time ``n`` and each set ``l`` of weights: ``table (F * width, 8)``, ``first
+    (N,)`` int64, ``W (L, width, N)``, ``runs`` (:func:`_runs`, or ``None``) ->
+    ``(L, N, 8)``. Per run of sorted times one small matrix product (:func:`_run_rows`),
+    otherwise one weighted bag per time (:func:`_weighted_rows`). Bilinear in ``table`` and
+    ``W``: the backward is the transposed map (:func:`_run_cotangents`, or
+    :func:`_segment_outer` and :func:`_row_dots`), and in plain torch ops where it is itself
+    differentiated or batched (:func:`_plain_rows_vjp`)."""
+
+    @staticmethod
+    def forward(table: Tensor, first: Tensor, W: Tensor, runs: Runs | None) -> Tensor:
+        L, width, N = W.shape
+        out = table.new_empty(L, N, 8)
+        for l in range(L):
+            for i, run in _parts(N, runs):
+                if run is not None:
+                    _run_rows(table.view(-1, width, 8), W[l, :, i], i, run, out[l])
+                else:
+                    out[l, i] = _weighted_rows(table, first[i], W[l, :, i].T)
+        return out
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        table, first, W, ctx.runs = inputs
+        ctx.save_for_backward(table, first, W)
+
+    @staticmethod
+    def backward(ctx, grad):
+        table, first, W = ctx.saved_tensors
+        if batched(grad) or torch.is_grad_enabled():
+            return (*_plain_rows_vjp(table, first, W, grad), None)
+        L, width, N = W.shape
+        F = table.shape[0] // width
+        blocks, grad = table.view(F, width, 8), grad.contiguous()
+        g_table, g_W = table.new_zeros(F, width, 8), torch.empty_like(W)
+        for l in range(L):
+            for i, run in _parts(N, ctx.runs):
+                if run is not None:
+                    g_W[l, :, i] = _run_cotangents(blocks, W[l, :, i], to_rows(grad[l, i]), i,
+                                                   run, g_table)
+                else:
+                    g_table += _segment_outer(W[l, :, i].T, grad[l, i], first[i], F)
+                    g_W[l, :, i] = _row_dots(table, first[i], grad[l, i], F)
+        return g_table.view(-1, 8), None, g_W, None
+
+
+def _plain_rows_vjp(table: Tensor, first: Tensor, W: Tensor,
+                    grad: Tensor) -> tuple[Tensor, None, Tensor]:
+    """:class:`_Rows`' cotangents of ``table`` and ``W`` in plain torch ops (differentiable
+    again; batched under ``vmap``)."""
+    L, width, N = W.shape
+    blocks = table.view(-1, width, 8)
+    rows = blocks[first]  # (N, width, 8)
+    g_W = (rows * grad[..., None, :]).sum(-1).transpose(-1, -2)  # (L, width, N)
+    outer = (W.transpose(-1, -2)[..., None] * grad[..., None, :]).sum(-4)  # (N, width, 8)
+    g_table = blocks.new_zeros(blocks.shape).index_add(0, first, outer)
+    return g_table.view(-1, 8), None, g_W
+
+
+def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tensor]:
+    r"""The cumulative form and its time derivatives through the span tables (eager
+    reverse mode and ``torch.compile``; :func:`poses` for the poses alone).
+
+    With the expansion of :func:`_span_tables`, :math:`X^{(k)}(t) = \sum_S w_S^{(k)}(t)\,
+    T_S`: the tables are constant on a span, so the time derivatives fall on the scalar dual
+    weights alone (:func:`_weight_jets`, plain ops on ``(2, p, n)`` rows, not on
+    dual-quaternion jets as in :func:`jets`), and each order is one weighted sum of table
+    rows (:class:`_Rows`, analytic backward). Differentiable twice (reverse mode) with
+    respect to ``ctrl`` and ``weights``; under ``torch.func`` transforms and forward AD
+    (:func:`torch_dq._kernels.fused_path` false) use :func:`jets`.
+
+    Args:
+        ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).
+        first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`.
+        weights: ``order + 1`` tensors ``(p, N)``, the cumulative basis and its time
+            derivatives (:func:`basis`, transposed), in ``ctrl``'s dtype.
+
+    Returns:
+        ``order + 1`` tensors ``(N, 8)``: :math:`[X, \dot X, \dots, X^{(order)}]`.
+    """
+    p, N = weights[0].shape
+    order = len(weights) - 1
+    if order == 0:
+        return [poses(ctrl, first, weights[0])]
+    if N == 0:
+        return [ctrl[:0] * 1 for _ in weights]
+    if _per_time(ctrl, first, p):
+        points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
+        return jets(points, [w.T for w in weights], order)
+    table, pairs, first = _tables(ctrl, first, p)
+    coefs = [w / math.factorial(k) for k, w in enumerate(weights)]
+    parts = [_weight_jets(pairs, first[i], [w[:, i] for w in coefs])
+             for i in chunks(N, POSES_CHUNK)]
+    W = torch.stack([torch.cat(x, -1) for x in zip(*parts, strict=True)])
+    return list(_Rows.apply(table, first, W, _runs(first)).unbind(0))

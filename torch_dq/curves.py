@@ -300,16 +300,18 @@ def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
     return out.view(*batch, T, 8)
 
 
-def _fused_cumulative(ctrl: Tensor, r: Tensor, weights: Tensor, degree: int,
-                      batch: torch.Size) -> Tensor:
-    """The cumulative form through its fused op (:func:`torch_dq._cumulative.poses`), which
-    reads the ``degree + 1`` points from ``c_{r-p}`` on and each pair's relative motion once."""
+def _fused_cumulative(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
+                      batch: torch.Size) -> list[Tensor]:
+    """The cumulative form and its time derivatives to ``len(weights) - 1`` through its fused
+    ops (:func:`torch_dq._cumulative.derivatives`, :func:`~torch_dq._cumulative.poses`),
+    which read the ``degree + 1`` points from ``c_{r-p}`` on and each pair's relative motion
+    once; ``weights``: the basis and its derivatives, ``(..., T, p)`` each."""
     n, T, B = ctrl.shape[-2], r.shape[-1], batch.numel()
     flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
     offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1)
     first = (r - degree + offsets).expand(*batch, T).reshape(B * T)
-    w = weights.expand(*batch, T, degree).reshape(B * T, degree).T
-    return _cumulative.poses(flat, first, w).view(*batch, T, 8)
+    w = [x.expand(*batch, T, degree).reshape(B * T, degree).T for x in weights]
+    return [x.view(*batch, T, 8) for x in _cumulative.derivatives(flat, first, w)]
 
 
 # ----------------------------------------------------------------------------- time derivatives
@@ -535,7 +537,7 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     if form == "cumulative":
         weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
         if _kernels.fused_path(ctrl_c, weights):
-            return _fused_cumulative(ctrl_c, r, weights, p, batch).to(ctrl.dtype)
+            return _fused_cumulative(ctrl_c, r, [weights], p, batch)[0].to(ctrl.dtype)
         points = _span_points(ctrl_c, r, p, batch)
         return _cumulative.jets(points, [weights], 0)[0].to(ctrl.dtype)
     alphas = [alpha for alpha, _ in dom.de_boor_levels(rel, r, dtype)]
@@ -565,6 +567,8 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers."""
     weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
     weights = [w.to(ctrl.dtype) for w in weights]
+    if _kernels.fused_path(ctrl, *weights):
+        return _fused_cumulative(ctrl, r, weights, dom.degree, batch)
     return _cumulative.jets(_span_points(ctrl, r, dom.degree, batch), weights, order)
 
 
