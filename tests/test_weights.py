@@ -136,3 +136,48 @@ def test_jets_are_differentiable_twice_across_the_switch():
 
     assert torch.autograd.gradcheck(fn, (c0, t0))
     assert torch.autograd.gradgradcheck(fn, (c0, t0))
+
+
+@pytest.mark.parametrize("dtype, tol", [(F64, 4e-14), (F32, 1e-6)])
+def test_angle_square_against_mpmath(dtype, tol):
+    r""":math:`\theta^2 = \arccos(c)^2`, :math:`\kappa = 2\theta/\sin\theta` and the first and
+    second derivatives of :math:`\theta^2` in ``c`` (reverse mode, twice), against mpmath, on
+    ``y`` from 0 (equal rotations, where ``acos`` has no derivative) to 1 (``c = 0``), a third
+    within 1 % of the switch point; then the constants of the weights' equations in ``s``:
+    :math:`\partial_s^2 F = -\theta^2 F` and :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
+    with the kernel's ``F, G`` against mpmath's second derivatives in ``s``."""
+    mp.mp.dps = 40
+    gen = torch.Generator().manual_seed(1)
+    switch = threshold("angle_square_series", dtype)
+    y = torch.cat((torch.zeros(1, dtype=F64), 10.0 ** (-9.0 * torch.rand(30, generator=gen,
+                                                                        dtype=F64)),
+                   switch * (1.0 + 0.02 * (torch.rand(15, generator=gen, dtype=F64) - 0.5))))
+    c = (1.0 - y).to(dtype).requires_grad_()
+    th2, kappa = kw.angle_square(c)
+    d1 = torch.autograd.grad(th2.sum(), c, create_graph=True)[0]
+    d2 = torch.autograd.grad(d1.sum(), c)[0]
+    worst = 0.0
+    for i in range(c.numel()):
+        ci = mp.mpf(float(c[i].detach()))
+
+        def f(x):  # analytic through c = 1: acos(x)^2 = -acosh(x)^2 above it
+            return mp.re(mp.acos(x) ** 2)
+
+        ref_kappa = -mp.diff(f, ci)  # d theta^2 / dy
+        for x, r in ((th2[i], f(ci)), (kappa[i], ref_kappa), (d1[i], mp.diff(f, ci)),
+                     (d2[i], mp.diff(f, ci, 2))):
+            worst = max(worst, _rel_err(x.detach(), r))
+    assert worst <= tol, worst
+    t = torch.rand(c.numel(), generator=gen, dtype=F64).to(dtype)
+    w = kw.screw_weights(c.detach(), t)
+    for row, s in enumerate((1.0 - t, t)):
+        for i in range(1, c.numel(), 5):
+            yi, si = 1 - mp.mpf(float(c[i].detach())), mp.mpf(float(s[i]))
+            if yi == 0:  # mpmath's F is 0 / 0 there (float32 rounds small y to 0)
+                continue
+            ref_F = mp.diff(lambda u: _F(u, yi), si, 2)
+            ref_G = mp.diff(lambda u: mp.diff(lambda z: _F(u, z), yi), si, 2)
+            F_ss = -th2[i] * w.F[row, i]
+            G_ss = -(kappa[i] * w.F[row, i] + th2[i] * w.G[row, i])
+            assert _rel_err(F_ss.detach(), ref_F) <= 10 * tol
+            assert _rel_err(G_ss.detach(), ref_G) <= 1e3 * tol

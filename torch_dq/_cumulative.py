@@ -56,7 +56,7 @@ from ._kernels import batched, products, reference_vjp
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
-from ._kernels.weights import Angle, Weights, WeightSlopes, angle
+from ._kernels.weights import Angle, Weights, WeightSlopes, angle, angle_square
 from ._numerics import safe_denominator
 
 __all__ = ["basis", "derivatives", "jets", "poses"]
@@ -599,28 +599,51 @@ def _tables(ctrl: Tensor, first: Tensor, p: int) -> tuple[Tensor, Tensor, Tensor
 
 # ----------------------------------------------------------------------------- fused derivatives
 
-def _weight_jets(pairs: Tensor, f: Tensor, w: list[Tensor]) -> list[Tensor]:
+def _compose(D: list[Tensor], h: _taylor.Jet) -> list[Tensor]:
+    r"""Taylor coefficients of :math:`f(s(t))` from the derivatives ``D[m]`` :math:`=
+    f^{(m)}(s_0)` and the normalised Taylor coefficients ``h = [None, s_1, s_2, ...]`` of
+    :math:`s` (Faà di Bruno): :math:`\sum_m D_m (s - s_0)^m / m!`, truncated."""
+    order = len(h) - 1
+    terms: list[list[Tensor]] = [[] for _ in range(order + 1)]
+    power = h
+    for m in range(1, order + 1):
+        scaled = D[m] / math.factorial(m) if m > 1 else D[m]
+        for k in range(m, order + 1):
+            terms[k].append(cast(Tensor, power[k]) * scaled)
+        power = _taylor.mul(power, h)
+    return [D[0], *(sum(x[1:], x[0]) for x in terms[1:])]
+
+
+def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> list[Tensor]:
     r"""The bags' weights of :func:`_span_tables`' expansion and their time derivatives,
     ``(2K, n)`` per order (real parts above dual parts), at times reading the span starts
     ``f (n,)``, from the normalised Taylor coefficients ``w (p, n)`` of the cumulative
-    basis.
+    basis; ``full``: :func:`_full_pairs`, ``squares (2, p, F)``: :func:`angle_square` of the
+    pairs.
 
     The span's frames are constant in time, so only the powers' dual weights
     :math:`\beta_j = F(1 - w_j) - \epsilon\delta_j G(1 - w_j)`,
-    :math:`\alpha_j = \sigma_j (F(w_j) - \epsilon\delta_j G(w_j))` move: their jets are
-    eq. 11's weights on jets (:func:`torch_dq._taylor.weights`) at a constant angle, and
-    :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S} \beta_j` a Cauchy product of
-    dual-number jets (:func:`_subset_levels` on jets). Plain torch ops on ``(2, p, n)`` rows.
+    :math:`\alpha_j = \sigma_j (F(w_j) - \epsilon\delta_j G(w_j))` move. Their derivatives
+    in ``s`` follow from eq. 11's weights and slopes (:func:`screw_weights`) by
+    :math:`\partial_s^2 F = -\theta^2 F`, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
+    (:func:`angle_square`), their jets in time by composition with :math:`w_j(t)`
+    (:func:`_compose`), and :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S}
+    \beta_j` is a Cauchy product of dual-number jets (:func:`_subset_levels` on jets). Plain
+    torch ops on ``(2, p, n)`` rows.
     """
-    c, delta, sigma = pairs.index_select(2, f)
-    s: _taylor.Jet = [torch.stack((1.0 - w[0], w[0])), *(torch.stack((-x, x)) for x in w[1:])]
-    F, G = _taylor.weights([c, *[None] * (len(w) - 1)], s)
-    sig = torch.stack((torch.ones_like(sigma), sigma))
-    b_r = [cast(Tensor, x) * sig for x in F]
-    b_d = [cast(Tensor, x) * (-delta * sig) for x in G]
+    fr, slopes, _ = _chunk_weights(full, f, w[0], True, True)
+    ws = cast(WeightSlopes, slopes)
+    th2, kappa = squares.index_select(2, f)
+    Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
+    DF = [ws.F, Fs, -th2 * ws.F, -th2 * Fs]
+    DG = [ws.G, Gs, -(kappa * ws.F + th2 * ws.G), -(kappa * Fs + th2 * Gs)]
+    h: _taylor.Jet = [None, *(torch.stack((-x, x)) for x in w[1:])]  # s = (1 - w, w)
+    sig = torch.stack((torch.ones_like(fr.sigma), fr.sigma))
+    b_r = [x * sig for x in _compose(DF[:len(w)], h)]
+    b_d = [x * (-fr.delta * sig) for x in _compose(DG[:len(w)], h)]
     w_r: _taylor.Jet = [x[:, 0] for x in b_r]
     w_d: _taylor.Jet = [x[:, 0] for x in b_d]
-    for j in range(1, c.shape[0]):
+    for j in range(1, fr.c.shape[0]):
         r: _taylor.Jet = [x[:, j, None] for x in b_r]
         d: _taylor.Jet = [x[:, j, None] for x in b_d]
         w_r, w_d = ([cast(Tensor, x).flatten(0, 1) for x in _taylor.mul(r, w_r)],
@@ -722,7 +745,8 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         return jets(points, [w.T for w in weights], order)
     table, pairs, first = _tables(ctrl, first, p)
     coefs = [w / math.factorial(k) for k, w in enumerate(weights)]
-    parts = [_weight_jets(pairs, first[i], [w[:, i] for w in coefs])
+    full, squares = _full_pairs(pairs), torch.stack(angle_square(pairs[0]))
+    parts = [_weight_jets(full, squares, first[i], [w[:, i] for w in coefs])
              for i in chunks(N, POSES_CHUNK)]
     W = torch.stack([torch.cat(x, -1) for x in zip(*parts, strict=True)])
     return list(_Rows.apply(table, first, W, _runs(first)).unbind(0))

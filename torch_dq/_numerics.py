@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "THRESHOLDS", "compute_dtype", "even", "nan_unless", "piecewise",
+    "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "nan_unless", "piecewise",
     "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms", "select",
     "series_mask", "threshold",
 ]
@@ -64,6 +64,13 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # x2 = theta^2 below which even() uses the series of an even function whose first
     # neglected coefficient is c (derivation in even()).
     "even_series": lambda eps, c: min(1.0, 0.25 * (eps / abs(c)) ** (1.0 / _EVEN_TERMS)),
+    # y = 1 - cos(theta) below which theta^2 = acos(1 - y)^2 and its y-derivative
+    # 2 theta / sin(theta) use their power series in y (_kernels.weights.angle_square, N = 12
+    # terms ~ (y/2)^k): the closed forms' second derivatives in y lose eps / y^2, the
+    # series' N^2 (y/2)^(N-2); they meet at y^N = 2^(N-2) eps / N^2: 0.058 in float64, 0.31
+    # in float32 (measured against mpmath in tests/test_weights.py).
+    "angle_square_series": lambda eps: (eps * 2.0 ** (ANGLE_SQUARE_TERMS - 2)
+                                        / ANGLE_SQUARE_TERMS**2) ** (1.0 / ANGLE_SQUARE_TERMS),
     # B-spline basis value above which a sample counts in the support of a control point
     # (_start.check_determined, Schoenberg-Whitney): a control point whose values all lie
     # below 2^12 eps has a normal-equations pivot below 2^24 eps^2 <~ eps of the largest
@@ -78,6 +85,9 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # for agreement with scipy in every dtype).
     "gimbal_lock": lambda eps: 1e-7,
 }
+
+
+ANGLE_SQUARE_TERMS = 12  # terms of the series of acos(1 - y)^2 (THRESHOLDS "angle_square_series")
 
 
 def screw_series_terms(order: int) -> int:

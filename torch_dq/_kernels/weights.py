@@ -38,13 +38,16 @@ Switch point and number of terms: :data:`torch_dq._numerics.THRESHOLDS` ``"screw
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
 
 from .. import _taylor
-from .._numerics import Parts, piecewise, screw_series_terms, series_mask, threshold
+from .._numerics import (
+    ANGLE_SQUARE_TERMS, Parts, piecewise, screw_series_terms, series_mask, threshold,
+)
 
 _TERMS = screw_series_terms(0)  # the kernels' series: a jet of order 0
 
@@ -97,6 +100,30 @@ def angle(c: Tensor) -> Angle:
     :math:`1 - c` = threshold / :math:`s^2`, and need the true angle."""
     jets = _taylor.angle([c], (c >= 1.0).to(c.dtype))
     return Angle(*(cast(Tensor, x[0]) for x in jets))
+
+
+def angle_square(c: Tensor) -> tuple[Tensor, Tensor]:
+    r""":math:`\theta^2 = \arccos(c)^2` and :math:`\kappa = d\theta^2/dy = 2\theta/\sin\theta`
+    (:math:`y = 1 - c`), the constants of the weights' equations in ``s``:
+    :math:`\partial_s^2 F = -\theta^2 F` (``F = sin(s theta) / sin(theta)``) and, taking
+    :math:`\partial_y` of it, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`.
+
+    Analytic in ``y``, so differentiable any number of times at equal rotations (``c = 1``,
+    where :math:`\arccos` is not): below the switch point (:data:`THRESHOLDS`
+    ``"angle_square_series"``) the series
+    :math:`\theta^2 = 2 \sum_{k \ge 1} (2y)^k / (k^2 \binom{2k}{k})` (from
+    :math:`\theta = 2 \arcsin\sqrt{y/2}`) and its derivative, above it the closed forms on
+    guarded inputs. ``c`` in ``[0, 1]`` up to rounding (sign-aligned pairs).
+    """
+    y = 1.0 - c
+    small = y < threshold("angle_square_series", c.dtype)
+    b = [2.0 * 2.0**k / (k * k * math.comb(2 * k, k)) for k in range(1, ANGLE_SQUARE_TERMS + 1)]
+    ys = torch.where(small, y, 0.0)
+    th2 = ys * _horner([ys.new_tensor(x) for x in b], ys)
+    kappa = _horner([ys.new_tensor(k * x) for k, x in enumerate(b, 1)], ys)
+    theta = torch.acos(torch.where(small, 0.0, c))
+    return (torch.where(small, th2, theta * theta),
+            torch.where(small, kappa, 2.0 * theta / torch.sin(theta)))
 
 
 def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
