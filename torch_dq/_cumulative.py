@@ -315,8 +315,15 @@ def _weighted_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
 
 
 def _gathered_rows(table: Tensor, f: Tensor, W: Tensor) -> Tensor:
-    """:func:`_weighted_rows` as a gather, product and sum of plain ops ``(n, 8)``."""
-    return (table.view(-1, W.shape[1], 8)[f] * W[:, :, None]).sum(1)
+    """:func:`_weighted_rows` as a gather, products and sum of plain ops ``(n, 8)``. The sum
+    over the ``width`` rows is written out term by term, an elementwise expression: as a
+    reduction, inductor (CPU) parallelised it over its 16 terms, one OpenMP region per
+    time, 10x slower than the eager op."""
+    rows = table.view(-1, W.shape[1], 8)[f]
+    out = rows[:, 0] * W[:, :1]
+    for k in range(1, W.shape[1]):
+        out = torch.addcmul(out, rows[:, k], W[:, k:k + 1])
+    return out
 
 
 def _row_dots(table: Tensor, f: Tensor, G: Tensor, F: int) -> Tensor:
