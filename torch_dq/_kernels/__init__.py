@@ -30,7 +30,7 @@ import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
 from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-__all__ = ["batched", "fused_path", "reference_vjp"]
+__all__ = ["batched", "fused_path", "index_add", "reference_vjp"]
 
 
 def fused_path(*tensors: Tensor) -> bool:
@@ -91,3 +91,26 @@ def reference_vjp(reference: Callable[..., Any], inputs: tuple[Tensor, ...],
     """
     vjp_fn = torch.func.vjp(reference, *inputs)[1]
     return vjp_fn(grads)
+
+
+def index_add(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
+    """``x.index_add(dim, index, source)`` for the fused backwards' sums onto control points
+    and pairs. Compiled on CPU, outside a differentiated backward, an op that
+    ``torch.compile`` calls as it is (:func:`_index_add_op`): inductor lowers the scatter to
+    atomic adds from every thread, which onto a few rows (64 control points from 4e5 level
+    rows) cost several times aten's serial kernel."""
+    if (torch.compiler.is_compiling() and x.device.type == "cpu"
+            and not torch.is_grad_enabled()):
+        return _index_add_op(x, dim, index, source)
+    return x.index_add(dim, index, source)
+
+
+@torch.library.custom_op("torch_dq::index_add", mutates_args=())
+def _index_add_op(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
+    """:func:`index_add` behind an opaque op (aten's kernel; not differentiable)."""
+    return x.index_add(dim, index, source)
+
+
+@_index_add_op.register_fake
+def _(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
+    return torch.empty_like(x)

@@ -17,7 +17,7 @@ from typing import cast
 import torch
 from torch import Tensor
 
-from . import layout
+from . import index_add, layout
 from .layout import chunks, from_rows, to_rows
 from .sclerp import Frame, add_frame_terms, combine, frame, vjp_rows, weights
 from .weights import Angle, angle
@@ -119,14 +119,14 @@ class _Pyramid(torch.autograd.Function):
                 g_alpha.append(cast(Tensor, ct.t))  # None only when not need_alpha (unused)
                 if j == 1:
                     pair = (first[i] + torch.arange(m - 1, device=first.device)[:, None])
-                    pair_c = pair_c.index_add(0, pair.reshape(-1), ct.c.reshape(-1))
-                    pair_d = pair_d.index_add(0, pair.reshape(-1), ct.delta.reshape(-1))
+                    pair_c = index_add(pair_c, 0, pair.reshape(-1), ct.c.reshape(-1))
+                    pair_d = index_add(pair_d, 0, pair.reshape(-1), ct.delta.reshape(-1))
                     used = used.index_fill(0, pair.reshape(-1), True)
                 # d_i^(j-1) feeds d_(i-1)^(j) as b and d_i^(j) as a
                 G = torch.cat((ct.a[:1], ct.a[1:] + ct.b[:-1], ct.b[-1:]))
             level0 = first[i] + torch.arange(m, device=first.device)[:, None]
-            grad_rows = grad_rows.index_add(1, level0.reshape(-1),
-                                            G.transpose(0, 1).reshape(8, -1))
+            grad_rows = index_add(grad_rows, 1, level0.reshape(-1),
+                                  G.transpose(0, 1).reshape(8, -1))
             if need_alpha:
                 g_alpha.reverse()  # level order
                 grad_alphas.append(cast(Tensor, sum(g.sum(0, keepdim=True) for g in g_alpha))
