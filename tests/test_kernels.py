@@ -489,10 +489,11 @@ def test_index_add_compiled_is_the_scatter():
         ref[:, idx[k]] += src[:, k]
     ref += x
 
-    def f(x, src):
-        return index_add(x, 1, idx, src), index_add(x.T.contiguous(), 0, idx, src.T)
+    def f(x, src):  # the second with a strided x
+        return index_add(x, 1, idx, src), index_add(x.T, 0, idx, src.T)
 
     compiled = torch.compile(f, fullgraph=True)
     for a, b in (f(x, src), compiled(x, src)):
         assert float((a - ref).abs().max()) <= 1e-12
         assert float((b - ref.T).abs().max()) <= 1e-12
+    torch.library.opcheck(torch.ops.torch_dq.index_add.default, (x.T, 0, idx, src.T))

@@ -52,7 +52,7 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import batched, products, reference_vjp
+from ._kernels import batched, index_add, products, reference_vjp
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -545,7 +545,7 @@ class _Poses(torch.autograd.Function):
             g_c = -(wG * gF + wH * gG).sum(0)  # dF/dc = -G, dG/dc = -H
             g_cd = torch.stack((g_c, g_delta))
             g_pairs = (_run_sums(g_cd, run, g_pairs) if run is not None
-                       else g_pairs.index_add(2, f, g_cd))
+                       else index_add(g_pairs, 2, f, g_cd))
             if need_w:  # s = (1 - w, w)
                 Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
                 grad_w.append((Fs[1] * gF[1] + Gs[1] * gG[1]) - (Fs[0] * gF[0] + Gs[0] * gG[0]))

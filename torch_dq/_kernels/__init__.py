@@ -107,10 +107,11 @@ def index_add(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
 
 @torch.library.custom_op("torch_dq::index_add", mutates_args=())
 def _index_add_op(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
-    """:func:`index_add` behind an opaque op (aten's kernel; not differentiable)."""
-    return x.index_add(dim, index, source)
+    """:func:`index_add` behind an opaque op (aten's kernel; not differentiable), contiguous
+    whatever the layout of ``x``."""
+    return x.contiguous().index_add(dim, index, source)
 
 
 @_index_add_op.register_fake
 def _(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
-    return torch.empty_like(x)
+    return x.new_empty(x.shape)
