@@ -254,6 +254,10 @@ def test_imu_at_rest_and_default_gravity():
     fall = torch.cat((torch.zeros(4, dtype=F64), 0.5 * dq.mul(
         torch.cat((torch.tensor([0.0, 0, 0, -9.81], dtype=F64), z[:4])), x)[:4]))
     assert max_err(imu(x, z, fall)[1], torch.zeros(3, dtype=F64)) <= 1e-14
+    # a gravity tensor of another floating dtype is a constant like the numbers: x's dtype
+    g32 = torch.tensor([0.0, 0.0, -9.81])
+    a, b = imu(x, z, z, gravity=g32)[1], imu(x, z, z, gravity=g32.double())[1]
+    assert a.dtype == F64 and torch.equal(a, b)
 
 
 # ----------------------------------------------------------------------------- wide time
@@ -490,8 +494,9 @@ def _bad_cases():
          r"expected gravity to be three real numbers"),
         ("imu gravity shape", lambda: imu(x, x, x, gravity=torch.zeros(4, dtype=F64)),
          ValueError, r"^curves\.imu: expected a \(\.\.\., 3\) tensor for gravity, got shape"),
-        ("imu gravity dtype", lambda: imu(x, x, x, gravity=torch.zeros(3)), TypeError,
-         r"^curves\.imu: gravity has dtype torch\.float32 but x has dtype torch\.float64$"),
+        ("imu gravity integer", lambda: imu(x, x, x, gravity=torch.tensor([0, 0, -10])),
+         TypeError, r"^curves\.imu: expected a floating-point tensor for gravity, got dtype "
+         r"torch\.int64$"),
         ("imu gravity batch", lambda: imu(x, x, x, gravity=torch.zeros(3, 3, dtype=F64)),
          ValueError, r"^curves\.imu: batch shapes do not broadcast"),
     ]

@@ -152,8 +152,9 @@ def imu(x: Tensor, dx: Tensor, ddx: Tensor,
         ddx: ``(..., 8)`` second time derivatives (e.g. from
             :func:`torch_dq.curves.bspline_derivatives`, ``order=2``).
         gravity: the gravity vector in world axes: three real numbers or a ``(..., 3)``
-            tensor of ``x``'s dtype and device, batch broadcastable. Default
-            ``(0, 0, -9.81)``: z up, in m/s^2 (use the units of your translations and times).
+            floating tensor on ``x``'s device (computed in ``x``'s dtype, like the numbers),
+            batch broadcastable. Default ``(0, 0, -9.81)``: z up, in m/s^2 (use the units of
+            your translations and times).
 
     Returns:
         ``(gyro, accel)``, each ``(..., 3)`` in body axes, in ``x``'s dtype.
@@ -161,8 +162,8 @@ def imu(x: Tensor, dx: Tensor, ddx: Tensor,
     Raises:
         ValueError: shapes as :func:`kinematics`; ``gravity`` not three numbers or a
             ``(..., 3)`` tensor.
-        TypeError: as :func:`kinematics`; ``ddx`` missing; a ``gravity`` tensor of another
-            dtype or device.
+        TypeError: as :func:`kinematics`; ``ddx`` missing; a ``gravity`` tensor not
+            floating or on another device.
 
     Example:
         >>> import torch_dq.dualquat as dq
@@ -174,6 +175,7 @@ def imu(x: Tensor, dx: Tensor, ddx: Tensor,
     _check_motion(fn, x, dx, ddx, True)
     if isinstance(gravity, Tensor):
         _checks.tensor(fn, "gravity", gravity, 3)
+        gravity = gravity.to(x.dtype)  # a constant, like the three numbers: x's dtype
         _checks.same_dtype_device(fn, x=x, gravity=gravity)
         _checks.broadcast_batch(fn, x=(x, 1), dx=(dx, 1), ddx=(ddx, 1), gravity=(gravity, 1))
         g = lift(gravity)
