@@ -304,6 +304,18 @@ def test_input_is_never_overwritten(tmp_path, capsys):
     assert sorted(p.name for p in folder.iterdir()) == ["trajectory.csv"]
 
 
+def test_out_naming_a_file_is_one_line_naming_out(tmp_path, capsys):
+    """``--out`` naming an existing file (not a folder): one error line naming ``--out``
+    (it was a raw 'File exists'), exit 2, the file untouched."""
+    short = _write_tum(tmp_path / "short.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
+    target = tmp_path / "notes.txt"
+    target.write_text("keep me")
+    assert main(["fit", str(short), "--out", str(target), "--no-plots", "--quiet"]) == 2
+    line = _error_line(capsys)
+    assert f"--out {target} is a file, not a folder" in line
+    assert target.read_text() == "keep me"
+
+
 def test_earlier_results_need_overwrite(tmp_path, capsys):
     short = _write_tum(tmp_path / "short.txt", io.read_trajectory(SHIPPED).select(slice(0, 60)))
     out = tmp_path / "out"

@@ -139,7 +139,11 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def _check_out(out: str, inputs: list[str], overwrite: bool, plots: bool) -> None:
-    """Never write over an input; refuse earlier results unless ``overwrite``."""
+    """Never write over an input; refuse earlier results unless ``overwrite``; ``out`` must
+    be a folder (or not exist yet)."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise OptionError(f"--out {out} is a file, not a folder: choose a folder (it is made "
+                          f"if missing)")
     names = OUTPUTS + (FIGURES if plots else ())
     for name in names:
         for source in inputs:
