@@ -800,3 +800,32 @@ def test_segment_outer_op_matches_scatter(gen):
     a = torch.autograd.grad(compiled(c1), c1, g)[0]
     b = torch.autograd.grad(f_poses(c2), c2, g)[0]
     assert float((a - b).abs().max()) <= 1e-12
+
+
+@pytest.mark.parametrize("p, L", [(1, 2), (2, 3), (3, 3), (4, 4)])
+def test_subset_jets_backward_is_autograds(gen, p, L):
+    """The written-out backward of the subset weights on jets equals autograd through its
+    plain ops, and the products equal a direct evaluation of one subset's dual weight jet
+    (a product of p dual-number polynomials, truncated)."""
+    b_r = torch.randn(L, 2, p, 7, generator=gen, dtype=F64, requires_grad=True)
+    b_d = torch.randn(L, 2, p, 7, generator=gen, dtype=F64, requires_grad=True)
+    out = _cumulative._SubsetJets.apply(b_r, b_d)
+    ref = _cumulative._subset_jets(b_r, b_d)
+    assert out.shape == (L, 2 ** (p + 1), 7) and torch.equal(out, ref)
+    S = torch.randint(0, 2 ** p, (), generator=gen).item()
+    bits = [(S >> j) & 1 for j in range(p)]
+    poly = np.polynomial.polynomial
+    r = [1.0]
+    d = [0.0]
+    for j, b in enumerate(bits):  # (r + eps d)(x_r + eps x_d), coefficients in tau, at time 0
+        x_r, x_d = b_r[:, b, j, 0].tolist(), b_d[:, b, j, 0].tolist()
+        r, d = poly.polymul(r, x_r), poly.polyadd(poly.polymul(r, x_d), poly.polymul(d, x_r))
+    assert np.allclose(out[:, S, 0].detach().numpy(), np.pad(r, (0, 2 * L))[:L], atol=1e-12)
+    assert np.allclose(out[:, 2 ** p + S, 0].detach().numpy(), np.pad(d, (0, 2 * L))[:L],
+                       atol=1e-12)
+    g = torch.randn(out.shape, generator=gen, dtype=F64)
+    a = torch.autograd.grad(out, (b_r, b_d), g)
+    b = torch.autograd.grad(ref, (b_r, b_d), g)
+    assert all(float((x - y).abs().max()) <= 1e-12 for x, y in zip(a, b, strict=True))
+    small = (b_r[..., :2].detach().requires_grad_(), b_d[..., :2].detach().requires_grad_())
+    assert torch.autograd.gradgradcheck(_cumulative._SubsetJets.apply, small)

@@ -648,9 +648,9 @@ def _compose(D: list[Tensor], h: _taylor.Jet) -> list[Tensor]:
     return [D[0], *(sum(x[1:], x[0]) for x in terms[1:])]
 
 
-def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> list[Tensor]:
+def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> Tensor:
     r"""The bags' weights of :func:`_span_tables`' expansion and their time derivatives,
-    ``(2K, n)`` per order (real parts above dual parts), at times reading the span starts
+    ``(L, 2K, n)`` (order first, real parts above dual parts), at times reading the span starts
     ``f (n,)``, from the normalised Taylor coefficients ``w (p, n)`` of the cumulative
     basis; ``full``: :func:`_full_pairs`, ``squares (2, p, F)``: :func:`angle_square` of the
     pairs.
@@ -662,8 +662,8 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> l
     :math:`\partial_s^2 F = -\theta^2 F`, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
     (:func:`angle_square`), their jets in time by composition with :math:`w_j(t)`
     (:func:`_compose`), and :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S}
-    \beta_j` is a Cauchy product of dual-number jets (:func:`_subset_levels` on jets). Plain
-    torch ops on ``(2, p, n)`` rows.
+    \beta_j` is a Cauchy product of dual-number jets (:class:`_SubsetJets`, its backward
+    written out). Torch ops on ``(L, 2, p, n)`` rows.
     """
     fr, slopes, _ = _chunk_weights(full, f, w[0], True, True)
     ws = cast(WeightSlopes, slopes)
@@ -673,18 +673,85 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> l
     DG = [ws.G, Gs, -(kappa * ws.F + th2 * ws.G), -(kappa * Fs + th2 * Gs)]
     h: _taylor.Jet = [None, *(torch.stack((-x, x)) for x in w[1:])]  # s = (1 - w, w)
     sig = torch.stack((torch.ones_like(fr.sigma), fr.sigma))
-    b_r = [x * sig for x in _compose(DF[:len(w)], h)]
-    b_d = [x * (-fr.delta * sig) for x in _compose(DG[:len(w)], h)]
-    w_r: _taylor.Jet = [x[:, 0] for x in b_r]
-    w_d: _taylor.Jet = [x[:, 0] for x in b_d]
-    for j in range(1, fr.c.shape[0]):
-        r: _taylor.Jet = [x[:, j, None] for x in b_r]
-        d: _taylor.Jet = [x[:, j, None] for x in b_d]
-        w_r, w_d = ([cast(Tensor, x).flatten(0, 1) for x in _taylor.mul(r, w_r)],
-                    [(cast(Tensor, x) + cast(Tensor, y)).flatten(0, 1)
-                     for x, y in zip(_taylor.mul(r, w_d), _taylor.mul(d, w_r), strict=True)])
-    return [math.factorial(k) * torch.cat((cast(Tensor, x), cast(Tensor, y)))
-            for k, (x, y) in enumerate(zip(w_r, w_d, strict=True))]
+    b_r = torch.stack(_compose(DF[:len(w)], h)) * sig
+    b_d = torch.stack(_compose(DG[:len(w)], h)) * (-fr.delta * sig)
+    W = _SubsetJets.apply(b_r, b_d)
+    scale = W.new_tensor([float(math.factorial(k)) for k in range(len(w))])
+    return W * scale[:, None, None]
+
+
+def _cauchy(a: Tensor, b: Tensor) -> Tensor:
+    r"""Cauchy products :math:`(ab)_k = \sum_{i \le k} a_i b_{k-i}` of jets stacked along the
+    leading dim (``L`` coefficients; the other dims broadcast): one product per
+    coefficient of ``a``, added into the shifted rows."""
+    out = a[0] * b
+    for i in range(1, a.shape[0]):
+        out[i:] += a[i] * b[:-i]
+    return out
+
+
+def _cauchy_vjp(a: Tensor, g: Tensor) -> Tensor:
+    r"""The cotangent of ``b`` in :func:`_cauchy` ``(a, b)`` (unreduced over broadcast
+    dims): :math:`\sum_{k \ge i} g_k a_{k-i}`."""
+    out = a[0] * g
+    for i in range(1, a.shape[0]):
+        out[:-i] += a[i] * g[i:]
+    return out
+
+
+def _subset_jet_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
+    """:func:`_subset_levels` on stacked jets: ``b_r, b_d (L, 2, p, n)``; level ``j``
+    holds the products over factors ``1..j``, ``(L, 2^j, n)`` each."""
+    levels = [(b_r[:, :, 0], b_d[:, :, 0])]
+    for j in range(1, b_r.shape[2]):
+        w_r, w_d = (x[:, None] for x in levels[-1])  # (L, 1, 2^j, n) beside (L, 2, 1, n)
+        r, d = b_r[:, :, j, None], b_d[:, :, j, None]
+        levels.append((_cauchy(r, w_r).flatten(1, 2),
+                       (_cauchy(r, w_d) + _cauchy(d, w_r)).flatten(1, 2)))
+    return levels
+
+
+def _subset_jets(b_r: Tensor, b_d: Tensor) -> Tensor:
+    """:class:`_SubsetJets`' output in differentiable torch ops, ``(L, 2K, n)``."""
+    return torch.cat(_subset_jet_levels(b_r, b_d)[-1], 1)
+
+
+class _SubsetJets(torch.autograd.Function):
+    r"""The dual subset weights :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S}
+    \beta_j` on jets: ``b_r, b_d (L, 2, p, n)``, the Taylor coefficients of the real and
+    dual parts of :math:`(\beta_j, \alpha_j)` -> ``(L, 2K, n)``, real parts above dual
+    parts (:func:`_subset_jet_levels`). The backward is written out (:func:`_subset_vjp`
+    with Cauchy products: their adjoints, :func:`_cauchy_vjp`) instead of autograd over
+    hundreds of small products; where it is itself differentiated or batched, the
+    plain-op VJP of :func:`_subset_jets`."""
+
+    @staticmethod
+    def forward(b_r: Tensor, b_d: Tensor) -> Tensor:
+        return _subset_jets(b_r, b_d)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.save_for_backward(*inputs)
+
+    @staticmethod
+    def backward(ctx, grad):
+        b_r, b_d = ctx.saved_tensors
+        if batched(grad) or torch.is_grad_enabled():
+            return reference_vjp(_subset_jets, (b_r, b_d), grad)
+        levels = _subset_jet_levels(b_r, b_d)
+        g_r, g_d = grad.chunk(2, 1)
+        gb_r, gb_d = [], []
+        for j in range(b_r.shape[2] - 1, 0, -1):
+            w_r, w_d = (x[:, None] for x in levels[j - 1])
+            r, d = b_r[:, :, j, None], b_d[:, :, j, None]
+            g_r, g_d = g_r.unflatten(1, (2, -1)), g_d.unflatten(1, (2, -1))
+            gb_r.append((_cauchy_vjp(w_r, g_r) + _cauchy_vjp(w_d, g_d)).sum(2))
+            gb_d.append(_cauchy_vjp(w_r, g_d).sum(2))
+            g_r, g_d = ((_cauchy_vjp(r, g_r) + _cauchy_vjp(d, g_d)).sum(1),
+                        _cauchy_vjp(r, g_d).sum(1))
+        gb_r.append(g_r)
+        gb_d.append(g_d)
+        return torch.stack(gb_r[::-1], 2), torch.stack(gb_d[::-1], 2)
 
 
 class _Rows(torch.autograd.Function):
@@ -780,7 +847,6 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     table, pairs, first = _tables(ctrl, first, p)
     coefs = [w / math.factorial(k) for k, w in enumerate(weights)]
     full, squares = _full_pairs(pairs), torch.stack(angle_square(pairs[0]))
-    parts = [_weight_jets(full, squares, first[i], [w[:, i] for w in coefs])
-             for i in chunks(N, POSES_CHUNK)]
-    W = torch.stack([torch.cat(x, -1) for x in zip(*parts, strict=True)])
+    W = torch.cat([_weight_jets(full, squares, first[i], [w[:, i] for w in coefs])
+                   for i in chunks(N, POSES_CHUNK)], -1)
     return list(_Rows.apply(table, first, W, _runs(first)).unbind(0))
