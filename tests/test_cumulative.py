@@ -829,3 +829,25 @@ def test_subset_jets_backward_is_autograds(gen, p, L):
     assert all(float((x - y).abs().max()) <= 1e-12 for x, y in zip(a, b, strict=True))
     small = (b_r[..., :2].detach().requires_grad_(), b_d[..., :2].detach().requires_grad_())
     assert torch.autograd.gradgradcheck(_cumulative._SubsetJets.apply, small)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_derivatives_nan_control_point_stays_in_its_curve(gen, compiled):
+    """A NaN control point of one curve of a batch (the fused derivatives flatten the curves
+    into one table of span starts) leaves the other curve's derivatives and gradients
+    finite, eagerly and compiled, and makes its own curve's NaN."""
+    n, p = 9, 3
+    ctrl = torch.stack([align_chain(chain(n, gen)) for _ in range(2)])
+    ctrl[1, 4] = float("nan")
+    ctrl.requires_grad_()
+    knots = torch.arange(n + p + 1, dtype=F64)
+    t = torch.linspace(3.0, float(n), 200, dtype=F64)
+
+    def f(c):
+        return curves.bspline_derivatives(c, t, order=2, knots=knots, form="cumulative",
+                                          check=not compiled)
+
+    out = (torch.compile(f, fullgraph=True, backend="aot_eager") if compiled else f)(ctrl)
+    assert all(torch.isfinite(x[0]).all() and torch.isnan(x[1]).any() for x in out)
+    grad = torch.autograd.grad(sum(x[0].sum() for x in out), ctrl)[0]
+    assert torch.isfinite(grad[0]).all() and grad[0].abs().sum() > 0
