@@ -6,8 +6,7 @@ from __future__ import annotations
 import functools
 
 import torch
-
-from _bench import Bench, CURVES_ERROR, N_CTRL, curves, err, grad
+from _bench import CURVES_ERROR, N_CTRL, Bench, curves, err, grad
 from bench_bspline import FORMS, form_inputs
 
 

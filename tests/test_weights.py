@@ -175,8 +175,8 @@ def test_angle_square_against_mpmath(dtype, tol):
             yi, si = 1 - mp.mpf(float(c[i].detach())), mp.mpf(float(s[i]))
             if yi == 0:  # mpmath's F is 0 / 0 there (float32 rounds small y to 0)
                 continue
-            ref_F = mp.diff(lambda u: _F(u, yi), si, 2)
-            ref_G = mp.diff(lambda u: mp.diff(lambda z: _F(u, z), yi), si, 2)
+            ref_F = mp.diff(lambda u, yi=yi: _F(u, yi), si, 2)
+            ref_G = mp.diff(lambda u, yi=yi: mp.diff(lambda z: _F(u, z), yi), si, 2)
             F_ss = -th2[i] * w.F[row, i]
             G_ss = -(kappa[i] * w.F[row, i] + th2[i] * w.G[row, i])
             assert _rel_err(F_ss.detach(), ref_F) <= 10 * tol

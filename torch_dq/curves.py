@@ -564,7 +564,8 @@ def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: 
 def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
                      batch: torch.Size) -> list[Tensor]:
     """The cumulative form (:mod:`torch_dq._cumulative`): its basis in the time dtype, rounded
-    to the compute dtype of the sign-aligned ``ctrl``, then the product of powers."""
+    to the compute dtype of the sign-aligned ``ctrl``, then the product of powers: through
+    the span tables (:func:`_fused_cumulative`) where the fused ops may run, else its jets."""
     weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
     weights = [w.to(ctrl.dtype) for w in weights]
     if _kernels.fused_path(ctrl, *weights):
