@@ -245,38 +245,6 @@ def _span_tables(ctrl: Tensor, starts: Tensor, p: int,
     return table, torch.stack((sigma * rel[..., 0], sigma * rel[..., 4], sigma)).transpose(1, 2)
 
 
-def _subset_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
-    r"""The dual weights :math:`w_S` level by level: ``b_r, b_d (2, p, n)`` the real and
-    dual parts of :math:`(\beta_j, \alpha_j)`; level ``j`` holds the products over
-    ``1..j``, ``(2^j, n)`` each (index ``m``: bit ``i - 1`` set for :math:`\alpha_i`)."""
-    levels = [(b_r[:, 0], b_d[:, 0])]
-    for j in range(1, b_r.shape[1]):
-        w_r, w_d = levels[-1]
-        r, d = b_r[:, j, None], b_d[:, j, None]
-        levels.append(((w_r * r).flatten(0, 1),
-                       torch.addcmul(w_d * r, w_r, d).flatten(0, 1)))
-    return levels
-
-
-def _subset_vjp(levels: list[tuple[Tensor, Tensor]], b_r: Tensor, b_d: Tensor,
-                g_last: Tensor) -> tuple[Tensor, Tensor]:
-    """Cotangents of ``b_r, b_d (2, p, n)`` from ``g_last (2^(p+1), n)``, those of the last
-    level's real and dual parts one above the other (as the bags' weights, in rows)."""
-    p = b_r.shape[1]
-    g_r, g_d = g_last.chunk(2)
-    gb_r, gb_d = [], []
-    for j in range(p - 1, 0, -1):
-        w_r, w_d = levels[j - 1]
-        r, d = b_r[:, j, None], b_d[:, j, None]
-        g_r, g_d = g_r.unflatten(0, (2, -1)), g_d.unflatten(0, (2, -1))
-        gb_r.append((g_r * w_r + g_d * w_d).sum(1))
-        gb_d.append((g_d * w_r).sum(1))
-        g_r, g_d = torch.addcmul(g_r * r, g_d, d).sum(0), (g_d * r).sum(0)
-    gb_r.append(g_r)
-    gb_d.append(g_d)
-    return torch.stack(gb_r[::-1], 1), torch.stack(gb_d[::-1], 1)
-
-
 def _chunk_weights(full: Tensor, f: Tensor, w: Tensor, derivatives: bool = False,
                    need_w: bool = False) -> tuple[Frame, Weights | WeightSlopes, Tensor]:
     """The powers' frames (gathered per time), weights and the real parts ``b_r (2, p, n)``
@@ -482,7 +450,7 @@ class _Poses(torch.autograd.Function):
         kept = table.new_empty(6 * w.shape[0] * N if save else 0)
         for i, run in _parts(N, runs):
             fr, ws, b_r = _chunk_weights(full, first[i], w[:, i], save, False)
-            W = torch.cat(_subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1])
+            W = _subset_jets(b_r[None], _dual_parts(fr.sigma, fr.delta, ws.G)[None])[0]
             if save:
                 torch.stack((b_r, ws.G, cast(WeightSlopes, ws).H),
                             out=_kept(kept, i, w.shape))
@@ -529,15 +497,15 @@ class _Poses(torch.autograd.Function):
                 ws = cast(WeightSlopes, slopes)
                 sigma, delta, wG, wH = fr.sigma, fr.delta, ws.G, ws.H
             b_d = _dual_parts(sigma, delta, wG)
-            levels = _subset_levels(b_r, b_d)
+            levels = _subset_levels(b_r[None], b_d[None])
+            last = torch.cat(levels[-1], 1)[0]
             if run is not None:
-                gW = _run_cotangents(table.view(F, width, 8), torch.cat(levels[-1]),
-                                     to_rows(G), i, run, g_table)
+                gW = _run_cotangents(table.view(F, width, 8), last, to_rows(G), i, run, g_table)
             else:
-                W = bags[i] if saved and bags.shape[0] else torch.cat(levels[-1]).T
+                W = bags[i] if saved and bags.shape[0] else last.T
                 g_table = g_table + _segment_outer(W, G, f, F)
                 gW = _row_dots(table, f, G, F)
-            g_r, g_d = _subset_vjp(levels, b_r, b_d, gW)
+            g_r, g_d = (x[0] for x in _subset_vjp(levels, b_r[None], b_d[None], gW[None]))
             # b_r = (F0, sigma F1), b_d = -delta (G0, sigma G1): sensitivities to F and G
             sig = torch.stack((torch.ones_like(sigma), sigma))
             gF, gG = sig * g_r, -delta * sig * g_d
@@ -558,7 +526,7 @@ def _reference_poses(table: Tensor, pairs: Tensor, first: Tensor, w: Tensor) -> 
     """:class:`_Poses`' poses ``(N, 8)`` in plain torch ops, unchunked (its backward's
     reference under ``vmap``)."""
     fr, ws, b_r = _chunk_weights(_full_pairs(pairs), first, w)
-    W = torch.cat(_subset_levels(b_r, _dual_parts(fr.sigma, fr.delta, ws.G))[-1])
+    W = _subset_jets(b_r[None], _dual_parts(fr.sigma, fr.delta, ws.G)[None])[0]
     return _gathered_rows(table, first, W.T)
 
 
@@ -717,9 +685,12 @@ def _cauchy_vjp(a: Tensor, g: Tensor) -> Tensor:
     return out
 
 
-def _subset_jet_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
-    """:func:`_subset_levels` on stacked jets: ``b_r, b_d (L, 2, p, n)``; level ``j``
-    holds the products over factors ``1..j``, ``(L, 2^j, n)`` each."""
+def _subset_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
+    r"""The dual weights :math:`w_S` level by level, on jets stacked coefficient first:
+    ``b_r, b_d (L, 2, p, n)`` the Taylor coefficients of the real and dual parts of
+    :math:`(\beta_j, \alpha_j)` (``L = 1``: their values); level ``j`` holds the products over
+    ``1..j``, ``(L, 2^j, n)`` each (index ``m``: bit ``i - 1`` set for :math:`\alpha_i`),
+    Cauchy products of dual numbers (:func:`_cauchy`)."""
     levels = [(b_r[:, :, 0], b_d[:, :, 0])]
     for j in range(1, b_r.shape[2]):
         w_r, w_d = (x[:, None] for x in levels[-1])  # (L, 1, 2^j, n) beside (L, 2, 1, n)
@@ -729,18 +700,38 @@ def _subset_jet_levels(b_r: Tensor, b_d: Tensor) -> list[tuple[Tensor, Tensor]]:
     return levels
 
 
+def _subset_vjp(levels: list[tuple[Tensor, Tensor]], b_r: Tensor, b_d: Tensor,
+                grad: Tensor) -> tuple[Tensor, Tensor]:
+    """Cotangents of ``b_r, b_d (L, o, p, n)`` (``o`` options per factor) from ``grad (L,
+    2 o^p, n)``, those of the last level's real and dual parts one above the other (as the
+    bags' weights): the levels' products transposed (:func:`_cauchy_vjp`)."""
+    g_r, g_d = grad.chunk(2, 1)
+    gb_r, gb_d = [], []
+    for j in range(b_r.shape[2] - 1, 0, -1):
+        w_r, w_d = (x[:, None] for x in levels[j - 1])
+        r, d = b_r[:, :, j, None], b_d[:, :, j, None]
+        g_r, g_d = (x.unflatten(1, (b_r.shape[1], -1)) for x in (g_r, g_d))
+        gb_r.append((_cauchy_vjp(w_r, g_r) + _cauchy_vjp(w_d, g_d)).sum(2))
+        gb_d.append(_cauchy_vjp(w_r, g_d).sum(2))
+        g_r, g_d = ((_cauchy_vjp(r, g_r) + _cauchy_vjp(d, g_d)).sum(1),
+                    _cauchy_vjp(r, g_d).sum(1))
+    gb_r.append(g_r)
+    gb_d.append(g_d)
+    return torch.stack(gb_r[::-1], 2), torch.stack(gb_d[::-1], 2)
+
+
 def _subset_jets(b_r: Tensor, b_d: Tensor) -> Tensor:
     """:class:`_SubsetJets`' output in differentiable torch ops, ``(L, 2K, n)``."""
-    return torch.cat(_subset_jet_levels(b_r, b_d)[-1], 1)
+    return torch.cat(_subset_levels(b_r, b_d)[-1], 1)
 
 
 class _SubsetJets(torch.autograd.Function):
     r"""The dual subset weights :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S}
     \beta_j` on jets: ``b_r, b_d (L, 2, p, n)``, the Taylor coefficients of the real and
     dual parts of :math:`(\beta_j, \alpha_j)` -> ``(L, 2K, n)``, real parts above dual
-    parts (:func:`_subset_jet_levels`); with one option per factor, ``(L, 1, p, n)``, their
-    product ``(L, 2, n)``. The backward is written out (:func:`_subset_vjp`
-    with Cauchy products: their adjoints, :func:`_cauchy_vjp`) instead of autograd over
+    parts (:func:`_subset_levels`); with one option per factor, ``(L, 1, p, n)``, their
+    product ``(L, 2, n)``. The backward is written out (:func:`_subset_vjp`) instead of
+    autograd over
     hundreds of small products; where it is itself differentiated or batched, the
     plain-op VJP of :func:`_subset_jets`."""
 
@@ -757,20 +748,7 @@ class _SubsetJets(torch.autograd.Function):
         b_r, b_d = ctx.saved_tensors
         if batched(grad) or torch.is_grad_enabled():
             return reference_vjp(_subset_jets, (b_r, b_d), grad)
-        levels = _subset_jet_levels(b_r, b_d)
-        g_r, g_d = grad.chunk(2, 1)
-        gb_r, gb_d = [], []
-        for j in range(b_r.shape[2] - 1, 0, -1):
-            w_r, w_d = (x[:, None] for x in levels[j - 1])
-            r, d = b_r[:, :, j, None], b_d[:, :, j, None]
-            g_r, g_d = (x.unflatten(1, (b_r.shape[1], -1)) for x in (g_r, g_d))
-            gb_r.append((_cauchy_vjp(w_r, g_r) + _cauchy_vjp(w_d, g_d)).sum(2))
-            gb_d.append(_cauchy_vjp(w_r, g_d).sum(2))
-            g_r, g_d = ((_cauchy_vjp(r, g_r) + _cauchy_vjp(d, g_d)).sum(1),
-                        _cauchy_vjp(r, g_d).sum(1))
-        gb_r.append(g_r)
-        gb_d.append(g_d)
-        return torch.stack(gb_r[::-1], 2), torch.stack(gb_d[::-1], 2)
+        return _subset_vjp(_subset_levels(b_r, b_d), b_r, b_d, grad)
 
 
 class _Rows(torch.autograd.Function):
