@@ -32,8 +32,16 @@ import torch_dq.dualquat as dq
 from torch_dq import losses, quat
 
 F64 = torch.float64
-mp.mp.dps = 50
+DPS = 50  # mpmath's digits for the references (H_STEP^2 = 1e-36 needs them)
 H_STEP = mp.mpf("1e-18")
+
+
+@pytest.fixture(autouse=True)
+def _mp_precision():
+    """mpmath's precision for this module's tests only (another module's setting, left
+    global, made the second differences lose 6 digits)."""
+    with mp.workdps(DPS):
+        yield
 
 
 # ----------------------------------------------------------------------------- test-local algebra

@@ -24,6 +24,14 @@ from torch_dq._numerics import threshold
 F64, F32 = torch.float64, torch.float32
 
 
+@pytest.fixture(autouse=True)
+def _mp_precision():
+    """40 digits for this module's mpmath references, restored afterwards (set globally, it
+    leaked into other modules' references)."""
+    with mp.workdps(40):
+        yield
+
+
 def _F(s, y):
     theta = mp.acos(1 - y)
     return mp.sin(s * theta) / mp.sin(theta)
@@ -50,7 +58,6 @@ def _rel_err(x, ref):
 def test_kernel_weights_and_slopes_against_mpmath(dtype, tol):
     """F, G = dF/dy, H = dG/dy, Fs = dF/ds, Gs = dG/ds of ``screw_weights`` (both branches,
     the host-branch paths) against mpmath derivatives."""
-    mp.mp.dps = 40
     c, t = _samples(dtype, 0, 60, torch.Generator().manual_seed(0))
     w = kw.screw_weights(c, t, derivatives=True)
     worst = [0.0] * 5
@@ -100,7 +107,6 @@ def _taylor_ref(c_jet, t_jet, order):
 def test_jets_against_mpmath(order):
     """Jets of F and G of orders 1..3 (the curves' time derivatives) around their switch
     points: relative error <= 1e-11 (2e-12 measured for the third coefficient)."""
-    mp.mp.dps = 40
     gen = torch.Generator().manual_seed(2 + order)
     c, t = _samples(F64, order, 24, gen)
     # c(tau) = cos(theta + omega tau): a relative rotation turning at a rate omega
@@ -146,7 +152,6 @@ def test_angle_square_against_mpmath(dtype, tol):
     within 1 % of the switch point; then the constants of the weights' equations in ``s``:
     :math:`\partial_s^2 F = -\theta^2 F` and :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
     with the kernel's ``F, G`` against mpmath's second derivatives in ``s``."""
-    mp.mp.dps = 40
     gen = torch.Generator().manual_seed(1)
     switch = threshold("angle_square_series", dtype)
     y = torch.cat((torch.zeros(1, dtype=F64), 10.0 ** (-9.0 * torch.rand(30, generator=gen,
