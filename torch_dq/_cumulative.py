@@ -57,7 +57,7 @@ from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
 from ._kernels.weights import Angle, Weights, WeightSlopes, angle, angle_square
-from ._numerics import safe_denominator
+from ._numerics import even, safe_denominator
 
 __all__ = ["basis", "derivatives", "jets", "poses"]
 
@@ -248,11 +248,13 @@ def _span_tables(ctrl: Tensor, starts: Tensor, p: int,
 def _chunk_weights(full: Tensor, f: Tensor, w: Tensor, derivatives: bool = False,
                    need_w: bool = False) -> tuple[Frame, Weights | WeightSlopes, Tensor]:
     """The powers' frames (gathered per time), weights and the real parts ``b_r (2, p, n)``
-    of their dual factors of one chunk (``full (6 p, F)``: the pairs' frames and angles)."""
+    of their dual factors of one chunk (``full (6 p, F)``: the pairs' frames and angles, or
+    ``(7 p, F)`` with :math:`y = 1 - c` last, computed in a wider dtype)."""
     p, n = w.shape
-    g = full.index_select(1, f).view(6, p, n)
+    g = full.index_select(1, f).view(-1, p, n)
     fr = Frame(*g[:3])
-    ws = screw_weights(fr, w, derivatives, need_w, Angle(*g[3:]))
+    ws = screw_weights(fr, w, derivatives, need_w, Angle(*g[3:6]),
+                       g[6] if g.shape[0] == 7 else None)
     return fr, ws, torch.stack((ws.F[0], fr.sigma * ws.F[1]))
 
 
@@ -617,6 +619,19 @@ def _compose(D: list[Tensor], h: _taylor.Jet) -> list[Tensor]:
     return [D[0], *(sum(x[1:], x[0]) for x in terms[1:])]
 
 
+def _s_derivatives(F: Tensor, Fs: Tensor, G: Tensor, Gs: Tensor, th2: Tensor, kappa: Tensor,
+                   count: int) -> tuple[list[Tensor], list[Tensor]]:
+    r"""The derivatives :math:`\partial_s^m F`, :math:`\partial_s^m G`, ``m < count`` (at
+    least 2), of eq. 11's weights (or of sums of them) from their values and slopes by
+    :math:`\partial_s^2 F = -\theta^2 F`, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
+    (:func:`angle_square`)."""
+    DF, DG = [F, Fs], [G, Gs]
+    for m in range(2, count):
+        DF.append(-th2 * DF[m - 2])
+        DG.append(-(kappa * DF[m - 2] + th2 * DG[m - 2]))
+    return DF, DG
+
+
 def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> Tensor:
     r"""The bags' weights of :func:`_span_tables`' expansion and their time derivatives,
     ``(L, 2K, n)`` (order first, real parts above dual parts; the empty subset's rows hold
@@ -638,17 +653,27 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> T
     fr, slopes, _ = _chunk_weights(full, f, w[0], True, True)
     ws = cast(WeightSlopes, slopes)
     th2, kappa = squares.index_select(2, f)
-    DF, DG = [ws.F, cast(Tensor, ws.Fs)], [ws.G, cast(Tensor, ws.Gs)]
-    for m in range(2, len(w)):  # d^m/ds^m from d^(m-2)/ds^(m-2)
-        DF.append(-th2 * DF[m - 2])
-        DG.append(-(kappa * DF[m - 2] + th2 * DG[m - 2]))
+    Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
+    DF, DG = _s_derivatives(ws.F, Fs, ws.G, Gs, th2, kappa, len(w))
     h: _taylor.Jet = [None, *(torch.stack((-x, x)) for x in w[1:])]  # s = (1 - w, w)
     sig = torch.stack((torch.ones_like(fr.sigma), fr.sigma))
-    b_r = torch.stack(_compose(DF, h)) * sig
-    b_d = torch.stack(_compose(DG, h)) * (-fr.delta * sig)
-    W = _SubsetJets.apply(b_r, b_d)
-    total = _SubsetJets.apply(b_r.sum(1, keepdim=True), b_d.sum(1, keepdim=True))
-    K = W.shape[1] // 2  # the empty subset's rows 0 and K weigh c_f: sum_S w_S = prod (b + a)
+    W = _SubsetJets.apply(torch.stack(_compose(DF, h)) * sig,
+                          torch.stack(_compose(DG, h)) * (-fr.delta * sig))
+    # The empty subset's rows 0 and K weigh c_f by the total sum_S w_S = prod_j (beta_j +
+    # alpha_j), each factor F(1 - w) + sigma F(w) - eps delta (G(1 - w) + sigma G(w)) as a
+    # function of w. Its slope -F_s(1 - w) + F_s(w) cancels on a slow span: for sigma = 1 it
+    # is theta sin((1/2 - w) theta) / cos(theta / 2) (the sum is cos((1/2 - w) theta) /
+    # cos(theta / 2)), from theta^2 and sinc((1/2 - w) theta), exact to the last bits.
+    u = 0.5 - w[0]
+    slope = th2 * u * even("sinc", u * u * th2) / torch.sqrt(0.5 * (1.0 + fr.c))
+    TF, TG = _s_derivatives(ws.F[0] + fr.sigma * ws.F[1],
+                            torch.where(fr.sigma > 0, slope, fr.sigma * Fs[1] - Fs[0]),
+                            ws.G[0] + fr.sigma * ws.G[1], fr.sigma * Gs[1] - Gs[0], th2, kappa,
+                            len(w))
+    hw: _taylor.Jet = [None, *w[1:]]
+    total = _SubsetJets.apply(torch.stack(_compose(TF, hw))[:, None],
+                              torch.stack(_compose(TG, hw))[:, None] * -fr.delta)
+    K = W.shape[1] // 2
     W = torch.cat((total[:, :1], W[:, 1:K], total[:, 1:], W[:, K + 1:]), 1)
     scale = W.new_tensor([float(math.factorial(k)) for k in range(len(w))])
     return W * scale[:, None, None]
@@ -848,10 +873,13 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         points = ctrl[first[:, None] + torch.arange(p + 1, device=first.device)]
         return jets(points, [w.T for w in weights], order)
     # the tables' products and differences in float64: exact for nearly equal neighbours
+    # and the pairs' angles with y = 1 - c (the series' variable: a small angle's y is below
+    # float32's resolution at 1, and with it the weights' theta^2 terms)
     table, pairs, first = _tables(ctrl.to(torch.float64), first, p)
-    table, pairs = _difference_table(table, 2 ** (p + 1)).to(ctrl.dtype), pairs.to(ctrl.dtype)
+    table = _difference_table(table, 2 ** (p + 1)).to(ctrl.dtype)
+    full = torch.cat((_full_pairs(pairs), 1.0 - pairs[0])).to(ctrl.dtype)
+    squares = torch.stack(angle_square(pairs[0])).to(ctrl.dtype)
     coefs = [w / math.factorial(k) for k, w in enumerate(weights)]
-    full, squares = _full_pairs(pairs), torch.stack(angle_square(pairs[0]))
     W = torch.cat([_weight_jets(full, squares, first[i], [w[:, i] for w in coefs])
                    for i in chunks(N, POSES_CHUNK)], -1)
     return list(_Rows.apply(table, first, W, _runs(first)))

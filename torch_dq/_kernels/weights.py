@@ -185,7 +185,7 @@ def _closed_branch(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool,
 
 def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
                   time_slopes: bool = True, ang: Angle | None = None,
-                  host_branch: bool = False) -> Weights | WeightSlopes:
+                  host_branch: bool = False, y: Tensor | None = None) -> Weights | WeightSlopes:
     r"""Interpolation weights at :math:`\cos\theta = c` for ``s = (1 - t, t)``.
 
     Args:
@@ -202,13 +202,17 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
             the same to the bit). For the eager fused kernels on
             CPU: in float32 the series covers relative rotations up to ~40 degrees, so for
             a smooth trajectory no transcendental function is evaluated at all.
+        y: :math:`1 - c` if known more precisely than from the rounded ``c`` (computed in
+            a wider dtype): below float32's resolution at 1 a small angle's ``y`` is 0 or
+            one ulp of 1, and the series loses its :math:`\theta^2` terms.
 
     Returns:
         :class:`Weights` ``(F, G)``, or :class:`WeightSlopes` ``(F, G, H, Fs, Gs)`` with
         ``derivatives``; each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1 for ``b``
         (``s = t``).
     """
-    F, G, H, Fs, Gs = _weights(c, t, derivatives, time_slopes, ang, host_branch, dual=True)
+    F, G, H, Fs, Gs = _weights(c, t, derivatives, time_slopes, ang, host_branch, dual=True,
+                               y=y)
     F, G = cast(Tensor, F), cast(Tensor, G)  # computed with dual
     return WeightSlopes(F, G, cast(Tensor, H), Fs, Gs) if derivatives else Weights(F, G)
 
@@ -234,7 +238,7 @@ def slerp_weights(c: Tensor, t: Tensor, derivatives: bool = False, *, time_slope
 
 
 def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: Angle | None,
-             host_branch: bool, dual: bool) -> Parts:
+             host_branch: bool, dual: bool, y: Tensor | None = None) -> Parts:
     """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``[F, G, H, Fs, Gs]``,
     ``None`` where not computed.
 
@@ -246,7 +250,7 @@ def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: An
     """
     s = torch.stack((1.0 - t, t))
     s2 = s * s
-    y = 1.0 - c
+    y = 1.0 - c if y is None else y
     small = series_mask(y, s2, threshold("screw_series", c.dtype))
     return piecewise(
         small, host_branch,
