@@ -848,9 +848,11 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
 
     With the expansion of :func:`_span_tables`, :math:`X^{(k)}(t) = \sum_S w_S^{(k)}(t)\,
     T_S`: the tables are constant on a span, so the time derivatives fall on the scalar dual
-    weights alone (:func:`_weight_jets`, plain ops on ``(2, p, n)`` rows, not on
-    dual-quaternion jets as in :func:`jets`), and each order is one weighted sum of table
-    rows (:class:`_Rows`, analytic backward). Differentiable twice (reverse mode) with
+    weights alone (:func:`_weight_jets`: jets of ``(L, 2, p, n)`` rows, not dual-quaternion
+    jets as in :func:`jets`; the subset products' backward written out, :class:`_SubsetJets`),
+    and each order is one weighted sum of table rows (:class:`_Rows`, analytic backward).
+    The tables, the pairs' angles and ``y = 1 - c`` are computed in float64
+    (:func:`_difference_table`). Differentiable twice (reverse mode) with
     respect to ``ctrl`` and ``weights``; under ``torch.func`` transforms and forward AD
     (:func:`torch_dq._kernels.fused_path` false) use :func:`jets`.
 
