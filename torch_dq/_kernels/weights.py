@@ -124,10 +124,9 @@ def angle_square(c: Tensor) -> tuple[Tensor, Tensor]:
     small = y < threshold("angle_square_series", c.dtype)
     b = [2.0 * 2.0**k / (k * k * math.comb(2 * k, k)) for k in range(1, ANGLE_SQUARE_TERMS + 1)]
     ys = torch.where(small, y, 0.0)
-    th2, kappa = ys * b[-1], ys * (len(b) * b[-1])  # Horner with Python coefficients
-    for k in range(len(b) - 1, 1, -1):
-        th2, kappa = (th2 + b[k - 1]) * ys, (kappa + k * b[k - 1]) * ys
-    th2, kappa = (th2 + b[0]) * ys, kappa + b[0]
+    # 0-d coefficients made by a fill on the device (no host copy)
+    th2 = ys * _horner([ys.new_full((), x) for x in b], ys)
+    kappa = _horner([ys.new_full((), k * x) for k, x in enumerate(b, 1)], ys)
     theta = torch.acos(torch.where(small, 0.0, c))
     return (torch.where(small, th2, theta * theta),
             torch.where(small, kappa, 2.0 * theta / torch.sin(theta)))
