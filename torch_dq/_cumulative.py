@@ -37,8 +37,9 @@ accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
   per-time dual weights, one weighted sum of table rows per time; analytic backward.
 - :func:`derivatives`: the poses and their time derivatives the same way: the tables are
   constant on a span, so the derivatives fall on the scalar dual weights alone (jets of
-  ``(2, p, n)`` rows instead of dual-quaternion jets), each order one weighted sum of table
-  rows with an analytic backward (:class:`_Rows`); :func:`jets` is its plain-op reference.
+  ``(L, 2, p, n)`` rows instead of dual-quaternion jets), each order one weighted sum of
+  table rows with an analytic backward (:class:`_Rows`); :func:`jets` is its plain-op
+  reference.
 
 The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 """
@@ -52,7 +53,7 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import batched, index_add, products, reference_vjp
+from ._kernels import batched, index_add, opaque_scatter, products, reference_vjp
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -320,10 +321,9 @@ def _kept(kept: Tensor, part: slice, shape: torch.Size) -> Tensor:
 def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
     r""":math:`\sum_{n: f_n = s} W_n \otimes G_n` for every span start ``s``: ``W (n, k)``,
     ``G (n, 8)`` -> ``(F, k, 8)``, a scatter of the outer products (differentiable; sorted
-    times run per span instead, :func:`_runs`). Compiled on CPU, outside a differentiated
-    backward, :func:`_segment_outer_op` instead."""
-    if (torch.compiler.is_compiling() and W.device.type == "cpu"
-            and not torch.is_grad_enabled()):
+    times run per span instead, :func:`_runs`); :func:`_segment_outer_op` where
+    :func:`~torch_dq._kernels.opaque_scatter`."""
+    if opaque_scatter(W):
         return _segment_outer_op(W, G, f, F)
     return W.new_zeros(F, W.shape[1], 8).index_add(0, f, W[:, :, None] * G[:, None, :])
 
@@ -756,9 +756,8 @@ class _SubsetJets(torch.autograd.Function):
     dual parts of :math:`(\beta_j, \alpha_j)` -> ``(L, 2K, n)``, real parts above dual
     parts (:func:`_subset_levels`); with one option per factor, ``(L, 1, p, n)``, their
     product ``(L, 2, n)``. The backward is written out (:func:`_subset_vjp`) instead of
-    autograd over
-    hundreds of small products; where it is itself differentiated or batched, the
-    plain-op VJP of :func:`_subset_jets`."""
+    autograd over hundreds of small products; where it is itself differentiated or batched,
+    the plain-op VJP of :func:`_subset_jets`."""
 
     @staticmethod
     def forward(b_r: Tensor, b_d: Tensor) -> Tensor:

@@ -30,7 +30,7 @@ import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
 from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-__all__ = ["batched", "fused_path", "index_add", "reference_vjp"]
+__all__ = ["batched", "fused_path", "index_add", "opaque_scatter", "reference_vjp"]
 
 
 def fused_path(*tensors: Tensor) -> bool:
@@ -93,14 +93,21 @@ def reference_vjp(reference: Callable[..., Any], inputs: tuple[Tensor, ...],
     return vjp_fn(grads)
 
 
+def opaque_scatter(x: Tensor) -> bool:
+    """Whether a fused backward's sum onto a few rows (span starts, pairs, control points) of
+    ``x``'s device should run as an opaque op: compiled on CPU, outside a differentiated
+    backward. There inductor lowers such scatters to atomic adds from every thread, which
+    onto a few rows (64 control points from 4e5 level rows) cost several times aten's serial
+    kernel (:func:`index_add`; the cumulative form's ``_segment_outer``)."""
+    return (torch.compiler.is_compiling() and x.device.type == "cpu"
+            and not torch.is_grad_enabled())
+
+
 def index_add(x: Tensor, dim: int, index: Tensor, source: Tensor) -> Tensor:
     """``x.index_add(dim, index, source)`` for the fused backwards' sums onto control points
-    and pairs. Compiled on CPU, outside a differentiated backward, an op that
-    ``torch.compile`` calls as it is (:func:`_index_add_op`): inductor lowers the scatter to
-    atomic adds from every thread, which onto a few rows (64 control points from 4e5 level
-    rows) cost several times aten's serial kernel."""
-    if (torch.compiler.is_compiling() and x.device.type == "cpu"
-            and not torch.is_grad_enabled()):
+    and pairs; an op that ``torch.compile`` calls as it is (:func:`_index_add_op`) where
+    :func:`opaque_scatter`."""
+    if opaque_scatter(x):
         return _index_add_op(x, dim, index, source)
     return x.index_add(dim, index, source)
 
