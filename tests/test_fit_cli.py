@@ -4,6 +4,7 @@ import json
 import pathlib
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -314,6 +315,22 @@ def test_out_naming_a_file_is_one_line_naming_out(tmp_path, capsys):
     line = _error_line(capsys)
     assert f"--out {target} is a file, not a folder" in line
     assert target.read_text() == "keep me"
+
+
+def test_three_poses_plot_without_warnings(tmp_path, capsys):
+    """Three poses 10 ms apart with ``--degree 1`` (the hint the CLI gives for them) and the
+    figures: the finite differences of the kinematics figure span the file (they asked for
+    poses 40 ms apart: an empty slice, numpy warnings and a 'nan ms' legend)."""
+    pytest.importorskip("matplotlib")
+    first = io.read_trajectory(SHIPPED).select(slice(0, 3))
+    times = first.times[0] + torch.tensor([0.0, 0.01, 0.02], dtype=torch.float64)  # 100 Hz
+    three = _write_tum(tmp_path / "three.txt",
+                       io.Trajectory(times, first.rotations, first.translations))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["fit", str(three), "--out", str(tmp_path / "o"), "--degree", "1",
+                     "--quiet"]) == 0
+    assert (tmp_path / "o" / "kinematics.png").exists()
 
 
 def test_earlier_results_need_overwrite(tmp_path, capsys):

@@ -83,9 +83,10 @@ def plot_components(Figure, Canvas, path: str, r) -> str:
 
 def _finite_differences(r) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Speed and angular rate (deg/s) from the file's poses ~0.04 s apart (a shorter step
-    only shows the file's rounding): (mid times, speeds, rates, step in ms)."""
+    only shows the file's rounding; at most the whole file for a short one): (mid times,
+    speeds, rates, step in ms)."""
     t_rel = (r.traj.times - r.t0).numpy()
-    k = max(1, round(0.04 / float(np.median(np.diff(t_rel)))))
+    k = min(max(1, round(0.04 / float(np.median(np.diff(t_rel))))), len(t_rel) - 1)
     dt = t_rel[k:] - t_rel[:-k]
     p = r.traj.translations.numpy()
     speed = np.linalg.norm(p[k:] - p[:-k], axis=-1) / dt
