@@ -37,9 +37,9 @@ from strategies import adversarial_dqs, screw, unit_dq
 
 import torch_dq.dual as D
 import torch_dq.dualquat as dq
-from torch_dq import curves
+from torch_dq import _taylor, curves
 from torch_dq._kernels import dual_angle as angle_kernel
-from torch_dq._kernels import layout
+from torch_dq._kernels import jet_pyramid, layout
 from torch_dq._kernels import sclerp as sclerp_kernel
 from torch_dq._kernels import slerp as slerp_kernel
 from torch_dq.dual import Dual
@@ -446,6 +446,101 @@ def test_pyramid_gradients_first_and_second_order(gen, name):
     nested = torch.func.jvp(inner, (ctrl, t), tuple(v))[1]
     quadratic = sum((h * u).sum() for h, u in zip(fused_hvp, v, strict=True))
     assert abs(nested - quadratic) < 1e-10 * max(1.0, abs(quadratic.item()))
+
+
+# ----------------------------------------------------------------------------- jets of the scheme
+
+def jet_ctrl(gen, n):
+    """Control polygons ``(4, n, 8)`` for the jets: :func:`curve_ctrl`'s (random, a repeated
+    pose, a pure translation, a 1e-9 turn) and one of screw steps of 1e-6 rad, a sign-flipped
+    repeat and a step of pi - 1e-3 rad (float64)."""
+    ctrl = torch.cat((curve_ctrl(gen, n), unit_dq((1, n), gen, scale=2.0)))
+    steps = [1e-6, 0.0, math.pi - 1e-3] + [0.4] * (n - 4)
+    for i, theta in enumerate(steps, start=1):
+        axis, moment, th, d = screw((), gen, theta, 0.3)
+        ctrl[3, i] = dq.mul(ctrl[3, i - 1], dq.from_screw(axis, moment, th, d))
+    ctrl[3, 2] = -ctrl[3, 1]  # the step of 0: the same pose, other sign
+    return ctrl
+
+
+@pytest.mark.parametrize("name,degree", [("bezier", 4), ("bspline", 1), ("bspline", 2),
+                                         ("bspline", 3), ("bspline", 5)])
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_jet_pyramid_backward_is_the_plain_jets_vjp(gen, monkeypatch, name, degree, order):
+    """The written-out backward of the scheme on jets (:mod:`torch_dq._kernels.jet_pyramid`)
+    gives the cotangents of autograd through the plain jets (``torch.func.vjp``, which takes
+    them), at equal, sign-flipped, nearly equal and nearly opposite neighbours."""
+    levels = []
+    monkeypatch.setattr(jet_pyramid, "_level_vjp",
+                        lambda p, qb, f=jet_pyramid._level_vjp: levels.append(1) or f(p, qb))
+    ctrl = jet_ctrl(gen, degree + 3)
+    t = torch.cat((torch.linspace(0, 1, 37, dtype=torch.float64),
+                   torch.rand(20, generator=gen, dtype=torch.float64)))
+
+    def f(c):
+        if name == "bezier":
+            return curves.bezier_derivatives(c, t, order=order, check=False)
+        return curves.bspline_derivatives(c, t, order=order, degree=degree, check=False)
+
+    w = [torch.randn(4, len(t), 8, generator=gen, dtype=torch.float64) for _ in range(order + 1)]
+    c = ctrl.clone().requires_grad_()
+    (fused,) = torch.autograd.grad(f(c), c, w)
+    assert levels  # the written-out backward ran
+    _, vjp = torch.func.vjp(f, ctrl)
+    assert rel(fused, vjp(tuple(w))[0]) < 1e-11
+
+
+def test_jet_pyramid_gradcheck_and_double_backward(gen):
+    """Finite differences of the order-2 jets at degenerate neighbours (first order: the
+    written-out backward), and their second derivatives (the plain jets' VJP, differentiable
+    again), in float64; a batched Jacobian (``vmap`` of the backward) as well."""
+    ctrl = jet_ctrl(gen, 5)[[1, 3]]  # a repeated pose, a translation; the steps
+    t = torch.tensor([0.05, 0.52, 0.95], dtype=torch.float64)
+
+    def f(c):
+        return curves.bspline_derivatives(c, t, order=2, check=False)
+
+    c = ctrl.requires_grad_()
+    assert torch.autograd.gradcheck(f, (c,))
+    assert torch.autograd.gradgradcheck(f, (c,), fast_mode=True)
+    jac = torch.autograd.functional.jacobian(lambda c: f(c)[2], ctrl, vectorize=True)
+    ref = torch.func.jacrev(lambda c: f(c)[2])(ctrl.detach())
+    assert rel(jac, ref) < 1e-11
+
+
+def test_weight_jets_backward_is_the_plain_vjp(gen):
+    """``_taylor.weights`` on jets of ``c`` (its backward written out through the jets of
+    ``G`` and ``H = dG/dy``) against autograd through the Taylor recurrences, over both
+    branches and the switch between them, orders 1-3; gradcheck (finite differences) and
+    gradgradcheck (the plain VJP) on a few elements."""
+    n = 4000
+    y = torch.cat((10 ** torch.empty(n // 2, dtype=torch.float64).uniform_(-12, -0.2,
+                                                                            generator=gen),
+                   torch.rand(n // 2, generator=gen, dtype=torch.float64)))
+    alpha = torch.rand(n, generator=gen, dtype=torch.float64) * 1.4 - 0.2
+    for order in (1, 2, 3):
+        c = [1.0 - y] + [0.05 * torch.randn(n, generator=gen, dtype=torch.float64)
+                         for _ in range(order)]
+        a = [alpha, torch.full_like(alpha, 0.7)] + [None] * (order - 1)
+        s = _taylor._stack(zip(_taylor._rsub(1.0, a), a, strict=True))
+        cs = [x.clone().requires_grad_() for x in c]
+        F, G = _taylor.weights(cs, s)
+        assert type(F[0].grad_fn).__name__ == "_WeightJetsBackward"
+        w = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in F + G]
+        fused = torch.autograd.grad(F + G, cs, w)
+        F2, G2, _ = _taylor._weight_parts(cs, s, with_H=False)
+        plain = torch.autograd.grad(F2 + G2, cs, w)
+        for x, r in zip(fused, plain, strict=True):
+            assert rel(x, r) < 1e-11
+        few = [x[::400].detach().clone().requires_grad_() for x in c]
+        s_few = [None if x is None else x[:, ::400] for x in s]
+
+        def g(*cs, s_few=s_few):
+            F, G = _taylor.weights(list(cs), s_few)
+            return tuple(F + G)
+
+        assert torch.autograd.gradcheck(g, tuple(few))
+        assert torch.autograd.gradgradcheck(g, tuple(few))
 
 
 # ----------------------------------------------------------------------------- non-finite input

@@ -43,10 +43,11 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from ._kernels import fused_path
+from ._kernels import batched, fused_path, reference_vjp
 from ._numerics import piecewise, screw_series_terms, series_mask, threshold
 
-__all__ = ["dq_mul", "dq_rows", "mul", "qmul_rows", "sclerp"]
+__all__ = ["dq_mul", "dq_rows", "mul", "pyramid", "qmul_rows", "sclerp", "sclerp_parts",
+           "weights_vjp"]
 
 Jet = list[Tensor | None]  # None: a coefficient known to be zero (skipped, never computed)
 
@@ -261,7 +262,21 @@ def weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     ``y max(1, s^2)`` is below the switch point of their order, the closed forms elsewhere
     (:func:`torch_dq._numerics.piecewise`; on guarded inputs: pairs in the series in both
     rows see ``c = 0``). Order 0 is what the fused kernels compute
-    (:func:`torch_dq._kernels.weights.screw_weights`)."""
+    (:func:`torch_dq._kernels.weights.screw_weights`). Where reverse mode will differentiate
+    jets of ``c`` alone (eager, :func:`torch_dq._kernels.fused_path`), one op whose
+    backward is written out (:class:`_WeightJets`)."""
+    if _WeightJets.applies(c, s):
+        out = _WeightJets.apply(s, *c)
+        return list(out[:len(c)]), list(out[len(c):])
+    F, G, _ = _weight_parts(c, s, with_H=False)
+    return F, G
+
+
+def _weight_parts(c: Jet, s: Jet, with_H: bool) -> tuple[Jet, Jet, Jet]:
+    r""":func:`weights`' jets ``F, G`` and, ``with_H``, the jets of :math:`H = \partial_y G`
+    (``[]`` without): the series' :math:`2 a_2\,` :func:`nested` ``(u, 2)``, the closed
+    form :math:`((1 - s^2) F - 3 G \cos\theta) / \sin^2\theta`
+    (:mod:`torch_dq._kernels.weights`)."""
     order = len(c) - 1
     c0, s0 = cast(Tensor, c[0]), cast(Tensor, s[0])
     y, s2 = _rsub(1.0, c), mul(s, s)
@@ -273,16 +288,114 @@ def weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     def series_parts(pick) -> list[Tensor | None]:
         y_, s_, s2_ = ([None if x is None else pick(x) for x in jet] for jet in (y, s, s2))
         out = series(y_, s_, s2_, screw_series_terms(order))
-        return [*out.F, *out.G]
+        H = mul(mul(_scale(out.a1, 0.2), _rsub(4.0, s2_)), nested(out.u, 2)) if with_H else []
+        return [*out.F, *out.G, *H]
 
     def closed_parts() -> list[Tensor | None]:
         # Guard the pairs whose rows both take the series: the others have y >= switch /
         # max(s^2), so their closed forms are finite (one angle per pair, not per row).
-        out = closed(s, angle(c, small[0] * small[1]))
-        return [*out.F, *out.G]
+        ang = angle(c, small[0] * small[1])
+        out = closed(s, ang)
+        H = (div(_sub(mul(_rsub(1.0, s2), out.F), _scale(mul(out.G, ang.cos), 3.0)), out.sin2)
+             if with_H else [])
+        return [*out.F, *out.G, *H]
 
     parts = piecewise(small, host, series_parts, closed_parts)
-    return parts[:order + 1], parts[order + 1:]
+    n = order + 1
+    return parts[:n], parts[n:2 * n], parts[2 * n:]
+
+
+class _WeightJets(torch.autograd.Function):
+    r""":func:`weights` on jets ``c`` (``order >= 1``) for constant jets ``s``, with the
+    backward written out: the jets of :math:`F(y(t), s(t))` depend on the coefficients of
+    :math:`y = 1 - c` through the jets of its partial derivative along the path,
+    :math:`\partial F_k / \partial y_i = (\partial_y F)_{k - i} = G_{k - i}` (perturb
+    :math:`y(t)` by :math:`\varepsilon t^i`), and likewise :math:`\partial G_k / \partial y_i
+    = H_{k - i}`; so
+
+    .. math::
+        \bar c_i = -\sum_{k \ge i} \big(\bar F_k\, G_{k - i} + \bar G_k\, H_{k - i}\big)
+
+    summed over the two rows of ``s``: the forward's ``G`` and the jets of ``H``
+    (:func:`_weight_parts`), instead of autograd through the Taylor recurrences (about 5x
+    the forward). Where the backward is itself differentiated or batched (``vmap``), the
+    plain ops' VJP (:func:`torch_dq._kernels.reference_vjp`)."""
+
+    @staticmethod
+    def applies(c: Jet, s: Jet) -> bool:
+        """Whether :func:`weights` takes this op: order >= 1, eager, reverse mode on ``c``
+        alone (the plain ops give ``s``'s gradient and every other mode)."""
+        c0 = cast(Tensor, c[0])
+        return (len(c) > 1 and torch.is_grad_enabled() and not torch.compiler.is_compiling()
+                and any(x is not None and x.requires_grad for x in c)
+                and not any(x is not None and x.requires_grad for x in s)
+                and fused_path(c0, cast(Tensor, s[0])))
+
+    @staticmethod
+    def forward(ctx, s: Jet, *c: Tensor | None):
+        F, G, H = _weight_parts(list(c), s, with_H=True)
+        ctx.set_materialize_grads(False)
+        ctx.s, ctx.H, ctx.n = s, H, len(c)
+        ctx.known = [x is not None for x in (*c, *G)]
+        ctx.save_for_backward(*(x for x in (*c, *G) if x is not None))
+        return (*F, *G)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        saved = iter(ctx.saved_tensors)
+        jets = [next(saved) if known else None for known in ctx.known]
+        n, H = ctx.n, ctx.H
+        c, G = jets[:n], jets[n:]
+        if batched(*grads) or torch.is_grad_enabled():
+            return (None, *_plain_weights_vjp(c, ctx.s, grads))
+        yb = weights_vjp(list(grads[:n]), list(grads[n:]), G, H)
+        return (None, *(None if ci is None or g is None else (-g).sum_to_size(ci.shape)
+                        for ci, g in zip(c, yb, strict=True)))
+
+
+def weights_vjp(Fb: Jet, Gb: Jet, G: Jet, H: Jet) -> Jet:
+    r"""The cotangents of the jets of :math:`y = 1 - c` from those of :func:`weights`'
+    ``F, G`` (:class:`_WeightJets`): :math:`\bar y_i = \sum_{k \ge i} \bar F_k G_{k - i}
+    + \bar G_k H_{k - i}`, per row of ``s`` (``G, H``: the forward's jets)."""
+    n = len(G)
+    return [_dot([*((Fb[k], G[k - i]) for k in range(i, n)),
+                  *((Gb[k], H[k - i]) for k in range(i, n))]) for i in range(n)]
+
+
+def _plain_weights_vjp(c: Jet, s: Jet, grads) -> list[Tensor | None]:
+    """:class:`_WeightJets`' cotangents of ``c`` through the plain ops (differentiable again;
+    batched under ``vmap``)."""
+    at = [i for i, x in enumerate(c) if x is not None]
+
+    def reference(*known: Tensor) -> tuple[Tensor, ...]:
+        jet: Jet = [None] * len(c)
+        for i, x in zip(at, known, strict=True):
+            jet[i] = x
+        F, G, _ = _weight_parts(jet, s, with_H=False)
+        return tuple(torch.zeros_like(cast(Tensor, F[0])) if x is None else x for x in F + G)
+
+    zero = torch.zeros_like
+    outs = reference(*(cast(Tensor, c[i]) for i in at))
+    cot = tuple(zero(o) if g is None else g for o, g in zip(outs, grads, strict=True))
+    got = reference_vjp(reference, tuple(cast(Tensor, c[i]) for i in at), cot)
+    out: list[Tensor | None] = [None] * len(c)
+    for i, g in zip(at, got, strict=True):
+        out[i] = g
+    return out
+
+
+class SclerpParts(NamedTuple):
+    """:func:`sclerp_parts`: the interpolated jets and the intermediates of the written-out
+    backward (:mod:`torch_dq._kernels.jet_pyramid`)."""
+
+    q: Jet  # (8, ...)
+    X: Jet  # (2, 8, ...): a and b's representative nearest to a
+    sign: Tensor  # (...): +-1, b's sign change
+    F: Jet  # (2, 1, ...)
+    G: Jet  # (2, 1, ...)
+    H: Jet  # (2, ...), [] without with_H
+    delta: Jet  # (...)
+    D: Jet  # (4, ...): G_0 P + G_1 R
 
 
 def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
@@ -291,9 +404,15 @@ def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
     (constant nearby). Components first: every product runs over contiguous rows and every
     dot product is a sum over the leading dim (fast on CPU, unlike a trailing dim of 4 or 8).
     """
+    return sclerp_parts(A, B, alpha).q
+
+
+def sclerp_parts(A: Jet, B: Jet, alpha: Jet, with_H: bool = False) -> SclerpParts:
+    r""":func:`sclerp` and its intermediates (:class:`SclerpParts`; ``with_H``: also the jets
+    of :math:`H = \partial_y G`, for a written-out backward)."""
     A0, B0 = cast(Tensor, A[0]), cast(Tensor, B[0])
-    flip = ((A0[:4] * B0[:4]).sum(0) < 0).to(B0.dtype)
-    B = _scale(B, 1.0 - 2.0 * flip)  # b's representative nearest to a
+    sign = 1.0 - 2.0 * ((A0[:4] * B0[:4]).sum(0) < 0).to(B0.dtype)
+    B = _scale(B, sign)  # b's representative nearest to a
     # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
     dots = mul(A, [None if b is None else torch.stack((b, torch.cat((b[4:], b[:4]))))
                    for b in B])
@@ -301,13 +420,33 @@ def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
     delta = [None if d is None else d[1].sum(0) for d in dots]
     # s = 1 - t for a, t for b
     s = _stack(zip(_rsub(1.0, alpha), alpha, strict=True))
-    F, G = ([None if w is None else w[:, None] for w in jet] for jet in weights(c, s))
+    F, G, H = _weight_parts(c, s, with_H=True) if with_H else (*weights(c, s), [])
+    F, G = ([None if w is None else w[:, None] for w in jet] for jet in (F, G))
     X = _stack(zip(A, B, strict=True))
     q = [None if x is None else x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
-    GP = mul(G, [None if x is None else x[:, :4] for x in X])
-    correction = mul(delta, [None if x is None else x.sum(0) for x in GP])
-    return [None if x is None else torch.cat((x[:4], cast(Tensor, _lin(x[4:], 1.0, corr, -1.0))))
-            for x, corr in zip(q, correction, strict=True)]
+    D = [None if x is None else x.sum(0) for x in mul(G, [None if x is None else x[:, :4]
+                                                          for x in X])]
+    correction = mul(delta, D)
+    q = [None if x is None else torch.cat((x[:4], cast(Tensor, _lin(x[4:], 1.0, corr, -1.0))))
+         for x, corr in zip(q, correction, strict=True)]
+    return SclerpParts(q, X, sign, F, G, H, delta, D)
+
+
+def pyramid(q: Jet, levels: list[Jet], kept: list[SclerpParts] | None = None) -> Jet:
+    """The triangular scheme of De Casteljau / De Boor on jets (readable; its written-out
+    backward: :mod:`torch_dq._kernels.jet_pyramid`): level 0 ``q (8, m, n)``, then per
+    level the jets ``alpha (m - j, n)`` of its local parameters; returns the jets of the
+    last level, ``(8, n)``. ``kept``: a list to which each level's :func:`sclerp_parts`
+    (with ``H``) is appended."""
+    for alpha in levels:
+        a, b = ([None if x is None else x[:, sl] for x in q]
+                for sl in (slice(None, -1), slice(1, None)))
+        if kept is None:
+            q = sclerp(a, b, alpha)
+        else:
+            kept.append(sclerp_parts(a, b, alpha, with_H=True))
+            q = kept[-1].q
+    return [None if x is None else x[:, 0] for x in q]
 
 
 def derivatives(jet: Jet) -> list[Tensor]:

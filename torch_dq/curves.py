@@ -80,6 +80,7 @@ from torch import Tensor
 
 from . import _checks, _cumulative, _kernels, _taylor, dualquat
 from ._core import align_chain
+from ._kernels import jet_pyramid
 from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
@@ -336,16 +337,16 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
     flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j).T for x in level)
             for j, level in enumerate(levels, start=1)]
     outs = []
-    for part in chunks(n, JET_CHUNK):  # temporaries stay in cache
+    parts = chunks(n, JET_CHUNK)  # temporaries stay in cache
+    # split, not sliced: one backward node for all chunks, not a zero-filled copy of the
+    # whole gradient per chunk
+    pieces = points.split(JET_CHUNK, -1) if len(parts) > 1 else (points,)
+    for part, piece in zip(parts, pieces, strict=True):
         # Zero Taylor coefficients are None (skipped): level 0 is constant, alpha affine.
-        q: list[Tensor | None] = [points[..., part].contiguous(), *[None] * order]
-        for alpha, slope in flat:
-            alpha, slope = alpha[:, part].contiguous(), slope[:, part].contiguous()
-            jet = [alpha, slope, *[None] * (order - 1)][:order + 1]
-            a, b = ([None if x is None else x[:, sl] for x in q]
-                    for sl in (slice(None, -1), slice(1, None)))
-            q = _taylor.sclerp(a, b, jet)
-        outs.append([x[:, 0].T for x in _taylor.derivatives(q)])
+        jets = [[alpha[:, part].contiguous(), slope[:, part].contiguous(),
+                 *[None] * (order - 1)][:order + 1] for alpha, slope in flat]
+        q = jet_pyramid.pyramid(piece.contiguous(), jets, order)
+        outs.append([x.T for x in _taylor.derivatives(q)])
     return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
 
