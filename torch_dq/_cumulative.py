@@ -256,13 +256,19 @@ def _chunk_weights(full: Tensor, f: Tensor, w: Tensor, derivatives: bool = False
     fr = Frame(*g[:3])
     ws = screw_weights(fr, w, derivatives, need_w, Angle(*g[3:6]),
                        g[6] if g.shape[0] == 7 else None)
-    return fr, ws, torch.stack((ws.F[0], fr.sigma * ws.F[1]))
+    return fr, ws, ws.F * _signs(fr.sigma)
 
 
 def _dual_parts(sigma: Tensor, delta: Tensor, G: Tensor) -> Tensor:
     r"""The dual parts ``b_d (2, p, n)`` of :math:`\beta, \alpha`: :math:`-\delta (G_0,
     \sigma G_1)`."""
-    return -delta * torch.stack((G[0], sigma * G[1]))
+    return -delta * (G * _signs(sigma))
+
+
+def _signs(sigma: Tensor, first: float = 1.0) -> Tensor:
+    """``(first, sigma)`` stacked, to weigh the two rows of eq. 11's weights (products, not
+    selected rows: their gradients are not zero-filled copies)."""
+    return torch.stack((torch.full_like(sigma, first), sigma))
 
 
 def _bags(f: Tensor, width: int, rows: int) -> Tensor:
@@ -656,7 +662,7 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> T
     Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
     DF, DG = _s_derivatives(ws.F, Fs, ws.G, Gs, th2, kappa, len(w))
     h: _taylor.Jet = [None, *(torch.stack((-x, x)) for x in w[1:])]  # s = (1 - w, w)
-    sig = torch.stack((torch.ones_like(fr.sigma), fr.sigma))
+    sig = _signs(fr.sigma)
     W = _SubsetJets.apply(torch.stack(_compose(DF, h)) * sig,
                           torch.stack(_compose(DG, h)) * (-fr.delta * sig))
     # The empty subset's rows 0 and K weigh c_f by the total sum_S w_S = prod_j (beta_j +
@@ -666,15 +672,15 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> T
     # cos(theta / 2)), from theta^2 and sinc((1/2 - w) theta), exact to the last bits.
     u = 0.5 - w[0]
     slope = th2 * u * even("sinc", u * u * th2) / torch.sqrt(0.5 * (1.0 + fr.c))
-    TF, TG = _s_derivatives(ws.F[0] + fr.sigma * ws.F[1],
-                            torch.where(fr.sigma > 0, slope, fr.sigma * Fs[1] - Fs[0]),
-                            ws.G[0] + fr.sigma * ws.G[1], fr.sigma * Gs[1] - Gs[0], th2, kappa,
-                            len(w))
+    neg = _signs(fr.sigma, -1.0)
+    TF, TG = _s_derivatives((ws.F * sig).sum(0),
+                            torch.where(fr.sigma > 0, slope, (Fs * neg).sum(0)),
+                            (ws.G * sig).sum(0), (Gs * neg).sum(0), th2, kappa, len(w))
     hw: _taylor.Jet = [None, *w[1:]]
     total = _SubsetJets.apply(torch.stack(_compose(TF, hw))[:, None],
                               torch.stack(_compose(TG, hw))[:, None] * -fr.delta)
     K = W.shape[1] // 2
-    W = torch.cat((total[:, :1], W[:, 1:K], total[:, 1:], W[:, K + 1:]), 1)
+    W = W.index_copy(1, torch.tensor([0, K], device=W.device), total)
     scale = W.new_tensor([float(math.factorial(k)) for k in range(len(w))])
     return W * scale[:, None, None]
 
