@@ -613,6 +613,52 @@ def test_fused_derivatives_match_jets(gen, p, count):
             assert float((x - y).abs().max()) <= 1e-10 * max(1.0, float(y.abs().max()))
 
 
+@pytest.mark.parametrize("p", [1, 2, 3, 5])
+def test_bag_jets_backward_is_autograds(gen, monkeypatch, p):
+    """The fused derivatives' written-out backward of the weight jets (``_BagJets``: the
+    derivatives in ``y`` by the weights' equations, the subsets' cotangents transposed)
+    gives autograd's cotangents through the same ops, to rounding, and the plain jets'
+    (another algorithm) to 1e-11, on a chain with equal, sign-flipped, nearly equal (1e-9,
+    1e-6 rad) and nearly opposite (pi - 1e-3) neighbours, sorted and scattered times,
+    orders 1-3."""
+    ran = []
+    monkeypatch.setattr(_cumulative._BagJets, "backward",
+                        staticmethod(lambda ctx, g, f=_cumulative._BagJets.backward:
+                                     ran.append(1) or f(ctx, g)))
+    n = p + 8
+    steps = [dq.exp(torch.tensor([0.0, 0.0, 0.0, 0.1, 0.0, 0.2], dtype=F64)),
+             dq.exp(torch.tensor([1e-9, 0.0, 0.0, 0.0, 0.3, 0.0], dtype=F64)),
+             dq.exp(torch.tensor([0.0, 1e-6, 0.0, 0.0, 0.0, 0.4], dtype=F64)),
+             dq.exp(torch.tensor([0.0, 0.0, math.pi - 1e-3, 0.5, 0.0, 0.0], dtype=F64))]
+    ctrl = chain(n, gen)
+    for k, step in enumerate(steps, start=2):
+        ctrl[k] = dq.mul(ctrl[k - 1], step)
+    ctrl[7] = -ctrl[6]
+    ctrl = align_chain(ctrl)
+    knots = knot_vector("nonuniform", n, p, gen)
+    t = domain_times(knots, p, 500)
+    for perm in (None, torch.randperm(500, generator=gen)):
+        tt = t if perm is None else t[perm]
+        r = KnotDomain(knots, p).span(tt)
+        for order in (1, 2, 3):
+            w = [x.T.contiguous() for x in _cumulative.basis(knots, r, tt, p, order)]
+            c = ctrl.clone().requires_grad_()
+            out = _cumulative.derivatives(c, r - p, w)
+            g = [torch.randn(x.shape, generator=gen, dtype=F64) for x in out]
+            ran.clear()
+            (written,) = torch.autograd.grad(out, c, g)
+            assert ran
+            with monkeypatch.context() as m:
+                m.setattr(_cumulative._BagJets, "applies", staticmethod(lambda *a: False))
+                (plain,) = torch.autograd.grad(_cumulative.derivatives(c, r - p, w), c, g)
+            scale = float(plain.abs().max())
+            assert float((written - plain).abs().max()) <= 1e-13 * scale
+            ref = _cumulative.jets(c[(r - p)[:, None] + torch.arange(p + 1)],
+                                   [x.T for x in w], order)
+            (jets,) = torch.autograd.grad(ref, c, g)
+            assert float((written - jets).abs().max()) <= 1e-11 * scale
+
+
 def test_fused_derivatives_static_segment_and_gradcheck(gen):
     """Equal neighbouring control points (a robot standing still: the relative motion is the
     identity, the weights' series branch) give finite derivatives and gradients equal to the

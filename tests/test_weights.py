@@ -53,20 +53,21 @@ def _rel_err(x, ref):
     return abs(float(x) - float(ref)) / max(1.0, abs(float(ref)))
 
 
-@pytest.mark.parametrize("dtype, tol", [(F64, (1e-15, 1e-12, 2e-9, 1e-15, 2e-12)),
-                                        (F32, (1e-6, 1e-5, 3e-4, 1e-6, 2e-5))])
+@pytest.mark.parametrize("dtype, tol", [(F64, (1e-15, 1e-12, 2e-9, 1e-15, 2e-12, 2e-9)),
+                                        (F32, (1e-6, 1e-5, 3e-4, 1e-6, 2e-5, 3e-4))])
 def test_kernel_weights_and_slopes_against_mpmath(dtype, tol):
-    """F, G = dF/dy, H = dG/dy, Fs = dF/ds, Gs = dG/ds of ``screw_weights`` (both branches,
-    the host-branch paths) against mpmath derivatives."""
+    """F, G = dF/dy, H = dG/dy, Fs = dF/ds, Gs = dG/ds, Hs = dH/ds of ``screw_weights``
+    (both branches, the host-branch paths) against mpmath derivatives."""
     c, t = _samples(dtype, 0, 60, torch.Generator().manual_seed(0))
-    w = kw.screw_weights(c, t, derivatives=True)
-    worst = [0.0] * 5
+    w = kw.screw_weights(c, t, derivatives=True, h_slope=True)
+    worst = [0.0] * 6
     for i in range(c.numel()):
         y = 1 - mp.mpf(float(c[i]))  # the rounded input's own y
         for row, s in enumerate((1 - mp.mpf(float(t[i])), mp.mpf(float(t[i])))):
             ref = (_F(s, y), mp.diff(lambda z: _F(s, z), y), mp.diff(lambda z: _F(s, z), y, 2),
                    mp.diff(lambda u: _F(u, y), s),
-                   mp.diff(lambda u, z: _F(u, z), (s, y), (1, 1)))
+                   mp.diff(lambda u, z: _F(u, z), (s, y), (1, 1)),
+                   mp.diff(lambda u, z: _F(u, z), (s, y), (1, 2)))
             for k, (x, r) in enumerate(zip(w, ref, strict=True)):
                 worst[k] = max(worst[k], _rel_err(x[row, i], r))
     assert all(e <= b for e, b in zip(worst, tol, strict=True)), worst
@@ -84,8 +85,8 @@ def test_kernel_weights_are_the_jets_of_order_0():
         w = kw.screw_weights(c, t, host_branch=True)
         F, G = _taylor.weights([c], [torch.stack((1.0 - t, t))])
         assert torch.equal(w.F, F[0]) and torch.equal(w.G, G[0])
-        plain = kw.screw_weights(c, t, derivatives=True, host_branch=False)
-        host = kw.screw_weights(c, t, derivatives=True, host_branch=True)
+        plain = kw.screw_weights(c, t, derivatives=True, host_branch=False, h_slope=True)
+        host = kw.screw_weights(c, t, derivatives=True, host_branch=True, h_slope=True)
         assert all(torch.equal(a, b) for a, b in zip(plain, host, strict=True))
 
 
@@ -146,7 +147,8 @@ def test_jets_are_differentiable_twice_across_the_switch():
 
 @pytest.mark.parametrize("dtype, tol", [(F64, 4e-14), (F32, 1e-6)])
 def test_angle_square_against_mpmath(dtype, tol):
-    r""":math:`\theta^2 = \arccos(c)^2`, :math:`\kappa = 2\theta/\sin\theta` and the first and
+    r""":math:`\theta^2 = \arccos(c)^2`, :math:`\kappa = 2\theta/\sin\theta`, its derivative in
+    ``y`` and the first and
     second derivatives of :math:`\theta^2` in ``c`` (reverse mode, twice), against mpmath, on
     ``y`` from 0 (equal rotations, where ``acos`` has no derivative) to 1 (``c = 0``), a third
     within 1 % of the switch point; then the constants of the weights' equations in ``s``:
@@ -158,7 +160,7 @@ def test_angle_square_against_mpmath(dtype, tol):
                                                                         dtype=F64)),
                    switch * (1.0 + 0.02 * (torch.rand(15, generator=gen, dtype=F64) - 0.5))))
     c = (1.0 - y).to(dtype).requires_grad_()
-    th2, kappa = kw.angle_square(c)
+    th2, kappa, kappa_y = kw.angle_square(c)
     d1 = torch.autograd.grad(th2.sum(), c, create_graph=True)[0]
     d2 = torch.autograd.grad(d1.sum(), c)[0]
     worst = 0.0
@@ -170,7 +172,7 @@ def test_angle_square_against_mpmath(dtype, tol):
 
         ref_kappa = -mp.diff(f, ci)  # d theta^2 / dy
         for x, r in ((th2[i], f(ci)), (kappa[i], ref_kappa), (d1[i], mp.diff(f, ci)),
-                     (d2[i], mp.diff(f, ci, 2))):
+                     (d2[i], mp.diff(f, ci, 2)), (kappa_y[i], mp.diff(f, ci, 2))):
             worst = max(worst, _rel_err(x.detach(), r))
     assert worst <= tol, worst
     t = torch.rand(c.numel(), generator=gen, dtype=F64).to(dtype)

@@ -47,13 +47,13 @@ The readable reference is :func:`torch_dq.curves._kim_kim_shin`.
 from __future__ import annotations
 
 import math
-from typing import cast
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import batched, index_add, opaque_scatter, products, reference_vjp
+from ._kernels import batched, fused_path, index_add, opaque_scatter, products, reference_vjp
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -247,15 +247,17 @@ def _span_tables(ctrl: Tensor, starts: Tensor, p: int,
 
 
 def _chunk_weights(full: Tensor, f: Tensor, w: Tensor, derivatives: bool = False,
-                   need_w: bool = False) -> tuple[Frame, Weights | WeightSlopes, Tensor]:
+                   need_w: bool = False,
+                   h_slope: bool = False) -> tuple[Frame, Weights | WeightSlopes, Tensor]:
     """The powers' frames (gathered per time), weights and the real parts ``b_r (2, p, n)``
     of their dual factors of one chunk (``full (6 p, F)``: the pairs' frames and angles, or
-    ``(7 p, F)`` with :math:`y = 1 - c` last, computed in a wider dtype)."""
+    ``(7 p, F)`` with :math:`y = 1 - c` last, computed in a wider dtype; ``h_slope``: as in
+    :func:`screw_weights`)."""
     p, n = w.shape
     g = full.index_select(1, f).view(-1, p, n)
     fr = Frame(*g[:3])
     ws = screw_weights(fr, w, derivatives, need_w, Angle(*g[3:6]),
-                       g[6] if g.shape[0] == 7 else None)
+                       g[6] if g.shape[0] == 7 else None, h_slope)
     return fr, ws, ws.F * _signs(fr.sigma)
 
 
@@ -638,12 +640,42 @@ def _s_derivatives(F: Tensor, Fs: Tensor, G: Tensor, Gs: Tensor, th2: Tensor, ka
     return DF, DG
 
 
+def _h_derivatives(DF: list[Tensor], DG: list[Tensor], H: Tensor, Hs: Tensor, th2: Tensor,
+                   kappa: Tensor, kappa_y: Tensor) -> list[Tensor]:
+    r""":math:`\partial_s^m H = \partial_y \partial_s^m G` (as :func:`_s_derivatives`, for
+    ``m < len(DF)``) by :math:`\partial_s^2 H = -\kappa' F - 2 \kappa G - \theta^2 H`: the
+    derivative in :math:`y` of the second equation, as ``DG`` is that of ``DF``."""
+    DH = [H, Hs]
+    for m in range(2, len(DF)):
+        DH.append(-(kappa_y * DF[m - 2] + 2.0 * kappa * DG[m - 2] + th2 * DH[m - 2]))
+    return DH
+
+
+class _BagParts(NamedTuple):
+    """What :class:`_BagJets`' backward keeps: the factors of the subsets (``b``) and of the
+    total weight (``t``), real and dual, ``(L, 2, p, n)`` and ``(L, 1, p, n)``, and their
+    products' levels; the jets of
+    their derivatives in :math:`y` per unit :math:`-\delta`: ``CG`` (of ``b_r``), ``CH``
+    (of ``b_d / -delta``), ``TG``, ``TH``; and ``delta (p, n)``."""
+
+    b_r: Tensor
+    b_d: Tensor
+    t_r: Tensor
+    t_d: Tensor
+    levels: list[list[tuple[Tensor, Tensor]]]  # :func:`_subset_levels` of b and t
+    CG: Tensor
+    CH: Tensor
+    TG: Tensor
+    TH: Tensor
+    delta: Tensor
+
+
 def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> Tensor:
     r"""The bags' weights of :func:`_span_tables`' expansion and their time derivatives,
     ``(L, 2K, n)`` (order first, real parts above dual parts; the empty subset's rows hold
     the total weight, :func:`_difference_table`), at times reading the span starts ``f
     (n,)``, from the ``L`` normalised Taylor coefficients ``w``, ``(p, n)`` each, of the
-    cumulative basis (any ``L``); ``full``: :func:`_full_pairs`, ``squares (2, p, F)``:
+    cumulative basis (any ``L``); ``full``: :func:`_full_pairs`, ``squares (3, p, F)``:
     :func:`angle_square` of the pairs.
 
     The span's frames are constant in time, so only the powers' dual weights
@@ -653,18 +685,29 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> T
     :math:`\partial_s^2 F = -\theta^2 F`, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`
     (:func:`angle_square`), their jets in time by composition with :math:`w_j(t)`
     (:func:`_compose`), and :math:`w_S = \prod_{j \in S} \alpha_j \prod_{j \notin S}
-    \beta_j` is a Cauchy product of dual-number jets (:class:`_SubsetJets`, its backward
-    written out). Torch ops on ``(L, 2, p, n)`` rows.
+    \beta_j` is a Cauchy product of dual-number jets (:class:`_SubsetJets`). Torch ops on
+    ``(L, 2, p, n)`` rows; where reverse mode differentiates the pairs alone, eagerly, one op
+    whose backward is written out (:class:`_BagJets`).
     """
-    fr, slopes, _ = _chunk_weights(full, f, w[0], True, True)
+    if _BagJets.applies(full, squares, w):
+        return _BagJets.apply(full, squares, f, *w)
+    return _bag_jets(full, squares, f, w)[0]
+
+
+def _bag_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor],
+              keep: bool = False) -> tuple[Tensor, _BagParts | None]:
+    """:func:`_weight_jets` and, with ``keep``, :class:`_BagParts`."""
+    fr, slopes, _ = _chunk_weights(full, f, w[0], True, True, keep)
     ws = cast(WeightSlopes, slopes)
-    th2, kappa = squares.index_select(2, f)
+    th2, kappa, kappa_y = squares.flatten(0, 1).index_select(1, f).view(3, -1, f.shape[0])
     Fs, Gs = cast(Tensor, ws.Fs), cast(Tensor, ws.Gs)
     DF, DG = _s_derivatives(ws.F, Fs, ws.G, Gs, th2, kappa, len(w))
     h: _taylor.Jet = [None, *(torch.stack((-x, x)) for x in w[1:])]  # s = (1 - w, w)
     sig = _signs(fr.sigma)
-    W = _SubsetJets.apply(torch.stack(_compose(DF, h)) * sig,
-                          torch.stack(_compose(DG, h)) * (-fr.delta * sig))
+    b_r, CG = (torch.stack(_compose(D, h)) * sig for D in (DF, DG))
+    b_d = CG * -fr.delta
+    levels: list[list[tuple[Tensor, Tensor]]] | None = [] if keep else None
+    W = _products(b_r, b_d, levels)
     # The empty subset's rows 0 and K weigh c_f by the total sum_S w_S = prod_j (beta_j +
     # alpha_j), each factor F(1 - w) + sigma F(w) - eps delta (G(1 - w) + sigma G(w)) as a
     # function of w. Its slope -F_s(1 - w) + F_s(w) cancels on a slow span: for sigma = 1 it
@@ -677,12 +720,85 @@ def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> T
                             torch.where(fr.sigma > 0, slope, (Fs * neg).sum(0)),
                             (ws.G * sig).sum(0), (Gs * neg).sum(0), th2, kappa, len(w))
     hw: _taylor.Jet = [None, *w[1:]]
-    total = _SubsetJets.apply(torch.stack(_compose(TF, hw))[:, None],
-                              torch.stack(_compose(TG, hw))[:, None] * -fr.delta)
+    t_r, t_G = (torch.stack(_compose(D, hw))[:, None] for D in (TF, TG))
+    t_d = t_G * -fr.delta
+    total = _products(t_r, t_d, levels)
     K = W.shape[1] // 2
     W = W.index_copy(1, torch.tensor([0, K], device=W.device), total)
-    scale = W.new_tensor([float(math.factorial(k)) for k in range(len(w))])
-    return W * scale[:, None, None]
+    W = W * _factorials(W, len(w))
+    if not keep:
+        return W, None
+    H, Hs = ws.H, cast(Tensor, ws.Hs)
+    DH = _h_derivatives(DF, DG, H, Hs, th2, kappa, kappa_y)
+    TH = _h_derivatives(TF, TG, (H * sig).sum(0), (Hs * neg).sum(0), th2, kappa, kappa_y)
+    return W, _BagParts(b_r, b_d, t_r, t_d, cast(list, levels), CG,
+                        torch.stack(_compose(DH, h)) * sig, t_G,
+                        torch.stack(_compose(TH, hw))[:, None], fr.delta)
+
+
+def _products(b_r: Tensor, b_d: Tensor, kept: list | None) -> Tensor:
+    """:class:`_SubsetJets` of the factors; with ``kept`` (in :class:`_BagJets`' forward,
+    where autograd records nothing), its levels appended there for the backward."""
+    if kept is None:
+        return _SubsetJets.apply(b_r, b_d)
+    kept.append(_subset_levels(b_r, b_d))
+    return torch.cat(kept[-1][-1], 1)
+
+
+def _factorials(W: Tensor, count: int) -> Tensor:
+    """``(count, 1, 1)``: ``k!``, the derivatives' scale of the normalised coefficients."""
+    return W.new_tensor([float(math.factorial(k)) for k in range(count)])[:, None, None]
+
+
+class _BagJets(torch.autograd.Function):
+    r""":func:`_weight_jets` with its backward written out, for cotangents of the pairs alone
+    (``full``: :math:`\delta` and :math:`y = 1 - c`).
+
+    Every quantity of a factor is a function of its pair's :math:`y` (the weights, their
+    slopes, :math:`\theta^2`, :math:`\kappa`) and, linearly, :math:`\delta`; and
+    :math:`\partial_y \partial_s^m F = \partial_s^m G`, :math:`\partial_y \partial_s^m G =
+    \partial_s^m H` (:func:`_h_derivatives`), so the derivative in :math:`y` of a factor's
+    jets is the composition of the next weight's (``CG``, ``CH``). The subsets' cotangents
+    come from :func:`_subset_vjp`; the total derivatives in :math:`y` go to the row of ``y``
+    (the angle rows and ``squares`` get none: their part is in it). Where the backward is
+    itself differentiated or batched, the plain ops' VJP."""
+
+    @staticmethod
+    def applies(full: Tensor, squares: Tensor, w: list[Tensor]) -> bool:
+        """Whether :func:`_weight_jets` takes this op: eager reverse mode on the pairs alone
+        (the basis' gradient, for ``t`` and the knots, through the plain ops)."""
+        return (torch.is_grad_enabled() and not torch.compiler.is_compiling()
+                and (full.requires_grad or squares.requires_grad) and full.shape[0] % 7 == 0
+                and not any(x.requires_grad for x in w) and fused_path(full, squares, *w))
+
+    @staticmethod
+    def forward(ctx, full: Tensor, squares: Tensor, f: Tensor, *w: Tensor) -> Tensor:
+        W, parts = _bag_jets(full, squares, f, list(w), keep=True)
+        ctx.parts = parts
+        ctx.save_for_backward(full, squares, f, *w)
+        return W
+
+    @staticmethod
+    def backward(ctx, gW):
+        full, squares, f, *w = ctx.saved_tensors
+        none = (None,) * (1 + len(w))  # f, w
+        if batched(gW) or torch.is_grad_enabled():
+            return (*reference_vjp(lambda a, b: _bag_jets(a, b, f, w)[0], (full, squares), gW),
+                    *none)
+        p: _BagParts = ctx.parts
+        gW = gW * _factorials(gW, len(w))
+        at = torch.tensor([0, gW.shape[1] // 2], device=gW.device)
+        gb_r, gb_d = _subset_vjp(p.levels[0], p.b_r, p.b_d, gW.index_fill(1, at, 0.0))
+        gt_r, gt_d = _subset_vjp(p.levels[1], p.t_r, p.t_d, gW.index_select(1, at))
+        gy = ((gb_r * p.CG - p.delta * gb_d * p.CH).sum((0, 1))
+              + (gt_r * p.TG - p.delta * gt_d * p.TH).sum((0, 1)))
+        gdelta = -((gb_d * p.CG).sum((0, 1)) + (gt_d * p.TG).sum((0, 1)))
+        n_p = gy.shape[0]
+        rows = full.new_zeros(2 * n_p, full.shape[1]).index_add(
+            1, f, torch.cat((gdelta, gy)))
+        grad = full.new_zeros(7, n_p, full.shape[1])
+        grad[1], grad[6] = rows[:n_p], rows[n_p:]
+        return grad.view(full.shape), None, *none
 
 
 def _difference_table(table: Tensor, width: int) -> Tensor:
@@ -820,9 +936,10 @@ class _Rows(torch.autograd.Function):
         width, N = W.shape[1:]
         F = table.shape[0] // width
         blocks = table.view(F, width, 8)
-        g_table, g_W = table.new_zeros(F, width, 8), torch.zeros_like(W)
+        g_table, g_W = table.new_zeros(F, width, 8), torch.empty_like(W)  # each row written
         for l, grad in enumerate(grads):
             if grad is None:
+                g_W[l].zero_()
                 continue
             grad = grad.contiguous()
             for i, run in _parts(N, ctx.runs):

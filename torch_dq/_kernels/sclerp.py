@@ -59,13 +59,14 @@ def frame(A: Tensor, B: Tensor, shortest: bool) -> Frame:
 
 
 def weights(fr: Frame, t: Tensor, derivatives: bool = False, time_slopes: bool = True,
-            ang: Angle | None = None, y: Tensor | None = None) -> Weights | WeightSlopes:
+            ang: Angle | None = None, y: Tensor | None = None,
+            h_slope: bool = False) -> Weights | WeightSlopes:
     """:func:`screw_weights` of a frame (``ang``: its :func:`angle`, ``y``: ``1 - c``, if
-    already known), evaluating only the branches in use in eager mode on CPU (where a host
-    read is free)."""
+    already known; ``h_slope``: as there), evaluating only the branches in use in eager mode
+    on CPU (where a host read is free)."""
     host = fr.c.device.type == "cpu" and not torch.compiler.is_compiling()
     return screw_weights(fr.c, t, derivatives, time_slopes=time_slopes, ang=ang,
-                         host_branch=host, y=y)
+                         host_branch=host, y=y, h_slope=h_slope)
 
 
 def combine(A: Tensor, B: Tensor, fr: Frame, w: Weights | WeightSlopes) -> Tensor:

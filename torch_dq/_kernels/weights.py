@@ -73,6 +73,7 @@ class WeightSlopes(NamedTuple):
     H: Tensor  # dG/dy
     Fs: Tensor | None  # dF/ds (None when the time derivatives were not asked for)
     Gs: Tensor | None  # dG/ds
+    Hs: Tensor | None = None  # dH/ds (asked for with h_slope)
 
 
 class RotationWeights(NamedTuple):
@@ -107,18 +108,20 @@ def angle(c: Tensor) -> Angle:
     return Angle(*(cast(Tensor, x[0]) for x in jets))
 
 
-def angle_square(c: Tensor) -> tuple[Tensor, Tensor]:
-    r""":math:`\theta^2 = \arccos(c)^2` and :math:`\kappa = d\theta^2/dy = 2\theta/\sin\theta`
-    (:math:`y = 1 - c`), the constants of the weights' equations in ``s``:
+def angle_square(c: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    r""":math:`\theta^2 = \arccos(c)^2`, :math:`\kappa = d\theta^2/dy = 2\theta/\sin\theta`
+    (:math:`y = 1 - c`) and :math:`\kappa' = d\kappa/dy = 2 (\sin\theta - \theta\cos\theta)
+    / \sin^3\theta`, the constants of the weights' equations in ``s``:
     :math:`\partial_s^2 F = -\theta^2 F` (``F = sin(s theta) / sin(theta)``) and, taking
-    :math:`\partial_y` of it, :math:`\partial_s^2 G = -\kappa F - \theta^2 G`.
+    :math:`\partial_y` of it, :math:`\partial_s^2 G = -\kappa F - \theta^2 G` and
+    :math:`\partial_s^2 H = -\kappa' F - 2 \kappa G - \theta^2 H` (``H = dG/dy``).
 
     Analytic in ``y``, so differentiable any number of times at equal rotations (``c = 1``,
     where :math:`\arccos` is not): below the switch point (:data:`THRESHOLDS`
     ``"angle_square_series"``) the series
     :math:`\theta^2 = 2 \sum_{k \ge 1} (2y)^k / (k^2 \binom{2k}{k})` (from
-    :math:`\theta = 2 \arcsin\sqrt{y/2}`) and its derivative, above it the closed forms on
-    guarded inputs. ``c`` in ``[0, 1]`` up to rounding (sign-aligned pairs).
+    :math:`\theta = 2 \arcsin\sqrt{y/2}`) and its derivatives, above it the closed forms
+    on guarded inputs. ``c`` in ``[0, 1]`` up to rounding (sign-aligned pairs).
     """
     y = 1.0 - c
     small = y < threshold("angle_square_series", c.dtype)
@@ -127,9 +130,12 @@ def angle_square(c: Tensor) -> tuple[Tensor, Tensor]:
     # 0-d coefficients made by a fill on the device (no host copy)
     th2 = ys * _horner([ys.new_full((), x) for x in b], ys)
     kappa = _horner([ys.new_full((), k * x) for k, x in enumerate(b, 1)], ys)
+    kappa_y = _horner([ys.new_full((), k * (k - 1) * x) for k, x in enumerate(b, 1)][1:], ys)
     theta = torch.acos(torch.where(small, 0.0, c))
+    sin = torch.sin(theta)
     return (torch.where(small, th2, theta * theta),
-            torch.where(small, kappa, 2.0 * theta / torch.sin(theta)))
+            torch.where(small, kappa, 2.0 * theta / sin),
+            torch.where(small, kappa_y, 2.0 * (sin - theta * c) / (sin * sin * sin)))
 
 
 def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
@@ -140,17 +146,18 @@ def _horner(coeffs: list[Tensor], y: Tensor) -> Tensor:
 
 
 def _series_branch(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slopes: bool,
-                   dual: bool) -> Parts:
-    """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``) near ``y = 0``; without
-    ``dual`` only ``F`` (and ``G, Fs``), the others ``None``."""
+                   dual: bool, h_slope: bool = False) -> Parts:
+    """Series branch (module docstring): ``F, G`` (and ``H, Fs, Gs``, and ``Hs`` with
+    ``h_slope``) near ``y = 0``, each the exact derivative of the truncated series before it;
+    without ``dual`` only ``F`` (and ``G, Fs``), the others ``None``."""
     series = _taylor.series([y], [s], [s2], _TERMS, with_G=dual or derivatives)
     F, G = series.F[0], series.G[0] if series.G else None
     if not derivatives:
-        return [F, G, None, None, None]
+        return [F, G, None, None, None, None]
     a1 = cast(Tensor, series.a1[0])
     H = 0.2 * a1 * (4.0 - s2) * cast(Tensor, _taylor.nested(series.u, 2)[0]) if dual else None
     if not time_slopes:
-        return [F, G, H, None, None]
+        return [F, G, H, None, None, None]
     # d a_k / ds by differentiating the recurrence a_k = a_{k-1} (k^2 - s^2) / (k (2k + 1)).
     a, da = [s], [torch.ones_like(s)]
     for k in range(1, _TERMS):
@@ -158,33 +165,37 @@ def _series_branch(s: Tensor, s2: Tensor, y: Tensor, derivatives: bool, time_slo
         da.append((da[-1] * (k * k - s2) - 2.0 * s * a[-1]) / d)
         a.append(a[-1] * (k * k - s2) / d)
     Gs = _horner([k * da[k] for k in range(1, _TERMS)], y) if dual else None
-    return [F, G, H, _horner(da, y), Gs]
+    Hs = _horner([k * (k - 1) * da[k] for k in range(2, _TERMS)], y) if h_slope else None
+    return [F, G, H, _horner(da, y), Gs, Hs]
 
 
 def _closed_branch(s: Tensor, ang: Angle, derivatives: bool, time_slopes: bool,
-                   dual: bool) -> Parts:
+                   dual: bool, h_slope: bool = False) -> Parts:
     """Closed forms (module docstring) at the angles ``ang`` (``dual``: as
     :func:`_series_branch`)."""
     jets = _taylor.AngleJets([ang.theta], [ang.sin], [ang.cos])
     closed = _taylor.closed([s], jets, with_G=dual or derivatives)
     F = cast(Tensor, closed.F[0])
     if not (dual or derivatives):
-        return [F, None, None, None, None]
+        return [F, None, None, None, None, None]
     G, sin2 = cast(Tensor, closed.G[0]), cast(Tensor, closed.sin2[0])
     if not derivatives:
-        return [F, G, None, None, None]
+        return [F, G, None, None, None, None]
     H = ((1.0 - s * s) * F - 3.0 * G * ang.cos) / sin2 if dual else None
     if not time_slopes:
-        return [F, G, H, None, None]
+        return [F, G, H, None, None, None]
     st, sin_st, cos_st = (cast(Tensor, x[0]) for x in (closed.st, closed.sin_st, closed.cos_st))
     Fs = ang.theta * cos_st / ang.sin
     Gs = (cos_st - st * sin_st - Fs * ang.cos) / sin2 if dual else None
-    return [F, G, H, Fs, Gs]
+    Hs = (((1.0 - s * s) * Fs - 2.0 * s * F - 3.0 * cast(Tensor, Gs) * ang.cos) / sin2
+          if h_slope else None)
+    return [F, G, H, Fs, Gs, Hs]
 
 
 def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
                   time_slopes: bool = True, ang: Angle | None = None,
-                  host_branch: bool = False, y: Tensor | None = None) -> Weights | WeightSlopes:
+                  host_branch: bool = False, y: Tensor | None = None,
+                  h_slope: bool = False) -> Weights | WeightSlopes:
     r"""Interpolation weights at :math:`\cos\theta = c` for ``s = (1 - t, t)``.
 
     Args:
@@ -204,16 +215,20 @@ def screw_weights(c: Tensor, t: Tensor, derivatives: bool = False, *,
         y: :math:`1 - c` if known more precisely than from the rounded ``c`` (computed in
             a wider dtype): below float32's resolution at 1 a small angle's ``y`` is 0 or
             one ulp of 1, and the series loses its :math:`\theta^2` terms.
+        h_slope: with ``derivatives`` and ``time_slopes``, also :math:`H_s = \partial_s H`
+            (closed form :math:`((1 - s^2) F_s - 2 s F - 3 G_s \cos\theta) /
+            \sin^2\theta`; the cumulative form's written-out backward of its time
+            derivatives needs it).
 
     Returns:
-        :class:`Weights` ``(F, G)``, or :class:`WeightSlopes` ``(F, G, H, Fs, Gs)`` with
+        :class:`Weights` ``(F, G)``, or :class:`WeightSlopes` ``(F, G, H, Fs, Gs, Hs)`` with
         ``derivatives``; each ``(2, N)``: row 0 for ``a`` (``s = 1 - t``), row 1 for ``b``
         (``s = t``).
     """
-    F, G, H, Fs, Gs = _weights(c, t, derivatives, time_slopes, ang, host_branch, dual=True,
-                               y=y)
+    F, G, H, Fs, Gs, Hs = _weights(c, t, derivatives, time_slopes, ang, host_branch,
+                                   dual=True, y=y, h_slope=h_slope)
     F, G = cast(Tensor, F), cast(Tensor, G)  # computed with dual
-    return WeightSlopes(F, G, cast(Tensor, H), Fs, Gs) if derivatives else Weights(F, G)
+    return WeightSlopes(F, G, cast(Tensor, H), Fs, Gs, Hs) if derivatives else Weights(F, G)
 
 
 def slerp_weights(c: Tensor, t: Tensor, derivatives: bool = False, *, time_slopes: bool = True,
@@ -232,13 +247,15 @@ def slerp_weights(c: Tensor, t: Tensor, derivatives: bool = False, *, time_slope
     Returns:
         :class:`RotationWeights`, each ``(2, N)`` (or ``None`` where not asked for).
     """
-    F, G, _, Fs, _ = _weights(c, t, derivatives, time_slopes, None, host_branch, dual=False)
+    F, G, _, Fs, _, _ = _weights(c, t, derivatives, time_slopes, None, host_branch,
+                                 dual=False)
     return RotationWeights(cast(Tensor, F), G, Fs)
 
 
 def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: Angle | None,
-             host_branch: bool, dual: bool, y: Tensor | None = None) -> Parts:
-    """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``[F, G, H, Fs, Gs]``,
+             host_branch: bool, dual: bool, y: Tensor | None = None,
+             h_slope: bool = False) -> Parts:
+    """:func:`screw_weights` (``dual``) or :func:`slerp_weights`: ``[F, G, H, Fs, Gs, Hs]``,
     ``None`` where not computed.
 
     The series where ``y max(1, s^2)`` (its terms scale like :math:`(s^2 y)^k`) is below the
@@ -253,6 +270,7 @@ def _weights(c: Tensor, t: Tensor, derivatives: bool, time_slopes: bool, ang: An
     small = series_mask(y, s2, threshold("screw_series", c.dtype))
     return piecewise(
         small, host_branch,
-        lambda pick: _series_branch(pick(s), pick(s2), pick(y), derivatives, time_slopes, dual),
+        lambda pick: _series_branch(pick(s), pick(s2), pick(y), derivatives, time_slopes, dual,
+                                    h_slope),
         lambda: _closed_branch(s, angle(c) if ang is None else ang, derivatives, time_slopes,
-                               dual))
+                               dual, h_slope))
