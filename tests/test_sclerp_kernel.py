@@ -2,8 +2,6 @@
 independent references: pytransform3d's ``dual_quaternions_sclerp`` (numpy, float64) for the
 values, central differences (``gradcheck``, ``gradgradcheck``) for the first and second
 derivatives, and the per-row loop of ``torch.autograd.grad`` for the backward under vmap.
-Also the ``(N, 8) -> (8, N)`` row layout through a product with the identity
-(``layout.dq_rows``) against the copy (``layout.to_rows``).
 
 Pairs: random, equal, pure translations (same rotation), an exact half turn (orthogonal
 real parts, a tie of the shortest path), tiny relative rotations with large translations;
@@ -11,8 +9,6 @@ real parts, a tie of the shortest path), tiny relative rotations with large tran
 """
 
 from __future__ import annotations
-
-import math
 
 import pytest
 import pytransform3d.trajectories as ptr
@@ -105,28 +101,3 @@ def test_backward_under_vmap(gen, small_chunks):
         for g, r in zip(batched, torch.autograd.grad(out, xs, w, retain_graph=True),
                         strict=True):
             assert torch.allclose(g[k], r, rtol=0.0, atol=1e-15)
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, F64, torch.bfloat16])
-def test_dq_rows_is_the_transpose(gen, dtype):
-    x = torch.randn(37, 8, generator=gen, dtype=F64).to(dtype)
-    x[3, 2] = -0.0
-    for y in (x, x[5:21], x[:1].expand(9, 8), x[:, :8:1].t().contiguous().t()):
-        rows = layout.dq_rows(y)
-        assert rows.shape == (8, len(y)) and rows.is_contiguous()
-        assert torch.equal(rows, y.t())  # -0.0 == 0.0: only the sign of a zero may change
-
-
-@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
-def test_dq_rows_keeps_non_finite_in_its_half(gen, bad):
-    """A non-finite component leaves the other pairs and the other half of its own pair
-    untouched (eq. 11 makes that half of the result non-finite anyway)."""
-    x = torch.randn(16, 8, generator=gen)
-    for k in range(8):
-        y = x.clone()
-        y[k, k] = bad
-        rows = layout.dq_rows(y)
-        other = slice(4, 8) if k < 4 else slice(0, 4)
-        assert not torch.isfinite(rows[k, k]) and torch.isfinite(rows[other, k]).all()
-        assert torch.equal(torch.cat((rows[:, :k], rows[:, k + 1:]), 1),
-                           torch.cat((x[:k], x[k + 1:])).t())

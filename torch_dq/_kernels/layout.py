@@ -35,24 +35,6 @@ def to_rows(x: Tensor) -> Tensor:
     return x.unsqueeze(-1).permute(1, 2, 0).contiguous().squeeze(1)
 
 
-def dq_rows(x: Tensor) -> Tensor:
-    """:func:`to_rows` of ``(N, 8)`` dual quaternions, the same values.
-
-    On CPU a contiguous float32/float64 ``x`` goes through one batched product of each half
-    (real, dual) with a 4 x 4 identity: the BLAS packing transposes ~1.5x faster than the
-    copy kernel's strided reads. The product is exact (a component times 1 plus zeros; only
-    the sign of a zero may change), and a non-finite component spreads only over its own
-    half of the pair (``0 * inf = nan``), which eq. 11 already makes non-finite as a whole.
-    Elsewhere (other dtypes, strided or broadcast ``x``, other devices, under
-    ``torch.compile``) it is :func:`to_rows`.
-    """
-    if (torch.compiler.is_compiling() or x.device.type != "cpu" or not x.is_contiguous()
-            or x.dtype not in (torch.float32, torch.float64)):
-        return to_rows(x)
-    eye = torch.eye(4, dtype=x.dtype, device=x.device)
-    return torch.matmul(eye, x.view(-1, 2, 4).permute(1, 2, 0)).view(8, -1)
-
-
 def from_rows(x: Tensor) -> Tensor:
     """Inverse of :func:`to_rows`: ``(k, N)`` rows -> contiguous ``(N, k)``."""
     return x.unsqueeze(1).permute(2, 0, 1).contiguous().squeeze(-1)
