@@ -19,4 +19,4 @@ __all__ = [
     "Dual", "DualQuaternion", "curves", "dual", "dual_angle", "dualquat", "fitting", "io",
     "losses", "nn", "quat", "sclerp",
 ]
-__version__ = "0.4.2"
+__version__ = "0.4.3"
