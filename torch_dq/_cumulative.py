@@ -53,7 +53,16 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import batched, fused_path, index_add, opaque_scatter, products, reference_vjp
+from ._kernels import (
+    batched,
+    index_add,
+    opaque_scatter,
+    products,
+    reference_vjp,
+    save,
+    saved,
+    written_backward,
+)
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -652,22 +661,34 @@ def _h_derivatives(DF: list[Tensor], DG: list[Tensor], H: Tensor, Hs: Tensor, th
 
 
 class _BagParts(NamedTuple):
-    """What :class:`_BagJets`' backward keeps: the factors of the subsets (``b``) and of the
-    total weight (``t``), real and dual, ``(L, 2, p, n)`` and ``(L, 1, p, n)``, and their
-    products' levels; the jets of
-    their derivatives in :math:`y` per unit :math:`-\delta`: ``CG`` (of ``b_r``), ``CH``
-    (of ``b_d / -delta``), ``TG``, ``TH``; and ``delta (p, n)``."""
+    r"""What :class:`_BagJets`' backward keeps: the real parts of the factors of the subsets
+    (``b_r (L, 2, p, n)``) and of the total weight (``t_r (L, 1, p, n)``); the jets of
+    their derivatives in :math:`y`, ``CG`` (of ``b_r``; also the dual parts per unit
+    :math:`-\delta`), ``CH`` (of ``CG``), ``TG``, ``TH`` (the same for ``t``); ``delta (p,
+    n)``; and the levels of both products (:func:`_subset_levels`)."""
 
     b_r: Tensor
-    b_d: Tensor
-    t_r: Tensor
-    t_d: Tensor
-    levels: list[list[tuple[Tensor, Tensor]]]  # :func:`_subset_levels` of b and t
     CG: Tensor
     CH: Tensor
+    t_r: Tensor
     TG: Tensor
     TH: Tensor
     delta: Tensor
+    levels_b: list[tuple[Tensor, Tensor]]
+    levels_t: list[tuple[Tensor, Tensor]]
+
+    def tensors(self) -> list[Tensor]:
+        """Every tensor, flat (:meth:`rebuild` inverts it)."""
+        return [*self[:7], *(x for lv in (self.levels_b, self.levels_t) for pair in lv
+                             for x in pair)]
+
+    @staticmethod
+    def rebuild(items: list[Tensor]) -> _BagParts:
+        """The parts from :meth:`tensors`."""
+        b_r, CG, CH, t_r, TG, TH, delta = items[:7]
+        pairs = list(zip(items[7::2], items[8::2], strict=True))
+        half = len(pairs) // 2
+        return _BagParts(b_r, CG, CH, t_r, TG, TH, delta, pairs[:half], pairs[half:])
 
 
 def _weight_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor]) -> Tensor:
@@ -731,9 +752,9 @@ def _bag_jets(full: Tensor, squares: Tensor, f: Tensor, w: list[Tensor],
     H, Hs = ws.H, cast(Tensor, ws.Hs)
     DH = _h_derivatives(DF, DG, H, Hs, th2, kappa, kappa_y)
     TH = _h_derivatives(TF, TG, (H * sig).sum(0), (Hs * neg).sum(0), th2, kappa, kappa_y)
-    return W, _BagParts(b_r, b_d, t_r, t_d, cast(list, levels), CG,
-                        torch.stack(_compose(DH, h)) * sig, t_G,
-                        torch.stack(_compose(TH, hw))[:, None], fr.delta)
+    kept = cast(list, levels)
+    return W, _BagParts(b_r, CG, torch.stack(_compose(DH, h)) * sig, t_r, t_G,
+                        torch.stack(_compose(TH, hw))[:, None], fr.delta, *kept)
 
 
 def _products(b_r: Tensor, b_d: Tensor, kept: list | None) -> Tensor:
@@ -766,30 +787,32 @@ class _BagJets(torch.autograd.Function):
     @staticmethod
     def applies(full: Tensor, squares: Tensor, w: list[Tensor]) -> bool:
         """Whether :func:`_weight_jets` takes this op: eager reverse mode on the pairs alone
-        (the basis' gradient, for ``t`` and the knots, through the plain ops)."""
-        return (torch.is_grad_enabled() and not torch.compiler.is_compiling()
-                and (full.requires_grad or squares.requires_grad) and full.shape[0] % 7 == 0
-                and not any(x.requires_grad for x in w) and fused_path(full, squares, *w))
+        (the basis' gradient, for ``t`` and the knots, through the plain ops), with ``y`` in
+        ``full`` (``7 p`` rows: it carries the total derivative in ``y``, ``squares`` none)."""
+        return (full.shape[0] == 7 * w[0].shape[0]
+                and written_backward([full], [squares.detach(), *w]))
 
     @staticmethod
     def forward(ctx, full: Tensor, squares: Tensor, f: Tensor, *w: Tensor) -> Tensor:
         W, parts = _bag_jets(full, squares, f, list(w), keep=True)
-        ctx.parts = parts
-        ctx.save_for_backward(full, squares, f, *w)
+        save(ctx, [full, squares, f, *w, *cast(_BagParts, parts).tensors()])
+        ctx.count = len(w)
         return W
 
     @staticmethod
     def backward(ctx, gW):
-        full, squares, f, *w = ctx.saved_tensors
+        items = cast(list[Tensor], saved(ctx))
+        full, squares, f, w = items[0], items[1], items[2], items[3:3 + ctx.count]
         none = (None,) * (1 + len(w))  # f, w
         if batched(gW) or torch.is_grad_enabled():
             return (*reference_vjp(lambda a, b: _bag_jets(a, b, f, w)[0], (full, squares), gW),
                     *none)
-        p: _BagParts = ctx.parts
+        p = _BagParts.rebuild(items[3 + ctx.count:])
         gW = gW * _factorials(gW, len(w))
         at = torch.tensor([0, gW.shape[1] // 2], device=gW.device)
-        gb_r, gb_d = _subset_vjp(p.levels[0], p.b_r, p.b_d, gW.index_fill(1, at, 0.0))
-        gt_r, gt_d = _subset_vjp(p.levels[1], p.t_r, p.t_d, gW.index_select(1, at))
+        gb_r, gb_d = _subset_vjp(p.levels_b, p.b_r, p.CG * -p.delta,
+                                 gW.index_fill(1, at, 0.0))
+        gt_r, gt_d = _subset_vjp(p.levels_t, p.t_r, p.TG * -p.delta, gW.index_select(1, at))
         gy = ((gb_r * p.CG - p.delta * gb_d * p.CH).sum((0, 1))
               + (gt_r * p.TG - p.delta * gt_d * p.TH).sum((0, 1)))
         gdelta = -((gb_d * p.CG).sum((0, 1)) + (gt_d * p.TG).sum((0, 1)))
@@ -971,7 +994,8 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     With the expansion of :func:`_span_tables`, :math:`X^{(k)}(t) = \sum_S w_S^{(k)}(t)\,
     T_S`: the tables are constant on a span, so the time derivatives fall on the scalar dual
     weights alone (:func:`_weight_jets`: jets of ``(L, 2, p, n)`` rows, not dual-quaternion
-    jets as in :func:`jets`; the subset products' backward written out, :class:`_SubsetJets`),
+    jets as in :func:`jets`; their backward written out, :class:`_BagJets`, or where the
+    basis is differentiated too, the subset products' alone, :class:`_SubsetJets`),
     and each order is one weighted sum of table rows (:class:`_Rows`, analytic backward).
     The tables, the pairs' angles and ``y = 1 - c`` are computed in float64
     (:func:`_difference_table`). Differentiable twice (reverse mode) with

@@ -43,11 +43,11 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from ._kernels import batched, fused_path, reference_vjp
+from ._kernels import batched, fused_path, reference_vjp, save, saved, written_backward
 from ._numerics import piecewise, screw_series_terms, series_mask, threshold
 
-__all__ = ["dq_mul", "dq_rows", "mul", "pyramid", "qmul_rows", "sclerp", "sclerp_parts",
-           "weights_vjp"]
+__all__ = ["corr", "dq_mul", "dq_rows", "mul", "pyramid", "qmul_rows", "sclerp",
+           "sclerp_parts", "weights_vjp"]
 
 Jet = list[Tensor | None]  # None: a coefficient known to be zero (skipped, never computed)
 
@@ -306,9 +306,10 @@ def _weight_parts(c: Jet, s: Jet, with_H: bool) -> tuple[Jet, Jet, Jet]:
 
 
 class _WeightJets(torch.autograd.Function):
-    r""":func:`weights` on jets ``c`` (``order >= 1``) for constant jets ``s``, with the
-    backward written out: the jets of :math:`F(y(t), s(t))` depend on the coefficients of
-    :math:`y = 1 - c` through the jets of its partial derivative along the path,
+    r""":func:`weights` on jets ``c`` (``order >= 1``) for jets ``s`` that are not
+    differentiated, with the backward written out: the jets of :math:`F(y(t), s(t))` depend
+    on the coefficients of :math:`y = 1 - c` through the jets of its partial derivative along
+    the path,
     :math:`\partial F_k / \partial y_i = (\partial_y F)_{k - i} = G_{k - i}` (perturb
     :math:`y(t)` by :math:`\varepsilon t^i`), and likewise :math:`\partial G_k / \partial y_i
     = H_{k - i}`; so
@@ -325,41 +326,39 @@ class _WeightJets(torch.autograd.Function):
     def applies(c: Jet, s: Jet) -> bool:
         """Whether :func:`weights` takes this op: order >= 1, eager, reverse mode on ``c``
         alone (the plain ops give ``s``'s gradient and every other mode)."""
-        c0 = cast(Tensor, c[0])
-        return (len(c) > 1 and torch.is_grad_enabled() and not torch.compiler.is_compiling()
-                and any(x is not None and x.requires_grad for x in c)
-                and not any(x is not None and x.requires_grad for x in s)
-                and fused_path(c0, cast(Tensor, s[0])))
+        return len(c) > 1 and written_backward(c, s)
 
     @staticmethod
     def forward(ctx, s: Jet, *c: Tensor | None):
         F, G, H = _weight_parts(list(c), s, with_H=True)
         ctx.set_materialize_grads(False)
-        ctx.s, ctx.H, ctx.n = s, H, len(c)
-        ctx.known = [x is not None for x in (*c, *G)]
-        ctx.save_for_backward(*(x for x in (*c, *G) if x is not None))
+        save(ctx, [*c, *G, *H, *s])
         return (*F, *G)
 
     @staticmethod
     def backward(ctx, *grads):
-        saved = iter(ctx.saved_tensors)
-        jets = [next(saved) if known else None for known in ctx.known]
-        n, H = ctx.n, ctx.H
-        c, G = jets[:n], jets[n:]
+        n, items = len(grads) // 2, saved(ctx)
+        c, G, H, s = (items[k * n:(k + 1) * n] for k in range(4))
         if batched(*grads) or torch.is_grad_enabled():
-            return (None, *_plain_weights_vjp(c, ctx.s, grads))
-        yb = weights_vjp(list(grads[:n]), list(grads[n:]), G, H)
+            return (None, *_plain_weights_vjp(c, s, grads))
+        yb = weights_vjp(list(grads[:n]), list(grads[n:]), G, H, [x is not None for x in c])
         return (None, *(None if ci is None or g is None else (-g).sum_to_size(ci.shape)
                         for ci, g in zip(c, yb, strict=True)))
 
 
-def weights_vjp(Fb: Jet, Gb: Jet, G: Jet, H: Jet) -> Jet:
+def corr(terms, i: int, value: float = 1.0) -> Tensor | None:
+    r"""The adjoint of Cauchy products :math:`z = x * y` (:func:`mul`), coefficient ``i``:
+    ``value`` :math:`\sum_{(\bar z, y)} \sum_{k \ge i} \bar z_k\, y_{k - i}` over the
+    pairs ``(z_bar, y)`` of jets (``None``: zero)."""
+    return _dot(((z[k], y[k - i]) for z, y in terms for k in range(i, len(z))), value=value)
+
+
+def weights_vjp(Fb: Jet, Gb: Jet, G: Jet, H: Jet, need: list[bool]) -> Jet:
     r"""The cotangents of the jets of :math:`y = 1 - c` from those of :func:`weights`'
     ``F, G`` (:class:`_WeightJets`): :math:`\bar y_i = \sum_{k \ge i} \bar F_k G_{k - i}
-    + \bar G_k H_{k - i}`, per row of ``s`` (``G, H``: the forward's jets)."""
-    n = len(G)
-    return [_dot([*((Fb[k], G[k - i]) for k in range(i, n)),
-                  *((Gb[k], H[k - i]) for k in range(i, n))]) for i in range(n)]
+    + \bar G_k H_{k - i}`, per row of ``s`` (``G, H``: the forward's jets), for the
+    coefficients ``i`` where ``need`` holds (``None`` elsewhere)."""
+    return [corr([(Fb, G), (Gb, H)], i) if wanted else None for i, wanted in enumerate(need)]
 
 
 def _plain_weights_vjp(c: Jet, s: Jet, grads) -> list[Tensor | None]:

@@ -30,7 +30,8 @@ import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
 from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-__all__ = ["batched", "fused_path", "index_add", "opaque_scatter", "reference_vjp"]
+__all__ = ["batched", "fused_path", "index_add", "opaque_scatter", "reference_vjp", "save",
+           "saved", "written_backward"]
 
 
 def fused_path(*tensors: Tensor) -> bool:
@@ -55,6 +56,39 @@ def fused_path(*tensors: Tensor) -> bool:
     if _forward_ad._current_level >= 0:
         return False
     return not any(is_functorch_wrapped_tensor(x) for x in tensors)
+
+
+def written_backward(differentiated: list[Tensor | None],
+                     constant: list[Tensor | None]) -> bool:
+    """Whether an op whose backward is written out for some of its inputs may run: eager
+    reverse mode (grad enabled, not compiling, :func:`fused_path`) where one of
+    ``differentiated`` requires grad and none of ``constant`` does (their gradients, and
+    every other mode, go through the op's plain torch ops).
+
+    Args:
+        differentiated: the inputs the written-out backward differentiates (``None``: zero).
+        constant: the inputs it treats as constants.
+    """
+    known = [x for x in (*differentiated, *constant) if x is not None]
+    return (torch.is_grad_enabled() and not torch.compiler.is_compiling()
+            and any(x is not None and x.requires_grad for x in differentiated)
+            and not any(x is not None and x.requires_grad for x in constant)
+            and fused_path(*known))
+
+
+def save(ctx: Any, items: list[Tensor | None]) -> None:
+    """``ctx.save_for_backward`` of ``items``, ``None`` entries allowed (:func:`saved` gives
+    them back in order): a written-out backward's intermediates are then freed after the
+    backward and seen by saved-tensor hooks (checkpointing, ``save_on_cpu``), unlike tensors
+    kept as attributes of ``ctx``."""
+    ctx.known = [x is not None for x in items]
+    ctx.save_for_backward(*(x for x in items if x is not None))
+
+
+def saved(ctx: Any) -> list[Tensor | None]:
+    """The ``items`` of :func:`save`, in order."""
+    tensors = iter(ctx.saved_tensors)
+    return [next(tensors) if known else None for known in ctx.known]
 
 
 def batched(*grads: Tensor | None) -> bool:

@@ -16,8 +16,8 @@ All of it is bilinear but the weights :math:`w`, whose jets depend on those of
 :math:`y = 1 - c` through the jets of :math:`\partial_y F = G` and :math:`\partial_y G = H`
 along the path (:func:`torch_dq._taylor.weights_vjp`). The adjoint of a Cauchy product
 :math:`z = x * y` is the correlation :math:`\bar x_i = \sum_{k \ge i} \bar z_k\, y_{k - i}`
-(:func:`_corr`): a level's backward is a few of them, and its cotangent reaches the level
-below as ``a``'s (positions ``0 .. L - 1``) plus ``b``'s (``1 .. L``).
+(:func:`torch_dq._taylor.corr`): a level's backward is a few of them, and its cotangent
+reaches the level below as ``a``'s (positions ``0 .. L - 1``) plus ``b``'s (``1 .. L``).
 
 It runs in eager reverse mode on the control points; the gradient of the local parameters
 (``t``, knots), a differentiated or batched backward and every other mode take the plain
@@ -27,48 +27,73 @@ jets.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import NamedTuple, cast
 
 import torch
 from torch import Tensor
 
 from .. import _taylor
-from .._taylor import Jet, SclerpParts
-from . import batched, fused_path, reference_vjp
+from .._taylor import Jet, SclerpParts, corr
+from . import batched, reference_vjp, save, saved, written_backward
 
 
 def pyramid(points: Tensor, levels: list[Jet], order: int) -> Jet:
     """The jets ``(8, n)`` of the last level of the scheme (:func:`torch_dq._taylor.pyramid`)
     from level 0 ``points (8, m, n)`` (constant in time) and the levels' jets ``alpha
     (m - j, n)``: :class:`_JetPyramid` where reverse mode differentiates ``points`` alone,
-    eagerly (:func:`torch_dq._kernels.fused_path`), the plain jets elsewhere."""
-    alphas = [x for level in levels for x in level if x is not None]
-    if (torch.is_grad_enabled() and points.requires_grad and not torch.compiler.is_compiling()
-            and not any(x.requires_grad for x in alphas) and fused_path(points, *alphas)):
+    eagerly (:func:`torch_dq._kernels.written_backward`), the plain jets elsewhere."""
+    if written_backward([points], [x for level in levels for x in level]):
         return list(_JetPyramid.apply(points, levels, order))
     return _taylor.pyramid([points, *[None] * order], levels)
 
 
+class _Level(NamedTuple):
+    """What the backward of a level keeps (jets; :func:`torch_dq._taylor.sclerp_parts`):
+    its input ``q (8, L + 1, n)``, ``b``'s sign change and the weights' and correction's
+    jets."""
+
+    q: Jet
+    sign: Tensor
+    F: Jet
+    G: Jet
+    H: Jet
+    delta: Jet
+    D: Jet
+
+
 class _JetPyramid(torch.autograd.Function):
     """:func:`torch_dq._taylor.pyramid` from constant ``points (8, m, n)`` with the
-    backward of the module docstring (:func:`_level_vjp`, level after level)."""
+    backward of the module docstring (:func:`_level_vjp`, level after level). Its
+    intermediates go through ``save_for_backward`` (:func:`torch_dq._kernels.save`)."""
 
     @staticmethod
     def forward(ctx, points: Tensor, levels: list[Jet], order: int):
         kept: list[SclerpParts] = []
         out = _taylor.pyramid([points, *[None] * order], levels, kept)
         ctx.set_materialize_grads(False)
-        ctx.kept, ctx.levels, ctx.order = kept, levels, order
-        ctx.save_for_backward(points)
+        items = [points, *(x for level in levels for x in level)]
+        for j, p in enumerate(kept):  # the input of level j + 1 is level j's output
+            q = kept[j - 1].q if j else [None] * (order + 1)
+            items += [*q, p.sign, *p.F, *p.G, *p.H, *p.delta, *p.D]
+        save(ctx, items)
+        ctx.sizes = len(levels), order + 1
         return tuple(out)
 
     @staticmethod
     def backward(ctx, *grads):
-        (points,) = ctx.saved_tensors
+        count, n = ctx.sizes
+        items = saved(ctx)
+        points = cast(Tensor, items[0])
+        levels = [items[1 + j * n:1 + (j + 1) * n] for j in range(count)]
         if batched(*grads) or torch.is_grad_enabled():
-            return _plain_vjp(points, ctx.levels, ctx.order, grads), None, None
+            return _plain_vjp(points, levels, n - 1, grads), None, None
+        per = 6 * n + 1  # q, sign, F, G, H, delta, D
         qb: Jet = [None if g is None else g.unsqueeze(1) for g in grads]
-        for parts in reversed(ctx.kept):
-            qb = _level_vjp(parts, qb)
+        for j in range(count - 1, -1, -1):
+            x = items[1 + count * n + j * per:1 + count * n + (j + 1) * per]
+            q = [points, *[None] * (n - 1)] if j == 0 else x[:n]
+            F, G, H, delta, D = (x[n + 1 + k * n:n + 1 + (k + 1) * n] for k in range(5))
+            qb = _level_vjp(_Level(q, cast(Tensor, x[n]), F, G, H, delta, D), qb)
         return qb[0], None, None
 
 
@@ -84,16 +109,9 @@ def _plain_vjp(points: Tensor, levels: list[Jet], order: int, grads) -> Tensor:
     return reference_vjp(reference, (points,), cot)[0]
 
 
-def _corr(terms: Iterable[tuple[Jet, Jet]], i: int, value: float = 1.0) -> Tensor | None:
-    r""":math:`value \sum_{(z, y)} \sum_{k \ge i} \bar z_k\, y_{k - i}` over pairs of jets
-    (the adjoint of Cauchy products, coefficient ``i``)."""
-    return _taylor._dot(((z[k], y[k - i]) for z, y in terms for k in range(i, len(z))),
-                        value=value)
-
-
 def _dots(terms: Iterable[tuple[Jet, Jet]], i: int, value: float = 1.0) -> Tensor | None:
-    """:func:`_corr` of row-wise products, summed over the component rows."""
-    out = _corr(terms, i, value)
+    """:func:`torch_dq._taylor.corr` of row-wise products, summed over the component rows."""
+    out = corr(terms, i, value)
     return None if out is None else out.sum(0)
 
 
@@ -118,23 +136,24 @@ def _shifted(ab: Tensor | None, bb: Tensor | None) -> Tensor | None:
     return torch.cat((ab[:, :1], ab[:, 1:] + bb[:, :-1], bb[:, -1:]), 1)
 
 
-def _level_vjp(p: SclerpParts, qb: Jet) -> Jet:
-    """The cotangents of a level's input jets ``(8, L + 1, n)`` from those of its output
-    ``qb (8, L, n)`` (module docstring; ``p``: :func:`torch_dq._taylor.sclerp_parts`)."""
+def _level_vjp(p: _Level, qb: Jet) -> Jet:
+    """The cotangents of a level's input jets ``p.q (8, L + 1, n)`` from those of its output
+    ``qb (8, L, n)`` (module docstring)."""
     n = len(qb)
-    A, B = _rows(p.X, 0), _rows(p.X, 1)
+    A = [None if x is None else x[:, :-1] for x in p.q]
+    B = [None if x is None else x[:, 1:] * p.sign for x in p.q]  # sign-aligned to a
     P, Q = _rows(A, slice(4)), _rows(A, slice(4, 8))
     R, S = _rows(B, slice(4)), _rows(B, slice(4, 8))
     qd = _rows(qb, slice(4, 8))
     # the dual rows' correction, q -= eps delta * D
     db = [_dots([(qd, p.D)], i, -1.0) for i in range(n)]
-    Db = [_corr([(qd, p.delta)], i, -1.0) for i in range(n)]
+    Db = [corr([(qd, p.delta)], i, -1.0) for i in range(n)]
     # the weights (q = F_0 * a + F_1 * b, D = G_0 * P + G_1 * R) back to c = 1 - y
     cb: Jet = [None] * n
     for r, X, X4 in ((0, A, P), (1, B, R)):
         Fb = [_dots([(qb, X)], i) for i in range(n)]
         Gb = [_dots([(Db, X4)], i) for i in range(n)]
-        yb = _taylor.weights_vjp(Fb, Gb, _rows(p.G, (r, 0)), _rows(p.H, r))
+        yb = _taylor.weights_vjp(Fb, Gb, _rows(p.G, (r, 0)), _rows(p.H, r), [True] * n)
         cb = [_taylor._lin(c, 1.0, y, -1.0) for c, y in zip(cb, yb, strict=True)]
     # a and b through F, D and the dots c = P * R, delta = P * S + Q * R
     F0, F1, G0, G1 = _rows(p.F, 0), _rows(p.F, 1), _rows(p.G, 0), _rows(p.G, 1)
@@ -143,9 +162,9 @@ def _level_vjp(p: SclerpParts, qb: Jet) -> Jet:
         if A[i] is None:  # a coefficient known to be zero (level 0 is constant)
             out.append(None)
             continue
-        ab = _halves(_corr([(Db, G0), (cb, R), (db, S)], i), _corr([(db, R)], i))
-        bb = _halves(_corr([(Db, G1), (cb, P), (db, Q)], i), _corr([(db, P)], i))
-        ab = _taylor._lin(_corr([(qb, F0)], i), 1.0, ab)
-        bb = _taylor._lin(_corr([(qb, F1)], i), 1.0, bb)
+        ab = _halves(corr([(Db, G0), (cb, R), (db, S)], i), corr([(db, R)], i))
+        bb = _halves(corr([(Db, G1), (cb, P), (db, Q)], i), corr([(db, P)], i))
+        ab = _taylor._lin(corr([(qb, F0)], i), 1.0, ab)
+        bb = _taylor._lin(corr([(qb, F1)], i), 1.0, bb)
         out.append(_shifted(ab, None if bb is None else bb * p.sign))
     return out

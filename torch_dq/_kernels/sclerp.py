@@ -6,7 +6,7 @@ Notation and weights: :mod:`torch_dq._kernels.weights`. The pieces (:func:`frame
 :func:`combine`, :func:`vjp_rows`) take rows ``(..., 8, N)`` of any strides: the fused curve
 scheme (:mod:`torch_dq._kernels.pyramid`) gathers contiguous rows, :class:`_Sclerp` works in
 the caller's ``(N, 8)`` memory seen as rows (``a.T``; no layout copies: its dot products are
-fused multiply-adds of the strided components, :func:`dot`, and it writes the output and the
+sums of products of the strided components, :func:`dot`, and it writes the output and the
 gradients in place).
 
 There is no forward-mode rule: under ``torch.func`` transforms and forward AD the public
@@ -162,10 +162,11 @@ class _Sclerp(torch.autograd.Function):
         a2, b2, t1 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1)
         if torch.compiler.is_compiling():  # one graph, no writes into buffers (Dynamo)
             return _forward(a2.T, b2.T, t1, shortest).T.reshape(a.shape)
-        out = torch.empty_like(a2)
+        out = a.new_empty(a.shape)  # the output itself, not a view (a caller may modify it)
+        flat = out.view(-1, 8)
         for i in chunks(t1.shape[0]):  # in the caller's layout, seen as rows
-            _forward(a2[i].T, b2[i].T, t1[i], shortest, out[i].T)
-        return out.view(a.shape)
+            _forward(a2[i].T, b2[i].T, t1[i], shortest, flat[i].T)
+        return out
 
     @staticmethod
     def setup_context(ctx, inputs, output):
