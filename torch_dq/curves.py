@@ -347,7 +347,8 @@ def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[T
                  *[None] * (order - 1)][:order + 1] for alpha, slope in flat]
         q = jet_pyramid.pyramid(piece.contiguous(), jets, order)
         outs.append([x.T for x in _taylor.derivatives(q)])
-    return [torch.cat(xs).view(*batch, T, 8) for xs in zip(*outs, strict=True)]
+    # contiguous: compiled, the one chunk's transpose would keep its column-major strides
+    return [torch.cat(xs).contiguous().view(*batch, T, 8) for xs in zip(*outs, strict=True)]
 
 
 # ----------------------------------------------------------------------------- public curves
