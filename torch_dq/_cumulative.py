@@ -498,7 +498,7 @@ class _Poses(torch.autograd.Function):
                 lambda *x: _reference_poses(x[0], x[1], first, x[2]), (table, pairs, w), grad)
             return g_table, g_pairs, None, g_w, None, None
         need_w, plain = ctx.needs_input_grad[3], not torch.is_grad_enabled()
-        saved = kept.shape[0] > 0 and not need_w and plain
+        reuse = kept.shape[0] > 0 and not need_w and plain
         runs = ctx.runs if plain else None  # the runs' products are not differentiable
         full = _full_pairs(pairs)
         p, F = pairs.shape[1:]
@@ -508,7 +508,7 @@ class _Poses(torch.autograd.Function):
         g_table, grad_w = table.new_zeros(F, width, 8), []
         for i, run in _parts(first.shape[0], runs):
             f, G = first[i], grad[i]
-            if saved:
+            if reuse:
                 sd = full.view(6, -1, F)[1:3].flatten(0, 1).index_select(1, f)
                 (delta, sigma), (b_r, wG, wH) = sd.view(2, p, -1), _kept(kept, i, w.shape)
             else:
@@ -521,12 +521,12 @@ class _Poses(torch.autograd.Function):
             if run is not None:
                 gW = _run_cotangents(table.view(F, width, 8), last, to_rows(G), i, run, g_table)
             else:
-                W = bags[i] if saved and bags.shape[0] else last.T
+                W = bags[i] if reuse and bags.shape[0] else last.T
                 g_table = g_table + _segment_outer(W, G, f, F)
                 gW = _row_dots(table, f, G, F)
             g_r, g_d = (x[0] for x in _subset_vjp(levels, b_r[None], b_d[None], gW[None]))
             # b_r = (F0, sigma F1), b_d = -delta (G0, sigma G1): sensitivities to F and G
-            sig = torch.stack((torch.ones_like(sigma), sigma))
+            sig = _signs(sigma)
             gF, gG = sig * g_r, -delta * sig * g_d
             g_delta = -(sig * wG * g_d).sum(0)
             g_c = -(wG * gF + wH * gG).sum(0)  # dF/dc = -G, dG/dc = -H
@@ -789,8 +789,7 @@ class _BagJets(torch.autograd.Function):
         """Whether :func:`_weight_jets` takes this op: eager reverse mode on the pairs alone
         (the basis' gradient, for ``t`` and the knots, through the plain ops), with ``y`` in
         ``full`` (``7 p`` rows: it carries the total derivative in ``y``, ``squares`` none)."""
-        return (full.shape[0] == 7 * w[0].shape[0]
-                and written_backward([full], [squares.detach(), *w]))
+        return full.shape[0] == 7 * w[0].shape[0] and written_backward([full], list(w))
 
     @staticmethod
     def forward(ctx, full: Tensor, squares: Tensor, f: Tensor, *w: Tensor) -> Tensor:

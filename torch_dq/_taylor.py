@@ -388,7 +388,6 @@ class SclerpParts(NamedTuple):
     backward (:mod:`torch_dq._kernels.jet_pyramid`)."""
 
     q: Jet  # (8, ...)
-    X: Jet  # (2, 8, ...): a and b's representative nearest to a
     sign: Tensor  # (...): +-1, b's sign change
     F: Jet  # (2, 1, ...)
     G: Jet  # (2, 1, ...)
@@ -428,7 +427,7 @@ def sclerp_parts(A: Jet, B: Jet, alpha: Jet, with_H: bool = False) -> SclerpPart
     correction = mul(delta, D)
     q = [None if x is None else torch.cat((x[:4], cast(Tensor, _lin(x[4:], 1.0, corr, -1.0))))
          for x, corr in zip(q, correction, strict=True)]
-    return SclerpParts(q, X, sign, F, G, H, delta, D)
+    return SclerpParts(q, sign, F, G, H, delta, D)
 
 
 def pyramid(q: Jet, levels: list[Jet], kept: list[SclerpParts] | None = None) -> Jet:
