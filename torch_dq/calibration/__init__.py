@@ -1,0 +1,23 @@
+r"""Target-based calibration of cameras: targets, corner files and corner detection.
+
+* :class:`Target`, :func:`aprilgrid`, :func:`checkerboard`, :func:`read_target`: Kalibr's
+  calibration targets (AprilGrid, checkerboard), their points in Kalibr's order and
+  Kalibr's target yaml.
+* :func:`read_corners`: corner detections from a CSV (``t_ns, tag_id, corner_idx, u_px,
+  v_px, X_m, Y_m, Z_m``), as ``(times, points, pixels)``.
+* :func:`detect`, :func:`detect_folder`: AprilGrid and checkerboard corners of grey images
+  (OpenCV's ArUco module and chessboard detector, sub-pixel refined).
+
+The target's frame is Kalibr's (``Z = 0`` on the board, ``X`` right and ``Y`` up seen from
+the front). OpenCV and PyYAML are optional: ``pip install torch_dq[calib]``; they are
+imported when a function needs them.
+"""
+
+from ._corners import CornersFileError, read_corners
+from ._detect import detect, detect_folder
+from ._targets import Target, aprilgrid, checkerboard, read_target
+
+__all__ = [
+    "CornersFileError", "Target", "aprilgrid", "checkerboard", "detect", "detect_folder",
+    "read_corners", "read_target",
+]
