@@ -119,7 +119,7 @@ def _numbers(path, cells: np.ndarray, lines: list[int], names: list[str],
                     np.array([text]).astype(dtype)
                 except (ValueError, OverflowError):
                     what = "an integer" if dtype is np.int64 else "a number"
-                    raise CornersFileError(path, n, f"{name}: {text!r} is not {what}"
+                    raise CornersFileError(path, n, f"{name}: {str(text)!r} is not {what}"
                                            ) from None
         raise
     if dtype is np.float64:

@@ -6,9 +6,13 @@ marker border finds the tags; a second pass
 first pass missed where the found ones predict them (tags of about 30 pixels, whose 3-pixel
 cells the first pass misreads: on the EuRoC frames of the tests the first pass finds 29 and
 30 of 36 tags, the second all 36); ids outside the grid and ids found twice are dropped.
-Each tag corner (a corner of the grid's checker pattern: the tag's black border meets a
-black corner square) is refined to sub-pixel with ``cv2.cornerSubPix`` in a window of
-about half the gap between tags.
+Each tag corner is a corner of the grid's checker pattern (the tag's black border meets a
+black corner square): it is pulled in with ``cv2.cornerSubPix`` (the detected quads lie
+about a tenth of the tag's side inside the corners), in a window inside the tag's border and
+short of the next corner, then placed at the saddle point of the smoothed image (a
+quadratic fit, :func:`_saddle`): on the rendered grids of the tests 0.015 to 0.04 px median
+error (``cornerSubPix`` alone: 0.085 px); on the real EuRoC frames the corners fit EuRoC's
+published camera with a homography to 0.14 px RMS.
 
 Corner numbering: a Kalibr AprilGrid prints each tag turned by 180 degrees with respect to
 OpenCV's marker image, so OpenCV's marker corners ``(0, 1, 2, 3)`` are Kalibr's corners
@@ -130,6 +134,43 @@ def _subpixel(cv2, image: np.ndarray, pixels: np.ndarray, half: int) -> np.ndarr
     return out
 
 
+def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``image`` (H, W) float sampled at ``xy`` (..., 2) (pixel centres at integers)."""
+    h, w = image.shape
+    x = np.clip(xy[..., 0], 0, w - 1.000001)
+    y = np.clip(xy[..., 1], 0, h - 1.000001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def _saddle(cv2, image: np.ndarray, pixels: np.ndarray, radius: int,
+            steps: int = 3) -> np.ndarray:
+    r"""Saddle points of the smoothed image near ``pixels`` (N, 2): the stationary point of
+    the quadratic ``a x^2 + b x y + c y^2 + d x + e y + f`` fitted by least squares to the
+    image (Gaussian-smoothed, sigma ``max(0.7, radius / 3)``) on a ``(2 radius + 1)^2``
+    grid, Newton-like from each pixel (``steps`` times). An X-junction of a checker pattern
+    is a saddle of the smoothed intensity (Lucchese and Mitra, "Using saddle points for
+    subpixel feature detection in camera calibration targets", APCCAS 2002); NaN where the
+    fit is no saddle (Hessian determinant >= 0) or its step leaves the grid."""
+    smooth = cv2.GaussianBlur(image.astype(np.float32), (0, 0), max(0.7, radius / 3))
+    d = np.arange(-radius, radius + 1, dtype=np.float64)
+    dy, dx = (g.ravel() for g in np.meshgrid(d, d, indexing="ij"))
+    fit = np.linalg.pinv(np.stack((dx * dx, dx * dy, dy * dy, dx, dy, np.ones_like(dx)), 1))
+    out = pixels.copy()
+    for _ in range(steps):
+        patches = _bilinear(smooth, out[:, None, :] + np.stack((dx, dy), 1))  # (N, P)
+        a, b, c, gx, gy, _ = fit @ patches.T
+        det = 4 * a * c - b * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.stack(((b * gy - 2 * c * gx) / det, (b * gx - 2 * a * gy) / det), -1)
+        bad = ~(det < 0) | ~(np.abs(step) <= radius).all(axis=1)
+        out = np.where(bad[:, None], np.nan, out + step)
+    return out
+
+
 def _aprilgrid(cv2, image: np.ndarray, target: Target):
     ids, quads = _tags(cv2, image, target)
     if ids.size == 0:
@@ -141,6 +182,8 @@ def _aprilgrid(cv2, image: np.ndarray, target: Target):
     # about a tenth of the side inside the tags' corners (the corner squares touch them).
     half = int(max(2, round(0.8 * min(gap, side / 5))))
     pixels = _subpixel(cv2, image, quads.reshape(-1, 2), half)
+    ok = np.isfinite(pixels).all(axis=1)
+    pixels[ok] = _saddle(cv2, image, pixels[ok], max(2, half // 2))
     tag_ids = np.repeat(ids, 4)
     corner_ids = np.tile(np.arange(4, dtype=np.int64), ids.size)
     return tag_ids, corner_ids, pixels
