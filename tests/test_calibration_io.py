@@ -95,7 +95,8 @@ def _corrupt(tmp_path, line, text):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("1403709385487836928,6,0,274.6642,abc,0.0,0.1144,0.0", r"line 100: v_px: 'abc' is not a number"),
+    ("1403709385487836928,6,0,274.6642,abc,0.0,0.1144,0.0",
+     r"line 100: v_px: 'abc' is not a number"),
     ("1403709385487836928,6,0,274.6642,57.4390,0.0,0.1144", r"line 100: expected 8 columns"),
     ("1403709385487836928.5,6,0,274.6,57.4,0.0,0.1144,0.0", r"line 100: t_ns: .* not an integer"),
     ("1403709385487836928,6,0,274.6642,nan,0.0,0.1144,0.0", r"line 100: non-finite value"),
@@ -365,7 +366,7 @@ def test_detect_rejects_tags_outside_the_grid():
 def test_detect_bad_arguments(image, error, match):
     with pytest.raises(error, match=f"calibration.detect: .*{match}"):
         calibration.detect(image, Target.aprilgrid(6, 6, 0.088, 0.3))
-    with pytest.raises(TypeError, match="expected a calibration.Target"):
+    with pytest.raises(TypeError, match=r"expected a calibration\.Target"):
         calibration.detect(np.zeros((40, 40), np.uint8), "april_6x6.yaml")
 
 
@@ -377,8 +378,7 @@ def test_detect_real_euroc_frames(cam):
     EuRoC's published intrinsics (0.14 px RMS measured; 1.4 px without undistortion)."""
     cv2 = pytest.importorskip("cv2")
     image = cv2.imread(str(DATA / f"{cam}_{FRAME}.png"), cv2.IMREAD_GRAYSCALE)
-    tags, corners, pixels, points = calibration.detect(image, Target.aprilgrid(6, 6, 0.088,
-                                                                               0.3))
+    tags, _, pixels, points = calibration.detect(image, Target.aprilgrid(6, 6, 0.088, 0.3))
     assert tags.unique().tolist() == list(range(36)) and pixels.shape == (144, 2)
     (f, c), dist = ((EUROC[cam][0][:2], EUROC[cam][0][2:])), np.array(EUROC[cam][1])
     K = np.array([[f[0], 0, c[0]], [0, f[1], c[1]], [0, 0, 1]])
@@ -399,7 +399,7 @@ def test_detect_folder(tmp_path, capsys):
     stamps = [1403709385537837056, 1403709385487836928, 1403709385587836928]
     truth = {}
     for k, ns in enumerate(stamps):
-        quad = np.array(QUADS["oblique"]) + [5 * k, -3 * k]
+        quad = np.array(QUADS["oblique"]) + np.array([5 * k, -3 * k])
         image, truth[ns] = _view(cv2, canvas, S, quad, seed=k)
         cv2.imwrite(str(folder / f"{ns}.png"), image)
     cv2.imwrite(str(folder / "1403709385637837056.png"), np.full((480, 640), 90, np.uint8))
@@ -432,7 +432,7 @@ def test_detect_folder_errors_and_empty(tmp_path):
     with pytest.raises(ValueError, match="no images"):
         calibration.detect_folder(tmp_path, target)
     cv2.imwrite(str(tmp_path / "frame_1.png"), np.zeros((40, 40), np.uint8))
-    with pytest.raises(ValueError, match="integer nanoseconds.*'frame_1.png'"):
+    with pytest.raises(ValueError, match=r"integer nanoseconds.*'frame_1\.png'"):
         calibration.detect_folder(tmp_path, target)
     (tmp_path / "frame_1.png").rename(tmp_path / "100.png")
     with pytest.raises(ValueError, match="min_corners must be an int >= 1"):

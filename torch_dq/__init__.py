@@ -6,17 +6,18 @@ Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions)
 :mod:`torch_dq.nn` (curve layers in the caller's time, unit-dual-quaternion parametrization),
 :mod:`torch_dq.fitting` (least-squares start and fit loop, re-exported by ``nn``),
 :mod:`torch_dq.losses` (sign-invariant pose losses),
-:mod:`torch_dq.io` (TUM, KITTI and EuRoC trajectory files).
+:mod:`torch_dq.io` (TUM, KITTI and EuRoC trajectory files),
+:mod:`torch_dq.calibration` (calibration targets, corner files and corner detection).
 """
 
-from . import curves, dual, dualquat, fitting, io, losses, nn, quat
+from . import calibration, curves, dual, dualquat, fitting, io, losses, nn, quat
 from .dual import Dual
 from .dualquat import angle as dual_angle
 from .dualquat import sclerp
 from .object import DualQuaternion
 
 __all__ = [
-    "Dual", "DualQuaternion", "curves", "dual", "dual_angle", "dualquat", "fitting", "io",
-    "losses", "nn", "quat", "sclerp",
+    "Dual", "DualQuaternion", "calibration", "curves", "dual", "dual_angle", "dualquat",
+    "fitting", "io", "losses", "nn", "quat", "sclerp",
 ]
 __version__ = "0.4.3"

@@ -17,6 +17,11 @@ from ._corners import CornersFileError, read_corners
 from ._detect import detect, detect_folder
 from ._targets import Target, aprilgrid, checkerboard, read_target
 
+for _obj in (CornersFileError, Target, aprilgrid, checkerboard, detect, detect_folder,
+             read_corners, read_target):
+    _obj.__module__ = __name__  # the public home of the names (and of their documentation)
+del _obj
+
 __all__ = [
     "CornersFileError", "Target", "aprilgrid", "checkerboard", "detect", "detect_folder",
     "read_corners", "read_target",

@@ -23,7 +23,6 @@ import warnings
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from .. import _checks
 from ..io import TrajectoryFileError
@@ -46,7 +45,8 @@ class CornersFileError(TrajectoryFileError):
 
 def _lines(path) -> tuple[list[str], str | None, int, list[int], list[str]]:
     """(column names, separator, header line, data line numbers, data texts) of a file."""
-    header, at, numbers_, texts = None, 0, [], []
+    header: str | None = None
+    at, numbers_, texts = 0, list[int](), list[str]()
     try:
         with open(path, encoding="utf-8-sig") as f:
             for n, line in enumerate(f, 1):
@@ -111,7 +111,7 @@ def _numbers(path, cells: np.ndarray, lines: list[int], names: list[str],
              dtype: type) -> np.ndarray:
     """Convert string columns, naming the first bad cell (line and column)."""
     try:
-        values = cells.astype(dtype)
+        values: np.ndarray = cells.astype(dtype)
     except (ValueError, OverflowError):
         for n, row in zip(lines, cells, strict=True):
             for name, text in zip(names, row, strict=True):
@@ -150,7 +150,7 @@ def _unit_hint(t: np.ndarray) -> str | None:
     return None
 
 
-def read_corners(path: str | os.PathLike[str], *, extra: bool = False):
+def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
     r"""Read a corners file: the target points a camera saw and where.
 
     Args:

@@ -10,7 +10,7 @@ Each tag corner is a corner of the grid's checker pattern (the tag's black borde
 black corner square): it is pulled in with ``cv2.cornerSubPix`` (the detected quads lie
 about a tenth of the tag's side inside the corners), in a window inside the tag's border and
 short of the next corner, then placed at the saddle point of the smoothed image (a
-quadratic fit, :func:`_saddle`): on the rendered grids of the tests 0.015 to 0.04 px median
+quadratic fit, ``_saddle``): on the rendered grids of the tests 0.015 to 0.04 px median
 error (``cornerSubPix`` alone: 0.085 px); on the real EuRoC frames the corners fit EuRoC's
 published camera with a homography to 0.14 px RMS.
 

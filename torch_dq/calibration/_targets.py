@@ -37,14 +37,14 @@ _TAG_CORNERS = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
 
 
 def _count(fn: str, name: str, v, least: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < least:
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral) or int(v) < least:
         _checks.fail(fn, f"{name} must be an int >= {least}, got {v!r}")
     return int(v)
 
 
 def _length(fn: str, name: str, v, zero_ok: bool = False) -> float:
     ok = (not isinstance(v, bool) and isinstance(v, numbers.Real) and math.isfinite(v)
-          and (v >= 0 if zero_ok else v > 0))
+          and (float(v) >= 0 if zero_ok else float(v) > 0))
     if not ok:
         _checks.fail(fn, f"{name} must be a finite real number {'>= 0' if zero_ok else '> 0'}"
                          f", got {v!r}")
@@ -76,7 +76,7 @@ def aprilgrid(rows: int, cols: int, tag_size: float, tag_spacing: float) -> Tens
                 [0.0880, 0.0880, 0.0000],
                 [0.0000, 0.0880, 0.0000],
                 [0.1144, 0.0000, 0.0000],
-                [0.1144, 0.2288, 0.0000]], dtype=torch.float64)
+                [0.0000, 0.2024, 0.0000]], dtype=torch.float64)
     """
     fn = "calibration.aprilgrid"
     rows, cols = _count(fn, "rows", rows, 1), _count(fn, "cols", cols, 1)
