@@ -342,6 +342,21 @@ def test_detect_rendered_checkerboard_in_kalibrs_order(view):
     assert np.median(err) < 0.06 and err.max() < 0.15, (np.median(err), err.max())
 
 
+def test_detect_symmetric_checkerboard_keeps_handedness():
+    """A square board with rows + cols even: the colours rule out the quarter turns (OpenCV
+    returns one here), the order is one of the two half-turn-related ones, never mirrored."""
+    cv2 = pytest.importorskip("cv2")
+    target = Target.checkerboard(5, 5, 0.03, 0.03)
+    canvas, S = _canvas_checkerboard(5, 5)
+    for quad in QUADS.values():
+        image, G = _view(cv2, canvas, S, quad)
+        _, corners, pixels, points = calibration.detect(image, target)
+        assert corners.tolist() == list(range(25))
+        truth = _project(G, points.numpy())
+        err = [np.median(np.linalg.norm(pixels.numpy()[::s] - truth, axis=1)) for s in (1, -1)]
+        assert min(err) < 0.06, err
+
+
 def test_detect_nothing_to_see():
     pytest.importorskip("cv2")
     for target in (Target.aprilgrid(6, 6, 0.088, 0.3), Target.checkerboard(5, 6, 0.03, 0.03)):

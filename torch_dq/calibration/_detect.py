@@ -21,10 +21,11 @@ checked on the real EuRoC frames against the grid's layout of ids).
 
 Checkerboard: ``cv2.findChessboardCornersSB`` (sub-pixel accurate). OpenCV returns the
 corners row by row in one of the board's symmetric orders; they are put in the order with
-Kalibr's handedness (target ``Z`` towards the camera) and, when the board's colours tell
-(``rows + cols`` odd), with the black square at the inner side of corner 0, as in Kalibr's
-drawing. A board with ``rows + cols`` even is symmetric under a half turn: its order is
-then one of the two, frame by frame (as in Kalibr).
+Kalibr's handedness (target ``Z`` towards the camera) and, among the half turns (and the
+quarter turns of a square board), one with the black square at the inner side of corner 0,
+as in Kalibr's drawing. A board with ``rows + cols`` even looks the same after a half turn
+(a square one with even ``rows`` also after a quarter turn): its order is then one of those,
+frame by frame (as in Kalibr).
 """
 
 from __future__ import annotations
@@ -200,8 +201,14 @@ def _checkerboard(cv2, image: np.ndarray, target: Target):
     along_r = (grid[-1] - grid[0]).mean(axis=0)
     if along_c[0] * along_r[1] - along_c[1] * along_r[0] < 0:  # Kalibr's handedness
         grid = grid[:, ::-1]
-    if (rows + cols) % 2 == 1 and _square(image, grid, 0, 0) > _square(image, grid, 0, 1):
-        grid = grid[::-1, ::-1]  # the square inside corner 0 must be the black one
+    # The labellings the board's shape allows (half turns; quarter turns of a square board):
+    # the first whose square inside corner 0 is the black one.
+    turns = (0, 1, 2, 3) if rows == cols else (0, 2)
+    for k in turns:
+        turned = np.rot90(grid, k, axes=(0, 1))
+        if _square(image, turned, 0, 0) < _square(image, turned, 0, 1):
+            grid = turned
+            break
     k = np.arange(rows * cols, dtype=np.int64)
     return np.zeros_like(k), k, grid.reshape(-1, 2)
 
