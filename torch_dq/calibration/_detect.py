@@ -204,8 +204,8 @@ def _checkerboard(cv2, image: np.ndarray, target: Target):
     # The labellings the board's shape allows (half turns; quarter turns of a square board):
     # the first whose square inside corner 0 is the black one.
     turns = (0, 1, 2, 3) if rows == cols else (0, 2)
-    for k in turns:
-        turned = np.rot90(grid, k, axes=(0, 1))
+    for quarter in turns:
+        turned = np.rot90(grid, quarter, axes=(0, 1))
         if _square(image, turned, 0, 0) < _square(image, turned, 0, 1):
             grid = turned
             break
