@@ -77,7 +77,7 @@ def _K(p):
 def test_project_matches_opencv(model):
     p = CAMERAS[model][0]
     pts = _points(2000, max_angle=0.9)
-    dist = np.array(p[4:] + [0.0]) if len(p) > 4 else np.zeros(5)
+    dist = np.array([*p[4:], 0.0]) if len(p) > 4 else np.zeros(5)
     ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), _K(p), dist)
     px, valid = project(model, _t(p), _t(pts))
     assert valid.all()
@@ -140,14 +140,14 @@ CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-16)
 def test_unproject_radtan_matches_opencv_undistort():
     px = _grid(EUROC_RES, 16)
     # OpenCV's fixed-point iteration, run until it stops moving: equal to 1e-9 (normalised).
-    ref = cv2.undistortPoints(px[:, None], _K(EUROC), np.array(EUROC[4:] + [0.0]),
+    ref = cv2.undistortPoints(px[:, None], _K(EUROC), np.array([*EUROC[4:], 0.0]),
                               criteria=CRITERIA)[:, 0]
     rays, valid = unproject("pinhole-radtan", _t(EUROC), _t(px))
     assert valid.all()
     got = (rays[:, :2] / rays[:, 2:]).numpy()
     assert np.abs(got - ref).max() < 1e-9
     # With its default criteria (5 iterations) OpenCV is approximate: loosely equal.
-    loose = cv2.undistortPoints(px[:, None], _K(EUROC), np.array(EUROC[4:] + [0.0]))[:, 0]
+    loose = cv2.undistortPoints(px[:, None], _K(EUROC), np.array([*EUROC[4:], 0.0]))[:, 0]
     assert np.abs(got - loose).max() < 0.05
 
 
@@ -486,9 +486,10 @@ def test_camera_reads_a_kalibr_euroc_camchain_entry():
     assert cam.model == "pinhole-radtan" and cam.resolution == (752, 480)
     assert cam.params.dtype == F64 and cam.params.tolist() == EUROC
     px, valid = cam.project(_t([0.1, -0.2, 1.0]))
-    assert torch.equal(px, project("pinhole-radtan", _t(EUROC), _t([0.1, -0.2, 1.0]))[0])
+    assert valid and torch.equal(px, project("pinhole-radtan", _t(EUROC),
+                                             _t([0.1, -0.2, 1.0]))[0])
     rays, ok = cam.unproject(px)
-    assert torch.allclose(rays / rays[2], _t([0.1, -0.2, 1.0]), atol=1e-13)
+    assert ok and torch.allclose(rays / rays[2], _t([0.1, -0.2, 1.0]), atol=1e-13)
 
 
 KALIBR = {

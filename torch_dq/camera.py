@@ -61,7 +61,7 @@ import torch
 from torch import Tensor
 
 from . import _checks
-from ._numerics import compute_dtype, even, threshold
+from ._numerics import compute_dtype, even, nan_unless, threshold
 
 __all__ = ["MODELS", "Camera", "project", "unproject"]
 
@@ -96,6 +96,16 @@ def _parts(params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor]]:
     """The parameters and coordinates as lists of tensors in the compute dtype."""
     cd = compute_dtype(x.dtype)
     return list(params.to(cd).unbind(-1)), list(x.to(cd).unbind(-1))
+
+
+def _outputs(batch: torch.Size, parts: tuple[Tensor, ...], valid: Tensor, params: Tensor,
+             x: Tensor) -> tuple[Tensor, Tensor]:
+    """Stack the output's components, NaN where an input is not finite (the formulas'
+    finite limits, a point at infinity's pixel, must not come back; the safe-where
+    replacements of the models do not look at finiteness), and ``valid`` False there."""
+    finite = torch.isfinite(params).all(-1) & torch.isfinite(x).all(-1)
+    out = nan_unless(finite[..., None], torch.stack(torch.broadcast_tensors(*parts), -1))
+    return out.to(x.dtype).expand(*batch, len(parts)), (valid & finite).expand(batch)
 
 
 def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
@@ -138,13 +148,13 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
     batch = _checked(fn, model, params, points, "points", 3)
     p, (x, y, z) = _parts(params, points)
     u, v, valid = _PROJECT[model](p, x, y, z)
-    pixels = torch.stack(torch.broadcast_tensors(u, v), -1).expand(*batch, 2)
-    return pixels.to(points.dtype), (valid & torch.isfinite(u + v)).expand(batch)
+    return _outputs(batch, (u, v), valid, params, points)
 
 
 def _front(z: Tensor) -> tuple[Tensor, Tensor]:
-    """``z > 0`` and ``z`` with the entries ``z <= 0`` replaced by 1 (NaN kept)."""
-    return z > 0, torch.where(z <= 0, 1.0, z)
+    """``z > 0`` and ``z`` with the other entries replaced by 1 (safe where)."""
+    valid = z > 0
+    return valid, torch.where(valid, z, 1.0)
 
 
 def _pinhole(p: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
@@ -212,8 +222,7 @@ def _project_ds(p, x, y, z):
     with torch.no_grad():
         bound = -_ds_w2(xi, alpha) * torch.sqrt(x * x + y * y + z * z)
         valid = z > bound  # eq. 43
-        bad = z <= bound  # replaced (False on NaN: it propagates)
-    x, y, z = torch.where(bad, 0.0, x), torch.where(bad, 0.0, y), torch.where(bad, 1.0, z)
+    x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
     w = xi * d1 + z
     d2 = torch.sqrt(x * x + y * y + w * w)  # eq. 42
@@ -271,8 +280,7 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
     p, (u, v) = _parts(params, pixels)
     a, b = (u - p[2]) / p[0], (v - p[3]) / p[1]  # normalised (distorted) coordinates
     x, y, z, valid = _UNPROJECT[model](p, a, b)
-    rays = torch.stack(torch.broadcast_tensors(x, y, z), -1).expand(*batch, 3)
-    return rays.to(pixels.dtype), (valid & torch.isfinite(x + y + z)).expand(batch)
+    return _outputs(batch, (x, y, z), valid, params, pixels)
 
 
 def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -282,11 +290,6 @@ def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 def _unproject_pinhole(p, a, b):
     return (*_unit(a, b, torch.ones_like(a)), torch.ones_like(a, dtype=torch.bool))
-
-
-def _finite(*xs: Tensor) -> Tensor:
-    """Where every input is finite (the entries a safe-where may replace)."""
-    return torch.isfinite(sum(torch.broadcast_tensors(*xs)))
 
 
 def _converged(residual: Tensor, scale: Tensor) -> Tensor:
@@ -336,9 +339,8 @@ def _unproject_radtan(p, a, b):
     k = p[4:]
     with torch.no_grad():  # detached also from forward-mode tangents
         ra, rb, valid = _radtan_root([c.detach() for c in k], a.detach(), b.detach())
-        keep = valid | ~_finite(a, b, *k)  # replace the invalid finite entries
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
-    ra, rb = torch.where(keep, ra, 0.0), torch.where(keep, rb, 0.0)
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
+    ra, rb = torch.where(valid, ra, 0.0), torch.where(valid, rb, 0.0)
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact first derivatives
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact second derivatives
     return (*_unit(ra, rb, torch.ones_like(ra)), valid)
@@ -368,9 +370,8 @@ def _unproject_equidistant(p, a, b):
     s = a * a + b * b  # theta_d^2
     with torch.no_grad():
         rho, valid = _equidistant_root([c.detach() for c in k], s.detach())
-        keep = valid | ~_finite(s, *k)
-    s, rho = torch.where(keep, s, 0.0), torch.where(keep, rho, 1.0)
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
+    s, rho = torch.where(valid, s, 0.0), torch.where(valid, rho, 1.0)  # safe where
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)
     for _ in range(2):  # Newton on rho P(rho^2 s) = 1: exact first, then second derivatives
         t = rho * rho * s  # theta^2
         rho = rho - (rho * _poly(k, t) - 1.0) / _poly_slope(k, t)
@@ -397,8 +398,7 @@ def _unproject_ds(p, a, b):
         # slightly outside the projection's domain.
         inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)
         valid = inside & (_ds_ray(xi, alpha, a, b)[2] > -_ds_w2(xi, alpha))
-        keep = valid | ~_finite(r2, xi, alpha)
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
     return (*_ds_ray(xi, alpha, a, b), valid)
 
 
