@@ -537,10 +537,11 @@ def test_camera_value_semantics_and_errors():
     bad = [({"camera_model": "omni", "intrinsics": [0.8, 400, 400, 320, 240]}, "'omni'"),
            ({**KALIBR["pinhole"], "distortion_model": "fov"}, "'fov'"),
            ({**KALIBR["pinhole-radtan"], "distortion_coeffs": [0.1, 0.2]}, "distortion_coeffs"),
-           ({**KALIBR["double-sphere"], "intrinsics": EUROC[:4]}, "intrinsics")]
+           ({**KALIBR["double-sphere"], "intrinsics": EUROC[:4]}, "intrinsics"),
+           ({**KALIBR["pinhole"], "resolution": [640.0, 480]}, "resolution")]
     for entry, word in bad:
         with pytest.raises(ValueError, match=rf"^camera.Camera.from_kalibr: .*{word}"):
-            Camera.from_kalibr({**entry, "resolution": [640, 480]})
+            Camera.from_kalibr({"resolution": [640, 480], **entry})
 
 
 def test_models_table_lists_the_parameter_orders():

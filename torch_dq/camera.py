@@ -429,6 +429,16 @@ def _numbers(fn: str, name: str, value, count: int) -> list[float]:
     return [float(v) for v in value]
 
 
+def _resolution(fn: str, res) -> tuple[int, int]:
+    """``(width, height)``: two positive ints."""
+    if (not isinstance(res, Sequence) or isinstance(res, str) or len(res) != 2
+            or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool)
+                       and int(n) > 0 for n in res)):
+        _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
+                         f"got {res!r}")
+    return int(res[0]), int(res[1])
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     r"""A camera: a model of :data:`MODELS`, its ``(P,)`` parameters and its resolution.
@@ -472,14 +482,8 @@ class Camera:
         if params.shape != (len(MODELS[self.model]),):
             _checks.fail(fn, f"expected a ({len(MODELS[self.model])},) tensor for params of a "
                              f"{self.model!r} camera, got shape {_checks.shape_str(params.shape)}")
-        res = self.resolution
-        if (not isinstance(res, Sequence) or len(res) != 2
-                or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) and n > 0
-                           for n in res)):
-            _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
-                             f"got {res!r}")
         object.__setattr__(self, "params", params)
-        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        object.__setattr__(self, "resolution", _resolution(fn, self.resolution))
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Camera):
@@ -534,9 +538,8 @@ class Camera:
         coeffs = _numbers(fn, "distortion_coeffs", entry.get("distortion_coeffs", []),
                           0 if names[1] == "none" else 4)
         params = intr[2:] + intr[:2] if names[0] == "ds" else intr + coeffs
-        res = entry.get("resolution")
         return cls(model, torch.tensor(params, dtype=dtype, device=device),
-                   tuple(res) if isinstance(res, Sequence) else res)
+                   _resolution(fn, entry.get("resolution")))
 
     def to_kalibr(self) -> dict:
         """This camera as one entry of a Kalibr ``camchain.yaml``: a dict of plain Python
