@@ -25,8 +25,8 @@ by a harmless constant before the formula), and must be masked by the caller. Na
 in an element's inputs gives NaN or inf outputs in that element only.
 
 Unprojection of the distorted pinhole models has no closed form: it runs a fixed number
-of Newton iterations (no data-dependent branching: ``vmap`` and ``torch.compile`` work)
-without autograd, then attaches the derivatives by two Newton steps from that detached
+of Newton iterations (no data-dependent branching or host reads: ``torch.func.vmap`` and
+``torch.compile(fullgraph=True)`` go through) without autograd, then attaches the derivatives by two Newton steps from that detached
 root. One Newton step ``x - J(x)^{-1} (F(x) - y)`` from a detached root has the implicit
 function's exact first derivatives; a second step from it has the exact second
 derivatives too (the Newton map's derivative in ``x`` vanishes at the root), so
