@@ -397,15 +397,17 @@ def _ds_ray(xi: Tensor, alpha: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Te
 
 def _unproject_ds(p, a, b):
     xi, alpha = p[4], p[5]
-    with torch.no_grad():
+    with torch.no_grad():  # where the formula's square roots are real (safe where)
         r2 = a * a + b * b
-        # eq. 50 (the square roots are NaN outside it for xi > 1, and the comparisons
-        # below False), then eq. 43 on the ray: for xi != 0 eq. 50's boundary maps
-        # slightly outside the projection's domain.
-        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)
-        valid = inside & (_ds_ray(xi, alpha, a, b)[2] > -_ds_w2(xi, alpha))
-    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
-    return (*_ds_ray(xi, alpha, a, b), valid)
+        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)  # eq. 50
+        mz = (1.0 - alpha * alpha * r2) / (
+            alpha * torch.sqrt(torch.clamp(1.0 - (2.0 * alpha - 1.0) * r2, min=0.0))
+            + 1.0 - alpha)
+        keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
+    x, y, z = _ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
+    # eq. 43 on the ray: for xi != 0 eq. 50's boundary maps slightly outside the
+    # projection's domain (the ray is finite there, its gradients too)
+    return x, y, z, keep & (z.detach() > -_ds_w2(xi, alpha).detach())
 
 
 _UNPROJECT: dict[str, Callable] = {
