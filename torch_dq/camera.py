@@ -26,11 +26,12 @@ in an element's inputs gives NaN or inf outputs in that element only.
 
 Unprojection of the distorted pinhole models has no closed form: it runs a fixed number
 of Newton iterations (no data-dependent branching or host reads: ``torch.func.vmap`` and
-``torch.compile(fullgraph=True)`` go through) without autograd, then attaches the derivatives by two Newton steps from that detached
-root. One Newton step ``x - J(x)^{-1} (F(x) - y)`` from a detached root has the implicit
-function's exact first derivatives; a second step from it has the exact second
-derivatives too (the Newton map's derivative in ``x`` vanishes at the root), so
-gradients and Hessians are exact without differentiating through the iteration.
+``torch.compile(fullgraph=True)`` go through) without autograd, then attaches the
+derivatives by two Newton steps from that detached root. One Newton step
+``x - J(x)^{-1} (F(x) - y)`` from a detached root has the implicit function's exact first
+derivatives; a second step from it has the exact second derivatives too (the Newton map's
+derivative in ``x`` vanishes at the root), so gradients and Hessians are exact without
+differentiating through the iteration.
 
 :class:`Camera` is a small value (model, ``(P,)`` params, resolution) that reads and writes
 one camera of a Kalibr ``camchain.yaml``.
@@ -266,9 +267,9 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           or beyond 90 degrees (``z <= 0``: not an image of :func:`project`), where
           :math:`d\theta_d/d\theta \le 0` at the root (fold-over) or where it did not
           converge.
-        - double sphere (eqs. 47-50): closed form; invalid outside eq. 50's domain,
-          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
-          :math:`m_z^2 + (1 - \xi^2) r^2 < 0` (no real point of the first sphere, possible
+        - double sphere (eqs. 47-50): closed form; invalid outside the paper's unprojection
+          domain, :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
+          :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real point of the first sphere, possible
           for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
           boundary of eq. 50 maps slightly outside the projection's domain).
 
@@ -387,11 +388,11 @@ def _unproject_equidistant(p, a, b):
 
 
 def _ds_ray(xi: Tensor, alpha: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The double sphere's unprojection (eqs. 47-49): a unit ray."""
+    """The double sphere's unprojection (eqs. 47-50): a unit ray."""
     r2 = a * a + b * b
     mz = (1.0 - alpha * alpha * r2) / (
-        alpha * torch.sqrt(1.0 - (2.0 * alpha - 1.0) * r2) + 1.0 - alpha)  # eq. 49
-    scale = (mz * xi + torch.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)  # eq. 47
+        alpha * torch.sqrt(1.0 - (2.0 * alpha - 1.0) * r2) + 1.0 - alpha)  # m_z
+    scale = (mz * xi + torch.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)
     return scale * a, scale * b, scale * mz - xi
 
 
@@ -399,13 +400,13 @@ def _unproject_ds(p, a, b):
     xi, alpha = p[4], p[5]
     with torch.no_grad():  # where the formula's square roots are real (safe where)
         r2 = a * a + b * b
-        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)  # eq. 50
+        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)  # the paper's domain
         mz = (1.0 - alpha * alpha * r2) / (
             alpha * torch.sqrt(torch.clamp(1.0 - (2.0 * alpha - 1.0) * r2, min=0.0))
             + 1.0 - alpha)
         keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
     x, y, z = _ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
-    # eq. 43 on the ray: for xi != 0 eq. 50's boundary maps slightly outside the
+    # eq. 43 on the ray: for xi != 0 that domain's boundary maps slightly outside the
     # projection's domain (the ray is finite there, its gradients too)
     return x, y, z, keep & (z.detach() > -_ds_w2(xi, alpha).detach())
 
