@@ -277,3 +277,182 @@ def test_structural_checks_refuse_only_what_no_motion_determines(gen):
     for terms, match in refused:
         with pytest.raises(ValueError, match=match):
             _structure.check("fitting.estimate", terms)
+
+
+# ----------------------------------------------------------------------------- 7. units
+
+def _write_tum(path, t, x, order=(1, 2, 3, 0)):
+    q, p = (a.numpy() for a in dq.to_rt(x))
+    q = q * np.where(q[:, :1] < 0, -1.0, 1.0)  # w >= 0, as most writers keep it
+    cols = q[:, list(order)]  # TUM: qx qy qz qw
+    with open(path, "w") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for ti, pi, qi in zip(t, p, cols, strict=True):
+            f.write(f"{float(ti)!r} " + " ".join(f"{v:.9f}" for v in (*pi, *qi)) + "\n")
+
+
+@pytest.mark.parametrize(("scale", "origin", "unit"), [
+    (1e9, 1.7e18, "nanoseconds"), (1e9, 0.0, "nanoseconds"), (1e3, 0.0, "milliseconds"),
+    (1e6, 0.0, "microseconds")])
+def test_trajectory_times_in_another_unit_warn(tmp_path, scale, origin, unit):
+    from torch_dq import io
+    t = grid(0.0, 4.0, 30)
+    path = tmp_path / "traj.txt"
+    _write_tum(path, (origin + scale * t).numpy(), poses_of(t))
+    with pytest.warns(UserWarning, match=f"look like {unit}"):
+        io.read_trajectory(path)
+    _write_tum(path, (1.7e9 + t).numpy(), poses_of(t))  # seconds: no warning
+    io.read_trajectory(path)
+    _write_tum(path, grid(0.0, 40.0, 1).numpy(), poses_of(grid(0.0, 40.0, 1)))  # 1 Hz, moving
+    io.read_trajectory(path)
+
+
+def test_imu_times_in_milliseconds_warn(tmp_path):
+    from torch_dq import io
+    path = tmp_path / "imu.txt"
+    ti = grid(0.0, 2.0, 200)
+    rows = np.concatenate((1e3 * ti.numpy()[:, None], np.ones((len(ti), 6))), 1)
+    np.savetxt(path, rows)
+    with pytest.warns(UserWarning, match="look like milliseconds"):
+        io.read_imu(path)
+    np.savetxt(path, np.concatenate((ti.numpy()[:, None], np.ones((len(ti), 6))), 1))
+    io.read_imu(path)  # seconds: no warning
+
+
+def test_gyro_in_degrees_per_second_warns(gen):
+    t = grid(0.0, 3.0, 20)
+    ti = grid(0.2, 2.8, 100)
+    x = poses_of(t)
+    gy = imu_of(ti.numpy(), bg=(0.01, -0.02, 0.005))[0]
+    cam = Poses(t, x, rot_sigma=0.002, trans_sigma=0.002)
+    with pytest.warns(UserWarning, match="deg/s"):
+        estimate(spline_on(t, x, 0.15), [cam, Gyro(ti, torch.rad2deg(gy), sigma=0.3,
+                                                     bias=True)], steps=1, verbose=False)
+    gyro = Gyro(ti, gy, sigma=0.005, bias=True)  # rad/s: no warning
+    gyro.values(spline_on(t, x, 0.15))
+
+
+# ----------------------------------------------------------------------------- 8. fine knots
+
+def test_from_poses_on_knots_finer_than_the_poses_with_a_margin():
+    """knot_spacing finer than the poses (more control points than poses) and a margin:
+    exact for a constant screw motion over the whole widened domain; on the motion of
+    ``truth`` at 10 Hz with knots every 25 ms, the start's positions, angular rates and
+    accelerations agree with the analytic ones (the IMU reads the last two)."""
+    t = grid(0.0, 3.0, 10)
+    xi = torch.tensor([0.1, -0.3, 0.8, 1.0, 0.2, -0.1], dtype=F64)
+    q, p = dq.to_rt(dq.exp(t[:, None] * xi))
+    s = BSpline.from_poses(q, p, t, knot_spacing=0.025, margin=0.1, form="cumulative")
+    assert s.n_ctrl == 128 + 3 + 1 and s.domain == (-0.1, 3.1)
+    tt = torch.linspace(-0.1, 3.1, 301, dtype=F64)
+    torch.testing.assert_close(s(tt).detach(), dq.exp(tt[:, None] * xi), rtol=0, atol=1e-12)
+    q, p = dq.to_rt(poses_of(t))
+    tt = grid(0.0, 3.0, 200)
+    _, P, W, ACC = truth(tt.numpy())
+    for form in ("cumulative", "de_boor"):
+        s = BSpline.from_poses(q, p, t, knot_spacing=0.025, margin=0.1, form=form)
+        k = s.kinematics(tt)
+        pos = dq.to_rt(s(tt).detach())[1]
+        assert float((pos - torch.from_numpy(P)).norm(dim=-1).max()) < 2e-3  # m
+        assert float((k.angular_velocity.detach() - torch.from_numpy(W)).norm(
+            dim=-1).max()) < 5e-3  # rad/s, of rates up to 0.94
+        if form == "cumulative":  # C2: accelerations continuous
+            acc = (k.linear_acceleration.detach() - torch.from_numpy(ACC)).norm(dim=-1)
+            assert float(acc.max()) < 0.3 and float(acc.median()) < 0.1  # of up to 4 m/s^2
+    # per-trajectory times: each row its own domain, widened
+    tb = torch.stack((t, t + 10.0))
+    qb, pb = (torch.stack((a, a)) for a in (q, p))
+    sb = BSpline.from_poses(qb, pb, tb, knot_spacing=0.05, margin=0.2)
+    assert torch.allclose(sb.knots[:, 3], torch.tensor([-0.2, 9.8], dtype=F64))
+    for b in range(2):  # each row as its own fit
+        one = BSpline.from_poses(q, p, tb[b], knot_spacing=0.05, margin=0.2)
+        torch.testing.assert_close(sb(tb)[b], one(tb[b]), rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="n_ctrl or knot_spacing, not both"):
+        BSpline.from_poses(q, p, t, n_ctrl=10, knot_spacing=0.1)
+    for bad in (0.0, -1.0, float("inf")):
+        with pytest.raises(ValueError, match="knot_spacing must be a finite number > 0"):
+            BSpline.from_poses(q, p, t, knot_spacing=bad)
+    with pytest.raises(ValueError, match="margin must be a finite number >= 0"):
+        BSpline.from_poses(q, p, t, n_ctrl=10, margin=-0.1)
+    with pytest.raises(ValueError, match=r"underdetermined.*knot_spacing="):
+        BSpline.from_poses(q, p, t, n_ctrl=40)  # n_ctrl alone: no more than the poses
+
+
+def test_fine_knots_with_an_imu_and_a_margin_for_the_clock_offset(gen):
+    """The use that needs both: poses at 10 Hz, an IMU at 200 Hz over the whole pose span
+    with a 15 ms clock offset estimated, knots every 25 ms from from_poses(knot_spacing=,
+    margin=max_time_offset): no sample trimmed, the offset recovered."""
+    t = grid(0.0, 4.0, 10)
+    ti = grid(0.0, 4.0, 200)
+    x = poses_of(t)
+    q, p = dq.to_rt(x)
+    gy, ac = imu_of(ti.numpy() + 0.015, (0.01, -0.02, 0.005), (0.1, -0.05, 0.2))
+    spline = BSpline.from_poses(q, p, t, knot_spacing=0.025, margin=0.05, form="cumulative")
+    clock = Free()
+    gyro = Gyro(ti, gy + 0.002 * torch.randn(gy.shape, generator=gen, dtype=F64), sigma=0.002,
+                bias=True, time_offset=clock, max_time_offset=0.05)
+    accel = Accel(ti, ac + 0.02 * torch.randn(ac.shape, generator=gen, dtype=F64), sigma=0.02,
+                  bias=True, time_offset=clock, max_time_offset=0.05)
+    import warnings
+    with warnings.catch_warnings():  # the margin's first control points have no sample
+        warnings.simplefilter("ignore", RuntimeWarning)
+        est = estimate(spline, [Poses(t, x, rot_sigma=0.001, trans_sigma=0.001), gyro, accel],
+                       prior=0.0, verbose=False)
+        std = float(est.std(gyro, "time_offset"))
+    assert 0.0 < std < 1e-3 and abs(float(gyro.time_offset) - 0.015) < 4 * std
+
+
+def test_fit_cli_with_an_imu_chooses_fine_knots_and_reports_chi2(tmp_path, capsys):
+    """``fit FILE --imu``: the IMU's knots (5 IMU periods, finer than the 20 Hz poses), each
+    term's chi2/dof in summary.json, the IMU file's unit warning there too, finite
+    uncertainties."""
+    import json
+
+    from torch_dq.__main__ import main
+    t = grid(0.0, 6.0, 20)
+    _write_tum(tmp_path / "poses.txt", t.numpy(), poses_of(t))
+    ti = grid(0.0, 6.0, 100)
+    gen = np.random.default_rng(3)
+    gy, ac = imu_of(ti.numpy(), (0.01, -0.02, 0.005), (0.1, -0.05, 0.2))
+    rows = np.column_stack((1e3 * ti.numpy(), gy.numpy() + 2e-3 * gen.normal(size=gy.shape),
+                            ac.numpy() + 2e-2 * gen.normal(size=ac.shape)))
+    np.savetxt(tmp_path / "imu_ms.txt", rows, fmt="%.12g")
+    main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu_ms.txt"),
+          "--out", str(tmp_path / "ms"), "--no-plots", "--quiet"])
+    assert "the times look like milliseconds" in capsys.readouterr().err
+    rows[:, 0] *= 1e-3
+    np.savetxt(tmp_path / "imu.txt", rows, fmt="%.12g")
+    out = tmp_path / "o"
+    assert main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"),
+                 "--out", str(out), "--no-plots", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    imu = summary["imu"]
+    assert imu["knots"]["spacing_s"] <= 0.05 + 1e-9 and summary["model"]["n_ctrl"] > 121
+    assert summary["model"]["knot_spacing_s"] == imu["knots"]["spacing_s"]
+    for name in ("Poses", "Gyro", "Accel"):
+        assert {"chi2", "dof", "chi2_per_dof"} <= set(imu["chi2"][name])
+    assert 0.5 < imu["chi2"]["Gyro"]["chi2_per_dof"] < 2.0
+    for key in ("gyro_bias_rad_s", "accel_bias_m_s2"):
+        assert np.all(np.isfinite(imu[key]["std"])), (key, imu[key])
+
+
+def test_fit_cli_tells_swapped_quaternion_columns_by_the_gyroscope(tmp_path):
+    """A TUM file written w first (qw qx qy qz): the poses alone cannot tell, the gyroscope
+    can: a warning in summary.json names the order; none for the right order."""
+    import json
+
+    from torch_dq.__main__ import main
+    t = grid(0.0, 6.0, 20)
+    ti = grid(0.0, 6.0, 100)
+    gy, ac = imu_of(ti.numpy())
+    np.savetxt(tmp_path / "imu.txt", np.column_stack((ti.numpy(), gy.numpy(), ac.numpy())),
+               fmt="%.12g")
+    found = {}
+    for name, order in (("right", (1, 2, 3, 0)), ("w_first", (0, 1, 2, 3))):
+        _write_tum(tmp_path / f"{name}.txt", t.numpy(), poses_of(t), order)
+        out = tmp_path / name
+        main(["fit", str(tmp_path / f"{name}.txt"), "--imu", str(tmp_path / "imu.txt"),
+              "--out", str(out), "--no-plots", "--quiet", "--steps", "3"])
+        found[name] = json.loads((out / "summary.json").read_text())["warnings"]
+    assert not any("quaternion columns" in w for w in found["right"]), found["right"]
+    assert any("look like qw qx qy qz" in w for w in found["w_first"]), found["w_first"]

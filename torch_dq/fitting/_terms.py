@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from typing import TYPE_CHECKING, cast
 
 import torch
@@ -506,6 +507,11 @@ class Gyro(_Imu):
         time_offset: estimated without a start: from cross-correlating the measured and the
             trajectory's angular rates over ``[-max_time_offset, max_time_offset]``.
         max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Warns:
+        UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
+            trajectory's angular rates (deg/s for rad/s), once, when
+            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`).
     """
 
     order = 1
@@ -517,16 +523,50 @@ class Gyro(_Imu):
         super().__init__(times, readings, sigma, bias, time_offset=time_offset,
                          max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
                          mask=mask)
+        self._units_checked = False
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
         w = curves.kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
+    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
+        """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
+        warns when the readings look like deg/s (:func:`_warn_degrees`)."""
+        if not self._units_checked:
+            self._units_checked = True
+            _warn_degrees(self, trajectory, ctrl)
+        return super().values(trajectory, ctrl)
+
     def default_start(self, name, trajectory, ctrl, values):
         if name != "time_offset":
             return super().default_start(name, trajectory, ctrl, values)
         return _correlate_offset(self, trajectory, ctrl)
+
+
+_DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
+
+
+def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
+    """Warn when the mean magnitude of the readings is within a factor 1.5 of
+    ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
+    into its domain; skipped where it barely turns, below 1e-3 rad/s)."""
+    t = term.times
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
+              for e in trajectory.domain)
+    t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
+                      hi[..., None] if hi.dim() else hi)
+    with torch.no_grad():
+        x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
+    w = term.mask.to(torch.float64)
+    pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
+    meas = float((term.readings.norm(dim=-1) * w).sum() / w.sum())
+    if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
+        warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
+                      f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
+                      f"angular rate {pred:.4g} rad/s (180/pi = 57.3); convert them with "
+                      f"torch.deg2rad", UserWarning, stacklevel=4)
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
