@@ -217,6 +217,12 @@ _POSES_PER_COARSE_CTRL = 2
 _SAMPLES_PER_SPAN = 4
 
 
+def _uniform(n: int, degree: int, t0: float | Tensor, t1: float | Tensor) -> Tensor:
+    """Clamped uniform knots of ``n`` control points over ``[t0, t1]`` (float64; a row per
+    trajectory for ``(..., 1)`` tensors)."""
+    return t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
+
+
 def _check_seconds(fn: str, name: str, value, low: float | None) -> float:
     """A finite real ``value`` (seconds): ``>= low``, or ``> 0`` where ``low`` is None."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(
@@ -1105,14 +1111,8 @@ class BSpline(Curve):
         elif n_ctrl is None:  # chosen from the data
             n_ctrl = _chosen_n_ctrl(fn, x, t64, degree, form)
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
-
-        def build(count: int) -> Self:
-            knots = t0 + curves.clamped_uniform_knots(count, degree,
-                                                      dtype=torch.float64) * (t1 - t0)
-            return cls(dualquat.identity((*batch, count), dtype=x.dtype, device=x.device),
-                       degree=degree, knots=knots, form=form, check=check)
-
-        module = build(n)
+        module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device), degree=degree,
+                     knots=_uniform(n, degree, t0, t1), form=form, check=check)
         coarse = max(degree + 1, x.shape[-2] // _POSES_PER_COARSE_CTRL)
         if knot_spacing is None or n <= coarse:
             return module._fill(fn, x, t64)
@@ -1120,8 +1120,11 @@ class BSpline(Curve):
         # knot span _SAMPLES_PER_SPAN times), is the fine curve's data
         dense = t0 + (t1 - t0) * torch.linspace(0.0, 1.0, _SAMPLES_PER_SPAN * (n - degree) + 1,
                                                 dtype=torch.float64)
+        start = cls(dualquat.identity((*batch, coarse), dtype=x.dtype, device=x.device),
+                    degree=degree, knots=_uniform(coarse, degree, t0, t1), form=form,
+                    check=check)
         with torch.no_grad():
-            xd = build(coarse)._fill(fn, x, t64)(dense.to(x.device))
+            xd = start._fill(fn, x, t64)(dense.to(x.device))
         return module._fill(fn, xd, dense)
 
     @classmethod
