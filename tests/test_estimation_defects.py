@@ -83,6 +83,16 @@ def test_relative_pose_pairs_are_kept_as_given():
     keep = mask.nonzero()[:, 0]
     torch.testing.assert_close(masked.times_from[keep], t[i][keep], rtol=0, atol=0)
     assert float(masked(spline).detach().abs().max()) < 1e-8
+    # estimated with them: the odometry (and two absolute poses) pull a perturbed start
+    # back onto the exact trajectory
+    start = BSpline(dq.mul(spline.control_points.detach(), dq.exp(
+        0.02 * torch.randn(spline.n_ctrl, 6, generator=torch.Generator().manual_seed(1),
+                           dtype=F64))), knots=spline.knots, form="cumulative")
+    anchor = Poses(t[::10], xs[::10], rot_sigma=0.01, trans_sigma=0.01)
+    dense = RelativePoses(t[:-1], t[1:], dq.mul(dq.conj(xs[:-1]), xs[1:]), rot_sigma=0.01,
+                          trans_sigma=0.01)
+    est = estimate(start, [anchor, dense, term], prior=0.0, verbose=False)
+    assert float(est.final_loss) < 1e-12
 
 
 # ----------------------------------------------------------------------------- 2. zero quaternions
