@@ -203,6 +203,12 @@ def test_non_rigid_matrices_are_refused_naming_the_sample(edit, what):
         RelativePoses(t, t, M, rot_sigma=0.01, trans_sigma=0.01)
     Poses(t, M.float(), rot_sigma=0.01, trans_sigma=0.01,
           mask=torch.arange(11) != 4)  # masked: not read
+    from torch_dq.fitting import fit
+    spline = BSpline(dq.identity((5,), dtype=F64), knots=None)
+    for optimizer in ("lm", "adam"):  # fit's targets: the same check
+        with pytest.raises(ValueError, match=r"nn\.fit: .*sample 4"):
+            fit(spline, (t - t[0]) / (t[-1] - t[0]), M, optimizer=optimizer, steps=1,
+                verbose=False)
 
 
 # ----------------------------------------------------------------------------- 6. structure

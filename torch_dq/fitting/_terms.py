@@ -298,7 +298,7 @@ def _pose_data(fn: str, name: str, poses: Tensor) -> tuple[Tensor, Tensor | None
 _RIGID_ATOL = 1e-4
 
 
-def _check_poses(fn: str, name: str, x: Tensor, T: Tensor | None, mask: Tensor) -> None:
+def check_pose_data(fn: str, name: str, x: Tensor, T: Tensor | None, mask: Tensor) -> None:
     """Fail naming the first valid sample whose pose is not one: a matrix that is not rigid
     (rotation block not orthonormal or with determinant -1, last row not ``(0, 0, 0, 1)``:
     a transposed matrix), a zero rotation quaternion (a dropped frame written as zeros)."""
@@ -353,7 +353,7 @@ class _PoseTerm(Term):
         sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
                            _sigma(fn, "trans_sigma", trans_sigma, 3)))
         Term.__init__(self, times, names, x, 1, sigma, **common)
-        _check_poses(fn, "poses", x, T, self.mask)
+        check_pose_data(fn, "poses", x, T, self.mask)
         safe = _masked(x, common["mask"], dualquat.identity(dtype=x.dtype, device=x.device))
         q, t = dualquat.to_rt(dualquat.normalize(safe))
         self.register_buffer("rotations", q)
