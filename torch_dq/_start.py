@@ -31,7 +31,7 @@ from torch import Tensor
 from . import _checks, dualquat
 from ._core import align_chain, twist_translation
 from ._numerics import threshold
-from ._time import KnotDomain, bspline_basis
+from ._time import bspline_basis
 
 __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squares_start"]
 
@@ -160,11 +160,12 @@ def _chart_twists(ref: Tensor, x: Tensor) -> Tensor:
 
 
 def _interpolate(x: Tensor, times: Tensor, at: Tensor) -> Tensor:
-    """Poses at times ``at`` by ``sclerp`` between the neighbouring samples (clamped): the
-    degree-1 spline through the samples, located by the time model."""
-    knots = torch.cat((times[:1], times, times[-1:]))
-    r, u, _ = KnotDomain(knots, 1).locate(at, times.dtype)
-    return dualquat.sclerp(x[..., r - 1, :], x[..., r, :], u.clamp(0.0, 1.0))
+    """Poses at times ``at`` by ``sclerp`` between the neighbouring samples: the degree-1
+    spline through the samples, located by the time model, continued by the end pairs'
+    screw motions beyond the first and last samples (anchors in a margin of the domain)."""
+    r = torch.searchsorted(times.contiguous(), at, right=True).clamp(1, times.shape[0] - 1)
+    u = (at - times[r - 1]) / (times[r] - times[r - 1])  # beyond [0, 1] past the ends
+    return dualquat.sclerp(x[..., r - 1, :], x[..., r, :], u)
 
 
 def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int]:

@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from decimal import Decimal
@@ -416,6 +417,13 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
             ``times`` given for another format.
         OSError: the file cannot be opened.
 
+    Warns:
+        UserWarning: times that look like nanoseconds, microseconds or milliseconds (poses
+            hours apart, or nearly still in seconds while plausible in the finer unit; TUM
+            and KITTI). Quaternion columns in another order cannot be told from the poses
+            alone (a permutation of the components keeps the angle between any two
+            rotations); ``python -m torch_dq fit --imu`` tells them by the gyroscope.
+
     Example:
         >>> traj = read_trajectory("tests/data/tum_fr1_xyz_sub.txt")  # doctest: +SKIP
         >>> spline = nn.BSpline.from_poses(traj.rotations, traj.translations,
@@ -445,8 +453,71 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         t, q, p = _read_euroc(path, lines, texts, header, atol, duplicates)
     else:
         t, q, p = _read_kitti(fn, path, lines, texts, times, atol, duplicates)
+    if format != "euroc":  # EuRoC states nanoseconds
+        _warn_time_unit(fn, path, t, q, p)
     as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
     return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
+
+
+# ----------------------------------------------------------------------------- units
+
+#: Motion no recording reaches (m/s, rad/s): times read in the wrong unit reach it or
+#: stay below ``_STILL`` where another unit gives plausible motion.
+_FASTEST = 50.0
+_STILL = 0.02
+_TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+
+
+def _time_unit_guess(t: np.ndarray, q: np.ndarray, p: np.ndarray) -> str | None:
+    """The message of a likely time unit other than seconds, or None.
+
+    Seconds are implausible where poses lie hours apart (a median step above 1e4) or where,
+    at least 2 apart, the motion is almost still (below ``_STILL`` m/s and rad/s) while read
+    in a finer unit it is plausible; the unit named is the first of nanoseconds,
+    microseconds, milliseconds whose median step lies in [0.2 ms, 5 s] with motion below
+    ``_FASTEST``."""
+    if len(t) < 3:
+        return None
+    step = float(np.median(np.diff(t)))
+    dots = np.clip(np.abs(np.sum(q[1:] * q[:-1], axis=1)), 0.0, 1.0)
+    dt = np.maximum(np.diff(t), 1e-300)
+    speed = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1) / dt))
+    turn = float(np.median(2.0 * np.arccos(dots) / dt))
+    if not (step > 1e4 or (step >= 2.0 and speed < _STILL and turn < _STILL)):
+        return None
+    for name, scale in _TIME_UNITS:
+        if 2e-4 <= step * scale <= 5.0 and max(speed, turn) / scale < _FASTEST and (
+                step > 1e4 or max(speed, turn) / scale >= _STILL):
+            return (f"the timestamps look like {name}, not seconds: read as seconds, poses "
+                    f"lie {step:.3g} s apart (median) and move at {speed:.3g} m/s, "
+                    f"{turn:.3g} rad/s; as {name}, every {step * scale:.3g} s at "
+                    f"{speed / scale:.3g} m/s, {turn / scale:.3g} rad/s: divide the times by "
+                    f"{1 / scale:.0e}")
+    return None
+
+
+def _warn_time_unit(fn: str, path, t: np.ndarray, q: np.ndarray, p: np.ndarray) -> None:
+    """Warn when the times look like another unit than seconds (:func:`_time_unit_guess`)."""
+    guess = _time_unit_guess(t, q, p)
+    if guess:
+        warnings.warn(f"{fn}: {os.fspath(path)}: {guess}", UserWarning, stacklevel=3)
+
+
+def _warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
+    """Warn when IMU times read as seconds are 0.5 s or more apart (median; IMUs sample at
+    20 Hz to a few kHz) and another unit gives such a rate (relative nanoseconds, shorter
+    than the 16 digits that ``time_unit="auto"`` takes for nanoseconds, or milliseconds)."""
+    step = float(np.median(np.diff(t))) if len(t) > 2 else 0.0
+    if step < 0.5:
+        return
+    for name, scale in _TIME_UNITS:
+        if 2e-4 <= step * scale <= 0.05:
+            warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
+                          f"seconds: read as seconds the samples lie {step:.3g} s apart "
+                          f"(median), {1 / (step * scale):.4g} Hz as {name}; pass "
+                          f"time_unit='ns' for nanoseconds or divide the times by "
+                          f"{1 / scale:.0e}", UserWarning, stacklevel=3)
+            return
 
 
 # ----------------------------------------------------------------------------- IMU
@@ -499,6 +570,11 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         ValueError: bad ``time_unit`` or ``duplicates``.
         OSError: the file cannot be opened.
 
+    Warns:
+        UserWarning: times read as seconds (``time_unit="auto"``) whose median step is
+            0.5 s or more while nanoseconds, microseconds or milliseconds give an IMU's rate
+            (20 Hz to 5 kHz).
+
     Example:
         >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP
         >>> gyro.shape, times.dtype  # doctest: +SKIP
@@ -534,6 +610,8 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         t = _floats(path, lines, [f[:1] for f in rows], names[:1])[:, 0]
         keep = _check_times(path, lines, t, duplicates)
         t = t[keep]
+        if time_unit == "auto":
+            _warn_imu_time_unit(fn, path, t)
     as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
     return as_tensor(t), as_tensor(v[keep, :3]), as_tensor(v[keep, 3:])
 

@@ -211,6 +211,28 @@ def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> i
     return min(math.ceil((float(t64[-1]) - float(t64[0])) / h) + degree, x.shape[-2])
 
 
+# The start on knots finer than the poses (from_poses(knot_spacing=)): the poses' start on
+# coarse knots (a control point per this many poses), sampled this many times per fine span.
+_POSES_PER_COARSE_CTRL = 2
+_SAMPLES_PER_SPAN = 4
+
+
+def _uniform(n: int, degree: int, t0: float | Tensor, t1: float | Tensor) -> Tensor:
+    """Clamped uniform knots of ``n`` control points over ``[t0, t1]`` (float64; a row per
+    trajectory for ``(..., 1)`` tensors)."""
+    return t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
+
+
+def _check_seconds(fn: str, name: str, value, low: float | None) -> float:
+    """A finite real ``value`` (seconds): ``>= low``, or ``> 0`` where ``low`` is None."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(
+            value) or (value < low if low is not None else value <= 0):
+        what = f">= {low!r}" if low is not None else "> 0"
+        _checks.fail(fn, f"{name} must be a finite number {what} (in the times' units), got "
+                         f"{value!r}")
+    return float(value)
+
+
 def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int) -> Tensor:
     """The least-squares start of each trajectory of a batch on its own knots (rows of
     ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
@@ -349,7 +371,8 @@ class _Construction(torch.nn.Module):
                    f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
                    f"lower the degree")
             _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
-                             f"N = {N} samples; {fix}")
+                             f"N = {N} samples; {fix} (BSpline.from_poses(..., knot_spacing=) "
+                             f"starts knots finer than the poses, smoothing between them)")
         x64 = x.detach().to(dtype=torch.float64, device="cpu")
         if not bool(torch.isfinite(x64).all()):
             _checks.fail(fn, "the poses must be finite, with non-zero rotations")
@@ -1061,9 +1084,16 @@ class BSpline(Curve):
 
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int | None = None,
-                 degree: int = 3, form: str = "de_boor", check: bool = True) -> Self:
+                 degree: int = 3, form: str = "de_boor", check: bool = True, *,
+                 knot_spacing: float | None = None, margin: float = 0.0) -> Self:
         degree = _check_int(fn, "degree", degree, 1, ">= 1")
         form = curves.check_form(fn, form)
+        margin = _check_seconds(fn, "margin", margin, 0.0)
+        if knot_spacing is not None:
+            knot_spacing = _check_seconds(fn, "knot_spacing", knot_spacing, None)
+            if n_ctrl is not None:
+                _checks.fail(fn, f"pass n_ctrl or knot_spacing, not both (got n_ctrl={n_ctrl!r}"
+                                 f", knot_spacing={knot_spacing!r})")
         t64 = _start.check_sample_times(fn, times, x.shape[-2], batched=True)
         t64 = t64.detach().to(torch.float64).cpu()
         batch = x.shape[:-2]
@@ -1072,21 +1102,36 @@ class BSpline(Curve):
         if t64.dim() > 1:  # each trajectory its own times: its own knots and origin
             batch = _checks.broadcast_batch(fn, poses=(x, 2), times=(t64, 1))
             t64 = t64.expand(*batch, t64.shape[-1])
-            t0, t1 = t64[..., :1], t64[..., -1:]
+            t0, t1 = t64[..., :1] - margin, t64[..., -1:] + margin
         else:
-            t0, t1 = float(t64[0]), float(t64[-1])
-        if n_ctrl is None:  # chosen from the data
+            t0, t1 = float(t64[0]) - margin, float(t64[-1]) + margin
+        if knot_spacing is not None:  # the longest row's span at most knot_spacing apart
+            span = float(torch.as_tensor(t1 - t0).max())
+            n_ctrl = max(math.ceil(span / knot_spacing - 1e-9), 1) + degree
+        elif n_ctrl is None:  # chosen from the data
             n_ctrl = _chosen_n_ctrl(fn, x, t64, degree, form)
         n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
-        knots = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
-        module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device),
-                     degree=degree, knots=knots, form=form, check=check)
-        return module._fill(fn, x, t64)
+        module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device), degree=degree,
+                     knots=_uniform(n, degree, t0, t1), form=form, check=check)
+        coarse = max(degree + 1, x.shape[-2] // _POSES_PER_COARSE_CTRL)
+        if knot_spacing is None or n <= coarse:
+            return module._fill(fn, x, t64)
+        # finer than the poses: their start on coarse knots, sampled densely (each fine
+        # knot span _SAMPLES_PER_SPAN times), is the fine curve's data
+        dense = t0 + (t1 - t0) * torch.linspace(0.0, 1.0, _SAMPLES_PER_SPAN * (n - degree) + 1,
+                                                dtype=torch.float64)
+        start = cls(dualquat.identity((*batch, coarse), dtype=x.dtype, device=x.device),
+                    degree=degree, knots=_uniform(coarse, degree, t0, t1), form=form,
+                    check=check)
+        with torch.no_grad():
+            xd = start._fill(fn, x, t64)(dense.to(x.device))
+        return module._fill(fn, xd, dense)
 
     @classmethod
     def from_poses(cls, rotations: Tensor, translations: Tensor, times: Tensor,
                    n_ctrl: int | None = None, degree: int = 3, form: str = "de_boor",
-                   check: bool = True) -> Self:
+                   check: bool = True, *, knot_spacing: float | None = None,
+                   margin: float = 0.0) -> Self:
         r"""B-spline with ``n_ctrl`` control points fit to timestamped poses.
 
         The knots are clamped uniform over ``[times[0], times[-1]]`` in the caller's units
@@ -1126,6 +1171,17 @@ class BSpline(Curve):
             degree: polynomial degree ``>= 1`` (3: cubic).
             form: ``"de_boor"`` (default) or ``"cumulative"`` (see :class:`BSpline`).
             check: the module's ``check``.
+            knot_spacing: instead of ``n_ctrl``: knots at most this far apart (the times'
+                units), ``n_ctrl = ceil(span / knot_spacing) + degree`` over the domain
+                (with the margins), finer than the poses if asked (the IMU sets the spacing
+                of an estimate): the start is then the regularised least squares of
+                :func:`torch_dq._start.least_squares_start` (``smooth``: the smoothest
+                curve in the local charts between the poses, exact for a constant screw
+                motion), and more control points than poses are allowed.
+            margin: widen the domain by this much (``>= 0``, the times' units) before the
+                first and after the last time: measurements with a time offset up to
+                ``margin`` (:mod:`torch_dq.fitting`'s ``max_time_offset``) stay inside it
+                without trimming them; the curve continues the end poses there.
 
         Returns:
             The module, with control points of the dtype and device of ``rotations``.
@@ -1133,7 +1189,9 @@ class BSpline(Curve):
         Raises:
             ValueError: bad shapes, non-increasing times (the message names the first bad
                 row of ``(..., N)`` times), non-finite poses, an unknown ``form``, more
-                control points than samples (underdetermined), ``n_ctrl=None`` with a batch.
+                control points than samples without ``knot_spacing`` (underdetermined),
+                ``n_ctrl=None`` with a batch, ``n_ctrl`` and ``knot_spacing`` both given,
+                a non-positive ``knot_spacing`` or a negative ``margin``.
 
         Example:
             >>> import torch_dq.dualquat as dq
@@ -1150,4 +1208,4 @@ class BSpline(Curve):
         fn = f"{cls._name}.from_poses"
         x = _poses_to_dq(fn, rotations, translations)
         return cls._from_dq(fn, x, times, n_ctrl=n_ctrl, degree=degree, form=form,
-                            check=check)
+                            check=check, knot_spacing=knot_spacing, margin=margin)

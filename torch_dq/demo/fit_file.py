@@ -368,14 +368,16 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
                      degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
                      verbose: bool, refine=None) -> tuple[FitResult, dict]:
-    """Fit (and ``refine(spline, times, poses)``, e.g. with an IMU), then measure and
-    resample the curve."""
+    """Fit (and ``refine(spline, times, poses) -> (spline, summary entry)``, e.g. with an
+    IMU), then measure and resample the curve."""
     poses = traj.poses()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spline, history, seconds = _fit(traj.select(fit_idx), poses[fit_idx], spacing, degree,
                                         form, steps, dtype, verbose)
-        extra = refine(spline, traj.times[fit_idx], poses[fit_idx]) if refine else None
+        extra = None
+        if refine:  # may fit another curve (the IMU's knots)
+            spline, extra = refine(spline, traj.times[fit_idx], poses[fit_idx])
     pred = evaluate(spline, traj.times)
     rot, trans = pose_errors(pred, poses)
     grid = _resampling(float(traj.times[0]), float(traj.times[-1]), rate)
@@ -459,7 +461,10 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     _check_out(out, inputs, overwrite, plots)
     say = print if verbose else (lambda *a, **k: None)
     begin = time.perf_counter()
-    traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
+    with warnings.catch_warnings(record=True) as caught:  # units the data contradict
+        warnings.simplefilter("always")
+        traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
+    read_warnings = say_warnings("torch-dq fit", caught)
     read_s = time.perf_counter() - begin
     if len(traj) < 2:
         raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
@@ -492,6 +497,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
         f"{fit['seconds']['least_squares_start']:.2f} s)")
     _print_errors(say, result, heldout)
+    if fit["imu"] is not None:  # the IMU fit's knots
+        knots = fit["imu"]["knots"]
+        n_ctrl, spacing, why = knots["n_ctrl"], knots["spacing_s"], knots["reason"]
     summary: dict[str, Any] = {
         "input": {**info, "format": format},
         "model": {"class": "torch_dq.nn.BSpline", "degree": degree, "form": form,
@@ -507,7 +515,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         "imu": fit["imu"],
         "seconds": fit["seconds"],
         "resampled": {"rate_hz": rate_hz, "samples": len(result.grid)},
-        "warnings": fit["warnings"] + ([gap_note] if gap_note else []),
+        "warnings": read_warnings + fit["warnings"] + ([gap_note] if gap_note else []),
         "reload": _reload_text(os.path.join(out, "spline.pt")),
     }
     paths = _write(out, path, result, summary, plots)

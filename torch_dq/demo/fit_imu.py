@@ -8,6 +8,13 @@ each IMU term with its bias estimated, gravity's direction estimated (magnitude
 :data:`GRAVITY`: the file's world frame need not have z up) and, with
 ``time_offset="estimate"``, one clock offset shared by the gyroscope and the accelerometer.
 
+The knots are chosen for the IMU: a knot every :data:`IMU_SAMPLES_PER_SPAN` IMU samples
+(finer than the pose-only fit's spacing, never coarser), the curve started anew on the
+fitted poses at that spacing (``BSpline.from_poses(..., knot_spacing=)``, smoothing between
+the poses), so that the curve can follow the motion that the IMU sees between the poses.
+Each term's ``chi2 / dof`` goes to the summary: far from 1, the noise levels do not describe
+the data.
+
 The noise levels are taken from the data, since the terms require them: the poses' from the
 pose-only fit's residuals at the fitted poses (per kind, their sum of squares over the degrees
 of freedom the fit leaves), the IMU's from its readings' high-frequency scatter (the RMS of
@@ -20,20 +27,25 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import torch
 from torch import Tensor
 
-from .. import dualquat, fitting, io
+from .. import dualquat, fitting, io, quat
+from ..nn import BSpline
 from .fit_file import OptionError
 
-__all__ = ["GRAVITY", "fit_with_imu"]
+__all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "fit_with_imu"]
 
 #: Gravity's magnitude (m/s²); its direction in the file's world frame is estimated.
 GRAVITY = 9.81
 
 #: The bound on an estimated clock offset (s), as :mod:`torch_dq.fitting`'s default.
 MAX_OFFSET = 0.1
+
+#: IMU samples per knot span of the IMU fit (its knot spacing: this many sampling periods).
+IMU_SAMPLES_PER_SPAN = 5
 
 
 def _imu_sigma(readings: Tensor) -> Tensor:
@@ -67,15 +79,91 @@ def _read(path: str, t0: float, t1: float, margin: float) -> tuple[Tensor, Tenso
                                                                      int]:
     """The IMU samples inside the curve's domain (less ``margin``): times, gyro, accel and
     how many were left out."""
-    times, gyro, accel = io.read_imu(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        times, gyro, accel = io.read_imu(path)
+    for w in caught:  # to the caller's record (summary.json)
+        warnings.warn(w.message, w.category, stacklevel=2)
     keep = _inside(times, t0, t1, margin)
     if int(keep.sum()) < 10:
+        hint = "".join(f" ({w.message})" for w in caught)  # e.g. times in another unit
         raise OptionError(f"{path}: {int(keep.sum())} IMU samples lie within the poses' time "
                           f"span [{t0:.6f}, {t1:.6f}] s (less {margin:g} s at each end for the "
                           f"clock offset), the IMU file spans [{float(times[0]):.6f}, "
                           f"{float(times[-1]):.6f}] s: pass an IMU file of the same recording "
-                          f"(same clock)")
+                          f"(same clock){hint}")
     return times[keep], gyro[keep], accel[keep], int((~keep).sum())
+
+
+def _imu_spline(spline, times: Tensor, poses: Tensor, imu_times: Tensor):
+    """The curve of the IMU fit and its knots' summary: the pose-only fit where its knots
+    are as fine as :data:`IMU_SAMPLES_PER_SPAN` IMU periods, else a new start on the fitted
+    poses at that spacing (smoothing between them)."""
+    knots = spline.knots
+    pose_spacing = float(knots[spline.degree + 1] - knots[spline.degree])
+    spacing = IMU_SAMPLES_PER_SPAN * float((imu_times[1:] - imu_times[:-1]).median())
+    if spacing >= pose_spacing:
+        return spline, {"spacing_s": pose_spacing, "n_ctrl": spline.n_ctrl,
+                        "reason": "the pose-only fit's (as fine as the IMU's)"}
+    q, p = dualquat.to_rt(poses)
+    fine = BSpline.from_poses(q.to(spline.control_points.dtype),
+                              p.to(spline.control_points.dtype), times, knot_spacing=spacing,
+                              degree=spline.degree, form=spline.form)
+    fine_knots = fine.knots
+    return fine, {"spacing_s": float(fine_knots[fine.degree + 1] - fine_knots[fine.degree]),
+                  "n_ctrl": fine.n_ctrl,
+                  "reason": f"{IMU_SAMPLES_PER_SPAN} IMU sampling periods (the poses' fit "
+                            f"had {pose_spacing:.4g} s)"}
+
+
+#: Other orders of the four quaternion columns that files get wrong: the rotation ``(w, x,
+#: y, z)`` as read, re-indexed (``x y z w`` read as ``w x y z`` and the converse).
+_ORDERS = {"qw qx qy qz (w first)": [1, 2, 3, 0], "qx qy qz qw (w last)": [3, 0, 1, 2]}
+
+
+def _misfit(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor) -> float:
+    """How badly the poses' body angular rates (finite differences of consecutive
+    rotations) explain the gyroscope's up to one rotation between their axes (Kabsch, both
+    centred: free of a bias): the residual's share of the readings' scatter, in [0, 1]."""
+    rel = quat.to_rotvec(quat.mul(quat.conj(q[:-1]), q[1:]))
+    dt = (times[1:] - times[:-1])[:, None]
+    mid = 0.5 * (times[1:] + times[:-1])
+    j = torch.searchsorted(t_imu.contiguous(), mid).clamp(1, len(t_imu) - 1)
+    u = ((mid - t_imu[j - 1]) / (t_imu[j] - t_imu[j - 1])).clamp(0.0, 1.0)[:, None]
+    inside = (mid >= t_imu[0]) & (mid <= t_imu[-1])
+    a = (rel / dt)[inside]
+    b = (gyro[j - 1] * (1 - u) + gyro[j] * u)[inside]
+    a, b = a - a.mean(0), b - b.mean(0)
+    U, _, Vh = torch.linalg.svd(b.mT @ a)
+    d = torch.sign(torch.linalg.det(U @ Vh))
+    R = U @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ Vh
+    return float((b - a @ R.mT).square().sum() / b.square().sum().clamp_min(1e-300))
+
+
+def _warn_quaternion_order(times: Tensor, poses: Tensor, t_imu: Tensor, gyro: Tensor) -> None:
+    """Warn when the gyroscope fits the poses' rotations far better with their quaternion
+    columns in another order (the poses alone cannot tell: a permutation of the components
+    keeps every angle between two rotations, not their axes)."""
+    q = dualquat.to_rt(poses.double())[0]
+    if len(times) < 10:
+        return
+    now = _misfit(times, q, t_imu, gyro)
+    for name, order in _ORDERS.items():
+        other = _misfit(times, q[:, order], t_imu, gyro)
+        if now > 0.3 and other < 0.25 * now:
+            warnings.warn(f"the poses' quaternion columns look like {name}: the gyroscope "
+                          f"explains their angular rates up to {100 * other:.2g} % in that "
+                          f"order and {100 * now:.2g} % as read; reorder the columns if so",
+                          UserWarning, stacklevel=3)
+
+
+def _chi2(est, terms) -> dict:
+    """Per term (by class name): chi2, degrees of freedom and their ratio."""
+    out = {}
+    for term in terms:
+        c, d = float(est.chi2[term].sum()), float(est.dof[term].sum())
+        out[type(term).__name__] = {"chi2": c, "dof": d, "chi2_per_dof": c / max(d, 1.0)}
+    return out
 
 
 def _stats(est, term, name: str) -> dict:
@@ -85,11 +173,14 @@ def _stats(est, term, name: str) -> dict:
 
 
 def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[str],
-                 time_offset: str | None, steps: int, say) -> dict:
-    """Refine ``spline`` on the fitted poses and the IMU file together; report the estimates.
+                 time_offset: str | None, steps: int, say) -> tuple[object, dict]:
+    """Fit a curve on knots chosen for the IMU to the fitted poses and the IMU file
+    together; report the estimates.
 
     Args:
-        spline: the pose-only fit (:class:`torch_dq.nn.BSpline`), refined in place.
+        spline: the pose-only fit (:class:`torch_dq.nn.BSpline`): the noise levels of the
+            poses come from its residuals; refined in place where its knots are as fine
+            as the IMU's.
         times, poses: the fitted poses (``(N,)`` float64 s, ``(N, 8)``).
         imu: the IMU file (:func:`torch_dq.io.read_imu`), on the poses' clock up to an
             offset.
@@ -98,9 +189,10 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
         say: ``print`` or a silent stand-in.
 
     Returns:
-        The ``"imu"`` entry of ``summary.json``: the file, samples used, noise levels, gyro
-        and accelerometer biases, gravity, the time offset (each ``{"value", "std"}``) and
-        the estimate's steps and reason.
+        The fitted curve, and the ``"imu"`` entry of ``summary.json``: the file, samples
+        used, the knots (spacing, count, why), noise levels, gyro and accelerometer biases,
+        gravity, the time offset (each ``{"value", "std"}``), each term's ``chi2``, ``dof``
+        and ``chi2_per_dof``, and the estimate's steps and reason.
 
     Raises:
         torch_dq.io.TrajectoryFileError: a malformed IMU file.
@@ -112,27 +204,31 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     t, gyro, accel, dropped = _read(path, t0, t1, margin)
     rot_s, trans_s = _pose_sigmas(spline, times, poses)
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
+    _warn_quaternion_order(times, poses, t, gyro)
+    spline, knots = _imu_spline(spline, times, poses, t)
     clock = fitting.Free() if time_offset == "estimate" else None
     terms = [fitting.Poses(times, poses.double(), rot_sigma=rot_s, trans_sigma=trans_s),
              fitting.Gyro(t, gyro, sigma=gyro_s, bias=True, time_offset=clock),
              fitting.Accel(t, accel, sigma=accel_s, bias=True, gravity=GRAVITY,
                            time_offset=clock)]
+    say(f"IMU fit knots: every {knots['spacing_s']:.4g} s, {knots['n_ctrl']} control points "
+        f"({knots['reason']})")
     say(f"IMU: {path}: {len(t)} samples ({dropped} outside the poses' time span left out); "
         f"noise from the data: poses {math.degrees(rot_s):.3g} deg, {1e3 * trans_s:.3g} mm "
         f"per axis; gyro {float(gyro_s.mean()):.3g} rad/s, accel {float(accel_s.mean()):.3g} "
         f"m/s^2")
     est = fitting.estimate(spline, terms, steps=steps, verbose=False)
-    result = {"file": path, "samples": len(t), "left_out": dropped,
+    result = {"file": path, "samples": len(t), "left_out": dropped, "knots": knots,
               "sigmas": {"rot_rad": rot_s, "trans_m": trans_s, "gyro_rad_s": gyro_s.tolist(),
                          "accel_m_s2": accel_s.tolist()},
               "gyro_bias_rad_s": _stats(est, terms[1], "bias"),
               "accel_bias_m_s2": _stats(est, terms[2], "bias"),
               "gravity_m_s2": _stats(est, terms[2], "gravity"),
-              "steps": est.steps, "reason": est.reason}
+              "chi2": _chi2(est, terms), "steps": est.steps, "reason": est.reason}
     if clock is not None:
         result["time_offset_s"] = _stats(est, terms[1], "time_offset")
     _print(say, result)
-    return result
+    return spline, result
 
 
 def _print(say, r: dict) -> None:
@@ -150,3 +246,5 @@ def _print(say, r: dict) -> None:
     if "time_offset_s" in r:
         say(f"  time offset [ms]        {vec(r['time_offset_s'], 1e3)} (IMU stamp + offset = "
             f"pose clock)")
+    say("  chi2/dof                " + ", ".join(f"{name} {v['chi2_per_dof']:.3g}"
+                                                  for name, v in r["chi2"].items()))

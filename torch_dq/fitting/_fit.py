@@ -21,7 +21,7 @@ from ..losses import pose_loss
 from .._start import check_determined
 from .._start import check_sample_times as check_times
 from ._estimate import estimate, progress
-from ._terms import Poses
+from ._terms import Poses, check_pose_data
 
 __all__ = ["FitHistory", "fit"]
 
@@ -341,9 +341,12 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
 
 
 def _check_poses(fn: str, poses) -> Tensor:
-    """``(..., N, 8)`` finite target poses (matrices converted)."""
+    """``(..., N, 8)`` finite target poses (matrices converted; rigid ones, with non-zero
+    rotations: the measurement terms' check)."""
     _checks.tensor(fn, "poses", poses)
+    matrices = None
     if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
+        matrices = poses.detach()
         poses = dualquat.from_matrix(poses)
     elif poses.dim() < 2 or poses.shape[-1] != 8:
         _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
@@ -353,6 +356,8 @@ def _check_poses(fn: str, poses) -> Tensor:
         where = bad.nonzero()[0].tolist()
         _checks.fail(fn, f"poses must be finite: {int(bad.sum())} non-finite pose(s), the "
                          f"first at index {tuple(where)}; drop or mask them before fitting")
+    valid = torch.ones(poses.shape[:-1], dtype=torch.bool, device=poses.device)
+    check_pose_data(fn, "poses", poses.detach(), matrices, valid)
     return poses
 
 

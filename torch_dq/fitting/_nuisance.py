@@ -21,6 +21,7 @@ gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis o
 from __future__ import annotations
 
 import numbers
+import weakref
 
 import torch
 from torch import Tensor
@@ -57,7 +58,7 @@ class Free:
 
     def __init__(self, start=None, prior_std=None) -> None:
         fn = "fitting.Free"
-        if start is not None and not isinstance(start, (Tensor, numbers.Real)) or isinstance(
+        if (start is not None and not isinstance(start, (Tensor, numbers.Real))) or isinstance(
                 start, bool):
             _checks.fail(fn, f"start must be None, a float or a tensor, got {start!r}",
                          TypeError)
@@ -73,9 +74,17 @@ class Free:
         self.start = start
         self.prior_std = prior_std
         self.value: Tensor | None = None
+        self._slots: weakref.WeakSet[Slot] = weakref.WeakSet()  # the live terms' uses
 
     def __repr__(self) -> str:
         return f"Free(start={self.start!r}, prior_std={self.prior_std!r})"
+
+    def __getstate__(self) -> dict:
+        """Picklable (and deep-copyable): the uses as a plain list."""
+        return {**self.__dict__, "_slots": list(self._slots)}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({**state, "_slots": weakref.WeakSet(state.get("_slots", ()))})
 
 
 class Slot:
@@ -89,7 +98,7 @@ class Slot:
     """
 
     def __init__(self, fn: str, name: str, kind: str, arg) -> None:
-        self.name, self.kind = name, kind
+        self.fn, self.name, self.kind = fn, name, kind
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:
@@ -97,14 +106,26 @@ class Slot:
         if arg is True or (isinstance(arg, str) and arg == "estimate"):
             self.free = Free()
         elif isinstance(arg, Free):
-            self.free = arg
-            if arg.start is not None:
-                self._check_value(fn, f"{name} start", arg.start)
+            self._adopt(arg)
         elif isinstance(arg, str) or isinstance(arg, bool):
             _checks.fail(fn, f"{name} must be None, False, a tensor or float, True, "
                              f"'estimate' or fitting.Free, got {arg!r}")
         else:
             self.fixed = self._check_value(fn, name, arg)
+
+    def _adopt(self, free: Free) -> None:
+        """Take ``free`` as this parameter: its start checked, and of this slot's kind
+        (and shape) wherever else a live term uses it (one Free is one parameter)."""
+        for other in list(free._slots):
+            if other.kind != self.kind:
+                _checks.fail(self.fn, f"{self.name} is given a fitting.Free that is also "
+                                      f"{other.fn}'s {other.name}, a parameter of another kind "
+                                      f"({_describe(self.kind)} vs {_describe(other.kind)}): "
+                                      f"one Free is one parameter; pass separate Free objects")
+        if free.start is not None:
+            self._check_value(self.fn, f"{self.name} start", free.start)
+        self.free = free
+        free._slots.add(self)
 
     def _check_value(self, fn: str, name: str, value) -> Tensor:
         if isinstance(value, numbers.Real) and not isinstance(value, bool):
@@ -156,6 +177,12 @@ class Slot:
         if v is None:
             return None
         return torch.as_tensor(v).to(dtype=like.dtype, device=like.device)
+
+
+def _describe(kind: str) -> str:
+    """A kind and its value's shape, for messages."""
+    shape = _SHAPES[kind]
+    return f"{kind} {'(' + ', '.join(map(str, shape)) + ',)' if shape else 'scalar'}"
 
 
 def retract(kind: str, value: Tensor, delta: Tensor) -> Tensor:

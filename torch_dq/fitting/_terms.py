@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from typing import TYPE_CHECKING, cast
 
 import torch
@@ -56,8 +57,8 @@ def _sigma(fn: str, name: str, value, k: int) -> Tensor:
     if s.dim() > 1 or (s.dim() == 1 and s.shape[0] != k):
         _checks.fail(fn, f"{name} must be a float or a ({k},) tensor, got shape "
                          f"{_checks.shape_str(s.shape)}")
-    if not bool((s > 0).all()) or bool(torch.isnan(s).any()):
-        _checks.fail(fn, f"{name} must be positive, got {value!r}")
+    if not bool(((s > 0) & torch.isfinite(s)).all()):
+        _checks.fail(fn, f"{name} must be positive and finite, got {value!r}")
     return s.expand(k).clone()
 
 
@@ -181,15 +182,17 @@ class Term(torch.nn.Module):
         self.N = n
 
     def _fill_times(self, fn: str, name: str, t: Tensor, mask: Tensor) -> Tensor:
-        """Masked times replaced by the previous valid one (the first valid one before it),
-        so that they stay sorted; checks finite and non-decreasing valid times."""
+        """Valid times as given; masked ones replaced by the largest valid one before them
+        (the first valid one before any), so that sorted times stay sorted. Checks finite
+        valid times, non-decreasing for a term with one time argument (pairs of times,
+        listed by keyframe or loop closure, may come in any order)."""
         m = mask if t.dim() == mask.dim() else mask.any(0)
         mm = m.expand(t.shape)
         _first_bad(fn, f"{name} must be finite", mm & ~torch.isfinite(t))
         _check_resolution(fn, name, t, mm)
         first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
         filled = torch.where(m, t, -torch.inf).cummax(-1).values
-        filled = torch.where(torch.isinf(filled), first, filled)
+        filled = torch.where(mm, t, torch.where(torch.isinf(filled), first, filled))
         if len(self._names) == 1:
             bad = torch.cat((torch.zeros_like(mm[..., :1]),
                              mm[..., 1:] & (t[..., 1:] < filled[..., :-1])), -1)
@@ -277,15 +280,44 @@ class Term(torch.nn.Module):
         return _robust.rho(self.robust, r.norm(dim=-1), self.robust_k).sum(-1)
 
 
-def _pose_data(fn: str, name: str, poses: Tensor) -> Tensor:
-    """``(..., N, 8)`` normalized dual quaternions from dual quaternions or matrices."""
+def _pose_data(fn: str, name: str, poses: Tensor) -> tuple[Tensor, Tensor | None]:
+    """``(..., N, 8)`` dual quaternions from dual quaternions or matrices, and the matrices
+    (None for dual quaternions), detached."""
     _checks.tensor(fn, name, poses)
     if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
-        poses = dualquat.from_matrix(poses)
-    elif poses.dim() < 2 or poses.shape[-1] != 8:
+        return dualquat.from_matrix(poses.detach()), poses.detach()
+    if poses.dim() < 2 or poses.shape[-1] != 8:
         _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
                          f"for {name}, got shape {_checks.shape_str(poses.shape)}")
-    return poses.detach()
+    return poses.detach(), None
+
+
+# Defect of a rigid 4x4 matrix accepted (max |R^T R - I|, |det R - 1| and the last row's
+# distance from (0, 0, 0, 1)): poses written with 6 significant digits (KITTI's format)
+# are off by ~1e-6, a matrix that is not a pose (scaled, reflected, transposed) by far more.
+_RIGID_ATOL = 1e-4
+
+
+def check_pose_data(fn: str, name: str, x: Tensor, T: Tensor | None, mask: Tensor) -> None:
+    """Fail naming the first valid sample whose pose is not one: a matrix that is not rigid
+    (rotation block not orthonormal or with determinant -1, last row not ``(0, 0, 0, 1)``:
+    a transposed matrix), a zero rotation quaternion (a dropped frame written as zeros)."""
+    if T is not None:
+        M = T.to(torch.float64)
+        R = M[..., :3, :3]
+        eye = torch.eye(3, dtype=torch.float64, device=M.device)
+        last = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64, device=M.device)
+        checks = (((R.mT @ R - eye).abs().amax((-1, -2)), "a rotation block R with R^T R = I"),
+                  ((torch.linalg.det(R) - 1.0).abs(), "a rotation block of det +1 (a "
+                                                      "reflection)"),
+                  ((M[..., 3, :] - last).abs().amax(-1), "a last row (0, 0, 0, 1) (a "
+                                                         "transposed matrix?)"))
+        for defect, what in checks:
+            _first_bad(fn, f"{name} must be rigid 4x4 matrices [[R, t], [0, 1]]",
+                       mask & ~(defect <= _RIGID_ATOL), f" ({what}, to {_RIGID_ATOL:g})")
+    norm = x[..., :4].norm(dim=-1)
+    _first_bad(fn, f"{name} must have non-zero rotation quaternions", mask & ~(norm > 0),
+               " (a dropped frame written as zeros? mask it)")
 
 
 def _vector_data(fn: str, name: str, x: Tensor) -> Tensor:
@@ -317,10 +349,11 @@ class _PoseTerm(Term):
         (normalized; masked samples replaced by the identity) as ``rotations`` and
         ``translations``."""
         fn = self._fn
-        x = _pose_data(fn, "poses", poses)
+        x, T = _pose_data(fn, "poses", poses)
         sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
                            _sigma(fn, "trans_sigma", trans_sigma, 3)))
         Term.__init__(self, times, names, x, 1, sigma, **common)
+        check_pose_data(fn, "poses", x, T, self.mask)
         safe = _masked(x, common["mask"], dualquat.identity(dtype=x.dtype, device=x.device))
         q, t = dualquat.to_rt(dualquat.normalize(safe))
         self.register_buffer("rotations", q)
@@ -474,6 +507,11 @@ class Gyro(_Imu):
         time_offset: estimated without a start: from cross-correlating the measured and the
             trajectory's angular rates over ``[-max_time_offset, max_time_offset]``.
         max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Warns:
+        UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
+            trajectory's angular rates (deg/s for rad/s), once, when
+            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`).
     """
 
     order = 1
@@ -485,16 +523,50 @@ class Gyro(_Imu):
         super().__init__(times, readings, sigma, bias, time_offset=time_offset,
                          max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
                          mask=mask)
+        self._units_checked = False
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
         w = curves.kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
+    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
+        """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
+        warns when the readings look like deg/s (:func:`_warn_degrees`)."""
+        if not self._units_checked:
+            self._units_checked = True
+            _warn_degrees(self, trajectory, ctrl)
+        return super().values(trajectory, ctrl)
+
     def default_start(self, name, trajectory, ctrl, values):
         if name != "time_offset":
             return super().default_start(name, trajectory, ctrl, values)
         return _correlate_offset(self, trajectory, ctrl)
+
+
+_DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
+
+
+def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
+    """Warn when the mean magnitude of the readings is within a factor 1.5 of
+    ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
+    into its domain; skipped where it barely turns, below 1e-3 rad/s)."""
+    t = term.times
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
+              for e in trajectory.domain)
+    t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
+                      hi[..., None] if hi.dim() else hi)
+    with torch.no_grad():
+        x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
+    w = term.mask.to(torch.float64)
+    pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
+    meas = float((term.readings.norm(dim=-1) * w).sum() / w.sum())
+    if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
+        warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
+                      f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
+                      f"angular rate {pred:.4g} rad/s (180/pi = 57.3); convert them with "
+                      f"torch.deg2rad", UserWarning, stacklevel=4)
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
@@ -538,6 +610,8 @@ def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
 def _interpolate(rate: Tensor, s: Tensor) -> Tensor:
     """``rate (..., G, 3)`` linearly interpolated at grid positions ``s (..., O, N)``:
     ``(..., O, 3, N)``."""
+    lead = torch.broadcast_shapes(rate.shape[:-2], s.shape[:-2])  # shared times: s (O, N)
+    s = s.expand(*lead, *s.shape[-2:])
     j = s.floor().clamp(0, rate.shape[-2] - 2)
     fr = (s - j)[..., None]
     j = j.long()[..., None]  # (..., O, N, 1): rate gathered per sample
