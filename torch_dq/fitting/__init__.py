@@ -20,6 +20,8 @@ Positions      ``R(t') l + p(t')`` (lever arm)      world
 RelativePoses  ``x(t'_from)^-1 x(t'_to)``           rotation: to-frame, translation: from-frame
 Gyro           ``R^T w + b_g``                      body
 Accel          ``R^T (a - g) + b_a``                body
+Reprojections  ``project((T^-1 x(t') e)^-1 p)``,    pixels (:mod:`torch_dq.camera`)
+               ``t' = t + dt + line_delay * v``
 ============== ==================================== =========================================
 
 **Nuisance parameters** (``extrinsic``, ``lever_arm``, ``bias``, ``gravity``,
@@ -81,6 +83,7 @@ import torch  # noqa: F401  (the examples' namespace)
 from .._spacing import choose_knot_spacing
 from .._start import bspline_basis, check_determined, least_squares_start
 from .._start import check_sample_times as check_times
+from ._camera import Reprojections
 from ._estimate import estimate
 from ._fit import FitHistory, fit
 from ._nuisance import Free
@@ -88,12 +91,13 @@ from ._robust import chi_quantile
 from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
 from ._uncertainty import Estimate
 
-for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses, Term,
-             chi_quantile, estimate, fit):
+for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses,
+             Reprojections, Term, chi_quantile, estimate, fit):
     _obj.__module__ = __name__  # the public home of the names (and of their documentation)
 del _obj
 
 # bspline_basis, check_determined, check_times and least_squares_start stay importable from
 # here (0.2's names); they are documented where they live, torch_dq._start.
 __all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
-           "RelativePoses", "Term", "chi_quantile", "choose_knot_spacing", "estimate", "fit"]
+           "RelativePoses", "Reprojections", "Term", "chi_quantile", "choose_knot_spacing",
+           "estimate", "fit"]
