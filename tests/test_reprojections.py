@@ -1,0 +1,232 @@
+"""torch_dq.fitting.Reprojections against OpenCV, finite differences and a simulated rig.
+
+The motion is closed-form: the body rotation R(t) = R_n Rz(a1 sin w1 t) Ry(a2 sin w2 t)
+Rx(a3 sin w3 t) and position p(t) = sums of sines, with the body angular rate written out
+by hand (for R = R_n Rz(z) Ry(y) Rx(x): w_body = Rx^T Ry^T z' e_z + Rx^T y' e_y + x' e_x)
+and the acceleration differentiated by hand. A camera mounted at e on the body looks at a
+planar grid (the world is the target's frame); pixels come from cv2.projectPoints of the
+points in camera axes at t' = t + dt + l v (a rolling shutter: v the row, solved by fixed
+point), with seeded noise.
+"""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from pytransform3d.transformations import transform_from_dual_quaternion
+from scipy.spatial.transform import Rotation
+
+import torch_dq.dualquat as dq
+from torch_dq import camera as camera_module
+from torch_dq import quat
+from torch_dq.fitting import Accel, Free, Gyro, Reprojections, estimate
+from torch_dq.fitting._estimate import _starts
+from torch_dq.fitting._problem import Problem
+from torch_dq.nn import BSpline
+
+F64 = torch.float64
+RADTAN = np.array([460.0, 458.0, 376.0, 240.0, -0.28, 0.07, 2e-4, 2e-5])
+E_ROT = Rotation.from_euler("xyz", [0.1, -0.15, 1.4])  # camera axes in body axes
+E_T = np.array([0.05, -0.02, 0.01])
+R_N = (Rotation.from_euler("z", 0.3) * E_ROT.inv())  # body orientation: camera ~ forward
+AMP, W = (0.25, 0.2, 0.15), (1.3, 1.7, 2.1)
+G = np.array([0.0, 0.0, -9.81])
+
+
+class _Camera:  # the contract's Camera (model, params): what Reprojections reads of it
+    def __init__(self, model, params):
+        self.model, self.params = model, torch.as_tensor(params, dtype=F64)
+
+
+def make_camera(model="pinhole-radtan", params=RADTAN):
+    cls = getattr(camera_module, "Camera", None)
+    if cls is None:
+        return _Camera(model, params)
+    return cls(model, torch.as_tensor(params, dtype=F64), (752, 480))
+
+
+# ----------------------------------------------------------------------------- the truth
+
+def body(t):
+    """numpy: body rotation (scipy), position, body angular rate, world acceleration."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    ang = [a * np.sin(w * t) for a, w in zip(AMP, W)]
+    dang = [a * w * np.cos(w * t) for a, w in zip(AMP, W)]
+    Rz, Ry, Rx = (Rotation.from_euler(ax, v[:, None]) for ax, v in zip("zyx", ang))
+    R = R_N * Rz * Ry * Rx
+    ez, ey, ex = np.eye(3)[2], np.eye(3)[1], np.eye(3)[0]
+    w = ((Rx.inv() * Ry.inv()).apply(np.outer(dang[0], ez)) + Rx.inv().apply(
+        np.outer(dang[1], ey)) + np.outer(dang[2], ex))
+    k = np.array([[0.12, 0.9], [0.1, 1.1], [0.08, 1.4]])  # amplitude, rate per axis
+    base = np.array([0.15, 0.12, -0.75])
+    p = base + np.stack([a * np.sin(f * t + i) for i, (a, f) in enumerate(k)], -1)
+    acc = np.stack([-a * f * f * np.sin(f * t + i) for i, (a, f) in enumerate(k)], -1)
+    return R, p, w, acc
+
+
+def body_dq(t):
+    R, p = body(t)[:2]
+    return dq.from_rt(torch.from_numpy(R.as_quat(scalar_first=True)), torch.from_numpy(p))
+
+
+def extrinsic_dq(rot=E_ROT, trans=E_T):
+    return dq.from_rt(torch.from_numpy(rot.as_quat(scalar_first=True)), torch.as_tensor(
+        trans, dtype=F64))
+
+
+def grid_points(rows=5, cols=6, pitch=0.06):
+    y, x = np.meshgrid(np.arange(rows) * pitch, np.arange(cols) * pitch, indexing="ij")
+    return np.stack((x.ravel(), y.ravel(), np.zeros(rows * cols)), -1)
+
+
+def project_cv(T_wc, points, params):
+    """OpenCV pixels of world points for the camera posed at ``T_wc`` (4x4), and z."""
+    T_cw = np.linalg.inv(T_wc)
+    cam = points @ T_cw[:3, :3].T + T_cw[:3, 3]
+    K = np.array([[params[0], 0, params[2]], [0, params[1], params[3]], [0, 0, 1.0]])
+    dist = np.array([*params[4:8], 0.0]) if len(params) > 4 else np.zeros(5)
+    rvec = cv2.Rodrigues(T_cw[:3, :3])[0]
+    pix = cv2.projectPoints(points.reshape(-1, 1, 3), rvec, T_cw[:3, 3], K, dist)[0]
+    return pix.reshape(-1, 2), cam[:, 2]
+
+
+def camera_pose(R, p, e_rot, e_t):
+    T_wb = np.eye(4)
+    T_wb[:3, :3], T_wb[:3, 3] = R.as_matrix(), p
+    T_be = np.eye(4)
+    T_be[:3, :3], T_be[:3, 3] = e_rot.as_matrix(), e_t
+    return T_wb @ T_be
+
+
+def simulate(frames, points, *, dt, line_delay, params=RADTAN, noise=0.0, seed=0):
+    """Observations (times, points, pixels) of the grid at the frame times, with the rolling
+    shutter solved by fixed point (v = row of the point at t + dt + l v)."""
+    rng = np.random.default_rng(seed)
+    ts, ps, us = [], [], []
+    for tf in frames:
+        v = np.full(len(points), params[3])
+        for _ in range(6):
+            tt = tf + dt + line_delay * v
+            R, p = body(tt)[:2]
+            pix = np.stack([project_cv(camera_pose(R[i], p[i], E_ROT, E_T), points[i:i + 1],
+                                       params)[0][0] for i in range(len(points))])
+            v = pix[:, 1]
+        ts.append(np.full(len(points), tf))
+        ps.append(points)
+        us.append(pix + noise * rng.standard_normal(pix.shape))
+    return (torch.from_numpy(np.concatenate(ts)), torch.from_numpy(np.concatenate(ps)),
+            torch.from_numpy(np.concatenate(us)))
+
+
+def spline_of(t0, t1, spacing=0.1):
+    t = torch.linspace(t0, t1, int(round((t1 - t0) * 100)) + 1, dtype=F64)
+    n = math.ceil((t1 - t0) / spacing) + 3
+    return BSpline.from_dualquats(body_dq(t), t, n_ctrl=n, form="cumulative")
+
+
+# ----------------------------------------------------------------------------- reference
+
+def reference(traj, term, ctrl=None, *, e, target, params, dt, line_delay):
+    """numpy/OpenCV residuals ``(N, 2)`` of ``term``'s data at the trajectory's poses."""
+    t = term.times + dt + line_delay * term.pixels[..., 1]
+    with torch.no_grad():
+        x = traj(t, ctrl=ctrl).numpy()
+    T_e = transform_from_dual_quaternion(e.numpy())
+    T_t = transform_from_dual_quaternion(target.numpy())
+    out = []
+    for i in range(x.shape[0]):
+        T_wc = np.linalg.inv(T_t) @ transform_from_dual_quaternion(x[i]) @ T_e
+        out.append(project_cv(T_wc, term.points[i:i + 1].numpy(), params.numpy())[0][0])
+    r = (np.stack(out) - term.pixels.numpy()) / term.sigma.numpy()
+    return torch.from_numpy(r)
+
+
+@pytest.fixture(scope="module")
+def small():
+    """A few observations of two frames, with every nuisance parameter present."""
+    pts = grid_points(2, 3)
+    times, points, pixels = simulate([0.5, 0.55], pts, dt=0.01, line_delay=3e-5, noise=0.5)
+    traj = spline_of(0.0, 1.0)
+    e = extrinsic_dq(E_ROT * Rotation.from_rotvec([0.02, -0.03, 0.05]), E_T + 0.02)
+    target = dq.exp(torch.tensor([0.01, -0.02, 0.03, 0.01, 0.02, -0.01], dtype=F64))
+    params = torch.from_numpy(RADTAN * 1.01)
+    return traj, times, points, pixels, e, target, params
+
+
+def test_residuals_match_opencv(small):
+    traj, times, points, pixels, e, target, params = small
+    term = Reprojections(times, points, pixels, camera=make_camera(params=params.numpy()),
+                         sigma=(0.5, 0.4), extrinsic=e, target=target, time_offset=0.012,
+                         line_delay=4e-5)
+    ref = reference(traj, term, e=e, target=target, params=params, dt=0.012, line_delay=4e-5)
+    r = term(traj)
+    assert r.shape == (12, 2)
+    torch.testing.assert_close(r, ref, atol=1e-8, rtol=0)
+    # the robust cost is rho of the norms
+    assert float(term.cost(traj).detach()) == pytest.approx(float((ref ** 2).sum()), rel=1e-10)
+
+
+def _jacobians(traj, term):
+    """The solver's Jacobians (exact, through the spans) at the terms' values."""
+    ctrl = traj.control_points.detach()
+    problem = Problem(traj, [term], ctrl.shape[:-2])
+    values = _starts("test", problem, ctrl)
+    w = problem.width(values)
+    r, f0, Jc, Jn = problem._chained(0, ctrl, values, w, False)
+    return ctrl, values, r, f0, Jc, Jn
+
+
+def test_jacobians_match_finite_differences(small):
+    """Every parameter's Jacobian against central differences of the OpenCV residual."""
+    traj, times, points, pixels, e, target, params = small
+    dt0, l0 = 0.012, 4e-5
+    term = Reprojections(times, points, pixels, camera=make_camera(params=params.numpy()),
+                         sigma=0.5, extrinsic=Free(e), target=Free(target),
+                         intrinsics=True, time_offset=Free(dt0), line_delay=Free(l0),
+                         max_line_delay=1e-3)
+    ctrl, values, r, f0, Jc, Jn = _jacobians(traj, term)
+    base = dict(e=e, target=target, params=params, dt=dt0, line_delay=l0)
+    torch.testing.assert_close(r, reference(traj, term, **base), atol=1e-8, rtol=1e-9)
+    h = 1e-6
+
+    def fd(**moved):
+        lo = reference(traj, term, **{**base, **{k: v(-h) for k, v in moved.items()}})
+        hi = reference(traj, term, **{**base, **{k: v(h) for k, v in moved.items()}})
+        return (hi - lo) / (2 * h)
+
+    def unit(n, j):
+        return torch.eye(n, dtype=F64)[j]
+
+    for j in range(6):
+        torch.testing.assert_close(Jn["extrinsic"][..., j], fd(
+            e=lambda s: dq.mul(e, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
+        torch.testing.assert_close(Jn["target"][..., j], fd(
+            target=lambda s: dq.mul(target, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
+    for j in range(8):
+        torch.testing.assert_close(Jn["intrinsics"][..., j], fd(
+            params=lambda s: params + s * unit(8, j)), atol=1e-5, rtol=1e-6)
+    torch.testing.assert_close(Jn["time_offset"][..., 0], fd(dt=lambda s: dt0 + s),
+                               atol=1e-4, rtol=1e-6)
+    torch.testing.assert_close(Jn["line_delay"][..., 0], fd(line_delay=lambda s: l0 + s),
+                               atol=1e-2, rtol=1e-6)
+    assert float(Jn["line_delay"].abs().max()) > 1e3  # pixels per (s per row): it moves
+    n, w = ctrl.shape[-2], Jc.shape[-2]
+    for a in range(w):  # each window control point, each step axis
+        for j in range(6):
+            got = Jc[..., a, j]
+            for k in torch.unique(f0 + a).tolist():
+                if k >= n:
+                    continue
+                rows = (f0 + a) == k
+
+                def step(s, k=k, j=j):
+                    c = ctrl.clone()
+                    c[k] = dq.mul(ctrl[k], dq.exp(s * unit(6, j)))
+                    return c
+
+                lo = reference(traj, term, step(-h), **base)
+                hi = reference(traj, term, step(h), **base)
+                torch.testing.assert_close(got[rows], ((hi - lo) / (2 * h))[rows], atol=1e-5,
+                                           rtol=1e-6)
