@@ -100,24 +100,34 @@ def camera_pose(R, p, e_rot, e_t):
     return T_wb @ T_be
 
 
+def project_np(R, p, points, params):
+    """numpy radtan (OpenCV's plumb bob, k3 = 0) of world points for body poses ``(R, p)``
+    (one per point), the camera at ``E`` on the body; returns pixels and depths."""
+    R_c = R * E_ROT
+    p_c = p + R.apply(E_T)
+    x, y, z = R_c.inv().apply(points - p_c).T
+    a, b = x / z, y / z
+    r2 = a * a + b * b
+    fu, fv, cu, cv, k1, k2, p1, p2 = params
+    radial = 1 + k1 * r2 + k2 * r2 * r2
+    ad = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
+    bd = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+    return np.stack((fu * ad + cu, fv * bd + cv), -1), z
+
+
 def simulate(frames, points, *, dt, line_delay, params=RADTAN, noise=0.0, seed=0):
     """Observations (times, points, pixels) of the grid at the frame times, with the rolling
     shutter solved by fixed point (v = row of the point at t + dt + l v)."""
     rng = np.random.default_rng(seed)
-    ts, ps, us = [], [], []
-    for tf in frames:
-        v = np.full(len(points), params[3])
-        for _ in range(6):
-            tt = tf + dt + line_delay * v
-            R, p = body(tt)[:2]
-            pix = np.stack([project_cv(camera_pose(R[i], p[i], E_ROT, E_T), points[i:i + 1],
-                                       params)[0][0] for i in range(len(points))])
-            v = pix[:, 1]
-        ts.append(np.full(len(points), tf))
-        ps.append(points)
-        us.append(pix + noise * rng.standard_normal(pix.shape))
-    return (torch.from_numpy(np.concatenate(ts)), torch.from_numpy(np.concatenate(ps)),
-            torch.from_numpy(np.concatenate(us)))
+    tf = np.repeat(np.asarray(frames, dtype=float), len(points))
+    pts = np.tile(points, (len(frames), 1))
+    v = np.full(len(tf), params[3])
+    for _ in range(8):
+        R, p = body(tf + dt + line_delay * v)[:2]
+        pix = project_np(R, p, pts, params)[0]
+        v = pix[:, 1]
+    pix = pix + noise * rng.standard_normal(pix.shape)
+    return torch.from_numpy(tf), torch.from_numpy(pts), torch.from_numpy(pix)
 
 
 def spline_of(t0, t1, spacing=0.1):
@@ -161,6 +171,10 @@ def test_residuals_match_opencv(small):
                          sigma=(0.5, 0.4), extrinsic=e, target=target, time_offset=0.012,
                          line_delay=4e-5)
     ref = reference(traj, term, e=e, target=target, params=params, dt=0.012, line_delay=4e-5)
+    R, p = body(times.numpy())[:2]  # the simulator's formula is OpenCV's
+    T_wc = camera_pose(R[0], p[0], E_ROT, E_T)
+    np.testing.assert_allclose(project_np(R[:1], p[:1], points[:1].numpy(), RADTAN)[0],
+                               project_cv(T_wc, points[:1].numpy(), RADTAN)[0], atol=1e-9)
     r = term(traj)
     assert r.shape == (12, 2)
     torch.testing.assert_close(r, ref, atol=1e-8, rtol=0)
@@ -282,3 +296,142 @@ def test_estimate_recovers_extrinsic_clock_line_delay_and_intrinsics(rig):
     assert est.std(cam, "intrinsics").shape == (8,) and est.std(cam, "line_delay").shape == ()
     chi2 = float(est.chi2[cam]) / float(est.dof[cam])
     assert 0.8 < chi2 < 1.2
+
+
+# ----------------------------------------------------------------------------- invalid points
+
+def test_points_behind_the_camera_are_excluded_and_counted():
+    """Observations of points behind the camera: zero residual rows, finite gradients, and
+    estimate counts them at the solution with a warning; the rest of the fit is unharmed."""
+    frames = np.arange(0.3, 1.3, 0.05)
+    times, points, pixels = simulate(frames, grid_points(), dt=0.0, line_delay=0.0,
+                                     noise=0.3, seed=3)
+    behind = torch.zeros(len(times), dtype=torch.bool)
+    behind[::97] = True  # these points moved 3 m behind the target (the camera looks at +z)
+    points = torch.where(behind[:, None], points + torch.tensor([0.0, 0.0, -3.0],
+                                                                dtype=F64), points)
+    traj = spline_of(0.3, 1.25)
+    term = Reprojections(times, points, pixels, camera=make_camera(), sigma=0.3,
+                         extrinsic=extrinsic_dq())
+    r = term(traj)
+    assert torch.isfinite(r).all() and bool((r[behind] == 0).all())
+    assert bool((r[~behind].abs() > 0).all())
+    ctrl = traj.control_points.detach().clone().requires_grad_()
+    (g,) = torch.autograd.grad(term.cost(traj, ctrl), ctrl)
+    assert torch.isfinite(g).all() and bool((g != 0).any())
+    with pytest.warns(RuntimeWarning, match=r"7 observation\(s\) of Reprojections"):
+        est = estimate(traj, [term], steps=10, verbose=False)
+    assert int(term.invalid) == int(behind.sum()) == 7
+    assert torch.isfinite(est.final_loss) and torch.isfinite(traj.control_points).all()
+    assert float(est.chi2[term]) / (2 * int((~behind).sum())) < 1.3
+
+
+# ----------------------------------------------------------------------------- arguments
+
+def _obs():
+    times, points, pixels = simulate([0.5, 0.55], grid_points(2, 3), dt=0.0, line_delay=0.0)
+    return times, points, pixels
+
+
+@pytest.mark.parametrize("kwargs, kind, match", [
+    (dict(camera="pinhole"), TypeError, "camera"),
+    (dict(sigma=None), ValueError, "sigma"),
+    (dict(sigma=-1.0), ValueError, "sigma"),
+    (dict(sigma=(1.0, 2.0, 3.0)), ValueError, "sigma"),
+    (dict(line_delay=-1e-5), ValueError, "line_delay"),
+    (dict(max_line_delay=0.0), ValueError, "max_line_delay"),
+    (dict(intrinsics=torch.zeros(5, dtype=F64)), ValueError, "intrinsics"),
+    (dict(extrinsic=torch.zeros(7, dtype=F64)), ValueError, "extrinsic"),
+    (dict(target="yes"), ValueError, "target"),
+    (dict(robust="tukey"), ValueError, "robust"),
+    (dict(pixels=torch.zeros(12, 3, dtype=F64)), ValueError, "pixels"),
+    (dict(points=torch.zeros(11, 3, dtype=F64)), ValueError, "points"),
+    (dict(times=torch.zeros(11, dtype=F64)), ValueError, "times"),
+    (dict(mask=torch.ones(12)), TypeError, "mask"),
+])
+def test_bad_arguments_raise_naming_them(kwargs, kind, match):
+    times, points, pixels = _obs()
+    args = dict(times=times, points=points, pixels=pixels, camera=make_camera(), sigma=0.3)
+    args.update(kwargs)
+    with pytest.raises(kind, match=match):
+        Reprojections(args.pop("times"), args.pop("points"), args.pop("pixels"), **args)
+
+
+def test_unknown_model_raises_naming_it():
+    times, points, pixels = _obs()
+    with pytest.raises(ValueError, match="model"):
+        Reprojections(times, points, pixels, camera=_Camera("fisheye", RADTAN), sigma=0.3)
+
+
+def test_line_delay_started_outside_its_range_raises():
+    times, points, pixels = _obs()
+    term = Reprojections(times, points, pixels, camera=make_camera(), sigma=0.3,
+                         line_delay=Free(2e-4), extrinsic=extrinsic_dq())
+    with pytest.raises(ValueError, match="line_delay starts outside"):
+        estimate(spline_of(0.0, 1.0), [term], verbose=False)
+
+
+# ----------------------------------------------------------------------------- structure
+
+def _imu_terms():
+    ti = torch.linspace(0.0, 1.0, 201, dtype=F64)
+    gyro, accel = imu(ti.numpy(), 0)
+    return [Gyro(ti, gyro, sigma=0.005), Accel(ti, accel, sigma=0.05,
+                                                 gravity=torch.from_numpy(G))]
+
+
+@pytest.mark.parametrize("kwargs, imu, match", [
+    (dict(extrinsic=True, target=True), False, "extrinsic and target are both estimated"),
+    (dict(extrinsic=True, target=True), True, "extrinsic and target are both estimated"),
+    (dict(extrinsic=True), False, "extrinsic is undetermined"),
+    (dict(target=True), True, "target is undetermined"),
+    (dict(intrinsics=True, extrinsic=extrinsic_dq()), False, "one view"),
+    (dict(line_delay=True, extrinsic=extrinsic_dq()), False, "line_delay is undetermined"),
+])
+def test_undetermined_camera_parameters_raise(kwargs, imu, match):
+    times, points, pixels = _obs()
+    if "intrinsics" in kwargs:  # one frame
+        times, points, pixels = times[:6], points[:6], pixels[:6]
+    if "line_delay" in kwargs:  # every observation on one row
+        pixels = pixels.clone()
+        pixels[:, 1] = 240.0
+    term = Reprojections(times, points, pixels, camera=make_camera(), sigma=0.3, **kwargs)
+    with pytest.raises(ValueError, match=match):
+        estimate(spline_of(0.0, 1.0), [term] + (_imu_terms() if imu else []), verbose=False)
+
+
+def test_domain_check_widens_by_the_line_delay():
+    """t + max_line_delay * v must stay inside the trajectory's domain."""
+    times, points, pixels = simulate([0.9, 0.95], grid_points(2, 3), dt=0.0, line_delay=0.0)
+    term = Reprojections(times, points, pixels, camera=make_camera(), sigma=0.3,
+                         extrinsic=extrinsic_dq(), line_delay=True, max_line_delay=1e-3)
+    lo, hi = term.time_reach()
+    torch.testing.assert_close(hi, 1e-3 * pixels[:, 1])
+    torch.testing.assert_close(lo, torch.zeros_like(lo))
+    with pytest.raises(ValueError, match="line_delay"):
+        estimate(spline_of(0.0, 1.0), [term], verbose=False)
+
+
+# ----------------------------------------------------------------------------- batches
+
+def test_batches_with_their_own_times_are_independent_problems():
+    """Two camera-only problems with their own frame times, intrinsics estimated: the batch
+    gives each element's own estimate."""
+    obs = [simulate(np.arange(a, a + 0.8, 0.05), grid_points(), dt=0.0, line_delay=0.0,
+                    noise=0.3, seed=s) for a, s in ((0.3, 5), (0.35, 6))]
+    start = RADTAN + np.array([3.0, -3.0, 2.0, -2.0, 0.02, 0.0, 0.0, 0.0])
+    alone = []
+    for times, points, pixels in obs:
+        term = Reprojections(times, points, pixels, camera=make_camera(params=start),
+                             sigma=0.3, extrinsic=extrinsic_dq(), intrinsics=True)
+        estimate(spline_of(0.3, 1.15), [term], steps=20, verbose=False)
+        alone.append(term.intrinsics)
+    times, points, pixels = (torch.stack(x) for x in zip(*obs))
+    traj = BSpline(torch.stack([spline_of(0.3, 1.15).control_points.detach()] * 2),
+                   knots=spline_of(0.3, 1.15).knots, form="cumulative")
+    term = Reprojections(times, points, pixels, camera=make_camera(params=start), sigma=0.3,
+                         extrinsic=extrinsic_dq(), intrinsics=True)
+    assert term(traj).shape == (2, len(obs[0][0]), 2)
+    estimate(traj, [term], steps=20, verbose=False)
+    assert term.intrinsics.shape == (2, 8)
+    torch.testing.assert_close(term.intrinsics, torch.stack(alone), atol=1e-6, rtol=1e-8)
