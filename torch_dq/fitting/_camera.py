@@ -78,16 +78,21 @@ class Reprojections(Term):
     observations and for points without an image (``term.invalid`` counts them after
     :func:`~torch_dq.fitting.estimate`).
 
-    Example:
+    Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
         >>> import torch_dq.dualquat as dq
         >>> from torch_dq.camera import Camera
+        >>> from torch_dq.nn import BSpline
         >>> f64 = torch.float64
         >>> cam = Camera("pinhole", torch.tensor([400.0, 400.0, 320.0, 240.0], dtype=f64),
         ...              (640, 480))
-        >>> t = torch.zeros(2, dtype=f64)
-        >>> pts = torch.tensor([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]], dtype=f64)
-        >>> pix = torch.tensor([[320.0, 240.0], [360.0, 240.0]], dtype=f64)
+        >>> spline = BSpline(dq.identity((4,), dtype=f64))  # domain [0, 1]
+        >>> t = torch.full((2,), 0.5, dtype=f64)
+        >>> pts = torch.tensor([[0.0, 0.0, 1.0], [0.1, -0.05, 1.0]], dtype=f64)
+        >>> pix = torch.tensor([[320.0, 240.0], [361.0, 220.0]], dtype=f64)
         >>> term = Reprojections(t, pts, pix, camera=cam, sigma=0.5)
+        >>> term(spline).detach()  # predicted minus measured, over sigma
+        tensor([[ 0.,  0.],
+                [-2.,  0.]], dtype=torch.float64)
     """
 
     dim = 2
