@@ -20,7 +20,6 @@ from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
 from torch_dq import camera as camera_module
-from torch_dq import quat
 from torch_dq.fitting import Accel, Free, Gyro, Reprojections, estimate
 from torch_dq.fitting._estimate import _starts
 from torch_dq.fitting._problem import Problem
@@ -52,9 +51,9 @@ def make_camera(model="pinhole-radtan", params=RADTAN):
 def body(t):
     """numpy: body rotation (scipy), position, body angular rate, world acceleration."""
     t = np.atleast_1d(np.asarray(t, dtype=float))
-    ang = [a * np.sin(w * t) for a, w in zip(AMP, W)]
-    dang = [a * w * np.cos(w * t) for a, w in zip(AMP, W)]
-    Rz, Ry, Rx = (Rotation.from_euler(ax, v[:, None]) for ax, v in zip("zyx", ang))
+    ang = [a * np.sin(w * t) for a, w in zip(AMP, W, strict=True)]
+    dang = [a * w * np.cos(w * t) for a, w in zip(AMP, W, strict=True)]
+    Rz, Ry, Rx = (Rotation.from_euler(ax, v[:, None]) for ax, v in zip("zyx", ang, strict=True))
     R = R_N * Rz * Ry * Rx
     ez, ey, ex = np.eye(3)[2], np.eye(3)[1], np.eye(3)[0]
     w = ((Rx.inv() * Ry.inv()).apply(np.outer(dang[0], ez)) + Rx.inv().apply(
@@ -131,7 +130,7 @@ def simulate(frames, points, *, dt, line_delay, params=RADTAN, noise=0.0, seed=0
 
 
 def spline_of(t0, t1, spacing=0.1):
-    t = torch.linspace(t0, t1, int(round((t1 - t0) * 100)) + 1, dtype=F64)
+    t = torch.linspace(t0, t1, round((t1 - t0) * 100) + 1, dtype=F64)
     n = math.ceil((t1 - t0) / spacing) + 3
     return BSpline.from_dualquats(body_dq(t), t, n_ctrl=n, form="cumulative")
 
@@ -200,7 +199,7 @@ def test_jacobians_match_finite_differences(small):
                          sigma=0.5, extrinsic=Free(e), target=Free(target),
                          intrinsics=True, time_offset=Free(dt0), line_delay=Free(l0),
                          max_line_delay=1e-3)
-    ctrl, values, r, f0, Jc, Jn = _jacobians(traj, term)
+    ctrl, _, r, f0, Jc, Jn = _jacobians(traj, term)
     base = dict(e=e, target=target, params=params, dt=dt0, line_delay=l0)
     torch.testing.assert_close(r, reference(traj, term, **base), atol=1e-8, rtol=1e-9)
     h = 1e-6
@@ -215,12 +214,12 @@ def test_jacobians_match_finite_differences(small):
 
     for j in range(6):
         torch.testing.assert_close(Jn["extrinsic"][..., j], fd(
-            e=lambda s: dq.mul(e, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
+            e=lambda s, j=j: dq.mul(e, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
         torch.testing.assert_close(Jn["target"][..., j], fd(
-            target=lambda s: dq.mul(target, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
+            target=lambda s, j=j: dq.mul(target, dq.exp(s * unit(6, j)))), atol=1e-5, rtol=1e-6)
     for j in range(8):
         torch.testing.assert_close(Jn["intrinsics"][..., j], fd(
-            params=lambda s: params + s * unit(8, j)), atol=1e-5, rtol=1e-6)
+            params=lambda s, j=j: params + s * unit(8, j)), atol=1e-5, rtol=1e-6)
     torch.testing.assert_close(Jn["time_offset"][..., 0], fd(dt=lambda s: dt0 + s),
                                atol=1e-4, rtol=1e-6)
     torch.testing.assert_close(Jn["line_delay"][..., 0], fd(line_delay=lambda s: l0 + s),
@@ -426,7 +425,7 @@ def test_batches_with_their_own_times_are_independent_problems():
                              sigma=0.3, extrinsic=extrinsic_dq(), intrinsics=True)
         estimate(spline_of(0.3, 1.15), [term], steps=20, verbose=False)
         alone.append(term.intrinsics)
-    times, points, pixels = (torch.stack(x) for x in zip(*obs))
+    times, points, pixels = (torch.stack(x) for x in zip(*obs, strict=True))
     traj = BSpline(torch.stack([spline_of(0.3, 1.15).control_points.detach()] * 2),
                    knots=spline_of(0.3, 1.15).knots, form="cumulative")
     term = Reprojections(times, points, pixels, camera=make_camera(params=start), sigma=0.3,
@@ -435,3 +434,17 @@ def test_batches_with_their_own_times_are_independent_problems():
     estimate(traj, [term], steps=20, verbose=False)
     assert term.intrinsics.shape == (2, 8)
     torch.testing.assert_close(term.intrinsics, torch.stack(alone), atol=1e-6, rtol=1e-8)
+
+
+def test_line_delay_without_motion_warns():
+    """A body at rest: the line delay moves no pixel (the warning says so)."""
+    still = BSpline(torch.stack([body_dq(np.array([0.5]))[0]] * 12), knots=None,
+                    form="cumulative")
+    frames = torch.linspace(0.2, 0.8, 7, dtype=F64)
+    pts = torch.from_numpy(np.tile(grid_points(), (7, 1)))
+    R, p = body(np.full(len(pts), 0.5))[:2]
+    pix = torch.from_numpy(project_np(R, p, pts.numpy(), RADTAN)[0])
+    term = Reprojections(frames.repeat_interleave(30), pts, pix, camera=make_camera(),
+                         sigma=0.3, extrinsic=extrinsic_dq(), line_delay=True)
+    with pytest.warns(RuntimeWarning, match="line_delay is undetermined"):
+        estimate(still, [term], steps=3, verbose=False)

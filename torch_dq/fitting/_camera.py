@@ -184,27 +184,48 @@ class Reprojections(Term):
         r = pix - self.pixels.to(pix.dtype)
         return torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
 
-    def visible(self, trajectory, ctrl: Tensor | None = None) -> Tensor:
-        """``(..., N)`` bool: the observations that project valid at the current values and
-        are not masked."""
-        values = self.values(trajectory, ctrl)
+    def _predict(self, trajectory, shift: float = 0.0) -> tuple[Tensor, Tensor]:
+        """Predicted pixels and ``valid`` at the current values, the times moved by
+        ``shift`` seconds more (no gradient)."""
+        values = self.values(trajectory)
         kinds = {k: s.kind for k, s in self._slots.items()}
-        like = trajectory.control_points if ctrl is None else ctrl
+        like = trajectory.control_points
         with torch.no_grad():
             p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
-            x = trajectory(self.times + self.time_shift(p).to(self.times.dtype), ctrl=ctrl)
-            return self._project(x, p)[1] & self.mask
+            t = self.times + self.time_shift(p).to(self.times.dtype) + shift
+            lo, hi = (torch.as_tensor(e, dtype=t.dtype) for e in trajectory.domain)
+            x = trajectory(torch.minimum(torch.maximum(t, lo[..., None]), hi[..., None]))
+            return self._project(x, p)
+
+    def visible(self, trajectory) -> Tensor:
+        """``(..., N)`` bool: the observations that project valid at the current values and
+        are not masked."""
+        return self._predict(trajectory)[1] & self.mask
 
     def solved(self, trajectory) -> None:
-        """Count the observations without an image at the solution (``invalid (...)``, int64
-        per batch element) and warn when there are any."""
-        self.invalid = (self.mask & ~self.visible(trajectory)).sum(-1)
+        r"""Count the observations without an image at the solution (``invalid (...)``, int64
+        per batch element) and warn when there are any; warn when an estimated line delay
+        meets too little motion: its information :math:`\sum_i (v_i |\dot u_i| /
+        \sigma)^2` (``\dot u`` the predicted pixel velocity) leaves it a standard deviation
+        above ``max_line_delay``."""
+        valid = self.visible(trajectory)
+        self.invalid = (self.mask & ~valid).sum(-1)
         n = int(self.invalid.sum())
         if n:
             warnings.warn(f"fitting.estimate: {n} observation(s) of Reprojections (camera "
                           f"{self.model!r}) project invalid at the solution (behind the camera "
                           f"or outside the model's domain): excluded; their count is "
                           f"term.invalid", RuntimeWarning, stacklevel=3)
+        if self._slots["line_delay"].estimated:
+            h = 1e-3
+            rate = (self._predict(trajectory, h)[0] - self._predict(trajectory, -h)[0]) / (2 * h)
+            w = (rate.to(torch.float64) * self.rows[..., None] / self.sigma).square().sum(-1)
+            info = torch.where(valid, w, 0.0).sum(-1)
+            if bool((info * self.max_line_delay ** 2 < 1.0).any()):
+                warnings.warn("fitting.estimate: the Reprojections line_delay is undetermined: "
+                              "the camera barely moves during its frames (the pixels move less "
+                              "than sigma over a readout); fix it (None: global shutter)",
+                              RuntimeWarning, stacklevel=3)
 
 
 Reprojections.__init__.__doc__ = Reprojections.__doc__
