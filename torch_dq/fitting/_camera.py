@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
@@ -97,6 +98,13 @@ class Reprojections(Term):
 
     dim = 2
     _fn = "fitting.Reprojections"
+    max_line_delay: float
+
+    if TYPE_CHECKING:  # buffers (registered in __init__)
+        points: Tensor
+        pixels: Tensor
+        rows: Tensor
+        camera_params: Tensor
 
     def __init__(self, times: Tensor, points: Tensor, pixels: Tensor, *, camera, sigma,
                  extrinsic=None, target=None, intrinsics=None, time_offset=None,

@@ -95,7 +95,7 @@ class Slot:
 
     def __init__(self, fn: str, name: str, kind: str, arg, size: int | None = None) -> None:
         self.name, self.kind = name, kind
-        self.shape = (int(size),) if kind in _SIZED else _SHAPES[kind]
+        self.shape = (int(size or 0),) if kind in _SIZED else _SHAPES[kind]
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:

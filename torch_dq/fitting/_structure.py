@@ -38,15 +38,14 @@ def check(fn: str, terms: list[Term]) -> None:
     cameras = [t for t in terms if isinstance(t, Reprojections)]
     fixed_cams = [t for t in cameras if not t.slots()["extrinsic"].estimated]
     world_cams = [t for t in cameras if not t.slots()["target"].estimated]
-    _check_cameras(fn, terms, cameras)
-    fixed_poses = fixed_poses + fixed_cams  # a fixed camera mount fixes the body frame too
-    if extrinsic and not (fixed_poses or inertial or relative):
+    _check_cameras(fn, terms, cameras)  # a fixed camera mount fixes the body frame too
+    if extrinsic and not (fixed_poses or fixed_cams or inertial or relative):
         _checks.fail(fn, "the extrinsic is undetermined: no term fixes the body frame "
                          "(x(t) e = (x(t) g)(g^-1 e) for any g); fix one Poses term's "
                          "extrinsic or add an IMU term")
     if extrinsic and not (
-            fixed_poses or relative or any(isinstance(t, Accel) for t in terms) or any(
-                not t.slots()["lever_arm"].estimated for t in positions)):
+            fixed_poses or fixed_cams or relative or any(isinstance(t, Accel) for t in terms)
+            or any(not t.slots()["lever_arm"].estimated for t in positions)):
         _checks.fail(fn, "the extrinsic's translation is undetermined: a Gyro measures "
                          "rotation rates only and an estimated lever arm absorbs it (x(t) g "
                          "with g a pure translation changes no reading); add an Accel, "

@@ -266,7 +266,10 @@ class Term(torch.nn.Module):
         like = torch.empty((), dtype=torch.float64, device=self.sigma.device)
         slots = {k: self._slots[k] for k in self.time_params if k in self._slots}
         kinds = {k: s.kind for k, s in slots.items()}
-        base = {k: s.identity(like) if s.estimated else s.value(like) for k, s in slots.items()}
+        base = {}
+        for k, s in slots.items():
+            v = s.value(like)
+            base[k] = s.identity(like) if s.estimated or v is None else v
         s0 = self.time_shift(self.per_sample(base, kinds))
         lo = hi = s0
         for k, s in slots.items():
