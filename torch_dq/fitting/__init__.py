@@ -25,10 +25,13 @@ Reprojections  ``project((T^-1 x(t') e)^-1 p)``,    pixels (:mod:`torch_dq.camer
 ============== ==================================== =========================================
 
 **Nuisance parameters** (``extrinsic``, ``lever_arm``, ``bias``, ``gravity``,
-``time_offset``): ``None`` / ``False`` absent, a tensor or float fixed, ``True`` /
-``"estimate"`` estimated from a default start, a :class:`Free` estimated from its start
-with an optional Gaussian prior; one :class:`Free` given to several terms is one parameter.
-Each is stepped, and its uncertainty reported, in a chart:
+``time_offset``; a camera's ``target``, ``intrinsics`` and ``line_delay``): ``None`` /
+``False`` absent, a tensor or float fixed, ``True`` / ``"estimate"`` estimated from a
+default start, a :class:`Free` estimated from its start with an optional Gaussian prior; one
+:class:`Free` given to several terms is one parameter. The time offset and the line delay
+move the samples' times (a term declares such parameters, :meth:`Term.time_shift`): the
+solver chains them through the curve's time derivative. Each is stepped, and its uncertainty
+reported, in a chart:
 
 ============  ==========  ====  ================================================
 kind          value       dim   chart
@@ -36,7 +39,10 @@ kind          value       dim   chart
 bias, lever   ``(3,)``    3     ``v + delta``
 time_offset   ``()``      1     ``dt + delta`` (seconds; bounded by
                                 ``max_time_offset``)
-extrinsic     ``(8,)``    6     ``e exp(delta)`` (body-frame twist)
+extrinsic     ``(8,)``    6     ``e exp(delta)`` (body-frame twist); a target's pose
+                                likewise
+intrinsics    ``(P,)``    P     ``params + delta`` (the camera model's parameters)
+line_delay    ``()``      1     ``l + delta`` (seconds per row, in ``[0, max_line_delay]``)
 gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
                                 plane orthogonal to ``g`` (its norm is kept; its standard
                                 deviations are reported in world axes, ``(3,)``)
