@@ -44,9 +44,9 @@ Example:
     >>> px, ok = camera.project("pinhole-radtan", params, torch.tensor([0.1, -0.2, 1.0],
     ...                                                                  dtype=torch.float64))
     >>> [round(float(c), 3) for c in px], bool(ok)
-    ([412.448, 158.16], True)
+    ([412.436, 158.206], True)
     >>> ray, ok = camera.unproject("pinhole-radtan", params, px)
-    >>> [round(float(c), 6) for c in ray * 1.0 / ray[2]]
+    >>> [round(float(c), 6) for c in ray / ray[2]]
     [0.1, -0.2, 1.0]
 """
 
@@ -55,13 +55,13 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from . import _checks
-from ._numerics import compute_dtype, even, threshold
+from ._numerics import compute_dtype, even, nan_unless, threshold
 
 __all__ = ["MODELS", "Camera", "project", "unproject"]
 
@@ -74,10 +74,11 @@ MODELS: dict[str, tuple[str, ...]] = {
 }
 
 # Newton iterations of the detached root search (radtan: 2-D on the normalised point;
-# equidistant: 1-D on the angle). Measured on EuRoC's cam0 (radtan) and a 190-degree
-# fisheye over their whole images, the error after 8 iterations from the distorted point
-# is below 1e-9; the two differentiable steps that follow square it twice.
-_ITERATIONS = 10
+# equidistant: 1-D on the angle). Measured over whole images (tests/test_camera.py), the
+# residual reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger
+# radtan lens (k1 = -0.35, f = 300 px on 752 x 480) and 3-4 on fisheyes: 8 leave a margin.
+# The two differentiable steps that follow square the error twice more.
+_ITERATIONS = 8
 
 
 def _checked(fn: str, model, params, x, name: str, event: int) -> torch.Size:
@@ -95,6 +96,16 @@ def _parts(params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor]]:
     """The parameters and coordinates as lists of tensors in the compute dtype."""
     cd = compute_dtype(x.dtype)
     return list(params.to(cd).unbind(-1)), list(x.to(cd).unbind(-1))
+
+
+def _outputs(batch: torch.Size, parts: tuple[Tensor, ...], valid: Tensor, params: Tensor,
+             x: Tensor) -> tuple[Tensor, Tensor]:
+    """Stack the output's components, NaN where an input is not finite (the formulas'
+    finite limits, a point at infinity's pixel, must not come back; the safe-where
+    replacements of the models do not look at finiteness), and ``valid`` False there."""
+    finite = torch.isfinite(params).all(-1) & torch.isfinite(x).all(-1)
+    out = nan_unless(finite[..., None], torch.stack(torch.broadcast_tensors(*parts), -1))
+    return out.to(x.dtype).expand(*batch, len(parts)), (valid & finite).expand(batch)
 
 
 def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
@@ -137,13 +148,13 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
     batch = _checked(fn, model, params, points, "points", 3)
     p, (x, y, z) = _parts(params, points)
     u, v, valid = _PROJECT[model](p, x, y, z)
-    pixels = torch.stack(torch.broadcast_tensors(u, v), -1).expand(*batch, 2)
-    return pixels.to(points.dtype), valid.expand(batch)
+    return _outputs(batch, (u, v), valid, params, points)
 
 
 def _front(z: Tensor) -> tuple[Tensor, Tensor]:
-    """``z > 0`` and ``z`` with the entries ``z <= 0`` replaced by 1 (NaN kept)."""
-    return z > 0, torch.where(z <= 0, 1.0, z)
+    """``z > 0`` and ``z`` with the other entries replaced by 1 (safe where)."""
+    valid = z > 0
+    return valid, torch.where(valid, z, 1.0)
 
 
 def _pinhole(p: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
@@ -155,25 +166,21 @@ def _project_pinhole(p, x, y, z):
     return (*_pinhole(p, x / zs, y / zs), valid)
 
 
-def _radtan(k: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
-    """The radial-tangential map of normalised coordinates (OpenCV's plumb bob, k3 = 0)."""
+def _radtan(k: list[Tensor], a: Tensor, b: Tensor, jacobian: bool = False) -> tuple[Tensor, ...]:
+    """The radial-tangential map of normalised coordinates (OpenCV's plumb bob, k3 = 0):
+    ``(a', b')``, and with ``jacobian`` also its Jacobian's ``(daa, dab, dbb)`` (symmetric)."""
     k1, k2, p1, p2 = k
-    r2 = a * a + b * b
-    radial = 1.0 + r2 * (k1 + k2 * r2)
-    ab = a * b
-    return (a * radial + 2.0 * p1 * ab + p2 * (r2 + 2.0 * a * a),
-            b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * ab)
-
-
-def _radtan_jacobian(k: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, ...]:
-    """The 2 x 2 Jacobian ``(daa, dab, dba, dbb)`` of :func:`_radtan` in ``(a, b)``."""
-    k1, k2, p1, p2 = k
-    r2 = a * a + b * b
-    radial = 1.0 + r2 * (k1 + k2 * r2)
-    q = 2.0 * (k1 + 2.0 * k2 * r2)  # d radial / d(a, b) = q (a, b)
-    cross = q * a * b + 2.0 * (p1 * a + p2 * b)
-    return (radial + q * a * a + 2.0 * p1 * b + 6.0 * p2 * a, cross, cross,
-            radial + q * b * b + 6.0 * p1 * b + 2.0 * p2 * a)
+    a2, b2, ab = a * a, b * b, a * b
+    r2 = a2 + b2
+    k2r2 = k2 * r2
+    radial = 1.0 + r2 * (k1 + k2r2)
+    ta, tb = (2.0 * p1) * b, (2.0 * p2) * a  # d(2 p1 a b)/da, d(2 p2 a b)/db
+    out = (a * radial + ta * a + p2 * (r2 + 2.0 * a2), b * radial + p1 * (r2 + 2.0 * b2) + tb * b)
+    if not jacobian:
+        return out
+    q = 2.0 * (k1 + 2.0 * k2r2)  # d radial / d(a, b) = q (a, b)
+    return (*out, radial + q * a2 + ta + 3.0 * tb, q * ab + (2.0 * p1) * a + (2.0 * p2) * b,
+            radial + q * b2 + 3.0 * ta + tb)
 
 
 def _project_radtan(p, x, y, z):
@@ -215,8 +222,7 @@ def _project_ds(p, x, y, z):
     with torch.no_grad():
         bound = -_ds_w2(xi, alpha) * torch.sqrt(x * x + y * y + z * z)
         valid = z > bound  # eq. 43
-        bad = z <= bound  # replaced (False on NaN: it propagates)
-    x, y, z = torch.where(bad, 0.0, x), torch.where(bad, 0.0, y), torch.where(bad, 1.0, z)
+    x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
     w = xi * d1 + z
     d2 = torch.sqrt(x * x + y * y + w * w)  # eq. 42
@@ -255,9 +261,10 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           :math:`d\theta_d/d\theta \le 0` at the root (fold-over) or where it did not
           converge.
         - double sphere (eqs. 47-50): closed form; invalid outside eq. 50's domain,
-          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, and where
-          :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real root of the first sphere, possible
-          for :math:`\xi > 1`).
+          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
+          :math:`m_z^2 + (1 - \xi^2) r^2 < 0` (no real point of the first sphere, possible
+          for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
+          boundary of eq. 50 maps slightly outside the projection's domain).
 
     The iterations' accuracy: ``project(unproject(px)) == px`` to 1e-10 px in float64 over
     the whole image of EuRoC's cam0 (radtan) and of a 190-degree fisheye (tested).
@@ -273,22 +280,16 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
     p, (u, v) = _parts(params, pixels)
     a, b = (u - p[2]) / p[0], (v - p[3]) / p[1]  # normalised (distorted) coordinates
     x, y, z, valid = _UNPROJECT[model](p, a, b)
-    rays = torch.stack(torch.broadcast_tensors(x, y, z), -1).expand(*batch, 3)
-    return rays.to(pixels.dtype), valid.expand(batch)
+    return _outputs(batch, (x, y, z), valid, params, pixels)
 
 
-def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     n = torch.sqrt(x * x + y * y + z * z)
-    return x / n, y / n, z / n, torch.isfinite(n)
+    return x / n, y / n, z / n
 
 
 def _unproject_pinhole(p, a, b):
-    return _unit(a, b, torch.ones_like(a))
-
-
-def _finite(*xs: Tensor) -> Tensor:
-    """Where every input is finite (the entries a safe-where may replace)."""
-    return torch.isfinite(sum(torch.broadcast_tensors(*xs)))
+    return (*_unit(a, b, torch.ones_like(a)), torch.ones_like(a, dtype=torch.bool))
 
 
 def _converged(residual: Tensor, scale: Tensor) -> Tensor:
@@ -305,47 +306,44 @@ def _radtan_fold(k: list[Tensor]) -> Tensor:
     return torch.where(fold, 2.0 / torch.where(fold, den, 1.0), math.inf)
 
 
-def _radtan_step(k, a, b, da, db):
-    """One Newton step on ``_radtan(k, a, b) = (da, db)``."""
-    fa, fb = _radtan(k, a, b)
-    j00, j01, j10, j11 = _radtan_jacobian(k, a, b)
-    det = j00 * j11 - j01 * j10
+def _radtan_step(k, a, b, da, db, guard: bool = False):
+    """One Newton step on ``_radtan(k, a, b) = (da, db)`` (with ``guard``, a determinant
+    that is not positive, beyond the fold, is replaced by 1: no division by ~0)."""
+    fa, fb, j00, j01, j11 = _radtan(k, a, b, jacobian=True)
+    det = j00 * j11 - j01 * j01
+    if guard:
+        det = torch.where(det > 0, det, 1.0)
     ea, eb = fa - da, fb - db
-    return a - (j11 * ea - j01 * eb) / det, b - (j00 * eb - j10 * ea) / det
+    return a - (j11 * ea - j01 * eb) / det, b - (j00 * eb - j01 * ea) / det
 
 
 def _radtan_root(k, da, db):
-    """Detached Newton iterations from the distorted point, each iterate kept inside the
-    first fold's disk; returns the root and whether it is valid."""
+    """Detached Newton iterations from the distorted point divided by its radial factor
+    (one fixed-point step), each start kept inside 0.999 of the first fold's disk; returns
+    the root and whether it is valid."""
     fold = _radtan_fold(k)
-    a, b = da, db
+    r2 = da * da + db * db
+    radial = 1.0 + r2 * (k[0] + k[1] * r2)
+    radial = torch.where(radial > 0, radial, 1.0)
+    a, b = da / radial, db / radial
     for _ in range(_ITERATIONS):
-        j00, j01, j10, j11 = _radtan_jacobian(k, a, b)
-        det = j00 * j11 - j01 * j10
-        safe = torch.where(det > 0, det, 1.0)  # beyond the fold: no division by ~0
-        fa, fb = _radtan(k, a, b)
-        ea, eb = fa - da, fb - db
-        a, b = a - (j11 * ea - j01 * eb) / safe, b - (j00 * eb - j10 * ea) / safe
-        r2 = a * a + b * b
-        shrink = torch.sqrt(torch.where(r2 > fold, 0.99 * fold / r2, 1.0))
-        a, b = a * shrink, b * shrink
-    fa, fb = _radtan(k, a, b)
-    j00, j01, j10, j11 = _radtan_jacobian(k, a, b)
+        shrink = torch.sqrt(torch.clamp(0.999 * fold / (a * a + b * b), max=1.0))
+        a, b = _radtan_step(k, a * shrink, b * shrink, da, db, guard=True)
+    fa, fb, j00, j01, j11 = _radtan(k, a, b, jacobian=True)
     ok = (_converged(torch.maximum(abs(fa - da), abs(fb - db)), abs(da) + abs(db))
-          & (a * a + b * b < fold) & (j00 * j11 - j01 * j10 > 0))
+          & (a * a + b * b < fold) & (j00 * j11 - j01 * j01 > 0))
     return a, b, ok
 
 
 def _unproject_radtan(p, a, b):
     k = p[4:]
-    with torch.no_grad():
-        ra, rb, valid = _radtan_root(k, a, b)
-        keep = valid | ~_finite(a, b, *k)  # replace the invalid finite entries
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
-    ra, rb = torch.where(keep, ra, 0.0), torch.where(keep, rb, 0.0)
+    with torch.no_grad():  # detached also from forward-mode tangents
+        ra, rb, valid = _radtan_root([c.detach() for c in k], a.detach(), b.detach())
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
+    ra, rb = torch.where(valid, ra, 0.0), torch.where(valid, rb, 0.0)
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact first derivatives
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact second derivatives
-    return (*_unit(ra, rb, torch.ones_like(ra))[:3], valid)
+    return (*_unit(ra, rb, torch.ones_like(ra)), valid)
 
 
 def _equidistant_root(k, s):
@@ -371,10 +369,9 @@ def _unproject_equidistant(p, a, b):
     k = p[4:]
     s = a * a + b * b  # theta_d^2
     with torch.no_grad():
-        rho, valid = _equidistant_root(k, s)
-        keep = valid | ~_finite(s, *k)
-    s, rho = torch.where(keep, s, 0.0), torch.where(keep, rho, 1.0)
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
+        rho, valid = _equidistant_root([c.detach() for c in k], s.detach())
+    s, rho = torch.where(valid, s, 0.0), torch.where(valid, rho, 1.0)  # safe where
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)
     for _ in range(2):  # Newton on rho P(rho^2 s) = 1: exact first, then second derivatives
         t = rho * rho * s  # theta^2
         rho = rho - (rho * _poly(k, t) - 1.0) / _poly_slope(k, t)
@@ -401,11 +398,147 @@ def _unproject_ds(p, a, b):
         # slightly outside the projection's domain.
         inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)
         valid = inside & (_ds_ray(xi, alpha, a, b)[2] > -_ds_w2(xi, alpha))
-        keep = valid | ~_finite(r2, xi, alpha)
-    a, b = torch.where(keep, a, 0.0), torch.where(keep, b, 0.0)
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
     return (*_ds_ray(xi, alpha, a, b), valid)
 
 
 _UNPROJECT: dict[str, Callable] = {
     "pinhole": _unproject_pinhole, "pinhole-radtan": _unproject_radtan,
     "pinhole-equidistant": _unproject_equidistant, "double-sphere": _unproject_ds}
+
+
+# Kalibr's (camera_model, distortion_model) of each model, and back.
+_KALIBR = {"pinhole": ("pinhole", "none"), "pinhole-radtan": ("pinhole", "radtan"),
+           "pinhole-equidistant": ("pinhole", "equidistant"), "double-sphere": ("ds", "none")}
+_FROM_KALIBR = {names: model for model, names in _KALIBR.items()}
+
+
+def _numbers(fn: str, name: str, value, count: int) -> list[float]:
+    """A list of ``count`` finite real numbers read from a Kalibr entry."""
+    ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == count
+    ok = ok and all(isinstance(v, numbers.Real) and not isinstance(v, bool)
+                    and math.isfinite(v) for v in value)
+    if not ok:
+        _checks.fail(fn, f"expected {name} to be a list of {count} finite numbers, got {value!r}")
+    return [float(v) for v in value]
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    r"""A camera: a model of :data:`MODELS`, its ``(P,)`` parameters and its resolution.
+
+    A small frozen value; :meth:`project` and :meth:`unproject` are :func:`project` and
+    :func:`unproject` with this camera's model and parameters. Two cameras are equal when
+    their models, resolutions and parameters (dtype included) are.
+
+    Args:
+        model: a name of :data:`MODELS`.
+        params: ``(P,)`` floating tensor in the model's order (a sequence of numbers is
+            turned into a float64 tensor).
+        resolution: ``(width, height)`` in pixels, positive ints.
+
+    Example:
+        >>> cam = Camera.from_kalibr({
+        ...     "camera_model": "pinhole", "distortion_model": "radtan",
+        ...     "intrinsics": [458.654, 457.296, 367.215, 248.375],
+        ...     "distortion_coeffs": [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05],
+        ...     "resolution": [752, 480]})
+        >>> cam.model, cam.resolution, cam.params.dtype
+        ('pinhole-radtan', (752, 480), torch.float64)
+        >>> Camera.from_kalibr(cam.to_kalibr()) == cam
+        True
+    """
+
+    model: str
+    params: Tensor
+    resolution: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        fn = "camera.Camera"
+        if not isinstance(self.model, str) or self.model not in MODELS:
+            _checks.fail(fn, f"expected model to be one of {', '.join(map(repr, MODELS))}, "
+                             f"got {self.model!r}")
+        params = self.params
+        if not isinstance(params, Tensor):
+            params = torch.tensor(_numbers(fn, "params", params, len(MODELS[self.model])),
+                                  dtype=torch.float64)
+        _checks.tensor(fn, "params", params)
+        if params.shape != (len(MODELS[self.model]),):
+            _checks.fail(fn, f"expected a ({len(MODELS[self.model])},) tensor for params of a "
+                             f"{self.model!r} camera, got shape {_checks.shape_str(params.shape)}")
+        res = self.resolution
+        if (not isinstance(res, Sequence) or len(res) != 2
+                or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) and n > 0
+                           for n in res)):
+            _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
+                             f"got {res!r}")
+        object.__setattr__(self, "params", params)
+        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return (self.model == other.model and self.resolution == other.resolution
+                and self.params.dtype == other.params.dtype
+                and torch.equal(self.params.cpu(), other.params.cpu()))
+
+    __hash__ = None  # type: ignore[assignment]  # equal by value, and tensors are mutable
+
+    def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """:func:`project` with this camera: ``(pixels (..., 2), valid (...))``."""
+        return project(self.model, self.params, points)
+
+    def unproject(self, pixels: Tensor) -> tuple[Tensor, Tensor]:
+        """:func:`unproject` with this camera: ``(rays (..., 3), valid (...))``."""
+        return unproject(self.model, self.params, pixels)
+
+    def to(self, *args, **kwargs) -> Camera:
+        """The camera with its params moved or cast by ``Tensor.to(*args, **kwargs)``."""
+        return Camera(self.model, self.params.to(*args, **kwargs), self.resolution)
+
+    @classmethod
+    def from_kalibr(cls, entry: Mapping, *, dtype: torch.dtype = torch.float64,
+                    device=None) -> Camera:
+        """Read one camera of a Kalibr ``camchain.yaml`` (the mapping under ``cam0``, ...).
+
+        Args:
+            entry: with ``camera_model`` (``pinhole`` or ``ds``), ``distortion_model``
+                (``none``, ``radtan``, ``equidistant``; absent means ``none``),
+                ``intrinsics`` (``[fu, fv, pu, pv]``; ``[xi, alpha, fu, fv, pu, pv]`` for
+                ``ds``), ``distortion_coeffs`` (4 numbers for radtan and equidistant, none
+                otherwise) and ``resolution`` (``[width, height]``); other keys
+                (``T_cam_imu``, ``rostopic``, ...) are ignored.
+            dtype, device: of the params tensor.
+
+        Raises:
+            ValueError: an unknown camera or distortion model (Kalibr's ``omni``, ``eucm``,
+                ``fov``, ... are not supported), or malformed numbers, naming the key.
+        """
+        fn = "camera.Camera.from_kalibr"
+        if not isinstance(entry, Mapping):
+            _checks.fail(fn, f"expected a mapping (one camera of a camchain), got "
+                             f"{type(entry).__name__}", TypeError)
+        names = (entry.get("camera_model"), entry.get("distortion_model", "none"))
+        if names not in _FROM_KALIBR:
+            _checks.fail(fn, f"unsupported camera_model {names[0]!r} with distortion_model "
+                             f"{names[1]!r}: expected pinhole with none, radtan or "
+                             f"equidistant, or ds with none")
+        model = _FROM_KALIBR[names]
+        intr = _numbers(fn, "intrinsics", entry.get("intrinsics"), 6 if names[0] == "ds" else 4)
+        coeffs = _numbers(fn, "distortion_coeffs", entry.get("distortion_coeffs", []),
+                          0 if names[1] == "none" else 4)
+        params = intr[2:] + intr[:2] if names[0] == "ds" else intr + coeffs
+        res = entry.get("resolution")
+        return cls(model, torch.tensor(params, dtype=dtype, device=device),
+                   tuple(res) if isinstance(res, Sequence) else res)
+
+    def to_kalibr(self) -> dict:
+        """This camera as one entry of a Kalibr ``camchain.yaml``: a dict of plain Python
+        strings, floats and lists (``yaml.safe_dump`` writes it), the inverse of
+        :meth:`from_kalibr` (float64 parameters round-trip exactly)."""
+        camera_model, distortion = _KALIBR[self.model]
+        p = [float(v) for v in self.params.detach().cpu().double().tolist()]
+        intrinsics, coeffs = (p[4:] + p[:4], []) if camera_model == "ds" else (p[:4], p[4:])
+        return {"camera_model": camera_model, "intrinsics": intrinsics,
+                "distortion_model": distortion, "distortion_coeffs": coeffs,
+                "resolution": list(self.resolution)}
