@@ -19,7 +19,7 @@ from pytransform3d.transformations import transform_from_dual_quaternion
 from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
-from torch_dq import camera as camera_module
+from torch_dq.camera import Camera
 from torch_dq.fitting import Accel, Free, Gyro, Reprojections, estimate
 from torch_dq.fitting._estimate import _starts
 from torch_dq.fitting._problem import Problem
@@ -34,16 +34,8 @@ AMP, W = (0.25, 0.2, 0.15), (1.3, 1.7, 2.1)
 G = np.array([0.0, 0.0, -9.81])
 
 
-class _Camera:  # the contract's Camera (model, params): what Reprojections reads of it
-    def __init__(self, model, params):
-        self.model, self.params = model, torch.as_tensor(params, dtype=F64)
-
-
 def make_camera(model="pinhole-radtan", params=RADTAN):
-    cls = getattr(camera_module, "Camera", None)
-    if cls is None:
-        return _Camera(model, params)
-    return cls(model, torch.as_tensor(params, dtype=F64), (752, 480))
+    return Camera(model, torch.as_tensor(params, dtype=F64), (752, 480))
 
 
 # ----------------------------------------------------------------------------- the truth
@@ -354,12 +346,6 @@ def test_bad_arguments_raise_naming_them(kwargs, kind, match):
     args.update(kwargs)
     with pytest.raises(kind, match=match):
         Reprojections(args.pop("times"), args.pop("points"), args.pop("pixels"), **args)
-
-
-def test_unknown_model_raises_naming_it():
-    times, points, pixels = _obs()
-    with pytest.raises(ValueError, match="model"):
-        Reprojections(times, points, pixels, camera=_Camera("fisheye", RADTAN), sigma=0.3)
 
 
 def test_line_delay_started_outside_its_range_raises():

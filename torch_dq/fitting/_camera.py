@@ -39,13 +39,10 @@ __all__ = ["Reprojections"]
 
 def _intrinsics(fn: str, cam) -> tuple[str, Tensor]:
     """The model name and ``(P,)`` float64 parameters of a :class:`torch_dq.camera.Camera`."""
-    model, params = getattr(cam, "model", None), getattr(cam, "params", None)
-    if not isinstance(model, str) or not isinstance(params, Tensor) or params.dim() != 1:
-        _checks.fail(fn, f"camera must be a torch_dq.camera.Camera (model name, (P,) params), "
-                         f"got {cam!r}", TypeError)
-    params = params.detach().to(torch.float64)
-    camera.project(model, params, params.new_tensor([0.0, 0.0, 1.0]))  # checks the model
-    return model, params
+    if not isinstance(cam, camera.Camera):
+        _checks.fail(fn, f"camera must be a torch_dq.camera.Camera, got "
+                         f"{type(cam).__name__}", TypeError)
+    return cam.model, cam.params.detach().to(torch.float64)
 
 
 class Reprojections(Term):
