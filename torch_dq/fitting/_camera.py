@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from ._nuisance import Slot
+from ._nuisance import SizedSlot, Slot
 from ._terms import Term, _masked, _nuisance, _sigma
 
 __all__ = ["Reprojections"]
@@ -142,8 +142,7 @@ class Reprojections(Term):
             intrinsics = params
         self._slots["extrinsic"] = Slot(fn, "extrinsic", "pose", extrinsic)
         self._slots["target"] = Slot(fn, "target", "pose", target)
-        self._slots["intrinsics"] = Slot(fn, "intrinsics", "params", intrinsics,
-                                         size=params.shape[0])
+        self._slots["intrinsics"] = SizedSlot(fn, "intrinsics", intrinsics, params.shape[0])
         self._slots["line_delay"] = Slot(fn, "line_delay", "offset", line_delay)
         fixed = self._slots["line_delay"].fixed
         if fixed is not None and not bool((fixed >= 0).all()):

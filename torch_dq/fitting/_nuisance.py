@@ -30,7 +30,7 @@ from torch import Tensor
 
 from .. import _checks, dualquat, quat
 
-__all__ = ["Free", "Slot"]
+__all__ = ["Free", "SizedSlot", "Slot"]
 
 _DIMS = {"vector": 3, "offset": 1, "pose": 6, "gravity": 2}
 _SHAPES = {"vector": (3,), "offset": (), "pose": (8,), "gravity": (3,)}
@@ -88,14 +88,12 @@ class Slot:
     Args:
         fn: public name of the term, for messages.
         name: argument name (``"bias"``, ...).
-        kind: ``"vector"``, ``"offset"``, ``"pose"``, ``"gravity"`` or ``"params"``.
+        kind: ``"vector"``, ``"offset"``, ``"pose"`` or ``"gravity"``.
         arg: the user's argument.
-        size: the value's length for the kind ``"params"`` (camera intrinsics).
     """
 
-    def __init__(self, fn: str, name: str, kind: str, arg, size: int | None = None) -> None:
+    def __init__(self, fn: str, name: str, kind: str, arg) -> None:
         self.name, self.kind = name, kind
-        self.shape = (int(size or 0),) if kind in _SIZED else _SHAPES[kind]
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:
@@ -140,10 +138,17 @@ class Slot:
     def present(self) -> bool:
         return self.free is not None or self.fixed is not None
 
+    size = 0  # the value's length for a sized kind (:class:`SizedSlot`)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The value's shape: the kind's, ``(size,)`` for a sized kind."""
+        return (self.size,) if self.kind in _SIZED else _SHAPES[self.kind]
+
     @property
     def dim(self) -> int:
         """Dimension of the chart."""
-        return self.shape[0] if self.kind in _SIZED else _DIMS[self.kind]
+        return self.size if self.kind in _SIZED else _DIMS[self.kind]
 
     def identity(self, like: Tensor) -> Tensor:
         """The absent value (zero, identity) in ``like``'s dtype and device."""
@@ -213,3 +218,17 @@ def chart_distance(kind: str, start: Tensor, value: Tensor) -> Tensor:
     ang = torch.atan2(axis.norm(dim=-1), (u0 * u1).sum(-1))
     phi = axis * (ang / axis.norm(dim=-1).clamp_min(1e-300))[..., None]
     return (gravity_basis(start).mT @ phi[..., None])[..., 0]
+
+
+class SizedSlot(Slot):
+    """A :class:`Slot` of the kind ``"params"`` (camera intrinsics): a ``(size,)`` value,
+    chart ``v + delta``.
+
+    Args:
+        fn, name, arg: as :class:`Slot`.
+        size: the value's length ``P``.
+    """
+
+    def __init__(self, fn: str, name: str, arg, size: int) -> None:
+        self.size = int(size)
+        super().__init__(fn, name, "params", arg)

@@ -26,26 +26,22 @@ def check(fn: str, terms: list[Term]) -> None:
     determine: an estimated extrinsic with no term fixing the body frame, every term's time
     offset estimated (no clock), absolute pose from inertial or relative data alone,
     rotation or a lever arm from positions alone, an accelerometer bias with an estimated
-    gravity direction and no absolute rotation; for cameras (:func:`_check_cameras`) an
-    extrinsic or a target pose that nothing else fixes, intrinsics from one view of a planar
-    target, a line delay whose rows do not vary."""
-    poses = [t for t in terms if isinstance(t, Poses)]
+    gravity direction and no absolute rotation."""
+    _check_cameras(fn, terms)
+    poses = [t for t in terms if isinstance(t, Poses) or (  # a camera with a fixed target too
+        isinstance(t, Reprojections) and not t.slots()["target"].estimated)]
     positions = [t for t in terms if isinstance(t, Positions)]
     fixed_poses = [t for t in poses if not t.slots()["extrinsic"].estimated]
     inertial = [t for t in terms if isinstance(t, (Gyro, Accel))]
     relative = [t for t in terms if isinstance(t, RelativePoses)]
     extrinsic = len(fixed_poses) < len(poses)  # some Poses term's extrinsic is estimated
-    cameras = [t for t in terms if isinstance(t, Reprojections)]
-    fixed_cams = [t for t in cameras if not t.slots()["extrinsic"].estimated]
-    world_cams = [t for t in cameras if not t.slots()["target"].estimated]
-    _check_cameras(fn, terms, cameras)  # a fixed camera mount fixes the body frame too
-    if extrinsic and not (fixed_poses or fixed_cams or inertial or relative):
+    if extrinsic and not (fixed_poses or inertial or relative):
         _checks.fail(fn, "the extrinsic is undetermined: no term fixes the body frame "
                          "(x(t) e = (x(t) g)(g^-1 e) for any g); fix one Poses term's "
                          "extrinsic or add an IMU term")
     if extrinsic and not (
-            fixed_poses or fixed_cams or relative or any(isinstance(t, Accel) for t in terms)
-            or any(not t.slots()["lever_arm"].estimated for t in positions)):
+            fixed_poses or relative or any(isinstance(t, Accel) for t in terms) or any(
+                not t.slots()["lever_arm"].estimated for t in positions)):
         _checks.fail(fn, "the extrinsic's translation is undetermined: a Gyro measures "
                          "rotation rates only and an estimated lever arm absorbs it (x(t) g "
                          "with g a pure translation changes no reading); add an Accel, "
@@ -54,15 +50,15 @@ def check(fn: str, terms: list[Term]) -> None:
     if all(t.slots()["time_offset"].estimated for t in terms):
         _checks.fail(fn, "every term's time_offset is estimated: no term defines the "
                          "trajectory's clock; fix one term's time_offset (None or a value)")
-    if not poses and not positions and not world_cams:
+    if not poses and not positions:
         names = sorted({type(t).__name__ for t in terms})
         _checks.fail(fn, f"the absolute pose (position and heading) is undetermined: "
                          f"{', '.join(names)} measure only motion; add Poses or Positions")
     for t in positions:
-        if t.slots()["lever_arm"].estimated and not (poses or inertial or relative or cameras):
+        if t.slots()["lever_arm"].estimated and not (poses or inertial or relative):
             _checks.fail(fn, "the lever_arm is undetermined by positions alone (R(t) l "
                              "trades against the body's rotation); add Poses or an IMU")
-    absolute_rotation = bool(poses or world_cams) or _rotation_from_positions(positions)
+    absolute_rotation = bool(poses) or _rotation_from_positions(positions)
     if not poses and not absolute_rotation and not any(isinstance(t, Accel) for t in terms):
         _checks.fail(fn, "the trajectory's rotation is undetermined by positions alone "
                          "(a point's track does not fix the body's rotation); add Poses, an "
@@ -75,8 +71,13 @@ def check(fn: str, terms: list[Term]) -> None:
                              "add Poses, fix the bias, or fix gravity")
 
 
-def _check_cameras(fn: str, terms: list[Term], cameras: list[Reprojections]) -> None:
-    """The cameras' gauges and degenerate configurations (see :func:`check`)."""
+def _check_cameras(fn: str, terms: list[Term]) -> None:
+    """What :class:`~torch_dq.fitting.Reprojections` terms cannot determine: an extrinsic
+    that no term fixes the body frame for, a target pose that no term fixes the world for
+    (both together: the message names both), intrinsics from one view of a planar target,
+    a line delay whose observations are all on one row (:func:`check` then treats a camera
+    with a fixed target as a pose measurement)."""
+    cameras = [t for t in terms if isinstance(t, Reprojections)]
     mounts = [t for t in cameras if t.slots()["extrinsic"].estimated]
     targets = [t for t in cameras if t.slots()["target"].estimated]
     body = any(isinstance(t, (Gyro, Accel, RelativePoses)) or (
@@ -93,14 +94,20 @@ def _check_cameras(fn: str, terms: list[Term], cameras: list[Reprojections]) -> 
         _checks.fail(fn, "the Reprojections extrinsic is undetermined: no term fixes the body "
                          "frame (x(t) e = (x(t) g)(g^-1 e) for any g); fix it or add an IMU")
     if mounts and not any(isinstance(t, (Accel, RelativePoses)) or (
-            isinstance(t, (Poses, Reprojections)) and not t.slots()["extrinsic"].estimated)
-            for t in terms):
+            isinstance(t, (Poses, Reprojections)) and not t.slots()["extrinsic"].estimated) or (
+            isinstance(t, Positions) and not t.slots()["lever_arm"].estimated) for t in terms):
         _checks.fail(fn, "the Reprojections extrinsic's translation is undetermined: a Gyro "
                          "measures rotation rates only; add an Accel or fix the extrinsic")
     if targets and not world:
         _checks.fail(fn, "the Reprojections target is undetermined: no term fixes the world "
                          "frame (T^-1 x(t) = (g T)^-1 (g x(t)) for any g); fix the target (None: "
                          "the world is the target's frame) or add Poses or Positions")
+    _check_camera_data(fn, cameras)
+
+
+def _check_camera_data(fn: str, cameras: list[Reprojections]) -> None:
+    """Intrinsics from one view of a planar target (one :class:`Free` shared by cameras
+    counts their views together), a line delay whose observations are all on one row."""
     views: dict[int, int] = {}
     for t in cameras:
         slot = t.slots()["intrinsics"]
