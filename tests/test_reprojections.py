@@ -269,7 +269,7 @@ def test_estimate_recovers_extrinsic_clock_line_delay_and_intrinsics(rig):
     times, points, pixels, ti, gyro, accel = rig
     e_true = extrinsic_dq()
     e0 = extrinsic_dq(E_ROT * Rotation.from_rotvec(np.radians(5.0) * np.array([0.6, 0.0, 0.8])),
-                      E_T + np.array([0.03, -0.03, 0.025]))  # 5 deg, 4.9 cm away
+                      E_T + np.array([0.03, -0.03, 0.0265]))  # 5 deg, 5 cm away
     start = RADTAN + np.array([4.0, -4.0, 3.0, -3.0, 0.03, -0.02, 0.0, 0.0])
     cam = Reprojections(times, points, pixels, camera=make_camera(params=start), sigma=0.3,
                         extrinsic=Free(e0), intrinsics=True, time_offset=True,
