@@ -433,7 +433,7 @@ def test_line_delay_without_motion_warns():
     term = Reprojections(frames.repeat_interleave(30), pts, pix, camera=make_camera(),
                          sigma=0.3, extrinsic=extrinsic_dq(), line_delay=True)
     with pytest.warns(RuntimeWarning, match="line_delay is undetermined"):
-        estimate(still, [term], steps=3, verbose=False)
+        estimate(still, [term], steps=20, verbose=False)
 
 
 # ----------------------------------------------------------------------------- options
