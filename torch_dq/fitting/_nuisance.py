@@ -15,7 +15,10 @@ offset        ``()``      1     ``dt + delta`` (time offset, seconds)
 pose          ``(8,)``    6     ``e exp(delta)`` (extrinsic; body-frame twist)
 gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
                                 plane orthogonal to ``g`` (world axes; magnitude kept)
+params        ``(P,)``    P     ``v + delta`` (camera intrinsics; ``P`` the slot's size)
 ============  ==========  ====  ===============================================
+
+Line delays (seconds per row) are of kind ``offset``, a target's pose of kind ``pose``.
 """
 
 from __future__ import annotations
@@ -28,10 +31,11 @@ from torch import Tensor
 
 from .. import _checks, dualquat, quat
 
-__all__ = ["Free", "Slot"]
+__all__ = ["Free", "SizedSlot", "Slot"]
 
 _DIMS = {"vector": 3, "offset": 1, "pose": 6, "gravity": 2}
 _SHAPES = {"vector": (3,), "offset": (), "pose": (8,), "gravity": (3,)}
+_SIZED = ("params",)  # kinds whose shape (size,) is the slot's
 
 
 class Free:
@@ -117,10 +121,10 @@ class Slot:
         """Take ``free`` as this parameter: its start checked, and of this slot's kind
         (and shape) wherever else a live term uses it (one Free is one parameter)."""
         for other in list(free._slots):
-            if other.kind != self.kind:
+            if other.kind != self.kind or other.shape != self.shape:
                 _checks.fail(self.fn, f"{self.name} is given a fitting.Free that is also "
                                       f"{other.fn}'s {other.name}, a parameter of another kind "
-                                      f"({_describe(self.kind)} vs {_describe(other.kind)}): "
+                                      f"({_describe(self)} vs {_describe(other)}): "
                                       f"one Free is one parameter; pass separate Free objects")
         if free.start is not None:
             self._check_value(self.fn, f"{self.name} start", free.start)
@@ -134,7 +138,7 @@ class Slot:
             _checks.fail(fn, f"{name} must be a tensor or a float, got "
                              f"{type(value).__name__}", TypeError)
         _checks.tensor(fn, name, value)
-        shape = _SHAPES[self.kind]
+        shape = self.shape
         if tuple(value.shape[value.dim() - len(shape):]) != shape or value.dim() < len(shape):
             _checks.fail(fn, f"expected {name} of shape (..., {', '.join(map(str, shape))}) "
                              f"(batch first), got {_checks.shape_str(value.shape)}"
@@ -155,16 +159,23 @@ class Slot:
     def present(self) -> bool:
         return self.free is not None or self.fixed is not None
 
+    size = 0  # the value's length for a sized kind (:class:`SizedSlot`)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The value's shape: the kind's, ``(size,)`` for a sized kind."""
+        return (self.size,) if self.kind in _SIZED else _SHAPES[self.kind]
+
     @property
     def dim(self) -> int:
         """Dimension of the chart."""
-        return _DIMS[self.kind]
+        return self.size if self.kind in _SIZED else _DIMS[self.kind]
 
     def identity(self, like: Tensor) -> Tensor:
         """The absent value (zero, identity) in ``like``'s dtype and device."""
         if self.kind == "pose":
             return dualquat.identity(dtype=like.dtype, device=like.device)
-        return like.new_zeros(_SHAPES[self.kind])
+        return like.new_zeros(self.shape)
 
     def value(self, like: Tensor) -> Tensor | None:
         """Current value (fixed, estimated, or start if given), None if a default start is
@@ -179,10 +190,10 @@ class Slot:
         return torch.as_tensor(v).to(dtype=like.dtype, device=like.device)
 
 
-def _describe(kind: str) -> str:
-    """A kind and its value's shape, for messages."""
-    shape = _SHAPES[kind]
-    return f"{kind} {'(' + ', '.join(map(str, shape)) + ',)' if shape else 'scalar'}"
+def _describe(slot: Slot) -> str:
+    """A slot's kind and its value's shape, for messages."""
+    shape = slot.shape
+    return f"{slot.kind} {'(' + ', '.join(map(str, shape)) + ',)' if shape else 'scalar'}"
 
 
 def retract(kind: str, value: Tensor, delta: Tensor) -> Tensor:
@@ -196,7 +207,7 @@ def retract(kind: str, value: Tensor, delta: Tensor) -> Tensor:
     Returns:
         The moved values, batch broadcast.
     """
-    if kind == "vector":
+    if kind in ("vector", "params"):
         return value + delta
     if kind == "offset":
         return value + delta[..., 0]
@@ -222,7 +233,7 @@ def gravity_basis(g: Tensor) -> Tensor:
 
 def chart_distance(kind: str, start: Tensor, value: Tensor) -> Tensor:
     """``(..., dim)`` chart coordinates of ``value`` around ``start`` (for priors)."""
-    if kind == "vector":
+    if kind in ("vector", "params"):
         return value - start
     if kind == "offset":
         return (value - start)[..., None]
@@ -234,3 +245,17 @@ def chart_distance(kind: str, start: Tensor, value: Tensor) -> Tensor:
     ang = torch.atan2(axis.norm(dim=-1), (u0 * u1).sum(-1))
     phi = axis * (ang / axis.norm(dim=-1).clamp_min(1e-300))[..., None]
     return (gravity_basis(start).mT @ phi[..., None])[..., 0]
+
+
+class SizedSlot(Slot):
+    """A :class:`Slot` of the kind ``"params"`` (camera intrinsics): a ``(size,)`` value,
+    chart ``v + delta``.
+
+    Args:
+        fn, name, arg: as :class:`Slot`.
+        size: the value's length ``P``.
+    """
+
+    def __init__(self, fn: str, name: str, arg, size: int) -> None:
+        self.size = int(size)
+        super().__init__(fn, name, "params", arg)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from .. import _checks
+from ._camera import Reprojections
 from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
 
 __all__ = ["check"]
@@ -43,7 +44,9 @@ def check(fn: str, terms: list[Term]) -> None:
     known); positions with odometry give it too (the odometry's translations in the
     from-frame against the positions' displacements in the world).
     """
-    poses = [t for t in terms if isinstance(t, Poses)]
+    _check_cameras(fn, terms)
+    poses = [t for t in terms if isinstance(t, Poses) or (  # a camera with a fixed target too
+        isinstance(t, Reprojections) and not _unknown(t.slots()["target"]))]
     positions = [t for t in terms if isinstance(t, Positions)]
     fixed_poses = [t for t in poses if not _unknown(t.slots()["extrinsic"])]
     gyro = any(isinstance(t, Gyro) for t in terms)
@@ -85,3 +88,62 @@ def check(fn: str, terms: list[Term]) -> None:
                              "undetermined together without a rotation known apart from the "
                              "accelerometer (R^T g + b): add Poses, a Gyro or odometry, fix "
                              "the bias or gravity, or give one a prior (Free(prior_std=...))")
+
+
+def _check_cameras(fn: str, terms: list[Term]) -> None:
+    """What :class:`~torch_dq.fitting.Reprojections` terms cannot determine: an extrinsic
+    that no term fixes the body frame for, a target pose that no term fixes the world for
+    (both together: the message names both), intrinsics from one view of a planar target,
+    a line delay whose observations are all on one row (:func:`check` then treats a camera
+    with a fixed target as a pose measurement)."""
+    cameras = [t for t in terms if isinstance(t, Reprojections)]
+    mounts = [t for t in cameras if _unknown(t.slots()["extrinsic"])]
+    targets = [t for t in cameras if _unknown(t.slots()["target"])]
+    body = any(isinstance(t, (Gyro, Accel, RelativePoses)) or (
+        isinstance(t, (Poses, Reprojections)) and not _unknown(t.slots()["extrinsic"]))
+        for t in terms)
+    world = any(isinstance(t, (Poses, Positions)) or (
+        isinstance(t, Reprojections) and not _unknown(t.slots()["target"])) for t in terms)
+    if mounts and targets and not (body and world):
+        _checks.fail(fn, "the Reprojections extrinsic and target are both estimated with "
+                         "nothing else fixing the body and the world (T^-1 x e = (g T)^-1 (g x "
+                         "h) (h^-1 e) for any g, h); fix the target (the world is its frame) or "
+                         "the extrinsic, or add terms that fix them (an IMU, Poses)")
+    if mounts and not body:
+        _checks.fail(fn, "the Reprojections extrinsic is undetermined: no term fixes the body "
+                         "frame (x(t) e = (x(t) g)(g^-1 e) for any g); fix it or add an IMU")
+    if mounts and not any(isinstance(t, (Accel, RelativePoses)) or (
+            isinstance(t, (Poses, Reprojections)) and not _unknown(t.slots()["extrinsic"])) or (
+            isinstance(t, Positions) and not _unknown(t.slots()["lever_arm"])) for t in terms):
+        _checks.fail(fn, "the Reprojections extrinsic's translation is undetermined: a Gyro "
+                         "measures rotation rates only; add an Accel or fix the extrinsic")
+    if targets and not world:
+        _checks.fail(fn, "the Reprojections target is undetermined: no term fixes the world "
+                         "frame (T^-1 x(t) = (g T)^-1 (g x(t)) for any g); fix the target (None: "
+                         "the world is the target's frame) or add Poses or Positions")
+    _check_camera_data(fn, cameras)
+
+
+def _check_camera_data(fn: str, cameras: list[Reprojections]) -> None:
+    """Intrinsics from one view of a planar target (one :class:`Free` shared by cameras
+    counts their views together), a line delay whose observations are all on one row."""
+    views: dict[int, int] = {}
+    for t in cameras:
+        slot = t.slots()["intrinsics"]
+        if _unknown(slot):
+            distinct = [int(torch.unique(row[m]).numel()) for row, m in zip(
+                t.times.expand(t.mask.shape).reshape(-1, t.N), t.mask.reshape(-1, t.N),
+                strict=True)]
+            views[id(slot.free)] = views.get(id(slot.free), 0) + min(distinct)
+            pts = t.points[t.mask].double()
+            planar = int(torch.linalg.matrix_rank(pts - pts.mean(0), atol=1e-9)) < 3
+            if views[id(slot.free)] < 2 and planar:
+                _checks.fail(fn, "the Reprojections intrinsics are estimated from one view "
+                                 "of a planar target (its homography does not determine them); "
+                                 "add views at other times or fix the intrinsics")
+        if _unknown(t.slots()["line_delay"]):
+            rows = t.rows[t.mask]
+            if float(rows.max() - rows.min()) == 0.0:
+                _checks.fail(fn, "the Reprojections line_delay is undetermined: every "
+                                 "observation is on one row (line_delay * v is a constant time "
+                                 "shift); fix it or observe points over the image")
