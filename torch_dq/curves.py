@@ -72,14 +72,15 @@ element), never a silent extrapolation.
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
-from . import _checks, _cumulative, _kernels, _taylor, dualquat
-from ._core import align_chain
+from . import _checks, _cumulative, _kernels, _taylor, dualquat, quat
+from ._core import align_chain, qmul, translation
 from ._kernels import jet_pyramid
 from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
@@ -104,7 +105,7 @@ for _f in (Kinematics, imu, kinematics, screw_axis, twists, velocity):
     _f.__module__ = __name__  # documented and pickled as torch_dq.curves.<name>
 
 _MAX_ORDER = 3  # highest time derivative of the *_derivatives functions
-FORMS = ("de_boor", "cumulative")  # the B-spline forms (module docstring)
+FORMS = ("de_boor", "cumulative", "split")  # the B-spline forms (module docstring)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -133,8 +134,9 @@ def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
 def check_form(fn: str, form) -> str:
     """``form`` if it names a B-spline form (:data:`FORMS`), else ``ValueError``."""
     if not isinstance(form, str) or form not in FORMS:
-        _checks.fail(fn, f"form must be 'de_boor' (the paper's De Boor pyramid) or "
-                         f"'cumulative' (Kim-Kim-Shin, C^(p-1)), got {form!r}")
+        _checks.fail(fn, f"form must be 'de_boor' (the paper's De Boor pyramid), "
+                         f"'cumulative' (Kim-Kim-Shin, C^(p-1)) or 'split' (SO(3) x R^3, "
+                         f"C^(p-1)), got {form!r}")
     return form
 
 
@@ -259,17 +261,48 @@ def _kim_kim_shin(points: Tensor, weights: Tensor) -> Tensor:
     return x
 
 
+def _split(points: Tensor, weights: Tensor) -> Tensor:
+    r"""The split form (SO(3) x R^3), one factor per iteration: the reference.
+
+    ``points (..., T, p + 1, 8)``: the sign-aligned control points
+    :math:`c_{r-p}, \dots, c_r` of each time's span, :math:`c_i = (q_i, p_i)` by
+    :func:`~torch_dq.dualquat.to_rt`; ``weights (..., T, p)``: the cumulative basis
+    :math:`\tilde B_{r-p+j}(t)`, ``j = 1..p``. Returns ``(..., T, 8)``,
+    :func:`~torch_dq.dualquat.from_rt` of
+
+    .. math::
+        R(t) = q_{r-p} \prod_{j=1}^p \mathrm{slerp}\big(1,\, q_{r-p+j-1}^{*} q_{r-p+j},\,
+        \tilde B_{r-p+j}\big),\qquad
+        p(t) = p_{r-p} + \sum_{j=1}^p \tilde B_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1}),
+
+    the cumulative B-spline on SO(3) (each factor :math:`\mathrm{Exp}(w \mathrm{Log}(\cdot))`
+    on the shortest path: ``slerp`` from the identity with ``shortest=True``, composed on the
+    right) and the ordinary B-spline :math:`\sum_m B_{r-p+m,p}\, p_{r-p+m}` of the
+    translations (the same sum regrouped by Abel summation, :math:`B_{l,p} = \tilde B_l -
+    \tilde B_{l+1}`).
+    """
+    q, p = dualquat.to_rt(points)
+    one = quat.identity(dtype=points.dtype, device=points.device)
+    rot, trans = q[..., 0, :], p[..., 0, :]
+    for j in range(1, points.shape[-2]):
+        step = quat.mul(quat.conj(q[..., j - 1, :]), q[..., j, :])
+        rot = quat.mul(rot, quat.slerp(one, step, weights[..., j - 1]))
+        trans = trans + weights[..., j - 1, None] * (p[..., j, :] - p[..., j - 1, :])
+    return dualquat.from_rt(rot, trans)
+
+
 # ----------------------------------------------------------------------------- span points
 
 def _span_points(ctrl: Tensor, r: Tensor, degree: int, batch: torch.Size) -> Tensor:
-    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, 8)``,
-    gathered through one flat index (the backward accumulates into ``(B n, 8)``)."""
-    n, T = ctrl.shape[-2], r.shape[-1]
-    flat = ctrl.expand(*batch, n, 8).reshape(-1, 8)
+    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, C)``
+    (``ctrl (..., n, C)``), gathered through one flat index (the backward accumulates into
+    ``(B n, C)``)."""
+    n, T, C = ctrl.shape[-2], r.shape[-1], ctrl.shape[-1]
+    flat = ctrl.expand(*batch, n, C).reshape(-1, C)
     offsets = (torch.arange(batch.numel(), device=r.device) * n).reshape(*batch, 1, 1)
     idx = r[..., None] + torch.arange(-degree, 1, device=r.device) + offsets
     idx = idx.expand(*batch, T, degree + 1)
-    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, 8)
+    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, C)
 
 
 # ----------------------------------------------------------------------------- fused schemes
@@ -536,6 +569,8 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     dtype = compute_dtype(ctrl.dtype)
     ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
     r = dom.span(rel)
+    if form == "split":
+        return _split_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
     if form == "cumulative":
         weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
         if _kernels.fused_path(ctrl_c, weights):
@@ -557,6 +592,8 @@ def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: 
     r = dom.span(rel)
     if form == "cumulative":
         xs = _cumulative_jets(ctrl_c, dom, rel, r, order, batch)
+    elif form == "split":
+        xs = _split_jets(ctrl_c, dom, rel, r, order, batch)
     else:
         levels = dom.de_boor_levels(rel, r, dtype)
         xs = _jet_scheme(_span_points(ctrl_c, r, p, batch), levels, order, batch)
@@ -569,10 +606,47 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers: through
     the span tables (:func:`_fused_cumulative`) where the fused ops may run, else its jets."""
     weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
-    weights = [w.to(ctrl.dtype) for w in weights]
+    return _product_of_powers(ctrl, r, [w.to(ctrl.dtype) for w in weights], dom.degree, batch)
+
+
+def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
+                       batch: torch.Size) -> list[Tensor]:
+    """The cumulative form on the cumulative ``weights`` (and their derivatives) of the spans
+    ``r``: through the span tables (:func:`_fused_cumulative`) where the fused ops may run,
+    else its jets."""
     if _kernels.fused_path(ctrl, *weights):
-        return _fused_cumulative(ctrl, r, weights, dom.degree, batch)
-    return _cumulative.jets(_span_points(ctrl, r, dom.degree, batch), weights, order)
+        return _fused_cumulative(ctrl, r, weights, degree, batch)
+    return _cumulative.jets(_span_points(ctrl, r, degree, batch), weights, len(weights) - 1)
+
+
+def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
+                batch: torch.Size) -> list[Tensor]:
+    r"""The split form (:func:`_split`) and its time derivatives to ``order``, from the
+    sign-aligned ``ctrl`` in its compute dtype.
+
+    Rotation: the cumulative form of the rotations alone (control points :math:`(q_j, 0)`,
+    whose screw powers are the slerps from the identity of :func:`_split`), by
+    :func:`_product_of_powers` on the cumulative basis. Translation: :math:`p^{(k)} =
+    [k = 0]\, p_{r-p} + \sum_j 	ilde B^{(k)}_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1})`. Joined as
+    :func:`~torch_dq.dualquat.from_rt` by the Leibniz rule, dual part
+    :math:`d^{(k)} = rac12 \sum_i inom{k}{i} (0, p^{(i)})\, q^{(k-i)}`.
+    """
+    p = dom.degree
+    weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, order)
+    weights = [w.to(ctrl.dtype) for w in weights]
+    q = ctrl[..., :4]
+    rots = [x[..., :4] for x in _product_of_powers(torch.cat((q, torch.zeros_like(q)), -1), r,
+                                                   weights, p, batch)]
+    points = _span_points(translation(q, ctrl[..., 4:]), r, p, batch)  # (*batch, T, p + 1, 3)
+    steps = points.diff(dim=-2)
+    trans = [(w[..., None, :] @ steps).squeeze(-2) for w in weights]
+    trans[0] = trans[0] + points[..., 0, :]
+    pure = [torch.nn.functional.pad(v, (1, 0)) for v in trans]  # (0, p^(k))
+    out = []
+    for k, rot in enumerate(rots):
+        dual = sum(math.comb(k, i) * qmul(pure[i], rots[k - i]) for i in range(k + 1))
+        out.append(torch.cat((rot, 0.5 * dual), -1))
+    return out
 
 
 def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = None,
