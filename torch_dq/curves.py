@@ -48,14 +48,19 @@ CPU thread (float32, 100 control points, 10,000 times, cubic), forward + backwar
 about 4x (velocities), 10x (accelerations) and 18x (jerks) the pose-only forward + backward
 of the fused op.
 
-Two B-spline forms (``form=`` on :func:`bspline` and :func:`bspline_derivatives`):
-``"de_boor"`` (the default, the paper's pyramid of sclerps, :math:`C^1` at simple knots) and
+Three B-spline forms (``form=`` on :func:`bspline` and :func:`bspline_derivatives`):
+``"de_boor"`` (the default, the paper's pyramid of sclerps, :math:`C^1` at simple knots),
 ``"cumulative"`` (Kim-Kim-Shin: :math:`X(t) = c_0 \prod_{j \ge 1} (c_{j-1}^{-1} c_j)^{\tilde
 B_j(t)}` with the cumulative basis :math:`\tilde B_j = \sum_{l \ge j} B_{l,p}`, each power
 on the shortest path; :math:`C^{p-1}` at simple knots, so a cubic's accelerations and IMU
-readings are continuous; pypose's and basalt's form). Both read the same spans of the same
-sign-aligned control polygon (:func:`_kim_kim_shin` is the readable reference of the second,
-:mod:`torch_dq._cumulative` its basis, jets and fused op).
+readings are continuous; pypose's and basalt's form) and ``"split"`` (SO(3) x R^3: the
+rotation the cumulative B-spline on SO(3), :math:`R(t) = R_0 \prod_{j \ge 1}
+\mathrm{Exp}(\tilde B_j(t) \mathrm{Log}(R_{j-1}^T R_j))`, the translation the Euclidean
+B-spline :math:`\sum_j B_{j,p}(t)\, p_j`; :math:`C^{p-1}`; kontiki's split spline and the
+"linear"/"cubic" trajectories of BAD-NeRF and BAD-Gaussians). All read the same spans of the
+same sign-aligned control polygon (:func:`_kim_kim_shin` and :func:`_split` are the readable
+references of the second and third, :mod:`torch_dq._cumulative` their basis, jets and fused
+op: the split form's rotation is the cumulative form of the rotations alone).
 
 Time model and domain rules: every function locates its times through one object
 (``torch_dq._time.KnotDomain``: spans, local parameters, domain checks). Times outside the
@@ -676,7 +681,8 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     points give the quaternion De Boor curve with slerp; translation-only ones the Euclidean
     B-spline of the translations.
 
-    Smoothness (``form="de_boor"``; ``"cumulative"`` is :math:`C^{p-1}`, module docstring):
+    Smoothness (``form="de_boor"``; ``"cumulative"`` and ``"split"`` are :math:`C^{p-1}`,
+    module docstring):
     inside a span the curve is analytic in ``t``; at a simple interior knot of
     degree ``p >= 2`` it is :math:`C^1` but in general not :math:`C^2` (the second derivative
     jumps; measured in ``tests/test_continuous_time.py``): each level of the scheme is a
@@ -703,8 +709,11 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
         extrapolate: continue the end spans beyond the domain (the first and last
             non-empty spans' polynomials) instead of the domain rules: accurate only a
             fraction of a knot spacing beyond the ends, no prediction of the motion.
-        form: ``"de_boor"`` (De Boor's pyramid, the paper's; default) or ``"cumulative"``
-            (Kim-Kim-Shin, :math:`C^{p-1}`; module docstring).
+        form: ``"de_boor"`` (De Boor's pyramid, the paper's; default), ``"cumulative"``
+            (Kim-Kim-Shin, :math:`C^{p-1}`) or ``"split"`` (cumulative SO(3) rotation and
+            Euclidean translation, :math:`C^{p-1}`; degree 1: slerp of the rotations and
+            linear interpolation of the translations); module docstring. Every form has
+            finite gradients (twice) at identity and at equal control points.
 
     Returns:
         ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
@@ -754,7 +763,9 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     :math:`C^1` for degree ``p >= 2``, so the velocities are continuous but the
     accelerations (second derivatives) jump at the knots, even for cubic and quartic
     B-splines (only pure translations keep the Euclidean :math:`C^{p-1}`); with
-    ``form="cumulative"`` :math:`C^{p-1}`, accelerations continuous for cubics.
+    ``form="cumulative"`` or ``"split"`` :math:`C^{p-1}`, accelerations continuous for
+    cubics. The split form's rotation derivatives are the cumulative form's (of the
+    rotations alone), its translation's the derivatives of the Euclidean basis.
 
     Rounding near a short knot span: with ``form="de_boor"``, at times whose span (or a
     neighbouring knot interval that enters its local parameters) has a length ``g`` much
@@ -763,8 +774,9 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     translations; the local parameters' slopes ``1 / g`` multiply differences of rounded
     control points) and the angular acceleration about ``4 eps / g`` (measured in
     ``tests/test_continuous_time.py``; 0.2's figure: 3e-3 at ``g = 1e-6`` in float64).
-    ``form="cumulative"`` does not amplify rounding this way (its basis derivatives are
-    computed in the time dtype): prefer it for accelerations on nearly repeated knots.
+    ``form="cumulative"`` and ``"split"`` do not amplify rounding this way (their basis
+    derivatives are computed in the time dtype): prefer them for accelerations on nearly
+    repeated knots.
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
@@ -775,7 +787,7 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
             1)`` with a row per trajectory (as :func:`bspline`).
         check: the value checks of :func:`bspline` (one device synchronisation).
         extrapolate: as :func:`bspline`.
-        form: ``"de_boor"`` or ``"cumulative"`` (as :func:`bspline`).
+        form: ``"de_boor"``, ``"cumulative"`` or ``"split"`` (as :func:`bspline`).
 
     Returns:
         ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as
