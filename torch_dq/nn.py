@@ -924,8 +924,9 @@ class BSpline(Curve):
     cubics) or ``"split"`` (a cumulative SO(3) spline for the rotation and a Euclidean one for
     the translation, :math:`C^{p-1}`; see :mod:`torch_dq.curves`). See :class:`Bezier` for
     the parametrization. The knots are not learned: the module keeps their origin
-    ``knots[degree]`` as a Python float and the knots relative to it as a buffer (it follows ``.to()``), so absolute timestamps survive a float32 module;
-    :attr:`knots` returns them in the caller's units (float64). The origin, the degree and
+    ``knots[degree]`` as a Python float and the knots relative to it as a buffer (it follows
+    ``.to()``), so absolute timestamps survive a float32 module; :attr:`knots` returns them
+    in the caller's units (float64). The origin, the degree and
     the form are the extra state of the ``state_dict``.
 
     Args:
