@@ -91,6 +91,7 @@ from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype
+from ._split import poses as split_poses
 from ._time import KnotDomain, time_pair
 
 __all__ = [
@@ -627,29 +628,38 @@ def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: i
 def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
                 batch: torch.Size) -> list[Tensor]:
     r"""The split form (:func:`_split`) and its time derivatives to ``order``, from the
-    sign-aligned ``ctrl`` in its compute dtype.
+    sign-aligned ``ctrl`` in its compute dtype, on the cumulative basis of :mod:`_cumulative`.
 
-    Rotation: the cumulative form of the rotations alone (control points :math:`(q_j, 0)`,
-    whose screw powers are the slerps from the identity of :func:`_split`), by
-    :func:`_product_of_powers` on the cumulative basis. Translation: :math:`p^{(k)} =
-    [k = 0]\, p_{r-p} + \sum_j 	ilde B^{(k)}_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1})`. Joined as
+    The poses alone: :func:`torch_dq._split.poses` (component rows, plain ops). With
+    derivatives, the rotation is the cumulative form of the rotations alone (control points
+    :math:`(q_j, 0)`, whose screw powers are the slerps from the identity of :func:`_split`)
+    by :func:`_product_of_powers`, the translation :math:`p^{(k)} = [k = 0]\, p_{r-p} +
+    \sum_j \tilde B^{(k)}_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1})`, joined as
     :func:`~torch_dq.dualquat.from_rt` by the Leibniz rule, dual part
-    :math:`d^{(k)} = rac12 \sum_i inom{k}{i} (0, p^{(i)})\, q^{(k-i)}`.
+    :math:`d^{(k)} = \frac12 \sum_i \binom{k}{i} (0, p^{(i)})\, q^{(k-i)}`.
     """
-    p = dom.degree
+    p, n, T = dom.degree, ctrl.shape[-2], r.shape[-1]
     weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, order)
     weights = [w.to(ctrl.dtype) for w in weights]
+    if order == 0:
+        B = batch.numel()
+        rows = weights[0].movedim(-1, 0).expand(p, *batch, T).reshape(p, B, T)
+        first = (r - p).expand(*batch, T).reshape(B, T)
+        x = split_poses(ctrl.expand(*batch, n, 8).reshape(B, n, 8), first, rows)
+        return [x.view(*batch, T, 8)]
     q = ctrl[..., :4]
-    rots = [x[..., :4] for x in _product_of_powers(torch.cat((q, torch.zeros_like(q)), -1), r,
-                                                   weights, p, batch)]
-    points = _span_points(translation(q, ctrl[..., 4:]), r, p, batch)  # (*batch, T, p + 1, 3)
-    steps = points.diff(dim=-2)
-    trans = [(w[..., None, :] @ steps).squeeze(-2) for w in weights]
-    trans[0] = trans[0] + points[..., 0, :]
-    pure = [torch.nn.functional.pad(v, (1, 0)) for v in trans]  # (0, p^(k))
+    rots = [x[..., :4] for x in _product_of_powers(torch.cat((q, torch.zeros_like(q)), -1),
+                                                   r, weights, p, batch)]
+    trans = translation(q, ctrl[..., 4:])  # (..., n, 3)
+    steps = _span_points(trans.diff(dim=-2), r - 1, p - 1, batch)  # (*batch, T, p, 3)
+    moves = [(w[..., None] * steps).sum(-2) for w in weights]  # not a matmul: tiny (p, 3)
+    moves[0] = moves[0] + _span_points(trans, r - p, 0, batch)[..., 0, :]
+    pure = [torch.nn.functional.pad(v, (1, 0)) for v in moves]  # (0, p^(k))
     out = []
     for k, rot in enumerate(rots):
-        dual = sum(math.comb(k, i) * qmul(pure[i], rots[k - i]) for i in range(k + 1))
+        dual = qmul(pure[0], rots[k])
+        for i in range(1, k + 1):
+            dual = dual + math.comb(k, i) * qmul(pure[i], rots[k - i])
         out.append(torch.cat((rot, 0.5 * dual), -1))
     return out
 
