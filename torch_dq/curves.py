@@ -643,7 +643,7 @@ def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: in
     weights = [w.to(ctrl.dtype) for w in weights]
     if order == 0:
         B = batch.numel()
-        rows = weights[0].movedim(-1, 0).expand(p, *batch, T).reshape(p, B, T)
+        rows = weights[0].expand(*batch, T, p).movedim(-1, 0).reshape(p, B, T)
         first = (r - p).expand(*batch, T).reshape(B, T)
         x = split_poses(ctrl.expand(*batch, n, 8).reshape(B, n, 8), first, rows)
         return [x.view(*batch, T, 8)]
