@@ -21,7 +21,7 @@ from torch_dq import curves, quat
 from torch_dq.nn import Bezier, BSpline
 
 F64 = torch.float64
-FORMS = ("de_boor", "cumulative")
+FORMS = ("de_boor", "cumulative", "split")
 
 
 def chain(batch, n, gen, step=0.4):
@@ -206,7 +206,8 @@ def uneven_times():
 def test_from_poses_rows_equal_separate_fits(form):
     """from_poses with (B, N) times: each row is the module that from_poses builds from that
     row alone (control points, knots, domain, poses, kinematics, IMU), float32 poses with
-    float64 UNIX seconds included; and it contains each row's constant screw motion."""
+    float64 UNIX seconds included; and it contains each row's constant screw motion (the
+    split form approximates it)."""
     times = uneven_times()
     xis = torch.tensor([[0.2, -0.1, 0.5, 1.0, 0.3, 0.0], [0.0, 0.3, 0.1, -0.5, 0.2, 0.4],
                         [0.4, 0.0, -0.2, 0.1, 0.0, 2.0]], dtype=F64)
@@ -233,7 +234,10 @@ def test_from_poses_rows_equal_separate_fits(form):
     ref = np.stack([np.stack([pt.transform_from_exponential_coordinates(
         (s - float(times[b, 0])) * xis[b].numpy()) for s in times[b].tolist()])
         for b in range(3)])
-    np.testing.assert_allclose(dq.to_matrix(x).detach().numpy(), ref, atol=1e-7)
+    # the split form holds no screw motion (its translation is a polynomial, the helix's is
+    # not): its least-squares fit is close, not exact (measured 1.9e-5)
+    atol = 1e-4 if form == "split" else 1e-7
+    np.testing.assert_allclose(dq.to_matrix(x).detach().numpy(), ref, atol=atol)
 
 
 def test_from_poses_rows_float32_and_matrices():

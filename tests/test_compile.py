@@ -78,20 +78,24 @@ def test_sclerp_compiles_as_one_graph(gen):
            wrt=(0, 1, 2), n_dynamic=3)
 
 
-@pytest.mark.parametrize("curve", ["bezier", "bspline"])
+@pytest.mark.parametrize("curve", ["bezier", "bspline", "split"])
 def test_curve_compiles_as_one_graph(gen, curve):
-    """Gradients with respect to the control points and the times (every level's alpha)."""
+    """Gradients with respect to the control points and the times (every level's alpha);
+    ``split``: the B-spline's split form (plain ops on component rows)."""
     ctrl = unit_dq((4,), gen) if curve == "bezier" else unit_dq((7,), gen)
-    fn = functools.partial(getattr(curves, curve), check=False)
+    fn = (functools.partial(curves.bspline, check=False, form="split") if curve == "split"
+          else functools.partial(getattr(curves, curve), check=False))
     _check(lambda t, c: fn(c, t), lambda n: (_times(gen, n), ctrl), wrt=(0, 1))
 
 
-def test_bspline_derivatives_compile_as_one_graph(gen):
+@pytest.mark.parametrize("form", ["de_boor", "split"])
+def test_bspline_derivatives_compile_as_one_graph(gen, form):
     """The pose, velocity and acceleration (truncated Taylor arithmetic) in one dynamo graph
     per grad mode at both sizes. Dynamo's own ``eager`` backend: AOTAutograd takes ~60 s on
     this graph; the kernels' backward tracing is covered by the tests above."""
     ctrl = unit_dq((7,), gen)
-    derivatives = functools.partial(curves.bspline_derivatives, order=2, check=False)
+    derivatives = functools.partial(curves.bspline_derivatives, order=2, check=False,
+                                    form=form)
 
     def fn(t, c):
         return torch.stack(derivatives(c, t))

@@ -148,7 +148,8 @@ def test_unchecked_times_outside_give_nan_per_element(gen):
     for x in (curves.bspline(ctrl, t, knots=k, check=False),
               curves.bspline_derivatives(ctrl, t, order=1, knots=k, check=False)[0],
               BSpline(ctrl, knots=k, check=False)(t),
-              BSpline(ctrl, knots=k, check=False, form="cumulative")(t)):
+              BSpline(ctrl, knots=k, check=False, form="cumulative")(t),
+              BSpline(ctrl, knots=k, check=False, form="split")(t)):
         nan = torch.isnan(x).all(-1)
         assert nan.tolist() == [True, False, False, False, True]
     x = BSpline(ctrl, knots=k, check=False)(t)
@@ -173,7 +174,7 @@ def test_meta_tensors(knots):
 
 # ----------------------------------------------------------------------------- saving
 
-@pytest.mark.parametrize("form", ["de_boor", "cumulative"])
+@pytest.mark.parametrize("form", ["de_boor", "cumulative", "split"])
 def test_from_state_dict_rebuilds_without_knowing_the_shape(gen, form):
     k = torch.tensor([0.0, 0.0, 0.0, 0.4, 0.5, 1.3, 2.0, 2.0, 2.0], dtype=F64) + 1.7e9
     src = BSpline(unit_dq((2, 6), gen, scale=2.0).float(), degree=2, knots=k, form=form)
@@ -217,13 +218,14 @@ def test_torch_save_of_a_whole_module(gen):
 
 # ----------------------------------------------------------------------------- forms
 
-def test_form_is_state_and_every_evaluation_follows_it(gen):
+@pytest.mark.parametrize("form", ["cumulative", "split"])
+def test_form_is_state_and_every_evaluation_follows_it(gen, form):
     """BSpline(form=...) evaluates, differentiates and accepts ctrl= in its form; the form
     is saved and loaded; an unknown form is a clear ValueError."""
     ctrl, k = near_chain(7, gen), knots_on(7, 3, 0.0, 3.0)
     t = torch.linspace(0.0, 3.0, 11, dtype=F64)
-    spline = BSpline(ctrl, knots=k, form="cumulative")
-    ref = curves.bspline_derivatives(ctrl, t, order=2, knots=k, form="cumulative")
+    spline = BSpline(ctrl, knots=k, form=form)
+    ref = curves.bspline_derivatives(ctrl, t, order=2, knots=k, form=form)
     other = curves.bspline(ctrl, t, knots=k)
     assert (ref[0] - other).abs().max() > 1e-4  # the forms differ
     torch.testing.assert_close(spline(t), ref[0], rtol=0, atol=1e-12)
@@ -231,13 +233,13 @@ def test_form_is_state_and_every_evaluation_follows_it(gen):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-10)
     moved = near_chain(7, gen)
     torch.testing.assert_close(spline(t, ctrl=moved),
-                               curves.bspline(moved, t, knots=k, form="cumulative"),
+                               curves.bspline(moved, t, knots=k, form=form),
                                rtol=0, atol=1e-12)
     gyro, _ = spline.imu(t)
     torch.testing.assert_close(gyro, curves.imu(*ref)[0], rtol=0, atol=1e-10)
     dst = BSpline(dq.identity((7,), dtype=F64))
     dst.load_state_dict(spline.state_dict())
-    assert dst.form == "cumulative"
+    assert dst.form == form
     with pytest.raises(ValueError, match=r"^nn\.BSpline: form must be 'de_boor'.*got 'kkS'"):
         BSpline(ctrl, form="kkS")
     with pytest.raises(ValueError, match=r"^curves\.bspline: form must be"):

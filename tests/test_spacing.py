@@ -129,7 +129,7 @@ def test_rounding_for_hints(value):
 @pytest.mark.parametrize("kwargs,error,match", [
     ({"degree": 0}, ValueError, "degree must be an int >= 1"),
     ({"tolerance": 1.5}, ValueError, r"tolerance must be a number in \[0, 1\)"),
-    ({"form": "bezier"}, ValueError, "form must be 'de_boor' or 'cumulative'"),
+    ({"form": "bezier"}, ValueError, "form must be 'de_boor', 'cumulative' or 'split'"),
 ])
 def test_argument_errors(kwargs, error, match):
     t, x = _motion(0.2, n=41)

@@ -146,12 +146,13 @@ def _add_fit_parser(sub) -> None:
                           "5th fitted pose, fitted on the rest, are within 2%% of the best)")
     fit.add_argument("--degree", type=_positive_int, default=DEFAULTS["degree"],
                      help="B-spline degree")
-    fit.add_argument("--form", type=str.lower, choices=("de_boor", "cumulative"),
+    fit.add_argument("--form", type=str.lower, choices=("de_boor", "cumulative", "split"),
                      default=DEFAULTS["form"],
                      help="B-spline form: de_boor, the paper's De Boor pyramid of sclerps (C1 "
                           "at knots); cumulative, Kim-Kim-Shin's product of screw powers (C2 "
-                          "for a cubic: continuous accelerations, for IMU work); default: "
-                          "cumulative with --imu, else de_boor")
+                          "for a cubic: continuous accelerations, for IMU work); split, a "
+                          "cumulative SO(3) rotation and a Euclidean translation (C2); "
+                          "default: cumulative with --imu, else de_boor")
     fit.add_argument("--holdout", metavar="K", type=_positive_int, default=DEFAULTS["holdout"],
                      help="fit every K-th pose (and the last), report errors on the others "
                           "(1: fit all, report the fit residuals)")

@@ -78,7 +78,7 @@ class SpacingSearch:
         n_fit: poses of the inner fit; ``n_check``: poses of the inner check; ``n``: all.
         degree: the B-spline degree.
         n_ctrl_fit: control points of the chosen candidate on the inner fit.
-        form: the B-spline form (``"de_boor"`` or ``"cumulative"``).
+        form: the B-spline form (``"de_boor"``, ``"cumulative"`` or ``"split"``).
         data_limited: the chosen candidate is within :data:`DATA_LIMIT_STEPS` grid steps
             of the finest the inner fit determines.
         scale: the inner fit's mean time step over that of all the poses (about 0.8).
@@ -232,8 +232,8 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     """
     fn = "choose_knot_spacing"
     _check_args(fn, times, poses, degree, tolerance)
-    if form not in ("de_boor", "cumulative"):
-        _checks.fail(fn, f"form must be 'de_boor' or 'cumulative', got {form!r}")
+    if form not in ("de_boor", "cumulative", "split"):
+        _checks.fail(fn, f"form must be 'de_boor', 'cumulative' or 'split', got {form!r}")
     times = times.detach().double()
     poses = poses.detach()
     fit, check = _inner_split(times.shape[0])

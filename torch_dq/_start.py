@@ -17,7 +17,9 @@ coordinates (each sclerp is affine in the chart coordinates to first order, and 
 :math:`\sum_{l \ge j} B_l = \tilde B_j`). The windowed least squares fit that linearization,
 so the start is exact for a constant screw motion and accurate to second order in the
 motion per window for either form; refinement (:func:`torch_dq.fitting.fit`) then
-minimises the form's own residuals.
+minimises the form's own residuals. The split form (SO(3) x R^3) is fit in its own charts
+(rotation vector about the chart's rotation, translation difference), where its
+translation is exactly the Euclidean B-spline and its rotation is to first order.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import warnings
 import torch
 from torch import Tensor
 
-from . import _checks, dualquat
+from . import _checks, dualquat, quat
 from ._core import align_chain, twist_translation
 from ._numerics import threshold
 from ._time import bspline_basis
@@ -139,13 +141,15 @@ def check_determined(fn: str, first: Tensor, values: Tensor, n: int,
 
 # ----------------------------------------------------------------------------- start
 
-def _chart_twists(ref: Tensor, x: Tensor) -> Tensor:
+def _chart_twists(ref: Tensor, x: Tensor, split: bool = False) -> Tensor:
     r"""Twists :math:`\xi` with :math:`\exp(\xi) = \pm ref^{-1} x`, continuous along a chain.
 
     ``x`` and ``ref`` must be sign-aligned along the trajectory (neighbours with
     non-negative real dots): the rotation angle ``2 atan2(|v|, w)`` of the relative real
     part then runs continuously over ``[0, 2 pi)`` without the jump at pi of the principal
-    logarithm (relative rotations up to a full turn).
+    logarithm (relative rotations up to a full turn). With ``split`` the chart of the split
+    form (SO(3) x R^3): the same rotation vector and the translation difference
+    :math:`p_x - p_{ref}` (world axes) instead of the twist's linear part.
     """
     y = dualquat.mul(dualquat.conj(ref), x)
     r, t = dualquat.to_rt(y)
@@ -156,7 +160,19 @@ def _chart_twists(ref: Tensor, x: Tensor) -> Tensor:
     full = 2.0 * math.pi - threshold("full_turn", theta.dtype)  # a turn within rounding
     theta = torch.where(theta > full, theta - 2.0 * math.pi, theta)
     omega = theta[..., None] * axis
+    if split:
+        return torch.cat((omega, dualquat.to_rt(x)[1] - dualquat.to_rt(ref)[1]), dim=-1)
     return torch.cat((omega, twist_translation(omega, t)), dim=-1)
+
+
+def _from_chart(centre: Tensor, C: Tensor, split: bool) -> Tensor:
+    """The poses of chart coordinates ``C (..., 6)`` about ``centre`` (:func:`_chart_twists`'
+    inverse): ``centre exp(C)``, or with ``split`` the rotation ``R_c Exp(omega)`` and the
+    translation ``p_c + v``."""
+    if not split:
+        return dualquat.mul(centre, dualquat.exp(C))
+    r, t = dualquat.to_rt(centre)
+    return dualquat.from_rt(quat.mul(r, quat.from_rotvec(C[..., :3])), t + C[..., 3:])
 
 
 def _interpolate(x: Tensor, times: Tensor, at: Tensor) -> Tensor:
@@ -207,7 +223,7 @@ def _angle_rate(a: Tensor, b: Tensor, dt: Tensor) -> Tensor:
 
 
 def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
-                        anchors: Tensor) -> Tensor:
+                        anchors: Tensor, split: bool = False) -> Tensor:
     r"""Control points fit to poses by windowed least squares in local charts.
 
     The anchors :math:`a_j` are the poses interpolated (``sclerp`` between the neighbouring
@@ -239,6 +255,9 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
         values: ``(N, w)`` float64 basis values (see ``BSpline.basis``).
         n: number of control points.
         anchors: ``(n,)`` float64 anchor times (Greville abscissae), in ``times``' units.
+        split: chart coordinates of the split form (:func:`_chart_twists`): rotation vector
+            and translation difference, which its rotation and translation are affine in to
+            first order (its translation exactly).
 
     Returns:
         ``(..., n, 8)`` float64 unit dual quaternions.
@@ -247,14 +266,14 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
     reach = _window_reach(x, times, anchors, values.shape[1] - 1)
     if len(set(reach)) > 1:  # trajectories of a batch turning at different rates
         flat = x.reshape(-1, *x.shape[-2:])
-        out = [_windowed(flat[b], times, first, values, n, anchors, a)
+        out = [_windowed(flat[b], times, first, values, n, anchors, a, split)
                for b, a in enumerate(reach)]
         return torch.stack(out).view(*x.shape[:-2], n, 8)
-    return _windowed(x, times, first, values, n, anchors, reach[0])
+    return _windowed(x, times, first, values, n, anchors, reach[0], split)
 
 
 def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
-              anchors: Tensor, a: int) -> Tensor:
+              anchors: Tensor, a: int, split: bool = False) -> Tensor:
     """:func:`least_squares_start` on the sign-aligned ``x`` with windows of reach ``a``."""
     N, w = values.shape
     h = w - 1
@@ -285,16 +304,16 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
         A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
         A.scatter_(2, cols, values[idx] * mask[..., None])
         chart = centre[..., k, None, :]
-        xi = _chart_twists(chart, x[..., idx, :])  # (..., K, M, 6)
+        xi = _chart_twists(chart, x[..., idx, :], split)  # (..., K, M, 6)
         # prior: unknown j at its own anchor, seen from the chart of anchor k
         near = anchor[..., base[:, None] + torch.arange(U, device=dev), :]  # (..., K, U, 8)
-        prior = _chart_twists(chart, near)
+        prior = _chart_twists(chart, near, split)
         G = A.mT @ A + weight * torch.eye(U, dtype=x.dtype, device=dev)
         rhs = A.mT @ xi + weight * prior
         sol = torch.cholesky_solve(rhs, torch.linalg.cholesky(G))  # (..., K, U, 6)
         coeffs.append(sol[..., torch.arange(len(k), device=dev), k - base, :])
     C = torch.cat(coeffs, dim=-2)
-    ctrl = dualquat.mul(centre, dualquat.exp(C))
+    ctrl = _from_chart(centre, C, split)
     # the representative of each control point nearest to its anchor (the samples' chain)
     dots = (ctrl[..., :4] * anchor[..., :4]).sum(-1, keepdim=True)
     return torch.where(dots < 0, -ctrl, ctrl)

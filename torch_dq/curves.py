@@ -48,14 +48,19 @@ CPU thread (float32, 100 control points, 10,000 times, cubic), forward + backwar
 about 4x (velocities), 10x (accelerations) and 18x (jerks) the pose-only forward + backward
 of the fused op.
 
-Two B-spline forms (``form=`` on :func:`bspline` and :func:`bspline_derivatives`):
-``"de_boor"`` (the default, the paper's pyramid of sclerps, :math:`C^1` at simple knots) and
+Three B-spline forms (``form=`` on :func:`bspline` and :func:`bspline_derivatives`):
+``"de_boor"`` (the default, the paper's pyramid of sclerps, :math:`C^1` at simple knots),
 ``"cumulative"`` (Kim-Kim-Shin: :math:`X(t) = c_0 \prod_{j \ge 1} (c_{j-1}^{-1} c_j)^{\tilde
 B_j(t)}` with the cumulative basis :math:`\tilde B_j = \sum_{l \ge j} B_{l,p}`, each power
 on the shortest path; :math:`C^{p-1}` at simple knots, so a cubic's accelerations and IMU
-readings are continuous; pypose's and basalt's form). Both read the same spans of the same
-sign-aligned control polygon (:func:`_kim_kim_shin` is the readable reference of the second,
-:mod:`torch_dq._cumulative` its basis, jets and fused op).
+readings are continuous; pypose's and basalt's form) and ``"split"`` (SO(3) x R^3: the
+rotation the cumulative B-spline on SO(3), :math:`R(t) = R_0 \prod_{j \ge 1}
+\mathrm{Exp}(\tilde B_j(t) \mathrm{Log}(R_{j-1}^T R_j))`, the translation the Euclidean
+B-spline :math:`\sum_j B_{j,p}(t)\, p_j`; :math:`C^{p-1}`; kontiki's split spline and the
+"linear"/"cubic" trajectories of BAD-NeRF and BAD-Gaussians). All read the same spans of the
+same sign-aligned control polygon (:func:`_kim_kim_shin` and :func:`_split` are the readable
+references of the second and third, :mod:`torch_dq._cumulative` their basis, jets and fused
+op: the split form's rotation is the cumulative form of the rotations alone).
 
 Time model and domain rules: every function locates its times through one object
 (``torch_dq._time.KnotDomain``: spans, local parameters, domain checks). Times outside the
@@ -72,19 +77,21 @@ element), never a silent extrapolation.
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
-from . import _checks, _cumulative, _kernels, _taylor, dualquat
-from ._core import align_chain
+from . import _checks, _cumulative, _kernels, _taylor, dualquat, quat
+from ._core import align_chain, qmul, translation
 from ._kernels import jet_pyramid
 from ._kernels.layout import chunks
 from ._kernels.pyramid import pyramid
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype
+from ._split import poses as split_poses
 from ._time import KnotDomain, time_pair
 
 __all__ = [
@@ -104,7 +111,7 @@ for _f in (Kinematics, imu, kinematics, screw_axis, twists, velocity):
     _f.__module__ = __name__  # documented and pickled as torch_dq.curves.<name>
 
 _MAX_ORDER = 3  # highest time derivative of the *_derivatives functions
-FORMS = ("de_boor", "cumulative")  # the B-spline forms (module docstring)
+FORMS = ("de_boor", "cumulative", "split")  # the B-spline forms (module docstring)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -133,8 +140,9 @@ def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
 def check_form(fn: str, form) -> str:
     """``form`` if it names a B-spline form (:data:`FORMS`), else ``ValueError``."""
     if not isinstance(form, str) or form not in FORMS:
-        _checks.fail(fn, f"form must be 'de_boor' (the paper's De Boor pyramid) or "
-                         f"'cumulative' (Kim-Kim-Shin, C^(p-1)), got {form!r}")
+        _checks.fail(fn, f"form must be 'de_boor' (the paper's De Boor pyramid), "
+                         f"'cumulative' (Kim-Kim-Shin, C^(p-1)) or 'split' (SO(3) x R^3, "
+                         f"C^(p-1)), got {form!r}")
     return form
 
 
@@ -259,17 +267,48 @@ def _kim_kim_shin(points: Tensor, weights: Tensor) -> Tensor:
     return x
 
 
+def _split(points: Tensor, weights: Tensor) -> Tensor:
+    r"""The split form (SO(3) x R^3), one factor per iteration: the reference.
+
+    ``points (..., T, p + 1, 8)``: the sign-aligned control points
+    :math:`c_{r-p}, \dots, c_r` of each time's span, :math:`c_i = (q_i, p_i)` by
+    :func:`~torch_dq.dualquat.to_rt`; ``weights (..., T, p)``: the cumulative basis
+    :math:`\tilde B_{r-p+j}(t)`, ``j = 1..p``. Returns ``(..., T, 8)``,
+    :func:`~torch_dq.dualquat.from_rt` of
+
+    .. math::
+        R(t) = q_{r-p} \prod_{j=1}^p \mathrm{slerp}\big(1,\, q_{r-p+j-1}^{*} q_{r-p+j},\,
+        \tilde B_{r-p+j}\big),\qquad
+        p(t) = p_{r-p} + \sum_{j=1}^p \tilde B_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1}),
+
+    the cumulative B-spline on SO(3) (each factor :math:`\mathrm{Exp}(w \mathrm{Log}(\cdot))`
+    on the shortest path: ``slerp`` from the identity with ``shortest=True``, composed on the
+    right) and the ordinary B-spline :math:`\sum_m B_{r-p+m,p}\, p_{r-p+m}` of the
+    translations (the same sum regrouped by Abel summation, :math:`B_{l,p} = \tilde B_l -
+    \tilde B_{l+1}`).
+    """
+    q, p = dualquat.to_rt(points)
+    one = quat.identity(dtype=points.dtype, device=points.device)
+    rot, trans = q[..., 0, :], p[..., 0, :]
+    for j in range(1, points.shape[-2]):
+        step = quat.mul(quat.conj(q[..., j - 1, :]), q[..., j, :])
+        rot = quat.mul(rot, quat.slerp(one, step, weights[..., j - 1]))
+        trans = trans + weights[..., j - 1, None] * (p[..., j, :] - p[..., j - 1, :])
+    return dualquat.from_rt(rot, trans)
+
+
 # ----------------------------------------------------------------------------- span points
 
 def _span_points(ctrl: Tensor, r: Tensor, degree: int, batch: torch.Size) -> Tensor:
-    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, 8)``,
-    gathered through one flat index (the backward accumulates into ``(B n, 8)``)."""
-    n, T = ctrl.shape[-2], r.shape[-1]
-    flat = ctrl.expand(*batch, n, 8).reshape(-1, 8)
+    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, C)``
+    (``ctrl (..., n, C)``), gathered through one flat index (the backward accumulates into
+    ``(B n, C)``)."""
+    n, T, C = ctrl.shape[-2], r.shape[-1], ctrl.shape[-1]
+    flat = ctrl.expand(*batch, n, C).reshape(-1, C)
     offsets = (torch.arange(batch.numel(), device=r.device) * n).reshape(*batch, 1, 1)
     idx = r[..., None] + torch.arange(-degree, 1, device=r.device) + offsets
     idx = idx.expand(*batch, T, degree + 1)
-    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, 8)
+    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, C)
 
 
 # ----------------------------------------------------------------------------- fused schemes
@@ -536,6 +575,8 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     dtype = compute_dtype(ctrl.dtype)
     ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
     r = dom.span(rel)
+    if form == "split":
+        return _split_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
     if form == "cumulative":
         weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
         if _kernels.fused_path(ctrl_c, weights):
@@ -557,6 +598,8 @@ def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: 
     r = dom.span(rel)
     if form == "cumulative":
         xs = _cumulative_jets(ctrl_c, dom, rel, r, order, batch)
+    elif form == "split":
+        xs = _split_jets(ctrl_c, dom, rel, r, order, batch)
     else:
         levels = dom.de_boor_levels(rel, r, dtype)
         xs = _jet_scheme(_span_points(ctrl_c, r, p, batch), levels, order, batch)
@@ -569,10 +612,56 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers: through
     the span tables (:func:`_fused_cumulative`) where the fused ops may run, else its jets."""
     weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
-    weights = [w.to(ctrl.dtype) for w in weights]
+    return _product_of_powers(ctrl, r, [w.to(ctrl.dtype) for w in weights], dom.degree, batch)
+
+
+def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
+                       batch: torch.Size) -> list[Tensor]:
+    """The cumulative form on the cumulative ``weights`` (and their derivatives) of the spans
+    ``r``: through the span tables (:func:`_fused_cumulative`) where the fused ops may run,
+    else its jets."""
     if _kernels.fused_path(ctrl, *weights):
-        return _fused_cumulative(ctrl, r, weights, dom.degree, batch)
-    return _cumulative.jets(_span_points(ctrl, r, dom.degree, batch), weights, order)
+        return _fused_cumulative(ctrl, r, weights, degree, batch)
+    return _cumulative.jets(_span_points(ctrl, r, degree, batch), weights, len(weights) - 1)
+
+
+def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
+                batch: torch.Size) -> list[Tensor]:
+    r"""The split form (:func:`_split`) and its time derivatives to ``order``, from the
+    sign-aligned ``ctrl`` in its compute dtype, on the cumulative basis of :mod:`_cumulative`.
+
+    The poses alone: :func:`torch_dq._split.poses` (component rows, plain ops). With
+    derivatives, the rotation is the cumulative form of the rotations alone (control points
+    :math:`(q_j, 0)`, whose screw powers are the slerps from the identity of :func:`_split`)
+    by :func:`_product_of_powers`, the translation :math:`p^{(k)} = [k = 0]\, p_{r-p} +
+    \sum_j \tilde B^{(k)}_{r-p+j}\,(p_{r-p+j} - p_{r-p+j-1})`, joined as
+    :func:`~torch_dq.dualquat.from_rt` by the Leibniz rule, dual part
+    :math:`d^{(k)} = \frac12 \sum_i \binom{k}{i} (0, p^{(i)})\, q^{(k-i)}`.
+    """
+    p, n, T = dom.degree, ctrl.shape[-2], r.shape[-1]
+    weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, order)
+    weights = [w.to(ctrl.dtype) for w in weights]
+    if order == 0:
+        B = batch.numel()
+        rows = weights[0].expand(*batch, T, p).movedim(-1, 0).reshape(p, B, T)
+        first = (r - p).expand(*batch, T).reshape(B, T)
+        x = split_poses(ctrl.expand(*batch, n, 8).reshape(B, n, 8), first, rows)
+        return [x.view(*batch, T, 8)]
+    q = ctrl[..., :4]
+    rots = [x[..., :4] for x in _product_of_powers(torch.cat((q, torch.zeros_like(q)), -1),
+                                                   r, weights, p, batch)]
+    trans = translation(q, ctrl[..., 4:])  # (..., n, 3)
+    steps = _span_points(trans.diff(dim=-2), r - 1, p - 1, batch)  # (*batch, T, p, 3)
+    moves = [(w[..., None] * steps).sum(-2) for w in weights]  # not a matmul: tiny (p, 3)
+    moves[0] = moves[0] + _span_points(trans, r - p, 0, batch)[..., 0, :]
+    pure = [torch.nn.functional.pad(v, (1, 0)) for v in moves]  # (0, p^(k))
+    out = []
+    for k, rot in enumerate(rots):
+        dual = qmul(pure[0], rots[k])
+        for i in range(1, k + 1):
+            dual = dual + math.comb(k, i) * qmul(pure[i], rots[k - i])
+        out.append(torch.cat((rot, 0.5 * dual), -1))
+    return out
 
 
 def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = None,
@@ -602,7 +691,8 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
     points give the quaternion De Boor curve with slerp; translation-only ones the Euclidean
     B-spline of the translations.
 
-    Smoothness (``form="de_boor"``; ``"cumulative"`` is :math:`C^{p-1}`, module docstring):
+    Smoothness (``form="de_boor"``; ``"cumulative"`` and ``"split"`` are :math:`C^{p-1}`,
+    module docstring):
     inside a span the curve is analytic in ``t``; at a simple interior knot of
     degree ``p >= 2`` it is :math:`C^1` but in general not :math:`C^2` (the second derivative
     jumps; measured in ``tests/test_continuous_time.py``): each level of the scheme is a
@@ -629,8 +719,11 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
         extrapolate: continue the end spans beyond the domain (the first and last
             non-empty spans' polynomials) instead of the domain rules: accurate only a
             fraction of a knot spacing beyond the ends, no prediction of the motion.
-        form: ``"de_boor"`` (De Boor's pyramid, the paper's; default) or ``"cumulative"``
-            (Kim-Kim-Shin, :math:`C^{p-1}`; module docstring).
+        form: ``"de_boor"`` (De Boor's pyramid, the paper's; default), ``"cumulative"``
+            (Kim-Kim-Shin, :math:`C^{p-1}`) or ``"split"`` (cumulative SO(3) rotation and
+            Euclidean translation, :math:`C^{p-1}`; degree 1: slerp of the rotations and
+            linear interpolation of the translations); module docstring. Every form has
+            finite gradients (twice) at identity and at equal control points.
 
     Returns:
         ``(..., T, 8)`` unit dual quaternions in ``ctrl``'s dtype. float16/bfloat16 are
@@ -680,7 +773,9 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     :math:`C^1` for degree ``p >= 2``, so the velocities are continuous but the
     accelerations (second derivatives) jump at the knots, even for cubic and quartic
     B-splines (only pure translations keep the Euclidean :math:`C^{p-1}`); with
-    ``form="cumulative"`` :math:`C^{p-1}`, accelerations continuous for cubics.
+    ``form="cumulative"`` or ``"split"`` :math:`C^{p-1}`, accelerations continuous for
+    cubics. The split form's rotation derivatives are the cumulative form's (of the
+    rotations alone), its translation's the derivatives of the Euclidean basis.
 
     Rounding near a short knot span: with ``form="de_boor"``, at times whose span (or a
     neighbouring knot interval that enters its local parameters) has a length ``g`` much
@@ -689,8 +784,9 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     translations; the local parameters' slopes ``1 / g`` multiply differences of rounded
     control points) and the angular acceleration about ``4 eps / g`` (measured in
     ``tests/test_continuous_time.py``; 0.2's figure: 3e-3 at ``g = 1e-6`` in float64).
-    ``form="cumulative"`` does not amplify rounding this way (its basis derivatives are
-    computed in the time dtype): prefer it for accelerations on nearly repeated knots.
+    ``form="cumulative"`` and ``"split"`` do not amplify rounding this way (their basis
+    derivatives are computed in the time dtype): prefer them for accelerations on nearly
+    repeated knots.
 
     Args:
         ctrl: ``(..., n, 8)`` unit dual quaternions (not checked), ``n > degree``.
@@ -701,7 +797,7 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
             1)`` with a row per trajectory (as :func:`bspline`).
         check: the value checks of :func:`bspline` (one device synchronisation).
         extrapolate: as :func:`bspline`.
-        form: ``"de_boor"`` or ``"cumulative"`` (as :func:`bspline`).
+        form: ``"de_boor"``, ``"cumulative"`` or ``"split"`` (as :func:`bspline`).
 
     Returns:
         ``order + 1`` tensors ``(..., T, 8)`` in ``ctrl``'s dtype: the poses (the same as

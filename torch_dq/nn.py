@@ -12,8 +12,8 @@ r"""Curve layers with learnable unit-dual-quaternion control points, in the call
   saved ``state_dict``. :mod:`torch_dq.fitting` recognises a layer by
   ``isinstance(module, Curve)``.
 - :class:`Bezier` and :class:`BSpline`: the two curves, wrapping
-  :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` (either B-spline form,
-  ``form="de_boor"`` or ``"cumulative"``); ``forward(t, ctrl=...)`` (and
+  :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` (any B-spline form,
+  ``form="de_boor"``, ``"cumulative"`` or ``"split"``); ``forward(t, ctrl=...)`` (and
   :meth:`~Curve.derivatives`, :meth:`~Curve.kinematics`, :meth:`~Curve.imu`) use control
   points predicted by another network instead. ``from_poses`` / ``from_matrices`` /
   ``from_dualquats`` build a curve by local least squares on timestamped poses.
@@ -233,7 +233,7 @@ def _check_seconds(fn: str, name: str, value, low: float | None) -> float:
     return float(value)
 
 
-def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int) -> Tensor:
+def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) -> Tensor:
     """The least-squares start of each trajectory of a batch on its own knots (rows of
     ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
     batch = torch.broadcast_shapes(x.shape[:-2], dom.knots.shape[:-1], rel.shape[:-1])
@@ -244,7 +244,8 @@ def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int) -> Tensor:
     for xb, tb, kb in rows:  # a constructor's loop: each row its own windows and charts
         one = KnotDomain(kb, dom.degree)
         first, values = one.basis(tb)
-        out.append(_start.least_squares_start(xb, tb, first, values, n, one.greville()))
+        out.append(_start.least_squares_start(xb, tb, first, values, n, one.greville(),
+                                              split))
     return torch.stack(out).view(*batch, n, 8)
 
 
@@ -380,11 +381,13 @@ class _Construction(torch.nn.Module):
         origin = dom.origin.cpu() if isinstance(dom.origin, Tensor) else dom.origin
         dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, origin)
         rel = dom.relative(t64, torch.float64)
+        split = getattr(self, "form", None) == "split"  # its own charts (_start)
         if dom.knots.dim() > 1:
-            ctrl = _start_rows(x64, rel, dom, n)
+            ctrl = _start_rows(x64, rel, dom, n, split)
         else:
             first, values = dom.basis(rel)
-            ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville())
+            ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
+                                              split)
         self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
         return self
 
@@ -938,13 +941,15 @@ class BSpline(Curve):
     r"""B-spline curve of rigid motions with learnable unit-dual-quaternion control points.
 
     Evaluates :func:`torch_dq.curves.bspline` on the knot domain
-    ``[knots[degree], knots[n]]`` in the caller's units, in either form: ``"de_boor"`` (De
-    Boor's pyramid of sclerps, paper 4.2, :math:`C^1`) or ``"cumulative"`` (Kim-Kim-Shin's
+    ``[knots[degree], knots[n]]`` in the caller's units, in one of three forms: ``"de_boor"``
+    (De Boor's pyramid of sclerps, paper 4.2, :math:`C^1`), ``"cumulative"`` (Kim-Kim-Shin's
     product of screw powers, :math:`C^{p-1}`: continuous accelerations and IMU readings for
-    cubics). See :class:`Bezier` for the parametrization. The knots are not learned: the
-    module keeps their origin ``knots[degree]`` as a Python float and the knots relative to
-    it as a buffer (it follows ``.to()``), so absolute timestamps survive a float32 module;
-    :attr:`knots` returns them in the caller's units (float64). The origin, the degree and
+    cubics) or ``"split"`` (a cumulative SO(3) spline for the rotation and a Euclidean one for
+    the translation, :math:`C^{p-1}`; see :mod:`torch_dq.curves`). See :class:`Bezier` for
+    the parametrization. The knots are not learned: the module keeps their origin
+    ``knots[degree]`` as a Python float and the knots relative to it as a buffer (it follows
+    ``.to()``), so absolute timestamps survive a float32 module; :attr:`knots` returns them
+    in the caller's units (float64). The origin, the degree and
     the form are the extra state of the ``state_dict``.
 
     Args:
@@ -958,7 +963,8 @@ class BSpline(Curve):
             float64 origin ``knots[..., degree]``); default clamped uniform on ``[0, 1]``
             (:func:`torch_dq.curves.clamped_uniform_knots`). Meta knots are kept as they
             are (relative to origin 0, unchecked).
-        form: ``"de_boor"`` (default) or ``"cumulative"``; every evaluation follows it.
+        form: ``"de_boor"`` (default), ``"cumulative"`` or ``"split"``; every evaluation
+            follows it.
         time_range: deprecated (0.1): ``(t0, t1)`` rescales the knots affinely so that the
             domain becomes ``[t0, t1]`` (``(K,)`` knots only).
         check: check at every call that ``t`` lies in the domain (one device sync; skipped
@@ -1169,7 +1175,8 @@ class BSpline(Curve):
                 largest whose held-out error of the start is within 2 % of the best;
                 unbatched poses and ``(N,)`` times, at least ``2 (degree + 2)`` of them).
             degree: polynomial degree ``>= 1`` (3: cubic).
-            form: ``"de_boor"`` (default) or ``"cumulative"`` (see :class:`BSpline`).
+            form: ``"de_boor"`` (default), ``"cumulative"`` or ``"split"`` (see
+                :class:`BSpline`).
             check: the module's ``check``.
             knot_spacing: instead of ``n_ctrl``: knots at most this far apart (the times'
                 units), ``n_ctrl = ceil(span / knot_spacing) + degree`` over the domain

@@ -117,8 +117,8 @@ class FitResult:
 # ----------------------------------------------------------------------------- options
 
 def _check_options(knot_spacing, degree, form, holdout, steps, rate) -> None:
-    if form not in ("de_boor", "cumulative"):
-        raise ValueError(f"fit: form must be 'de_boor' or 'cumulative', got {form!r}")
+    if form not in ("de_boor", "cumulative", "split"):
+        raise ValueError(f"fit: form must be 'de_boor', 'cumulative' or 'split', got {form!r}")
     for name, value, low in (("degree", degree, 1), ("holdout", holdout, 1), ("steps", steps, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"fit: {name} must be an int >= {low}, got {value!r}")
@@ -413,8 +413,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             :func:`torch_dq.fitting.choose_knot_spacing`.
         degree: B-spline degree.
         form: the B-spline form (:class:`torch_dq.nn.BSpline`): ``"de_boor"`` (the paper's
-            De Boor pyramid of sclerps, C1 at knots) or ``"cumulative"`` (Kim-Kim-Shin, C2
-            for a cubic: continuous accelerations, for IMU work); ``None`` (default):
+            De Boor pyramid of sclerps, C1 at knots), ``"cumulative"`` (Kim-Kim-Shin, C2
+            for a cubic: continuous accelerations, for IMU work) or ``"split"`` (cumulative
+            SO(3) rotation, Euclidean translation, C2); ``None`` (default):
             ``"cumulative"`` with ``imu``, else ``"de_boor"``.
         holdout: fit every ``holdout``-th pose (and the last), hold the others out
             (``1``: fit them all).
