@@ -12,6 +12,13 @@ and their pixels. Peers:
 - plain torch: the textbook formulas written here without masks or safe-where, autograd
   through them; for unprojection the same Newton iterations (10, then nothing), autograd
   through the loop.
+
+The solver's cost per observation (float64 only, the solve's dtype): the per-sample
+residuals and Jacobians that ``fitting.estimate`` computes at every step (the internal
+``Problem._term_jacobians``, exact Jacobians chained through the spans), and the whole
+Gauss-Newton system accumulation (``Problem.system``) of one term, for a ``Reprojections``
+term (radtan camera, 2 rows per observation) against a ``Poses`` term (6 rows), both with an
+estimated extrinsic, the same spline and the same number of samples.
 """
 
 from __future__ import annotations
@@ -23,7 +30,12 @@ import torch
 from _bench import Bench, err, grad, peer_time, seeded
 from _peers import _need
 
-from torch_dq import camera
+import torch_dq.dualquat as dq
+from torch_dq import camera, fitting, quat
+from torch_dq.calibration import aprilgrid
+from torch_dq.fitting._estimate import _starts
+from torch_dq.fitting._problem import Problem
+from torch_dq.nn import BSpline
 
 PARAMS = {
     "pinhole-radtan": [458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907,
@@ -200,7 +212,51 @@ def _model_rows(b: Bench, dtype, model, n):
               "plain torch", plain_fb, "", "grad of sum wrt params and input")
 
 
+# ----------------------------------------------------------------------------- solver rows
+
+def _observations(n: int, dev):
+    """``n`` AprilGrid corners seen along a 5 s motion 1 m above the grid: the trajectory
+    (cumulative, a knot every 0.1 s), times, target points, pixels and poses at the times."""
+    f64 = torch.float64
+    t = torch.linspace(0.0, 5.0, n, dtype=f64, device=dev)
+    rotvec = torch.stack((math.pi + 0.2 * torch.sin(t), 0.2 * torch.cos(1.3 * t), 0.1 * t), -1)
+    pos = torch.stack((0.3 + 0.1 * torch.sin(t), 0.3 + 0 * t, 1.0 + 0.1 * torch.cos(t)), -1)
+    x = dq.from_rt(quat.from_rotvec(rotvec), pos)
+    spline = BSpline.from_dualquats(x, t, n_ctrl=53, form="cumulative").to(dev)
+    grid = aprilgrid(6, 6, 0.088, 0.3).to(dev)
+    pts = grid[torch.arange(n, device=dev) % len(grid)]
+    cam = camera.Camera("pinhole-radtan", torch.tensor(PARAMS["pinhole-radtan"], dtype=f64,
+                                                       device=dev), (752, 480))
+    pix = cam.project(dq.apply(dq.inv(x), pts))[0]
+    return spline, t, pts, pix, cam, x
+
+
+def _solver_costs(spline, term):
+    """``(jacobians, system)``: closures over one term's problem at the spline's points."""
+    ctrl = spline.control_points.detach().to(torch.float64)
+    problem = Problem(spline, [term], ctrl.shape[:-2])
+    values = _starts("bench", problem, ctrl)
+    w = problem.width(values)
+    return (lambda: problem._term_jacobians(0, ctrl, values, w),
+            lambda: problem.system(ctrl, values, w))
+
+
+def _solver_rows(b: Bench, n: int):
+    spline, t, pts, pix, cam, x = _observations(n, b.device)
+    reproj = fitting.Reprojections(t, pts, pix, camera=cam, sigma=0.3, extrinsic=True)
+    poses = fitting.Poses(t, x, rot_sigma=0.01, trans_sigma=0.01, extrinsic=True)
+    ours, peer = _solver_costs(spline, reproj), _solver_costs(spline, poses)
+    for label, k in (("jacobians", 0), ("normal equations", 1)):
+        ms, peer_ms = b.time(ours[k]), b.time(peer[k])
+        b.add(f"fitting.Reprojections {label}", torch.float64, n, ms, 0, n, "Poses term",
+              peer_ms, "", f"{1e3 * ms / n:.2f} us/observation (2 rows) vs Poses "
+              f"{1e3 * peer_ms / n:.2f} us/sample (6 rows), Reprojections / Poses "
+              f"{ms / peer_ms:.2f}; estimated extrinsic, per LM step")
+
+
 def run(b: Bench, dtype):
     n = b.sizes["camera"]
     for model in PARAMS:
         _model_rows(b, dtype, model, n)
+    if dtype == torch.float64:  # the solve runs in float64 whatever the data's dtype
+        _solver_rows(b, max(n // 50, 2000))

@@ -25,6 +25,7 @@ EXPECTED = {
     "05_knee_axode": ["05_knee_angles.png", "05_axode.png"],
     "06_real_trajectory": ["06_heldout_errors.png", "06_kinematics.png", "06_imu.png"],
     "07_estimation": ["07_trajectory.png", "07_kinematics.png"],
+    "08_camera_rig": ["08_extrinsics.png", "08_residuals.png"],
 }
 
 
