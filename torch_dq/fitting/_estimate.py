@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
+from . import _prior
 from . import _structure as structure
 from ._banded import BandedCholesky
 from ._problem import Problem
@@ -32,7 +33,6 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
-_SETTLING = 1e-2  # relative decrease of a step below which the next one is predicted first
 
 
 def progress(total: int, enabled: bool, desc: str):
@@ -158,24 +158,26 @@ def _starts(fn: str, problem: Problem, ctrl: Tensor) -> list[Tensor]:
 
 
 class _Solver:
-    """The damped Gauss-Newton step of one iteration (Schur complement on the nuisance)."""
+    """The damped Gauss-Newton step of one iteration (Schur complement on the nuisance):
+    the data system plus the pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors,
+    damped by ``lam`` times its diagonal (Marquardt's scaling)."""
 
-    def __init__(self, problem: Problem, system, mu: Tensor) -> None:
-        self.p, self.s, self.mu = problem, system, mu
-        band = system.band
-        self.diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1) + mu[:, None, None]
+    def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor]) -> None:
+        self.p, self.s = problem, system
+        self.band = system.band.clone()
+        self.band[:, :, 0] += pulls[0]
+        self.diag = self.band[:, :, 0].diagonal(dim1=-2, dim2=-1)
         self.floor = 1e-12 * self.diag.mean((-1, -2)).clamp_min(1e-300)
-        info = problem.prior_information().to(band)
-        self.nn = system.nn + torch.diag(info)
+        info = problem.prior_information().to(system.band)
+        self.nn = system.nn + torch.diag(info) + pulls[1]
         self.ndiag = self.nn.diagonal(dim1=-2, dim2=-1)
 
     def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
         s, m = self.s, self.p.m
-        band = s.band.clone()
-        add = self.mu[:, None, None] + lam[:, None, None] * (self.diag + self.floor[:, None,
-                                                                                    None])
-        band[:, :, 0] += torch.diag_embed(add)
+        band = self.band.clone()
+        band[:, :, 0] += torch.diag_embed(lam[:, None, None] * (self.diag
+                                                                + self.floor[:, None, None]))
         chol = BandedCholesky(band)
         ok = chol.ok
         if not m:
@@ -283,65 +285,90 @@ class _LevenbergMarquardt:
         self.p, self.start = problem, ctrl
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
-        self.system = problem.system(ctrl, values, self.w)
-        diag0 = self.system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
-        self.mu = prior * diag0
-        self.solver = _Solver(problem, self.system, self.mu)
-        self.settling = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
+        self.system = s = problem.system(ctrl, values, self.w)
+        cpull = _prior.control_pull(s.band, prior)
+        info = torch.diag(problem.prior_information().to(s.nn))
+        self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
+        self.pulled = int((torch.linalg.eigvalsh(cpull) > 0).sum()) // self.Bf
+        self.count = sum((t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
+                         for t in problem.terms).reshape(self.Bf)
         self.ctrl, self.values = ctrl, values
         self.data, self.obj = self.objective(ctrl, values)
         self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64, device=ctrl.device)
+        self.stalled = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
+        self.decrement = torch.full((self.Bf,), torch.inf, dtype=torch.float64,
+                                    device=ctrl.device)
+        self.converged = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
         flat = self.obj.reshape(self.Bf)
         self.active = torch.isfinite(flat) & (flat > 0)
+        self.converged |= flat == 0
         self.reasons = ["" if a else "the cost is zero" if float(o) == 0 else _NONFINITE
                         for o, a in zip(flat, self.active.tolist(), strict=True)]
 
     def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
-        pull = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
-        return self.mu.reshape(self.batch) * (pull * pull).sum((-1, -2)) + self.p.prior_cost(v)
+        """The pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors, ``(...)``."""
+        d = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
+        P = self.pulls[0].reshape(*self.batch, self.n, 6, 6)
+        u = _prior.nuisance_chart(self.p, v)
+        Pn = self.pulls[1].reshape(*self.batch, self.p.m, self.p.m)
+        return ((d[..., None, :] @ P @ d[..., :, None]).sum((-1, -2, -3))
+                + (u[..., None, :] @ Pn @ u[..., :, None])[..., 0, 0] + self.p.prior_cost(v))
 
     def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:
-        """Data cost and objective (data plus the pull and the Free priors), ``(...)``."""
+        """Data cost and objective (data plus the pulls and the Free priors), ``(...)``."""
         data = torch.stack(self.p.data_cost(c, v)).sum(0)
         return data, data + self._pull(c, v)
 
     def _prior_gradient(self) -> tuple[Tensor, Tensor]:
-        """Half the gradient of the pull and the Free priors in the step charts."""
+        """Half the gradient of the pulls and the Free priors in the step charts."""
         with torch.enable_grad():
             dc = self.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
             dn = self.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
             extra = self._pull(*self.p.retract(self.ctrl, self.values, dc, dn))
             gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
+        gc = torch.zeros_like(dc) if gc is None else gc
         gn = torch.zeros_like(dn) if gn is None else gn
         return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
 
-    def predicted_stop(self, tol: float) -> None:
-        """Stop the elements whose next step, as the last system predicts it (its damped
-        Gauss-Newton matrix, the exact gradient here: one chained reverse pass of the
-        costs instead of the Jacobians' k), lowers the objective by at most ``tol``
-        relatively: the model decrease of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the
-        half gradient). Only after a step that lowered the objective by at most
-        ``_SETTLING`` relatively (after larger ones the prediction would rarely stop and
-        costs a pass of the costs)."""
-        if not bool((self.active & self.settling).any()):
-            return
-        gc, gn = self.p.gradient(self.ctrl, self.values, self.w)
+    def gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the objective at the current point (system plus pulls)."""
         pc, pn = self._prior_gradient()
-        gc, gn = gc + pc, gn + pn
-        dc, dn, ok = self.solver.step(self.lam, gc, gn)
-        pred = -2.0 * ((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
-        obj = self.obj.reshape(self.Bf)
-        small = self.active & self.settling & ok & torch.isfinite(pred) & (pred <= tol * obj)
-        for b in small.nonzero()[:, 0].tolist():
-            self.reasons[b] = (f"the relative decrease fell below tol={tol!r} (the next "
-                               f"step's, predicted)")
-        self.active &= ~small
+        return self.system.gc + pc, self.system.gn + pn
+
+    def check(self, tol: float, final: bool = False) -> None:
+        r"""The scaled gradient test at the current point (its system built): an element
+        whose Newton decrement :math:`g^T H^{-1} g` (``g`` half the gradient of the
+        objective, ``H`` its undamped Gauss-Newton matrix, regularised by ``1e-10`` of its
+        diagonal on the directions without information) is at most ``tol * max(objective,
+        residual count)`` converged. An element that stalled (its last accepted step lowered
+        the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
+        stops unconverged."""
+        gc, gn = self.gradient()
+        solver = _Solver(self.p, self.system, self.pulls)
+        dc, dn, ok = solver.step(torch.full_like(self.lam, _prior.REGULARISE), gc, gn)
+        dec = -((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
+        self.decrement = torch.where(self.active, dec, self.decrement)
+        thr = tol * torch.maximum(self.obj.reshape(self.Bf), self.count)
+        good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
+        stop = self.active & ~good & (self.stalled | final)
+        for b in range(self.Bf):
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, residuals) = " \
+                   f"{float(thr[b]):.3g}"
+            if bool(good[b]):
+                self.reasons[b] = f"the scaled gradient test passed ({what})"
+            elif bool(stop[b]) and bool(self.stalled[b]):
+                self.reasons[b] = (f"no progress: a step lowered the objective by at most "
+                                   f"tol={tol!r} relatively, the gradient is not negligible "
+                                   f"({what}); not converged")
+            elif bool(stop[b]):
+                self.reasons[b] = f"steps reached before convergence ({what})"
+        self.converged |= good
+        self.active &= ~(good | stop)
 
     def iteration(self, tol: float) -> None:
         """One Gauss-Newton system, damped trials until each element accepts or gives up."""
-        pc, pn = self._prior_gradient()
-        gc, gn = self.system.gc + pc, self.system.gn + pn
-        self.solver = solver = _Solver(self.p, self.system, self.mu)
+        gc, gn = self.gradient()
+        solver = _Solver(self.p, self.system, self.pulls)
         pending = self.active.clone()
         batch, Bf = self.batch, self.Bf
         new: list[Any] = [self.ctrl, self.values, self.obj, self.data]
@@ -363,16 +390,14 @@ class _LevenbergMarquardt:
             self.lam = torch.where(pending, self.lam * 10.0, self.lam)
             if not bool(pending.any()):
                 break
-        small = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
-                                          <= tol * new[2].reshape(Bf))
-        for b in range(Bf):
-            if bool(pending[b]):
-                self.reasons[b] = "no damped step lowers the cost (a numerical minimum)"
-            elif bool(small[b]):
-                self.reasons[b] = f"the relative decrease fell below tol={tol!r}"
-        self.active &= ~(pending | small)
+        self.stalled = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
+                                                 <= tol * new[2].reshape(Bf))
+        for b in pending.nonzero()[:, 0].tolist():
+            self.reasons[b] = (f"no damped step lowers the objective while the scaled gradient "
+                               f"test fails (g^T H^-1 g = {float(self.decrement[b]):.3g}): a "
+                               f"numerical minimum; not converged")
+        self.active &= ~pending
         self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
-        self.settling = (self.obj - new[2]).reshape(Bf) <= _SETTLING * new[2].reshape(Bf)
         self.ctrl, self.values, self.obj, self.data = new
 
 
@@ -383,13 +408,11 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
     losses, objectives = [lm.data.clone()], [lm.obj.clone()]
     done = 0
     for k in range(steps):
+        if k:
+            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+        lm.check(tol)
         if not bool(lm.active.any()):
             break
-        if k:
-            lm.predicted_stop(tol)
-            if not bool(lm.active.any()):
-                break
-            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
         done = k + 1
         lm.iteration(tol)
         losses.append(lm.data.clone())
@@ -398,11 +421,18 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
             bar.update(1)
             bar.set_postfix(loss=f"{float(lm.data.sum()):.6e}",
                             damping=f"{float(lm.lam.max()):.1e}")
-    converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons],
-                             device=lm.active.device) & ~lm.active
-    reasons = [r or f"steps={steps} reached" for r in lm.reasons]
+    if bool(lm.active.any()):
+        if done:
+            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+        lm.check(tol, final=True)
+    reasons = lm.reasons
+    if steps and any(r.startswith("steps reached") for r in reasons):
+        warnings.warn(f"fitting.estimate: steps={steps} reached before the scaled gradient test "
+                      f"passed; raise steps (the estimate may be far from the optimum)",
+                      RuntimeWarning, stacklevel=3)
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
     history = {"loss": torch.stack(losses), "objective": torch.stack(objectives),
-               "steps": done, "reason": reason, "converged": converged.reshape(problem.batch)}
+               "steps": done, "reason": reason, "system": lm.system, "width": lm.w,
+               "pulled": lm.pulled, "converged": lm.converged.reshape(problem.batch)}
     return lm.ctrl, lm.values, history

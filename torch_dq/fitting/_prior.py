@@ -1,0 +1,114 @@
+r"""The numerical prior of :func:`~torch_dq.fitting.estimate`: a pull towards the start on the
+directions that the data do not determine, and on no other.
+
+Control points: the data information of control point ``k`` alone is the diagonal block
+``A_kk`` of the data Gauss-Newton matrix at the start. Scaled by the typical information per
+coordinate (``D``: the median of the diagonal entries over the control points that some
+sample touches), :math:`\hat A_k = D^{-1/2} A_{kk} D^{-1/2} = V \Lambda V^T`; an
+eigen-direction with :math:`\lambda < p` (``p = prior``: a direction carrying less than
+``p`` times the typical information, a time gap or an end without samples) gets the pull
+information ``p`` (scaled): :math:`P_k = D^{1/2} V \mathrm{diag}(p [\lambda < p]) V^T D^{1/2}`
+and the cost :math:`\delta_k^T P_k \delta_k`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`.
+A direction with more information is not pulled at all.
+
+Nuisance parameters: the Schur complement ``S`` of the data information on the nuisance
+(control points regularised by their pull and by ``1e-10`` of their diagonal, so that
+combinations of control points that no sample determines drop out), scaled by its diagonal;
+an eigen-direction below ``_NULL`` (numerically no information: a gyroscope's time offset
+under constant rotation rate, gravity's direction against an accelerometer bias without
+rotation) gets the pull ``p`` (scaled) towards the start, so that the iteration cannot
+drift along it. Directions with information are never pulled: the estimate of a determined
+parameter is the data's, whatever its start.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ._banded import BandedCholesky
+from ._nuisance import chart_distance
+
+__all__ = ["NULL", "REGULARISE", "control_pull", "nuisance_chart", "nuisance_pull", "scaled_eigh"]
+
+NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
+REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
+
+
+def _typical(blocks: Tensor) -> Tensor:
+    """``(Bf, 6)`` median diagonal information over the control points with data."""
+    d = blocks.diagonal(dim1=-2, dim2=-1)  # (Bf, n, 6)
+    used = d.sum(-1, keepdim=True) > 0
+    med = torch.where(used, d, torch.nan).nanmedian(dim=1).values
+    top = med.nan_to_num(0.0).amax(-1, keepdim=True)
+    floor = torch.where(top > 0, 1e-12 * top, torch.ones_like(top))
+    return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
+
+
+def control_pull(band: Tensor, prior: float) -> Tensor:
+    """``(Bf, n, 6, 6)`` pull information ``P_k`` of the control points (module doc).
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` data band at the start.
+        prior: the pull's relative weight and threshold ``p >= 0``.
+    """
+    blocks = band[:, :, 0]
+    if prior == 0:
+        return torch.zeros_like(blocks)
+    s = _typical(blocks).sqrt()[:, None, :]  # (Bf, 1, 6)
+    scaled = blocks / (s[..., :, None] * s[..., None, :])
+    lam, V = torch.linalg.eigh(0.5 * (scaled + scaled.mT))
+    w = torch.where(lam < prior, prior, 0.0)
+    P = (V * w[..., None, :]) @ V.mT
+    return P * (s[..., :, None] * s[..., None, :])
+
+
+def scaled_eigh(S: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    r"""Eigen-decomposition of ``S (Bf, m, m)`` scaled by its diagonal.
+
+    Returns:
+        ``lam (Bf, m)`` and ``V (Bf, m, m)`` with :math:`D^{-1/2} S D^{-1/2} = V \Lambda
+        V^T`, and ``d (Bf, m)`` the diagonal ``D`` (floored at ``1e-12`` of its largest
+        entry; ones where ``S`` is zero).
+    """
+    d = S.diagonal(dim1=-2, dim2=-1).clamp_min(0.0)
+    top = d.amax(-1, keepdim=True)
+    d = torch.where(top > 0, d.maximum(1e-12 * top), torch.ones_like(d))
+    r = d.rsqrt()
+    lam, V = torch.linalg.eigh(0.5 * (S + S.mT) * r[:, :, None] * r[:, None, :])
+    return lam, V, d
+
+
+def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: float) -> Tensor:
+    """``(Bf, m, m)`` pull information of the nuisance parameters (module doc).
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` data band at the start.
+        cn: ``(Bf, n, 6, m)`` coupling.
+        nn: ``(Bf, m, m)`` nuisance block (with the Free priors' information).
+        pull: ``(Bf, n, 6, 6)`` the control points' pull information.
+        prior: the pull's relative weight.
+    """
+    m = nn.shape[-1]
+    if prior == 0 or m == 0:
+        return torch.zeros_like(nn)
+    band = band.clone()
+    diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1)
+    floor = 1e-12 * diag.amax((-1, -2)).clamp_min(1e-300)[:, None, None]
+    band[:, :, 0] += pull + torch.diag_embed(REGULARISE * (diag + floor))
+    chol = BandedCholesky(band)
+    S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))
+    lam, V, d = scaled_eigh(S)
+    null = (lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0)) & chol.ok[:, None]
+    P = (V * torch.where(null, prior, 0.0)[..., None, :]) @ V.mT
+    s = d.sqrt()
+    return P * (s[:, :, None] * s[:, None, :])
+
+
+def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
+    """``(..., m)`` chart coordinates of the nuisance ``values`` around their starts."""
+    parts = [chart_distance(p.kind, p.start, v).expand(*problem.batch, p.dim)
+             for p, v in zip(problem.params, values, strict=True)]
+    if not parts:
+        return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)
+    return torch.cat(parts, -1)
