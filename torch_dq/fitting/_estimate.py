@@ -33,6 +33,7 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
+_LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
 def progress(total: int, enabled: bool, desc: str):
@@ -162,8 +163,9 @@ class _Solver:
     the data system plus the pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors,
     damped by ``lam`` times its diagonal (Marquardt's scaling)."""
 
-    def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor]) -> None:
-        self.p, self.s = problem, system
+    def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor],
+                 null: tuple[Tensor, Tensor]) -> None:
+        self.p, self.s, self.null = problem, system, null
         self.band = system.band.clone()
         self.band[:, :, 0] += pulls[0]
         self.diag = self.band[:, :, 0].diagonal(dim1=-2, dim2=-1)
@@ -181,7 +183,8 @@ class _Solver:
         chol = BandedCholesky(band)
         ok = chol.ok
         if not m:
-            return -chol.solve(gc[..., None])[..., 0], gc.new_zeros(gc.shape[0], 0), ok
+            return self._project(-chol.solve(gc[..., None])[..., 0]), gc.new_zeros(
+                gc.shape[0], 0), ok
         X = chol.solve(torch.cat((gc[..., None], s.cn), dim=-1))
         y, Z = X[..., 0], X[..., 1:]
         S = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
@@ -193,7 +196,15 @@ class _Solver:
         L = torch.where((info == 0)[:, None, None], L, eye)
         dn = torch.cholesky_solve(rhs[..., None], L)[..., 0]
         dc = -y - torch.einsum("bnim,bm->bni", Z, dn)
-        return dc, dn, ok
+        return self._project(dc), dn, ok
+
+    def _project(self, dc: Tensor) -> Tensor:
+        """``dc`` without the combinations of control points that no sample determines (no
+        drift along them: :func:`~torch_dq.fitting._prior.control_null`)."""
+        U, DU = self.null
+        if not U.shape[-1]:
+            return dc
+        return dc - torch.einsum("bnik,bk->bni", U, torch.einsum("bnik,bni->bk", DU, dc))
 
 
 def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float = 1e-3,
@@ -289,7 +300,9 @@ class _LevenbergMarquardt:
         cpull = _prior.control_pull(s.band, prior)
         info = torch.diag(problem.prior_information().to(s.nn))
         self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
-        self.pulled = int((torch.linalg.eigvalsh(cpull) > 0).sum()) // self.Bf
+        self.null = _prior.control_null(s.band, cpull)
+        self.pulled = (int((torch.linalg.eigvalsh(cpull) > 0).sum())
+                       + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
         self.count = sum((t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                          for t in problem.terms).reshape(self.Bf)
         self.ctrl, self.values = ctrl, values
@@ -338,15 +351,24 @@ class _LevenbergMarquardt:
     def check(self, tol: float, final: bool = False) -> None:
         r"""The scaled gradient test at the current point (its system built): an element
         whose Newton decrement :math:`g^T H^{-1} g` (``g`` half the gradient of the
-        objective, ``H`` its undamped Gauss-Newton matrix, regularised by ``1e-10`` of its
-        diagonal on the directions without information) is at most ``tol * max(objective,
+        objective, ``H`` its undamped Gauss-Newton matrix; on directions without information
+        the decrement is no distance: it is the limit of :math:`g^T (H + \epsilon D)^{-1} g`
+        as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
+        extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
         residual count)`` converged. An element that stalled (its last accepted step lowered
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
         stops unconverged."""
         gc, gn = self.gradient()
-        solver = _Solver(self.p, self.system, self.pulls)
-        dc, dn, ok = solver.step(torch.full_like(self.lam, _prior.REGULARISE), gc, gn)
-        dec = -((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
+        self.null = _prior.control_null(self.system.band, self.pulls[0])
+        solver = _Solver(self.p, self.system, self.pulls, self.null)
+        decs, ok = [], torch.ones_like(self.active)
+        for eps in (_prior.REGULARISE, _LOOSE * _prior.REGULARISE):
+            dc, dn, good = solver.step(torch.full_like(self.lam, eps), gc, gn)
+            decs.append(-((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)))
+            ok &= good
+        # g^T (H + eps D)^-1 g = d + c / eps, c from the directions without information
+        # (their contribution is no distance in standard deviations): d extrapolated
+        dec = (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0)
         self.decrement = torch.where(self.active, dec, self.decrement)
         thr = tol * torch.maximum(self.obj.reshape(self.Bf), self.count)
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
@@ -368,7 +390,7 @@ class _LevenbergMarquardt:
     def iteration(self, tol: float) -> None:
         """One Gauss-Newton system, damped trials until each element accepts or gives up."""
         gc, gn = self.gradient()
-        solver = _Solver(self.p, self.system, self.pulls)
+        solver = _Solver(self.p, self.system, self.pulls, self.null)
         pending = self.active.clone()
         batch, Bf = self.batch, self.Bf
         new: list[Any] = [self.ctrl, self.values, self.obj, self.data]

@@ -29,10 +29,12 @@ from torch import Tensor
 from ._banded import BandedCholesky
 from ._nuisance import chart_distance
 
-__all__ = ["NULL", "REGULARISE", "control_pull", "nuisance_chart", "nuisance_pull", "scaled_eigh"]
+__all__ = ["NULL", "REGULARISE", "control_null", "control_pull", "nuisance_chart",
+           "nuisance_pull", "scaled_eigh"]
 
 NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
+_NULL_RANK = 12  # columns of the subspace iteration for combinations without information
 
 
 def _typical(blocks: Tensor) -> Tensor:
@@ -112,3 +114,49 @@ def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
     if not parts:
         return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)
     return torch.cat(parts, -1)
+
+
+def _band_apply(band: Tensor, x: Tensor) -> Tensor:
+    """``A x`` for the symmetric band ``(Bf, n, w, 6, 6)`` and ``x (Bf, n, 6, r)``."""
+    n, w = band.shape[1], band.shape[2]
+    y = band[:, :, 0] @ x
+    for d in range(1, min(w, n)):
+        blk = band[:, :n - d, d]  # block (k, k + d)
+        y[:, :n - d] += blk @ x[:, d:]
+        y[:, d:] += blk.mT @ x[:, :n - d]
+    return y
+
+
+def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Tensor, Tensor]:
+    r"""``(Bf, n, 6, r)`` combinations of control points that no sample determines (the
+    null space of the data band plus the pulls, when it is not made of whole blocks: knots
+    closer than the samples), ``D``-orthonormal (:math:`U^T D U = I`, ``D`` the band's
+    diagonal): a few steps of inverse subspace iteration on :math:`(A + \epsilon D)^{-1} D`
+    from ``rank`` fixed pseudo-random columns, then the Ritz vectors whose Ritz value is
+    below ``NULL`` (scaled). ``r = 0`` (an empty last axis) where there are none.
+
+    Returns:
+        ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
+        x`."""
+    A = band.clone()
+    A[:, :, 0] += pull
+    D = A[:, :, 0].diagonal(dim1=-2, dim2=-1)
+    D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
+    reg = A.clone()
+    reg[:, :, 0] += torch.diag_embed(REGULARISE * D)
+    chol = BandedCholesky(reg)
+    gen = torch.Generator(device=band.device).manual_seed(0)
+    rank = min(rank, D.shape[1] * 6)
+    X = torch.randn(*D.shape, rank, generator=gen, dtype=band.dtype, device=band.device)
+    Bf, n = D.shape[:2]
+    for _ in range(3):
+        X = chol.solve(D[..., None] * X)
+        Q = torch.linalg.qr((D.sqrt()[..., None] * X).reshape(Bf, n * 6, rank)).Q
+        X = Q.reshape(Bf, n, 6, rank) / D.sqrt()[..., None]
+    K = torch.einsum("bnir,bnis->brs", X, _band_apply(A, X))
+    lam, V = torch.linalg.eigh(0.5 * (K + K.mT))
+    null = (lam <= NULL) & chol.ok[:, None]
+    k = int(null.sum(-1).max())
+    U = (X.reshape(Bf, n * 6, rank) @ V)[..., :k].reshape(Bf, n, 6, k)
+    U = U * null[:, None, None, :k]
+    return U, D[..., None] * U
