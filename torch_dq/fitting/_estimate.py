@@ -33,6 +33,7 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
+_EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
@@ -355,7 +356,8 @@ class _LevenbergMarquardt:
         the decrement is no distance: it is the limit of :math:`g^T (H + \epsilon D)^{-1} g`
         as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
         extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
-        residual count)`` converged. An element that stalled (its last accepted step lowered
+        1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
+        standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element that stalled (its last accepted step lowered
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
         stops unconverged."""
         gc, gn = self.gradient()
@@ -370,11 +372,11 @@ class _LevenbergMarquardt:
         # (their contribution is no distance in standard deviations): d extrapolated
         dec = (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0)
         self.decrement = torch.where(self.active, dec, self.decrement)
-        thr = tol * torch.maximum(self.obj.reshape(self.Bf), self.count)
+        thr = tol * torch.maximum(self.obj.reshape(self.Bf), _EXACT * self.count)
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
         stop = self.active & ~good & (self.stalled | final)
         for b in range(self.Bf):
-            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, residuals) = " \
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
                    f"{float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"
