@@ -109,14 +109,32 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
 
 
 def _warn_c1(trajectory, terms: list[Term]) -> None:
-    """Warn when an Accel term reads the accelerations of a C1 (de Boor) B-spline."""
+    """Warn when an Accel term reads the accelerations of a B-spline that is not C2: the
+    de Boor form of degree >= 2 (C1) and the cumulative form of degree < 3 (C^(p-1)):
+    their accelerations jump at the knots."""
     from ..nn import BSpline
-    if (isinstance(trajectory, BSpline) and trajectory.form == "de_boor"
-            and trajectory.degree >= 2 and any(isinstance(t, Accel) for t in terms)):
-        warnings.warn(f"fitting.estimate: an Accel term with a degree-{trajectory.degree} "
-                      f"B-spline of form='de_boor', which is only C1 (its accelerations jump "
-                      f"at the knots); build it with form='cumulative' for IMU work",
+    if not (isinstance(trajectory, BSpline) and any(isinstance(t, Accel) for t in terms)):
+        return
+    p, form = trajectory.degree, trajectory.form
+    if form == "de_boor" and p >= 2:
+        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
+                      f"form='de_boor', which is only C1 (its accelerations jump at the "
+                      f"knots); build it with form='cumulative' for IMU work",
                       UserWarning, stacklevel=3)
+    elif form == "cumulative" and p < 3:
+        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
+                      f"form='cumulative', which is only C{p - 1} (its accelerations jump at "
+                      f"the knots); use degree >= 3 for IMU work", UserWarning, stacklevel=3)
+
+
+def _warn_pinned(problem: Problem, values: list[Tensor]) -> None:
+    """Warn for a time offset that ended on its ``max_time_offset`` bound."""
+    for q, v in zip(problem.params, values, strict=True):
+        if q.kind == "offset" and bool((v.abs() >= q.bound * (1.0 - 1e-9)).any()):
+            warnings.warn(f"fitting.estimate: a time offset ended on its bound "
+                          f"max_time_offset={q.bound!r}: the data put it further (raise "
+                          f"max_time_offset); its standard deviation is inf",
+                          RuntimeWarning, stacklevel=3)
 
 
 class _Lines:
@@ -167,9 +185,9 @@ class _Solver:
     def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor],
                  null: tuple[Tensor, Tensor]) -> None:
         self.p, self.s, self.null = problem, system, null
-        self.band = system.band.clone()
-        self.band[:, :, 0] += pulls[0]
-        self.diag = self.band[:, :, 0].diagonal(dim1=-2, dim2=-1)
+        self.band = system.band + pulls[0]
+        self.diag = self.band[:, :, 0].diagonal(dim1=-2, dim2=-1).maximum(
+            _prior.damping_floor(system.band))
         self.floor = 1e-12 * self.diag.mean((-1, -2)).clamp_min(1e-300)
         info = problem.prior_information().to(system.band)
         self.nn = system.nn + torch.diag(info) + pulls[1]
@@ -286,6 +304,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         trajectory.control_points = ctrl.to(trajectory.control_points.dtype)
     for q, v in zip(problem.params, values, strict=True):
         q.free.value = v.detach().clone()
+    _warn_pinned(problem, values)
     return Estimate(problem, ctrl, values, history)
 
 
@@ -302,7 +321,7 @@ class _LevenbergMarquardt:
         info = torch.diag(problem.prior_information().to(s.nn))
         self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
         self.null = _prior.control_null(s.band, cpull)
-        self.pulled = (int((torch.linalg.eigvalsh(cpull) > 0).sum())
+        self.pulled = (int(_prior.undetermined(s.band).sum())
                        + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
         self.count = sum((t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                          for t in problem.terms).reshape(self.Bf)
@@ -322,10 +341,10 @@ class _LevenbergMarquardt:
     def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
         """The pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors, ``(...)``."""
         d = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
-        P = self.pulls[0].reshape(*self.batch, self.n, 6, 6)
+        Pd = _prior.band_apply(self.pulls[0], d.reshape(self.Bf, self.n, 6, 1))
         u = _prior.nuisance_chart(self.p, v)
         Pn = self.pulls[1].reshape(*self.batch, self.p.m, self.p.m)
-        return ((d[..., None, :] @ P @ d[..., :, None]).sum((-1, -2, -3))
+        return ((d * Pd.reshape(d.shape)).sum((-1, -2))
                 + (u[..., None, :] @ Pn @ u[..., :, None])[..., 0, 0] + self.p.prior_cost(v))
 
     def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:

@@ -1,18 +1,21 @@
 r"""The numerical prior of :func:`~torch_dq.fitting.estimate`: a pull towards the start on the
 directions that the data do not determine, and on no other.
 
-Control points: the data information of control point ``k`` alone is the diagonal block
-``A_kk`` of the data Gauss-Newton matrix at the start. Scaled by the typical information per
-coordinate (``D``: the median of the diagonal entries over the control points that some
-sample touches), :math:`\hat A_k = D^{-1/2} A_{kk} D^{-1/2} = V \Lambda V^T`; an
-eigen-direction with :math:`\lambda < 0.1` (``WEAK``: a direction carrying less than a
-tenth of the typical information, in a time gap, at its edges or at an end without
-samples) gets the pull information ``p = prior`` (scaled):
-:math:`P_k = D^{1/2} V \mathrm{diag}(p [\lambda < 0.1]) V^T D^{1/2}` and the cost
-:math:`\delta_k^T P_k \delta_k`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`. A direction
-with more information is not pulled at all; a weak one moves by about ``p / lambda`` of its
-distance from the start (the threshold measured on TUM fr2_desk's 14 s gaps: at ``1e-2``
-their edges swing by 42 deg, at ``0.1`` by 5.6 deg as with a pull on every point).
+Control points: the data information of ``v = 4`` consecutive control points moved alone
+is their principal submatrix ``A_w`` of the data Gauss-Newton matrix at the start (``v``
+blocks, every window of the band). Scaled by the typical information per coordinate (``D``:
+the median of the diagonal entries over the control points that some sample touches),
+:math:`\hat A_w = D^{-1/2} A_w D^{-1/2} = V \Lambda V^T`; an eigen-direction with
+:math:`\lambda < p` (``p = prior``: a combination of neighbouring control points carrying
+less than ``p`` times the typical information: a time gap, its edges, an end without
+samples) gets the pull information ``p`` (scaled), :math:`D^{1/2} V \mathrm{diag}(p
+[\lambda < p]) V^T D^{1/2}`, summed over the windows into a band ``P``, and the cost
+:math:`\delta^T P \delta`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`. A direction with
+more information is not pulled at all. (Single blocks miss the weak combinations of two
+neighbours at a gap's edges: on TUM fr2_desk's 14 s gaps they swung by 42 deg, with
+windows of 4 by 5.6 deg, as with the former pull on every control point.) While the
+Levenberg-Marquardt damping is large, its diagonal is at least ``WEAK`` times the typical
+information, so that weak points do not outrun the others; it vanishes with the damping.
 
 Nuisance parameters: the Schur complement ``S`` of the data information on the nuisance
 (control points regularised by their pull and by ``1e-10`` of their diagonal, so that
@@ -32,12 +35,13 @@ from torch import Tensor
 from ._banded import BandedCholesky
 from ._nuisance import chart_distance
 
-__all__ = ["NULL", "REGULARISE", "WEAK", "control_null", "control_pull", "nuisance_chart",
-           "nuisance_pull", "scaled_eigh"]
+__all__ = ["NULL", "REGULARISE", "WEAK", "band_apply", "control_null", "control_pull", "damping_floor", "nuisance_chart",
+           "nuisance_pull", "scaled_eigh", "undetermined"]
 
 NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
-WEAK = 0.1  # scaled information of a control-point direction below which it is pulled
+WEAK = 0.1  # least diagonal of the damping, relative to the typical information
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
+_WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
 _NULL_RANK = 12  # columns of the subspace iteration for combinations without information
 
 
@@ -51,22 +55,60 @@ def _typical(blocks: Tensor) -> Tensor:
     return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
 
 
+def _windows(band: Tensor, v: int) -> Tensor:
+    """``(Bf, n, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
+    points from each ``k`` (blocks past the last control point: the identity)."""
+    Bf, n, w = band.shape[:3]
+    eye = torch.eye(6, dtype=band.dtype, device=band.device)
+    pad = torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1)
+    pad[:, n:, 0] = eye
+    rows = []
+    for a in range(v):
+        row = []
+        for b in range(v):
+            lo, d = min(a, b), abs(a - b)
+            blk = pad[:, lo:lo + n, d] if d < w else band.new_zeros(Bf, n, 6, 6)
+            row.append(blk.mT if a > b else blk)
+        rows.append(torch.cat(row, -1))
+    return torch.cat(rows, -2)
+
+
 def control_pull(band: Tensor, prior: float) -> Tensor:
-    """``(Bf, n, 6, 6)`` pull information ``P_k`` of the control points (module doc).
+    """``(Bf, n, w, 6, 6)`` pull information of the control points, banded (module doc).
 
     Args:
         band: ``(Bf, n, w, 6, 6)`` data band at the start.
-        prior: the pull's relative weight ``p >= 0``.
+        prior: the pull's relative weight and threshold ``p >= 0``.
     """
-    blocks = band[:, :, 0]
     if prior == 0:
-        return torch.zeros_like(blocks)
-    s = _typical(blocks).sqrt()[:, None, :]  # (Bf, 1, 6)
-    scaled = blocks / (s[..., :, None] * s[..., None, :])
-    lam, V = torch.linalg.eigh(0.5 * (scaled + scaled.mT))
-    w = torch.where(lam < WEAK, prior, 0.0)
-    P = (V * w[..., None, :]) @ V.mT
-    return P * (s[..., :, None] * s[..., None, :])
+        return torch.zeros_like(band)
+    Bf, n, w = band.shape[:3]
+    v = min(w, _WINDOW)
+    s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
+    outer = s[..., :, None] * s[..., None, :]
+    lam, V = torch.linalg.eigh(_windows(band, v) / outer)
+    W = (V * torch.where(lam < prior, prior, 0.0)[..., None, :]) @ V.mT * outer
+    pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
+    for a in range(v):
+        for b in range(a, v):
+            pull[:, a:a + n, b - a] += W[:, :, 6 * a:6 * a + 6, 6 * b:6 * b + 6]
+    return pull[:, :n]
+
+
+def undetermined(band: Tensor) -> Tensor:
+    """``(Bf,)`` the control-point directions without any information (scaled eigenvalue
+    of their diagonal block below ``NULL``: time gaps, ends without samples)."""
+    blocks = band[:, :, 0]
+    s = _typical(blocks).sqrt()[:, None, :]
+    lam = torch.linalg.eigvalsh(blocks / (s[..., :, None] * s[..., None, :]))
+    return (lam <= NULL).sum((-1, -2))
+
+
+def damping_floor(band: Tensor) -> Tensor:
+    """``(Bf, 1, 6)``: ``WEAK`` times the typical information per coordinate, the least
+    diagonal of the Levenberg-Marquardt damping (weakly determined control points move
+    no faster than typical ones while the damping is large; it vanishes with it)."""
+    return WEAK * _typical(band[:, :, 0])[:, None, :]
 
 
 def scaled_eigh(S: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -98,10 +140,10 @@ def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: flo
     m = nn.shape[-1]
     if prior == 0 or m == 0:
         return torch.zeros_like(nn)
-    band = band.clone()
+    band = band + pull
     diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1)
     floor = 1e-12 * diag.amax((-1, -2)).clamp_min(1e-300)[:, None, None]
-    band[:, :, 0] += pull + torch.diag_embed(REGULARISE * (diag + floor))
+    band[:, :, 0] += torch.diag_embed(REGULARISE * (diag + floor))
     chol = BandedCholesky(band)
     S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))
     lam, V, d = scaled_eigh(S)
@@ -120,7 +162,7 @@ def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
     return torch.cat(parts, -1)
 
 
-def _band_apply(band: Tensor, x: Tensor) -> Tensor:
+def band_apply(band: Tensor, x: Tensor) -> Tensor:
     """``A x`` for the symmetric band ``(Bf, n, w, 6, 6)`` and ``x (Bf, n, 6, r)``."""
     n, w = band.shape[1], band.shape[2]
     y = band[:, :, 0] @ x
@@ -142,8 +184,7 @@ def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Te
     Returns:
         ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
         x`."""
-    A = band.clone()
-    A[:, :, 0] += pull
+    A = band + pull
     D = A[:, :, 0].diagonal(dim1=-2, dim2=-1)
     D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
     reg = A.clone()
@@ -157,7 +198,7 @@ def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Te
         X = chol.solve(D[..., None] * X)
         Q = torch.linalg.qr((D.sqrt()[..., None] * X).reshape(Bf, n * 6, rank)).Q
         X = Q.reshape(Bf, n, 6, rank) / D.sqrt()[..., None]
-    K = torch.einsum("bnir,bnis->brs", X, _band_apply(A, X))
+    K = torch.einsum("bnir,bnis->brs", X, band_apply(A, X))
     lam, V = torch.linalg.eigh(0.5 * (K + K.mT))
     null = (lam <= NULL) & chol.ok[:, None]
     k = int(null.sum(-1).max())
