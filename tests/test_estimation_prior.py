@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from test_estimation import grid, imu_of, noisy_poses, poses_of, randn
+from test_estimation import G, grid, imu_of, noisy_poses, poses_of, randn, truth
 
 import torch_dq.dualquat as dq
 from torch_dq import quat
@@ -22,7 +22,17 @@ from torch_dq.fitting import Accel, Free, Gyro, Poses, Positions, estimate
 from torch_dq.nn import BSpline
 
 F64 = torch.float64
-E_TRUE = torch.tensor([0.1, -0.2, 0.05, 0.05, 0.02, -0.03], dtype=F64)
+E_TRUE = torch.tensor([0.1, -0.2, 0.05, 0.2, 0.1, -0.15], dtype=F64)
+K = 2.0  # the motion of test_estimation, twice as fast (rotation excites the extrinsic)
+
+
+def _fast(t):
+    """Poses, and gyroscope and accelerometer readings with biases, of the motion at K t."""
+    R, p, w, _, _, acc = truth(K * np.asarray(t))
+    x = dq.from_rt(torch.from_numpy(R.as_quat(scalar_first=True)), torch.from_numpy(p))
+    gyro = R.inv().apply(K * w) + np.array([0.01, -0.02, 0.005])
+    force = R.inv().apply(K * K * acc - G) + np.array([0.1, -0.05, 0.2])
+    return x, torch.from_numpy(gyro), torch.from_numpy(force)
 
 
 def _camera_imu(seed=5, cam_offset=0.0):
@@ -31,19 +41,21 @@ def _camera_imu(seed=5, cam_offset=0.0):
     gen = torch.Generator().manual_seed(seed)
     tc, ti = grid(0.0, 4.0, 20), grid(0.15, 3.85, 100)
     e = dq.exp(E_TRUE)
-    cam = noisy_poses(dq.mul(poses_of(tc + cam_offset), e), gen, 0.002, 0.002)
-    gy, ac = imu_of(ti.numpy(), (0.01, -0.02, 0.005), (0.1, -0.05, 0.2))
+    cam = noisy_poses(dq.mul(_fast(tc + cam_offset)[0], e), gen, 0.002, 0.002)
+    _, gy, ac = _fast(ti)
     return (tc, ti, cam, gy + randn(gen, *gy.shape, scale=0.005),
             ac + randn(gen, *ac.shape, scale=0.05))
 
 
 def _solve(data, e_start, prior=1e-3, offset=None, steps=50):
-    """Estimate from a body trajectory started at the camera poses through ``e_start``."""
+    """Estimate from a body trajectory started at the camera poses through ``e_start``
+    (with an estimated camera clock ``offset``: the poses 20 ms inside the ends)."""
     tc, ti, cam, gy, ac = data
     body = dq.mul(cam, dq.conj(e_start))
-    spline = BSpline.from_dualquats(body, tc, n_ctrl=43, form="cumulative")
-    terms = [Poses(tc, cam, rot_sigma=0.002, trans_sigma=0.002, extrinsic=Free(e_start),
-                   time_offset=offset),
+    spline = BSpline.from_dualquats(body, tc, n_ctrl=63, form="cumulative")
+    inner = slice(None) if offset is None else slice(1, -1)
+    terms = [Poses(tc[inner], cam[inner], rot_sigma=0.002, trans_sigma=0.002,
+                   extrinsic=Free(e_start), time_offset=offset, max_time_offset=0.02),
              Gyro(ti, gy, sigma=0.005, bias=True), Accel(ti, ac, sigma=0.05, bias=True)]
     return estimate(spline, terms, prior=prior, steps=steps, verbose=False), terms, spline
 
@@ -115,9 +127,9 @@ def _readme_problem():
 
 
 def _dense_decrement(spline, terms):
-    """g^T H^+ g of the data cost at the current point, from a dense autograd Jacobian of
-    the whitened residuals over the control points' charts and the nuisance charts, and
-    numpy's pseudo-inverse."""
+    """g^T H^+ g of the data cost at the current point, from a dense central-difference
+    Jacobian of the whitened residuals over the control points' charts and the nuisance
+    charts, and numpy's pseudo-inverse."""
     from torch_dq.fitting._estimate import _starts
     from torch_dq.fitting._problem import Problem
     ctrl = spline.control_points.detach().to(F64)
@@ -133,10 +145,15 @@ def _dense_decrement(spline, terms):
         return torch.cat([t.evaluate(spline, c, problem.term_values(i, vals)).reshape(-1)
                           for i, t in enumerate(terms)])
 
-    zc, zn = torch.zeros(ctrl.shape[0], 6, dtype=F64), torch.zeros(problem.m, dtype=F64)
-    Jc, Jn = torch.autograd.functional.jacobian(residuals, (zc, zn), vectorize=True)
-    J = torch.cat((Jc.reshape(Jc.shape[0], -1), Jn), -1).numpy()
-    r = residuals(zc, zn).numpy()
+    n, m = ctrl.shape[0], problem.m
+    x0 = torch.zeros(6 * n + m, dtype=F64)
+    split = lambda x: (x[:6 * n].reshape(n, 6), x[6 * n:])  # noqa: E731
+    h = 1e-6
+    with torch.no_grad():
+        cols = [(residuals(*split(x0 + h * e)) - residuals(*split(x0 - h * e))) / (2 * h)
+                for e in torch.eye(6 * n + m, dtype=F64)]
+        r = residuals(*split(x0)).numpy()
+    J = torch.stack(cols, -1).numpy()
     g = J.T @ r
     return float(g @ np.linalg.pinv(J.T @ J, rcond=1e-12) @ g), float(r @ r)
 
@@ -191,7 +208,7 @@ def test_lack_of_progress_is_no_convergence(monkeypatch):
     monkeypatch.setattr(_estimate._Solver, "step", short)
     tc, ti, cam, gy, ac = _camera_imu()
     off = dq.mul(dq.exp(E_TRUE), dq.exp(0.05 * torch.ones(6, dtype=F64)))
-    spline = BSpline.from_dualquats(dq.mul(cam, dq.conj(off)), tc, n_ctrl=43,
+    spline = BSpline.from_dualquats(dq.mul(cam, dq.conj(off)), tc, n_ctrl=63,
                                     form="cumulative")
     terms = [Poses(tc, cam, rot_sigma=0.002, trans_sigma=0.002, extrinsic=Free(off)),
              Gyro(ti, gy, sigma=0.005, bias=True), Accel(ti, ac, sigma=0.05, bias=True)]
@@ -238,7 +255,7 @@ def test_dof_subtracts_the_parameters_and_chi2_matches_it():
 def test_sigmas_too_small_warn_and_scaled_std_corrects_them():
     """Sigmas 3x too small: chi2/dof near 9 warns (RuntimeWarning naming the term) at the
     first uncertainty; std(..., scaled=True) and pose_std(..., scaled=True) equal those of
-    the right sigmas within 5 %."""
+    the right sigmas within 15 % (sqrt(chi2/dof) of one draw scatters by 1/sqrt(2 dof), 5 %)."""
     right, _ = _translation_fit(draws=4)
     wrong, cam = _translation_fit(sigma_scale=1 / 3, draws=4)
     t = torch.tensor([0.7, 1.9], dtype=F64)
@@ -246,7 +263,7 @@ def test_sigmas_too_small_warn_and_scaled_std_corrects_them():
         small = wrong.pose_std(t)
     torch.testing.assert_close(small * 3, right.pose_std(t), rtol=1e-6, atol=0)
     scaled = wrong.pose_std(t, scaled=True)
-    torch.testing.assert_close(scaled, right.pose_std(t), rtol=0.05, atol=0)
+    torch.testing.assert_close(scaled, right.pose_std(t), rtol=0.15, atol=0)  # chi2's scatter
 
 
 # ----------------------------------------------------------------------------- rank deficiency

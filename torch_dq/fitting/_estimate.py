@@ -6,7 +6,9 @@ squares), and solves the damped Gauss-Newton system: the banded control-point bl
 factored (``BandedCholesky``), the ``m`` nuisance steps come
 from their ``m x m`` Schur complement and the control-point steps by back-substitution,
 :math:`O((N + n) m + m^3)`. A step is accepted where it lowers the robust cost plus priors
-(per batch element), the damping grows tenfold otherwise.
+(per batch element), the damping grows tenfold otherwise; its diagonal is Marquardt's,
+floored at a tenth of the typical information. Convergence: the scaled gradient test of
+:func:`estimate`'s ``tol``.
 """
 
 from __future__ import annotations
@@ -232,12 +234,17 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
 
     Minimises :math:`\sum_{terms} \sum_i \rho(|r_i|)` (whitened residuals, robust kernels)
     plus the Gaussian priors of :class:`~torch_dq.fitting.Free` parameters, plus the
-    numerical ``prior``: ``prior`` times the mean data curvature per control point times
-    :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`, a pull towards the start that keeps control
-    points without data (time gaps) where the start put them and changes a well-determined
-    fit by about ``prior`` times its distance from the start. Levenberg-Marquardt in local
-    charts (``c_k exp(delta_k)`` and the nuisance charts of :mod:`torch_dq.fitting`),
-    exact Jacobians, steps accepted on the robust cost (module docstring). The trajectory's
+    numerical ``prior``, which only keeps what the data do not determine where the start
+    put it (:mod:`~torch_dq.fitting._prior`): combinations of neighbouring control points
+    carrying less than ``prior`` times the typical information (time gaps, their edges,
+    ends without samples) are pulled to the start with that weight, nuisance directions
+    without information (below ``1e-9``, scaled) likewise, and combinations of control
+    points that no sample resolves (knots closer than the samples) are never stepped along.
+    Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
+    trajectory's placement) ends where the data put it, whatever its start.
+    Levenberg-Marquardt in local charts (``c_k exp(delta_k)`` and the nuisance charts of
+    :mod:`torch_dq.fitting`), exact Jacobians, steps accepted on the robust cost (module
+    docstring). The trajectory's
     control points are updated in place (rounded once to its dtype; the solve runs in
     float64), the nuisance values are read on the terms afterwards (``term.bias``, ...).
 
@@ -250,8 +257,16 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             (its control points are the start).
         terms: a list of terms (:class:`~torch_dq.fitting.Poses`, ...).
         steps: maximum number of iterations (0: only the uncertainties at the start).
-        tol: stop when an accepted step lowers the objective by at most ``tol`` relatively.
-        prior: weight of the pull towards the start (see above), ``>= 0``.
+        tol: converged when the Newton decrement :math:`g^T H^{-1} g` of the objective
+            (``g`` half its gradient, ``H`` its Gauss-Newton matrix, directions without
+            information left out) is at most ``tol * max(objective, 1e-20 N)`` (``N`` the
+            residual components): the step left is below :math:`\sqrt{tol\,\chi^2}`
+            standard deviations of any quantity. An accepted step that lowers the objective
+            by at most ``tol`` relatively while that test fails stops the iteration as not
+            converged (``reason`` starts with "no progress"); so does ``steps`` (with a
+            ``RuntimeWarning``) or no damped step lowering the objective.
+        prior: relative weight and threshold of the pull on what the data do not
+            determine (see above), ``>= 0``.
         verbose: progress on stderr: a tqdm bar when stderr is a terminal and tqdm is
             installed, otherwise one line per step (step, cost, damping).
 
@@ -264,9 +279,11 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             shapes that do not match.
 
     Warns:
-        UserWarning: an :class:`~torch_dq.fitting.Accel` term with a B-spline of
-            ``form="de_boor"`` and degree >= 2 (only C1: its accelerations jump at the
-            knots); ``form="cumulative"`` is smooth there.
+        UserWarning: an :class:`~torch_dq.fitting.Accel` term with a B-spline that is not
+            C2 (``form="de_boor"`` of degree >= 2, ``form="cumulative"`` of degree < 3):
+            its accelerations jump at the knots.
+        RuntimeWarning: ``steps`` reached before convergence; a time offset that ended on
+            its ``max_time_offset``.
         TypeError: a trajectory that is not a curve layer, terms that are not terms.
 
     Example:
@@ -368,6 +385,17 @@ class _LevenbergMarquardt:
         pc, pn = self._prior_gradient()
         return self.system.gc + pc, self.system.gn + pn
 
+    def _bounded(self, gn: Tensor) -> Tensor:
+        """``gn`` without the components of time offsets on their bound whose descent
+        points outwards (a constrained optimum there: the projected gradient)."""
+        gn = gn.clone()
+        for q, v in zip(self.p.params, self.values, strict=True):
+            if q.kind == "offset":
+                v = v.reshape(self.Bf)
+                out = (v.abs() >= q.bound * (1.0 - 1e-9)) & (v * gn[:, q.offset] < 0)
+                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
+        return gn
+
     def check(self, tol: float, final: bool = False) -> None:
         r"""The scaled gradient test at the current point (its system built): an element
         whose Newton decrement :math:`g^T H^{-1} g` (``g`` half the gradient of the
@@ -380,6 +408,7 @@ class _LevenbergMarquardt:
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
         stops unconverged."""
         gc, gn = self.gradient()
+        gn = self._bounded(gn)
         self.null = _prior.control_null(self.system.band, self.pulls[0])
         solver = _Solver(self.p, self.system, self.pulls, self.null)
         decs, ok = [], torch.ones_like(self.active)
