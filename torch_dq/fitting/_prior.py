@@ -39,6 +39,7 @@ __all__ = ["NULL", "REGULARISE", "WEAK", "band_apply", "control_null", "control_
            "nuisance_pull", "scaled_eigh", "undetermined"]
 
 NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
+SPARSE = 1e-6  # scaled information of a window direction below which it is pulled
 WEAK = 0.1  # least diagonal of the damping, relative to the typical information
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
 _WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
@@ -87,7 +88,7 @@ def control_pull(band: Tensor, prior: float) -> Tensor:
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
     lam, V = torch.linalg.eigh(_windows(band, v) / outer)
-    W = (V * torch.where(lam < prior, prior, 0.0)[..., None, :]) @ V.mT * outer
+    W = (V * torch.where(lam < SPARSE, prior, 0.0)[..., None, :]) @ V.mT * outer
     pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
     for a in range(v):
         for b in range(a, v):
