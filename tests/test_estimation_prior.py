@@ -74,7 +74,7 @@ def test_extrinsic_start_does_not_decide_the_extrinsic():
     off = dq.mul(dq.exp(E_TRUE), dq.exp(torch.tensor([0.06, -0.05, 0.04, 0.04, -0.04, 0.04],
                                                      dtype=F64)))
     assert float(_chart(off, dq.exp(E_TRUE))[:3].norm()) > math.radians(5)
-    est, (cam, gyro, acc), _ = _solve(data, dq.exp(E_TRUE))
+    est, (cam, _, acc), _ = _solve(data, dq.exp(E_TRUE))
     std = est.std(cam, "extrinsic")
     ref, ref_bias = cam.extrinsic.clone(), acc.bias.clone()
     assert bool(est.converged)
@@ -136,7 +136,7 @@ def _dense_decrement(spline, terms):
     ctrl = spline.control_points.detach().to(F64)
     problem = Problem(spline, terms, ctrl.shape[:-2])
     for q in terms:  # the values reached, as starts
-        for name, slot in q.slots().items():
+        for slot in q.slots().values():
             if slot.free is not None:
                 slot.free.start = slot.free.value
     values = _starts("test", problem, ctrl)
@@ -258,7 +258,7 @@ def test_sigmas_too_small_warn_and_scaled_std_corrects_them():
     first uncertainty; std(..., scaled=True) and pose_std(..., scaled=True) equal those of
     the right sigmas within 15 % (sqrt(chi2/dof) of one draw scatters by 1/sqrt(2 dof), 5 %)."""
     right, _ = _translation_fit(draws=4)
-    wrong, cam = _translation_fit(sigma_scale=1 / 3, draws=4)
+    wrong, _ = _translation_fit(sigma_scale=1 / 3, draws=4)
     t = torch.tensor([0.7, 1.9], dtype=F64)
     with pytest.warns(RuntimeWarning, match=r"chi2/dof far above 1 \(Poses 9\.\d"):
         small = wrong.pose_std(t)

@@ -404,7 +404,8 @@ class _LevenbergMarquardt:
         as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
         extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
         1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
-        standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element that stalled (its last accepted step lowered
+        standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element
+        that stalled (its last accepted step lowered
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
         stops unconverged."""
         gc, gn = self.gradient()

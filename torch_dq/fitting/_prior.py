@@ -6,16 +6,18 @@ is their principal submatrix ``A_w`` of the data Gauss-Newton matrix at the star
 blocks, every window of the band). Scaled by the typical information per coordinate (``D``:
 the median of the diagonal entries over the control points that some sample touches),
 :math:`\hat A_w = D^{-1/2} A_w D^{-1/2} = V \Lambda V^T`; an eigen-direction with
-:math:`\lambda < p` (``p = prior``: a combination of neighbouring control points carrying
-less than ``p`` times the typical information: a time gap, its edges, an end without
-samples) gets the pull information ``p`` (scaled), :math:`D^{1/2} V \mathrm{diag}(p
-[\lambda < p]) V^T D^{1/2}`, summed over the windows into a band ``P``, and the cost
+:math:`\lambda <` ``SPARSE`` ``= 1e-6`` (a combination of neighbouring control points
+with no information worth the name: a time gap, an end without samples) gets the pull
+information ``p = prior`` (scaled), :math:`D^{1/2} V \mathrm{diag}(p [\lambda < 10^{-6}])
+V^T D^{1/2}`, summed over the windows into a band ``P``, and the cost
 :math:`\delta^T P \delta`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`. A direction with
-more information is not pulled at all. (Single blocks miss the weak combinations of two
-neighbours at a gap's edges: on TUM fr2_desk's 14 s gaps they swung by 42 deg, with
-windows of 4 by 5.6 deg, as with the former pull on every control point.) While the
-Levenberg-Marquardt damping is large, its diagonal is at least ``WEAK`` times the typical
-information, so that weak points do not outrun the others; it vanishes with the damping.
+more information is not pulled at all. (A threshold of ``1e-3`` pulled combinations that an
+accelerometer determines and moved an extrinsic by a standard deviation; the weak
+combinations at the edges of TUM fr2_desk's long gaps, between ``1e-5`` and ``1e-3``, are
+left to the data: they swing by 40 deg there, the data's least-squares answer, with large
+standard deviations.) While the Levenberg-Marquardt damping is large, its diagonal is at
+least ``WEAK`` times the typical information, so that weak points do not outrun the
+others; it vanishes with the damping.
 
 Nuisance parameters: the Schur complement ``S`` of the data information on the nuisance
 (control points regularised by their pull and by ``1e-10`` of their diagonal, so that
@@ -35,8 +37,9 @@ from torch import Tensor
 from ._banded import BandedCholesky
 from ._nuisance import chart_distance
 
-__all__ = ["NULL", "REGULARISE", "WEAK", "band_apply", "control_null", "control_pull", "damping_floor", "nuisance_chart",
-           "nuisance_pull", "scaled_eigh", "undetermined"]
+__all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "band_apply", "control_null",
+           "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh",
+           "undetermined"]
 
 NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
 SPARSE = 1e-6  # scaled information of a window direction below which it is pulled

@@ -237,8 +237,8 @@ class Estimate:
         """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe (a component along
         a direction without information below ``1e-8`` of the row's largest is roundoff)."""
         shape = (A.shape[0],) + (1,) * (A.dim() - 3) + self._U.shape[1:]
-        a = (A * self._r.reshape(shape[:-2] + (1, -1))) @ self._U.reshape(shape)
-        inv = self._inv.reshape(shape[:-2] + (1, -1))
+        a = (A * self._r.reshape((*shape[:-2], 1, -1))) @ self._U.reshape(shape)
+        inv = self._inv.reshape((*shape[:-2], 1, -1))
         big = a.abs() > 1e-8 * a.abs().amax(-1, keepdim=True)
         return torch.where(big, a * a * inv, 0.0).sum(-1)
 
