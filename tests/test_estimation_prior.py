@@ -356,3 +356,41 @@ def test_time_offset_on_its_bound_warns_and_has_no_std():
     assert float(gyro.time_offset) == pytest.approx(0.02)
     with pytest.warns(RuntimeWarning, match="Gyro.time_offset ended on its bound"):
         assert math.isinf(float(est.std(gyro, "time_offset")))
+
+
+# ----------------------------------------------------------------------------- done when
+
+@pytest.mark.slow
+def test_nuisance_stds_match_a_monte_carlo_scatter():
+    """Issue 31's 'done when': 50 draws of poses (extrinsic estimated), a gyroscope and an
+    accelerometer with biases and a clock offset, solved as one batch from starts 5 deg /
+    10 cm off the true extrinsic: the scatter of every estimated nuisance coordinate about
+    the truth over the reported standard deviation (pooled per parameter) lies in
+    [0.7, 1.4]."""
+    S = 50
+    gen = torch.Generator().manual_seed(21)
+    tc, ti = grid(0.0, 3.0, 20), grid(0.15, 2.85, 100)
+    e = dq.exp(E_TRUE)
+    x, _, _ = _fast(tc)
+    cam = noisy_poses(dq.mul(x, e).expand(S, -1, -1), gen, 0.002, 0.002)
+    _, gy, ac = _fast(ti + 0.01)
+    gy = gy + randn(gen, S, *gy.shape, scale=0.005)
+    ac = ac + randn(gen, S, *ac.shape, scale=0.05)
+    off = dq.mul(e, dq.exp(torch.tensor([0.05, -0.05, 0.04, 0.06, -0.06, 0.05], dtype=F64)))
+    spline = BSpline.from_dualquats(dq.mul(cam, dq.conj(off)), tc, n_ctrl=48,
+                                    form="cumulative")
+    clock = Free(0.0)
+    terms = [Poses(tc, cam, rot_sigma=0.002, trans_sigma=0.002, extrinsic=Free(off)),
+             Gyro(ti, gy, sigma=0.005, bias=True, time_offset=clock),
+             Accel(ti, ac, sigma=0.05, bias=True, time_offset=clock)]
+    est = estimate(spline, terms, verbose=False)
+    assert bool(est.converged.all()), est.reason
+    checks = [(_chart(terms[0].extrinsic, e), est.std(terms[0], "extrinsic")),
+              (terms[1].bias - torch.tensor([0.01, -0.02, 0.005], dtype=F64),
+               est.std(terms[1], "bias")),
+              (terms[2].bias - torch.tensor([0.1, -0.05, 0.2], dtype=F64),
+               est.std(terms[2], "bias")),
+              ((terms[1].time_offset - 0.01)[:, None], est.std(terms[1], "time_offset")[:, None])]
+    for err, std in checks:
+        ratio = (err ** 2).mean(0).sqrt() / (std ** 2).mean(0).sqrt()
+        assert bool(((ratio > 0.7) & (ratio < 1.4)).all()), ratio

@@ -9,6 +9,7 @@ import math
 import numbers
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -195,8 +196,11 @@ class FitProblem:
             _checks.fail(fn, f"optimizer='lm' needs poses with the module's batch shape "
                              f"{_checks.shape_str(self.batch)}, got poses "
                              f"{_checks.shape_str(self.target.shape)}")
-        est = estimate(self.module, [self.term], steps=steps, tol=tol, prior=prior,
-                       verbose=verbose and sys.stderr.isatty())  # a bar on a terminal only
+        with warnings.catch_warnings():  # history.converged and .reason say it instead
+            warnings.filterwarnings("ignore", r"fitting\.estimate: steps=\d+ reached",
+                                    RuntimeWarning)
+            est = estimate(self.module, [self.term], steps=steps, tol=tol, prior=prior,
+                           verbose=verbose and sys.stderr.isatty())  # a bar on a terminal only
         count = self.target.shape[:-1].numel()
         history.loss = [float(v.sum()) / count for v in est.objective[:-1]] or [
             float(est.objective[0].sum()) / count]
