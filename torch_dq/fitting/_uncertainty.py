@@ -10,13 +10,21 @@ covariance is the inverse of ``[[A, C], [C^T, N]]``:
     \Sigma_{cc} = A^{-1} + Z \Sigma_{nn} Z^T, \qquad \Sigma_{cn} = -Z \Sigma_{nn}.
 
 ``A^{-1}`` is only needed on the band (the selected inverse of
-``BandedCholesky``), ``Z`` by one banded solve with ``m``
-columns: no dense inverse. ``S`` is inverted through its eigen-decomposition: a direction
-with an eigenvalue below ``1e-9`` of the largest, or below ``1e-12`` of the largest diagonal
-entry of ``A`` (no information at float64 precision), gets an infinite variance and a
-warning, never a value chosen by the numerical prior. Control points without data
-information (a time gap, an end without samples) have zero rows and columns in ``A`` and
-``C``: they are left out (their poses' uncertainties are inf), which leaves ``S`` exact.
+``BandedCholesky``), ``Z`` by one banded solve with ``m`` columns: no dense inverse.
+
+Rank deficiency: the quantities are those of the pseudo-inverse restricted to the determined
+subspace, inf for what loads on a direction without information. ``A`` is factored
+regularised, :math:`A + \epsilon\,\mathrm{diag}(A)` with :math:`\epsilon = 10^{-10}`
+(``Z`` and ``S`` then tend to those of :math:`A^+`, since ``C`` vanishes on the null space
+of ``A``), and once more with :math:`10^{-8}`: a trajectory quantity whose control-point
+variance more than doubles between the two loads on combinations of control points that no
+sample determines (knots closer than the samples) and is inf. ``S`` is scaled by its
+diagonal and inverted through its eigen-decomposition: a direction with a scaled eigenvalue
+below ``1e-9`` of the largest (or a parameter with no information at all) gets an infinite
+variance and a warning, and only the quantities with a component along it (above ``1e-8`` of
+their largest) are inf. Control points without any data information (a time gap, an end
+without samples) have zero rows and columns in ``A`` and ``C``: they are left out (their
+poses' uncertainties are inf, with a warning naming the gap), which leaves ``S`` exact.
 """
 
 from __future__ import annotations
@@ -79,9 +87,12 @@ class Estimate:
         objective: ``(steps + 1, ...)`` the minimised objective (``loss`` plus the priors),
             decreasing.
         steps: Levenberg-Marquardt iterations run.
-        converged: ``(...)`` bool, True where a stopping test held.
+        converged: ``(...)`` bool, True where the scaled gradient test of
+            :func:`~torch_dq.fitting.estimate` passed (or the cost is zero); a stop for
+            lack of progress, at ``steps`` or without a lowering step is False.
         reason: what stopped it (one string per batch element, joined by ``"; "``).
-        chi2, dof, weights: per term (dicts keyed by the term), see the properties.
+        chi2, dof, weights: per term (dicts keyed by the term), see the properties; the
+            first uncertainty asked for warns where a term's chi2/dof is far above 1.
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
