@@ -340,8 +340,8 @@ class _LevenbergMarquardt:
         self.null = _prior.control_null(s.band, cpull)
         self.pulled = (int(_prior.undetermined(s.band).sum())
                        + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
-        self.count = sum((t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
-                         for t in problem.terms).reshape(self.Bf)
+        self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
+                                  for t in problem.terms]).sum(0).reshape(self.Bf)
         self.ctrl, self.values = ctrl, values
         self.data, self.obj = self.objective(ctrl, values)
         self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64, device=ctrl.device)
