@@ -23,11 +23,11 @@ except ImportError as exc:  # curves.py may not exist yet
     CURVES_ERROR = f"torch_dq.curves not available ({exc})"
 
 CPU_SIZES = {"sclerp": 1_000_000, "slerp": 1_000_000, "bspline": 100_000, "bezier": 4096,
-             "train": 100_000}
+             "train": 100_000, "camera": 1_000_000}
 QUICK_SIZES = {"sclerp": 20_000, "slerp": 20_000, "bspline": 5_000, "bezier": 128,
-               "train": 5_000}
+               "train": 5_000, "camera": 20_000}
 CUDA_TARGETS = {"sclerp": 100_000_000, "slerp": 100_000_000, "bspline": 10_000_000,
-                "bezier": 262_144, "train": 10_000_000}
+                "bezier": 262_144, "train": 10_000_000, "camera": 10_000_000}
 # Slow peers are timed on at most this many items and scaled linearly (said in the note).
 PEER_CAP = {"pypose": 100_000, "pytransform3d": 100_000, "scipy": 100_000}
 QUICK_PEER_CAP = 5_000

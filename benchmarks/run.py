@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _peers
 import bench_bezier
 import bench_bspline
+import bench_camera
 import bench_cumulative
 import bench_derivatives
 import bench_memory
@@ -45,8 +46,8 @@ import torch_dq
 # section name -> its run(bench, dtype); "memory" prints its own table after the rows.
 SECTIONS = {"sclerp": bench_sclerp.run, "slerp": bench_slerp.run, "bspline": bench_bspline.run,
             "cumulative": bench_cumulative.run, "derivatives": bench_derivatives.run,
-            "train": bench_train.run, "bezier": bench_bezier.run}
-DEFAULT_SECTIONS = "sclerp,slerp,bspline,cumulative,derivatives,train,bezier,memory"
+            "train": bench_train.run, "bezier": bench_bezier.run, "camera": bench_camera.run}
+DEFAULT_SECTIONS = "sclerp,slerp,bspline,cumulative,derivatives,train,bezier,camera,memory"
 
 
 def _parse_sizes(text: str, base: dict) -> dict:

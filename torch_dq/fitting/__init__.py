@@ -20,13 +20,18 @@ Positions      ``R(t') l + p(t')`` (lever arm)      world
 RelativePoses  ``x(t'_from)^-1 x(t'_to)``           rotation: to-frame, translation: from-frame
 Gyro           ``R^T w + b_g``                      body
 Accel          ``R^T (a - g) + b_a``                body
+Reprojections  ``project((T^-1 x(t') e)^-1 p)``,    pixels (:mod:`torch_dq.camera`)
+               ``t' = t + dt + line_delay * v``
 ============== ==================================== =========================================
 
 **Nuisance parameters** (``extrinsic``, ``lever_arm``, ``bias``, ``gravity``,
-``time_offset``): ``None`` / ``False`` absent, a tensor or float fixed, ``True`` /
-``"estimate"`` estimated from a default start, a :class:`Free` estimated from its start
-with an optional Gaussian prior; one :class:`Free` given to several terms is one parameter.
-Each is stepped, and its uncertainty reported, in a chart:
+``time_offset``; a camera's ``target``, ``intrinsics`` and ``line_delay``): ``None`` /
+``False`` absent, a tensor or float fixed, ``True`` / ``"estimate"`` estimated from a
+default start, a :class:`Free` estimated from its start with an optional Gaussian prior; one
+:class:`Free` given to several terms is one parameter. The time offset and the line delay
+move the samples' times (a term declares such parameters, :meth:`Term.time_shift`): the
+solver chains them through the curve's time derivative. Each is stepped, and its uncertainty
+reported, in a chart:
 
 ============  ==========  ====  ================================================
 kind          value       dim   chart
@@ -34,7 +39,10 @@ kind          value       dim   chart
 bias, lever   ``(3,)``    3     ``v + delta``
 time_offset   ``()``      1     ``dt + delta`` (seconds; bounded by
                                 ``max_time_offset``)
-extrinsic     ``(8,)``    6     ``e exp(delta)`` (body-frame twist)
+extrinsic     ``(8,)``    6     ``e exp(delta)`` (body-frame twist); a target's pose
+                                likewise
+intrinsics    ``(P,)``    P     ``params + delta`` (the camera model's parameters)
+line_delay    ``()``      1     ``l + delta`` (seconds per row, in ``[0, max_line_delay]``)
 gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
                                 plane orthogonal to ``g`` (its norm is kept; its standard
                                 deviations are reported in world axes, ``(3,)``)
@@ -81,6 +89,7 @@ import torch  # noqa: F401  (the examples' namespace)
 from .._spacing import choose_knot_spacing
 from .._start import bspline_basis, check_determined, least_squares_start
 from .._start import check_sample_times as check_times
+from ._camera import Reprojections
 from ._estimate import estimate
 from ._fit import FitHistory, fit
 from ._nuisance import Free
@@ -88,12 +97,13 @@ from ._robust import chi_quantile
 from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
 from ._uncertainty import Estimate
 
-for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses, Term,
-             chi_quantile, estimate, fit):
+for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses,
+             Reprojections, Term, chi_quantile, estimate, fit):
     _obj.__module__ = __name__  # the public home of the names (and of their documentation)
 del _obj
 
 # bspline_basis, check_determined, check_times and least_squares_start stay importable from
 # here (0.2's names); they are documented where they live, torch_dq._start.
 __all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
-           "RelativePoses", "Term", "chi_quantile", "choose_knot_spacing", "estimate", "fit"]
+           "RelativePoses", "Reprojections", "Term", "chi_quantile", "choose_knot_spacing",
+           "estimate", "fit"]

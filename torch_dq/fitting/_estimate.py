@@ -79,18 +79,21 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
         name = type(term).__name__
         slot = term.slots()["time_offset"]
         if slot.estimated:
-            a, b = -term.max_time_offset, term.max_time_offset
             what = f"widened by max_time_offset={term.max_time_offset!r}"
         else:
             fixed = slot.fixed
             dt = float(fixed) if fixed is not None and fixed.numel() == 1 else 0.0
-            a = b = dt
             what = f"shifted by time_offset={dt!r}" if dt else ""
+        a, b = term.time_reach()  # what the parameters moving the times can reach
+        moved = [k for k in term.time_params if k != "time_offset" and k in term.slots()
+                 and term.slots()[k].present]
+        what += f" and by {', '.join(moved)}" if moved else ""
         for t in term.times_list():
             if t.dim() == 2 and (len(batch) != 1 or t.shape[0] != batch[0]):
                 _checks.fail(fn, f"{name} times {_checks.shape_str(t.shape)} do not match the "
                                  f"trajectory's batch {_checks.shape_str(batch)}")
-            first, last = (x.to(torch.float64).cpu() for x in (t.amin(-1) + a, t.amax(-1) + b))
+            first, last = (x.to(torch.float64).cpu() for x in ((t + a).amin(-1),
+                                                                (t + b).amax(-1)))
             bad = ((first < lo - tol) | (last > hi + tol)).reshape(-1)
             if bool(bad.any()):
                 i = int(bad.nonzero()[0, 0])
@@ -145,13 +148,16 @@ def _starts(fn: str, problem: Problem, ctrl: Tensor) -> list[Tensor]:
             v = vals[name].to(torch.float64)
             event = v.shape[v.dim() - (0 if slot.kind == "offset" else 1):]
             v = v.expand(torch.Size((*batch, *event)))
-            bound = term.max_time_offset if slot.kind == "offset" else math.inf
-            if bool((v.abs() > bound).any()):
+            low, bound = term.bounds(name)
+            if name == "time_offset" and bool((v.abs() > bound).any()):
                 _checks.fail(fn, f"{type(term).__name__}'s time_offset starts "
                              f"at {float(v.abs().max()):g} s, outside its max_time_offset="
                              f"{bound!r}: start it inside [-{bound!r}, {bound!r}] or raise "
                              f"max_time_offset")
-            problem.add(i, name, slot.free, slot.kind, slot.dim, v.clone(), bound)
+            if bool(((v < low) | (v > bound)).any()):
+                _checks.fail(fn, f"{type(term).__name__}'s {name} starts outside its range "
+                                 f"[{low!r}, {bound!r}]")
+            problem.add(i, name, slot.free, slot.kind, slot.dim, v.clone(), bound, low)
             if slot.free.value is None:
                 slot.free.value = v.clone()
     return [q.start.clone() for q in problem.params]
@@ -272,6 +278,8 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         trajectory.control_points = ctrl.to(trajectory.control_points.dtype)
     for q, v in zip(problem.params, values, strict=True):
         q.free.value = v.detach().clone()
+    for term in terms:
+        term.solved(trajectory)
     return Estimate(problem, ctrl, values, history)
 
 

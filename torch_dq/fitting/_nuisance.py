@@ -15,7 +15,10 @@ offset        ``()``      1     ``dt + delta`` (time offset, seconds)
 pose          ``(8,)``    6     ``e exp(delta)`` (extrinsic; body-frame twist)
 gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
                                 plane orthogonal to ``g`` (world axes; magnitude kept)
+params        ``(P,)``    P     ``v + delta`` (camera intrinsics; ``P`` the slot's size)
 ============  ==========  ====  ===============================================
+
+Line delays (seconds per row) are of kind ``offset``, a target's pose of kind ``pose``.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ __all__ = ["Free", "Slot"]
 
 _DIMS = {"vector": 3, "offset": 1, "pose": 6, "gravity": 2}
 _SHAPES = {"vector": (3,), "offset": (), "pose": (8,), "gravity": (3,)}
+_SIZED = ("params",)  # kinds whose shape (size,) is the slot's
 
 
 class Free:
@@ -84,12 +88,14 @@ class Slot:
     Args:
         fn: public name of the term, for messages.
         name: argument name (``"bias"``, ...).
-        kind: ``"vector"``, ``"offset"``, ``"pose"`` or ``"gravity"``.
+        kind: ``"vector"``, ``"offset"``, ``"pose"``, ``"gravity"`` or ``"params"``.
         arg: the user's argument.
+        size: the value's length for the kind ``"params"`` (camera intrinsics).
     """
 
-    def __init__(self, fn: str, name: str, kind: str, arg) -> None:
+    def __init__(self, fn: str, name: str, kind: str, arg, size: int | None = None) -> None:
         self.name, self.kind = name, kind
+        self.shape = (int(size or 0),) if kind in _SIZED else _SHAPES[kind]
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:
@@ -113,7 +119,7 @@ class Slot:
             _checks.fail(fn, f"{name} must be a tensor or a float, got "
                              f"{type(value).__name__}", TypeError)
         _checks.tensor(fn, name, value)
-        shape = _SHAPES[self.kind]
+        shape = self.shape
         if tuple(value.shape[value.dim() - len(shape):]) != shape or value.dim() < len(shape):
             _checks.fail(fn, f"expected {name} of shape (..., {', '.join(map(str, shape))}) "
                              f"(batch first), got {_checks.shape_str(value.shape)}"
@@ -137,13 +143,13 @@ class Slot:
     @property
     def dim(self) -> int:
         """Dimension of the chart."""
-        return _DIMS[self.kind]
+        return self.shape[0] if self.kind in _SIZED else _DIMS[self.kind]
 
     def identity(self, like: Tensor) -> Tensor:
         """The absent value (zero, identity) in ``like``'s dtype and device."""
         if self.kind == "pose":
             return dualquat.identity(dtype=like.dtype, device=like.device)
-        return like.new_zeros(_SHAPES[self.kind])
+        return like.new_zeros(self.shape)
 
     def value(self, like: Tensor) -> Tensor | None:
         """Current value (fixed, estimated, or start if given), None if a default start is
@@ -169,7 +175,7 @@ def retract(kind: str, value: Tensor, delta: Tensor) -> Tensor:
     Returns:
         The moved values, batch broadcast.
     """
-    if kind == "vector":
+    if kind in ("vector", "params"):
         return value + delta
     if kind == "offset":
         return value + delta[..., 0]
@@ -195,7 +201,7 @@ def gravity_basis(g: Tensor) -> Tensor:
 
 def chart_distance(kind: str, start: Tensor, value: Tensor) -> Tensor:
     """``(..., dim)`` chart coordinates of ``value`` around ``start`` (for priors)."""
-    if kind == "vector":
+    if kind in ("vector", "params"):
         return value - start
     if kind == "offset":
         return (value - start)[..., None]

@@ -11,6 +11,7 @@ weights, the Gauss-Newton matrix has three blocks: the control-point band
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -37,6 +38,7 @@ class Param:
     offset: int  # first column in the nuisance vector
     start: Tensor
     bound: float  # |value| bound (time offsets), inf otherwise
+    low: float = -math.inf  # lower bound of a scalar parameter (-bound for time offsets)
 
 
 @dataclass
@@ -71,14 +73,16 @@ class Problem:
         self.m = 0
 
     def add(self, term_i: int, name: str, free: Free, kind: str, dim: int, start: Tensor,
-            bound: float) -> None:
-        """Register the estimated parameter ``name`` of term ``term_i`` (shared frees once)."""
+            bound: float, low: float | None = None) -> None:
+        """Register the estimated parameter ``name`` of term ``term_i`` (shared frees once),
+        a scalar one within ``[low, bound]`` (``low`` default ``-bound``)."""
+        low = -bound if low is None else low
         for p in self.params:
             if p.free is free:
-                p.bound = min(p.bound, bound)
+                p.bound, p.low = min(p.bound, bound), max(p.low, low)
                 self.index[(term_i, name)] = p
                 return
-        p = Param(free, kind, dim, self.m, start, bound)
+        p = Param(free, kind, dim, self.m, start, bound, low)
         self.params.append(p)
         self.index[(term_i, name)] = p
         self.m += dim
@@ -101,7 +105,7 @@ class Problem:
         moved = []
         for p, v in zip(self.params, values, strict=True):
             x = retract(p.kind, v, dn[..., p.offset:p.offset + p.dim])
-            moved.append(x.clamp(-p.bound, p.bound) if p.kind == "offset" else x)
+            moved.append(x.clamp(p.low, p.bound) if p.kind == "offset" else x)
         return new, moved
 
     # -- costs
@@ -140,7 +144,9 @@ class Problem:
         for i, term in enumerate(self.terms):
             ts = term.times_list()
             if len(ts) > 1:
-                dt = self.term_values(i, values)["time_offset"][..., None]
+                vals = self.term_values(i, values)
+                dt = term.time_shift(term.per_sample(vals, {k: s.kind for k, s in
+                                                            term.slots().items()}))
                 f = [self.spans.first(t + dt) for t in ts]
                 w = max(w, int((f[1] - f[0]).abs().max()) + self.spans.support)
         return min(w, self.spans.n)
@@ -226,7 +232,8 @@ class Problem:
         term = self.terms[i]
         vals = self.term_values(i, values)
         kinds = {k: s.kind for k, s in term.slots().items()}
-        times = [t + vals["time_offset"][..., None] for t in term.times_list()]
+        shift = term.time_shift(term.per_sample(vals, kinds))
+        times = [t + shift for t in term.times_list()]
         firsts = [self.spans.first(t) for t in times]
         f0 = torch.stack(firsts).amin(0)
         n, sup = self.spans.n, self.spans.support
@@ -238,9 +245,9 @@ class Problem:
             -2, window.expand(*shape, N, w).reshape(*shape, N * w, 1).expand(
                 *shape, N * w, 8)).reshape(*shape, N, w, 8)
         est = [name for name in vals if (i, name) in self.index]
-        nuisance = [name for name in est if name != "time_offset"]  # read by the residual
+        timed = [name for name in est if name in term.time_params]  # move the times
+        nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
-        shift = term.per_sample(vals, kinds)["time_offset"]
         with torch.no_grad():  # the span derivatives at the current point
             derivs = [torch.stack(self._span_derivatives(gathered, off, t + shift, f,
                                                          term.order), -2)
@@ -261,10 +268,28 @@ class Problem:
             1 if cost else term.dim)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, [t + shift for t in term.times_list()],
-                                     firsts, J[:L], term.order, "time_offset" in est)
+                                     firsts, J[:L], term.order, bool(timed))
         if Jt is not None:
-            Jn["time_offset"] = Jt[..., None]
+            for name, ds in self._time_jacobians(i, vals, kinds, timed, (*shape, N)).items():
+                Jn[name] = Jt[..., None] * ds[..., None, :]  # dr/dt dt/dtheta
         return r, f0.expand(*shape, N), Jc, Jn
+
+    def _time_jacobians(self, i: int, vals: dict[str, Tensor], kinds: dict[str, str],
+                        names: list[str], shape: tuple[int, ...]) -> dict[str, Tensor]:
+        """``d t'_i / d delta`` ``(..., N, dim)`` of term ``i``'s time-moving parameters
+        ``names`` (their chart steps), by autograd of :meth:`Term.time_shift` (each sample's
+        shift depends on its own copy of the steps)."""
+        term = self.terms[i]
+        with torch.enable_grad():
+            steps = [vals[k].new_zeros(*shape, self.index[(i, k)].dim).requires_grad_()
+                     for k in names]
+            p = term.per_sample(vals, kinds)
+            for k, d in zip(names, steps, strict=True):
+                p[k] = retract(kinds[k], p[k], d)
+            grads = torch.autograd.grad(term.time_shift(p).expand(shape).sum(), steps,
+                                        allow_unused=True)
+        return {k: torch.zeros_like(d) if g is None else g
+                for k, d, g in zip(names, steps, grads, strict=True)}
 
     def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
                           order: int) -> tuple[Tensor, ...]:

@@ -240,6 +240,50 @@ class Term(torch.nn.Module):
             out[name] = self.default_start(name, trajectory, ctrl, out) if v is None else v
         return out
 
+    # -- parameters that move the samples' times
+    time_params: tuple[str, ...] = ("time_offset",)  # read through time_shift only
+
+    def time_shift(self, p: dict[str, Tensor]) -> Tensor:
+        """Shift of the samples' times, ``t' = t + shift`` (``(..., N)`` or broadcastable,
+        the same for every time argument), from the per-sample values ``p``
+        (:meth:`per_sample`). Affine in the scalar parameters of :attr:`time_params`, which
+        the residual does not read otherwise: the solver chains them through the curve's time
+        derivative (``dt_i / dtheta`` by autograd of this function) and bounds the domain
+        check by what they can reach (:meth:`time_reach`). Default: the time offset."""
+        return p["time_offset"]
+
+    def bounds(self, name: str) -> tuple[float, float]:
+        """Range ``(low, high)`` of an estimated scalar parameter (``[-max_time_offset,
+        max_time_offset]`` for the time offset; unbounded otherwise)."""
+        if name == "time_offset":
+            return -self.max_time_offset, self.max_time_offset
+        return -math.inf, math.inf
+
+    def time_reach(self) -> tuple[Tensor, Tensor]:
+        """Lowest and highest :meth:`time_shift` ``(..., N)`` (float64) over the estimated
+        time parameters' :meth:`bounds`, the others at their values (exact: the shift is
+        affine in them)."""
+        like = torch.empty((), dtype=torch.float64, device=self.sigma.device)
+        slots = {k: self._slots[k] for k in self.time_params if k in self._slots}
+        kinds = {k: s.kind for k, s in slots.items()}
+        base = {}
+        for k, s in slots.items():
+            v = s.value(like)
+            base[k] = s.identity(like) if s.estimated or v is None else v
+        s0 = self.time_shift(self.per_sample(base, kinds))
+        lo = hi = s0
+        for k, s in slots.items():
+            if s.estimated:
+                ends = [self.time_shift(self.per_sample({**base, k: like.new_tensor(b)}, kinds))
+                        - s0 for b in self.bounds(k)]
+                lo, hi = lo + torch.minimum(*ends), hi + torch.maximum(*ends)
+        return lo, hi
+
+    def solved(self, trajectory) -> None:
+        """Called by :func:`~torch_dq.fitting.estimate` at the solution (the terms' values
+        set): nothing by default (:class:`~torch_dq.fitting.Reprojections` counts its
+        invalid observations)."""
+
     # -- residuals
     def _residual(self, ev: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
         raise NotImplementedError
@@ -254,7 +298,7 @@ class Term(torch.nn.Module):
     @staticmethod
     def per_sample(values: dict[str, Tensor], kinds: dict[str, str]) -> dict[str, Tensor]:
         """Values with a sample dim inserted before the event dims."""
-        ev = {"vector": 1, "offset": 0, "pose": 1, "gravity": 1}
+        ev = {"vector": 1, "offset": 0, "pose": 1, "gravity": 1, "params": 1}
         return {k: v.unsqueeze(v.dim() - ev[kinds[k]]) for k, v in values.items()}
 
     def forward(self, trajectory, ctrl: Tensor | None = None) -> Tensor:
@@ -267,7 +311,7 @@ class Term(torch.nn.Module):
         kinds = {k: s.kind for k, s in self._slots.items()}
         like = trajectory.control_points if ctrl is None else ctrl
         p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
-        derivs = [trajectory.derivatives(t + p["time_offset"], self.order, ctrl=ctrl)
+        derivs = [trajectory.derivatives(t + self.time_shift(p), self.order, ctrl=ctrl)
                   for t in self.times_list()]
         return self.residuals(derivs, p)
 

@@ -1,0 +1,236 @@
+r"""The reprojection term: pixels of target points seen by a camera on the moving body.
+
+A camera mounted on the body at ``e`` (its pose in body axes, ``p_body = e p_cam``: Kalibr's
+``T_imu_cam``) sees points ``p`` fixed in a target frame posed in the world at ``T`` (default
+the identity: the world is the target's frame). The observation stamped ``t`` with the
+measured pixel ``(u, v)`` is predicted as
+
+.. math::
+    \hat u = \pi_\theta\big((T^{-1} x(t') e)^{-1} p\big), \qquad
+    t' = t + \delta t + \ell v,
+
+``\pi_\theta`` the camera model with intrinsics ``\theta`` (:func:`torch_dq.camera.project`),
+``\delta t`` the time offset and ``\ell`` the rolling shutter's line delay (seconds per row;
+``v`` the measured row). Both move the sample along the curve: the solver chains them through
+the curve's time derivative (:meth:`Term.time_shift`), ``dt'_i / d\ell = v_i``.
+
+Observations whose point has no image (behind the camera, outside the model's domain) are
+excluded: their residual and Jacobian rows are zero (no NaN reaches the normal equations),
+and :func:`~torch_dq.fitting.estimate` counts them at the solution (``term.invalid``) with a
+warning naming the term.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import warnings
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from .. import _checks, camera, dualquat
+from ._nuisance import Slot
+from ._terms import Term, _masked, _nuisance, _sigma
+
+__all__ = ["Reprojections"]
+
+
+def _intrinsics(fn: str, cam) -> tuple[str, Tensor]:
+    """The model name and ``(P,)`` float64 parameters of a :class:`torch_dq.camera.Camera`."""
+    if not isinstance(cam, camera.Camera):
+        _checks.fail(fn, f"camera must be a torch_dq.camera.Camera, got "
+                         f"{type(cam).__name__}", TypeError)
+    return cam.model, cam.params.detach().to(torch.float64)
+
+
+class Reprojections(Term):
+    r"""Pixels of target points seen by a camera on the body (module docstring).
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` the frames' timestamps (one row per observation,
+            non-decreasing; the trajectory's time).
+        points: ``(..., N, 3)`` the observed points in target coordinates.
+        pixels: ``(..., N, 2)`` the measured pixels ``(u, v)`` (``v`` the row).
+        camera: a :class:`torch_dq.camera.Camera` (its model and parameters).
+        sigma: pixel noise, a float or 2 (``u``, ``v``).
+        extrinsic: ``(8,)`` the camera's pose on the body ``e`` (``p_body = e p_cam``;
+            None: identity), fixed or estimated (chart ``e exp(delta)``).
+        target: ``(8,)`` the target's pose in the world (None: identity), fixed or estimated
+            (chart ``T exp(delta)``).
+        intrinsics: None (the camera's parameters, fixed), ``True`` (estimated from them),
+            a :class:`~torch_dq.fitting.Free` or a fixed ``(P,)`` tensor; chart
+            ``params + delta``.
+        time_offset: the camera's clock offset (seconds), see :mod:`torch_dq.fitting`.
+        line_delay: the rolling shutter's delay per row (seconds, ``>= 0``; None: global
+            shutter), fixed or estimated (start 0) within ``[0, max_line_delay]``.
+        max_time_offset: bound on an estimated time offset (seconds).
+        max_line_delay: bound on an estimated line delay (seconds per row, default
+            ``1e-4``: a 1000-row image read in 0.1 s); the domain check widens the times by
+            ``max_line_delay * v``.
+        robust: None, ``"huber"`` or ``"cauchy"``; robust_k: its scale (default 2.4477).
+        mask: ``(..., N)`` bool, False excludes an observation.
+
+    Residual ``(..., N, 2)``: predicted minus measured pixel over ``sigma``; zero for masked
+    observations and for points without an image (``term.invalid`` counts them after
+    :func:`~torch_dq.fitting.estimate`).
+
+    Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
+        >>> import torch_dq.dualquat as dq
+        >>> from torch_dq.camera import Camera
+        >>> from torch_dq.nn import BSpline
+        >>> f64 = torch.float64
+        >>> cam = Camera("pinhole", torch.tensor([400.0, 400.0, 320.0, 240.0], dtype=f64),
+        ...              (640, 480))
+        >>> spline = BSpline(dq.identity((4,), dtype=f64))  # domain [0, 1]
+        >>> t = torch.full((2,), 0.5, dtype=f64)
+        >>> pts = torch.tensor([[0.0, 0.0, 1.0], [0.1, -0.05, 1.0]], dtype=f64)
+        >>> pix = torch.tensor([[320.0, 240.0], [361.0, 220.0]], dtype=f64)
+        >>> term = Reprojections(t, pts, pix, camera=cam, sigma=0.5)
+        >>> term(spline).detach()  # predicted minus measured, over sigma
+        tensor([[ 0.,  0.],
+                [-2.,  0.]], dtype=torch.float64)
+    """
+
+    dim = 2
+    _fn = "fitting.Reprojections"
+    max_line_delay: float
+
+    if TYPE_CHECKING:  # buffers (registered in __init__)
+        points: Tensor
+        pixels: Tensor
+        rows: Tensor
+        camera_params: Tensor
+
+    def __init__(self, times: Tensor, points: Tensor, pixels: Tensor, *, camera, sigma,
+                 extrinsic=None, target=None, intrinsics=None, time_offset=None,
+                 line_delay=None, max_time_offset: float = 0.1, max_line_delay: float = 1e-4,
+                 robust: str | None = None, robust_k: float | None = None,
+                 mask: Tensor | None = None) -> None:
+        fn = self._fn
+        self.model, params = _intrinsics(fn, camera)
+        _checks.tensor(fn, "pixels", pixels, 2)
+        _checks.tensor(fn, "points", points, 3)
+        if pixels.dim() < 2 or points.dim() < 2:
+            _checks.fail(fn, f"expected (..., N, 3) points and (..., N, 2) pixels, got "
+                             f"{_checks.shape_str(points.shape)} and "
+                             f"{_checks.shape_str(pixels.shape)}")
+        try:
+            batch = torch.broadcast_shapes(points.shape[:-1], pixels.shape[:-1])
+        except RuntimeError:
+            _checks.fail(fn, f"points {_checks.shape_str(points.shape)} and pixels "
+                             f"{_checks.shape_str(pixels.shape)} do not broadcast")
+        pixels = pixels.detach().expand(*batch, 2)
+        super().__init__([times], ["times"], pixels, 1, _sigma(fn, "sigma", sigma, 2),
+                         time_offset=time_offset, max_time_offset=max_time_offset,
+                         robust=robust, robust_k=robust_k, mask=mask)
+        points = points.detach().expand(*batch, 3)
+        finite = torch.isfinite(points).all(-1)
+        if bool((self.mask & ~finite).any()):
+            _checks.fail(fn, "the points must be finite (mask the observations that are not)")
+        if isinstance(max_line_delay, bool) or not isinstance(max_line_delay, numbers.Real) or \
+                not (math.isfinite(max_line_delay) and float(max_line_delay) > 0):
+            _checks.fail(fn, f"max_line_delay must be a positive finite float, got "
+                             f"{max_line_delay!r}")
+        self.max_line_delay = float(max_line_delay)
+        self.register_buffer("points", _masked(points, self.mask, 1.0))
+        self.register_buffer("pixels", _masked(pixels, self.mask, 0.0))
+        self.register_buffer("rows", self.pixels[..., 1].to(torch.float64))
+        self.register_buffer("camera_params", params)
+        if intrinsics is None or intrinsics is False:
+            intrinsics = params
+        self._slots["extrinsic"] = Slot(fn, "extrinsic", "pose", extrinsic)
+        self._slots["target"] = Slot(fn, "target", "pose", target)
+        self._slots["intrinsics"] = Slot(fn, "intrinsics", "params", intrinsics,
+                                         size=params.shape[0])
+        self._slots["line_delay"] = Slot(fn, "line_delay", "offset", line_delay)
+        fixed = self._slots["line_delay"].fixed
+        if fixed is not None and not bool((fixed >= 0).all()):
+            _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
+        self.invalid: Tensor | None = None
+
+    extrinsic = _nuisance("extrinsic", "The camera's pose on the body ``e`` ``(..., 8)``.")
+    target = _nuisance("target", "The target's pose in the world ``(..., 8)``.")
+    intrinsics = _nuisance("intrinsics", "The camera's parameters ``(..., P)``.")
+    line_delay = _nuisance("line_delay", "The rolling shutter's line delay (s per row).")
+
+    time_params = ("time_offset", "line_delay")
+
+    def time_shift(self, p: dict[str, Tensor]) -> Tensor:
+        """``t' - t = time_offset + line_delay * v`` ``(..., N)``."""
+        shift = p["time_offset"]
+        if self._slots["line_delay"].present:
+            shift = shift + p["line_delay"] * self.rows
+        return shift
+
+    def bounds(self, name: str) -> tuple[float, float]:
+        if name == "line_delay":
+            return 0.0, self.max_line_delay
+        return super().bounds(name)
+
+    def default_start(self, name, trajectory, ctrl, values):
+        if name == "intrinsics":
+            return self.camera_params.clone()
+        return super().default_start(name, trajectory, ctrl, values)
+
+    def _project(self, x: Tensor, p: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Predicted pixels ``(..., N, 2)`` and ``valid (..., N)`` from the body poses ``x``."""
+        m = x
+        if self._slots["target"].present:
+            m = dualquat.mul(dualquat.conj(p["target"].to(x.dtype)), m)
+        if self._slots["extrinsic"].present:
+            m = dualquat.mul(m, p["extrinsic"].to(x.dtype))
+        cam = dualquat.apply(dualquat.conj(m), self.points.to(x.dtype))
+        return camera.project(self.model, p["intrinsics"].to(x.dtype), cam)
+
+    def _residual(self, ev, p):
+        pix, valid = self._project(ev[0][0], p)
+        r = pix - self.pixels.to(pix.dtype)
+        return torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
+
+    def _predict(self, trajectory, shift: float = 0.0) -> tuple[Tensor, Tensor]:
+        """Predicted pixels and ``valid`` at the current values, the times moved by
+        ``shift`` seconds more (no gradient)."""
+        values = self.values(trajectory)
+        kinds = {k: s.kind for k, s in self._slots.items()}
+        like = trajectory.control_points
+        with torch.no_grad():
+            p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
+            t = self.times + self.time_shift(p).to(self.times.dtype) + shift
+            lo, hi = (torch.as_tensor(e, dtype=t.dtype) for e in trajectory.domain)
+            x = trajectory(torch.minimum(torch.maximum(t, lo[..., None]), hi[..., None]))
+            return self._project(x, p)
+
+    def visible(self, trajectory) -> Tensor:
+        """``(..., N)`` bool: the observations that project valid at the current values and
+        are not masked."""
+        return self._predict(trajectory)[1] & self.mask
+
+    def solved(self, trajectory) -> None:
+        r"""Count the observations without an image at the solution (``invalid (...)``, int64
+        per batch element) and warn when there are any; warn when an estimated line delay
+        meets too little motion: its information :math:`\sum_i (v_i |\dot u_i| /
+        \sigma)^2` (``\dot u`` the predicted pixel velocity) leaves it a standard deviation
+        above ``max_line_delay``."""
+        valid = self.visible(trajectory)
+        self.invalid = (self.mask & ~valid).sum(-1)
+        n = int(self.invalid.sum())
+        if n:
+            warnings.warn(f"fitting.estimate: {n} observation(s) of Reprojections (camera "
+                          f"{self.model!r}) project invalid at the solution (behind the camera "
+                          f"or outside the model's domain): excluded; their count is "
+                          f"term.invalid", RuntimeWarning, stacklevel=3)
+        if self._slots["line_delay"].estimated:
+            h = 1e-3
+            rate = (self._predict(trajectory, h)[0] - self._predict(trajectory, -h)[0]) / (2 * h)
+            w = (rate.to(torch.float64) * self.rows[..., None] / self.sigma).square().sum(-1)
+            info = torch.where(valid, w, 0.0).sum(-1)
+            if bool((info * self.max_line_delay ** 2 < 1.0).any()):
+                warnings.warn("fitting.estimate: the Reprojections line_delay is undetermined: "
+                              "the camera barely moves during its frames (the pixels move less "
+                              "than sigma over a readout); fix it (None: global shutter)",
+                              RuntimeWarning, stacklevel=3)
+
+
+Reprojections.__init__.__doc__ = Reprojections.__doc__
