@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 import torch_dq.dualquat as dq
-from torch_dq import curves, losses, quat
+from torch_dq import camera, curves, losses, quat
 from torch_dq.dual import Dual
 
 F64 = torch.float64
@@ -99,6 +99,40 @@ def _scalar(batch, gen, family):
     return torch.rand(batch, generator=gen, dtype=F64)
 
 
+# Camera parameters (realistic, principal point (256, 256)): jittered by 1 % in the "random"
+# family, exact otherwise, so that the "identity" family's points on the optical axis and
+# pixels at (256, 256) are the models' degenerate points (r = 0).
+CAMERA_PARAMS = {"pinhole": (460.0, 455.0, 256.0, 256.0),
+                 "pinhole-radtan": (460.0, 455.0, 256.0, 256.0, -0.28, 0.074, 2e-4, 2e-5),
+                 "pinhole-equidistant": (191.0, 190.0, 256.0, 256.0, 0.0035, 7e-4, -2e-3, 2e-4),
+                 "double-sphere": (158.0, 157.0, 256.0, 256.0, -0.17, 0.59)}
+
+
+def _camera(model):
+    def make(batch, gen, family):
+        p = torch.tensor(CAMERA_PARAMS[model], dtype=F64).expand(*batch, -1)
+        jitter = 0.01 * _randn(batch, gen, p.shape[-1]) * (family == "random")
+        return p * (1.0 + jitter)
+    return make
+
+
+def _front(batch, gen, family):
+    """Points up to 50 degrees off the axis at depths 0.5 to 3 (on the axis: "identity")."""
+    d = 0.5 + 2.5 * torch.rand(batch, generator=gen, dtype=F64)
+    if family == "identity":
+        return torch.stack([0.0 * d, 0.0 * d, d], -1)
+    th = math.radians(50.0) * torch.rand(batch, generator=gen, dtype=F64)
+    ph = 2 * math.pi * torch.rand(batch, generator=gen, dtype=F64)
+    return torch.stack([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()], -1) * d[..., None]
+
+
+def _pixel(batch, gen, family):
+    """Pixels in [76, 436]^2, inside every model's domain; (256, 256) for "identity"."""
+    if family == "identity":
+        return torch.full((*batch, 2), 256.0, dtype=F64)
+    return 76.0 + 360.0 * torch.rand((*batch, 2), generator=gen, dtype=F64)
+
+
 KINDS = {
     "dq": Kind((8,), _pose),
     "q": Kind((4,), lambda b, g, f: _rotation(b, g, f)),
@@ -113,6 +147,9 @@ KINDS = {
     "twist": Kind((6,), _twist),
     "scalar": Kind((), _scalar),
     "weights": Kind((3,), lambda b, g, f: torch.rand((*b, 3), generator=g, dtype=F64) + 0.1),
+    **{f"cam:{m}": Kind((len(p),), _camera(m)) for m, p in CAMERA_PARAMS.items()},
+    "front": Kind((3,), _front),
+    "pixel": Kind((2,), _pixel),
 }
 EVENT = {name: kind.event for name, kind in KINDS.items()}
 
@@ -185,6 +222,14 @@ CTRL = (("ctrl", "ctrl"),)
 CONE_EQUAL = {"equal": "a cone at zero", "opposite": "a cone at zero",
               "identity": "a cone at zero", "translation": "a cone at zero"}
 SIGN_AT_HALF_TURN = {"half_turn": "w = 0: the canonical sign (w >= 0) jumps"}
+
+# float32 bounds of the camera rows (measured x 1.5): project's pixels are off by about an
+# ulp of the principal point (256: 3e-5 px), large relative to pixels near 0 (u = f a + c
+# cancels); unproject's rays (unit) by a few ulps.
+CAMERA_F32 = {"project": {"pinhole": 4.2e-5, "pinhole-radtan": 8e-5,
+                          "pinhole-equidistant": 5.2e-7, "double-sphere": 5.9e-7},
+              "unproject": {"pinhole": 2.2e-7, "pinhole-radtan": 2.2e-7,
+                            "pinhole-equidistant": 4e-7, "double-sphere": 3.8e-7}}
 
 OPS = [
     Op("quat.mul", quat.mul, Q2, signed=True, f32=2e-7),
@@ -285,13 +330,20 @@ OPS = [
     Op("curves.kinematics", lambda x, v, a: curves.kinematics(x, v, a, frame="body"), XDX,
        "body", f32=2.2e-6),
     Op("curves.imu", curves.imu, XDX, f32=4.7e-6),
+    *(Op(f"camera.{f.__name__}", lambda p, x, f=f, m=m: f(m, p, x)[0],
+         (("params", f"cam:{m}"), ("points" if f is camera.project else "pixels",
+                                   "front" if f is camera.project else "pixel")),
+         "" if m == "pinhole-radtan" else m, f32=f32)
+      for f in (camera.project, camera.unproject)
+      for m, f32 in CAMERA_F32[f.__name__].items()),
 ]
 IDS = [op.id for op in OPS]
 DIFFERENTIABLE = [op for op in OPS if op.differentiable]
-# Functions of no tensor argument or of a callable: tested apart, not rows of OPS.
+# Functions of no tensor argument or of a callable, and camera's table and value class:
+# tested apart, not rows of OPS.
 FACTORIES = {"quat.identity", "dualquat.identity", "curves.clamped_uniform_knots",
-             "curves.velocity"}
-MODULES = {"quat": quat, "dualquat": dq, "curves": curves, "losses": losses}
+             "curves.velocity", "camera.MODELS", "camera.Camera"}
+MODULES = {"quat": quat, "dualquat": dq, "curves": curves, "losses": losses, "camera": camera}
 
 
 def op(op_id: str) -> Op:

@@ -118,13 +118,17 @@ def test_project_double_sphere_matches_the_paper(params):
 
 
 def test_project_valid_is_z_positive_for_the_pinhole_models():
+    # z > 0 but within eps radians of the plane z = 0 (pixels would overflow): invalid too
     pts = _t([[0.1, 0.2, 1.0], [0.1, 0.2, 0.0], [0.1, 0.2, -1.0], [0.0, 0.0, 0.0],
-              [0.0, 0.0, 1e-300]])
+              [0.0, 0.0, 1e-300], [0.0, 1.0, 4.458e-122], [1e200, -1e200, 1e200]])
     for model, (p, _) in CAMERAS.items():
         if model != "double-sphere":
-            px, valid = project(model, _t(p), pts)
-            assert valid.tolist() == [True, False, False, False, True]
-            assert torch.isfinite(px[:4]).all()
+            x = pts.clone().requires_grad_(True)
+            px, valid = project(model, _t(p), x)
+            assert valid.tolist() == [True, False, False, False, True, False, True]
+            assert torch.isfinite(px).all()
+            px.sum().backward()
+            assert torch.isfinite(x.grad).all()
 
 
 def test_project_double_sphere_origin_is_invalid():

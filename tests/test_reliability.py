@@ -26,6 +26,7 @@ import math
 import re
 
 import pytest
+import registry
 import torch
 from hypothesis import given
 from hypothesis import strategies as st
@@ -582,6 +583,14 @@ def _draw(data, kind, batch=2):
         return tensor(data.draw(_vecs(batch, -0.5, 1.5)))
     if kind == "weights":
         return tensor([data.draw(_vecs(3, 0.05, 1.0)) for _ in range(batch)])
+    if kind.startswith("cam:"):  # a realistic camera, each parameter within 10 % of it
+        base = tensor(registry.CAMERA_PARAMS[kind[4:]])
+        return base * (1.0 + tensor([data.draw(_vecs(len(base), -0.1, 0.1))
+                                     for _ in range(batch)]))
+    if kind == "front":  # any point: behind the camera and the origin are valid input too
+        return tensor([data.draw(_vecs(3)) for _ in range(batch)])
+    if kind == "pixel":  # any pixel, also far outside the image
+        return tensor([data.draw(_vecs(2, -1e4, 1e4)) for _ in range(batch)])
     raise KeyError(kind)
 
 

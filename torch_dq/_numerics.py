@@ -88,6 +88,10 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # below which the root counts as found (valid): rounding leaves a few eps, a pixel
     # without a preimage (beyond a lens' fold) a residual of order 1e-3 or more.
     "camera_root": lambda eps: 256.0 * eps,
+    # tan of the angle off axis (|x| / z or |y| / z) beyond which camera.project counts a
+    # point of the pinhole models as invalid: within eps radians of the plane z = 0 their
+    # pixels (r^5 of radtan) or derivatives would overflow.
+    "camera_off_axis": lambda eps: 1.0 / eps,
 }
 
 

@@ -120,10 +120,12 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
 
     Returns:
         ``(pixels, valid)``: ``(..., 2)`` pixels ``(u, v)`` and a ``(...)`` bool mask, False
-        where the point has no image: ``z <= 0`` for the pinhole models; for the double
-        sphere where the paper's condition :math:`z > -w_2 d_1` (eq. 43) fails (the origin
-        is invalid). Invalid points get finite pixels with finite gradients (they are
-        computed at a replacement point): mask them.
+        where the point has no image: ``z <= 0`` for the pinhole models (and points within
+        ``eps`` radians of the plane ``z = 0``, ``max(|x|, |y|) >= z / eps``, whose pixels
+        or derivatives would overflow); for the double sphere where the paper's condition
+        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid); and where an input is
+        not finite (the pixels are NaN there). Invalid points get finite pixels with finite
+        gradients (they are computed at a replacement point): mask them.
 
     Formulas (normalised coordinates :math:`a = x/z,\ b = y/z`, :math:`r^2 = a^2 + b^2`):
 
@@ -151,10 +153,15 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
     return _outputs(batch, (u, v), valid, params, points)
 
 
-def _front(z: Tensor) -> tuple[Tensor, Tensor]:
-    """``z > 0`` and ``z`` with the other entries replaced by 1 (safe where)."""
-    valid = z > 0
-    return valid, torch.where(valid, z, 1.0)
+def _normalised(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(valid, a, b)``: ``z > 0`` with ``|x|, |y| < z / eps`` (points closer to the plane
+    ``z = 0`` than ``eps`` radians would overflow the pixels or their derivatives), and
+    ``(a, b) = (x, y) / z`` there, ``(0, 0)`` elsewhere (safe where: replaced before the
+    division)."""
+    far = threshold("camera_off_axis", x.dtype) * z
+    valid = (z > 0) & (abs(x) < far) & (abs(y) < far)
+    zs = torch.where(valid, z, 1.0)
+    return valid, torch.where(valid, x, 0.0) / zs, torch.where(valid, y, 0.0) / zs
 
 
 def _pinhole(p: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
@@ -162,8 +169,8 @@ def _pinhole(p: list[Tensor], a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _project_pinhole(p, x, y, z):
-    valid, zs = _front(z)
-    return (*_pinhole(p, x / zs, y / zs), valid)
+    valid, a, b = _normalised(x, y, z)
+    return (*_pinhole(p, a, b), valid)
 
 
 def _radtan(k: list[Tensor], a: Tensor, b: Tensor, jacobian: bool = False) -> tuple[Tensor, ...]:
@@ -184,8 +191,8 @@ def _radtan(k: list[Tensor], a: Tensor, b: Tensor, jacobian: bool = False) -> tu
 
 
 def _project_radtan(p, x, y, z):
-    valid, zs = _front(z)
-    return (*_pinhole(p, *_radtan(p[4:], x / zs, y / zs)), valid)
+    valid, a, b = _normalised(x, y, z)
+    return (*_pinhole(p, *_radtan(p[4:], a, b)), valid)
 
 
 def _poly(k: list[Tensor], t: Tensor) -> Tensor:
@@ -199,8 +206,7 @@ def _poly_slope(k: list[Tensor], t: Tensor) -> Tensor:
 
 
 def _project_equidistant(p, x, y, z):
-    valid, zs = _front(z)
-    a, b = x / zs, y / zs
+    valid, a, b = _normalised(x, y, z)
     r2 = a * a + b * b
     ratio = even("atanc", r2)  # theta / r with theta = atan(r), smooth at r = 0
     scale = ratio * _poly(p[4:], r2 * ratio * ratio)  # theta_d / r
