@@ -84,6 +84,10 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # scipy's gimbal-lock threshold of as_euler (a fixed 1e-7 rad, not eps-based: kept
     # for agreement with scipy in every dtype).
     "gimbal_lock": lambda eps: 1e-7,
+    # Residual of camera.unproject's Newton iterations (relative to 1 + |distorted point|)
+    # below which the root counts as found (valid): rounding leaves a few eps, a pixel
+    # without a preimage (beyond a lens' fold) a residual of order 1e-3 or more.
+    "camera_root": lambda eps: 256.0 * eps,
 }
 
 
