@@ -30,7 +30,7 @@ from torch import Tensor
 from .. import dualquat, quat
 from ..camera import project, unproject
 
-__all__ = ["homographies", "pose_from_homography", "relative_starts", "start_intrinsics",
+__all__ = ["focal_centred", "homographies", "pose_from_homography", "relative_starts", "start_intrinsics",
            "view_poses", "zhang"]
 
 _DEFAULTS = {  # parameters after (fu, fv, cu, cv) at the start: distortion zero, basalt's ds
@@ -168,33 +168,133 @@ def _score(model: str, params: Tensor, views) -> float:
     return float(rms.median()) if bool(torch.isfinite(rms).any()) else math.inf
 
 
+def focal_centred(H: Tensor, resolution: tuple[int, int]) -> Tensor | None:
+    r"""Pinhole ``(f, f, cu, cv)`` with the principal point at the image centre and one focal
+    length, from pixel homographies ``H (V, 3, 3)``: with the centre moved to the origin,
+    :math:`h_1^T B h_2 = 0` and :math:`h_1^T B h_1 = h_2^T B h_2` for
+    :math:`B = \mathrm{diag}(1, 1, f^2)` are linear in :math:`f^2` (least squares over the
+    views; OpenCV's ``initIntrinsicParams2D`` does likewise with two focal lengths).
+
+    Returns:
+        ``(4,)``, or ``None`` where no positive :math:`f^2` fits.
+    """
+    w, h = resolution
+    c = H.new_tensor([0.5 * (w - 1), 0.5 * (h - 1)])
+    Hc = H.clone()
+    Hc[:, :2] = H[:, :2] - c[None, :, None] * H[:, 2:3]
+    h1, h2 = Hc[:, :, 0], Hc[:, :, 1]
+    a = torch.cat((h1[:, 2] * h2[:, 2], h1[:, 2] ** 2 - h2[:, 2] ** 2))
+    b = -torch.cat(((h1[:, :2] * h2[:, :2]).sum(-1), (h1[:, :2] ** 2 - h2[:, :2] ** 2).sum(-1)))
+    f2 = (a * b).sum() / (a * a).sum()
+    if not bool(torch.isfinite(f2) & (f2 > 0)):
+        return None
+    f = f2.sqrt()
+    return torch.stack((f, f, c[0], c[1]))
+
+
+def _circles(p: Tensor, m: Tensor) -> Tensor:
+    r"""Least-squares circles ``(L, 3)`` (centre, radius; Kasa's algebraic fit of
+    :math:`x^2 + y^2 + a x + b y + c = 0`) of point sets ``p (L, n, 2)`` masked by ``m``."""
+    A = torch.cat((p, torch.ones_like(p[..., :1])), -1) * m[..., None]
+    y = -(p ** 2).sum(-1) * m
+    sol = torch.linalg.lstsq(A, y[..., None]).solution[..., 0]
+    centre = -0.5 * sol[..., :2]
+    r2 = (centre ** 2).sum(-1) - sol[..., 2]
+    return torch.cat((centre, r2.clamp_min(0.0).sqrt()[..., None]), -1)
+
+
+def vanishing_distance(xy: Tensor, uv: Tensor, mask: Tensor) -> float | None:
+    r"""Median distance (pixels) between the two vanishing points of parallel target lines.
+
+    A straight line images as a circle under the unified model with :math:`\xi = 1` and,
+    nearly, under the equidistant model; the images of two parallel lines meet in the two
+    vanishing points of their direction (Hughes et al., "Equidistant fish-eye calibration
+    and rectification by vanishing point extraction", PAMI 2010; Kalibr's focal start).
+    The rows and columns of the target (equal ``y`` or ``x``, >= 4 points) are fitted by
+    circles, and every pair of parallel ones in a view intersected.
+
+    Returns:
+        The median distance, or ``None`` without any pair.
+    """
+    dists = []
+    for v in range(xy.shape[0]):
+        for axis in (0, 1):
+            key = xy[v, :, axis][mask[v]]
+            pix = uv[v][mask[v]]
+            vals, inv, counts = torch.unique(torch.round(key * 1e6), return_inverse=True,
+                                             return_counts=True)
+            lines = torch.nonzero(counts >= 4)[:, 0]
+            if lines.numel() < 2:
+                continue
+            n = int(counts.max())
+            P = pix.new_zeros(lines.numel(), n, 2)
+            M = torch.zeros(lines.numel(), n, dtype=torch.bool)
+            for j, line in enumerate(lines.tolist()):
+                q = pix[inv == line]
+                P[j, :q.shape[0]], M[j, :q.shape[0]] = q, True
+            c = _circles(P, M)
+            i, j = torch.triu_indices(c.shape[0], c.shape[0], 1)
+            d = (c[j, :2] - c[i, :2]).norm(dim=-1)
+            r0, r1 = c[i, 2], c[j, 2]
+            a = (r0 ** 2 - r1 ** 2 + d ** 2) / (2 * d)
+            h2 = r0 ** 2 - a ** 2
+            good = (h2 > 0) & (d > 0)
+            dists.append(2 * h2[good].sqrt())  # the chord between the two intersections
+    if not dists:
+        return None
+    d = torch.cat(dists)
+    d = d[torch.isfinite(d)]
+    return float(d.median()) if d.numel() else None
+
+
+def _plausible(k: Tensor | None, resolution: tuple[int, int]) -> bool:
+    return k is not None and bool((k[:2] > 0.05 * resolution[0]).all()
+                                  & (k[:2] < 20.0 * resolution[0]).all())
+
+
 def start_intrinsics(model: str, resolution: tuple[int, int], views) -> Tensor:
-    """Start parameters ``(P,)`` of one camera from its views ``(xy, uv, mask)``: the
-    better-scoring of Zhang's pinhole start (pinhole models) and a focal line search
-    (geometric grid over ``[0.05, 2]`` image widths, ratio ~1.08, then ~1.005 around the
-    best)."""
+    r"""Start parameters ``(P,)`` of one camera from its views ``(xy, uv, mask)``.
+
+    Pinhole models: Zhang's closed form, or where it fails (weak perspective, strong
+    distortion: ``B`` indefinite) or gives a focal length outside ``[0.05, 20]`` image
+    widths, the centred one-focal closed form (:func:`focal_centred`), or else the focal
+    length of the vanishing points as for the equidistant model; distortion zero.
+    Equidistant and double sphere: the vanishing-point focal length :math:`D / \pi`
+    (equidistant: :math:`r = f \theta`) or :math:`D / 4` (double sphere at basalt's
+    ``xi = 0, alpha = 0.5``, the unified model with :math:`\xi = 1` and twice the focal
+    length), refined by a line search over ``[0.4, 2.5]`` times it (ratio ~1.04, then
+    ~1.004 around the best), each candidate scored by the median over views of the RMS
+    reprojection error after a per-view homography pose (:func:`view_poses`: with the wrong
+    focal length the unprojected rays of a plane are not a homography of it).
+    """
     xy, uv, mask = views
-    best, best_score = None, math.inf
+    D = vanishing_distance(xy, uv, mask)
     if model in ("pinhole", "pinhole-radtan"):
         H, ok = homographies(xy, uv, mask)
-        k = zhang(H[ok], resolution)
-        if k is not None:
-            best = torch.cat((k, k.new_tensor(_DEFAULTS[model])))
-            best_score = _score(model, best, views)
-    w = float(resolution[0])
-    grid = torch.logspace(math.log10(0.05 * w), math.log10(2.0 * w), 48, dtype=torch.float64)
-    scores = [_score(model, _candidate(model, float(f), resolution, xy), views) for f in grid]
-    i = min(range(len(scores)), key=scores.__getitem__)
-    fine = grid[i] * torch.logspace(-0.035, 0.035, 15, dtype=torch.float64)
-    for f in fine.tolist():
-        p = _candidate(model, f, resolution, xy)
-        s = _score(model, p, views)
-        if s < best_score:
-            best, best_score = p, s
-    if best is None:
-        raise ValueError("calibration.cameras: no focal length gives the target a pose in "
-                         "the views (are the points and pixels of one target?)")
-    return best
+        ks = [zhang(H[ok], resolution), focal_centred(H[ok], resolution)]
+        if D is not None:
+            ks.append(_candidate("pinhole", D / math.pi, resolution, xy))
+        for k in ks:
+            if _plausible(k, resolution):
+                return torch.cat((k, k.new_tensor(_DEFAULTS[model])))
+        _fail_start()
+    if D is None:
+        _fail_start()
+    f0 = D / (math.pi if model == "pinhole-equidistant" else 4.0)
+
+    def score(f: float) -> float:
+        return _score(model, _candidate(model, f, resolution, xy), views)
+
+    coarse = (f0 * torch.logspace(-0.4, 0.4, 48, dtype=torch.float64)).tolist()
+    best = min(coarse, key=score)
+    fine = (best * torch.logspace(-0.02, 0.02, 11, dtype=torch.float64)).tolist()
+    return _candidate(model, min(fine, key=score), resolution, xy)
+
+
+def _fail_start():
+    raise ValueError("calibration.cameras: no start for a camera's focal length from its "
+                     "views (are the points and pixels of one planar target, with rows "
+                     "and columns of >= 4 points?)")
 
 
 def _average(poses: Tensor) -> Tensor:
