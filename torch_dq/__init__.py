@@ -2,6 +2,7 @@
 
 Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions),
 :mod:`torch_dq.dualquat` (dual quaternions, dual angle, screw interpolation),
+:mod:`torch_dq.camera` (camera models: project, unproject),
 :mod:`torch_dq.curves` (De Casteljau and De Boor on dual quaternions),
 :mod:`torch_dq.nn` (curve layers in the caller's time, unit-dual-quaternion parametrization),
 :mod:`torch_dq.fitting` (least-squares start and fit loop, re-exported by ``nn``),
@@ -9,14 +10,14 @@ Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions)
 :mod:`torch_dq.io` (TUM, KITTI and EuRoC trajectory files).
 """
 
-from . import curves, dual, dualquat, fitting, io, losses, nn, quat
+from . import camera, curves, dual, dualquat, fitting, io, losses, nn, quat
 from .dual import Dual
 from .dualquat import angle as dual_angle
 from .dualquat import sclerp
 from .object import DualQuaternion
 
 __all__ = [
-    "Dual", "DualQuaternion", "curves", "dual", "dual_angle", "dualquat", "fitting", "io",
+    "Dual", "DualQuaternion", "camera", "curves", "dual", "dual_angle", "dualquat", "fitting", "io",
     "losses", "nn", "quat", "sclerp",
 ]
 __version__ = "0.4.3"

@@ -44,9 +44,9 @@ Example:
     >>> px, ok = camera.project("pinhole-radtan", params, torch.tensor([0.1, -0.2, 1.0],
     ...                                                                  dtype=torch.float64))
     >>> [round(float(c), 3) for c in px], bool(ok)
-    ([412.448, 158.16], True)
+    ([412.436, 158.206], True)
     >>> ray, ok = camera.unproject("pinhole-radtan", params, px)
-    >>> [round(float(c), 6) for c in ray * 1.0 / ray[2]]
+    >>> [round(float(c), 6) for c in ray / ray[2]]
     [0.1, -0.2, 1.0]
 """
 
@@ -55,7 +55,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -138,7 +138,7 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
     p, (x, y, z) = _parts(params, points)
     u, v, valid = _PROJECT[model](p, x, y, z)
     pixels = torch.stack(torch.broadcast_tensors(u, v), -1).expand(*batch, 2)
-    return pixels.to(points.dtype), valid.expand(batch)
+    return pixels.to(points.dtype), (valid & torch.isfinite(u + v)).expand(batch)
 
 
 def _front(z: Tensor) -> tuple[Tensor, Tensor]:
@@ -255,9 +255,10 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           :math:`d\theta_d/d\theta \le 0` at the root (fold-over) or where it did not
           converge.
         - double sphere (eqs. 47-50): closed form; invalid outside eq. 50's domain,
-          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, and where
-          :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real root of the first sphere, possible
-          for :math:`\xi > 1`).
+          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
+          :math:`m_z^2 + (1 - \xi^2) r^2 < 0` (no real point of the first sphere, possible
+          for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
+          boundary of eq. 50 maps slightly outside the projection's domain).
 
     The iterations' accuracy: ``project(unproject(px)) == px`` to 1e-10 px in float64 over
     the whole image of EuRoC's cam0 (radtan) and of a 190-degree fisheye (tested).
@@ -274,16 +275,16 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
     a, b = (u - p[2]) / p[0], (v - p[3]) / p[1]  # normalised (distorted) coordinates
     x, y, z, valid = _UNPROJECT[model](p, a, b)
     rays = torch.stack(torch.broadcast_tensors(x, y, z), -1).expand(*batch, 3)
-    return rays.to(pixels.dtype), valid.expand(batch)
+    return rays.to(pixels.dtype), (valid & torch.isfinite(x + y + z)).expand(batch)
 
 
-def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     n = torch.sqrt(x * x + y * y + z * z)
-    return x / n, y / n, z / n, torch.isfinite(n)
+    return x / n, y / n, z / n
 
 
 def _unproject_pinhole(p, a, b):
-    return _unit(a, b, torch.ones_like(a))
+    return (*_unit(a, b, torch.ones_like(a)), torch.ones_like(a, dtype=torch.bool))
 
 
 def _finite(*xs: Tensor) -> Tensor:
@@ -345,7 +346,7 @@ def _unproject_radtan(p, a, b):
     ra, rb = torch.where(keep, ra, 0.0), torch.where(keep, rb, 0.0)
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact first derivatives
     ra, rb = _radtan_step(k, ra, rb, a, b)  # exact second derivatives
-    return (*_unit(ra, rb, torch.ones_like(ra))[:3], valid)
+    return (*_unit(ra, rb, torch.ones_like(ra)), valid)
 
 
 def _equidistant_root(k, s):
@@ -409,3 +410,140 @@ def _unproject_ds(p, a, b):
 _UNPROJECT: dict[str, Callable] = {
     "pinhole": _unproject_pinhole, "pinhole-radtan": _unproject_radtan,
     "pinhole-equidistant": _unproject_equidistant, "double-sphere": _unproject_ds}
+
+
+# Kalibr's (camera_model, distortion_model) of each model, and back.
+_KALIBR = {"pinhole": ("pinhole", "none"), "pinhole-radtan": ("pinhole", "radtan"),
+           "pinhole-equidistant": ("pinhole", "equidistant"), "double-sphere": ("ds", "none")}
+_FROM_KALIBR = {names: model for model, names in _KALIBR.items()}
+
+
+def _numbers(fn: str, name: str, value, count: int) -> list[float]:
+    """A list of ``count`` finite real numbers read from a Kalibr entry."""
+    ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == count
+    ok = ok and all(isinstance(v, numbers.Real) and not isinstance(v, bool)
+                    and math.isfinite(v) for v in value)
+    if not ok:
+        _checks.fail(fn, f"expected {name} to be a list of {count} finite numbers, got {value!r}")
+    return [float(v) for v in value]
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    r"""A camera: a model of :data:`MODELS`, its ``(P,)`` parameters and its resolution.
+
+    A small frozen value; :meth:`project` and :meth:`unproject` are :func:`project` and
+    :func:`unproject` with this camera's model and parameters. Two cameras are equal when
+    their models, resolutions and parameters (dtype included) are.
+
+    Args:
+        model: a name of :data:`MODELS`.
+        params: ``(P,)`` floating tensor in the model's order (a sequence of numbers is
+            turned into a float64 tensor).
+        resolution: ``(width, height)`` in pixels, positive ints.
+
+    Example:
+        >>> cam = Camera.from_kalibr({
+        ...     "camera_model": "pinhole", "distortion_model": "radtan",
+        ...     "intrinsics": [458.654, 457.296, 367.215, 248.375],
+        ...     "distortion_coeffs": [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05],
+        ...     "resolution": [752, 480]})
+        >>> cam.model, cam.resolution, cam.params.dtype
+        ('pinhole-radtan', (752, 480), torch.float64)
+        >>> Camera.from_kalibr(cam.to_kalibr()) == cam
+        True
+    """
+
+    model: str
+    params: Tensor
+    resolution: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        fn = "camera.Camera"
+        if not isinstance(self.model, str) or self.model not in MODELS:
+            _checks.fail(fn, f"expected model to be one of {', '.join(map(repr, MODELS))}, "
+                             f"got {self.model!r}")
+        params = self.params
+        if not isinstance(params, Tensor):
+            params = torch.tensor(_numbers(fn, "params", params, len(MODELS[self.model])),
+                                  dtype=torch.float64)
+        _checks.tensor(fn, "params", params)
+        if params.shape != (len(MODELS[self.model]),):
+            _checks.fail(fn, f"expected a ({len(MODELS[self.model])},) tensor for params of a "
+                             f"{self.model!r} camera, got shape {_checks.shape_str(params.shape)}")
+        res = self.resolution
+        if (not isinstance(res, Sequence) or len(res) != 2
+                or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) and n > 0
+                           for n in res)):
+            _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
+                             f"got {res!r}")
+        object.__setattr__(self, "params", params)
+        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return (self.model == other.model and self.resolution == other.resolution
+                and self.params.dtype == other.params.dtype
+                and torch.equal(self.params.cpu(), other.params.cpu()))
+
+    __hash__ = None  # type: ignore[assignment]  # equal by value, and tensors are mutable
+
+    def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """:func:`project` with this camera: ``(pixels (..., 2), valid (...))``."""
+        return project(self.model, self.params, points)
+
+    def unproject(self, pixels: Tensor) -> tuple[Tensor, Tensor]:
+        """:func:`unproject` with this camera: ``(rays (..., 3), valid (...))``."""
+        return unproject(self.model, self.params, pixels)
+
+    def to(self, *args, **kwargs) -> Camera:
+        """The camera with its params moved or cast by ``Tensor.to(*args, **kwargs)``."""
+        return Camera(self.model, self.params.to(*args, **kwargs), self.resolution)
+
+    @classmethod
+    def from_kalibr(cls, entry: Mapping, *, dtype: torch.dtype = torch.float64,
+                    device=None) -> Camera:
+        """Read one camera of a Kalibr ``camchain.yaml`` (the mapping under ``cam0``, ...).
+
+        Args:
+            entry: with ``camera_model`` (``pinhole`` or ``ds``), ``distortion_model``
+                (``none``, ``radtan``, ``equidistant``; absent means ``none``),
+                ``intrinsics`` (``[fu, fv, pu, pv]``; ``[xi, alpha, fu, fv, pu, pv]`` for
+                ``ds``), ``distortion_coeffs`` (4 numbers for radtan and equidistant, none
+                otherwise) and ``resolution`` (``[width, height]``); other keys
+                (``T_cam_imu``, ``rostopic``, ...) are ignored.
+            dtype, device: of the params tensor.
+
+        Raises:
+            ValueError: an unknown camera or distortion model (Kalibr's ``omni``, ``eucm``,
+                ``fov``, ... are not supported), or malformed numbers, naming the key.
+        """
+        fn = "camera.Camera.from_kalibr"
+        if not isinstance(entry, Mapping):
+            _checks.fail(fn, f"expected a mapping (one camera of a camchain), got "
+                             f"{type(entry).__name__}", TypeError)
+        names = (entry.get("camera_model"), entry.get("distortion_model", "none"))
+        if names not in _FROM_KALIBR:
+            _checks.fail(fn, f"unsupported camera_model {names[0]!r} with distortion_model "
+                             f"{names[1]!r}: expected pinhole with none, radtan or "
+                             f"equidistant, or ds with none")
+        model = _FROM_KALIBR[names]
+        intr = _numbers(fn, "intrinsics", entry.get("intrinsics"), 6 if names[0] == "ds" else 4)
+        coeffs = _numbers(fn, "distortion_coeffs", entry.get("distortion_coeffs", []),
+                          0 if names[1] == "none" else 4)
+        params = intr[2:] + intr[:2] if names[0] == "ds" else intr + coeffs
+        res = entry.get("resolution")
+        return cls(model, torch.tensor(params, dtype=dtype, device=device),
+                   tuple(res) if isinstance(res, Sequence) else res)
+
+    def to_kalibr(self) -> dict:
+        """This camera as one entry of a Kalibr ``camchain.yaml``: a dict of plain Python
+        strings, floats and lists (``yaml.safe_dump`` writes it), the inverse of
+        :meth:`from_kalibr` (float64 parameters round-trip exactly)."""
+        camera_model, distortion = _KALIBR[self.model]
+        p = [float(v) for v in self.params.detach().cpu().double().tolist()]
+        intrinsics, coeffs = (p[4:] + p[:4], []) if camera_model == "ds" else (p[:4], p[4:])
+        return {"camera_model": camera_model, "intrinsics": intrinsics,
+                "distortion_model": distortion, "distortion_coeffs": coeffs,
+                "resolution": list(self.resolution)}
