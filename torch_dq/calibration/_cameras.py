@@ -38,8 +38,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from .. import camera
-from ..camera import MODELS, project
+from ..camera import MODELS, Camera, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, rho, weight
 from . import _start
@@ -472,7 +471,7 @@ def _result(cams, state, system, layout, valid, kind, k, like, frame_times, run)
     dof = 2 * sum(n_used) - layout.G - 6 * frames.shape[0]
     std = _std(system, layout, layout.sizes, chi2, dof)
     out = {"device": like.device, "dtype": like.dtype}
-    cams_out = [_camera_value(cam.model, p.to(**out), cam.resolution)
+    cams_out = [Camera(cam.model, p.to(**out), cam.resolution)
                 for cam, p in zip(cams, intr, strict=True)]
     excluded = [cam.excluded + cam.frame.numel() - n for cam, n in zip(cams, n_used, strict=True)]
     it, converged, cost = run
@@ -483,6 +482,3 @@ def _result(cams, state, system, layout, valid, kind, k, like, frame_times, run)
         torch.tensor(excluded, device=like.device), math.sqrt(chi2 / max(dof, 1)), it,
         converged, cost)
 
-
-def _camera_value(model, params, resolution):
-    return camera.Camera(model, params, resolution) if hasattr(camera, "Camera") else (model, params, resolution)
