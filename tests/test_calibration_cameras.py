@@ -146,3 +146,94 @@ def test_euroc_against_published(euroc_result):
     assert res.target_poses.shape == (30, 8) and res.frame_times.shape == (30,)
     assert [c.model for c in res.cameras] == ["pinhole-radtan"] * 2
     assert [c.resolution for c in res.cameras] == [RES] * 2
+
+
+# ----------------------------------------------------------------------------- synthetic
+
+TRUE = {
+    "pinhole-radtan": [np.array([460.0, 458.0, 370.0, 245.0, -0.28, 0.07, 2e-4, -1e-4]),
+                       np.array([455.0, 456.0, 380.0, 250.0, -0.27, 0.075, -1e-4, 3e-5])],
+    "pinhole-equidistant": [np.array([260.0, 259.0, 372.0, 242.0, 0.02, -0.01, 0.004, -0.001]),
+                            np.array([262.0, 261.0, 378.0, 238.0, 0.015, -0.005, 0.002, 0.0])],
+    "double-sphere": [np.array([240.0, 239.0, 372.0, 242.0, -0.2, 0.6]),
+                      np.array([245.0, 244.0, 378.0, 238.0, -0.18, 0.58])],
+}
+T01 = (np.array([0.11, 0.001, -0.002]), np.array([0.005, -0.01, 0.003]))  # t, rotvec
+
+
+def _rotvec_matrix(r):
+    return cv2.Rodrigues(np.asarray(r, dtype=np.float64))[0]
+
+
+def _project(model, p, X):
+    """Pixels (N, 2) of camera-frame points X (N, 3) by OpenCV or the paper's formula."""
+    K = np.array([[p[0], 0, p[2]], [0, p[1], p[3]], [0, 0, 1.0]])
+    zero = np.zeros(3)
+    if model == "pinhole-radtan":
+        return cv2.projectPoints(X, zero, zero, K, np.r_[p[4:], 0.0])[0][:, 0]
+    if model == "pinhole-equidistant":
+        return cv2.fisheye.projectPoints(X[None], zero, zero, K, p[4:])[0][0]
+    xi, alpha = p[4], p[5]  # Usenko et al. 2018, eqs. 40-41
+    d1 = np.linalg.norm(X, axis=1)
+    d2 = np.sqrt(X[:, 0] ** 2 + X[:, 1] ** 2 + (xi * d1 + X[:, 2]) ** 2)
+    den = alpha * d2 + (1 - alpha) * (xi * d1 + X[:, 2])
+    return np.stack((p[0] * X[:, 0] / den + p[2], p[1] * X[:, 1] / den + p[3]), 1)
+
+
+def _scene(rng, frames, spread):
+    """Checkerboard corners (9 x 7, 4 cm) and target poses in camera 0 (R, t): the board's
+    centre up to ``spread`` rad off the optical axis, facing the camera within ~30 deg."""
+    X, Y = np.meshgrid(np.arange(9) * 0.04, np.arange(7) * 0.04)
+    pts = np.stack((X.ravel(), Y.ravel(), np.zeros(X.size)), 1)
+    centre = pts.mean(0)
+    poses = []
+    for _ in range(frames):
+        theta, phi = spread * math.sqrt(rng.uniform()), rng.uniform(0, 2 * math.pi)
+        direction = np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi),
+                              math.cos(theta)])
+        look = _rotvec_matrix(np.cross([0, 0, 1.0], direction) / max(math.sin(theta), 1e-12)
+                              * theta)
+        R = look @ _rotvec_matrix(rng.uniform(-0.5, 0.5, 3)) @ _rotvec_matrix([math.pi, 0, 0])
+        t = rng.uniform(0.35, 0.8) * direction
+        poses.append((R, t - R @ centre))
+    return pts, poses
+
+
+def _simulate(model, rng, frames=16, noise=0.3):
+    """Observations of two cameras (p_cam0 = T01 p_cam1) with Gaussian pixel noise."""
+    pts, poses = _scene(rng, frames, 0.35 if model == "pinhole-radtan" else 1.1)
+    R01, t01 = _rotvec_matrix(T01[1]), T01[0]
+    obs = [[], []]
+    for f, (R, t) in enumerate(poses):
+        for cam in (0, 1):
+            Xc = pts @ R.T + t
+            if cam:
+                Xc = (Xc - t01) @ R01
+            uv = _project(model, TRUE[model][cam], Xc)
+            uv = uv + noise * rng.standard_normal(uv.shape)
+            inside = ((uv[:, 0] > 0) & (uv[:, 0] < RES[0] - 1) & (uv[:, 1] > 0)
+                      & (uv[:, 1] < RES[1] - 1) & (Xc[:, 2] > 0.05))
+            obs[cam].append((np.full(inside.sum(), 0.05 * f), pts[inside], uv[inside]))
+    return [tuple(torch.tensor(np.concatenate(x)) for x in zip(*o, strict=True)) for o in obs]
+
+
+def _errors(model, res):
+    """(estimate - truth) / std of every intrinsic and of the relative pose's chart."""
+    z = [(res.cameras[c].params.numpy() - TRUE[model][c]) / res.std["intrinsics"][c].numpy()
+         for c in (0, 1)]
+    T = dualquat.from_rt(quat.from_rotvec(torch.tensor(T01[1])), torch.tensor(T01[0]))
+    delta = dualquat.log(dualquat.mul(dualquat.inv(res.relative_poses[0]), T))
+    return np.concatenate(z + [delta.numpy() / res.std["relative_poses"][0].numpy()])
+
+
+@pytest.mark.parametrize("model", ["pinhole-radtan", "pinhole-equidistant", "double-sphere"])
+def test_synthetic_within_4_std(model):
+    """OpenCV-projected (the paper's formula for the double sphere) corners, 0.3 px noise:
+    every intrinsic and the relative pose's chart land within 4 standard deviations."""
+    rng = np.random.default_rng(7)
+    res = calibration.cameras(_simulate(model, rng), [model] * 2, [RES] * 2)
+    assert res.converged
+    z = _errors(model, res)
+    assert np.all(np.abs(z) < 4.0), z
+    assert abs(res.sigma - 0.3) < 0.03
+    assert (res.reprojection_rms < 0.3 * math.sqrt(2) * 1.1).all()

@@ -346,17 +346,25 @@ def _lm(cams, intr, rel, frames, layout, kind, k, max_iterations, tol):
     return (intr, rel, frames), it, converged, cost, valid
 
 
+def _variances(S: Tensor) -> Tensor:
+    r"""Diagonal of :math:`S^{-1}` for a symmetric positive semi-definite ``S``; ``inf``
+    only for the parameters that a direction without information (an eigenvalue of the
+    Jacobi-scaled ``S`` below ``1e-12`` of the largest) involves, as in
+    :meth:`torch_dq.fitting.Estimate.std`."""
+    d = S.diagonal().clamp_min(torch.finfo(S.dtype).tiny).rsqrt()
+    e, V = torch.linalg.eigh(d[:, None] * S * d[None, :])
+    null = e <= 1e-12 * e.amax()
+    part = torch.where(null, 0.0, V ** 2 / torch.where(null, 1.0, e)).sum(-1)
+    blind = ((V.abs() > 1e-8) & null).any(-1)
+    return torch.where(blind, torch.inf, part * d ** 2)
+
+
 def _std(system, layout: _Layout, sizes, chi2: float, dof: int):
-    """Standard deviations of the intrinsics ``(C, P)`` and relative poses ``(C - 1, 6)``
-    from the inverse Schur complement, scaled by :math:`\\chi^2 / \\text{dof}`."""
+    r"""Standard deviations of the intrinsics ``(C, P)`` and relative poses ``(C - 1, 6)``
+    from the inverse Schur complement, scaled by :math:`\chi^2 / \text{dof}`."""
     Hff, Hfg, Hgg, _, _ = system
     _, S = _schur(Hff, Hfg, Hgg)
-    L, info = torch.linalg.cholesky_ex(S)
-    if int(info) == 0:
-        var = torch.cholesky_inverse(L).diagonal() * (chi2 / max(dof, 1))
-    else:
-        var = torch.full((S.shape[0],), math.inf, dtype=S.dtype)
-    s = var.clamp_min(0.0).sqrt()
+    s = (_variances(S) * (chi2 / max(dof, 1))).sqrt()
     P, o = max(sizes), layout.intr
     intr = torch.full((len(sizes), P), math.nan, dtype=S.dtype)
     for c, n in enumerate(sizes):

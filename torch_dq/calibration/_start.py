@@ -45,7 +45,7 @@ def _normaliser(p: Tensor, mask: Tensor) -> Tensor:
     n = w.sum(-2).clamp_min(1.0)
     c = (p * w).sum(-2) / n
     d = ((p - c[..., None, :]).norm(dim=-1) * w[..., 0]).sum(-1) / n[..., 0]
-    s = math.sqrt(2.0) / d.clamp_min(torch.finfo(p.dtype).tiny)
+    s = math.sqrt(2.0) / torch.where(d > 0, d, 1.0)  # a view without spread: not ok later
     T = torch.zeros(*p.shape[:-2], 3, 3, dtype=p.dtype, device=p.device)
     T[..., 0, 0] = T[..., 1, 1] = s
     T[..., :2, 2] = -s[..., None] * c
@@ -73,12 +73,16 @@ def homographies(xy: Tensor, uv: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     r1 = torch.cat((a, zero, -b[..., :1] * a), -1)
     r2 = torch.cat((zero, a, -b[..., 1:2] * a), -1)
     A = torch.cat((r1, r2), -2) * torch.cat((mask, mask), -1).to(xy.dtype)[..., None]
+    finite = torch.isfinite(A).flatten(-2).all(-1)
+    A = torch.where(finite[..., None, None], A, 0.0)
     _, s, Vh = torch.linalg.svd(A, full_matrices=False)
     h = Vh[..., -1, :].reshape(*xy.shape[:-2], 3, 3)
     H = torch.linalg.solve(Tb, h @ Ta)
     H = H / H.flatten(-2).norm(dim=-1)[..., None, None]
-    ok = (mask.sum(-1) >= 4) & (s[..., -2] > 1e-8 * s[..., 0])
-    return H, ok
+    ok = finite & (mask.sum(-1) >= 4) & (s[..., -2] > 1e-8 * s[..., 0])
+    ok = ok & torch.isfinite(H).flatten(-2).all(-1)
+    eye = torch.eye(3, dtype=H.dtype, device=H.device) / math.sqrt(3.0)
+    return torch.where(ok[..., None, None], H, eye), ok
 
 
 def zhang(H: Tensor, resolution: tuple[int, int]) -> Tensor | None:
