@@ -169,8 +169,8 @@ def _project(model, p, X):
     """Pixels (N, 2) of camera-frame points X (N, 3) by OpenCV or the paper's formula."""
     K = np.array([[p[0], 0, p[2]], [0, p[1], p[3]], [0, 0, 1.0]])
     zero = np.zeros(3)
-    if model == "pinhole-radtan":
-        return cv2.projectPoints(X, zero, zero, K, np.r_[p[4:], 0.0])[0][:, 0]
+    if model in ("pinhole", "pinhole-radtan"):
+        return cv2.projectPoints(X, zero, zero, K, np.r_[p[4:], np.zeros(9 - len(p))])[0][:, 0]
     if model == "pinhole-equidistant":
         return cv2.fisheye.projectPoints(X[None], zero, zero, K, p[4:])[0][0]
     xi, alpha = p[4], p[5]  # Usenko et al. 2018, eqs. 40-41
@@ -199,31 +199,39 @@ def _scene(rng, frames, spread):
     return pts, poses
 
 
-def _simulate(model, rng, frames=16, noise=0.3):
-    """Observations of two cameras (p_cam0 = T01 p_cam1) with Gaussian pixel noise."""
-    pts, poses = _scene(rng, frames, 0.35 if model == "pinhole-radtan" else 1.1)
-    R01, t01 = _rotvec_matrix(T01[1]), T01[0]
-    obs = [[], []]
+def _pose(t, rotvec):
+    return dualquat.from_rt(quat.from_rotvec(torch.tensor(rotvec, dtype=torch.float64)),
+                            torch.tensor(t, dtype=torch.float64))
+
+
+def _simulate(rng, models, params, rels, frames=16, noise=0.3, spread=0.35, seen=None):
+    """Observations of cameras (``rels[i - 1] = (t, rotvec)`` of camera i in camera 0's
+    frame) with Gaussian pixel noise; camera ``c`` sees frame ``f`` where ``seen(c, f)``."""
+    pts, poses = _scene(rng, frames, spread)
+    obs = [[] for _ in models]
     for f, (R, t) in enumerate(poses):
-        for cam in (0, 1):
+        for c, (model, p) in enumerate(zip(models, params, strict=True)):
+            if seen is not None and not seen(c, f):
+                continue
             Xc = pts @ R.T + t
-            if cam:
-                Xc = (Xc - t01) @ R01
-            uv = _project(model, TRUE[model][cam], Xc)
+            if c:
+                Xc = (Xc - rels[c - 1][0]) @ _rotvec_matrix(rels[c - 1][1])
+            uv = _project(model, p, Xc)
             uv = uv + noise * rng.standard_normal(uv.shape)
             inside = ((uv[:, 0] > 0) & (uv[:, 0] < RES[0] - 1) & (uv[:, 1] > 0)
                       & (uv[:, 1] < RES[1] - 1) & (Xc[:, 2] > 0.05))
-            obs[cam].append((np.full(inside.sum(), 0.05 * f), pts[inside], uv[inside]))
+            obs[c].append((np.full(inside.sum(), 0.05 * f), pts[inside], uv[inside]))
     return [tuple(torch.tensor(np.concatenate(x)) for x in zip(*o, strict=True)) for o in obs]
 
 
-def _errors(model, res):
-    """(estimate - truth) / std of every intrinsic and of the relative pose's chart."""
-    z = [(res.cameras[c].params.numpy() - TRUE[model][c]) / res.std["intrinsics"][c].numpy()
-         for c in (0, 1)]
-    T = dualquat.from_rt(quat.from_rotvec(torch.tensor(T01[1])), torch.tensor(T01[0]))
-    delta = dualquat.log(dualquat.mul(dualquat.inv(res.relative_poses[0]), T))
-    return np.concatenate(z + [delta.numpy() / res.std["relative_poses"][0].numpy()])
+def _errors(res, params, rels):
+    """(estimate - truth) / std of every intrinsic and of the relative poses' charts."""
+    z = [(res.cameras[c].params.numpy() - p) / res.std["intrinsics"][c, :len(p)].numpy()
+         for c, p in enumerate(params)]
+    for c, (t, r) in enumerate(rels):
+        delta = dualquat.log(dualquat.mul(dualquat.inv(res.relative_poses[c]), _pose(t, r)))
+        z.append(delta.numpy() / res.std["relative_poses"][c].numpy())
+    return np.concatenate(z)
 
 
 @pytest.mark.parametrize("model", ["pinhole-radtan", "pinhole-equidistant", "double-sphere"])
@@ -231,9 +239,131 @@ def test_synthetic_within_4_std(model):
     """OpenCV-projected (the paper's formula for the double sphere) corners, 0.3 px noise:
     every intrinsic and the relative pose's chart land within 4 standard deviations."""
     rng = np.random.default_rng(7)
-    res = calibration.cameras(_simulate(model, rng), [model] * 2, [RES] * 2)
+    spread = 0.35 if model == "pinhole-radtan" else 1.1  # the fisheyes: up to 63 deg off axis
+    obs = _simulate(rng, [model] * 2, TRUE[model], [T01], spread=spread)
+    res = calibration.cameras(obs, [model] * 2, [RES] * 2)
     assert res.converged
-    z = _errors(model, res)
+    z = _errors(res, TRUE[model], [T01])
     assert np.all(np.abs(z) < 4.0), z
     assert abs(res.sigma - 0.3) < 0.03
     assert (res.reprojection_rms < 0.3 * math.sqrt(2) * 1.1).all()
+
+
+def test_three_cameras_mixed_models_chained():
+    """Three cameras of three models; camera 2 shares no frame with camera 0, only with
+    camera 1 (its start is chained through camera 1): all within 4 std, the std of the
+    shorter models padded with NaN."""
+    rng = np.random.default_rng(3)
+    models = ["pinhole-radtan", "pinhole", "double-sphere"]
+    params = [TRUE["pinhole-radtan"][0], np.array([450.0, 451.0, 376.0, 240.0]),
+              TRUE["double-sphere"][0]]
+    rels = [T01, (np.array([-0.1, 0.02, 0.01]), np.array([0.02, 0.1, -0.01]))]
+    obs = _simulate(rng, models, params, rels, frames=24, spread=0.8,
+                    seen=lambda c, f: (c == 0 and f < 12) or c == 1 or (c == 2 and f >= 12))
+    res = calibration.cameras(obs, models, [RES] * 3)
+    assert res.converged
+    z = _errors(res, params, rels)
+    assert np.all(np.abs(z) < 4.0), z
+    std = res.std["intrinsics"]
+    assert std.shape == (3, 8) and res.relative_poses.shape == (2, 8)
+    assert torch.isnan(std[1, 4:]).all() and torch.isnan(std[2, 6:]).all()
+    assert torch.isfinite(std[0]).all() and torch.isfinite(std[1, :4]).all()
+    assert res.target_poses.shape == (res.frame_times.shape[0], 8)
+    assert 20 <= res.frame_times.shape[0] <= 24  # frames without a view of >= 6 points go
+
+
+def test_float32_observations():
+    """float32 observations: float32 results (solved in float64), equal to the float64 run
+    to float32 rounding of the inputs."""
+    rng = np.random.default_rng(11)
+    obs = _simulate(rng, ["pinhole-radtan"] * 2, TRUE["pinhole-radtan"], [T01], frames=10)
+    r64 = calibration.cameras(obs, ["pinhole-radtan"] * 2, [RES] * 2)
+    obs32 = [tuple(x.float() for x in o) for o in obs]
+    r32 = calibration.cameras(obs32, ["pinhole-radtan"] * 2, [RES] * 2)
+    assert r32.relative_poses.dtype == torch.float32
+    assert r32.cameras[0].params.dtype == torch.float32
+    assert r32.std["intrinsics"].dtype == torch.float32
+    for a, b, s in zip(r32.cameras, r64.cameras, r64.std["intrinsics"], strict=True):
+        assert torch.all((a.params.double() - b.params).abs() < 0.05 * s)
+
+
+def test_robust_kernel_against_outliers():
+    """5 % of the corners moved by 10-30 px: least squares puts the principal point 10 px
+    off; Cauchy and Huber (k = 1 px) stay within 1 px and 4 standard deviations."""
+    rng = np.random.default_rng(5)
+    obs = _simulate(rng, ["pinhole-radtan"] * 2, TRUE["pinhole-radtan"], [T01])
+    bad = []
+    for t, p, u in obs:
+        u = u.clone()
+        idx = torch.from_numpy(rng.choice(u.shape[0], u.shape[0] // 20, replace=False))
+        shift = torch.from_numpy(rng.uniform(10, 30, (idx.numel(), 1))
+                                 * rng.choice([-1.0, 1.0], (idx.numel(), 2)))
+        u[idx] += shift
+        bad.append((t, p, u))
+    plain = calibration.cameras(bad, ["pinhole-radtan"] * 2, [RES] * 2)
+    err_plain = np.abs(plain.cameras[0].params.numpy() - TRUE["pinhole-radtan"][0])
+    assert err_plain[2:4].max() > 5.0 and plain.sigma > 2.0  # pulled by 10-12 px
+    for kind in ("cauchy", "huber"):
+        res = calibration.cameras(bad, ["pinhole-radtan"] * 2, [RES] * 2, robust=kind,
+                                  robust_k=1.0)
+        z = _errors(res, TRUE["pinhole-radtan"], [T01])
+        assert np.all(np.abs(z) < 4.0), (kind, z)
+        err = np.abs(res.cameras[0].params.numpy() - TRUE["pinhole-radtan"][0])
+        assert err[:4].max() < 1.0, (kind, err)
+        if kind == "cauchy":  # the outliers' weights ~1/400: the inliers' noise
+            assert abs(res.sigma - 0.3) < 0.03
+
+
+def _valid_args():
+    rng = np.random.default_rng(1)
+    obs = _simulate(rng, ["pinhole"] * 2, [np.array([450.0, 450, 376, 240])] * 2, [T01],
+                    frames=4)
+    return obs, ["pinhole"] * 2, [RES] * 2
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda o, m, r: (o, m[:1], r), "models"),
+    (lambda o, m, r: (o, m, r[:1]), "resolution"),
+    (lambda o, m, r: (o, ["pinhole", "fisheye"], r), "unknown model 'fisheye' in models"),
+    (lambda o, m, r: (o, m, [(752, 480), (752, 0)]), r"resolution\[1\]"),
+    (lambda o, m, r: (o, m, [(752, 480), (752.0, 480)]), r"resolution\[1\]"),
+    (lambda o, m, r: ([], m, r), "observations"),
+    (lambda o, m, r: ([o[0], o[1][:2]], m, r), r"observations\[1\]"),
+    (lambda o, m, r: ([o[0], (o[1][0], o[1][1][:-1], o[1][2])], m, r), r"observations\[1\]"),
+    (lambda o, m, r: ([o[0], (o[1][0], o[1][1][:, :2], o[1][2])], m, r), r"observations\[1\]"),
+    (lambda o, m, r: ([(o[0][0], o[0][1] + torch.tensor([0, 0, 0.1]), o[0][2]), o[1]], m, r),
+     "planar"),
+    (lambda o, m, r: ([(o[0][0], o[0][1], o[0][2] * float("nan")), o[1]], m, r),
+     "non-finite"),
+    (lambda o, m, r: ([(o[0][0][o[0][0] < 0.1], o[0][1][o[0][0] < 0.1],
+                        o[0][2][o[0][0] < 0.1]), o[1]], m, r), "camera 0 has 2 views"),
+])
+def test_bad_arguments(change, match):
+    obs, models, res = change(*_valid_args())
+    with pytest.raises(ValueError, match=match) as info:
+        calibration.cameras(obs, models, res)
+    assert "calibration.cameras" in str(info.value)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"robust": "tukey"}, "robust"), ({"robust_k": -1.0}, "robust_k"),
+    ({"max_iterations": -1}, "max_iterations"), ({"tol": 0.0}, "tol"),
+    ({"min_points": 3}, "min_points"),
+])
+def test_bad_options(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        calibration.cameras(*_valid_args(), **kwargs)
+
+
+def test_integer_observations_are_a_type_error():
+    obs, models, res = _valid_args()
+    with pytest.raises(TypeError, match="observations\\[0\\] pixels"):
+        calibration.cameras([(obs[0][0], obs[0][1], obs[0][2].long()), obs[1]], models, res)
+
+
+def test_cameras_without_a_shared_frame():
+    rng = np.random.default_rng(2)
+    obs = _simulate(rng, ["pinhole"] * 2, [np.array([450.0, 450, 376, 240])] * 2, [T01],
+                    frames=8, seen=lambda c, f: (f < 4) == (c == 0))
+    with pytest.raises(ValueError, match=r"cameras \[1\] share no frame"):
+        calibration.cameras(obs, ["pinhole"] * 2, [RES] * 2)
