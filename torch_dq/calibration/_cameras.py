@@ -51,7 +51,7 @@ _SIZES = {model: len(names) for model, names in MODELS.items()}
 
 @dataclass(frozen=True)
 class CameraCalibration:
-    """What :func:`cameras` returns.
+    r"""What :func:`cameras` returns.
 
     Attributes:
         cameras: one :class:`torch_dq.camera.Camera` per camera, the calibrated intrinsics.
@@ -67,7 +67,7 @@ class CameraCalibration:
         frame_times: ``(F,)`` the frames' timestamps.
         used: ``(C,)`` observations used per camera; ``excluded``: ``(C,)`` observations
             left out (in a view with too few points, or projecting invalid at the end).
-        sigma: the residuals' standard deviation per pixel axis, :math:`\\sqrt{\\chi^2 /
+        sigma: the residuals' standard deviation per pixel axis, :math:`\sqrt{\chi^2 /
             (2 n - m)}` (pixels), the scale of ``std``.
         iterations: Levenberg-Marquardt steps taken; ``converged``: whether the cost's
             relative decrease fell below ``tol``; ``cost``: the final (robust) cost.
@@ -110,7 +110,8 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
     t, p, u = (_checks.tensor(_FN, n, x) for n, x in zip(names, obs, strict=True))
     _checks.tensor(_FN, names[1], p, 3)
     _checks.tensor(_FN, names[2], u, 2)
-    if t.dim() != 1 or p.dim() != 2 or u.dim() != 2 or not p.shape[0] == u.shape[0] == t.shape[0]:
+    if t.dim() != 1 or p.dim() != 2 or u.dim() != 2 or not (
+            p.shape[0] == u.shape[0] == t.shape[0]):
         _checks.fail(_FN, f"expected observations[{i}] as times (N,), points (N, 3), pixels "
                           f"(N, 2), got {_checks.shape_str(t.shape)}, "
                           f"{_checks.shape_str(p.shape)}, {_checks.shape_str(u.shape)}")
@@ -147,11 +148,12 @@ def _arguments(observations, models, resolution, robust, robust_k, max_iteration
         res.append((int(r[0]), int(r[1])))
     if robust not in KERNELS:
         _checks.fail(_FN, f"expected robust to be one of {KERNELS}, got {robust!r}")
-    if robust_k is not None and not (isinstance(robust_k, numbers.Real) and robust_k > 0):
+    if robust_k is not None and not (isinstance(robust_k, numbers.Real) and float(robust_k) > 0):
         _checks.fail(_FN, f"expected robust_k > 0 (pixels) or None, got {robust_k!r}")
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 0:
+    if (isinstance(max_iterations, bool) or not isinstance(max_iterations, int)
+            or max_iterations < 0):
         _checks.fail(_FN, f"expected max_iterations to be an int >= 0, got {max_iterations!r}")
-    if not (isinstance(tol, numbers.Real) and tol > 0):
+    if not (isinstance(tol, numbers.Real) and float(tol) > 0):
         _checks.fail(_FN, f"expected tol > 0, got {tol!r}")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 4:
         _checks.fail(_FN, f"expected min_points to be an int >= 4, got {min_points!r}")
@@ -206,7 +208,7 @@ def _jacobians(c: int, cam: _Camera, intr: Tensor, rel: Tensor, frames: Tensor):
     intrinsics ``(N, 2, P)`` and the relative pose ``(N, 2, 6)`` (``None`` for camera 0)."""
     N = cam.frame.shape[0]
     T = frames[cam.frame]
-    Ti = None if c == 0 else dualquat.inv(rel[c - 1]).expand(N, 8)
+    R = rel[c - 1].expand(N, 8) if c else T  # camera 0 has no relative pose
     leaves = [T.new_zeros(N, 6), intr.expand(N, -1).clone()]
     if c:
         leaves.append(T.new_zeros(N, 6))
@@ -214,19 +216,11 @@ def _jacobians(c: int, cam: _Camera, intr: Tensor, rel: Tensor, frames: Tensor):
     def residual(lv):
         pose = tangent_step(T, lv[0])
         if c:
-            pose = dualquat.mul(_left_step(Ti, lv[2]), pose)
+            pose = dualquat.mul(dualquat.inv(tangent_step(R, lv[2])), pose)
         return project(cam.model, lv[1], dualquat.apply(pose, cam.points))[0] - cam.pixels
 
     r, J = sample_jacobians(residual, leaves, 2)
     return r, J[0], J[1], (J[2] if c else None)
-
-
-def _left_step(Tinv: Tensor, delta: Tensor) -> Tensor:
-    r""":math:`(T \exp(\delta))^{-1} = \exp(-\delta)\, T^{-1}` to first order in ``delta``
-    (``Tinv`` is :math:`T^{-1}`): :math:`T^{-1} - (0, \omega/2, 0, v/2)\, T^{-1}`."""
-    zero = delta.new_zeros(*delta.shape[:-1], 1)
-    lin = torch.cat((zero, 0.5 * delta[..., :3], zero, 0.5 * delta[..., 3:]), dim=-1)
-    return Tinv - dualquat.mul(lin, Tinv)
 
 
 @dataclass
@@ -286,8 +280,8 @@ def _damped(H: Tensor, lam: float) -> Tensor:
 
 
 def _schur(Hff: Tensor, Hfg: Tensor, Hgg: Tensor) -> tuple[Tensor, Tensor]:
-    """Cholesky factors of the frame blocks and the Schur complement
-    :math:`S = H_{gg} - \\sum_f H_{fg}^T H_{ff}^{-1} H_{fg}`."""
+    r"""Cholesky factors of the frame blocks and the Schur complement
+    :math:`S = H_{gg} - \sum_f H_{fg}^T H_{ff}^{-1} H_{fg}`."""
     L = torch.linalg.cholesky(Hff)
     X = torch.cholesky_solve(Hfg, L)
     return L, Hgg - torch.einsum("fai,faj->ij", Hfg, X)
@@ -332,7 +326,7 @@ def _lm(cams, intr, rel, frames, layout, kind, k, max_iterations, tol):
         while lam < 1e12:
             dg, df = _solve(system, lam)
             trial = _update(intr, rel, frames, dg, df, layout)
-            new, nvalid = _cost(cams, *trial, kind, k)
+            new, nvalid = _cost(cams, trial[0], trial[1], trial[2], kind, k)
             kept = all(bool((n | ~v).all()) for n, v in zip(nvalid, valid, strict=True))
             if kept and new <= cost:
                 converged = cost - new <= tol * cost
@@ -462,7 +456,7 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
     layout = _Layout([_SIZES[m] for m in models])
     state, it, converged, cost, valid = _lm(cams, intr, rel, frames, layout, robust, k,
                                             max_iterations, tol)
-    system, _ = _linearize(cams, *state, layout, robust, k, valid)
+    system, _ = _linearize(cams, state[0], state[1], state[2], layout, robust, k, valid)
     return _result(cams, state, system, layout, valid, robust, k, like, times[used],
                    (it, converged, cost))
 

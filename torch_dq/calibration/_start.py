@@ -23,6 +23,7 @@ padded: target ``xy (V, n, 2)``, pixels ``uv (V, n, 2)``, ``mask (V, n)``.
 from __future__ import annotations
 
 import math
+from typing import NoReturn
 
 import torch
 from torch import Tensor
@@ -30,8 +31,8 @@ from torch import Tensor
 from .. import dualquat, quat
 from ..camera import project, unproject
 
-__all__ = ["focal_centred", "homographies", "pose_from_homography", "relative_starts", "start_intrinsics",
-           "view_poses", "zhang"]
+__all__ = ["focal_centred", "homographies", "pose_from_homography", "relative_starts",
+           "start_intrinsics", "vanishing_distance", "view_poses", "zhang"]
 
 _DEFAULTS = {  # parameters after (fu, fv, cu, cv) at the start: distortion zero, basalt's ds
     "pinhole": (), "pinhole-radtan": (0.0, 0.0, 0.0, 0.0),
@@ -225,8 +226,8 @@ def vanishing_distance(xy: Tensor, uv: Tensor, mask: Tensor) -> float | None:
         for axis in (0, 1):
             key = xy[v, :, axis][mask[v]]
             pix = uv[v][mask[v]]
-            vals, inv, counts = torch.unique(torch.round(key * 1e6), return_inverse=True,
-                                             return_counts=True)
+            _, inv, counts = torch.unique(torch.round(key * 1e6), return_inverse=True,
+                                          return_counts=True)
             lines = torch.nonzero(counts >= 4)[:, 0]
             if lines.numel() < 2:
                 continue
@@ -251,9 +252,9 @@ def vanishing_distance(xy: Tensor, uv: Tensor, mask: Tensor) -> float | None:
     return float(d.median()) if d.numel() else None
 
 
-def _plausible(k: Tensor | None, resolution: tuple[int, int]) -> bool:
-    return k is not None and bool((k[:2] > 0.05 * resolution[0]).all()
-                                  & (k[:2] < 20.0 * resolution[0]).all())
+def _plausible(k: Tensor, resolution: tuple[int, int]) -> bool:
+    """Focal lengths within [0.05, 20] image widths."""
+    return bool((k[:2] > 0.05 * resolution[0]).all() & (k[:2] < 20.0 * resolution[0]).all())
 
 
 def start_intrinsics(model: str, resolution: tuple[int, int], views) -> Tensor:
@@ -279,7 +280,7 @@ def start_intrinsics(model: str, resolution: tuple[int, int], views) -> Tensor:
         if D is not None:
             ks.append(_candidate("pinhole", D / math.pi, resolution, xy))
         for k in ks:
-            if _plausible(k, resolution):
+            if k is not None and _plausible(k, resolution):
                 return torch.cat((k, k.new_tensor(_DEFAULTS[model])))
         _fail_start()
     if D is None:
@@ -295,7 +296,7 @@ def start_intrinsics(model: str, resolution: tuple[int, int], views) -> Tensor:
     return _candidate(model, min(fine, key=score), resolution, xy)
 
 
-def _fail_start():
+def _fail_start() -> NoReturn:
     raise ValueError("calibration.cameras: no start for a camera's focal length from its "
                      "views (are the points and pixels of one planar target, with rows "
                      "and columns of >= 4 points?)")
