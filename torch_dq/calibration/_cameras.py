@@ -415,7 +415,7 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
 
     Args:
         observations: one ``(times (N,), points (N, 3), pixels (N, 2))`` per camera, as
-            :func:`torch_dq.calibration.read_corners` returns them: float seconds, target
+            ``torch_dq.calibration.read_corners`` returns them: float seconds, target
             points (a planar target: ``Z = 0``), measured pixels. Observations with one
             timestamp are one view; equal timestamps in several cameras are one frame (the
             target did not move between them), which links those cameras.
@@ -441,11 +441,6 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
             non-planar target, a camera with fewer than 3 views of ``min_points`` points,
             a camera sharing no frame with camera 0 (directly or through others).
         TypeError: observations that are not floating-point tensors.
-
-    Example:
-        >>> from torch_dq import calibration
-        >>> # result = calibration.cameras([obs0, obs1], ["pinhole-radtan"] * 2,
-        >>> #                              [(752, 480)] * 2)
     """
     obs, models, res = _arguments(observations, models, resolution, robust, robust_k,
                                   max_iterations, tol, min_points)
