@@ -209,14 +209,13 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float) -> float:
     offsets = torch.arange(-max_offset, max_offset + 1e-12, 5e-4, dtype=torch.float64)
     speed = w_cam.norm(dim=-1)
     speed = speed - speed.mean()
-    corr = []
-    for o in offsets.tolist():
-        s = _mean_gyro(imu_t, gyro, a + o, b + o).norm(dim=-1)
-        s = s - s.mean()
-        corr.append(float((s * speed).sum() / (s.norm() * speed.norm()).clamp_min(1e-300)))
-    c = torch.tensor(corr)
-    k = int(c.argmax().clamp(1, len(corr) - 2))
-    c0, c1, c2 = corr[k - 1], corr[k], corr[k + 1]
+    o = offsets[:, None]
+    s = _mean_gyro(imu_t, gyro, (a + o).flatten(), (b + o).flatten()).norm(dim=-1)
+    s = s.reshape(offsets.numel(), -1)
+    s = s - s.mean(-1, keepdim=True)
+    c = (s * speed).sum(-1) / (s.norm(dim=-1) * speed.norm()).clamp_min(1e-300)
+    k = int(c.argmax().clamp(1, c.numel() - 2))
+    c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
     return float(offsets[k]) + max(-1.0, min(1.0, frac)) * 5e-4
@@ -347,7 +346,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                pixel_sigma: float = 1.0, rolling_shutter: bool = False,
                shared_time_offset: bool = False, knot_spacing: float = 0.05,
                max_time_offset: float = 0.1, max_line_delay: float = 1e-4,
-               robust: str | None = None, steps: int = 30, prior: float = 1e-3,
+               robust: str | None = None, steps: int = 30, prior: float = 0.0,
                min_points: int = 6, verbose: bool = False) -> CameraImuCalibration:
     r"""Cameras' poses on an IMU, clock offsets, line delays, IMU biases and gravity from
     target observations and IMU readings (Kalibr's ``calibrate_imu_camera``).
@@ -377,7 +376,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             log's ends are left out.
         max_line_delay: bound on the line delays (seconds per row).
         robust: None, ``"huber"`` or ``"cauchy"`` on the reprojection errors.
-        steps, prior, verbose: :func:`torch_dq.fitting.estimate`'s.
+        steps, prior, verbose: :func:`torch_dq.fitting.estimate`'s (``prior`` 0 by default:
+            the IMU readings cover every control point, and a pull towards the start
+            trajectory biases the extrinsics' translations).
         min_points: frames with fewer corners are left out.
 
     Returns:

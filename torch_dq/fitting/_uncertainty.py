@@ -179,10 +179,16 @@ class Estimate:
         S = system.nn + torch.diag(p.prior_information()).to(system.nn)
         S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
         S = 0.5 * (S + S.mT)
-        lam, V = torch.linalg.eigh(S)
+        # scaled by the diagonal (Jacobi): parameters in units of very different information
+        # (a line delay in s/row next to a bias) keep their small eigenvalues
+        d = S.diagonal(dim1=-2, dim2=-1).clamp_min(0.0)
+        known = d > _FLOOR * scale
+        r = torch.where(known, d, 1.0).rsqrt()
+        lam, V = torch.linalg.eigh(S * r[:, :, None] * r[:, None, :])
         top = lam.amax(-1, keepdim=True).clamp_min(0.0)
-        bad = (lam <= _NULL * top) | (lam <= _FLOOR * scale) | ~ok[:, None]
-        self._V = V
+        bad = (lam <= _NULL * top) | (
+            (V.abs() > 1e-6) & ~known[:, :, None]).any(-2) | ~ok[:, None]
+        self._V = r[:, :, None] * V
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
             weak = [f"{type(p.terms[i]).__name__}.{name}" for (i, name), q in p.index.items()
