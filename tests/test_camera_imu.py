@@ -113,8 +113,7 @@ def test_rolling_shutter_within_4_std_and_global_fit_worse(rolling_data):
     rs = _fit(obs, imu, True)
     _assert_within(rs, LINE_DELAY)
     assert torch.all((rs.reprojection_rms > 0.38) & (rs.reprojection_rms < 0.47))
-    with pytest.warns(RuntimeWarning):  # the estimate's chi2/dof far from 1
-        gs = _fit(obs, imu, False)
+    gs = _fit(obs, imu, False)
     assert torch.all(gs.reprojection_rms > 1.5 * rs.reprojection_rms), (
         gs.reprojection_rms, rs.reprojection_rms)
 
