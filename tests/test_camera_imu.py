@@ -30,7 +30,7 @@ import _camera_imu_sim as sim  # noqa: E402
 
 OFFSET = 0.004
 LINE_DELAY = 3e-5
-DURATION = 4.0
+DURATION = 3.0
 
 
 def _t(x):
@@ -239,6 +239,22 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
     pytest.importorskip("matplotlib")
     assert (out / "reprojection.png").stat().st_size > 10000
     assert (out / "imu.png").stat().st_size > 10000
+
+
+def test_cli_calibrates_intrinsics_when_the_camchain_has_none(global_fit):
+    from torch_dq.calibration._cli import _cameras
+
+    imu, cams = sim.rig(duration=DURATION, offset=OFFSET, seed=2)
+    obs = [tuple(_t(x) for x in cams[0])]
+    entry = {"camera_model": "pinhole", "distortion_model": "radtan",
+             "resolution": list(sim.RESOLUTION)}
+    said = []
+    cam, = _cameras([entry], obs, "camchain.yaml", said.append)
+    assert said and "intrinsics" in said[0]
+    assert cam.model == "pinhole-radtan" and cam.resolution == sim.RESOLUTION
+    truth = _camera().params.numpy()
+    assert np.abs(cam.params.numpy()[:4] - truth[:4]).max() < 2.0  # pixels
+    assert np.abs(cam.params.numpy()[4:6] - truth[4:6]).max() < 0.02
 
 
 def test_cli_user_errors(tmp_path, rolling_data, capsys):
