@@ -214,7 +214,7 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
     _write_inputs(tmp_path, obs, imu)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     out = tmp_path / "out"
-    assert main(_argv(tmp_path, out) + ["--rolling-shutter"]) == 0
+    assert main([*_argv(tmp_path, out), "--rolling-shutter"]) == 0
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
     chain = yaml.safe_load((out / "camchain-imucam.yaml").read_text())
     assert sorted(chain) == ["cam0", "cam1"] and "T_cn_cnm1" in chain["cam1"]
@@ -244,7 +244,7 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
 def test_cli_calibrates_intrinsics_when_the_camchain_has_none(global_fit):
     from torch_dq.calibration._cli import _cameras
 
-    imu, cams = sim.rig(duration=DURATION, offset=OFFSET, seed=2)
+    _, cams = sim.rig(duration=DURATION, offset=OFFSET, seed=2)
     obs = [tuple(_t(x) for x in cams[0])]
     entry = {"camera_model": "pinhole", "distortion_model": "radtan",
              "resolution": list(sim.RESOLUTION)}

@@ -105,7 +105,7 @@ class CameraImuCalibration:
         T_cam_imu = dualquat.to_matrix(dualquat.inv(e))
         out = {}
         for i, cam in enumerate(self.cameras):
-            entry = {"T_cam_imu": T_cam_imu[i].tolist()}
+            entry: dict = {"T_cam_imu": T_cam_imu[i].tolist()}
             if i > 0:
                 entry["T_cn_cnm1"] = (T_cam_imu[i] @ torch.linalg.inv(T_cam_imu[i - 1])).tolist()
             entry["cam_overlaps"] = [j for j in range(len(self.cameras)) if j != i]
@@ -136,9 +136,10 @@ def _arguments(cameras, observations, imu):
         _checks.fail(_FN, "expected cameras to be a non-empty list of torch_dq.camera.Camera",
                      TypeError)
     if not isinstance(observations, (list, tuple)) or len(observations) != len(cameras):
+        got = (f"{len(observations)}" if isinstance(observations, (list, tuple))
+               else type(observations).__name__)
         _checks.fail(_FN, f"expected one (times, points, pixels) observation tuple per camera "
-                          f"({len(cameras)}), got {type(observations).__name__}"
-                          f"{'' if not isinstance(observations, (list, tuple)) else ' of ' + str(len(observations))}")
+                          f"({len(cameras)}), got {got}")
     if not isinstance(imu, (list, tuple)) or len(imu) != 3:
         _checks.fail(_FN, "expected imu to be a (times (N,), gyro (N, 3), accel (N, 3)) tuple")
     names = ("imu times", "imu gyro", "imu accel")
@@ -407,13 +408,13 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     reach = max_line_delay * max(c.resolution[1] for c in cams) if rolling_shutter else 0.0
     lo, hi = _domain(obs, t_imu, max_time_offset + 1e-6, max_time_offset + reach + 1e-6)
     spline = _start_trajectory(samples, lo, hi, knot_spacing)
-    terms = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
+    terms: list = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
                           shared_time_offset, max_time_offset, max_line_delay, robust,
                           (lo, hi, reach))
     keep = (t_imu >= lo) & (t_imu <= hi)
     gyro_term = Gyro(t_imu[keep], gyro[keep], sigma=sg, bias=Free(start=bg0))
     accel_term = Accel(t_imu[keep], accel[keep], sigma=sa, bias=True, gravity=_GRAVITY)
-    terms = terms + [gyro_term, accel_term]
+    terms = [*terms, gyro_term, accel_term]
     est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
     return _result(cams, terms, spline, est, rolling_shutter, notes)
 

@@ -30,8 +30,6 @@ import time
 import warnings
 from pathlib import Path
 
-import torch
-
 __all__ = ["add_parser", "run"]
 
 _OUTPUTS = ("camchain-imucam.yaml", "summary.json", "reprojection.png", "imu.png")
