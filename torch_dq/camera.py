@@ -25,12 +25,13 @@ by a harmless constant before the formula), and must be masked by the caller. Na
 in an element's inputs gives NaN or inf outputs in that element only.
 
 Unprojection of the distorted pinhole models has no closed form: it runs a fixed number
-of Newton iterations (no data-dependent branching: ``vmap`` and ``torch.compile`` work)
-without autograd, then attaches the derivatives by two Newton steps from that detached
-root. One Newton step ``x - J(x)^{-1} (F(x) - y)`` from a detached root has the implicit
-function's exact first derivatives; a second step from it has the exact second
-derivatives too (the Newton map's derivative in ``x`` vanishes at the root), so
-gradients and Hessians are exact without differentiating through the iteration.
+of Newton iterations (no data-dependent branching or host reads: ``torch.func.vmap`` and
+``torch.compile(fullgraph=True)`` go through) without autograd, then attaches the
+derivatives by two Newton steps from that detached root. One Newton step
+``x - J(x)^{-1} (F(x) - y)`` from a detached root has the implicit function's exact first
+derivatives; a second step from it has the exact second derivatives too (the Newton map's
+derivative in ``x`` vanishes at the root), so gradients and Hessians are exact without
+differentiating through the iteration.
 
 :class:`Camera` is a small value (model, ``(P,)`` params, resolution) that reads and writes
 one camera of a Kalibr ``camchain.yaml``.
@@ -266,9 +267,9 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           or beyond 90 degrees (``z <= 0``: not an image of :func:`project`), where
           :math:`d\theta_d/d\theta \le 0` at the root (fold-over) or where it did not
           converge.
-        - double sphere (eqs. 47-50): closed form; invalid outside eq. 50's domain,
-          :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
-          :math:`m_z^2 + (1 - \xi^2) r^2 < 0` (no real point of the first sphere, possible
+        - double sphere (eqs. 47-50): closed form; invalid outside the paper's unprojection
+          domain, :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
+          :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real point of the first sphere, possible
           for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
           boundary of eq. 50 maps slightly outside the projection's domain).
 
@@ -387,25 +388,27 @@ def _unproject_equidistant(p, a, b):
 
 
 def _ds_ray(xi: Tensor, alpha: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The double sphere's unprojection (eqs. 47-49): a unit ray."""
+    """The double sphere's unprojection (eqs. 47-50): a unit ray."""
     r2 = a * a + b * b
     mz = (1.0 - alpha * alpha * r2) / (
-        alpha * torch.sqrt(1.0 - (2.0 * alpha - 1.0) * r2) + 1.0 - alpha)  # eq. 49
-    scale = (mz * xi + torch.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)  # eq. 47
+        alpha * torch.sqrt(1.0 - (2.0 * alpha - 1.0) * r2) + 1.0 - alpha)  # m_z
+    scale = (mz * xi + torch.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)
     return scale * a, scale * b, scale * mz - xi
 
 
 def _unproject_ds(p, a, b):
     xi, alpha = p[4], p[5]
-    with torch.no_grad():
+    with torch.no_grad():  # where the formula's square roots are real (safe where)
         r2 = a * a + b * b
-        # eq. 50 (the square roots are NaN outside it for xi > 1, and the comparisons
-        # below False), then eq. 43 on the ray: for xi != 0 eq. 50's boundary maps
-        # slightly outside the projection's domain.
-        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)
-        valid = inside & (_ds_ray(xi, alpha, a, b)[2] > -_ds_w2(xi, alpha))
-    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)  # safe where
-    return (*_ds_ray(xi, alpha, a, b), valid)
+        inside = (alpha <= 0.5) | (r2 * (2.0 * alpha - 1.0) < 1.0)  # the paper's domain
+        mz = (1.0 - alpha * alpha * r2) / (
+            alpha * torch.sqrt(torch.clamp(1.0 - (2.0 * alpha - 1.0) * r2, min=0.0))
+            + 1.0 - alpha)
+        keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
+    x, y, z = _ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
+    # eq. 43 on the ray: for xi != 0 that domain's boundary maps slightly outside the
+    # projection's domain (the ray is finite there, its gradients too)
+    return x, y, z, keep & (z.detach() > -_ds_w2(xi, alpha).detach())
 
 
 _UNPROJECT: dict[str, Callable] = {
@@ -427,6 +430,16 @@ def _numbers(fn: str, name: str, value, count: int) -> list[float]:
     if not ok:
         _checks.fail(fn, f"expected {name} to be a list of {count} finite numbers, got {value!r}")
     return [float(v) for v in value]
+
+
+def _resolution(fn: str, res) -> tuple[int, int]:
+    """``(width, height)``: two positive ints."""
+    if (not isinstance(res, Sequence) or isinstance(res, str) or len(res) != 2
+            or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool)
+                       and int(n) > 0 for n in res)):
+        _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
+                         f"got {res!r}")
+    return int(res[0]), int(res[1])
 
 
 @dataclass(frozen=True, eq=False)
@@ -472,14 +485,8 @@ class Camera:
         if params.shape != (len(MODELS[self.model]),):
             _checks.fail(fn, f"expected a ({len(MODELS[self.model])},) tensor for params of a "
                              f"{self.model!r} camera, got shape {_checks.shape_str(params.shape)}")
-        res = self.resolution
-        if (not isinstance(res, Sequence) or len(res) != 2
-                or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) and n > 0
-                           for n in res)):
-            _checks.fail(fn, f"expected resolution to be (width, height), two positive ints, "
-                             f"got {res!r}")
         object.__setattr__(self, "params", params)
-        object.__setattr__(self, "resolution", (int(res[0]), int(res[1])))
+        object.__setattr__(self, "resolution", _resolution(fn, self.resolution))
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Camera):
@@ -534,9 +541,8 @@ class Camera:
         coeffs = _numbers(fn, "distortion_coeffs", entry.get("distortion_coeffs", []),
                           0 if names[1] == "none" else 4)
         params = intr[2:] + intr[:2] if names[0] == "ds" else intr + coeffs
-        res = entry.get("resolution")
         return cls(model, torch.tensor(params, dtype=dtype, device=device),
-                   tuple(res) if isinstance(res, Sequence) else res)
+                   _resolution(fn, entry.get("resolution")))
 
     def to_kalibr(self) -> dict:
         """This camera as one entry of a Kalibr ``camchain.yaml``: a dict of plain Python
