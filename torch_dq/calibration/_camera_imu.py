@@ -33,6 +33,7 @@ is the body at ``t + dt`` (``Reprojections``' ``time_offset``), which is Kalibr'
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from dataclasses import dataclass, field
 
@@ -79,6 +80,8 @@ class CameraImuCalibration:
         terms: the terms of the estimate, one ``Reprojections`` per camera, then ``Gyro``,
             ``Accel``.
         warnings: the warnings issued (degenerate motion), as text.
+        timings: seconds per stage: ``"start"`` (target poses, offsets, orientations),
+            ``"trajectory"`` (the start spline), ``"estimate"``, ``"uncertainties"``.
     """
 
     cameras: list
@@ -94,6 +97,7 @@ class CameraImuCalibration:
     estimate: object = field(repr=False)
     terms: list = field(repr=False)
     warnings: list = field(default_factory=list, repr=False)
+    timings: dict = field(default_factory=dict, repr=False)
 
     def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
         """Kalibr's ``camchain-imucam.yaml`` as a dict of plain lists and floats: per camera
@@ -403,11 +407,14 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     notes = _motion_warnings(gyro, accel)
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
+    clock = [time.perf_counter()]
     e0, dt0, bg0, samples = _starts(cams, obs, (t_imu, gyro, accel), max_time_offset,
                                     min_points)
+    clock.append(time.perf_counter())
     reach = max_line_delay * max(c.resolution[1] for c in cams) if rolling_shutter else 0.0
     lo, hi = _domain(obs, t_imu, max_time_offset + 1e-6, max_time_offset + reach + 1e-6)
     spline = _start_trajectory(samples, lo, hi, knot_spacing)
+    clock.append(time.perf_counter())
     terms: list = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
                           shared_time_offset, max_time_offset, max_line_delay, robust,
                           (lo, hi, reach))
@@ -416,7 +423,12 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     accel_term = Accel(t_imu[keep], accel[keep], sigma=sa, bias=True, gravity=_GRAVITY)
     terms = [*terms, gyro_term, accel_term]
     est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
-    return _result(cams, terms, spline, est, rolling_shutter, notes)
+    clock.append(time.perf_counter())
+    res = _result(cams, terms, spline, est, rolling_shutter, notes)
+    clock.append(time.perf_counter())
+    res.timings = dict(zip(("start", "trajectory", "estimate", "uncertainties"),
+                           (b - a for a, b in zip(clock[:-1], clock[1:])), strict=True))
+    return res
 
 
 def _camera_terms(cams, obs, e0, dt0, sigma, rolling, shared, max_offset, max_delay, robust,
