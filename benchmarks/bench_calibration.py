@@ -27,10 +27,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import _camera_imu_sim as sim  # noqa: E402
+import _camera_imu_sim as sim
 
-from torch_dq import calibration, dualquat  # noqa: E402
-from torch_dq.camera import Camera  # noqa: E402
+from torch_dq import calibration, dualquat
+from torch_dq.camera import Camera
 
 
 def main() -> None:

@@ -32,6 +32,7 @@ is the body at ``t + dt`` (``Reprojections``' ``time_offset``), which is Kalibr'
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 import warnings
@@ -427,7 +428,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     res = _result(cams, terms, spline, est, rolling_shutter, notes)
     clock.append(time.perf_counter())
     res.timings = dict(zip(("start", "trajectory", "estimate", "uncertainties"),
-                           (b - a for a, b in zip(clock[:-1], clock[1:])), strict=True))
+                           (b - a for a, b in itertools.pairwise(clock)), strict=True))
     return res
 
 

@@ -183,8 +183,9 @@ def _summary(res, noise: dict, caught: list[str], elapsed: float) -> dict:
                                          for i in range(len(res.cameras))]
     return {"values": values, "chi2": chi2,
             "reprojection_rms_px": val(res.reprojection_rms),
-            "imu_noise": noise, "steps": int(est.steps), "converged": bool(est.converged.all()),
-            "reason": est.reason, "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
+            "imu_noise": noise, "steps": int(est.steps),
+            "converged": bool(est.converged.all()), "reason": est.reason,
+            "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
                       "(m) in camera axes; gravity in the target frame; biases constant "
                       "(the random walks are not modelled)"]}
