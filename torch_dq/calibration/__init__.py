@@ -1,4 +1,5 @@
-r"""Target-based calibration of cameras: targets, corner files and corner detection.
+r"""Target-based calibration of cameras and IMUs: targets, corner files, corner detection,
+camera intrinsics and camera-IMU calibration.
 
 * :class:`Target`, :func:`aprilgrid`, :func:`checkerboard`, :func:`read_target`: Kalibr's
   calibration targets (AprilGrid, checkerboard), their points in Kalibr's order and
