@@ -143,15 +143,18 @@ def test_motion_warnings_name_the_parameters():
     from torch_dq.calibration._camera_imu import _motion_warnings
 
     t = torch.linspace(0, 10, 2001, dtype=torch.float64)
-    gyro = torch.stack([torch.sin(t), torch.cos(2 * t), 0.01 * torch.sin(3 * t)], -1)
+    small = 0.01 * torch.sin(3 * t)
+    one_axis = torch.stack([small, small.roll(7), torch.sin(t)], -1)  # about z only
     accel = torch.tensor([0.0, 0.0, 9.81], dtype=torch.float64).expand(2001, 3)
-    notes = _motion_warnings(gyro, accel)
+    notes = _motion_warnings(one_axis, accel)
     assert len(notes) == 2
-    assert "rotation about the IMU axis (0.00, 0.00, 1.00)" in notes[0].replace("-0.00", "0.00")
-    assert "extrinsics' translations" in notes[0]
-    assert "accel_bias undetermined" in notes[1]
-    assert _motion_warnings(gyro[:, [0, 1, 0]] + torch.tensor([0.0, 0.0, 0.5]) * torch.sin(
-        5 * t)[:, None], accel + torch.sin(t)[:, None]) == []
+    assert "rotation about one IMU axis only (0.00, 0.00, 1.00)" in notes[0].replace("-0.", "0.")
+    assert "extrinsics' rotation about that axis and their translation along it" in notes[0]
+    assert "accel_bias is undetermined" in notes[1]
+    none = _motion_warnings(torch.stack([small] * 3, -1), accel + torch.sin(t)[:, None])
+    assert len(none) == 1 and "time_offsets are undetermined" in none[0]
+    two_axes = torch.stack([torch.cos(2 * t), small, torch.sin(t)], -1)
+    assert _motion_warnings(two_axes, accel + torch.sin(t)[:, None]) == []
 
 
 def test_arguments(rolling_data):

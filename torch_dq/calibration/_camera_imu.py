@@ -52,8 +52,8 @@ __all__ = ["CameraImuCalibration", "camera_imu"]
 
 _FN = "calibration.camera_imu"
 _GRAVITY = 9.81
-_MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less leaves it undetermined
-_MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the lever arms
+_MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
+_MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
 
 
 @dataclass
@@ -316,24 +316,32 @@ def _positive(name: str, value) -> float:
 
 
 def _motion_warnings(gyro: Tensor, accel: Tensor) -> list[str]:
-    """Warnings for motion that leaves parameters undetermined: an IMU axis about which the
-    centred rate's RMS is below 0.05 rad/s, a specific force whose RMS change is below
-    0.2 m/s^2."""
+    """Warnings for motion that leaves parameters undetermined: rotation (the centred rate's
+    RMS above 0.05 rad/s) about one IMU axis or none (the cameras' rates then fix their
+    orientations only up to a rotation about that axis, and the accelerometer sees no
+    lever arm along it), a specific force whose RMS change is below 0.2 m/s^2 (its bias and
+    gravity not separated)."""
     out = []
     w = gyro - gyro.mean(0)
     ev, vec = torch.linalg.eigh(w.T @ w / w.shape[0])
-    for k in range(3):
-        if float(ev[k].clamp_min(0).sqrt()) < _MIN_RATE:
-            axis = ", ".join(f"{v:.2f}" for v in vec[:, k].tolist())
-            out.append(f"{_FN}: too little rotation about the IMU axis ({axis}) "
-                       f"({float(ev[k].clamp_min(0).sqrt()):.3f} rad/s RMS): the extrinsics' "
-                       f"translations along the other axes and the time offsets are "
-                       f"undetermined by the accelerometer")
+    rms = ev.clamp_min(0).sqrt()
+    strong = int((rms >= _MIN_RATE).sum())
+    if strong == 0:
+        out.append(f"{_FN}: no rotation (gyroscope RMS {float(rms.max()):.3f} rad/s): the "
+                   f"extrinsics' rotations and translations and the time_offsets are "
+                   f"undetermined")
+    elif strong == 1:
+        axis = ", ".join(f"{v:.2f}" for v in vec[:, 2].tolist())
+        out.append(f"{_FN}: rotation about one IMU axis only ({axis}); too little rotation "
+                   f"about the others ({float(rms[1]):.3f} rad/s RMS): the extrinsics' "
+                   f"rotation about that axis and their translation along it are "
+                   f"undetermined")
     f = accel - accel.mean(0)
-    if float((f ** 2).sum(-1).mean().sqrt()) < _MIN_ACCEL:
+    change = float((f ** 2).sum(-1).mean().sqrt())
+    if change < _MIN_ACCEL:
         out.append(f"{_FN}: no change of the specific force (accelerometer RMS change "
-                   f"{float((f ** 2).sum(-1).mean().sqrt()):.3f} m/s^2): the accelerometer "
-                   f"bias and gravity are not separated (accel_bias undetermined)")
+                   f"{change:.3f} m/s^2): the accel_bias is undetermined (not separated "
+                   f"from gravity)")
     return out
 
 

@@ -225,7 +225,8 @@ def _run(args) -> int:
         res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
                          accel_noise=noise["accelerometer_noise_density"],
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
-                         shared_time_offset=args.shared_time_offset)
+                         shared_time_offset=args.shared_time_offset,
+                         verbose=not args.quiet)
     caught = [" ".join(str(w.message).split()) for w in record]
     for text in caught:
         print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
