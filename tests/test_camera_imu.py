@@ -217,7 +217,7 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
     _write_inputs(tmp_path, obs, imu)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     out = tmp_path / "out"
-    assert main([*_argv(tmp_path, out), "--rolling-shutter"]) == 0
+    assert main([*_argv(tmp_path, out), "--rolling-shutter", "--shared-time-offset"]) == 0
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
     chain = yaml.safe_load((out / "camchain-imucam.yaml").read_text())
     assert sorted(chain) == ["cam0", "cam1"] and "T_cn_cnm1" in chain["cam1"]
@@ -229,6 +229,7 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
         assert np.abs(T[:3, 3] - truth[:3, 3]).max() < 3e-3
         assert abs(chain[f"cam{i}"]["timeshift_cam_imu"] - OFFSET) < 2e-4
         assert chain[f"cam{i}"]["rostopic"] == f"/cam{i}/image_raw"
+    assert chain["cam0"]["timeshift_cam_imu"] == chain["cam1"]["timeshift_cam_imu"]
     summary = json.loads((out / "summary.json").read_text())
     for key in ("extrinsics", "time_offsets", "line_delays", "gyro_bias", "accel_bias",
                 "gravity"):
