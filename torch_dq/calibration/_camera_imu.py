@@ -238,22 +238,16 @@ def _kabsch(w_cam: Tensor, w_body: Tensor) -> tuple[Tensor, Tensor]:
     return quat.from_matrix(R), mb - R @ mc
 
 
-def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> Tensor:
-    """Camera ``i``'s pose in camera 0's frame from their shared frames (the median
-    translation, the normalised mean quaternion); identity without shared frames."""
-    common, i0, i1 = (x for x in _intersect(times0, times))
-    if common == 0:
-        return dualquat.identity((), dtype=torch.float64)
+def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> Tensor | None:
+    """Camera ``i``'s pose in camera 0's frame from their shared frames (equal stamps; the
+    median translation, the normalised mean quaternion); None without shared frames."""
+    i0, i1 = torch.isin(times0, times).nonzero()[:, 0], torch.isin(times, times0).nonzero()[:, 0]
+    if i0.numel() == 0:
+        return None
     rel = dualquat.mul(dualquat.inv(poses0[i0]), poses[i1])
     q, t = dualquat.to_rt(rel)
     q = q * torch.where((q * q[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
     return dualquat.from_rt(quat.normalize(q.mean(0)), t.median(0).values)
-
-
-def _intersect(a: Tensor, b: Tensor) -> tuple[int, Tensor, Tensor]:
-    ia = torch.isin(a, b)
-    ib = torch.isin(b, a)
-    return int(ia.sum()), ia.nonzero()[:, 0], ib.nonzero()[:, 0]
 
 
 def _start_trajectory(samples: list[tuple[Tensor, Tensor]], lo: float, hi: float,
@@ -298,10 +292,8 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
     ext = [dualquat.from_rt(rot[0], torch.zeros(3, dtype=torch.float64))]
     for i in range(1, len(cameras)):
         rel = _relative(frames[0][0], frames[0][1], frames[i][0], frames[i][1])
-        if torch.equal(rel, dualquat.identity((), dtype=torch.float64)):
-            ext.append(dualquat.from_rt(rot[i], torch.zeros(3, dtype=torch.float64)))
-        else:
-            ext.append(dualquat.mul(ext[0], rel))
+        ext.append(dualquat.from_rt(rot[i], torch.zeros(3, dtype=torch.float64))
+                   if rel is None else dualquat.mul(ext[0], rel))
     e = torch.stack(ext)
     samples = [(t + dt, dualquat.mul(T, dualquat.inv(e[i])))
                for i, ((t, T), dt) in enumerate(zip(frames, offs, strict=True))]
