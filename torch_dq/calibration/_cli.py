@@ -160,10 +160,8 @@ def _check_outputs(args) -> Path:
     for p in args.images:
         if out.resolve() == Path(p).resolve():
             raise UserError(f"--out {args.out} is an --images folder (an input)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {args.out} is a file, not a folder")
     return out
 
 
@@ -231,6 +229,10 @@ def _run(args) -> int:
     for text in caught:
         print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
     elapsed = time.perf_counter() - start
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
     _write(out, res, entries, _summary(res, noise, caught, elapsed))
     if not args.no_plots:
         _figures(out, res, say)
