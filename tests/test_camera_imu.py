@@ -13,6 +13,7 @@ import json
 import math
 import os
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -113,7 +114,9 @@ def test_rolling_shutter_within_4_std_and_global_fit_worse(rolling_data):
     rs = _fit(obs, imu, True)
     _assert_within(rs, LINE_DELAY)
     assert torch.all((rs.reprojection_rms > 0.38) & (rs.reprojection_rms < 0.47))
-    gs = _fit(obs, imu, False)
+    with warnings.catch_warnings():  # a wrong model: the estimate may say chi2/dof > 1
+        warnings.simplefilter("ignore", RuntimeWarning)
+        gs = _fit(obs, imu, False)
     assert torch.all(gs.reprojection_rms > 1.5 * rs.reprojection_rms), (
         gs.reprojection_rms, rs.reprojection_rms)
 
