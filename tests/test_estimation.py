@@ -273,6 +273,7 @@ def test_robust_kernels_resist_gross_outliers(gen, kernel):
     assert errors[kernel] < 0.03 and errors[None] > 0.2, errors
 
 
+@pytest.mark.filterwarnings("ignore:fitting.Estimate. chi2/dof far above 1:RuntimeWarning")
 def test_batched_problems_equal_separate_ones(gen):
     """Two trajectories with their own times (B, N), a mask for unequal counts, their own
     biases: one batched estimate equals two separate ones."""
@@ -291,7 +292,9 @@ def test_batched_problems_equal_separate_ones(gen):
     cam = Poses(t, x, rot_sigma=0.01, trans_sigma=0.01, mask=keep)
     gyro = Gyro(ti, gy, sigma=0.01, bias=True)
     est = estimate(spline, [cam, gyro], verbose=False)
-    assert est.loss.shape[1:] == (2,) and est.std(gyro, "bias").shape == (2, 3)
+    with pytest.warns(RuntimeWarning, match=r"chi2/dof far above 1 \(Poses"):
+        # the second trajectory's gyro reads the motion 0.3 s later than its poses
+        assert est.loss.shape[1:] == (2,) and est.std(gyro, "bias").shape == (2, 3)
     for b in range(2):
         cam_b = Poses(t[b][keep[b]], x[b][keep[b]], rot_sigma=0.01, trans_sigma=0.01)
         gyro_b = Gyro(ti, gy[b], sigma=0.01, bias=True)
@@ -363,7 +366,11 @@ def test_imu_improves_velocity_over_poses_alone(gen):
         spline = start_spline(tc, x, 0.4, "cumulative")
         est = estimate(spline, terms, verbose=False)
         v = spline.kinematics(tq).linear_velocity.detach()
-        std = est.kinematics_std(tq)[:, 3:6]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            std = est.kinematics_std(tq)[:, 3:6]
+        chi = [str(w.message) for w in caught if "chi2/dof far above 1" in str(w.message)]
+        assert len(chi) == (name == "imu"), chi  # 0.4 s knots underfit the IMU: Accel 3.3
         res[name] = (float((v - v_true).norm(dim=-1).mean()), float(std.mean()))
         assert float(((v - v_true).abs() / std).max()) < 5.0
     assert res["imu"][0] < 0.5 * res["poses"][0] and res["imu"][1] < 0.5 * res["poses"][1]
@@ -599,7 +606,7 @@ def test_estimate_repr_and_parameter_order(gen):
     text = repr(est)
     assert text.startswith("Estimate(steps=1, reason=") and "final_loss=" in text
     for term in (cam, gyro, acc):
-        ratio = float(est.chi2[term]) / int(est.dof[term])
+        ratio = float(est.chi2[term]) / float(est.dof[term])
         assert f"{type(term).__name__}: {ratio:.3g}" in text
     assert est.parameters == [(gyro, "time_offset", 1), (gyro, "bias", 3), (acc, "bias", 3),
                               (acc, "gravity", 2)]

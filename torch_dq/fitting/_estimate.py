@@ -6,7 +6,9 @@ squares), and solves the damped Gauss-Newton system: the banded control-point bl
 factored (``BandedCholesky``), the ``m`` nuisance steps come
 from their ``m x m`` Schur complement and the control-point steps by back-substitution,
 :math:`O((N + n) m + m^3)`. A step is accepted where it lowers the robust cost plus priors
-(per batch element), the damping grows tenfold otherwise.
+(per batch element), the damping grows tenfold otherwise; its diagonal is Marquardt's,
+floored at a tenth of the typical information. Convergence: the scaled gradient test of
+:func:`estimate`'s ``tol``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
+from . import _prior
 from . import _structure as structure
 from ._banded import BandedCholesky
 from ._problem import Problem
@@ -32,7 +35,8 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
-_SETTLING = 1e-2  # relative decrease of a step below which the next one is predicted first
+_EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
+_LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
 def progress(total: int, enabled: bool, desc: str):
@@ -110,14 +114,32 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
 
 
 def _warn_c1(trajectory, terms: list[Term]) -> None:
-    """Warn when an Accel term reads the accelerations of a C1 (de Boor) B-spline."""
+    """Warn when an Accel term reads the accelerations of a B-spline that is not C2: the
+    de Boor form of degree >= 2 (C1) and the cumulative form of degree < 3 (C^(p-1)):
+    their accelerations jump at the knots."""
     from ..nn import BSpline
-    if (isinstance(trajectory, BSpline) and trajectory.form == "de_boor"
-            and trajectory.degree >= 2 and any(isinstance(t, Accel) for t in terms)):
-        warnings.warn(f"fitting.estimate: an Accel term with a degree-{trajectory.degree} "
-                      f"B-spline of form='de_boor', which is only C1 (its accelerations jump "
-                      f"at the knots); build it with form='cumulative' for IMU work",
+    if not (isinstance(trajectory, BSpline) and any(isinstance(t, Accel) for t in terms)):
+        return
+    p, form = trajectory.degree, trajectory.form
+    if form == "de_boor" and p >= 2:
+        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
+                      f"form='de_boor', which is only C1 (its accelerations jump at the "
+                      f"knots); build it with form='cumulative' for IMU work",
                       UserWarning, stacklevel=3)
+    elif form == "cumulative" and p < 3:
+        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
+                      f"form='cumulative', which is only C{p - 1} (its accelerations jump at "
+                      f"the knots); use degree >= 3 for IMU work", UserWarning, stacklevel=3)
+
+
+def _warn_pinned(problem: Problem, values: list[Tensor]) -> None:
+    """Warn for a time offset that ended on its ``max_time_offset`` bound."""
+    for q, v in zip(problem.params, values, strict=True):
+        if q.kind == "offset" and bool((v.abs() >= q.bound * (1.0 - 1e-9)).any()):
+            warnings.warn(f"fitting.estimate: a time offset ended on its bound "
+                          f"max_time_offset={q.bound!r}: the data put it further (raise "
+                          f"max_time_offset); its standard deviation is inf",
+                          RuntimeWarning, stacklevel=3)
 
 
 class _Lines:
@@ -164,28 +186,32 @@ def _starts(fn: str, problem: Problem, ctrl: Tensor) -> list[Tensor]:
 
 
 class _Solver:
-    """The damped Gauss-Newton step of one iteration (Schur complement on the nuisance)."""
+    """The damped Gauss-Newton step of one iteration (Schur complement on the nuisance):
+    the data system plus the pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors,
+    damped by ``lam`` times its diagonal (Marquardt's scaling)."""
 
-    def __init__(self, problem: Problem, system, mu: Tensor) -> None:
-        self.p, self.s, self.mu = problem, system, mu
-        band = system.band
-        self.diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1) + mu[:, None, None]
+    def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor],
+                 null: tuple[Tensor, Tensor]) -> None:
+        self.p, self.s, self.null = problem, system, null
+        self.band = system.band + pulls[0]
+        self.diag = self.band[:, :, 0].diagonal(dim1=-2, dim2=-1).maximum(
+            _prior.damping_floor(system.band))
         self.floor = 1e-12 * self.diag.mean((-1, -2)).clamp_min(1e-300)
-        info = problem.prior_information().to(band)
-        self.nn = system.nn + torch.diag(info)
+        info = problem.prior_information().to(system.band)
+        self.nn = system.nn + torch.diag(info) + pulls[1]
         self.ndiag = self.nn.diagonal(dim1=-2, dim2=-1)
 
     def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
         s, m = self.s, self.p.m
-        band = s.band.clone()
-        add = self.mu[:, None, None] + lam[:, None, None] * (self.diag + self.floor[:, None,
-                                                                                    None])
-        band[:, :, 0] += torch.diag_embed(add)
+        band = self.band.clone()
+        band[:, :, 0] += torch.diag_embed(lam[:, None, None] * (self.diag
+                                                                + self.floor[:, None, None]))
         chol = BandedCholesky(band)
         ok = chol.ok
         if not m:
-            return -chol.solve(gc[..., None])[..., 0], gc.new_zeros(gc.shape[0], 0), ok
+            return self._project(-chol.solve(gc[..., None])[..., 0]), gc.new_zeros(
+                gc.shape[0], 0), ok
         X = chol.solve(torch.cat((gc[..., None], s.cn), dim=-1))
         y, Z = X[..., 0], X[..., 1:]
         S = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
@@ -197,7 +223,15 @@ class _Solver:
         L = torch.where((info == 0)[:, None, None], L, eye)
         dn = torch.cholesky_solve(rhs[..., None], L)[..., 0]
         dc = -y - torch.einsum("bnim,bm->bni", Z, dn)
-        return dc, dn, ok
+        return self._project(dc), dn, ok
+
+    def _project(self, dc: Tensor) -> Tensor:
+        """``dc`` without the combinations of control points that no sample determines (no
+        drift along them: :func:`~torch_dq.fitting._prior.control_null`)."""
+        U, DU = self.null
+        if not U.shape[-1]:
+            return dc
+        return dc - torch.einsum("bnik,bk->bni", U, torch.einsum("bnik,bni->bk", DU, dc))
 
 
 def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float = 1e-3,
@@ -206,12 +240,17 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
 
     Minimises :math:`\sum_{terms} \sum_i \rho(|r_i|)` (whitened residuals, robust kernels)
     plus the Gaussian priors of :class:`~torch_dq.fitting.Free` parameters, plus the
-    numerical ``prior``: ``prior`` times the mean data curvature per control point times
-    :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`, a pull towards the start that keeps control
-    points without data (time gaps) where the start put them and changes a well-determined
-    fit by about ``prior`` times its distance from the start. Levenberg-Marquardt in local
-    charts (``c_k exp(delta_k)`` and the nuisance charts of :mod:`torch_dq.fitting`),
-    exact Jacobians, steps accepted on the robust cost (module docstring). The trajectory's
+    numerical ``prior``, which only keeps what the data do not determine where the start
+    put it (:mod:`~torch_dq.fitting._prior`): combinations of neighbouring control points
+    carrying less than ``prior`` times the typical information (time gaps, their edges,
+    ends without samples) are pulled to the start with that weight, nuisance directions
+    without information (below ``1e-9``, scaled) likewise, and combinations of control
+    points that no sample resolves (knots closer than the samples) are never stepped along.
+    Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
+    trajectory's placement) ends where the data put it, whatever its start.
+    Levenberg-Marquardt in local charts (``c_k exp(delta_k)`` and the nuisance charts of
+    :mod:`torch_dq.fitting`), exact Jacobians, steps accepted on the robust cost (module
+    docstring). The trajectory's
     control points are updated in place (rounded once to its dtype; the solve runs in
     float64), the nuisance values are read on the terms afterwards (``term.bias``, ...).
 
@@ -224,8 +263,16 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             (its control points are the start).
         terms: a list of terms (:class:`~torch_dq.fitting.Poses`, ...).
         steps: maximum number of iterations (0: only the uncertainties at the start).
-        tol: stop when an accepted step lowers the objective by at most ``tol`` relatively.
-        prior: weight of the pull towards the start (see above), ``>= 0``.
+        tol: converged when the Newton decrement :math:`g^T H^{-1} g` of the objective
+            (``g`` half its gradient, ``H`` its Gauss-Newton matrix, directions without
+            information left out) is at most ``tol * max(objective, 1e-20 N)`` (``N`` the
+            residual components): the step left is below :math:`\sqrt{tol\,\chi^2}`
+            standard deviations of any quantity. An accepted step that lowers the objective
+            by at most ``tol`` relatively while that test fails stops the iteration as not
+            converged (``reason`` starts with "no progress"); so does ``steps`` (with a
+            ``RuntimeWarning``) or no damped step lowering the objective.
+        prior: relative weight and threshold of the pull on what the data do not
+            determine (see above), ``>= 0``.
         verbose: progress on stderr: a tqdm bar when stderr is a terminal and tqdm is
             installed, otherwise one line per step (step, cost, damping).
 
@@ -238,9 +285,11 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             shapes that do not match.
 
     Warns:
-        UserWarning: an :class:`~torch_dq.fitting.Accel` term with a B-spline of
-            ``form="de_boor"`` and degree >= 2 (only C1: its accelerations jump at the
-            knots); ``form="cumulative"`` is smooth there.
+        UserWarning: an :class:`~torch_dq.fitting.Accel` term with a B-spline that is not
+            C2 (``form="de_boor"`` of degree >= 2, ``form="cumulative"`` of degree < 3):
+            its accelerations jump at the knots.
+        RuntimeWarning: ``steps`` reached before convergence; a time offset that ended on
+            its ``max_time_offset``.
         TypeError: a trajectory that is not a curve layer, terms that are not terms.
 
     Example:
@@ -280,6 +329,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         q.free.value = v.detach().clone()
     for term in terms:
         term.solved(trajectory)
+    _warn_pinned(problem, values)
     return Estimate(problem, ctrl, values, history)
 
 
@@ -291,65 +341,115 @@ class _LevenbergMarquardt:
         self.p, self.start = problem, ctrl
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
-        self.system = problem.system(ctrl, values, self.w)
-        diag0 = self.system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
-        self.mu = prior * diag0
-        self.solver = _Solver(problem, self.system, self.mu)
-        self.settling = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
+        self.system = s = problem.system(ctrl, values, self.w)
+        cpull = _prior.control_pull(s.band, prior)
+        info = torch.diag(problem.prior_information().to(s.nn))
+        self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
+        self.null = _prior.control_null(s.band, cpull)
+        self.pulled = (int(_prior.undetermined(s.band).sum())
+                       + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
+        self.count = sum((t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
+                         for t in problem.terms).reshape(self.Bf)
         self.ctrl, self.values = ctrl, values
         self.data, self.obj = self.objective(ctrl, values)
         self.lam = torch.full((self.Bf,), 1e-4, dtype=torch.float64, device=ctrl.device)
+        self.stalled = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
+        self.decrement = torch.full((self.Bf,), torch.inf, dtype=torch.float64,
+                                    device=ctrl.device)
+        self.converged = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
         flat = self.obj.reshape(self.Bf)
         self.active = torch.isfinite(flat) & (flat > 0)
+        self.converged |= flat == 0
         self.reasons = ["" if a else "the cost is zero" if float(o) == 0 else _NONFINITE
                         for o, a in zip(flat, self.active.tolist(), strict=True)]
 
     def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
-        pull = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
-        return self.mu.reshape(self.batch) * (pull * pull).sum((-1, -2)) + self.p.prior_cost(v)
+        """The pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors, ``(...)``."""
+        d = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
+        Pd = _prior.band_apply(self.pulls[0], d.reshape(self.Bf, self.n, 6, 1))
+        u = _prior.nuisance_chart(self.p, v)
+        Pn = self.pulls[1].reshape(*self.batch, self.p.m, self.p.m)
+        return ((d * Pd.reshape(d.shape)).sum((-1, -2))
+                + (u[..., None, :] @ Pn @ u[..., :, None])[..., 0, 0] + self.p.prior_cost(v))
 
     def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:
-        """Data cost and objective (data plus the pull and the Free priors), ``(...)``."""
+        """Data cost and objective (data plus the pulls and the Free priors), ``(...)``."""
         data = torch.stack(self.p.data_cost(c, v)).sum(0)
         return data, data + self._pull(c, v)
 
     def _prior_gradient(self) -> tuple[Tensor, Tensor]:
-        """Half the gradient of the pull and the Free priors in the step charts."""
+        """Half the gradient of the pulls and the Free priors in the step charts."""
         with torch.enable_grad():
             dc = self.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
             dn = self.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
             extra = self._pull(*self.p.retract(self.ctrl, self.values, dc, dn))
             gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
+        gc = torch.zeros_like(dc) if gc is None else gc
         gn = torch.zeros_like(dn) if gn is None else gn
         return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
 
-    def predicted_stop(self, tol: float) -> None:
-        """Stop the elements whose next step, as the last system predicts it (its damped
-        Gauss-Newton matrix, the exact gradient here: one chained reverse pass of the
-        costs instead of the Jacobians' k), lowers the objective by at most ``tol``
-        relatively: the model decrease of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the
-        half gradient). Only after a step that lowered the objective by at most
-        ``_SETTLING`` relatively (after larger ones the prediction would rarely stop and
-        costs a pass of the costs)."""
-        if not bool((self.active & self.settling).any()):
-            return
-        gc, gn = self.p.gradient(self.ctrl, self.values, self.w)
+    def gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the objective at the current point (system plus pulls)."""
         pc, pn = self._prior_gradient()
-        gc, gn = gc + pc, gn + pn
-        dc, dn, ok = self.solver.step(self.lam, gc, gn)
-        pred = -2.0 * ((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1))
-        obj = self.obj.reshape(self.Bf)
-        small = self.active & self.settling & ok & torch.isfinite(pred) & (pred <= tol * obj)
-        for b in small.nonzero()[:, 0].tolist():
-            self.reasons[b] = (f"the relative decrease fell below tol={tol!r} (the next "
-                               f"step's, predicted)")
-        self.active &= ~small
+        return self.system.gc + pc, self.system.gn + pn
+
+    def _bounded(self, gn: Tensor) -> Tensor:
+        """``gn`` without the components of time offsets on their bound whose descent
+        points outwards (a constrained optimum there: the projected gradient)."""
+        gn = gn.clone()
+        for q, v in zip(self.p.params, self.values, strict=True):
+            if q.kind == "offset":
+                v = v.reshape(self.Bf)
+                out = (v.abs() >= q.bound * (1.0 - 1e-9)) & (v * gn[:, q.offset] < 0)
+                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
+        return gn
+
+    def check(self, tol: float, final: bool = False) -> None:
+        r"""The scaled gradient test at the current point (its system built): an element
+        whose Newton decrement :math:`g^T H^{-1} g` (``g`` half the gradient of the
+        objective, ``H`` its undamped Gauss-Newton matrix; on directions without information
+        the decrement is no distance: it is the limit of :math:`g^T (H + \epsilon D)^{-1} g`
+        as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
+        extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
+        1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
+        standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element
+        that stalled (its last accepted step lowered
+        the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
+        stops unconverged."""
+        gc, gn = self.gradient()
+        gn = self._bounded(gn)
+        self.null = _prior.control_null(self.system.band, self.pulls[0])
+        solver = _Solver(self.p, self.system, self.pulls, self.null)
+        decs, ok = [], torch.ones_like(self.active)
+        for eps in (_prior.REGULARISE, _LOOSE * _prior.REGULARISE):
+            dc, dn, good = solver.step(torch.full_like(self.lam, eps), gc, gn)
+            decs.append(-((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)))
+            ok &= good
+        # g^T (H + eps D)^-1 g = d + c / eps, c from the directions without information
+        # (their contribution is no distance in standard deviations): d extrapolated
+        dec = (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0)
+        self.decrement = torch.where(self.active, dec, self.decrement)
+        thr = tol * torch.maximum(self.obj.reshape(self.Bf), _EXACT * self.count)
+        good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
+        stop = self.active & ~good & (self.stalled | final)
+        for b in range(self.Bf):
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
+                   f"{float(thr[b]):.3g}"
+            if bool(good[b]):
+                self.reasons[b] = f"the scaled gradient test passed ({what})"
+            elif bool(stop[b]) and bool(self.stalled[b]):
+                self.reasons[b] = (f"no progress: a step lowered the objective by at most "
+                                   f"tol={tol!r} relatively, the gradient is not negligible "
+                                   f"({what}); not converged")
+            elif bool(stop[b]):
+                self.reasons[b] = f"steps reached before convergence ({what})"
+        self.converged |= good
+        self.active &= ~(good | stop)
 
     def iteration(self, tol: float) -> None:
         """One Gauss-Newton system, damped trials until each element accepts or gives up."""
-        pc, pn = self._prior_gradient()
-        gc, gn = self.system.gc + pc, self.system.gn + pn
-        self.solver = solver = _Solver(self.p, self.system, self.mu)
+        gc, gn = self.gradient()
+        solver = _Solver(self.p, self.system, self.pulls, self.null)
         pending = self.active.clone()
         batch, Bf = self.batch, self.Bf
         new: list[Any] = [self.ctrl, self.values, self.obj, self.data]
@@ -371,16 +471,14 @@ class _LevenbergMarquardt:
             self.lam = torch.where(pending, self.lam * 10.0, self.lam)
             if not bool(pending.any()):
                 break
-        small = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
-                                          <= tol * new[2].reshape(Bf))
-        for b in range(Bf):
-            if bool(pending[b]):
-                self.reasons[b] = "no damped step lowers the cost (a numerical minimum)"
-            elif bool(small[b]):
-                self.reasons[b] = f"the relative decrease fell below tol={tol!r}"
-        self.active &= ~(pending | small)
+        self.stalled = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
+                                                 <= tol * new[2].reshape(Bf))
+        for b in pending.nonzero()[:, 0].tolist():
+            self.reasons[b] = (f"no damped step lowers the objective while the scaled gradient "
+                               f"test fails (g^T H^-1 g = {float(self.decrement[b]):.3g}): a "
+                               f"numerical minimum; not converged")
+        self.active &= ~pending
         self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
-        self.settling = (self.obj - new[2]).reshape(Bf) <= _SETTLING * new[2].reshape(Bf)
         self.ctrl, self.values, self.obj, self.data = new
 
 
@@ -391,13 +489,11 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
     losses, objectives = [lm.data.clone()], [lm.obj.clone()]
     done = 0
     for k in range(steps):
+        if k:
+            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+        lm.check(tol)
         if not bool(lm.active.any()):
             break
-        if k:
-            lm.predicted_stop(tol)
-            if not bool(lm.active.any()):
-                break
-            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
         done = k + 1
         lm.iteration(tol)
         losses.append(lm.data.clone())
@@ -406,11 +502,18 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
             bar.update(1)
             bar.set_postfix(loss=f"{float(lm.data.sum()):.6e}",
                             damping=f"{float(lm.lam.max()):.1e}")
-    converged = torch.tensor([r not in ("", _NONFINITE) for r in lm.reasons],
-                             device=lm.active.device) & ~lm.active
-    reasons = [r or f"steps={steps} reached" for r in lm.reasons]
+    if bool(lm.active.any()):
+        if done:
+            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+        lm.check(tol, final=True)
+    reasons = lm.reasons
+    if steps and any(r.startswith("steps reached") for r in reasons):
+        warnings.warn(f"fitting.estimate: steps={steps} reached before the scaled gradient test "
+                      f"passed; raise steps (the estimate may be far from the optimum)",
+                      RuntimeWarning, stacklevel=3)
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
     history = {"loss": torch.stack(losses), "objective": torch.stack(objectives),
-               "steps": done, "reason": reason, "converged": converged.reshape(problem.batch)}
+               "steps": done, "reason": reason, "system": lm.system, "width": lm.w,
+               "pulled": lm.pulled, "converged": lm.converged.reshape(problem.batch)}
     return lm.ctrl, lm.values, history

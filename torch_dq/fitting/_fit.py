@@ -235,15 +235,13 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
       Jacobians of the rotation-vector and translation residuals, whose squared norm is
       ``pose_loss``'s term; a banded Gauss-Newton matrix factored in :math:`O(n)`); it only
       accepts steps that lower the objective. One step is one Gauss-Newton iteration;
-      stops when a step lowers the objective by at most ``tol`` relatively, or when no
-      damping gives a decrease. Regularised: the objective adds
-      ``prior`` times the mean data curvature times :math:`\sum_k |\log(c_k^{0\,-1} c_k)|^2`
-      (a pull towards the control points ``c^0`` the fit started from), which keeps the
-      control points that the samples barely or do not determine (a time gap longer than a
-      knot span) where the start put them (:meth:`~torch_dq.nn.BSpline.from_poses` bridges
-      such gaps by screw motion), and changes a well-determined fit by about ``prior``
-      times its distance from the start. ``prior=0`` gives the plain least-squares fit and
-      raises ``ValueError`` when it is underdetermined (Schoenberg-Whitney).
+      stops as :func:`~torch_dq.fitting.estimate` does (converged on its scaled gradient
+      test). Regularised by its ``prior``: the combinations of control points that the
+      samples barely or do not determine (a time gap longer than a knot span) are pulled
+      to where the start put them (:meth:`~torch_dq.nn.BSpline.from_poses` bridges such
+      gaps by screw motion); a well-determined fit is not changed. ``prior=0`` gives the
+      plain least-squares fit and raises ``ValueError`` when it is underdetermined
+      (Schoenberg-Whitney).
     - ``"adam"``, ``"sgd"`` (momentum 0.9), ``"lbfgs"`` (strong Wolfe line search), a
       ``torch.optim.Optimizer`` instance over the module's parameters, or a callable
       ``params -> Optimizer``: each step calls ``optimizer.step(closure)`` on the raw
@@ -278,7 +276,8 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
         loss: ``loss(pred, target) -> 0-d tensor``; default :func:`torch_dq.losses.pose_loss`
             (mean of rad² + length²; use ``functools.partial(pose_loss, trans_weight=...)``
             to balance the units).
-        prior: weight of the pull towards the start for ``"lm"`` (see above), ``>= 0``.
+        prior: ``"lm"``: relative weight and threshold of the pull on what the samples do
+            not determine (see above and :func:`~torch_dq.fitting.estimate`), ``>= 0``.
         verbose: show a tqdm progress bar when stderr is a terminal and tqdm is installed.
 
     Returns:

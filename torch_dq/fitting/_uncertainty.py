@@ -31,11 +31,13 @@ from .. import _checks, curves, dualquat, quat
 from ._banded import BandedCholesky
 from ._local import sample_jacobians, tangent_step
 from ._nuisance import gravity_basis
+from ._prior import NULL, REGULARISE, scaled_eigh
 
 __all__ = ["Estimate"]
 
-_NULL = 1e-9  # relative eigenvalue of the Schur complement below which a direction is unknown
-_FLOOR = 1e-12  # ... or below this fraction of the largest control-point information
+_FLOOR = 1e-12  # information below this fraction of the largest diagonal entry: none
+_Z999 = 3.2905  # the standard normal's 99.95 % quantile (two-sided 99.9 % band)
+_LOOSE = 100.0  # the second regularisation (times REGULARISE) that tells undetermined apart
 
 
 def _drop_undetermined(band: Tensor, cn: Tensor,
@@ -91,7 +93,9 @@ class Estimate:
         self.steps: int = history["steps"]
         self.converged: Tensor = history["converged"]
         self.reason: str = history["reason"]
-        self._sys = None
+        self._sys = history.get("system") if history.get("width") == problem.width(values) \
+            else None
+        self._pulled = int(history.get("pulled", 0))
         self._factored = False
 
     def __repr__(self) -> str:
@@ -128,9 +132,10 @@ class Estimate:
         out = {}
         for term, r, w in zip(self._problem.terms, s.residuals, s.weights, strict=True):
             if what == "chi2":
-                out[term] = (r * r).sum((-1, -2)).expand(batch)
-            elif what == "dof":
-                out[term] = (term.mask.sum(-1) * term.dim).expand(batch)
+                out[term] = torch.where(term.mask[..., None], r * r, 0.0).sum((-1, -2)).expand(
+                    batch)
+            elif what == "count":
+                out[term] = (term.mask.sum(-1) * term.dim).expand(batch).to(torch.float64)
             else:
                 out[term] = w.expand(*batch, w.shape[-1])
         return out
@@ -142,8 +147,39 @@ class Estimate:
 
     @property
     def dof(self) -> dict:
-        """Per term ``(...)``: the number of residual components of the unmasked samples."""
-        return self._per_term("dof")
+        r"""Per term ``(...)`` float: the term's residual components (unmasked samples)
+        less its share of the estimated parameters. The parameters are ``6 n`` (control
+        points) less the directions kept by ``estimate``'s ``prior`` (no data information),
+        plus the ``m`` nuisance chart coordinates; they are shared among the terms in
+        proportion to their residual counts: :math:`\nu_t = N_t (1 - p / \sum_u N_u)`."""
+        counts = self._per_term("count")
+        total = sum(counts.values())
+        p = self._problem
+        params = 6 * p.spans.n - self._pulled + p.m
+        return {t: c * (1.0 - params / total.clamp_min(1.0)) for t, c in counts.items()}
+
+    def _factor_scale(self) -> Tensor:
+        r"""``(Bf,)`` :math:`\sqrt{\chi^2 / \nu}` over every term (``scaled=True``)."""
+        chi2 = sum(self.chi2.values())
+        dof = sum(self.dof.values())
+        return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
+
+    def _check_chi2(self) -> None:
+        r"""Warn where a term's :math:`\chi^2` exceeds both twice its ``dof`` and the
+        upper end of the two-sided 99.9 % band of the chi-square distribution (Wilson and
+        Hilferty's cube-root approximation): its sigmas are too small for its residuals."""
+        bad = []
+        for term, c in self.chi2.items():
+            nu = self.dof[term].clamp_min(1.0)
+            upper = nu * (1.0 - 2.0 / (9.0 * nu) + _Z999 * (2.0 / (9.0 * nu)).sqrt()) ** 3
+            ratio = c / nu
+            if bool(((c > upper) & (ratio > 2.0)).any()):
+                bad.append(f"{type(term).__name__} {float(ratio.max()):.3g}")
+        if bad:
+            warnings.warn(f"fitting.Estimate: chi2/dof far above 1 ({', '.join(bad)}): the "
+                          f"sigmas do not describe the residuals, the standard deviations are "
+                          f"too small (std(..., scaled=True) scales them by sqrt(chi2/dof))",
+                          RuntimeWarning, stacklevel=4)
 
     @property
     def weights(self) -> dict:
@@ -153,6 +189,7 @@ class Estimate:
     def _ensure(self) -> None:
         """Factor the Gauss-Newton matrix on the first uncertainty asked for."""
         if not self._factored:
+            self._check_chi2()
             self._factor(self._system)
             self._factored = True
 
@@ -162,49 +199,48 @@ class Estimate:
         Bf = max(p.batch.numel(), 1)
         scale = system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).amax((-1, -2))[:, None]
         band, cn, self._free = _drop_undetermined(system.band, system.cn, scale)
-        self._chol = BandedCholesky(band)
+        diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1) + 1e-12 * scale[:, :, None]
+
+        def regularised(eps: float) -> BandedCholesky:
+            b = band.clone()
+            b[:, :, 0] += torch.diag_embed(eps * diag)
+            return BandedCholesky(b)
+
+        self._chol, self._loose = regularised(REGULARISE), regularised(_LOOSE * REGULARISE)
         ok = self._chol.ok
-        if not bool(ok.all()) or bool(self._free.any()):
-            warnings.warn("fitting.Estimate: the data do not determine every control point "
-                          "(a time gap or an end without samples); the uncertainties that depend "
-                          "on them are inf", RuntimeWarning, stacklevel=4)
         self._ok = ok
         m = p.m
         if not m:
             self._Z = system.cn
-            self._V = system.nn
+            self._U = system.nn
+            self._r = system.nn.new_ones(Bf, 0)
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         self._Z = self._chol.solve(cn)  # (Bf, n, 6, m)
         S = system.nn + torch.diag(p.prior_information()).to(system.nn)
         S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
-        S = 0.5 * (S + S.mT)
-        # scaled by the diagonal (Jacobi): parameters in units of very different information
-        # (a line delay in s/row next to a bias) keep their small eigenvalues
-        d = S.diagonal(dim1=-2, dim2=-1).clamp_min(0.0)
-        known = d > _FLOOR * scale
-        r = torch.where(known, d, 1.0).rsqrt()
-        lam, V = torch.linalg.eigh(S * r[:, :, None] * r[:, None, :])
-        top = lam.amax(-1, keepdim=True).clamp_min(0.0)
-        bad = (lam <= _NULL * top) | (
-            (V.abs() > 1e-6) & ~known[:, :, None]).any(-2) | ~ok[:, None]
-        self._V = r[:, :, None] * V
+        lam, U, d = scaled_eigh(S)
+        bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
+               | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * scale)
+               | ~ok[:, None])
+        self._U, self._r = U, d.rsqrt()
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
             weak = [f"{type(p.terms[i]).__name__}.{name}" for (i, name), q in p.index.items()
-                    if bool((V[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
+                    if bool((U[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
                             .any(-2)[bad].any())]
             warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
                           f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
                           RuntimeWarning, stacklevel=4)
 
     def _quadratic(self, A: Tensor) -> Tensor:
-        """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe."""
-        shape = (A.shape[0],) + (1,) * (A.dim() - 3) + self._V.shape[1:]
-        a = A @ self._V.reshape(shape)
-        inv = self._inv.reshape(shape[:-2] + (1, -1))
-        scale = a.abs().amax(-1, keepdim=True)
-        return torch.where(a.abs() > 1e-8 * scale, a * a * inv, 0.0).sum(-1)
+        """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe (a component along
+        a direction without information below ``1e-8`` of the row's largest is roundoff)."""
+        shape = (A.shape[0],) + (1,) * (A.dim() - 3) + self._U.shape[1:]
+        a = (A * self._r.reshape((*shape[:-2], 1, -1))) @ self._U.reshape(shape)
+        inv = self._inv.reshape((*shape[:-2], 1, -1))
+        big = a.abs() > 1e-8 * a.abs().amax(-1, keepdim=True)
+        return torch.where(big, a * a * inv, 0.0).sum(-1)
 
     def _param(self, term, name: str):
         fn = "fitting.Estimate.std"
@@ -228,13 +264,16 @@ class Estimate:
                                    dim=1)  # [g]x columns: g x e_j
         return -cross @ gravity_basis(g)  # d(Exp(B d) g)/dd = -[g]x B
 
-    def cov(self, *items: tuple) -> Tensor:
-        """Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts.
+    def cov(self, *items: tuple, scaled: bool = False) -> Tensor:
+        r"""Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts.
 
         Args:
             items: ``(term, name)`` pairs, their rows in that order; none: every estimated
                 parameter, in the order of :attr:`parameters` (``(term, name, size)``,
                 ``size`` rows each).
+            scaled: multiply by :math:`\chi^2 / \nu` over every term (:attr:`chi2`,
+                :attr:`dof`): the covariance as the residuals' own scatter suggests when the
+                sigmas are off by a common factor.
 
         Returns:
             ``(..., k, k)``, ``k`` the sum of the sizes.
@@ -242,32 +281,47 @@ class Estimate:
         self._ensure()
         p = self._problem
         qs = [self._param(t, n) for t, n in items] if items else p.params
-        dev = self._V.device
+        dev = self._U.device
         cols = torch.cat([torch.arange(q.offset, q.offset + q.dim, device=dev) for q in qs])
-        Bf = self._V.shape[0]
-        E = torch.eye(p.m, dtype=self._V.dtype, device=dev)[cols].expand(Bf, -1, -1)
-        a = E @ self._V
+        Bf = self._U.shape[0]
+        E = torch.eye(p.m, dtype=self._U.dtype, device=dev)[cols].expand(Bf, -1, -1)
+        a = (E * self._r[:, None, :]) @ self._U
+        big = a.abs() > 1e-8 * a.abs().amax(-1, keepdim=True)
         prod = a[:, :, None, :] * a[:, None, :, :]
-        big = (a.abs() > 1e-8)[:, :, None, :] & (a.abs() > 1e-8)[:, None, :, :]
-        C = torch.where(big, prod * self._inv[:, None, None, :], 0.0).sum(-1)
+        both = big[:, :, None, :] & big[:, None, :, :]
+        C = torch.where(both, prod * self._inv[:, None, None, :], 0.0).sum(-1)
+        if _checks.flag("fitting.Estimate.cov", "scaled", scaled):
+            C = C * self._factor_scale()[:, None, None] ** 2
         return C.reshape(*p.batch, len(cols), len(cols))
 
-    def std(self, term, name: str) -> Tensor:
-        """Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
+    def std(self, term, name: str, scaled: bool = False) -> Tensor:
+        r"""Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
         lever arm ``(..., 3)``; time offset ``(...)``; gravity ``(..., 3)`` world axes;
-        extrinsic ``(..., 6)`` (``e exp(delta)``)."""
+        extrinsic ``(..., 6)`` (``e exp(delta)``). ``scaled``: times
+        :math:`\sqrt{\chi^2 / \nu}` over every term (see :meth:`cov`). A time offset that
+        ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
+        says nothing of its uncertainty) gets inf and a warning."""
         q = self._param(term, name)
-        C = self.cov((term, name)).reshape(-1, q.dim, q.dim)
+        C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
         if M is not None:  # gravity: from its 2-d chart to world axes
             finite = torch.isfinite(C).all(-1).all(-1)[:, None, None]
             C = torch.where(finite, M @ torch.where(finite, C, 0.0) @ M.mT, torch.inf)
         s = C.diagonal(dim1=-2, dim2=-1).clamp_min(0.0).sqrt()
         b = self._problem.batch
-        return s.reshape(b) if q.kind == "offset" else s.reshape(*b, s.shape[-1])
+        if q.kind == "offset":
+            v = self._values[self._problem.params.index(q)].reshape(-1, 1)
+            pinned = v.abs() >= q.bound * (1.0 - 1e-9)
+            if bool(pinned.any()):
+                warnings.warn(f"fitting.Estimate: {type(term).__name__}.time_offset ended on "
+                              f"its bound max_time_offset={q.bound!r}: its standard "
+                              f"deviation is inf (raise max_time_offset)", RuntimeWarning,
+                              stacklevel=2)
+            return torch.where(pinned, torch.inf, s).reshape(b)
+        return s.reshape(*b, s.shape[-1])
 
     # -- trajectory uncertainties
-    def _along(self, t: Tensor, k: int, output) -> Tensor:
+    def _along(self, t: Tensor, k: int, output, scaled: bool) -> Tensor:
         """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t``."""
         self._ensure()
         p = self._problem
@@ -277,7 +331,13 @@ class Estimate:
         if t.dim() < 1:
             _checks.fail("fitting.Estimate", "expected (T,) or (..., T) times for t")
         p.trajectory.derivatives(t, 0, ctrl=ctrl)  # the layer's domain check
-        shape = torch.broadcast_shapes(p.batch, t.shape[:-1])
+        lead = t.shape[:-1]
+        if not p.batch:  # one trajectory: any leading shape of times, flattened
+            t = t.reshape(-1)
+        elif torch.broadcast_shapes(p.batch, lead) != p.batch:
+            _checks.fail("fitting.Estimate", f"times {_checks.shape_str(t.shape)} do not "
+                                             f"broadcast to the batch {_checks.shape_str(p.batch)}")
+        shape = p.batch
         T = t.shape[-1]
         t = t.to(torch.float64).expand(*shape, T)
         first = spans.first(t)
@@ -294,36 +354,52 @@ class Estimate:
         Bf = max(p.batch.numel(), 1)
         J = J.expand(*p.batch, T, k, sup, 6).reshape(Bf, T, k, sup * 6)
         f = first.expand(*p.batch, T).reshape(Bf, T)
-        Sw = self._chol.window_covariance(f, sup)
-        var = torch.einsum("btij,btjl,btil->bti", J, Sw, J)
+        var = cvar = torch.einsum("btij,btjl,btil->bti", J,
+                                  self._chol.window_covariance(f, sup), J)
+        loose = torch.einsum("btij,btjl,btil->bti", J, self._loose.window_covariance(f, sup), J)
         idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
         if p.m:
             Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
                 Bf, T * sup, 6, p.m)).reshape(Bf, T, sup * 6, p.m)
             var = var + self._quadratic(J @ Zw)
         std = var.clamp_min(0.0).sqrt()
-        known = self._ok[:, None] & ~self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(
-            Bf, T, sup).any(-1)
-        std = torch.where(known[..., None], std, torch.inf)
+        gap = self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(Bf, T, sup).any(-1)
+        null = (cvar > 2.0 * loose.clamp_min(0.0)) & ~gap[..., None]
+        std = torch.where(self._ok[:, None, None] & ~gap[..., None] & ~null, std, torch.inf)
+        if bool(gap.any()) or bool(null.any()) or not bool(self._ok.all()):
+            why = ("a time gap or an end without samples" if bool(gap.any()) else
+                   "combinations of control points that no sample resolves: more control "
+                   "points than the samples determine (knots closer than the samples)")
+            warnings.warn(f"fitting.Estimate: the data do not determine every control point "
+                          f"({why}); the uncertainties that depend on them are inf",
+                          RuntimeWarning, stacklevel=4)
+        if _checks.flag("fitting.Estimate", "scaled", scaled):
+            std = std * self._factor_scale()[:, None, None]
+        if not p.batch:
+            return std.reshape(*lead, -1, k)
         return std.reshape(*p.batch, T, k)
 
-    def pose_std(self, t: Tensor) -> Tensor:
+    def pose_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 6)``: standard deviations of the pose at ``t``: the rotation ``delta``
-        with ``R = R_hat exp(delta)`` (body axes, radians), then the translation (world)."""
+        with ``R = R_hat exp(delta)`` (body axes, radians), then the translation (world).
+        ``t``: ``(T,)``, or ``(..., T)`` broadcasting to the batch (any leading shape for
+        one trajectory); ``scaled`` as for :meth:`std`. Inf (with a warning) where the pose
+        depends on control points or combinations of them that the data do not determine."""
         def output(d, ref):
             q, pos = dualquat.to_rt(d[0])
             q0, p0 = dualquat.to_rt(ref[0])
             return torch.cat((quat.to_rotvec(quat.mul(quat.conj(q0), q)), pos - p0), -1)
 
-        return self._along(t, 6, output)
+        return self._along(t, 6, output, scaled)
 
-    def kinematics_std(self, t: Tensor) -> Tensor:
+    def kinematics_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 12)``: standard deviations of the angular velocity, linear velocity,
-        angular acceleration and linear acceleration at ``t`` (world axes)."""
+        angular acceleration and linear acceleration at ``t`` (world axes); ``t`` and
+        ``scaled`` as for :meth:`pose_std`."""
         def output(d, ref):
             k = curves.kinematics(d[0], d[1], d[2])
             parts = [k.angular_velocity, k.linear_velocity, k.angular_acceleration,
                      k.linear_acceleration]
             return torch.cat([cast(Tensor, v) for v in parts], -1)
 
-        return self._along(t, 12, output)
+        return self._along(t, 12, output, scaled)

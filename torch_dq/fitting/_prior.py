@@ -1,0 +1,211 @@
+r"""The numerical prior of :func:`~torch_dq.fitting.estimate`: a pull towards the start on the
+directions that the data do not determine, and on no other.
+
+Control points: the data information of ``v = 4`` consecutive control points moved alone
+is their principal submatrix ``A_w`` of the data Gauss-Newton matrix at the start (``v``
+blocks, every window of the band). Scaled by the typical information per coordinate (``D``:
+the median of the diagonal entries over the control points that some sample touches),
+:math:`\hat A_w = D^{-1/2} A_w D^{-1/2} = V \Lambda V^T`; an eigen-direction with
+:math:`\lambda <` ``SPARSE`` ``= 1e-6`` (a combination of neighbouring control points
+with no information worth the name: a time gap, an end without samples) gets the pull
+information ``p = prior`` (scaled), :math:`D^{1/2} V \mathrm{diag}(p [\lambda < 10^{-6}])
+V^T D^{1/2}`, summed over the windows into a band ``P``, and the cost
+:math:`\delta^T P \delta`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`. A direction with
+more information is not pulled at all. (A threshold of ``1e-3`` pulled combinations that an
+accelerometer determines and moved an extrinsic by a standard deviation; the weak
+combinations at the edges of TUM fr2_desk's long gaps, between ``1e-5`` and ``1e-3``, are
+left to the data: they swing by 40 deg there, the data's least-squares answer, with large
+standard deviations.) While the Levenberg-Marquardt damping is large, its diagonal is at
+least ``WEAK`` times the typical information, so that weak points do not outrun the
+others; it vanishes with the damping.
+
+Nuisance parameters: the Schur complement ``S`` of the data information on the nuisance
+(control points regularised by their pull and by ``1e-10`` of their diagonal, so that
+combinations of control points that no sample determines drop out), scaled by its diagonal;
+an eigen-direction below ``_NULL`` (numerically no information: a gyroscope's time offset
+under constant rotation rate, gravity's direction against an accelerometer bias without
+rotation) gets the pull ``p`` (scaled) towards the start, so that the iteration cannot
+drift along it. Directions with information are never pulled: the estimate of a determined
+parameter is the data's, whatever its start.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ._banded import BandedCholesky
+from ._nuisance import chart_distance
+
+__all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "band_apply", "control_null",
+           "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh",
+           "undetermined"]
+
+NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
+SPARSE = 1e-6  # scaled information of a window direction below which it is pulled
+WEAK = 0.1  # least diagonal of the damping, relative to the typical information
+REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
+_WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
+_NULL_RANK = 12  # columns of the subspace iteration for combinations without information
+
+
+def _typical(blocks: Tensor) -> Tensor:
+    """``(Bf, 6)`` median diagonal information over the control points with data."""
+    d = blocks.diagonal(dim1=-2, dim2=-1)  # (Bf, n, 6)
+    used = d.sum(-1, keepdim=True) > 0
+    med = torch.where(used, d, torch.nan).nanmedian(dim=1).values
+    top = med.nan_to_num(0.0).amax(-1, keepdim=True)
+    floor = torch.where(top > 0, 1e-12 * top, torch.ones_like(top))
+    return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
+
+
+def _windows(band: Tensor, v: int) -> Tensor:
+    """``(Bf, n, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
+    points from each ``k`` (blocks past the last control point: the identity)."""
+    Bf, n, w = band.shape[:3]
+    eye = torch.eye(6, dtype=band.dtype, device=band.device)
+    pad = torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1)
+    pad[:, n:, 0] = eye
+    rows = []
+    for a in range(v):
+        row = []
+        for b in range(v):
+            lo, d = min(a, b), abs(a - b)
+            blk = pad[:, lo:lo + n, d] if d < w else band.new_zeros(Bf, n, 6, 6)
+            row.append(blk.mT if a > b else blk)
+        rows.append(torch.cat(row, -1))
+    return torch.cat(rows, -2)
+
+
+def control_pull(band: Tensor, prior: float) -> Tensor:
+    """``(Bf, n, w, 6, 6)`` pull information of the control points, banded (module doc).
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` data band at the start.
+        prior: the pull's relative weight and threshold ``p >= 0``.
+    """
+    if prior == 0:
+        return torch.zeros_like(band)
+    Bf, n, w = band.shape[:3]
+    v = min(w, _WINDOW)
+    s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
+    outer = s[..., :, None] * s[..., None, :]
+    lam, V = torch.linalg.eigh(_windows(band, v) / outer)
+    W = (V * torch.where(lam < SPARSE, prior, 0.0)[..., None, :]) @ V.mT * outer
+    pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
+    for a in range(v):
+        for b in range(a, v):
+            pull[:, a:a + n, b - a] += W[:, :, 6 * a:6 * a + 6, 6 * b:6 * b + 6]
+    return pull[:, :n]
+
+
+def undetermined(band: Tensor) -> Tensor:
+    """``(Bf,)`` the control-point directions without any information (scaled eigenvalue
+    of their diagonal block below ``NULL``: time gaps, ends without samples)."""
+    blocks = band[:, :, 0]
+    s = _typical(blocks).sqrt()[:, None, :]
+    lam = torch.linalg.eigvalsh(blocks / (s[..., :, None] * s[..., None, :]))
+    return (lam <= NULL).sum((-1, -2))
+
+
+def damping_floor(band: Tensor) -> Tensor:
+    """``(Bf, 1, 6)``: ``WEAK`` times the typical information per coordinate, the least
+    diagonal of the Levenberg-Marquardt damping (weakly determined control points move
+    no faster than typical ones while the damping is large; it vanishes with it)."""
+    return WEAK * _typical(band[:, :, 0])[:, None, :]
+
+
+def scaled_eigh(S: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    r"""Eigen-decomposition of ``S (Bf, m, m)`` scaled by its diagonal.
+
+    Returns:
+        ``lam (Bf, m)`` and ``V (Bf, m, m)`` with :math:`D^{-1/2} S D^{-1/2} = V \Lambda
+        V^T`, and ``d (Bf, m)`` the diagonal ``D`` (floored at ``1e-12`` of its largest
+        entry; ones where ``S`` is zero).
+    """
+    d = S.diagonal(dim1=-2, dim2=-1).clamp_min(0.0)
+    top = d.amax(-1, keepdim=True)
+    d = torch.where(top > 0, d.maximum(1e-12 * top), torch.ones_like(d))
+    r = d.rsqrt()
+    lam, V = torch.linalg.eigh(0.5 * (S + S.mT) * r[:, :, None] * r[:, None, :])
+    return lam, V, d
+
+
+def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: float) -> Tensor:
+    """``(Bf, m, m)`` pull information of the nuisance parameters (module doc).
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` data band at the start.
+        cn: ``(Bf, n, 6, m)`` coupling.
+        nn: ``(Bf, m, m)`` nuisance block (with the Free priors' information).
+        pull: ``(Bf, n, 6, 6)`` the control points' pull information.
+        prior: the pull's relative weight.
+    """
+    m = nn.shape[-1]
+    if prior == 0 or m == 0:
+        return torch.zeros_like(nn)
+    band = band + pull
+    diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1)
+    floor = 1e-12 * diag.amax((-1, -2)).clamp_min(1e-300)[:, None, None]
+    band[:, :, 0] += torch.diag_embed(REGULARISE * (diag + floor))
+    chol = BandedCholesky(band)
+    S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))
+    lam, V, d = scaled_eigh(S)
+    null = (lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0)) & chol.ok[:, None]
+    P = (V * torch.where(null, prior, 0.0)[..., None, :]) @ V.mT
+    s = d.sqrt()
+    return P * (s[:, :, None] * s[:, None, :])
+
+
+def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
+    """``(..., m)`` chart coordinates of the nuisance ``values`` around their starts."""
+    parts = [chart_distance(p.kind, p.start, v).expand(*problem.batch, p.dim)
+             for p, v in zip(problem.params, values, strict=True)]
+    if not parts:
+        return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)
+    return torch.cat(parts, -1)
+
+
+def band_apply(band: Tensor, x: Tensor) -> Tensor:
+    """``A x`` for the symmetric band ``(Bf, n, w, 6, 6)`` and ``x (Bf, n, 6, r)``."""
+    n, w = band.shape[1], band.shape[2]
+    y = band[:, :, 0] @ x
+    for d in range(1, min(w, n)):
+        blk = band[:, :n - d, d]  # block (k, k + d)
+        y[:, :n - d] += blk @ x[:, d:]
+        y[:, d:] += blk.mT @ x[:, :n - d]
+    return y
+
+
+def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Tensor, Tensor]:
+    r"""``(Bf, n, 6, r)`` combinations of control points that no sample determines (the
+    null space of the data band plus the pulls, when it is not made of whole blocks: knots
+    closer than the samples), ``D``-orthonormal (:math:`U^T D U = I`, ``D`` the band's
+    diagonal): a few steps of inverse subspace iteration on :math:`(A + \epsilon D)^{-1} D`
+    from ``rank`` fixed pseudo-random columns, then the Ritz vectors whose Ritz value is
+    below ``NULL`` (scaled). ``r = 0`` (an empty last axis) where there are none.
+
+    Returns:
+        ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
+        x`."""
+    A = band + pull
+    D = A[:, :, 0].diagonal(dim1=-2, dim2=-1)
+    D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
+    reg = A.clone()
+    reg[:, :, 0] += torch.diag_embed(REGULARISE * D)
+    chol = BandedCholesky(reg)
+    gen = torch.Generator(device=band.device).manual_seed(0)
+    rank = min(rank, D.shape[1] * 6)
+    X = torch.randn(*D.shape, rank, generator=gen, dtype=band.dtype, device=band.device)
+    Bf, n = D.shape[:2]
+    for _ in range(3):
+        X = chol.solve(D[..., None] * X)
+        Q = torch.linalg.qr((D.sqrt()[..., None] * X).reshape(Bf, n * 6, rank)).Q
+        X = Q.reshape(Bf, n, 6, rank) / D.sqrt()[..., None]
+    K = torch.einsum("bnir,bnis->brs", X, band_apply(A, X))
+    lam, V = torch.linalg.eigh(0.5 * (K + K.mT))
+    null = (lam <= NULL) & chol.ok[:, None]
+    k = int(null.sum(-1).max())
+    U = (X.reshape(Bf, n * 6, rank) @ V)[..., :k].reshape(Bf, n, 6, k)
+    U = U * null[:, None, None, :k]
+    return U, D[..., None] * U
