@@ -1,5 +1,5 @@
-"""Command line: ``python -m torch_dq demo`` and ``python -m torch_dq fit FILE`` (also the
-``torch-dq`` console script).
+"""Command line: ``python -m torch_dq demo``, ``python -m torch_dq fit FILE`` and ``python -m
+torch_dq calibrate ...`` (also the ``torch-dq`` console script).
 
 Run ``python -m torch_dq demo --help`` or ``python -m torch_dq fit --help`` for the options;
 see :mod:`torch_dq.demo` and :mod:`torch_dq.demo.fit_file`.
@@ -112,6 +112,9 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-plots", action="store_true", help="skip the figures")
     demo.add_argument("--quiet", action="store_true", help="print nothing but warnings")
     _add_fit_parser(sub)
+    from .calibration._cli import add_parser as _add_calibrate_parser
+
+    _add_calibrate_parser(sub)
     return parser
 
 
@@ -224,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.command == "fit":
         return _fit(args)
+    if args.command == "calibrate":
+        from .calibration._cli import run as _calibrate
+
+        return _calibrate(args)
     if args.command == "demo":
         if args.degree >= args.n_ctrl:
             parser.error(f"demo: --degree ({args.degree}) must be < --n-ctrl ({args.n_ctrl})")

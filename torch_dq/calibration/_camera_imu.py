@@ -1,0 +1,487 @@
+r"""Camera-IMU calibration (Kalibr's ``calibrate_imu_camera``) from target corners and IMU
+readings, started without user guesses (private; public name :func:`camera_imu`).
+
+Start, in this order (Furgale, Rehder, Siegwart, "Unified temporal and spatial calibration
+for multi-sensor systems", IROS 2013, sec. IV, for the overall scheme):
+
+1. The target's pose in each camera per frame from the frame's corners: the homography of
+   the unprojected (undistorted) corners, decomposed (Zhang 2000, app. C; the private
+   :mod:`torch_dq.calibration._start`).
+2. Each camera's mean angular velocity between consecutive frames (camera axes).
+3. The time offset maximising the correlation of the angular speeds (rotation-invariant:
+   no extrinsic needed), the gyroscope's rates averaged over the same intervals.
+4. The camera's orientation on the body: the rotation best aligning the centred camera
+   rates with the centred gyroscope rates (Kabsch, "A discussion of the solution for the
+   best rotation...", Acta Cryst. A34, 1978); the difference of the means starts the
+   gyroscope bias. Translations start at zero for camera 0, other cameras at their pose
+   relative to camera 0 from the shared frames.
+5. The body trajectory: the target poses of the cameras moved to the body by the
+   extrinsics' starts, on the IMU clock, fit by a coarse spline (knots every 0.1 s), sampled
+   densely and refit with knots every ``knot_spacing`` (cumulative cubic B-spline).
+
+Then one :func:`torch_dq.fitting.estimate` over the trajectory, one
+:class:`~torch_dq.fitting.Reprojections` term per camera (the target is the world frame),
+:class:`~torch_dq.fitting.Gyro` and :class:`~torch_dq.fitting.Accel` with constant
+biases and gravity of magnitude 9.81 with its direction estimated (started from the mean
+accelerometer reading rotated into the target frame by the start trajectory).
+
+Clock convention: the trajectory is on the IMU's clock, a frame stamped ``t`` by its camera
+is the body at ``t + dt`` (``Reprojections``' ``time_offset``), which is Kalibr's
+``timeshift_cam_imu`` (``t_imu = t_cam + shift``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from .. import _checks, dualquat, quat
+from ..camera import Camera
+from ..fitting import Accel, Free, Gyro, Reprojections, estimate
+from ..nn import BSpline
+from . import _start
+from ._cameras import _cameras_data
+
+__all__ = ["CameraImuCalibration", "camera_imu"]
+
+_FN = "calibration.camera_imu"
+_GRAVITY = 9.81
+_MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
+_MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
+
+
+@dataclass
+class CameraImuCalibration:
+    r"""What :func:`camera_imu` returns.
+
+    Attributes:
+        cameras: the :class:`~torch_dq.camera.Camera` list given (intrinsics fixed).
+        extrinsics: ``(C, 8)`` each camera's pose on the body (IMU) frame,
+            ``p_imu = e p_cam`` (Kalibr's ``T_imu_cam``).
+        time_offsets: ``(C,)`` seconds, IMU time = camera stamp + offset (Kalibr's
+            ``timeshift_cam_imu``).
+        line_delays: ``(C,)`` seconds per image row (zero for a global shutter).
+        gyro_bias, accel_bias: ``(3,)`` IMU axes.
+        gravity: ``(3,)`` in the target's frame (m/s^2).
+        std: standard deviations with the same keys: ``"extrinsics" (C, 6)`` in the chart
+            ``e exp(delta)`` (rotation then translation, camera axes), ``"time_offsets"``
+            and ``"line_delays"`` ``(C,)``, ``"gyro_bias"``, ``"accel_bias"``,
+            ``"gravity"`` ``(3,)``.
+        reprojection_rms: ``(C,)`` root mean square of the pixel error's norm over the
+            observations used (pixels).
+        trajectory: the body's :class:`~torch_dq.nn.BSpline` (IMU frame in the target
+            frame, IMU clock).
+        estimate: the :class:`~torch_dq.fitting.Estimate` (per-term ``chi2``, ``dof``).
+        terms: the terms of the estimate, one ``Reprojections`` per camera, then ``Gyro``,
+            ``Accel``.
+        warnings: the warnings issued (degenerate motion), as text.
+        timings: seconds per stage: ``"start"`` (target poses, offsets, orientations),
+            ``"trajectory"`` (the start spline), ``"estimate"``, ``"uncertainties"``.
+    """
+
+    cameras: list
+    extrinsics: Tensor
+    time_offsets: Tensor
+    line_delays: Tensor
+    gyro_bias: Tensor
+    accel_bias: Tensor
+    gravity: Tensor
+    std: dict = field(repr=False)
+    reprojection_rms: Tensor = field(repr=False)
+    trajectory: BSpline = field(repr=False)
+    estimate: object = field(repr=False)
+    terms: list = field(repr=False)
+    warnings: list = field(default_factory=list, repr=False)
+    timings: dict = field(default_factory=dict, repr=False)
+
+    def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
+        """Kalibr's ``camchain-imucam.yaml`` as a dict of plain lists and floats: per camera
+        ``camN`` with ``T_cam_imu`` (4 x 4, the inverse of the extrinsic), ``T_cn_cnm1``
+        (``N >= 1``: camera ``N-1`` to camera ``N``), ``cam_overlaps``, the camera model
+        and intrinsics (:meth:`Camera.to_kalibr`), ``rostopic`` (``/camN/image_raw`` unless
+        given) and ``timeshift_cam_imu``."""
+        e = self.extrinsics.detach().double().cpu()
+        T_cam_imu = dualquat.to_matrix(dualquat.inv(e))
+        out = {}
+        for i, cam in enumerate(self.cameras):
+            entry: dict = {"T_cam_imu": T_cam_imu[i].tolist()}
+            if i > 0:
+                entry["T_cn_cnm1"] = (T_cam_imu[i] @ torch.linalg.inv(T_cam_imu[i - 1])).tolist()
+            entry["cam_overlaps"] = [j for j in range(len(self.cameras)) if j != i]
+            entry.update(cam.to_kalibr())
+            entry["rostopic"] = rostopics[i] if rostopics else f"/cam{i}/image_raw"
+            entry["timeshift_cam_imu"] = float(self.time_offsets[i])
+            if float(self.line_delays[i]) > 0:
+                entry["line_delay"] = float(self.line_delays[i])
+            out[f"cam{i}"] = entry
+        return out
+
+
+def _sigma(name: str, density, times: Tensor) -> float:
+    """Per-sample sigma of a noise density: ``density * sqrt(rate)``, the rate from the
+    median sample spacing."""
+    if isinstance(density, bool) or not isinstance(density, (int, float)) or not (
+            math.isfinite(density) and density > 0):
+        _checks.fail(_FN, f"expected {name} to be a positive finite noise density, got "
+                          f"{density!r}")
+    step = float(times.diff().median())
+    return float(density) * math.sqrt(1.0 / step)
+
+
+def _arguments(cameras, observations, imu):
+    """Validated cameras, observations (float64 CPU) and IMU data."""
+    if not isinstance(cameras, (list, tuple)) or not cameras or not all(
+            isinstance(c, Camera) for c in cameras):
+        _checks.fail(_FN, "expected cameras to be a non-empty list of torch_dq.camera.Camera",
+                     TypeError)
+    if not isinstance(observations, (list, tuple)) or len(observations) != len(cameras):
+        got = (f"{len(observations)}" if isinstance(observations, (list, tuple))
+               else type(observations).__name__)
+        _checks.fail(_FN, f"expected one (times, points, pixels) observation tuple per camera "
+                          f"({len(cameras)}), got {got}")
+    if not isinstance(imu, (list, tuple)) or len(imu) != 3:
+        _checks.fail(_FN, "expected imu to be a (times (N,), gyro (N, 3), accel (N, 3)) tuple")
+    names = ("imu times", "imu gyro", "imu accel")
+    t, g, a = (_checks.tensor(_FN, n, x).detach().to("cpu", torch.float64)
+               for n, x in zip(names, imu, strict=True))
+    if t.dim() != 1 or g.shape != (t.numel(), 3) or a.shape != (t.numel(), 3):
+        _checks.fail(_FN, f"expected imu as times (N,), gyro (N, 3), accel (N, 3), got "
+                          f"{_checks.shape_str(t.shape)}, {_checks.shape_str(g.shape)}, "
+                          f"{_checks.shape_str(a.shape)}")
+    if t.numel() < 10 or not bool((t.diff() > 0).all()):
+        _checks.fail(_FN, "expected at least 10 IMU samples with strictly increasing times")
+    if not bool(torch.isfinite(t).all() & torch.isfinite(g).all() & torch.isfinite(a).all()):
+        _checks.fail(_FN, "imu holds non-finite values")
+    obs = []
+    for i, o in enumerate(observations):
+        if not isinstance(o, (list, tuple)) or len(o) != 3:
+            _checks.fail(_FN, f"expected observations[{i}] to be (times, points, pixels)")
+        ot, op, ou = (_checks.tensor(_FN, f"observations[{i}]", x).detach().to(
+            "cpu", torch.float64) for x in o)
+        if ot.dim() != 1 or op.shape != (ot.numel(), 3) or ou.shape != (ot.numel(), 2):
+            _checks.fail(_FN, f"expected observations[{i}] as times (N,), points (N, 3), "
+                              f"pixels (N, 2)")
+        obs.append((ot, op, ou))
+    return list(cameras), obs, (t, g, a)
+
+
+def _frame_poses(cam: Camera, obs, min_points: int) -> tuple[Tensor, Tensor]:
+    """Per-frame camera poses in the target frame (``p_target = T p_cam``, ``(V, 8)``) and
+    the frames' times ``(V,)``, from the homographies of the unprojected corners."""
+    data, times = _cameras_data([obs], [cam.model], [cam.resolution], min_points)
+    d = data[0]
+    params = cam.params.detach().to("cpu", torch.float64)
+    T, rms, ok = _start.view_poses(cam.model, params, *d.views)
+    ok = ok & (rms < 10.0)
+    return times[d.view_frames[ok]], dualquat.inv(T[ok])
+
+
+def _camera_rates(times: Tensor, poses: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Mean angular velocities ``(M, 3)`` (camera axes) between consecutive frames at most
+    twice the median spacing apart, with the intervals' starts and ends ``(M,)``."""
+    dt = times.diff()
+    keep = dt < 2.0 * dt.median()
+    q = dualquat.to_rt(poses)[0]
+    rel = quat.mul(quat.conj(q[:-1]), q[1:])
+    w = quat.to_rotvec(rel) / dt[:, None]
+    return w[keep], times[:-1][keep], times[1:][keep]
+
+
+def _mean_gyro(t: Tensor, gyro: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """Gyroscope readings averaged over ``[a, b]`` (trapezoid integral, linear between
+    samples, clamped at the ends): ``(M, 3)``."""
+    cum = torch.cat((gyro.new_zeros(1, 3),
+                     torch.cumsum(0.5 * (gyro[1:] + gyro[:-1]) * t.diff()[:, None], 0)))
+
+    def integral(s: Tensor) -> Tensor:
+        s = s.clamp(float(t[0]), float(t[-1]))
+        j = torch.searchsorted(t, s, right=True).clamp(1, t.numel() - 1) - 1
+        h = (s - t[j])[:, None]
+        slope = (gyro[j + 1] - gyro[j]) / (t[j + 1] - t[j])[:, None]
+        return cum[j] + gyro[j] * h + 0.5 * slope * h ** 2
+
+    return (integral(b) - integral(a)) / (b - a)[:, None]
+
+
+def _offset(imu_t, gyro, w_cam, a, b, max_offset: float) -> float:
+    """Time offset maximising the correlation of the angular speeds over ``[-max, max]``
+    (0.5 ms grid, refined by a parabola through the best three)."""
+    offsets = torch.arange(-max_offset, max_offset + 1e-12, 5e-4, dtype=torch.float64)
+    speed = w_cam.norm(dim=-1)
+    speed = speed - speed.mean()
+    o = offsets[:, None]
+    s = _mean_gyro(imu_t, gyro, (a + o).flatten(), (b + o).flatten()).norm(dim=-1)
+    s = s.reshape(offsets.numel(), -1)
+    s = s - s.mean(-1, keepdim=True)
+    c = (s * speed).sum(-1) / (s.norm(dim=-1) * speed.norm()).clamp_min(1e-300)
+    k = int(c.argmax().clamp(1, c.numel() - 2))
+    c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
+    denom = c0 - 2 * c1 + c2
+    frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
+    return float(offsets[k]) + max(-1.0, min(1.0, frac)) * 5e-4
+
+
+def _kabsch(w_cam: Tensor, w_body: Tensor) -> tuple[Tensor, Tensor]:
+    r"""Rotation ``R`` (quaternion) and bias ``b`` minimising
+    :math:`\sum |w_b - (R w_c + b)|^2` (centred Kabsch)."""
+    mc, mb = w_cam.mean(0), w_body.mean(0)
+    H = (w_cam - mc).T @ (w_body - mb)
+    U, _, Vh = torch.linalg.svd(H)
+    d = torch.sign(torch.linalg.det(Vh.T @ U.T))
+    R = Vh.T @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ U.T
+    return quat.from_matrix(R), mb - R @ mc
+
+
+def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> Tensor | None:
+    """Camera ``i``'s pose in camera 0's frame from their shared frames (equal stamps; the
+    median translation, the normalised mean quaternion); None without shared frames."""
+    i0, i1 = torch.isin(times0, times).nonzero()[:, 0], torch.isin(times, times0).nonzero()[:, 0]
+    if i0.numel() == 0:
+        return None
+    rel = dualquat.mul(dualquat.inv(poses0[i0]), poses[i1])
+    q, t = dualquat.to_rt(rel)
+    q = q * torch.where((q * q[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+    return dualquat.from_rt(quat.normalize(q.mean(0)), t.median(0).values)
+
+
+def _start_trajectory(samples: list[tuple[Tensor, Tensor]], lo: float, hi: float,
+                      knot_spacing: float) -> BSpline:
+    """Cumulative cubic B-spline with knots every ``knot_spacing`` over ``[lo, hi]`` from
+    body poses ``(times, poses)``: a coarse spline (knots every 0.1 s) fit to the poses,
+    sampled four times per knot span (constant beyond its domain) and refit."""
+    t = torch.cat([s[0] for s in samples])
+    order = torch.argsort(t, stable=True)
+    t, x = t[order], torch.cat([s[1] for s in samples])[order]
+    first = torch.ones_like(t, dtype=torch.bool)
+    first[1:] = t.diff() > 0  # equal stamps of several cameras: the first camera's pose
+    t, x = t[first], x[first]
+    n = max(4, math.ceil(float(t[-1] - t[0]) / 0.1) + 3)
+    q, p = dualquat.to_rt(x)
+    coarse = BSpline.from_poses(q, p, t, n_ctrl=min(n, t.numel()))
+    grid = torch.linspace(lo, hi, max(8, math.ceil((hi - lo) / knot_spacing * 4) + 1),
+                          dtype=torch.float64)
+    with torch.no_grad():
+        y = coarse(grid.clamp(float(t[0]), float(t[-1])))
+    q, p = dualquat.to_rt(y)
+    n = math.ceil((hi - lo) / knot_spacing) + 3
+    return BSpline.from_poses(q, p, grid, n_ctrl=n, form="cumulative")
+
+
+def _starts(cameras, obs, imu, max_offset: float, min_points: int):
+    """Extrinsics ``(C, 8)``, time offsets ``(C,)`` and gyroscope bias starts, and the
+    body-pose samples of every camera on the IMU clock."""
+    t_imu, gyro, _ = imu
+    frames = [_frame_poses(c, o, min_points) for c, o in zip(cameras, obs, strict=True)]
+    rot, offs, biases = [], [], []
+    for i, (t, T) in enumerate(frames):
+        if t.numel() < 10:
+            _checks.fail(_FN, f"camera {i}: only {t.numel()} frames give the target a pose "
+                              f"(at least 10 with >= {min_points} corners are needed)")
+        w, a, b = _camera_rates(t, T)
+        dt = _offset(t_imu, gyro, w, a, b, max_offset)
+        q, bias = _kabsch(w, _mean_gyro(t_imu, gyro, a + dt, b + dt))
+        rot.append(q)
+        offs.append(dt)
+        biases.append(bias)
+    ext = [dualquat.from_rt(rot[0], torch.zeros(3, dtype=torch.float64))]
+    for i in range(1, len(cameras)):
+        rel = _relative(frames[0][0], frames[0][1], frames[i][0], frames[i][1])
+        ext.append(dualquat.from_rt(rot[i], torch.zeros(3, dtype=torch.float64))
+                   if rel is None else dualquat.mul(ext[0], rel))
+    e = torch.stack(ext)
+    samples = [(t + dt, dualquat.mul(T, dualquat.inv(e[i])))
+               for i, ((t, T), dt) in enumerate(zip(frames, offs, strict=True))]
+    return e, torch.tensor(offs, dtype=torch.float64), biases[0], samples
+
+
+def _positive(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            math.isfinite(value) and value > 0):
+        _checks.fail(_FN, f"expected {name} to be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def _motion_warnings(gyro: Tensor, accel: Tensor) -> list[str]:
+    """Warnings for motion that leaves parameters undetermined: rotation (the centred rate's
+    RMS above 0.05 rad/s) about one IMU axis or none (the cameras' rates then fix their
+    orientations only up to a rotation about that axis, and the accelerometer sees no
+    lever arm along it), a specific force whose RMS change is below 0.2 m/s^2 (its bias and
+    gravity not separated)."""
+    out = []
+    w = gyro - gyro.mean(0)
+    ev, vec = torch.linalg.eigh(w.T @ w / w.shape[0])
+    rms = ev.clamp_min(0).sqrt()
+    strong = int((rms >= _MIN_RATE).sum())
+    if strong == 0:
+        out.append(f"{_FN}: no rotation (gyroscope RMS {float(rms.max()):.3f} rad/s): the "
+                   f"extrinsics' rotations and translations and the time_offsets are "
+                   f"undetermined")
+    elif strong == 1:
+        axis = ", ".join(f"{v:.2f}" for v in vec[:, 2].tolist())
+        out.append(f"{_FN}: rotation about one IMU axis only ({axis}); too little rotation "
+                   f"about the others ({float(rms[1]):.3f} rad/s RMS): the extrinsics' "
+                   f"rotation about that axis and their translation along it are "
+                   f"undetermined")
+    f = accel - accel.mean(0)
+    change = float((f ** 2).sum(-1).mean().sqrt())
+    if change < _MIN_ACCEL:
+        out.append(f"{_FN}: no change of the specific force (accelerometer RMS change "
+                   f"{change:.3f} m/s^2): the accel_bias is undetermined (not separated "
+                   f"from gravity)")
+    return out
+
+
+def _domain(obs, imu_t: Tensor, pad_lo: float, pad_hi: float) -> tuple[float, float]:
+    f_lo = min(float(o[0].min()) for o in obs)
+    f_hi = max(float(o[0].max()) for o in obs)
+    lo, hi = max(float(imu_t[0]), f_lo - pad_lo), min(float(imu_t[-1]), f_hi + pad_hi)
+    if hi - lo < 1.0:
+        _checks.fail(_FN, f"the IMU readings ({float(imu_t[0]):.3f} to {float(imu_t[-1]):.3f} "
+                          f"s) and the frames ({f_lo:.3f} to {f_hi:.3f} s) overlap for less "
+                          f"than 1 s: are they on one clock, in seconds?")
+    return lo, hi
+
+
+def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: float,
+               pixel_sigma: float = 1.0, rolling_shutter: bool = False,
+               shared_time_offset: bool = False, knot_spacing: float = 0.05,
+               max_time_offset: float = 0.1, max_line_delay: float = 1e-4,
+               robust: str | None = None, steps: int = 30, prior: float = 0.0,
+               min_points: int = 6, verbose: bool = False) -> CameraImuCalibration:
+    r"""Cameras' poses on an IMU, clock offsets, line delays, IMU biases and gravity from
+    target observations and IMU readings (Kalibr's ``calibrate_imu_camera``).
+
+    Started without guesses (module docstring: target poses per frame, offsets by
+    correlation of angular speeds, orientations by Kabsch on angular rates, trajectory from
+    the poses), then one joint :func:`torch_dq.fitting.estimate`. The cameras' intrinsics
+    stay fixed (calibrate them first with :func:`cameras`).
+
+    Args:
+        cameras: one :class:`torch_dq.camera.Camera` per camera.
+        observations: one ``(times (N,), points (N, 3), pixels (N, 2))`` per camera, as
+            :func:`read_corners` returns (seconds on the IMU file's clock up to the offsets;
+            a planar target, ``Z = 0``).
+        imu: ``(times (M,), gyro (M, 3), accel (M, 3))`` as :func:`torch_dq.io.read_imu`
+            returns (seconds, rad/s, m/s^2; IMU axes).
+        gyro_noise, accel_noise: noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz): Kalibr's
+            ``imu.yaml``); per-sample sigma = density * sqrt(rate), the rate from the median
+            sample spacing.
+        pixel_sigma: corner noise (pixels, per axis).
+        rolling_shutter: estimate one line delay per camera (seconds per row, in
+            ``[0, max_line_delay]``).
+        shared_time_offset: one clock offset for all cameras (hardware-synchronised
+            cameras); else one per camera.
+        knot_spacing: the trajectory's knot spacing (seconds), chosen for the IMU.
+        max_time_offset: bound on the offsets (seconds); the frames within it of the IMU
+            log's ends are left out.
+        max_line_delay: bound on the line delays (seconds per row).
+        robust: None, ``"huber"`` or ``"cauchy"`` on the reprojection errors.
+        steps, prior, verbose: :func:`torch_dq.fitting.estimate`'s (``prior`` 0 by default:
+            the IMU readings cover every control point, and a pull towards the start
+            trajectory biases the extrinsics' translations).
+        min_points: frames with fewer corners are left out.
+
+    Returns:
+        :class:`CameraImuCalibration`.
+
+    Raises:
+        ValueError: mismatched lists or shapes, non-positive noises, fewer than 10 frames of
+            a camera with a target pose, IMU and frames that do not overlap by 1 s.
+        TypeError: cameras that are not :class:`~torch_dq.camera.Camera`.
+
+    Warns:
+        UserWarning: motion too weak to determine a parameter (named), and
+        :func:`~torch_dq.fitting.estimate`'s own warnings.
+    """
+    cams, obs, (t_imu, gyro, accel) = _arguments(cameras, observations, imu)
+    sg = _sigma("gyro_noise", gyro_noise, t_imu)
+    sa = _sigma("accel_noise", accel_noise, t_imu)
+    pixel_sigma = _positive("pixel_sigma", pixel_sigma)
+    knot_spacing = _positive("knot_spacing", knot_spacing)
+    max_time_offset = _positive("max_time_offset", max_time_offset)
+    notes = _motion_warnings(gyro, accel)
+    for n in notes:
+        warnings.warn(n, UserWarning, stacklevel=2)
+    clock = [time.perf_counter()]
+    e0, dt0, bg0, samples = _starts(cams, obs, (t_imu, gyro, accel), max_time_offset,
+                                    min_points)
+    clock.append(time.perf_counter())
+    reach = max_line_delay * max(c.resolution[1] for c in cams) if rolling_shutter else 0.0
+    lo, hi = _domain(obs, t_imu, max_time_offset + 1e-6, max_time_offset + reach + 1e-6)
+    spline = _start_trajectory(samples, lo, hi, knot_spacing)
+    clock.append(time.perf_counter())
+    terms: list = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
+                          shared_time_offset, max_time_offset, max_line_delay, robust,
+                          (lo, hi, reach))
+    keep = (t_imu >= lo) & (t_imu <= hi)
+    gyro_term = Gyro(t_imu[keep], gyro[keep], sigma=sg, bias=Free(start=bg0))
+    accel_term = Accel(t_imu[keep], accel[keep], sigma=sa, bias=True, gravity=_GRAVITY)
+    terms = [*terms, gyro_term, accel_term]
+    est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
+    clock.append(time.perf_counter())
+    res = _result(cams, terms, spline, est, rolling_shutter, notes)
+    clock.append(time.perf_counter())
+    res.timings = dict(zip(("start", "trajectory", "estimate", "uncertainties"),
+                           (b - a for a, b in itertools.pairwise(clock)), strict=True))
+    return res
+
+
+def _camera_terms(cams, obs, e0, dt0, sigma, rolling, shared, max_offset, max_delay, robust,
+                  window) -> list[Reprojections]:
+    """One Reprojections term per camera, frames sorted by time and kept where the bounds
+    on the offset and line delay keep them inside the trajectory's domain."""
+    lo, hi, reach = window
+    one = Free(start=float(dt0.mean())) if shared else None
+    out = []
+    for i, (cam, (t, p, u)) in enumerate(zip(cams, obs, strict=True)):
+        order = torch.argsort(t, stable=True)
+        t, p, u = t[order], p[order], u[order]
+        keep = (t - max_offset >= lo) & (t + max_offset + reach <= hi)
+        if int(keep.sum()) == 0:
+            _checks.fail(_FN, f"camera {i}: no frame inside the IMU log")
+        out.append(Reprojections(
+            t[keep], p[keep], u[keep], camera=cam, sigma=sigma,
+            extrinsic=Free(start=e0[i]),
+            time_offset=one if shared else Free(start=float(dt0[i])),
+            line_delay=True if rolling else None, max_time_offset=max_offset,
+            max_line_delay=max_delay, robust=robust))
+    return out
+
+
+def _reprojection_rms(term: Reprojections, spline) -> Tensor:
+    with torch.no_grad():
+        r = term(spline) * term.sigma
+    used = term.mask.sum() - (0 if term.invalid is None else term.invalid.sum())
+    return ((r ** 2).sum() / used.clamp_min(1)).sqrt()
+
+
+def _result(cams, terms, spline, est, rolling, notes) -> CameraImuCalibration:
+    reps, gyro, accel = terms[:-2], terms[-2], terms[-1]
+    zero = torch.zeros((), dtype=torch.float64)
+    ext = torch.stack([t.extrinsic.detach() for t in reps])
+    offs = torch.stack([t.time_offset.detach().reshape(()) for t in reps])
+    delays = torch.stack([t.line_delay.detach().reshape(()) if rolling else zero
+                          for t in reps])
+    std = {"extrinsics": torch.stack([est.std(t, "extrinsic") for t in reps]),
+           "time_offsets": torch.stack([est.std(t, "time_offset").reshape(()) for t in reps]),
+           "line_delays": torch.stack([est.std(t, "line_delay").reshape(()) if rolling
+                                       else zero for t in reps]),
+           "gyro_bias": est.std(gyro, "bias"), "accel_bias": est.std(accel, "bias"),
+           "gravity": est.std(accel, "gravity")}
+    rms = torch.stack([_reprojection_rms(t, spline) for t in reps])
+    notes = list(notes)
+    for key, v in std.items():
+        if not bool(torch.isfinite(v).all()):
+            text = f"{_FN}: {key} has no information from the data (standard deviation inf)"
+            warnings.warn(text, UserWarning, stacklevel=3)
+            notes.append(text)
+    return CameraImuCalibration(
+        cams, ext, offs, delays, gyro.bias.detach(), accel.bias.detach(),
+        accel.gravity.detach(), {k: v.detach() for k, v in std.items()}, rms, spline, est,
+        terms, notes)

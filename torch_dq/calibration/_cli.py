@@ -1,0 +1,270 @@
+r"""``python -m torch_dq calibrate``: camera-IMU calibration from Kalibr's files (private).
+
+Reads Kalibr's target yaml (:func:`read_target`), the IMU file (:func:`torch_dq.io.read_imu`),
+Kalibr's ``imu.yaml`` (``gyroscope_noise_density``, ``accelerometer_noise_density``;
+``gyroscope_random_walk``, ``accelerometer_random_walk`` and ``update_rate`` are read and
+reported, the biases being constant here) and a camchain yaml (``cam0``, ``cam1``, ...:
+``camera_model``, ``distortion_model``, ``resolution`` and, when known, ``intrinsics`` and
+``distortion_coeffs``; without intrinsics they are calibrated first by :func:`cameras`), one
+``--corners`` CSV (:func:`read_corners`) or ``--images`` folder (:func:`detect_folder`) per
+camera in the camchain's order; runs :func:`camera_imu` and writes to ``--out``:
+
+- ``camchain-imucam.yaml``: Kalibr's keys and nesting (``T_cam_imu``, ``T_cn_cnm1``,
+  ``timeshift_cam_imu``, the camera models), reloadable by
+  :meth:`torch_dq.camera.Camera.from_kalibr`;
+- ``summary.json``: every value with its standard deviation, per-term chi2/dof, the
+  reprojection RMS per camera, the warnings;
+- figures (matplotlib, optional): ``reprojection.png`` (errors per camera over time and in
+  the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases).
+
+User errors (unreadable or malformed files, options the data cannot satisfy, an output
+that would overwrite an input) end in one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+__all__ = ["add_parser", "run"]
+
+_OUTPUTS = ("camchain-imucam.yaml", "summary.json", "reprojection.png", "imu.png")
+
+
+class UserError(ValueError):
+    """A problem with the command's inputs (one line, exit status 2)."""
+
+
+def add_parser(sub) -> None:
+    """The ``calibrate`` subcommand's options on the ``argparse`` subparsers ``sub``."""
+    p = sub.add_parser(
+        "calibrate", help="camera-IMU calibration from Kalibr's files (target, imu, camchain)",
+        description="Calibrate cameras against an IMU (Kalibr's calibrate_imu_camera) from "
+                    "Kalibr's target, imu and camchain yamls, the IMU readings and one "
+                    "--corners CSV or --images folder per camera of the camchain (in its "
+                    "order). Writes camchain-imucam.yaml, summary.json and figures to --out; "
+                    "inputs are never written to. Errors end in one line and exit status 2.")
+    p.add_argument("--target", required=True, metavar="TARGET.yaml",
+                   help="Kalibr's target yaml (aprilgrid or checkerboard)")
+    p.add_argument("--imu", required=True, metavar="IMU_FILE",
+                   help="IMU readings: EuRoC imu0/data.csv or 't gx gy gz ax ay az'")
+    p.add_argument("--imu-noise", required=True, metavar="IMU.yaml",
+                   help="Kalibr's imu.yaml (noise densities, random walks, update_rate)")
+    p.add_argument("--cameras", required=True, metavar="CAMCHAIN.yaml",
+                   help="Kalibr's camchain yaml; cameras without intrinsics are calibrated")
+    p.add_argument("--corners", action="append", default=[], metavar="CSV",
+                   help="corners of one camera (t_ns or t, u_px, v_px, X_m, Y_m, Z_m)")
+    p.add_argument("--images", action="append", default=[], metavar="DIR",
+                   help="a folder of one camera's images named by nanosecond timestamps")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--rolling-shutter", action="store_true",
+                   help="estimate each camera's line delay")
+    p.add_argument("--pixel-sigma", type=float, default=1.0,
+                   help="corner noise per axis (pixels)")
+    p.add_argument("--shared-time-offset", action="store_true",
+                   help="one clock offset for all cameras (hardware-synchronised)")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings")
+
+
+def _yaml(path: str) -> dict:
+    try:
+        import yaml
+    except ImportError:
+        raise UserError("PyYAML is needed: pip install 'torch_dq[calib]'") from None
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = yaml.safe_load(f)
+    except OSError as exc:
+        raise UserError(f"cannot read {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise UserError(f"{path} is not valid yaml: {' '.join(str(exc).split())}") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: expected a yaml mapping")
+    return data
+
+
+def _noise(path: str) -> dict:
+    data = _yaml(path)
+    out = {}
+    for key in ("gyroscope_noise_density", "accelerometer_noise_density"):
+        v = data.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise UserError(f"{path}: expected a positive number under {key}, got {v!r}")
+        out[key] = float(v)
+    for key in ("gyroscope_random_walk", "accelerometer_random_walk", "update_rate"):
+        if key in data:
+            out[key] = data[key]
+    return out
+
+
+def _camchain(path: str) -> list[dict]:
+    data = _yaml(path)
+    names = sorted((k for k in data if k.startswith("cam") and k[3:].isdigit()),
+                   key=lambda k: int(k[3:]))
+    if not names or names != [f"cam{i}" for i in range(len(names))]:
+        raise UserError(f"{path}: expected cameras cam0, cam1, ... got {sorted(data)}")
+    return [data[k] for k in names]
+
+
+def _observations(args, target, n: int):
+    from . import detect_folder, read_corners
+
+    if args.corners and args.images:
+        raise UserError("give --corners or --images, not both")
+    sources = args.corners or args.images
+    if len(sources) != n:
+        raise UserError(f"the camchain has {n} camera(s): give one --corners or --images per "
+                        f"camera, got {len(sources)}")
+    if args.corners:
+        return [tuple(read_corners(p)[:3]) for p in args.corners]
+    return [tuple(detect_folder(p, target)[:3]) for p in args.images]
+
+
+def _cameras(entries, obs, path: str, say):
+    from ..camera import Camera
+    from . import cameras
+
+    known = ["intrinsics" in e for e in entries]
+    if all(known):
+        return [Camera.from_kalibr(e) for e in entries]
+    models = []
+    for i, e in enumerate(entries):
+        probe = dict(e)
+        probe.setdefault("intrinsics", [1.0, 1.0, 0.0, 0.0] + (
+            [0.0, 0.5] if e.get("camera_model") == "ds" else []))
+        if e.get("distortion_model", "none") in ("radtan", "equidistant"):
+            probe.setdefault("distortion_coeffs", [0.0] * 4)
+        try:
+            models.append((Camera.from_kalibr(probe).model, tuple(e["resolution"])))
+        except (KeyError, TypeError) as exc:
+            raise UserError(f"{path}: cam{i} needs camera_model, distortion_model and "
+                            f"resolution ({exc})") from None
+    say("calibrating the cameras' intrinsics first (the camchain has none)")
+    calib = cameras(obs, [m for m, _ in models], [r for _, r in models])
+    return calib.cameras
+
+
+def _check_outputs(args) -> Path:
+    out = Path(args.out)
+    inputs = [args.target, args.imu, args.imu_noise, args.cameras, *args.corners,
+              *args.images]
+    resolved = {Path(p).resolve() for p in inputs}
+    for name in _OUTPUTS:
+        if (out / name).resolve() in resolved:
+            raise UserError(f"--out {args.out} would overwrite the input {out / name}")
+    for p in args.images:
+        if out.resolve() == Path(p).resolve():
+            raise UserError(f"--out {args.out} is an --images folder (an input)")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {args.out} is a file, not a folder")
+    return out
+
+
+def _summary(res, noise: dict, caught: list[str], elapsed: float) -> dict:
+    def val(x):
+        return x.detach().double().cpu().tolist()
+
+    est = res.estimate
+    chi2 = {}
+    for i, term in enumerate(res.terms):
+        name = (f"reprojections_cam{i}" if i < len(res.cameras)
+                else type(term).__name__.lower())
+        c, d = float(est.chi2[term]), float(est.dof[term])
+        chi2[name] = {"chi2": c, "dof": d, "chi2_per_dof": c / d if d else None}
+    values = {k: {"value": val(getattr(res, k)), "std": val(res.std[k])} for k in res.std}
+    values["extrinsics"]["T_cam_imu"] = [res.to_kalibr()[f"cam{i}"]["T_cam_imu"]
+                                         for i in range(len(res.cameras))]
+    return {"values": values, "chi2": chi2,
+            "reprojection_rms_px": val(res.reprojection_rms),
+            "imu_noise": noise, "steps": int(est.steps),
+            "converged": bool(est.converged.all()), "reason": est.reason,
+            "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
+            "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
+                      "(m) in camera axes; gravity in the target frame; biases constant "
+                      "(the random walks are not modelled)"]}
+
+
+def run(args) -> int:
+    """Run ``calibrate`` with parsed ``args``; 0 on success, 2 on a user error."""
+    try:
+        return _run(args)
+    except (UserError, ValueError, OSError) as exc:
+        print(f"torch-dq calibrate: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
+
+def _run(args) -> int:
+    from .. import io
+    from . import camera_imu, read_target
+
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(f"torch-dq calibrate: {text}", flush=True)
+
+    if not args.pixel_sigma > 0:
+        raise UserError(f"--pixel-sigma must be > 0, got {args.pixel_sigma}")
+    out = _check_outputs(args)
+    start = time.perf_counter()
+    target = read_target(args.target)
+    noise = _noise(args.imu_noise)
+    entries = _camchain(args.cameras)
+    imu = io.read_imu(args.imu)
+    say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} camera(s)")
+    obs = _observations(args, target, len(entries))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        cams = _cameras(entries, obs, args.cameras, say)
+        say("estimating (start from the gyroscope and the target poses, then one joint fit)")
+        res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
+                         accel_noise=noise["accelerometer_noise_density"],
+                         pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
+                         shared_time_offset=args.shared_time_offset,
+                         verbose=not args.quiet)
+    caught = [" ".join(str(w.message).split()) for w in record]
+    for text in caught:
+        print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    elapsed = time.perf_counter() - start
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
+    _write(out, res, entries, _summary(res, noise, caught, elapsed))
+    if not args.no_plots:
+        _figures(out, res, say)
+    for i in range(len(cams)):
+        say(f"cam{i}: reprojection RMS {float(res.reprojection_rms[i]):.3f} px, "
+            f"timeshift_cam_imu {1e3 * float(res.time_offsets[i]):.3f} "
+            f"+- {1e3 * float(res.std['time_offsets'][i]):.3f} ms")
+    say(f"wrote {out} in {elapsed:.1f} s")
+    return 0
+
+
+def _write(out: Path, res, entries, summary: dict) -> None:
+    import yaml
+
+    topics = [str(e.get("rostopic", f"/cam{i}/image_raw")) for i, e in enumerate(entries)]
+    with open(out / "camchain-imucam.yaml", "w", encoding="utf-8") as f:
+        yaml.safe_dump(res.to_kalibr(topics), f, default_flow_style=None, sort_keys=True)
+    with open(out / "summary.json", "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=2, allow_nan=True)
+
+
+def _figures(out: Path, res, say) -> None:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        say("matplotlib is not installed: figures skipped (pip install 'torch_dq[plot]')")
+        return
+    from ._plots import imu_figure, reprojection_figure
+
+    for name, fig in (("reprojection.png", reprojection_figure(res, plt)),
+                      ("imu.png", imu_figure(res, plt))):
+        fig.savefig(os.fspath(out / name), dpi=130)
+        plt.close(fig)

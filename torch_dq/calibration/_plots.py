@@ -1,0 +1,79 @@
+"""Figures of ``python -m torch_dq calibrate`` (private; matplotlib's ``pyplot`` passed in)."""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["imu_figure", "reprojection_figure"]
+
+
+def _residuals(term, spline):
+    """Unwhitened residuals ``(N, k)`` of ``term`` (zero where masked) and its times."""
+    with torch.no_grad():
+        r = term(spline) * term.sigma
+    return r.double().cpu().numpy(), term.times.double().cpu().numpy()
+
+
+def reprojection_figure(res, plt):
+    """Per camera: the pixel error's norm over time (and per-frame RMS), and the errors in
+    the image (points at the measured pixels, coloured by the error's norm)."""
+    C = len(res.cameras)
+    fig, axes = plt.subplots(C, 2, figsize=(11, 3.2 * C), squeeze=False,
+                             gridspec_kw={"width_ratios": [1.6, 1]})
+    for i, term in enumerate(res.terms[:C]):
+        r, t = _residuals(term, res.trajectory)
+        used = term.mask.cpu().numpy()
+        e = (r ** 2).sum(-1) ** 0.5
+        t0 = t[used].min()
+        ax = axes[i, 0]
+        ax.plot(t[used] - t0, e[used], ".", ms=1.0, alpha=0.3, color="0.5", label="corner")
+        frames, inv = torch.unique(torch.as_tensor(t[used]), return_inverse=True)
+        sq = torch.zeros(frames.numel(), dtype=torch.float64).index_add_(
+            0, inv, torch.as_tensor(e[used] ** 2))
+        n = torch.bincount(inv, minlength=frames.numel()).clamp_min(1)
+        ax.plot(frames.numpy() - t0, (sq / n).sqrt().numpy(), "-", lw=1.0, color="C0",
+                label="frame RMS")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"cam{i} error (px)")
+        ax.set_title(f"cam{i}: reprojection RMS {float(res.reprojection_rms[i]):.3f} px",
+                     fontsize=10)
+        ax.legend(loc="upper right", fontsize=8)
+        ax = axes[i, 1]
+        uv = term.pixels.double().cpu().numpy()[used]
+        sc = ax.scatter(uv[:, 0], uv[:, 1], c=e[used], s=1.0, cmap="viridis",
+                        vmax=max(float(e[used].max()), 1e-9) if e[used].size else 1.0)
+        w, h = res.cameras[i].resolution
+        ax.set_xlim(0, w)
+        ax.set_ylim(h, 0)
+        ax.set_aspect("equal")
+        ax.set_title(f"cam{i}: error in the image", fontsize=10)
+        fig.colorbar(sc, ax=ax, label="px")
+    fig.tight_layout()
+    return fig
+
+
+def imu_figure(res, plt):
+    """Gyroscope and accelerometer residuals over time (IMU axes) and the biases with their
+    standard deviations."""
+    gyro, accel = res.terms[-2], res.terms[-1]
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5))
+    for ax, term, unit in ((axes[0], gyro, "rad/s"), (axes[1], accel, "m/s$^2$")):
+        r, t = _residuals(term, res.trajectory)
+        for k, name in enumerate("xyz"):
+            ax.plot(t - t[0], r[:, k], lw=0.5, label=name)
+        ax.set_ylabel(f"{type(term).__name__} residual ({unit})")
+        ax.legend(loc="upper right", fontsize=8, ncol=3)
+    axes[1].set_xlabel("time (s)")
+    ax = axes[2]
+    x = torch.arange(3).numpy()
+    for off, key, unit, scale in ((-0.2, "gyro_bias", "mrad/s", 1e3),
+                                  (0.2, "accel_bias", "cm/s$^2$", 1e2)):
+        ax.bar(x + off, (getattr(res, key) * scale).cpu().numpy(), width=0.35,
+               yerr=(res.std[key] * scale).cpu().numpy(), capsize=3,
+               label=f"{key} ({unit})")
+    ax.set_xticks(x, ["x", "y", "z"])
+    ax.axhline(0.0, color="0.3", lw=0.5)
+    ax.set_title("estimated biases (error bars: one standard deviation)", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
