@@ -395,7 +395,7 @@ def test_nuisance_stds_match_a_monte_carlo_scatter():
               (terms[2].bias - torch.tensor([0.1, -0.05, 0.2], dtype=F64),
                est.std(terms[2], "bias")),
               ((terms[1].time_offset - 0.01)[:, None], est.std(terms[1], "time_offset")[:, None])]
-    for k, (err, std) in enumerate(checks):  # the scatter about the draws' mean (the spline's model error
+    for k, (err, std) in enumerate(checks):  # the scatter about the draws' mean (the model
         # at these knots is common to every draw)
         ratio = err.std(0) / (std ** 2).mean(0).sqrt()
         assert bool(((ratio > 0.7) & (ratio < 1.4)).all()), (k, ratio)
