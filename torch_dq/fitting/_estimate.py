@@ -242,8 +242,9 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     plus the Gaussian priors of :class:`~torch_dq.fitting.Free` parameters, plus the
     numerical ``prior``, which only keeps what the data do not determine where the start
     put it (:mod:`~torch_dq.fitting._prior`): combinations of neighbouring control points
-    carrying less than ``prior`` times the typical information (time gaps, their edges,
-    ends without samples) are pulled to the start with that weight, nuisance directions
+    carrying less than ``1e-6`` times the typical information (time gaps, ends without
+    samples; ``prior`` times it, their weakly determined edges included, when no nuisance
+    parameter is estimated) are pulled to the start with weight ``prior``, nuisance directions
     without information (below ``1e-9``, scaled) likewise, and combinations of control
     points that no sample resolves (knots closer than the samples) are never stepped along.
     Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
@@ -342,7 +343,7 @@ class _LevenbergMarquardt:
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
         self.system = s = problem.system(ctrl, values, self.w)
-        cpull = _prior.control_pull(s.band, prior)
+        cpull = _prior.control_pull(s.band, prior, bool(problem.params))
         info = torch.diag(problem.prior_information().to(s.nn))
         self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
         self.null = _prior.control_null(s.band, cpull)

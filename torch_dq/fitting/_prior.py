@@ -8,7 +8,8 @@ the median of the diagonal entries over the control points that some sample touc
 :math:`\hat A_w = D^{-1/2} A_w D^{-1/2} = V \Lambda V^T`; an eigen-direction with
 :math:`\lambda <` ``SPARSE`` ``= 1e-6`` (a combination of neighbouring control points
 with no information worth the name: a time gap, an end without samples) gets the pull
-information ``p = prior`` (scaled), :math:`D^{1/2} V \mathrm{diag}(p [\lambda < 10^{-6}])
+information ``p = prior`` (scaled; without estimated nuisance parameters the threshold is
+``p`` itself, see :func:`control_pull`), :math:`D^{1/2} V \mathrm{diag}(p [\lambda < 10^{-6}])
 V^T D^{1/2}`, summed over the windows into a band ``P``, and the cost
 :math:`\delta^T P \delta`, :math:`\delta_k = \log(c^{0\,-1}_k c_k)`. A direction with
 more information is not pulled at all. (A threshold of ``1e-3`` pulled combinations that an
@@ -77,13 +78,20 @@ def _windows(band: Tensor, v: int) -> Tensor:
     return torch.cat(rows, -2)
 
 
-def control_pull(band: Tensor, prior: float) -> Tensor:
+def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     """``(Bf, n, w, 6, 6)`` pull information of the control points, banded (module doc).
 
     Args:
         band: ``(Bf, n, w, 6, 6)`` data band at the start.
-        prior: the pull's relative weight and threshold ``p >= 0``.
+        prior: the pull's relative weight ``p >= 0``.
+        nuisance: whether nuisance parameters are estimated. With them the threshold is
+            ``min(p, SPARSE)`` (a pull on combinations that an IMU weakly determines would
+            move an extrinsic); without them (a trajectory from poses or positions alone,
+            where a pull can decide no other parameter) it is ``p`` itself, so that the
+            weakly determined edges of long time gaps stay near the start instead of
+            swinging to the few samples' least-squares answer (TUM fr2_desk: 40 deg).
     """
+    threshold = min(prior, SPARSE) if nuisance else prior
     if prior == 0:
         return torch.zeros_like(band)
     Bf, n, w = band.shape[:3]
@@ -91,7 +99,7 @@ def control_pull(band: Tensor, prior: float) -> Tensor:
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
     lam, V = torch.linalg.eigh(_windows(band, v) / outer)
-    W = (V * torch.where(lam < SPARSE, prior, 0.0)[..., None, :]) @ V.mT * outer
+    W = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer
     pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
     for a in range(v):
         for b in range(a, v):
