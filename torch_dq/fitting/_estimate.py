@@ -284,6 +284,7 @@ class _LevenbergMarquardt:
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
         self.system = problem.system(ctrl, values, self.w)
+        self.fresh = True  # self.system is at the current point
         diag0 = self.system.band[:, :, 0].diagonal(dim1=-2, dim2=-1).mean((-1, -2))
         self.mu = prior * diag0
         self.solver = _Solver(problem, self.system, self.mu)
@@ -317,15 +318,17 @@ class _LevenbergMarquardt:
 
     def predicted_stop(self, tol: float) -> None:
         """Stop the elements whose next step, as the last system predicts it (its damped
-        Gauss-Newton matrix, the exact gradient here: one chained reverse pass of the
-        costs instead of the Jacobians' k), lowers the objective by at most ``tol``
-        relatively: the model decrease of the step ``dx`` is at most ``-2 g^T dx`` (``g`` the
-        half gradient). Only after a step that lowered the objective by at most
-        ``_SETTLING`` relatively (after larger ones the prediction would rarely stop and
-        costs a pass of the costs)."""
+        Gauss-Newton matrix, the exact gradient here), lowers the objective by at most
+        ``tol`` relatively: the model decrease of the step ``dx`` is at most ``-2 g^T dx``
+        (``g`` the half gradient). Only after a step that lowered the objective by at most
+        ``_SETTLING`` relatively (after larger ones the prediction would rarely stop). The
+        gradient ``J^T W r`` comes from the Gauss-Newton system at the current point, which
+        is kept: the next iteration needs it, or the uncertainties after a stop (where it
+        replaces a chained pass of the costs, the uncertainties save a whole system)."""
         if not bool((self.active & self.settling).any()):
             return
-        gc, gn = self.p.gradient(self.ctrl, self.values, self.w)
+        self.system, self.fresh = self.p.system(self.ctrl, self.values, self.w), True
+        gc, gn = self.system.gc, self.system.gn
         pc, pn = self._prior_gradient()
         gc, gn = gc + pc, gn + pn
         dc, dn, ok = self.solver.step(self.lam, gc, gn)
@@ -370,6 +373,7 @@ class _LevenbergMarquardt:
                 self.reasons[b] = "no damped step lowers the cost (a numerical minimum)"
             elif bool(small[b]):
                 self.reasons[b] = f"the relative decrease fell below tol={tol!r}"
+        self.fresh = not bool((self.active & ~pending).any())  # no element moved
         self.active &= ~(pending | small)
         self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
         self.settling = (self.obj - new[2]).reshape(Bf) <= _SETTLING * new[2].reshape(Bf)
@@ -378,7 +382,9 @@ class _LevenbergMarquardt:
 
 def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, tol: float,
              prior: float, bar):
-    """The Levenberg-Marquardt loop; returns the final point and its history."""
+    """The Levenberg-Marquardt loop; returns the final point and its history (with the
+    Gauss-Newton system at the final point where one was built there, for the
+    uncertainties)."""
     lm = _LevenbergMarquardt(problem, ctrl, values, prior)
     losses, objectives = [lm.data.clone()], [lm.obj.clone()]
     done = 0
@@ -389,7 +395,8 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
             lm.predicted_stop(tol)
             if not bool(lm.active.any()):
                 break
-            lm.system = problem.system(lm.ctrl, lm.values, lm.w)
+            if not lm.fresh:
+                lm.system, lm.fresh = problem.system(lm.ctrl, lm.values, lm.w), True
         done = k + 1
         lm.iteration(tol)
         losses.append(lm.data.clone())
@@ -404,5 +411,7 @@ def _iterate(problem: Problem, ctrl: Tensor, values: list[Tensor], steps: int, t
     reason = reasons[0] if len(reasons) == 1 else "; ".join(
         f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
     history = {"loss": torch.stack(losses), "objective": torch.stack(objectives),
-               "steps": done, "reason": reason, "converged": converged.reshape(problem.batch)}
+               "steps": done, "reason": reason, "converged": converged.reshape(problem.batch),
+               "system": lm.system if lm.fresh and problem.width(lm.values) == lm.w
+               else None}
     return lm.ctrl, lm.values, history

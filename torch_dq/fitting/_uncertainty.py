@@ -91,7 +91,7 @@ class Estimate:
         self.steps: int = history["steps"]
         self.converged: Tensor = history["converged"]
         self.reason: str = history["reason"]
-        self._sys = None
+        self._sys = history.get("system")  # built at the optimum by the loop, or None
         self._factored = False
 
     def __repr__(self) -> str:
