@@ -7,8 +7,8 @@ the rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` with sine Euler angles), poses at 20
 ``R^T (a - g) + b_a``, 2e-2 m/s^2 noise; constant biases, gravity ``(0, 0, -9.81)``).
 
 - torch_dq: a cumulative cubic ``BSpline`` with a knot about every 0.05 s (``n_ctrl`` = the
-  number of poses, the most ``from_dualquats`` starts from them), ``fitting.Poses``, ``Gyro`` and ``Accel`` with ``bias=True``,
-  ``estimate(..., verbose=False)``, then ``std`` of both biases.
+  number of poses, the most ``from_dualquats`` starts from), ``fitting.Poses``, ``Gyro`` and
+  ``Accel`` with ``bias=True``, ``estimate(..., verbose=False)``, then ``std`` of both biases.
 - GTSAM: ``PreintegratedCombinedMeasurements`` / ``CombinedImuFactor`` between the 20 Hz
   pose keys (bias random walk 1e-6 per sqrt(s), so near constant), a ``PriorFactorPose3`` per
   pose, a weak bias prior, started from the poses (velocities by finite differences, zero
@@ -18,12 +18,14 @@ Each side runs in a child process of its own (``--threads`` torch / OpenMP threa
 (an untimed 10 s job first), best of ``--repeats``; peak memory is the child's peak resident
 set (``resource.getrusage``) and its increase over the resident set before the first run.
 Bias errors are reported in standard deviations of the estimate (``|estimate - truth| /
-std`` per axis, the largest of the three). ``--cpu`` reports process CPU seconds (steadier on a shared machine). ``--scaling`` times one run per duration (10,
-60, 300, 1200 s; ``--long`` adds 3600 s) and fits the time per LM step against the samples.
+std`` per axis, the largest of the three). ``--cpu`` reports process CPU seconds
+(steadier on a shared machine). ``--scaling`` times one warm run per duration (10, 60, 300,
+1200 s; ``--long`` adds 3600 s) and fits the time per LM step against the samples.
 
     python benchmarks/bench_gtsam.py                       # 60 s, 1 and 2 threads
     python benchmarks/bench_gtsam.py --scaling --threads 1 # the scaling series
-    python benchmarks/bench_gtsam.py --profile             # one torch_dq run, cProfile top
+    python benchmarks/bench_gtsam.py --profile --threads 1 # CPU time per solver phase,
+                                                           # cProfile, torch.profiler
 
 GTSAM (``pip install gtsam``, the ``bench`` extra) is optional: without it only torch_dq's
 column is filled.
@@ -98,8 +100,8 @@ def position(t: np.ndarray, order: int = 0) -> np.ndarray:
 def make_job(duration: float, seed: int = 0) -> dict:
     """Truth and noisy measurements of a ``duration`` s job (numpy float64)."""
     rng = np.random.default_rng(seed)
-    tc = np.arange(int(round(duration * POSE_HZ)) + 1) / POSE_HZ
-    ti = np.arange(int(round(duration * IMU_HZ)) + 1) / IMU_HZ
+    tc = np.arange(round(duration * POSE_HZ) + 1) / POSE_HZ
+    ti = np.arange(round(duration * IMU_HZ) + 1) / IMU_HZ
     Rc, Ri = rotation(tc), rotation(ti)
     g = np.array([0.0, 0.0, -G])
     gyro = body_rate(ti) + B_GYRO + SIGMA_GYRO * rng.standard_normal((len(ti), 3))
@@ -284,23 +286,95 @@ def scaling(durations: list[float], threads: int, sides: list[str]) -> None:
             x, y = np.array(pts).T
             slope, icpt = np.polyfit(x, y, 1)
             expo = np.polyfit(np.log(x), np.log(y), 1)[0]
-            print(f"  {side}: {'CPU' if CLOCK else 'wall'} time per step = {1e6 * slope:.2f} us x samples + {icpt:.3f} s "
-                  f"(log-log exponent {expo:.2f})")
+            print(f"  {side}: {'CPU' if CLOCK else 'wall'} time per step = {1e6 * slope:.2f} "
+                  f"us x samples + {icpt:.3f} s (log-log exponent {expo:.2f})")
+
+
+_PHASES = [  # (module, attribute, label) of the solver's phases (private: skipped if renamed)
+    ("_problem", "Problem.system", "Gauss-Newton system (Jacobians + assembly)"),
+    ("_problem", "Problem._span_derivatives", "  span derivatives (forward, both calls)"),
+    ("_problem", "Problem._through_spans", "  reverse passes through the spans"),
+    ("_problem", "sample_jacobians", "  residual Jacobians w.r.t. span derivatives"),
+    ("_problem", "_window_normal", "  assembly of the banded normal equations"),
+    ("_problem", "Problem.gradient", "gradient pass (predicted stop)"),
+    ("_problem", "Problem.data_cost", "trial costs (layer path)"),
+    ("_estimate", "_Solver.step", "damped solves (banded Cholesky + Schur)"),
+    ("_estimate", "_LevenbergMarquardt._prior_gradient", "prior gradients"),
+    ("_uncertainty", "Estimate._factor", "uncertainty factorisation"),
+]
+
+
+def _instrument(totals: dict, counts: dict) -> None:
+    """Wrap the phases of :data:`_PHASES` to add their process CPU time to ``totals``."""
+    import functools
+    import importlib
+    for mod_name, attr, label in _PHASES:
+        mod = importlib.import_module(f"torch_dq.fitting.{mod_name}")
+        *owner_path, name = attr.split(".")
+        owner = mod
+        for part in owner_path:
+            owner = getattr(owner, part, None)
+        fn = getattr(owner, name, None) if owner is not None else None
+        if fn is None:
+            continue
+
+        def wrapped(*a, _fn=fn, _label=label, **k):
+            t = time.process_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                totals[_label] = totals.get(_label, 0.0) + time.process_time() - t
+                counts[_label] = counts.get(_label, 0) + 1
+        setattr(owner, name, functools.wraps(fn)(wrapped))
 
 
 def profile(duration: float, threads: int) -> None:
+    """Process CPU time per solver phase of one warm run, then cProfile's top functions and
+    torch.profiler's top operators of one Gauss-Newton system."""
     import cProfile
     import pstats
 
     import torch
     torch.set_num_threads(threads)
     job = make_job(duration)
-    torch_dq_run(job)
+    torch_dq_run(make_job(10.0))
+    totals: dict = {}
+    counts: dict = {}
+    _instrument(totals, counts)
+    _, solve, unc, steps, _ = torch_dq_run(job)
+    print(f"{duration:g} s job, {threads} thread(s), process CPU s: estimate {solve[1]:.3f} "
+          f"({steps} steps), std of both biases {unc[1]:.3f}")
+    print("| phase | calls | CPU s |\n|---|---|---|")
+    for _, _, label in _PHASES:
+        if label in totals:
+            print(f"| {label} | {counts[label]} | {totals[label]:.3f} |")
     prof = cProfile.Profile()
     prof.enable()
-    print(torch_dq_run(job)[:4])  # setup, solve, uncertainty (wall, CPU), steps
+    torch_dq_run(job)
     prof.disable()
-    pstats.Stats(prof).sort_stats("tottime").print_stats(25)
+    pstats.Stats(prof).sort_stats("tottime").print_stats(15)
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    import torch_dq.dualquat as dq
+    from torch_dq import fitting, quat
+    from torch_dq.fitting import _estimate, _problem
+    from torch_dq.nn import BSpline
+    tc, ti = (torch.from_numpy(job[k]) for k in ("tc", "ti"))
+    poses = dq.from_rt(quat.from_matrix(torch.from_numpy(job["R"])), torch.from_numpy(job["p"]))
+    spline = BSpline.from_dualquats(poses, tc, n_ctrl=len(tc), form="cumulative")
+    terms = [fitting.Poses(tc, poses, rot_sigma=SIGMA_ROT, trans_sigma=SIGMA_POS),
+             fitting.Gyro(ti, torch.from_numpy(job["gyro"]), sigma=SIGMA_GYRO, bias=True),
+             fitting.Accel(ti, torch.from_numpy(job["acc"]), sigma=SIGMA_ACC, bias=True,
+                           gravity=torch.tensor([0.0, 0.0, -G], dtype=torch.float64))]
+    problem = _problem.Problem(spline, terms, torch.Size([]))
+    ctrl = spline.control_points.detach().to(torch.float64)
+    values = _estimate._starts("profile", problem, ctrl)
+    width = problem.width(values)
+    problem.system(ctrl, values, width)
+    with torch_profile(activities=[ProfilerActivity.CPU]) as tp:
+        problem.system(ctrl, values, width)
+    print(tp.key_averages().table(sort_by="self_cpu_time_total", row_limit=12))
 
 
 def main() -> None:
