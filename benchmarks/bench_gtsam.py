@@ -384,6 +384,7 @@ def main() -> None:
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--scaling", action="store_true")
     ap.add_argument("--long", action="store_true", help="add 3600 s to the scaling series")
+    ap.add_argument("--durations", help="comma list of the scaling series' durations (s)")
     ap.add_argument("--only", choices=["torch_dq", "gtsam"])
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--cpu", action="store_true",
@@ -412,6 +413,8 @@ def main() -> None:
           f"{os.getloadavg()[0]:.1f}")
     if args.scaling:
         durations = [10.0, 60.0, 300.0, 1200.0] + ([3600.0] if args.long else [])
+        if args.durations:
+            durations = [float(x) for x in args.durations.split(",")]
         for th in threads:
             scaling(durations, th, sides)
     else:
