@@ -172,8 +172,9 @@ def _chunk_jets(P: Tensor, w: _taylor.Jet) -> _taylor.Jet:
     rel = _taylor.dq_rows(_conj_rows(P[:, :-1]), P[:, 1:])  # c_{j-1}^-1 c_j, (8, p, N)
     powers = _taylor.sclerp([_identity_rows(P), *[None] * order], [rel, *[None] * order], w)
     x: _taylor.Jet = [P[:, 0], *[None] * order]
+    factors = [[None] * (P.shape[1] - 1) if e is None else e.unbind(1) for e in powers]
     for j in range(P.shape[1] - 1):
-        x = _taylor.dq_mul(x, [None if e is None else e[:, j] for e in powers])
+        x = _taylor.dq_mul(x, [f[j] for f in factors])
     return x
 
 

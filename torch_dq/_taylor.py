@@ -412,8 +412,7 @@ def sclerp_parts(A: Jet, B: Jet, alpha: Jet, with_H: bool = False) -> SclerpPart
     sign = 1.0 - 2.0 * ((A0[:4] * B0[:4]).sum(0) < 0).to(B0.dtype)
     B = _scale(B, sign)  # b's representative nearest to a
     # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
-    dots = mul(A, [None if b is None else torch.stack((b, torch.cat((b[4:], b[:4]))))
-                   for b in B])
+    dots = mul(A, [None if b is None else torch.stack((b, b.roll(4, 0))) for b in B])
     c = [None if d is None else d[0, :4].sum(0) for d in dots]
     delta = [None if d is None else d[1].sum(0) for d in dots]
     # s = 1 - t for a, t for b
@@ -425,9 +424,15 @@ def sclerp_parts(A: Jet, B: Jet, alpha: Jet, with_H: bool = False) -> SclerpPart
     D = [None if x is None else x.sum(0) for x in mul(G, [None if x is None else x[:, :4]
                                                           for x in X])]
     correction = mul(delta, D)
-    q = [None if x is None else torch.cat((x[:4], cast(Tensor, _lin(x[4:], 1.0, corr, -1.0))))
-         for x, corr in zip(q, correction, strict=True)]
+    q = [None if x is None else _dual_minus(x, corr) for x, corr in zip(q, correction,
+                                                                       strict=True)]
     return SclerpParts(q, sign, F, G, H, delta, D)
+
+
+def _dual_minus(x: Tensor, corr: Tensor | None) -> Tensor:
+    """Rows ``x (8, ...)`` with ``corr (4, ...)`` subtracted from the dual half."""
+    real, dual = x.split(4)
+    return torch.cat((real, cast(Tensor, _lin(dual, 1.0, corr, -1.0))))
 
 
 def pyramid(q: Jet, levels: list[Jet], kept: list[SclerpParts] | None = None) -> Jet:
@@ -454,21 +459,26 @@ def derivatives(jet: Jet) -> list[Tensor]:
             for k, x in enumerate(jet)]
 
 
-def qmul_rows(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product of quaternions as component rows ``(4, ...)`` (``w, x, y, z``)."""
+def _qmul(a, b) -> list[Tensor]:
+    """Hamilton product of quaternions given as 4 component tensors each (``w, x, y, z``)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw))
+    return [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw]
+
+
+def qmul_rows(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of quaternions as component rows ``(4, ...)`` (``w, x, y, z``)."""
+    return torch.stack(_qmul(a.unbind(0), b.unbind(0)))
 
 
 def dq_rows(a: Tensor, b: Tensor) -> Tensor:
     r"""Dual-quaternion product :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
-    ``(8, ...)`` (broadcast)."""
-    return torch.cat((qmul_rows(a[:4], b[:4]),
-                      qmul_rows(a[:4], b[4:]) + qmul_rows(a[4:], b[:4])))
+    ``(8, ...)`` (broadcast). The rows are read by one ``unbind`` each (reverse mode: one
+    node stacking the cotangents, not a zero-filled full-size cotangent per slice)."""
+    A, B = a.unbind(0), b.unbind(0)
+    dual = [x + y for x, y in zip(_qmul(A[:4], B[4:]), _qmul(A[4:], B[:4]), strict=True)]
+    return torch.stack(_qmul(A[:4], B[:4]) + dual)
 
 
 def dq_mul(a: Jet, b: Jet) -> Jet:
@@ -483,9 +493,9 @@ def dq_mul(a: Jet, b: Jet) -> Jet:
     shape = torch.broadcast_shapes(*(x.shape for x in (*a, *b) if x is not None))
     prod = dq_rows(torch.stack([cast(Tensor, a[i]).expand(shape) for i, _ in pairs], 1),
                    torch.stack([cast(Tensor, b[j]).expand(shape) for _, j in pairs], 1))
+    parts = prod.unbind(1)  # one node in reverse mode (not a full-size cotangent per pick)
     out: Jet = []
     for k in range(len(a)):
-        at = [m for m, (i, j) in enumerate(pairs) if i + j == k]
-        out.append(None if not at else prod[:, at[0]] if len(at) == 1
-                   else prod[:, at[0]:at[-1] + 1].sum(1))
+        at = [parts[m] for m, (i, j) in enumerate(pairs) if i + j == k]
+        out.append(None if not at else sum(at[1:], at[0]))
     return out
