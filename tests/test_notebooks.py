@@ -26,6 +26,7 @@ EXPECTED = {
     "06_real_trajectory": ["06_heldout_errors.png", "06_kinematics.png", "06_imu.png"],
     "07_estimation": ["07_trajectory.png", "07_kinematics.png"],
     "08_camera_rig": ["08_extrinsics.png", "08_residuals.png"],
+    "09_deblurring": ["09_deblur_images.png", "09_deblur_loss.png"],
 }
 
 
