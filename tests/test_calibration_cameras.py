@@ -276,12 +276,12 @@ def test_three_cameras_mixed_models_chained():
 
 
 def test_float32_observations():
-    """float32 observations: float32 results (solved in float64), equal to the float64 run
-    to float32 rounding of the inputs."""
+    """float32 points and pixels (float64 times): float32 results (solved in float64), equal
+    to the float64 run to float32 rounding of the inputs."""
     rng = np.random.default_rng(11)
     obs = _simulate(rng, ["pinhole-radtan"] * 2, TRUE["pinhole-radtan"], [T01], frames=10)
     r64 = calibration.cameras(obs, ["pinhole-radtan"] * 2, [RES] * 2)
-    obs32 = [tuple(x.float() for x in o) for o in obs]
+    obs32 = [(t, p.float(), u.float()) for t, p, u in obs]
     r32 = calibration.cameras(obs32, ["pinhole-radtan"] * 2, [RES] * 2)
     assert r32.relative_poses.dtype == torch.float32
     assert r32.cameras[0].params.dtype == torch.float32
@@ -291,8 +291,9 @@ def test_float32_observations():
 
 
 def test_robust_kernel_against_outliers():
-    """5 % of the corners moved by 10-30 px: least squares puts the principal point 10 px
-    off; Cauchy and Huber (k = 1 px) stay within 1 px and 4 standard deviations."""
+    """5 % of the corners moved by 10-30 px (kept in the image): least squares puts the
+    principal point 10 px off; Cauchy and Huber (k = 1 px) stay within 1 px and 4 standard
+    deviations."""
     rng = np.random.default_rng(5)
     obs = _simulate(rng, ["pinhole-radtan"] * 2, TRUE["pinhole-radtan"], [T01])
     bad = []
@@ -302,6 +303,7 @@ def test_robust_kernel_against_outliers():
         shift = torch.from_numpy(rng.uniform(10, 30, (idx.numel(), 1))
                                  * rng.choice([-1.0, 1.0], (idx.numel(), 2)))
         u[idx] += shift
+        u = torch.minimum(u.clamp_min(0.0), torch.tensor(RES, dtype=u.dtype) - 1.0)  # in the image
         bad.append((t, p, u))
     plain = calibration.cameras(bad, ["pinhole-radtan"] * 2, [RES] * 2)
     err_plain = np.abs(plain.cameras[0].params.numpy() - TRUE["pinhole-radtan"][0])
@@ -340,6 +342,11 @@ def _valid_args():
      "non-finite"),
     (lambda o, m, r: ([(o[0][0][o[0][0] < 0.1], o[0][1][o[0][0] < 0.1],
                         o[0][2][o[0][0] < 0.1]), o[1]], m, r), "camera 0 has 2 views"),
+    # the trial's case: pixels up to u = 750 with a (640, 480) resolution
+    (lambda o, m, r: (o, m, [(640, 480), (752, 480)]),
+     r"pixels reach u = 6[4-9]\d.*outside resolution\[0\] = \(640, 480\)"),
+    (lambda o, m, r: ([o[0], (o[1][0], o[1][1], o[1][2] - torch.tensor([0.0, 500.0]))], m, r),
+     r"observations\[1\] pixels reach v = -.*outside resolution\[1\]"),
 ])
 def test_bad_arguments(change, match):
     obs, models, res = change(*_valid_args())
@@ -362,6 +369,39 @@ def test_integer_observations_are_a_type_error():
     obs, models, res = _valid_args()
     with pytest.raises(TypeError, match="observations\\[0\\] pixels"):
         calibration.cameras([(obs[0][0], obs[0][1], obs[0][2].long()), obs[1]], models, res)
+
+
+def test_float32_times_are_a_type_error():
+    """float32 UNIX seconds are 128 s apart: the 30 EuRoC-like frames 0.05 s apart would
+    merge into one or two timestamps. Required: float64 times."""
+    obs, models, res = _valid_args()
+    t32 = (obs[0][0] + 1.4e9).float()
+    assert torch.unique(t32).numel() < torch.unique(obs[0][0]).numel()  # frames merge
+    with pytest.raises(TypeError, match=r"float64 observations\[0\] times.*merges"):
+        calibration.cameras([(t32, obs[0][1], obs[0][2]), obs[1]], models, res)
+
+
+def test_pixels_on_the_image_border_are_accepted():
+    """(0, 0) is the top-left pixel's centre: u = -0.5 and u = width - 0.5 are inside."""
+    obs, models, res = _valid_args()
+    t, p, u = obs[0]
+    u = u.clone()
+    u[0, 0], u[1, 0] = -0.5, RES[0] - 0.5
+    calibration.cameras([(t, p, u), obs[1]], models, res, max_iterations=0)
+
+
+def test_warns_when_the_bundle_adjustment_does_not_converge(euroc):
+    """A plain pinhole on the distorted EuRoC corners ends with the principal point at about
+    (647, -845) and converged False: a RuntimeWarning names the camera and the reason."""
+    with pytest.warns(RuntimeWarning, match=r"did not converge.*camera 0 \('pinhole'\)"):
+        res = calibration.cameras([_observation(*euroc[0])], ["pinhole"], [RES])
+    assert not res.converged and res.reprojection_rms[0] > 1.0
+    with pytest.warns(RuntimeWarning, match=r"max_iterations = 1 steps.*camera 1 \('pinhole'\)"):
+        obs, models, r = _valid_args()
+        obs = [obs[0], (obs[1][0], obs[1][1], obs[1][2] + 3.0 * torch.randn(
+            obs[1][2].shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64))]
+        res = calibration.cameras(obs, models, r, max_iterations=1)
+    assert not res.converged
 
 
 def test_cameras_without_a_shared_frame():

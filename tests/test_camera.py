@@ -436,6 +436,56 @@ def test_nan_in_distortion_params_is_not_hidden():
         assert torch.isnan(px).any() and not valid and torch.isnan(rays).any() and not ok
 
 
+def _out_of_domain(model, params):
+    """Copies of ``params`` outside the model's domain (and, for the double sphere, on
+    its boundary ``alpha = 0``, ``alpha = 1``, which is inside)."""
+    bad = []
+    for i, v in ((0, 0.0), (0, -params[0]), (1, 0.0), (1, -params[1])):
+        q = list(params)
+        q[i] = v
+        bad.append(q)
+    if model == "double-sphere":
+        for i, v in ((5, -0.1), (5, 1.2), (4, -1.0), (4, -1.5)):
+            q = list(params)
+            q[i] = v
+            bad.append(q)
+    return bad
+
+
+@pytest.mark.parametrize("model", list(CAMERAS))
+def test_parameters_outside_the_domain_are_invalid_and_finite(model):
+    """Zero or negative focal lengths (double sphere: xi <= -1, alpha outside [0, 1]) give
+    valid False everywhere, finite outputs and finite gradients in params and inputs (a
+    zero focal length gave NaN rays with valid True); the in-domain element of the same
+    batch is unchanged, and the whole works under vmap (a mask, no host read)."""
+    params, res = CAMERAS[model]
+    bad = _out_of_domain(model, params)
+    p = _t([params, *bad])[:, None].requires_grad_(True)  # (B, 1, P)
+    pts = _t(_points(30, 4, 1.0)).requires_grad_(True)
+    px = _t(_grid(res, 97)).requires_grad_(True)
+    for fn, x in ((project, pts), (unproject, px)):
+        out, ok = fn(model, p, x)
+        assert ok[0].any() and not ok[1:].any()
+        assert torch.isfinite(out).all()
+        assert torch.equal(out[0], fn(model, p[0, 0].detach(), x.detach())[0])
+        gp, gx = torch.autograd.grad(out.sum(), (p, x))
+        assert torch.isfinite(gp).all() and torch.isfinite(gx).all()
+        vout, vok = torch.func.vmap(lambda q, x=x, fn=fn: fn(model, q, x.detach()))(
+            p[:, 0].detach())
+        assert torch.equal(vok, ok) and torch.equal(vout, out.detach())
+    if model == "double-sphere":  # alpha = 0 (the unified model) and 1 lie in the domain
+        for alpha in (0.0, 1.0):
+            q = _t([*params[:5], alpha])
+            assert project(model, q, _t([0.1, 0.2, 1.0]))[1]
+            assert unproject(model, q, _t([260.0, 250.0]))[1]
+
+
+def test_pinhole_zero_focal_length_regression():
+    """The trial's case: unproject('pinhole', [0, 500, 320, 240], ...) was NaN, valid."""
+    rays, ok = unproject("pinhole", _t([0.0, 500, 320, 240]), _t([[320.0, 240], [100, 50]]))
+    assert not ok.any() and torch.isfinite(rays).all()
+
+
 # ----------------------------------------------------------------------------- errors
 
 @pytest.mark.parametrize("fn,arg,event", [(project, "points", 3), (unproject, "pixels", 2)])

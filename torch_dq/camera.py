@@ -93,10 +93,26 @@ def _checked(fn: str, model, params, x, name: str, event: int) -> torch.Size:
     return _checks.broadcast_batch(fn, params=(params, 1), **{name: (x, 1)})
 
 
-def _parts(params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor]]:
-    """The parameters and coordinates as lists of tensors in the compute dtype."""
+# Parameter values that replace those outside a model's domain (safe where): unit focal
+# lengths, no distortion, the double sphere's alpha = 1/2 and xi = 0.
+_SAFE = {model: (1.0, 1.0) + (0.0,) * (len(names) - 2) for model, names in MODELS.items()}
+_SAFE["double-sphere"] = (1.0, 1.0, 0.0, 0.0, 0.0, 0.5)
+
+
+def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor], Tensor]:
+    """The parameters and coordinates as lists of tensors in the compute dtype, and the
+    ``(...)`` mask of parameters inside the model's domain: ``fu, fv > 0`` and for the double
+    sphere ``xi > -1`` and ``0 <= alpha <= 1`` (Usenko, Demmel, Cremers 2018; for
+    ``xi <= -1`` no point has ``xi d1 + z > 0``: the formulas divide by zero). Outside it
+    every parameter is replaced by :data:`_SAFE`'s before the formulas (safe where: finite
+    outputs and gradients, no host read)."""
     cd = compute_dtype(x.dtype)
-    return list(params.to(cd).unbind(-1)), list(x.to(cd).unbind(-1))
+    p = list(params.to(cd).unbind(-1))
+    ok = (p[0] > 0) & (p[1] > 0)
+    if model == "double-sphere":
+        ok = ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1)
+    p = [torch.where(ok, c, s) for c, s in zip(p, _SAFE[model], strict=True)]
+    return p, list(x.to(cd).unbind(-1)), ok
 
 
 def _outputs(batch: torch.Size, parts: tuple[Tensor, ...], valid: Tensor, params: Tensor,
@@ -124,9 +140,13 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
         where the point has no image: ``z <= 0`` for the pinhole models (and points within
         ``eps`` radians of the plane ``z = 0``, ``max(|x|, |y|) >= z / eps``, whose pixels
         or derivatives would overflow); for the double sphere where the paper's condition
-        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid); and where an input is
-        not finite (the pixels are NaN there). Invalid points get finite pixels with finite
-        gradients (they are computed at a replacement point): mask them.
+        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid); where the parameters
+        lie outside the model's domain (``fu <= 0`` or ``fv <= 0``; for the double sphere
+        ``xi <= -1`` or ``alpha`` outside ``[0, 1]``): every element of that camera is
+        invalid, a mask and not an error (no host read); and where an input is not finite
+        (the pixels are NaN there). Invalid points get finite pixels with finite gradients
+        (they are computed at a replacement point, out-of-domain parameters at replacement
+        parameters): mask them.
 
     Formulas (normalised coordinates :math:`a = x/z,\ b = y/z`, :math:`r^2 = a^2 + b^2`):
 
@@ -149,9 +169,9 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
     """
     fn = "camera.project"
     batch = _checked(fn, model, params, points, "points", 3)
-    p, (x, y, z) = _parts(params, points)
+    p, (x, y, z), ok = _parts(model, params, points)
     u, v, valid = _PROJECT[model](p, x, y, z)
-    return _outputs(batch, (u, v), valid, params, points)
+    return _outputs(batch, (u, v), valid & ok, params, points)
 
 
 def _normalised(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -252,10 +272,13 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
 
     Returns:
         ``(rays, valid)``: ``(..., 3)`` unit vectors in camera axes and a ``(...)`` bool
-        mask, False where the pixel is not the image of a ray under :func:`project`
-        (invalid rays are finite with finite gradients; mask them):
+        mask, False where the pixel is not the image of a ray under :func:`project`, and
+        everywhere for parameters outside the model's domain (``fu <= 0`` or ``fv <= 0``;
+        for the double sphere ``xi <= -1`` or ``alpha`` outside ``[0, 1]``; a mask, not an
+        error: no host read). Invalid rays are finite with finite gradients (out-of-domain
+        parameters are replaced before the formulas); mask them:
 
-        - pinhole: closed form, valid wherever the inputs are finite.
+        - pinhole: closed form, valid wherever the inputs are finite (and in the domain).
         - radtan: 2-D Newton on the distortion map from the distorted point (a fixed
           number of iterations, then two differentiable steps, see the module's notes).
           Invalid beyond the fold-over: where the root's radius reaches the first zero of
@@ -284,10 +307,10 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
     """
     fn = "camera.unproject"
     batch = _checked(fn, model, params, pixels, "pixels", 2)
-    p, (u, v) = _parts(params, pixels)
+    p, (u, v), ok = _parts(model, params, pixels)
     a, b = (u - p[2]) / p[0], (v - p[3]) / p[1]  # normalised (distorted) coordinates
     x, y, z, valid = _UNPROJECT[model](p, a, b)
-    return _outputs(batch, (x, y, z), valid, params, pixels)
+    return _outputs(batch, (x, y, z), valid & ok, params, pixels)
 
 
 def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -61,7 +62,13 @@ class CameraCalibration:
             camera's observations used.
         std: ``"intrinsics"`` ``(C, P)`` (``P`` the largest parameter count; NaN past a
             camera's own), ``"relative_poses"`` ``(C - 1, 6)`` in the chart
-            ``T exp(delta)``, ``delta = (omega, v)`` in camera ``i``'s axes.
+            ``T exp(delta)``, ``delta = (omega, v)`` in camera ``i``'s axes. These are
+            formal standard deviations: they assume independent white noise on every
+            corner (of the fitted ``sigma``). Real corners have errors correlated within a
+            frame (target flatness, blur, detector bias), which they do not see: on the
+            real EuRoC corners a jackknife over frames scatters the focal lengths about 5
+            times their ``std``. Read them as lower bounds; a jackknife or bootstrap over
+            frames gives realistic ones.
         target_poses: ``(F, 8)`` the target's pose in camera 0's frame per frame
             (``p_cam0 = T p_target``).
         frame_times: ``(F,)`` the frames' timestamps.
@@ -108,6 +115,10 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
     names = (f"observations[{i}] times", f"observations[{i}] points",
              f"observations[{i}] pixels")
     t, p, u = (_checks.tensor(_FN, n, x) for n, x in zip(names, obs, strict=True))
+    if t.dtype != torch.float64:
+        _checks.fail(_FN, f"expected float64 {names[0]} (seconds), got {t.dtype}: float32 "
+                          f"UNIX seconds are 128 s apart, which merges distinct frames into "
+                          f"one timestamp", TypeError)
     _checks.tensor(_FN, names[1], p, 3)
     _checks.tensor(_FN, names[2], u, 2)
     if t.dim() != 1 or p.dim() != 2 or u.dim() != 2 or not (
@@ -158,7 +169,23 @@ def _arguments(observations, models, resolution, robust, robust_k, max_iteration
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 4:
         _checks.fail(_FN, f"expected min_points to be an int >= 4, got {min_points!r}")
     obs = [_observation(i, o) for i, o in enumerate(observations)]
+    for i, ((_, _, u), r) in enumerate(zip(obs, res, strict=True)):
+        _inside(i, u, r)
     return obs, [str(m) for m in models], res
+
+
+def _inside(i: int, pixels: Tensor, res: tuple[int, int]) -> None:
+    """Check that camera ``i``'s pixels lie in its image: ``(0, 0)`` is the centre of the
+    top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``."""
+    if pixels.numel() == 0:
+        return
+    for axis, name, size in ((0, "u", res[0]), (1, "v", res[1])):
+        lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
+        if lo < -0.5 or hi > size - 0.5:
+            _checks.fail(_FN, f"observations[{i}] pixels reach {name} = "
+                              f"{lo if lo < -0.5 else hi:.6g}, outside resolution[{i}] = "
+                              f"{res} (expected {name} in [-0.5, {size - 0.5}]; is the "
+                              f"resolution (width, height) of that camera?)")
 
 
 def _cameras_data(obs, models, res, min_points) -> tuple[list[_Camera], Tensor]:
@@ -415,13 +442,16 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
 
     Args:
         observations: one ``(times (N,), points (N, 3), pixels (N, 2))`` per camera, as
-            ``torch_dq.calibration.read_corners`` returns them: float seconds, target
-            points (a planar target: ``Z = 0``), measured pixels. Observations with one
-            timestamp are one view; equal timestamps in several cameras are one frame (the
-            target did not move between them), which links those cameras.
+            ``torch_dq.calibration.read_corners`` returns them: float64 seconds (float32
+            UNIX seconds are 128 s apart: frames would merge), target points (a planar
+            target: ``Z = 0``), measured pixels. Observations with one timestamp are one
+            view; equal timestamps in several cameras are one frame (the target did not
+            move between them), which links those cameras.
         models: one model name per camera (``"pinhole"``, ``"pinhole-radtan"``,
             ``"pinhole-equidistant"``, ``"double-sphere"``).
-        resolution: one ``(width, height)`` per camera (pixels).
+        resolution: one ``(width, height)`` per camera (pixels); each camera's pixels
+            must lie in its image, ``u`` in ``[-0.5, width - 0.5]``, ``v`` in
+            ``[-0.5, height - 0.5]`` (``(0, 0)`` is the top-left pixel's centre).
         robust: ``None``, ``"huber"`` or ``"cauchy"`` on the pixel error's norm.
         robust_k: the kernel's scale in pixels (default 2.45, the 95 % quantile of the
             error norm for 1-pixel noise per axis).
@@ -433,14 +463,24 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
         :class:`CameraCalibration`: ``cameras`` (a list of :class:`torch_dq.camera.Camera`),
         ``relative_poses (C - 1, 8)`` (``p_cam0 = T p_cami``), ``reprojection_rms (C,)``,
         ``std`` (``"intrinsics" (C, P)``, ``"relative_poses" (C - 1, 6)`` in the chart
-        ``T exp(delta)``), the frames' target poses, counts and convergence. Tensors in the
+        ``T exp(delta)``; formal white-noise standard deviations, optimistic for real
+        corners, whose errors correlate within a frame: see :class:`CameraCalibration`),
+        the frames' target poses, counts and convergence. Tensors in the
         dtype and device of ``observations[0]``'s pixels.
 
     Raises:
         ValueError: lists of different lengths, an unknown model, a bad resolution, a
             non-planar target, a camera with fewer than 3 views of ``min_points`` points,
-            a camera sharing no frame with camera 0 (directly or through others).
-        TypeError: observations that are not floating-point tensors.
+            a camera sharing no frame with camera 0 (directly or through others), pixels
+            outside a camera's resolution.
+        TypeError: observations that are not floating-point tensors, times that are not
+            float64.
+
+    Warns:
+        RuntimeWarning: the bundle adjustment did not converge within ``max_iterations``
+            (``converged`` False; not for ``max_iterations = 0``, the start alone), naming
+            the camera with the largest reprojection error: the intrinsics may be far off
+            (e.g. a ``"pinhole"`` model on a distorted lens).
     """
     obs, models, res = _arguments(observations, models, resolution, robust, robust_k,
                                   max_iterations, tol, min_points)
@@ -452,8 +492,23 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
     state, it, converged, cost, valid = _lm(cams, intr, rel, frames, layout, robust, k,
                                             max_iterations, tol)
     system, _ = _linearize(cams, state[0], state[1], state[2], layout, robust, k, valid)
-    return _result(cams, state, system, layout, valid, robust, k, like, times[used],
-                   (it, converged, cost))
+    out = _result(cams, state, system, layout, valid, robust, k, like, times[used],
+                  (it, converged, cost))
+    if not converged and max_iterations > 0:  # 0: the start alone was asked for
+        _warn_unconverged(out, models)
+    return out
+
+
+def _warn_unconverged(out: CameraCalibration, models: list[str]) -> None:
+    """A RuntimeWarning naming the camera with the largest reprojection error."""
+    rms = out.reprojection_rms.detach().cpu().double()
+    c = int(rms.argmax())
+    warnings.warn(f"{_FN}: the bundle adjustment did not converge in max_iterations = "
+                  f"{out.iterations} steps: the cost still falls by more than tol per step; "
+                  f"camera {c} ({models[c]!r}) has the largest reprojection rms, "
+                  f"{float(rms[c]):.3g} px. Its intrinsics may be far off: does the model fit "
+                  f"the lens (a model without distortion on a distorted lens?), or does it "
+                  f"need more iterations?", RuntimeWarning, stacklevel=3)
 
 
 def _result(cams, state, system, layout, valid, kind, k, like, frame_times, run):
