@@ -1182,7 +1182,7 @@ class BSpline(Curve):
                 units), ``n_ctrl = ceil(span / knot_spacing) + degree`` over the domain
                 (with the margins), finer than the poses if asked (the IMU sets the spacing
                 of an estimate): the start is then the regularised least squares of
-                :func:`torch_dq._start.least_squares_start` (``smooth``: the smoothest
+                ``torch_dq._start.least_squares_start`` (``smooth``: the smoothest
                 curve in the local charts between the poses, exact for a constant screw
                 motion), and more control points than poses are allowed.
             margin: widen the domain by this much (``>= 0``, the times' units) before the

@@ -44,7 +44,7 @@ GRAVITY = 9.81
 #: The bound on an estimated clock offset (s), as :mod:`torch_dq.fitting`'s default.
 MAX_OFFSET = 0.1
 
-#: IMU samples per knot span of the IMU fit (its knot spacing: this many sampling periods).
+#: The IMU fit's knot spacing, in IMU sampling periods.
 IMU_SAMPLES_PER_SPAN = 5
 
 

@@ -35,7 +35,8 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
-_EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
+_EXACT = 1e-14  # per residual component: a cost below this is exact data, at float64 roundoff
+# (the test's floor; whitened residuals of sigma 1e-3 round to ~1e-13 on unit-scale data)
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
@@ -187,7 +188,7 @@ def _starts(fn: str, problem: Problem, ctrl: Tensor) -> list[Tensor]:
 
 class _Solver:
     """The damped Gauss-Newton step of one iteration (Schur complement on the nuisance):
-    the data system plus the pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors,
+    the data system plus the pulls (``torch_dq.fitting._prior``) and the Free priors,
     damped by ``lam`` times its diagonal (Marquardt's scaling)."""
 
     def __init__(self, problem: Problem, system, pulls: tuple[Tensor, Tensor],
@@ -227,7 +228,7 @@ class _Solver:
 
     def _project(self, dc: Tensor) -> Tensor:
         """``dc`` without the combinations of control points that no sample determines (no
-        drift along them: :func:`~torch_dq.fitting._prior.control_null`)."""
+        drift along them: ``torch_dq.fitting._prior.control_null``)."""
         U, DU = self.null
         if not U.shape[-1]:
             return dc
@@ -241,7 +242,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     Minimises :math:`\sum_{terms} \sum_i \rho(|r_i|)` (whitened residuals, robust kernels)
     plus the Gaussian priors of :class:`~torch_dq.fitting.Free` parameters, plus the
     numerical ``prior``, which only keeps what the data do not determine where the start
-    put it (:mod:`~torch_dq.fitting._prior`): combinations of neighbouring control points
+    put it (``torch_dq.fitting._prior``): combinations of neighbouring control points
     carrying less than ``1e-6`` times the typical information (time gaps, ends without
     samples; ``prior`` times it, their weakly determined edges included, when no nuisance
     parameter is estimated) are pulled to the start with weight ``prior``, nuisance directions
@@ -266,7 +267,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         steps: maximum number of iterations (0: only the uncertainties at the start).
         tol: converged when the Newton decrement :math:`g^T H^{-1} g` of the objective
             (``g`` half its gradient, ``H`` its Gauss-Newton matrix, directions without
-            information left out) is at most ``tol * max(objective, 1e-20 N)`` (``N`` the
+            information left out) is at most ``tol * max(objective, 1e-14 N)`` (``N`` the
             residual components): the step left is below :math:`\sqrt{tol\,\chi^2}`
             standard deviations of any quantity. An accepted step that lowers the objective
             by at most ``tol`` relatively while that test fails stops the iteration as not
@@ -365,7 +366,7 @@ class _LevenbergMarquardt:
                         for o, a in zip(flat, self.active.tolist(), strict=True)]
 
     def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
-        """The pulls (:mod:`~torch_dq.fitting._prior`) and the Free priors, ``(...)``."""
+        """The pulls (``torch_dq.fitting._prior``) and the Free priors, ``(...)``."""
         d = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
         Pd = _prior.band_apply(self.pulls[0], d.reshape(self.Bf, self.n, 6, 1))
         u = _prior.nuisance_chart(self.p, v)
@@ -412,7 +413,7 @@ class _LevenbergMarquardt:
         the decrement is no distance: it is the limit of :math:`g^T (H + \epsilon D)^{-1} g`
         as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
         extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
-        1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
+        1e-14 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
         standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element
         that stalled (its last accepted step lowered
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
@@ -434,7 +435,7 @@ class _LevenbergMarquardt:
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
         stop = self.active & ~good & (self.stalled | final)
         for b in range(self.Bf):
-            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-14 residuals) = " \
                    f"{float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"

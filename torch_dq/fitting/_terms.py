@@ -576,7 +576,7 @@ class Gyro(_Imu):
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
         """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
-        warns when the readings look like deg/s (:func:`_warn_degrees`)."""
+        warns when the readings look like deg/s (``_warn_degrees``)."""
         if not self._units_checked:
             self._units_checked = True
             _warn_degrees(self, trajectory, ctrl)
