@@ -7,6 +7,8 @@ import re
 import torch
 from hypothesis import strategies as st
 
+from torch_dq import curves
+
 
 def unit_quat(shape, gen, dtype=torch.float64):
     """Uniformly random unit quaternions ``(*shape, 4)``."""
@@ -148,3 +150,21 @@ def raises_exactly(call, error, pattern):
         assert re.search(pattern, str(e)), str(e)
     else:
         raise AssertionError(f"no {error.__name__} raised")
+
+
+def knot_vector(kind, n, p, gen):
+    """``n + p + 1`` knots: clamped uniform, unclamped uniform, non-uniform (random
+    gaps), or non-uniform with a repeated interior knot (multiplicity ``min(p, 2)``)."""
+    if kind == "clamped":
+        return curves.clamped_uniform_knots(n, p, dtype=torch.float64, domain=(0.0, 2.0))
+    if kind == "uniform":
+        return torch.arange(n + p + 1, dtype=torch.float64) * 0.5 - 1.0
+    gaps = 0.2 + torch.rand(n + p, generator=gen, dtype=torch.float64)
+    knots = torch.cat((torch.zeros(1, dtype=torch.float64), gaps.cumsum(0)))
+    if kind == "repeated":
+        i = p + (n - p) // 2  # an interior knot, repeated
+        for k in range(1, min(p, 2)):
+            knots[i + k] = knots[i]
+        knots = torch.cummax(knots, 0).values
+    return knots
+

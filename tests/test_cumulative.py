@@ -16,7 +16,7 @@ import scipy.interpolate as si
 import scipy.linalg as sl
 import torch
 from pytransform3d import transformations as pt
-from strategies import unit_quat
+from strategies import knot_vector, unit_quat
 
 import torch_dq.dualquat as dq
 from torch_dq import _cumulative, curves
@@ -41,23 +41,6 @@ def chain(n, gen, spread=0.6, scale=1.0, dtype=F64):
         out.append(dq.mul(out[-1], dq.exp(xi[k])))
     signs = torch.where(torch.rand(n, generator=gen, dtype=F64) < 0.5, -1.0, 1.0)
     return (torch.stack(out) * signs[:, None]).to(dtype)
-
-
-def knot_vector(kind, n, p, gen):
-    """``n + p + 1`` knots: clamped uniform, unclamped uniform, non-uniform (random
-    gaps), or non-uniform with a repeated interior knot (multiplicity ``min(p, 2)``)."""
-    if kind == "clamped":
-        return curves.clamped_uniform_knots(n, p, dtype=F64, domain=(0.0, 2.0))
-    if kind == "uniform":
-        return torch.arange(n + p + 1, dtype=F64) * 0.5 - 1.0
-    gaps = 0.2 + torch.rand(n + p, generator=gen, dtype=F64)
-    knots = torch.cat((torch.zeros(1, dtype=F64), gaps.cumsum(0)))
-    if kind == "repeated":
-        i = p + (n - p) // 2  # an interior knot, repeated
-        for k in range(1, min(p, 2)):
-            knots[i + k] = knots[i]
-        knots = torch.cummax(knots, 0).values
-    return knots
 
 
 KNOT_KINDS = ("clamped", "uniform", "nonuniform", "repeated")

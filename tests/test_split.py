@@ -19,7 +19,7 @@ import pytest
 import scipy.interpolate as si
 import torch
 from scipy.spatial.transform import Rotation, Slerp
-from strategies import unit_dq, unit_quat
+from strategies import knot_vector, unit_dq, unit_quat
 
 import torch_dq.dualquat as dq
 from torch_dq import curves, fitting
@@ -46,22 +46,6 @@ def chain(n, gen, spread=0.6, scale=1.0, dtype=F64):
     q = torch.stack(q) * signs[:, None]
     p = scale * torch.randn(n, 3, generator=gen, dtype=F64)
     return dq.from_rt(q, p).to(dtype)
-
-
-def knot_vector(kind, n, p, gen):
-    """``n + p + 1`` knots: clamped uniform, unclamped uniform, non-uniform (random gaps),
-    non-uniform with a repeated interior knot (multiplicity ``min(p, 2)``)."""
-    if kind == "clamped":
-        return curves.clamped_uniform_knots(n, p, dtype=F64, domain=(0.0, 2.0))
-    if kind == "uniform":
-        return torch.arange(n + p + 1, dtype=F64) * 0.5 - 1.0
-    gaps = 0.2 + torch.rand(n + p, generator=gen, dtype=F64)
-    knots = torch.cat((torch.zeros(1, dtype=F64), gaps.cumsum(0)))
-    if kind == "repeated":
-        i = p + (n - p) // 2
-        for k in range(1, min(p, 2)):
-            knots[i + k] = knots[i]
-    return knots
 
 
 def inner_times(knots, p, count, gen, margin=0.0):
