@@ -104,8 +104,8 @@ class CameraImuCalibration:
         """Kalibr's ``camchain-imucam.yaml`` as a dict of plain lists and floats: per camera
         ``camN`` with ``T_cam_imu`` (4 x 4, the inverse of the extrinsic), ``T_cn_cnm1``
         (``N >= 1``: camera ``N-1`` to camera ``N``), ``cam_overlaps``, the camera model
-        and intrinsics (:meth:`torch_dq.camera.Camera.to_kalibr`), ``rostopic`` (``/camN/image_raw`` unless
-        given) and ``timeshift_cam_imu``."""
+        and intrinsics (:meth:`torch_dq.camera.Camera.to_kalibr`), ``rostopic``
+        (``/camN/image_raw`` unless given) and ``timeshift_cam_imu``."""
         e = self.extrinsics.detach().double().cpu()
         T_cam_imu = dualquat.to_matrix(dualquat.inv(e))
         out = {}
