@@ -35,8 +35,9 @@ __all__ = ["estimate"]
 
 _MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
 _NONFINITE = "non-finite cost at the start"
-_EXACT = 1e-14  # per residual component: a cost below this is exact data, at float64 roundoff
-# (the test's floor; whitened residuals of sigma 1e-3 round to ~1e-13 on unit-scale data)
+_EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
+_ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
+# sigma 1e-3 round to ~1e-13 on unit-scale data): no damped step lowering it is converged
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
@@ -267,7 +268,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         steps: maximum number of iterations (0: only the uncertainties at the start).
         tol: converged when the Newton decrement :math:`g^T H^{-1} g` of the objective
             (``g`` half its gradient, ``H`` its Gauss-Newton matrix, directions without
-            information left out) is at most ``tol * max(objective, 1e-14 N)`` (``N`` the
+            information left out) is at most ``tol * max(objective, 1e-20 N)`` (``N`` the
             residual components): the step left is below :math:`\sqrt{tol\,\chi^2}`
             standard deviations of any quantity. An accepted step that lowers the objective
             by at most ``tol`` relatively while that test fails stops the iteration as not
@@ -413,7 +414,7 @@ class _LevenbergMarquardt:
         the decrement is no distance: it is the limit of :math:`g^T (H + \epsilon D)^{-1} g`
         as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part, ``D`` the diagonal,
         extrapolated from ``epsilon = 1e-10`` and ``1e-8``) is at most ``tol * max(objective,
-        1e-14 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
+        1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
         standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element
         that stalled (its last accepted step lowered
         the objective by at most ``tol`` relatively) or, with ``final``, ran out of steps,
@@ -435,7 +436,7 @@ class _LevenbergMarquardt:
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
         stop = self.active & ~good & (self.stalled | final)
         for b in range(self.Bf):
-            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-14 residuals) = " \
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
                    f"{float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"
@@ -475,10 +476,14 @@ class _LevenbergMarquardt:
                 break
         self.stalled = self.active & ~pending & ((self.obj - new[2]).reshape(Bf)
                                                  <= tol * new[2].reshape(Bf))
+        exact = pending & (self.obj.reshape(Bf) <= _ROUNDOFF * self.count)
         for b in pending.nonzero()[:, 0].tolist():
             self.reasons[b] = (f"no damped step lowers the objective while the scaled gradient "
                                f"test fails (g^T H^-1 g = {float(self.decrement[b]):.3g}): a "
-                               f"numerical minimum; not converged")
+                               f"numerical minimum; not converged") if not bool(exact[b]) else (
+                f"no damped step lowers a cost at float64 roundoff (exact data: "
+                f"{float(self.obj.reshape(Bf)[b]):.3g})")
+        self.converged |= exact
         self.active &= ~pending
         self.lam = torch.where(pending, self.lam, (self.lam / 10.0).clamp_min(1e-12))
         self.ctrl, self.values, self.obj, self.data = new
