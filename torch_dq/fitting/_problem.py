@@ -189,26 +189,6 @@ class Problem:
         gn = normal[:, :, c:c + m, -1].sum(1)
         return System(band[:, :n], cn[:, :n], nn, gc[:, :n], gn, residuals, weights)
 
-    def gradient(self, ctrl: Tensor, values: list[Tensor], w: int) -> tuple[Tensor, Tensor]:
-        """Half the gradient of the data cost in the step charts, ``(Bf, n, 6)`` and ``(Bf,
-        m)``: :math:`J^T W r` without the Gauss-Newton blocks (each sample's cost chained
-        through its span, in chunks as the Jacobians)."""
-        Bf = max(self.batch.numel(), 1)
-        n, m = self.spans.n, self.m
-        gc = ctrl.new_zeros(Bf * (n + w), 6)
-        gn = ctrl.new_zeros(Bf, m)
-        for i in range(len(self.terms)):
-            _, f0, Jc, Jn = self._chained(i, ctrl, values, w, True)
-            N = f0.shape[-1]
-            cols = self._windows(f0, w)[..., None] + torch.arange(w, device=f0.device)
-            gc.index_add_(0, cols.reshape(-1),
-                          Jc.expand(*self.batch, N, 1, w, 6).reshape(-1, 6))
-            for name, J in Jn.items():
-                p = self.index[(i, name)]
-                gn[:, p.offset:p.offset + p.dim] += J.expand(*self.batch, N, 1, p.dim).reshape(
-                    Bf, N, p.dim).sum(1)
-        return gc.reshape(Bf, n + w, 6)[:, :n], gn
-
     def _windows(self, f0: Tensor, w: int) -> Tensor:
         """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
         Bf, N = max(self.batch.numel(), 1), f0.shape[-1]
@@ -218,17 +198,16 @@ class Problem:
     def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
         """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
         term = self.terms[i]
-        r, f0, Jc, Jn = self._chained(i, ctrl, values, w, False)
+        r, f0, Jc, Jn = self._chained(i, ctrl, values, w)
         wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
         wt = wt * term.mask.to(wt.dtype)
         return r, wt, f0, Jc, Jn
 
-    def _chained(self, i: int, ctrl: Tensor, values: list[Tensor], w: int, cost: bool):
+    def _chained(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
         """Per-sample outputs of term ``i``, its window start and the outputs' Jacobians:
         the span derivatives at the current point, the outputs' Jacobians with respect to
         them and to the nuisance steps, chained through the spans (``_through_spans``).
-        The outputs are the whitened residuals ``(..., N, k)``, or with ``cost`` half the
-        robust cost ``(..., N, 1)``."""
+        The outputs are the whitened residuals ``(..., N, k)``."""
         term = self.terms[i]
         vals = self.term_values(i, values)
         kinds = {k: s.kind for k, s in term.slots().items()}
@@ -258,14 +237,11 @@ class Problem:
             p = term.per_sample(vals, kinds)
             for name, d in zip(nuisance, lv[L:], strict=True):
                 p[name] = retract(kinds[name], p[name], d)
-            r = term.residuals([d.unbind(-2) for d in lv[:L]], p)
-            if not cost:
-                return r
-            return 0.5 * _robust.rho(term.robust, r.norm(dim=-1), term.robust_k)[..., None]
+            return term.residuals([d.unbind(-2) for d in lv[:L]], p)
 
         r, J = sample_jacobians(residual, derivs + [
             ctrl.new_zeros(*shape, N, self.index[(i, name)].dim) for name in nuisance],
-            1 if cost else term.dim)
+            term.dim)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, [t + shift for t in term.times_list()],
                                      firsts, J[:L], term.order, bool(timed))
