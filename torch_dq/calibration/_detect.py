@@ -42,7 +42,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks
-from ..fitting._estimate import progress
+from .._progress import progress
 from ._corners import _seconds, write_corners
 from ._targets import Target
 

@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
+from .._progress import progress
 from . import _prior
 from . import _structure as structure
 from ._banded import BandedCholesky
@@ -39,17 +40,6 @@ _EXACT = 1e-20  # per residual component: a cost below this is exact data (the t
 _ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
 # sigma 1e-3 round to ~1e-13 on unit-scale data): no damped step lowering it is converged
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
-
-
-def progress(total: int, enabled: bool, desc: str):
-    """A tqdm bar when enabled and tqdm is installed, else None."""
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # tqdm is optional
-        return None
-    return tqdm(total=total, desc=desc, leave=False)
 
 
 def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[Term]:

@@ -18,10 +18,11 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from ..losses import pose_loss
+from .._progress import progress
 from .._start import check_determined
 from .._start import check_sample_times as check_times
-from ._estimate import estimate, progress
+from ..losses import pose_loss
+from ._estimate import estimate
 from ._terms import Poses, check_pose_data
 
 __all__ = ["FitHistory", "fit"]
