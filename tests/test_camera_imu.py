@@ -249,7 +249,7 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
 
 
 def test_cli_calibrates_intrinsics_when_the_camchain_has_none(global_fit):
-    from torch_dq.calibration._cli import _cameras
+    from torch_dq.cli._calibrate import _cameras
 
     _, cams = sim.rig(duration=DURATION, offset=OFFSET, seed=2)
     obs = [tuple(_t(x) for x in cams[0])]

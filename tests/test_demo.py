@@ -18,7 +18,8 @@ import torch_dq.dualquat as dq
 import torch_dq.losses as losses
 import torch_dq.quat as quat
 from torch_dq import nn
-from torch_dq.__main__ import _parser, main
+from torch_dq.__main__ import main
+from torch_dq.cli._parsers import build_parser as _parser
 from torch_dq.demo import FIGURES, PLOT_HINT, run_demo
 from torch_dq.demo.knee import KneeModel, sample_poses
 

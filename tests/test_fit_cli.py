@@ -12,7 +12,7 @@ import torch
 
 from torch_dq import io
 from torch_dq.__main__ import main
-from torch_dq.demo.fit_file import FIGURES, OUTPUTS
+from torch_dq.cli.fit_file import FIGURES, OUTPUTS
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "tests" / "data" / "tum_fr1_xyz_sub.txt"
@@ -383,7 +383,7 @@ def test_knot_spacing_hint_is_rounded_up_on_10hz_data(tmp_path, capsys):
 
 
 def test_rate_is_bounded_by_the_duration(tmp_path, capsys, monkeypatch):
-    from torch_dq.demo import fit_file
+    from torch_dq.cli import fit_file
 
     monkeypatch.setattr(fit_file, "MAX_RESAMPLED", 2000)  # the bound's logic, on small files
     short = _write_tum(tmp_path / "s.txt", io.read_trajectory(SHIPPED).select(slice(0, 30)))
@@ -430,7 +430,7 @@ def test_without_matplotlib_one_line_no_warning_source(tmp_path):
 
 
 def test_x_label_without_a_useless_origin():
-    from torch_dq.demo.fit_plots import _xlabel
+    from torch_dq.cli.fit_plots import _xlabel
 
     assert _xlabel(0.0) == "time [s]"
     assert "(0 s)" not in _xlabel(0.0)
@@ -627,7 +627,7 @@ def test_no_gap_no_warning(tmp_path):
 def test_default_rate_is_rounded_to_a_nominal_value(tmp_path):
     """The median rate 50.0000477 Hz of the shipped file resamples at exactly 50 Hz; --rate
     is used as given."""
-    from torch_dq.demo.fit_file import _nominal_rate
+    from torch_dq.cli.fit_file import _nominal_rate
 
     assert _nominal_rate(100.00009536752259) == 100.0
     assert _nominal_rate(303.035) == 303.0
@@ -659,7 +659,7 @@ def test_imu_pose_noise_counts_the_fit_degrees_of_freedom():
     by sqrt(1 - n / N); the sigma divides by the degrees of freedom left (here n / N = 1/2,
     the plain RMS would read 0.71 of the truth)."""
     from torch_dq import dualquat
-    from torch_dq.demo.fit_imu import _pose_sigmas
+    from torch_dq.cli.fit_imu import _pose_sigmas
     from torch_dq.nn import BSpline
 
     gen = torch.Generator().manual_seed(3)

@@ -15,10 +15,10 @@ from . import calibration, camera, curves, dual, dualquat, fitting, io, losses, 
 from .dual import Dual
 from .dualquat import angle as dual_angle
 from .dualquat import sclerp
+from ._version import __version__
 from .object import DualQuaternion
 
 __all__ = [
     "Dual", "DualQuaternion", "calibration", "camera", "curves", "dual", "dual_angle", "dualquat",
     "fitting", "io", "losses", "nn", "quat", "sclerp",
 ]
-__version__ = "0.4.3"

@@ -20,9 +20,9 @@ import torch
 from torch import Tensor
 
 from .. import curves, dualquat
-from ._common import align as _align
-from ._common import evaluate as _evaluate
-from ._common import import_matplotlib
+from .._report import align as _align
+from .._report import evaluate as _evaluate
+from .._report import import_matplotlib
 
 __all__ = ["import_matplotlib", "plot_axode", "plot_components", "plot_frames", "plot_loss"]
 
@@ -328,12 +328,48 @@ def _plot_sagittal(fig, grid, order, truth, fitted, by_name, flex) -> None:
     ax_t.legend(fontsize=8.5)
 
 
-def plot_axode(Figure, Canvas, path, fits, samples, model):
-    """Fixed axodes (ruled surfaces of the instantaneous screw axis) of both fitted curves."""
+def _plot_axode_3d(fig, cell, fit, surf, truth, t, flex, model, p_true, pts, half: float,
+                   colorbar: bool) -> None:
+    """One fitted curve's axode in 3-D (its rulings ``surf``, coloured by flexion) with the
+    true screw axis (one in ten), the tibia origin's path and the femoral shaft."""
     from matplotlib import cm
     from matplotlib.colors import Normalize
     from matplotlib.lines import Line2D
 
+    norm, cmap = Normalize(0.0, model.flexion_deg), cm.viridis
+    s = torch.linspace(-half, half, 2, dtype=torch.float64)
+    lt = truth["direction"] * torch.sign(-truth["direction"][..., :1])  # point medially (-x)
+    ax3 = fig.add_subplot(cell, projection="3d", computed_zorder=False)
+    colors = cmap(norm(flex))[:, None, :].repeat(2, axis=1)
+    ax3.plot_surface(*(_np(surf[..., k]) for k in range(3)), facecolors=colors,
+                     shade=False, alpha=0.75, linewidth=0.2, edgecolor="0.3",
+                     rstride=1, cstride=1, zorder=1)
+    for i in range(0, len(t), 10):
+        seg = truth["point"][i] + s[:, None] * lt[i]
+        ax3.plot(*_np(seg).T, color="crimson", lw=1.5, ls="--", zorder=3)
+    ax3.plot(*_np(p_true).T, color="k", lw=1.5, zorder=3)
+    ax3.plot([0, 0], [0, 0], [0, 35], color="0.45", lw=6, alpha=0.5, zorder=2)
+    ax3.scatter([0], [0], [0], color="k", s=18, zorder=4)
+    _set_equal_3d(ax3, _np(pts), zoom=0.95)
+    _label_3d(ax3)
+    ax3.view_init(elev=18, azim=-40)
+    ax3.set_title(f"Axode of the fitted {CURVE_LABELS[fit.name]} (degree {fit.degree}, "
+                  f"{fit.n_ctrl} control points)", fontsize=11)
+    _legend_below(ax3, [
+        Line2D([], [], color=cmap(0.6), lw=6, alpha=0.75,
+               label=f"fitted screw axes, ±{half:.0f} mm (colour: flexion)"),
+        Line2D([], [], color="crimson", ls="--", label="true screw axis (one in ten)"),
+        Line2D([], [], color="k", label="tibia origin path (true)"),
+        Line2D([], [], color="0.45", lw=6, alpha=0.5, label="femoral shaft (schematic)"),
+        Line2D([], [], color="k", ls="none", marker="o", ms=4,
+               label="femoral origin (epicondylar midpoint)")])
+    if colorbar:
+        fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax3, shrink=0.6,
+                     pad=0.08, label="flexion (deg)")
+
+
+def plot_axode(Figure, Canvas, path, fits, samples, model):
+    """Fixed axodes (ruled surfaces of the instantaneous screw axis) of both fitted curves."""
     f64 = torch.float64
     dur = model.duration_s
     t = torch.linspace(AXODE_MARGIN * dur, (1 - AXODE_MARGIN) * dur, 61, dtype=f64)
@@ -347,9 +383,7 @@ def plot_axode(Figure, Canvas, path, fits, samples, model):
     grid = fig.add_gridspec(2, len(order), height_ratios=(1.25, 1.0))
     half = 40.0  # half length of the drawn rulings (mm), about half a knee's width
     s = torch.linspace(-half, half, 2, dtype=f64)
-    norm, cmap = Normalize(0.0, model.flexion_deg), cm.viridis
     p_true = dualquat.to_rt(model.poses(t))[1]
-    lt = truth["direction"] * torch.sign(-truth["direction"][..., :1])  # point medially (-x)
     surfaces = {}
     for name in order:
         ax = fitted[name]
@@ -358,36 +392,8 @@ def plot_axode(Figure, Canvas, path, fits, samples, model):
     pts = torch.cat([*(v.reshape(-1, 3) for v in surfaces.values()), p_true,
                      p_true.new_tensor([[0.0, 0.0, 38.0]])])
     for col, name in enumerate(order):
-        ax3 = fig.add_subplot(grid[0, col], projection="3d", computed_zorder=False)
-        surf = surfaces[name]
-        colors = cmap(norm(flex))[:, None, :].repeat(2, axis=1)
-        ax3.plot_surface(*(_np(surf[..., k]) for k in range(3)), facecolors=colors,
-                         shade=False, alpha=0.75, linewidth=0.2, edgecolor="0.3",
-                         rstride=1, cstride=1, zorder=1)
-        for i in range(0, len(t), 10):
-            seg = truth["point"][i] + s[:, None] * lt[i]
-            ax3.plot(*_np(seg).T, color="crimson", lw=1.5, ls="--", zorder=3)
-        ax3.plot(*_np(p_true).T, color="k", lw=1.5, zorder=3)
-        ax3.plot([0, 0], [0, 0], [0, 35], color="0.45", lw=6, alpha=0.5, zorder=2)
-        ax3.scatter([0], [0], [0], color="k", s=18, zorder=4)
-        _set_equal_3d(ax3, _np(pts), zoom=0.95)
-        _label_3d(ax3)
-        ax3.view_init(elev=18, azim=-40)
-        f = by_name[name]
-        ax3.set_title(f"Axode of the fitted {CURVE_LABELS[name]} (degree {f.degree}, "
-                      f"{f.n_ctrl} control points)", fontsize=11)
-        _legend_below(ax3, [
-            Line2D([], [], color=cmap(0.6), lw=6, alpha=0.75,
-                   label=f"fitted screw axes, ±{half:.0f} mm (colour: flexion)"),
-            Line2D([], [], color="crimson", ls="--", label="true screw axis (one in ten)"),
-            Line2D([], [], color="k", label="tibia origin path (true)"),
-            Line2D([], [], color="0.45", lw=6, alpha=0.5, label="femoral shaft (schematic)"),
-            Line2D([], [], color="k", ls="none", marker="o", ms=4,
-                   label="femoral origin (epicondylar midpoint)")])
-        if col == len(order) - 1:
-            fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax3, shrink=0.6,
-                         pad=0.08, label="flexion (deg)")
-
+        _plot_axode_3d(fig, grid[0, col], by_name[name], surfaces[name], truth, t, flex,
+                       model, p_true, pts, half, colorbar=col == len(order) - 1)
     _plot_sagittal(fig, grid, order, truth, fitted, by_name, flex)
     lo, hi = 100 * AXODE_MARGIN, 100 * (1 - AXODE_MARGIN)
     fig.suptitle("Instantaneous screw axis of the knee flexion in the femur frame, "

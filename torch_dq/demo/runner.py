@@ -48,15 +48,15 @@ from torch import Tensor
 from .. import losses
 from .. import nn as dqnn
 from . import plots as _plots
-from . import _common
-from ._common import evaluate, no_matplotlib, pose_errors, say_warnings
+from .. import _report as _shared
+from .._report import evaluate, no_matplotlib, pose_errors, say_warnings
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["DEFAULTS", "FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
 
 #: The command that installs matplotlib for the figures, ``pip install 'torch_dq[plot]'``
 #: (the demo and the fit print it once when they skip their figures).
-PLOT_HINT = _common.PLOT_HINT
+PLOT_HINT = _shared.PLOT_HINT
 
 #: The figures the demo writes (when matplotlib is available).
 FIGURES = ("fig1_components.png", "frames_3d.png", "axode.png", "loss.png")
@@ -198,20 +198,9 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
     os.makedirs(out, exist_ok=True)
     device = torch.device(device)
     model = KneeModel()
-    gen = torch.Generator().manual_seed(seed)
-    samples = sample_poses(model, n=n_samples, rot_noise_deg=rot_noise_deg,
-                           trans_noise_mm=trans_noise_mm, generator=gen, dtype=dtype,
-                           device=device)
-    # Held-out times: midway between a fine grid, never a sample time.
-    n_held = 400
-    held_out = ((torch.arange(n_held, dtype=torch.float64) + 0.5) / n_held * model.duration_s)
-    truth = model.poses(held_out).to(dtype=dtype, device=device)
-    held_out = held_out.to(device=device)  # float64 seconds: the layers take wide times
-    # Weigh rotation and translation errors by the noise levels: one noise sigma in
-    # degrees counts like one noise sigma in mm.
-    sigma_r = math.radians(rot_noise_deg) if rot_noise_deg > 0 else math.radians(1.0)
-    sigma_t = trans_noise_mm if trans_noise_mm > 0 else 1.0
-    trans_weight = (sigma_r / sigma_t) ** 2
+    samples, held_out, truth = _data(model, n_samples, rot_noise_deg, trans_noise_mm, seed,
+                                     dtype, device)
+    trans_weight = _trans_weight(rot_noise_deg, trans_noise_mm)
     loss = functools.partial(losses.pose_loss, trans_weight=trans_weight)
     fit_kwargs = {"optimizer": optimizer, "steps": steps, "loss": loss, "verbose": verbose}
     if lr is not None:
@@ -220,30 +209,13 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
         warnings.simplefilter("always")
         fits = [_fit_curve(name, samples, n_ctrl, degree, fit_kwargs, held_out, truth)
                 for name in ("bspline", "bezier")]
-    noise_errors = _errors(samples.poses, samples.truth)
-
-    summary: dict[str, Any] = {
-        "description": "torch_dq demo: dual-quaternion curves fitted to a synthetic knee "
-                       "flexion (tibia relative to femur, mm); errors against the noise-free "
-                       "motion at held-out times",
-        "settings": {"n_ctrl": n_ctrl, "degree": degree, "steps": steps, "seed": seed,
-                     "device": str(device), "dtype": str(dtype).replace("torch.", ""),
-                     "n_samples": n_samples, "rot_noise_deg": rot_noise_deg,
-                     "trans_noise_mm": trans_noise_mm, "optimizer": optimizer, "lr": lr,
-                     "trans_weight_rad2_per_mm2": trans_weight, "n_held_out": n_held,
-                     "threads": torch.get_num_threads()},
-        "knee_model": model.as_dict(),
-        "noise_errors": noise_errors,
-        "curves": {f.name: {"n_ctrl": f.n_ctrl, "degree": f.degree, "errors": f.errors,
-                            "init_errors": f.init_errors, "steps": f.history.steps,
-                            "initial_loss": f.history.loss[0] if f.history.loss else None,
-                            "final_loss": f.history.final_loss,
-                            "converged": f.history.converged, "seconds": f.seconds}
-                   for f in fits},
-        "figures": [],
-        "warnings": say_warnings("torch-dq demo", caught),
-    }
-
+    settings = {"n_ctrl": n_ctrl, "degree": degree, "steps": steps, "seed": seed,
+                "device": str(device), "dtype": str(dtype).replace("torch.", ""),
+                "n_samples": n_samples, "rot_noise_deg": rot_noise_deg,
+                "trans_noise_mm": trans_noise_mm, "optimizer": optimizer, "lr": lr,
+                "trans_weight_rad2_per_mm2": trans_weight, "n_held_out": len(held_out),
+                "threads": torch.get_num_threads()}
+    summary = _summary(settings, model, samples, fits, say_warnings("torch-dq demo", caught))
     if plots:
         summary["figures"] = _figures(out, fits, samples, model, fit_kwargs, trans_weight,
                                       summary["warnings"])
@@ -253,6 +225,50 @@ def run_demo(out: str = "torch_dq_demo", *, n_ctrl: int = 8, degree: int = 3,
     if verbose:
         _report(summary, model, out, stream)
     return summary
+
+
+def _data(model: KneeModel, n_samples: int, rot_noise_deg: float, trans_noise_mm: float,
+          seed: int, dtype: torch.dtype, device: torch.device
+          ) -> tuple[KneeSamples, Tensor, Tensor]:
+    """The noisy poses (seeded), the held-out times (float64 s, midway between a fine grid,
+    never a sample time) and the noise-free poses there."""
+    gen = torch.Generator().manual_seed(seed)
+    samples = sample_poses(model, n=n_samples, rot_noise_deg=rot_noise_deg,
+                           trans_noise_mm=trans_noise_mm, generator=gen, dtype=dtype,
+                           device=device)
+    n_held = 400
+    held_out = ((torch.arange(n_held, dtype=torch.float64) + 0.5) / n_held * model.duration_s)
+    truth = model.poses(held_out).to(dtype=dtype, device=device)
+    return samples, held_out.to(device=device), truth  # float64 s: the layers take wide times
+
+
+def _trans_weight(rot_noise_deg: float, trans_noise_mm: float) -> float:
+    """The loss's weight of translation against rotation errors, from the noise levels: one
+    noise sigma in degrees counts like one noise sigma in mm."""
+    sigma_r = math.radians(rot_noise_deg) if rot_noise_deg > 0 else math.radians(1.0)
+    sigma_t = trans_noise_mm if trans_noise_mm > 0 else 1.0
+    return (sigma_r / sigma_t) ** 2
+
+
+def _summary(settings: dict, model: KneeModel, samples: KneeSamples, fits: list[_Fit],
+             warned: list[str]) -> dict[str, Any]:
+    """The summary written to ``summary.json`` (without the figures and the total time)."""
+    return {
+        "description": "torch_dq demo: dual-quaternion curves fitted to a synthetic knee "
+                       "flexion (tibia relative to femur, mm); errors against the noise-free "
+                       "motion at held-out times",
+        "settings": settings,
+        "knee_model": model.as_dict(),
+        "noise_errors": _errors(samples.poses, samples.truth),
+        "curves": {f.name: {"n_ctrl": f.n_ctrl, "degree": f.degree, "errors": f.errors,
+                            "init_errors": f.init_errors, "steps": f.history.steps,
+                            "initial_loss": f.history.loss[0] if f.history.loss else None,
+                            "final_loss": f.history.final_loss,
+                            "converged": f.history.converged, "seconds": f.seconds}
+                   for f in fits},
+        "figures": [],
+        "warnings": warned,
+    }
 
 
 def _figures(out: str, fits: list[_Fit], samples: KneeSamples, model: KneeModel,

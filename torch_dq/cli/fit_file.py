@@ -15,7 +15,7 @@ in the file's own seconds, UNIX seconds included), then
 4. *write*: to the output folder ``trajectory.csv`` (the curve resampled at ``rate`` Hz with
    world-frame velocities and accelerations, :func:`torch_dq.io.write_csv`), ``spline.pt``
    (the module's ``state_dict``), ``summary.json`` and the figures of
-   ``torch_dq.demo.fit_plots``.
+   ``torch_dq.cli.fit_plots``.
 
 The input is never written to; a folder holding the results of an earlier run is refused
 unless ``overwrite=True``. Options the data cannot satisfy raise :class:`OptionError`, whose
@@ -28,7 +28,7 @@ Reload the fitted curve (control points, degree, knots, form, time origin) with:
     spline = torch_dq.nn.BSpline.from_state_dict(torch.load("spline.pt"))
 
 Example:
-    >>> from torch_dq.demo.fit_file import run_fit
+    >>> from torch_dq.cli.fit_file import run_fit
     >>> summary = run_fit("tests/data/tum_fr1_xyz_sub.txt", out="/tmp/fit",
     ...                   steps=5, plots=False, verbose=False)  # doctest: +SKIP
     >>> summary["heldout_errors"]["translation_mm"]["median"]  # doctest: +SKIP
@@ -51,7 +51,8 @@ from torch import Tensor
 
 from .. import _spacing, dualquat, io
 from .. import nn as dqnn
-from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
+from .._report import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
+from ._errors import OptionError
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
            "run_fit"]
@@ -64,13 +65,6 @@ OUTPUTS = ("trajectory.csv", "spline.pt", "summary.json")
 
 #: At most this many rows in ``trajectory.csv`` (``--rate`` is bounded by the duration).
 MAX_RESAMPLED = 1_000_000
-
-
-class OptionError(ValueError):
-    """Options that this data cannot satisfy (the message says what to pass instead).
-
-    The command line ends with it in one line and exit status 2, as for a bad option.
-    """
 
 
 @dataclass
@@ -429,7 +423,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             never written, whatever this says).
         imu: an IMU file (:func:`torch_dq.io.read_imu`) on the poses' clock: the curve is
             then refined on the fitted poses and the IMU together
-            (``torch_dq.demo.fit_imu.fit_with_imu``; biases, gravity and their standard
+            (``torch_dq.cli.fit_imu.fit_with_imu``; biases, gravity and their standard
             deviations printed and in the summary), on the cumulative form unless ``form``
             says otherwise (continuous accelerations).
         time_offset: with ``imu``: ``None`` (the clocks agree) or ``"estimate"`` (one
@@ -453,27 +447,14 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     if form is None:
         form = "cumulative" if imu is not None else "de_boor"
     _check_options(knot_spacing, degree, form, holdout, steps, rate)
-    if time_offset not in (None, "estimate"):
-        raise ValueError(f"fit: time_offset must be None or 'estimate', got {time_offset!r}")
-    if time_offset and imu is None:
-        raise OptionError("--time-offset estimate needs an IMU file: pass --imu IMU_FILE")
     path, out = os.fspath(path), os.fspath(out)
-    inputs = [path] + [os.fspath(f) for f in (times, imu) if isinstance(f, (str, os.PathLike))]
-    _check_out(out, inputs, overwrite, plots)
+    _check_inputs(path, out, times, imu, time_offset, overwrite, plots)
     say = print if verbose else (lambda *a, **k: None)
-    begin = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:  # units the data contradict
-        warnings.simplefilter("always")
-        traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
-    read_warnings = say_warnings("torch-dq fit", caught)
-    read_s = time.perf_counter() - begin
-    if len(traj) < 2:
-        raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
+    traj, read_warnings, read_s = _read(path, format, times, duplicates)
     fit_idx, held_idx = _split(len(traj), holdout, degree)
     train = traj.select(fit_idx)
-    requested_steps = steps  # the IMU fit takes them even where the poses alone need none
-    spacing, why, steps = _knot_spacing(train.times, train.poses(), degree, form,
-                                        knot_spacing, steps)
+    spacing, why, fit_steps = _knot_spacing(train.times, train.poses(), degree, form,
+                                            knot_spacing, steps)
     info = _describe_input(say, path, traj)
     info["gaps_over_2_knot_spacings"], gap_note = _gap_note(traj, spacing)
     if gap_note:
@@ -485,14 +466,58 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         f"(1 in {holdout}), {len(held_idx)} held out")
     rate_hz = _nominal_rate(info["median_rate_hz"]) if rate is None else float(rate)
     refine = None
-    if imu is not None:
+    if imu is not None:  # it takes the steps asked even where the poses alone need none
         from .fit_imu import fit_with_imu
 
         refine = functools.partial(fit_with_imu, imu=imu, time_offset=time_offset,
-                                   steps=max(requested_steps, 1), say=say)
-    result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, steps,
+                                   steps=max(steps, 1), say=say)
+    result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, refine)
     fit["seconds"]["read"] = read_s
+    fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
+    model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
+             "knot_spacing_reason": why}
+    summary = _summarize(say, result, fit, {**info, "format": format}, model, holdout, dtype,
+                         rate_hz)
+    summary["reload"] = _reload_text(os.path.join(out, "spline.pt"))
+    paths = _write(out, path, result, summary, plots)
+    say(f"wrote {', '.join(sorted(paths))} to {out}")
+    say(f"reload: {summary['reload']}")
+    return summary
+
+
+def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
+                  plots: bool) -> None:
+    """The IMU options agree, and ``out`` writes over no input (:func:`_check_out`)."""
+    if time_offset not in (None, "estimate"):
+        raise ValueError(f"fit: time_offset must be None or 'estimate', got {time_offset!r}")
+    if time_offset and imu is None:
+        raise OptionError("--time-offset estimate needs an IMU file: pass --imu IMU_FILE")
+    inputs = [path] + [os.fspath(f) for f in (times, imu) if isinstance(f, (str, os.PathLike))]
+    _check_out(out, inputs, overwrite, plots)
+
+
+def _read(path: str, format: str, times, duplicates: str
+          ) -> tuple[io.Trajectory, list[str], float]:
+    """The file's poses (at least 2), the warnings on units the data contradict (printed
+    once) and the seconds it took."""
+    begin = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
+    read_warnings = say_warnings("torch-dq fit", caught)
+    read_s = time.perf_counter() - begin
+    if len(traj) < 2:
+        raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
+    return traj, read_warnings, read_s
+
+
+def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdout: int,
+               dtype: torch.dtype, rate_hz: float) -> dict[str, Any]:
+    """Print the fit's steps and errors; the summary of ``summary.json`` (but the reload
+    line and the outputs). ``model`` gives the pose-only fit's knots, replaced by the IMU
+    fit's where there was one."""
+    fit_idx, held_idx = result.fit_idx, result.held_idx
     heldout = _errors(result.pred, result.poses, result.report_idx)
     say(f"fit: {fit['steps']} step{'s' * (fit['steps'] != 1)} in "
         f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
@@ -500,12 +525,11 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     _print_errors(say, result, heldout)
     if fit["imu"] is not None:  # the IMU fit's knots
         knots = fit["imu"]["knots"]
-        n_ctrl, spacing, why = knots["n_ctrl"], knots["spacing_s"], knots["reason"]
-    summary: dict[str, Any] = {
-        "input": {**info, "format": format},
-        "model": {"class": "torch_dq.nn.BSpline", "degree": degree, "form": form,
-                  "n_ctrl": n_ctrl,
-                  "knot_spacing_s": spacing, "knot_spacing_reason": why,
+        model = {**model, "n_ctrl": knots["n_ctrl"], "knot_spacing_s": knots["spacing_s"],
+                 "knot_spacing_reason": knots["reason"]}
+    return {
+        "input": info,
+        "model": {"class": "torch_dq.nn.BSpline", **model,
                   "dtype": str(dtype).replace("torch.", ""),
                   "domain_s": list(result.spline.domain)},
         "holdout": {"every": holdout, "fitted": len(fit_idx), "held_out": len(held_idx),
@@ -516,13 +540,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         "imu": fit["imu"],
         "seconds": fit["seconds"],
         "resampled": {"rate_hz": rate_hz, "samples": len(result.grid)},
-        "warnings": read_warnings + fit["warnings"] + ([gap_note] if gap_note else []),
-        "reload": _reload_text(os.path.join(out, "spline.pt")),
+        "warnings": fit["warnings"],
     }
-    paths = _write(out, path, result, summary, plots)
-    say(f"wrote {', '.join(sorted(paths))} to {out}")
-    say(f"reload: {summary['reload']}")
-    return summary
 
 
 #: The defaults of :func:`run_fit` (``knot_spacing``, ``degree``, ``holdout``, ``steps``, ...),

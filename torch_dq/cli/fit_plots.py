@@ -1,6 +1,6 @@
 r"""The figures of ``python -m torch_dq fit`` (matplotlib, Agg canvas; pyplot untouched).
 
-Each function draws one PNG from a :class:`torch_dq.demo.fit_file.FitResult`:
+Each function draws one PNG from a :class:`torch_dq.cli.fit_file.FitResult`:
 
 - :func:`plot_components`: the 8 dual-quaternion components of the curve against time (the
   paper's Fig. 1) with the held-out poses as hollow markers on top.
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ._common import align
+from .._report import align
 
 __all__ = ["PLOTS", "plot_components", "plot_kinematics", "plot_residuals"]
 
@@ -148,5 +148,5 @@ def plot_residuals(Figure, Canvas, path: str, r) -> str:
     return _save(fig, Canvas, path)
 
 
-#: The figure functions, in the order of :data:`torch_dq.demo.fit_file.FIGURES`.
+#: The figure functions, in the order of :data:`torch_dq.cli.fit_file.FIGURES`.
 PLOTS = (plot_components, plot_kinematics, plot_residuals)

@@ -1,7 +1,8 @@
-"""What the demo and the file fit share: pose errors, evaluation, sign alignment, matplotlib.
+"""What the applications share (private): pose errors, evaluation, sign alignment,
+matplotlib, warnings on stderr.
 
-Written once here so that :mod:`.runner`, :mod:`.plots`, :mod:`.fit_file` and
-:mod:`.fit_plots` agree on units and conventions.
+Written once here, below both, so that the knee demo (:mod:`torch_dq.demo`) and the command
+line (:mod:`torch_dq.cli`: ``fit``, its figures) agree on units and conventions.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import warnings
 import torch
 from torch import Tensor
 
-from .. import losses
+from . import losses
 
 __all__ = ["PLOT_HINT", "align", "evaluate", "import_matplotlib", "no_matplotlib",
            "pose_errors", "say_warnings"]

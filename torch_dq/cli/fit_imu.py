@@ -1,6 +1,6 @@
 r"""``python -m torch_dq fit FILE --imu IMUFILE``: poses and an IMU fitted together.
 
-After the pose-only fit of :mod:`torch_dq.demo.fit_file`, :func:`fit_with_imu` refines the
+After the pose-only fit of :mod:`torch_dq.cli.fit_file`, :func:`fit_with_imu` refines the
 same B-spline with :func:`torch_dq.fitting.estimate` on three terms: the fitted poses
 (:class:`~torch_dq.fitting.Poses`, which define the clock), the gyroscope
 (:class:`~torch_dq.fitting.Gyro`) and the accelerometer (:class:`~torch_dq.fitting.Accel`),
@@ -34,7 +34,7 @@ from torch import Tensor
 
 from .. import dualquat, fitting, io, quat
 from ..nn import BSpline
-from .fit_file import OptionError
+from ._errors import OptionError
 
 __all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "fit_with_imu"]
 

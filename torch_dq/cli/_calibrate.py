@@ -1,13 +1,16 @@
-r"""``python -m torch_dq calibrate``: camera-IMU calibration from Kalibr's files (private).
+r"""``python -m torch_dq calibrate``: camera-IMU calibration from Kalibr's files (private;
+the options are in :mod:`._parsers`).
 
-Reads Kalibr's target yaml (:func:`read_target`), the IMU file (:func:`torch_dq.io.read_imu`),
-Kalibr's ``imu.yaml`` (``gyroscope_noise_density``, ``accelerometer_noise_density``;
-``gyroscope_random_walk``, ``accelerometer_random_walk`` and ``update_rate`` are read and
-reported, the biases being constant here) and a camchain yaml (``cam0``, ``cam1``, ...:
-``camera_model``, ``distortion_model``, ``resolution`` and, when known, ``intrinsics`` and
-``distortion_coeffs``; without intrinsics they are calibrated first by :func:`cameras`), one
-``--corners`` CSV (:func:`read_corners`) or ``--images`` folder (:func:`detect_folder`) per
-camera in the camchain's order; runs :func:`camera_imu` and writes to ``--out``:
+Reads Kalibr's target yaml (:func:`~torch_dq.calibration.read_target`), the IMU file
+(:func:`torch_dq.io.read_imu`), Kalibr's ``imu.yaml`` (``gyroscope_noise_density``,
+``accelerometer_noise_density``; ``gyroscope_random_walk``, ``accelerometer_random_walk`` and
+``update_rate`` are read and reported, the biases being constant here) and a camchain yaml
+(``cam0``, ``cam1``, ...: ``camera_model``, ``distortion_model``, ``resolution`` and, when
+known, ``intrinsics`` and ``distortion_coeffs``; without intrinsics they are calibrated first
+by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
+(:func:`~torch_dq.calibration.read_corners`) or ``--images`` folder
+(:func:`~torch_dq.calibration.detect_folder`) per camera in the camchain's order; runs
+:func:`~torch_dq.calibration.camera_imu` and writes to ``--out``:
 
 - ``camchain-imucam.yaml``: Kalibr's keys and nesting (``T_cam_imu``, ``T_cn_cnm1``,
   ``timeshift_cam_imu``, the camera models), reloadable by
@@ -30,45 +33,15 @@ import time
 import warnings
 from pathlib import Path
 
-__all__ = ["add_parser", "run"]
+from ._errors import exit_on_error
+
+__all__ = ["run"]
 
 _OUTPUTS = ("camchain-imucam.yaml", "summary.json", "reprojection.png", "imu.png")
 
 
 class UserError(ValueError):
     """A problem with the command's inputs (one line, exit status 2)."""
-
-
-def add_parser(sub) -> None:
-    """The ``calibrate`` subcommand's options on the ``argparse`` subparsers ``sub``."""
-    p = sub.add_parser(
-        "calibrate", help="camera-IMU calibration from Kalibr's files (target, imu, camchain)",
-        description="Calibrate cameras against an IMU (Kalibr's calibrate_imu_camera) from "
-                    "Kalibr's target, imu and camchain yamls, the IMU readings and one "
-                    "--corners CSV or --images folder per camera of the camchain (in its "
-                    "order). Writes camchain-imucam.yaml, summary.json and figures to --out; "
-                    "inputs are never written to. Errors end in one line and exit status 2.")
-    p.add_argument("--target", required=True, metavar="TARGET.yaml",
-                   help="Kalibr's target yaml (aprilgrid or checkerboard)")
-    p.add_argument("--imu", required=True, metavar="IMU_FILE",
-                   help="IMU readings: EuRoC imu0/data.csv or 't gx gy gz ax ay az'")
-    p.add_argument("--imu-noise", required=True, metavar="IMU.yaml",
-                   help="Kalibr's imu.yaml (noise densities, random walks, update_rate)")
-    p.add_argument("--cameras", required=True, metavar="CAMCHAIN.yaml",
-                   help="Kalibr's camchain yaml; cameras without intrinsics are calibrated")
-    p.add_argument("--corners", action="append", default=[], metavar="CSV",
-                   help="corners of one camera (t_ns or t, u_px, v_px, X_m, Y_m, Z_m)")
-    p.add_argument("--images", action="append", default=[], metavar="DIR",
-                   help="a folder of one camera's images named by nanosecond timestamps")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--rolling-shutter", action="store_true",
-                   help="estimate each camera's line delay")
-    p.add_argument("--pixel-sigma", type=float, default=1.0,
-                   help="corner noise per axis (pixels)")
-    p.add_argument("--shared-time-offset", action="store_true",
-                   help="one clock offset for all cameras (hardware-synchronised)")
-    p.add_argument("--no-plots", action="store_true", help="skip the figures")
-    p.add_argument("--quiet", action="store_true", help="print nothing but warnings")
 
 
 def _yaml(path: str) -> dict:
@@ -112,7 +85,7 @@ def _camchain(path: str) -> list[dict]:
 
 
 def _observations(args, target, n: int):
-    from . import detect_folder, read_corners
+    from ..calibration import detect_folder, read_corners
 
     if args.corners and args.images:
         raise UserError("give --corners or --images, not both")
@@ -126,8 +99,8 @@ def _observations(args, target, n: int):
 
 
 def _cameras(entries, obs, path: str, say):
+    from ..calibration import cameras
     from ..camera import Camera
-    from . import cameras
 
     known = ["intrinsics" in e for e in entries]
     if all(known):
@@ -194,13 +167,12 @@ def run(args) -> int:
     try:
         return _run(args)
     except (UserError, ValueError, OSError) as exc:
-        print(f"torch-dq calibrate: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+        return exit_on_error("torch-dq calibrate", exc)
 
 
 def _run(args) -> int:
     from .. import io
-    from . import camera_imu, read_target
+    from ..calibration import camera_imu, read_target
 
     def say(text: str) -> None:
         if not args.quiet:
@@ -262,7 +234,7 @@ def _figures(out: Path, res, say) -> None:
     except ImportError:
         say("matplotlib is not installed: figures skipped (pip install 'torch_dq[plot]')")
         return
-    from ._plots import imu_figure, reprojection_figure
+    from ._calibrate_plots import imu_figure, reprojection_figure
 
     for name, fig in (("reprojection.png", reprojection_figure(res, plt)),
                       ("imu.png", imu_figure(res, plt))):
