@@ -566,6 +566,27 @@ def test_imu_biases_and_offset_recovered(tmp_path, capsys, pose_noise):
     np.testing.assert_allclose(g, [0.0, 0.0, -9.81], atol=0.02)
 
 
+def test_imu_ends_kept_when_the_offset_is_estimated(tmp_path):
+    """--time-offset estimate keeps every IMU sample within the poses' time span: the curve's
+    domain reaches the offset's bound beyond the end poses, so that the estimate's domain
+    check (times widened by what the offset can reach) accepts them all (0.5 cut 0.1 s of
+    samples at each end, 20 of 601 here)."""
+    dt = 0.02
+    _write_imu_case(tmp_path, np.zeros(3), np.zeros(3), dt)
+    out = tmp_path / "o"
+    assert main(["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"),
+                 "--time-offset", "estimate", "--holdout", "1", "--out", str(out),
+                 "--no-plots", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    imu = summary["imu"]
+    t_imu = np.loadtxt(tmp_path / "imu.txt")[:, 0]
+    assert (imu["samples"], imu["left_out"]) == (len(t_imu), 0), imu
+    lo, hi = summary["model"]["domain_s"]
+    assert lo <= -0.1 + 1e-9 and hi >= 6.0 + 0.1 - 1e-9, (lo, hi)
+    off = imu["time_offset_s"]
+    assert np.isfinite(off["std"]) and abs(off["value"] - dt) < 5 * off["std"] + 1e-3, off
+
+
 def test_imu_file_errors_are_one_line(tmp_path, capsys):
     _write_imu_case(tmp_path, np.zeros(3), np.zeros(3), 0.0)
     poses = str(tmp_path / "poses.txt")

@@ -12,6 +12,10 @@ The knots are chosen for the IMU: a knot every :data:`IMU_SAMPLES_PER_SPAN` IMU 
 (finer than the pose-only fit's spacing, never coarser), the curve started anew on the
 fitted poses at that spacing (``BSpline.from_poses(..., knot_spacing=)``, smoothing between
 the poses), so that the curve can follow the motion that the IMU sees between the poses.
+With ``time_offset="estimate"`` the curve's domain reaches :data:`MAX_OFFSET` beyond the
+first and the last pose (``from_poses(..., margin=)``), so that every IMU sample within the
+poses' time span stays inside it whatever the offset (the estimate's domain check, widened
+by :meth:`~torch_dq.fitting.Term.time_reach`): none is cut at the ends.
 Each term's ``chi2 / dof`` goes to the summary: far from 1, the noise levels do not describe
 the data.
 
@@ -36,7 +40,7 @@ from .. import dualquat, fitting, io, quat
 from ..nn import BSpline
 from ._errors import OptionError
 
-__all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "fit_with_imu"]
+__all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "MAX_OFFSET", "fit_with_imu"]
 
 #: Gravity's magnitude (m/s²); its direction in the file's world frame is estimated.
 GRAVITY = 9.81
@@ -71,49 +75,67 @@ def _pose_sigmas(spline, times: Tensor, poses: Tensor) -> tuple[float, float]:
     return max(rot_axis, 1e-6), max(trans_axis, 1e-6)
 
 
-def _inside(times: Tensor, t0: float, t1: float, margin: float) -> Tensor:
-    return (times >= t0 + margin) & (times <= t1 - margin)
-
-
-def _read(path: str, t0: float, t1: float, margin: float) -> tuple[Tensor, Tensor, Tensor,
-                                                                     int]:
-    """The IMU samples inside the curve's domain (less ``margin``): times, gyro, accel and
-    how many were left out."""
+def _read(path: str) -> tuple[Tensor, Tensor, Tensor, str]:
+    """The IMU file's times, gyroscope and accelerometer readings, and its reader's warnings
+    (passed on to the caller's record, and as a hint for an error message)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         times, gyro, accel = io.read_imu(path)
     for w in caught:  # to the caller's record (summary.json)
         warnings.warn(w.message, w.category, stacklevel=2)
-    keep = _inside(times, t0, t1, margin)
+    return times, gyro, accel, "".join(f" ({w.message})" for w in caught)
+
+
+def _reachable(path: str, spline, times: Tensor, clock, hint: str) -> Tensor:
+    r"""``(N,)`` bool: the IMU samples that :func:`torch_dq.fitting.estimate`'s domain check
+    accepts on ``spline``: their times moved by all that the parameters moving them can reach
+    (:meth:`~torch_dq.fitting.Term.time_reach`: :math:`\pm` :data:`MAX_OFFSET` for an
+    estimated clock offset) inside the curve's domain, which :func:`_imu_spline` widened by
+    that much. So no sample within the poses' time span is cut for the offset.
+
+    Raises:
+        OptionError: fewer than 10 such samples (an IMU file of another clock).
+    """
+    probe = fitting.Gyro(times, torch.zeros(times.shape + (3,), dtype=torch.float64),
+                         sigma=1.0, time_offset=clock, max_time_offset=MAX_OFFSET)
+    low, high = probe.time_reach()
+    t0, t1 = spline.domain
+    keep = (times + low >= t0) & (times + high <= t1)
     if int(keep.sum()) < 10:
-        hint = "".join(f" ({w.message})" for w in caught)  # e.g. times in another unit
+        span = f"[{t0 + float(high.max()):.6f}, {t1 + float(low.min()):.6f}]"
         raise OptionError(f"{path}: {int(keep.sum())} IMU samples lie within the poses' time "
-                          f"span [{t0:.6f}, {t1:.6f}] s (less {margin:g} s at each end for the "
-                          f"clock offset), the IMU file spans [{float(times[0]):.6f}, "
+                          f"span {span} s, the IMU file spans [{float(times[0]):.6f}, "
                           f"{float(times[-1]):.6f}] s: pass an IMU file of the same recording "
                           f"(same clock){hint}")
-    return times[keep], gyro[keep], accel[keep], int((~keep).sum())
+    return keep
 
 
-def _imu_spline(spline, times: Tensor, poses: Tensor, imu_times: Tensor):
+def _imu_spline(spline, times: Tensor, poses: Tensor, imu_times: Tensor, margin: float):
     """The curve of the IMU fit and its knots' summary: the pose-only fit where its knots
-    are as fine as :data:`IMU_SAMPLES_PER_SPAN` IMU periods, else a new start on the fitted
-    poses at that spacing (smoothing between them)."""
+    are as fine as :data:`IMU_SAMPLES_PER_SPAN` IMU periods and no ``margin`` is asked, else
+    a new start on the fitted poses at the finer of the two spacings (smoothing between
+    them), its domain widened by ``margin`` (s) at each end for an estimated clock offset."""
     knots = spline.knots
     pose_spacing = float(knots[spline.degree + 1] - knots[spline.degree])
     spacing = IMU_SAMPLES_PER_SPAN * float((imu_times[1:] - imu_times[:-1]).median())
     if spacing >= pose_spacing:
-        return spline, {"spacing_s": pose_spacing, "n_ctrl": spline.n_ctrl,
-                        "reason": "the pose-only fit's (as fine as the IMU's)"}
+        reason = "the pose-only fit's (as fine as the IMU's)"
+        if not margin:
+            return spline, {"spacing_s": pose_spacing, "n_ctrl": spline.n_ctrl,
+                            "reason": reason}
+    else:
+        reason = (f"{IMU_SAMPLES_PER_SPAN} IMU sampling periods (the poses' fit had "
+                  f"{pose_spacing:.4g} s)")
+    if margin:
+        reason += f"; the domain widened by {margin:g} s at each end for the clock offset"
     q, p = dualquat.to_rt(poses)
     fine = BSpline.from_poses(q.to(spline.control_points.dtype),
-                              p.to(spline.control_points.dtype), times, knot_spacing=spacing,
-                              degree=spline.degree, form=spline.form)
+                              p.to(spline.control_points.dtype), times,
+                              knot_spacing=min(spacing, pose_spacing), degree=spline.degree,
+                              form=spline.form, margin=margin)
     fine_knots = fine.knots
     return fine, {"spacing_s": float(fine_knots[fine.degree + 1] - fine_knots[fine.degree]),
-                  "n_ctrl": fine.n_ctrl,
-                  "reason": f"{IMU_SAMPLES_PER_SPAN} IMU sampling periods (the poses' fit "
-                            f"had {pose_spacing:.4g} s)"}
+                  "n_ctrl": fine.n_ctrl, "reason": reason}
 
 
 #: Other orders of the four quaternion columns that files get wrong: the rotation ``(w, x,
@@ -180,7 +202,7 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     Args:
         spline: the pose-only fit (:class:`torch_dq.nn.BSpline`): the noise levels of the
             poses come from its residuals; refined in place where its knots are as fine
-            as the IMU's.
+            as the IMU's and no clock offset is estimated.
         times, poses: the fitted poses (``(N,)`` float64 s, ``(N, 8)``).
         imu: the IMU file (:func:`torch_dq.io.read_imu`), on the poses' clock up to an
             offset.
@@ -196,17 +218,19 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
 
     Raises:
         torch_dq.io.TrajectoryFileError: a malformed IMU file.
-        OptionError: too few IMU samples within the poses' time span.
+        OptionError: too few IMU samples within the poses' time span (all of them are
+            kept there, also when an offset is estimated).
     """
     path = os.fspath(imu)
-    t0, t1 = float(times[0]), float(times[-1])
     margin = MAX_OFFSET if time_offset == "estimate" else 0.0
-    t, gyro, accel, dropped = _read(path, t0, t1, margin)
-    rot_s, trans_s = _pose_sigmas(spline, times, poses)
+    t, gyro, accel, hint = _read(path)
+    rot_s, trans_s = _pose_sigmas(spline, times, poses)  # the pose-only fit's residuals
+    spline, knots = _imu_spline(spline, times, poses, t, margin)
+    clock = fitting.Free() if time_offset == "estimate" else None
+    keep = _reachable(path, spline, t, clock, hint)
+    t, gyro, accel, dropped = t[keep], gyro[keep], accel[keep], int((~keep).sum())
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
     _warn_quaternion_order(times, poses, t, gyro)
-    spline, knots = _imu_spline(spline, times, poses, t)
-    clock = fitting.Free() if time_offset == "estimate" else None
     terms = [fitting.Poses(times, poses.double(), rot_sigma=rot_s, trans_sigma=trans_s),
              fitting.Gyro(t, gyro, sigma=gyro_s, bias=True, time_offset=clock),
              fitting.Accel(t, accel, sigma=accel_s, bias=True, gravity=GRAVITY,
