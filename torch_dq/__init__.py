@@ -12,10 +12,10 @@ Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions)
 """
 
 from . import calibration, camera, curves, dual, dualquat, fitting, io, losses, nn, quat
+from ._version import __version__ as __version__
 from .dual import Dual
 from .dualquat import angle as dual_angle
 from .dualquat import sclerp
-from ._version import __version__
 from .object import DualQuaternion
 
 __all__ = [

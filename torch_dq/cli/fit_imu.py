@@ -96,7 +96,7 @@ def _reachable(path: str, spline, times: Tensor, clock, hint: str) -> Tensor:
     Raises:
         OptionError: fewer than 10 such samples (an IMU file of another clock).
     """
-    probe = fitting.Gyro(times, torch.zeros(times.shape + (3,), dtype=torch.float64),
+    probe = fitting.Gyro(times, torch.zeros((*times.shape, 3), dtype=torch.float64),
                          sigma=1.0, time_offset=clock, max_time_offset=MAX_OFFSET)
     low, high = probe.time_reach()
     t0, t1 = spline.domain

@@ -45,11 +45,11 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from .. import _report as _shared
 from .. import losses
 from .. import nn as dqnn
-from . import plots as _plots
-from .. import _report as _shared
 from .._report import evaluate, no_matplotlib, pose_errors, say_warnings
+from . import plots as _plots
 from .knee import KneeModel, KneeSamples, sample_poses
 
 __all__ = ["DEFAULTS", "FIGURES", "FIT_DEFAULTS", "PLOT_HINT", "run_demo"]
