@@ -9,7 +9,7 @@
 - ``demo``: the knee demo of :mod:`torch_dq.demo`.
 
 The commands are applications of the library: nothing in :mod:`torch_dq` imports this
-package but ``python -m torch_dq`` (:mod:`torch_dq.__main__`).
+package but ``python -m torch_dq`` (``torch_dq/__main__.py``).
 """
 
 from ._main import main
