@@ -46,13 +46,39 @@ from torch import Tensor
 from . import _checks
 from ._numerics import safe_denominator, threshold
 
-__all__ = ["KnotDomain", "bspline_basis", "checks_possible", "time_pair"]
+__all__ = ["MIN_RESOLUTION", "KnotDomain", "bspline_basis", "checks_possible", "time_pair",
+           "time_step", "unresolved"]
 
 _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_contract.md)
-# Coarsest step of t's dtype at the ends of a domain far from 0 (absolute timestamps),
-# relative to its length, that the checks accept: float32 UNIX seconds do not pass.
-_MIN_RESOLUTION = 1e-3
+#: Coarsest step of a time dtype at the times' magnitude, relative to their span (a
+#: domain's length, a term's samples), that the checks accept far from 0 (absolute
+#: timestamps): float32 UNIX seconds (steps of 128 s) do not pass. The one resolution rule
+#: (:func:`unresolved`).
+MIN_RESOLUTION = 1e-4
 EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"
+
+
+def time_step(dtype: torch.dtype, at: float | Tensor) -> Tensor:
+    """The spacing of ``dtype``'s values at ``|at|`` (its unit in the last place:
+    ``eps 2^floor(log2 |at|)``; 0 at 0), a float64 tensor of ``at``'s shape."""
+    a = torch.as_tensor(at, dtype=torch.float64).abs()
+    nonzero = a > 0
+    exponent = torch.floor(torch.log2(torch.where(nonzero, a, 1.0)))
+    return torch.where(nonzero, torch.finfo(dtype).eps * torch.exp2(exponent), 0.0)
+
+
+def unresolved(dtype: torch.dtype, scale: float | Tensor, length: float | Tensor) -> Tensor:
+    """The one time-resolution rule: whether times of ``dtype`` whose largest magnitude is
+    ``scale``, spanning ``length``, lie far from 0 (``scale > 10 length``) and step by more
+    than :data:`MIN_RESOLUTION` of ``length`` there (float32 UNIX seconds). Times near 0 in
+    a narrow dtype (bfloat16 on ``[0, 1]``) are the caller's choice of precision, not a lost
+    origin; float64 times always pass (there is no wider dtype to ask for). A bool tensor of
+    the broadcast shape."""
+    scale = torch.as_tensor(scale, dtype=torch.float64)
+    length = torch.as_tensor(length, dtype=torch.float64, device=scale.device)
+    step = time_step(dtype, scale).to(scale.device)
+    coarse = (step > MIN_RESOLUTION * length) & (scale > 10.0 * length)
+    return coarse & (dtype != torch.float64)
 
 
 def checks_possible(*xs: Tensor) -> bool:
@@ -312,20 +338,15 @@ class KnotDomain:
         return torch.maximum((lo + origin).abs(), (hi + origin).abs()), hi - lo
 
     def _unresolved(self, t_dtype: torch.dtype) -> Tensor:
-        """Whether absolute times (ends beyond 10 lengths of the domain from 0) of
-        ``t_dtype`` step by more than ``_MIN_RESOLUTION`` of the domain's length at its ends
-        (float32 UNIX seconds: steps of 128 s). Times near 0 in a narrow dtype (bfloat16 on
-        ``[0, 1]``) are the caller's choice of precision, not a lost origin."""
-        scale, length = self._scale_and_length()
-        return ((torch.finfo(t_dtype).eps * scale > _MIN_RESOLUTION * length)
-                & (scale > 10.0 * length))
+        """Whether times of ``t_dtype`` cannot resolve the domain (:func:`unresolved` at its
+        ends and length)."""
+        return unresolved(t_dtype, *self._scale_and_length())
 
     def _fail_unresolved(self, fn: str, t_dtype: torch.dtype) -> None:
         scale, length = (float(v.max()) for v in self._scale_and_length())
-        end = torch.tensor(scale, dtype=t_dtype)
-        step = float(torch.nextafter(end, end * 2) - end)
+        step = float(time_step(t_dtype, scale))
         _checks.fail(fn, f"t is {t_dtype}, whose values near {scale:.10g} are {step:.3g} apart "
-                         f"(t's units), more than {_MIN_RESOLUTION:g} of the domain's length "
+                         f"(t's units), more than {MIN_RESOLUTION:g} of the domain's length "
                          f"{length:.4g}: pass t as torch.float64")
 
     def _ends_str(self, dtype: torch.dtype) -> str:
