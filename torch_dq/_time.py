@@ -431,9 +431,12 @@ class KnotDomain:
         per-sample evaluation)."""
         rel = self.relative(t.detach(), torch.float64)
         k = self.knots.detach().to(torch.float64)
-        rel, r = torch.broadcast_tensors(rel, r)
-        left = _take(k, r)
-        return torch.minimum((rel - left).clamp_min(0.0), _take(k, r + 1) - left)
+        shape = torch.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
+        k = k.expand(*shape[:-1], k.shape[-1])
+        r = r.expand(shape)
+        left = torch.take_along_dim(k, r, -1)
+        width = torch.take_along_dim(k, r + 1, -1) - left
+        return torch.minimum((rel - left).clamp_min(0.0), width)
 
     def de_boor_levels(self, rel: Tensor, r: Tensor, dtype: torch.dtype,
                        ) -> list[tuple[Tensor, Tensor]]:
