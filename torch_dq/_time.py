@@ -6,14 +6,19 @@ the least-squares start and the estimation ask:
 
 - :meth:`~KnotDomain.relative`: ``t - origin`` in the wide time dtype (the only place an
   origin is subtracted);
-- :meth:`~KnotDomain.admit` and :meth:`~KnotDomain.check`: the domain rules of the public
-  contract (see below; the only place a domain is validated);
+- :meth:`~KnotDomain.admit`, :meth:`~KnotDomain.check` and :meth:`~KnotDomain.outside`:
+  the domain rules of the public contract (see below; one tolerance formula,
+  :meth:`~KnotDomain.tolerance`; the only place a domain is validated), and
+  :func:`unresolved`, the one rule for a time dtype too coarse for the times;
 - :meth:`~KnotDomain.span` and :meth:`~KnotDomain.locate`: the knot span of each time and
   its local parameter ``u = (t - u_r) / (u_{r+1} - u_r)`` with the slope ``du/dt``
   (Sophus' ``index_and_u``; the only span search); :meth:`~KnotDomain.de_boor_levels`: the
-  local parameters of every level of De Boor's scheme;
-- :meth:`~KnotDomain.basis` (Cox-de Boor, the design matrix of the least-squares start and
-  of Gauss-Newton) and :meth:`~KnotDomain.greville` (the Greville abscissae).
+  local parameters of every level of De Boor's scheme; :meth:`~KnotDomain.local_times`:
+  the time since the start of a span;
+- :meth:`~KnotDomain.bases` (:func:`span_bases`, the one Cox-de Boor: plain or cumulative
+  basis and their time derivatives), :meth:`~KnotDomain.basis` (its plain form, the design
+  matrix of the least-squares start and of Gauss-Newton) and :meth:`~KnotDomain.greville`
+  (the Greville abscissae).
 
 A Bézier curve of ``n`` control points on ``[0, L]`` is the B-spline of degree ``n - 1`` on
 the clamped knots ``(0, ..., 0, L, ..., L)`` (:meth:`KnotDomain.bezier`): one span, whose
@@ -427,8 +432,8 @@ class KnotDomain:
         """Time since the start of span ``r`` of absolute times ``t``, ``t - origin - u_r``
         (float64, ``(..., T)``: ``t`` and ``r`` broadcast against each other and the knots'
         batch), clamped to the span ``[0, u_{r+1} - u_r]`` (the rounding of times admitted
-        at its ends): a one-span curve's time (:class:`torch_dq.fitting._local`'s
-        per-sample evaluation)."""
+        at its ends): a one-span curve's time (the per-sample evaluation of
+        ``torch_dq.fitting._local``)."""
         rel = self.relative(t.detach(), torch.float64)
         k = self.knots.detach().to(torch.float64)
         shape = torch.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
@@ -559,7 +564,7 @@ def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
 def span_bases(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int = 0, *,
                cumulative: bool = False) -> list[Tensor]:
     r"""The B-spline basis of each time's span and its time derivatives: the one Cox-de Boor
-    (:func:`_span_basis`), plain or cumulative (basalt's ``_Cumulative`` flag).
+    (``_span_basis``), plain or cumulative (basalt's ``_Cumulative`` flag).
 
     Plain: :math:`B_{r-p+m,p}(t)`, ``m = 0..p`` (Piegl and Tiller, *The NURBS Book*, eq.
     2.5). Cumulative: :math:`\tilde B_{r-p+j}(t) = \sum_{m=j}^{p} B_{r-p+m,p}(t)`, ``j =
