@@ -54,6 +54,7 @@ for _obj in (Trajectory, TrajectoryFileError, read_imu, read_trajectory, write_c
              write_trajectory):
     _obj.__module__ = __name__  # the public home of the names (and of their documentation)
 del _obj
+__test__ = {"Trajectory.select": Trajectory.select}  # its example, defined in ._trajectory
 
 __all__ = [
     "CSV_COLUMNS",
