@@ -21,7 +21,7 @@ from strategies import knot_vector, unit_quat
 import torch_dq.dualquat as dq
 from torch_dq import _cumulative, curves
 from torch_dq._core import align_chain
-from torch_dq._time import KnotDomain
+from torch_dq._time import KnotDomain, span_bases
 
 F64 = torch.float64
 
@@ -56,7 +56,7 @@ def spans(knots, t, p):
 def span_inputs(ctrl, knots, p, t, order):
     """Spans, weights and gathered sign-aligned control points, as the curves pass them."""
     r, idx = spans(knots, t, p)
-    return align_chain(ctrl)[idx], _cumulative.basis(knots, r, t, p, order)
+    return align_chain(ctrl)[idx], span_bases(knots, r, t, p, order, cumulative=True)
 
 
 def domain_times(knots, p, count, margin=0.0):
@@ -163,7 +163,7 @@ def test_basis_matches_scipy(gen, kind, p):
     knots = knot_vector(kind, n, p, gen)
     t = domain_times(knots, p, 41, margin=0.3)  # extrapolates beyond both ends
     r = KnotDomain(knots, p).span(t)
-    got = _cumulative.basis(knots, r, t, p, 3)
+    got = span_bases(knots, r, t, p, 3, cumulative=True)
     cols = (r[:, None] - p + torch.arange(1, p + 1)).numpy()
     for nu in range(4):
         ref = np.take_along_axis(cumulative_basis_np(knots.numpy(), p, t.numpy(), nu), cols, 1)
@@ -177,12 +177,12 @@ def test_basis_batched_times_and_gradcheck(gen):
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 6).reshape(2, 3)
     r = KnotDomain(knots, p).span(t)
-    flat = _cumulative.basis(knots, r.reshape(-1), t.reshape(-1), p, 2)
-    for a, b in zip(_cumulative.basis(knots, r, t, p, 2), flat, strict=True):
+    flat = span_bases(knots, r.reshape(-1), t.reshape(-1), p, 2, cumulative=True)
+    for a, b in zip(span_bases(knots, r, t, p, 2, cumulative=True), flat, strict=True):
         assert a.shape == (2, 3, p) and torch.equal(a.reshape(-1, p), b)
 
     def f(t, knots):
-        return tuple(_cumulative.basis(knots, r, t, p, 2))
+        return tuple(span_bases(knots, r, t, p, 2, cumulative=True))
 
     inputs = (t.clone().requires_grad_(), knots.clone().requires_grad_())
     assert torch.autograd.gradcheck(f, inputs)
@@ -257,7 +257,7 @@ def test_pypose_on_uniform_knots(gen, shape):
     knots = torch.arange(n + 4, dtype=F64)
     t = s + 3.0
     r = KnotDomain(knots, 3).span(t)
-    weights = _cumulative.basis(knots, r, t, 3, 0)[0]
+    weights = span_bases(knots, r, t, 3, 0, cumulative=True)[0]
     flat = ctrl.reshape(-1, n, 8)
     ours = torch.stack([curves._kim_kim_shin(c[r[:, None] - 3 + torch.arange(4)], weights)
                         for c in flat]).reshape(*shape, -1, 8)
@@ -303,7 +303,7 @@ def test_continuity_across_simple_knots(gen):
         r = KnotDomain(knots, p).span(u)
         for side in (r - 1, r):  # left span (continued to u) and right span
             pts = align_chain(ctrl)[side[:, None] - p + torch.arange(p + 1)]
-            jet = _cumulative.jets(pts, _cumulative.basis(knots, side, u, p, 3), 3)
+            jet = _cumulative.jets(pts, span_bases(knots, side, u, p, 3, cumulative=True), 3)
             if side is r:
                 right = jet
             else:
@@ -369,11 +369,11 @@ def test_gradcheck_wrt_control_points_and_t(gen, kind):
     r, idx = spans(knots, t, p)
 
     def jets(order):
-        return lambda c, t: tuple(_cumulative.jets(c[idx], _cumulative.basis(
-            knots, r, t, p, order), order))
+        return lambda c, t: tuple(_cumulative.jets(c[idx], span_bases(
+            knots, r, t, p, order, cumulative=True), order))
 
     def fused(c, t):
-        return _cumulative.poses(c, r - p, _cumulative.basis(knots, r, t, p, 0)[0].T)
+        return _cumulative.poses(c, r - p, span_bases(knots, r, t, p, 0, cumulative=True)[0].T)
 
     inputs = (ctrl.clone().requires_grad_(), t.clone().requires_grad_())
     assert torch.autograd.gradcheck(jets(2), inputs, fast_mode=True)
@@ -389,7 +389,7 @@ def test_half_turn_gradients_are_finite_one_sided(gen):
     knots = knot_vector("uniform", 6, p, gen)
     t = domain_times(knots, p, 5)
     r, idx = spans(knots, t, p)
-    weights = _cumulative.basis(knots, r, t, p, 1)
+    weights = span_bases(knots, r, t, p, 1, cumulative=True)
     base = degenerate_chain(gen, "half_turn")
 
     def grads(ctrl):
@@ -421,7 +421,7 @@ def test_fused_poses_match_reference_gradients(gen):
     t = domain_times(knots, p, 11)
     r = KnotDomain(knots, p).span(t)
     first = torch.cat((r - p, r - p + n))
-    w = _cumulative.basis(knots, r, t, p, 0)[0].T.repeat(1, 2).requires_grad_()
+    w = span_bases(knots, r, t, p, 0, cumulative=True)[0].T.repeat(1, 2).requires_grad_()
     c = ctrl.clone().requires_grad_()
     fused = _cumulative.poses(c, first, w)
     ref = curves._kim_kim_shin(c[first[:, None] + torch.arange(p + 1)], w.T)
@@ -457,7 +457,7 @@ def test_fused_poses_unsorted_times_match_reference(gen, count):
     t = domain_times(knots, p, count)
     t = torch.cat((t, t[:2]))[torch.randperm(count + 2, generator=gen)]
     r = KnotDomain(knots, p).span(t)
-    w = _cumulative.basis(knots, r, t, p, 0)[0].T
+    w = span_bases(knots, r, t, p, 0, cumulative=True)[0].T
     g = torch.randn(count + 2, 8, generator=gen, dtype=F64)
     for order in (torch.randperm(count + 2, generator=gen), torch.argsort(r)):  # scattered, sorted
         c = ctrl.clone().requires_grad_()
@@ -484,7 +484,7 @@ def test_fused_poses_runs_across_chunks_match_reference(gen, monkeypatch):
     assert runs is not None and len(runs) == 6  # chunks of 37 times
     spans = [f for _, rs in runs for *_, f in rs]
     assert len(spans) > len(set(spans))  # some span's run is split between two chunks
-    w = _cumulative.basis(knots, r, t, p, 0)[0].T.contiguous().requires_grad_()
+    w = span_bases(knots, r, t, p, 0, cumulative=True)[0].T.contiguous().requires_grad_()
     c = ctrl.clone().requires_grad_()
     fused = _cumulative.poses(c, first, w)
     ref = curves._kim_kim_shin(c[first[:, None] + torch.arange(p + 1)], w.T)
@@ -521,7 +521,7 @@ def test_fused_poses_build_tables_of_starts_in_use(gen, monkeypatch):
     keep = (r == p) | (r == n - 1)
     first = torch.cat((r[keep] - p, r[keep][:5] - p + 2 * n))
     assert len(set(first.tolist())) == 3 and first.shape[0] >= 2 * 18
-    w = _cumulative.basis(knots, r[keep], t[keep], p, 0)[0].T
+    w = span_bases(knots, r[keep], t[keep], p, 0, cumulative=True)[0].T
     w = torch.cat((w, w[:, :5]), 1)
     c = ctrl.clone().requires_grad_()
     fused = _cumulative.poses(c, first, w)
@@ -554,7 +554,8 @@ def _fused_and_jets(ctrl, knots, p, t, order, perm=None):
     r = KnotDomain(knots, p).span(t)
     r = r if perm is None else r[perm]
     t = t if perm is None else t[perm]
-    w = [x.T.contiguous().requires_grad_() for x in _cumulative.basis(knots, r, t, p, order)]
+    w = [x.T.contiguous().requires_grad_()
+         for x in span_bases(knots, r, t, p, order, cumulative=True)]
     c = ctrl.clone().requires_grad_()
     first = r - p
     fused = _cumulative.derivatives(c, first, w)
@@ -624,7 +625,7 @@ def test_bag_jets_backward_is_autograds(gen, monkeypatch, p):
         tt = t if perm is None else t[perm]
         r = KnotDomain(knots, p).span(tt)
         for order in (1, 2, 3):
-            w = [x.T.contiguous() for x in _cumulative.basis(knots, r, tt, p, order)]
+            w = [x.T.contiguous() for x in span_bases(knots, r, tt, p, order, cumulative=True)]
             c = ctrl.clone().requires_grad_()
             out = _cumulative.derivatives(c, r - p, w)
             g = [torch.randn(x.shape, generator=gen, dtype=F64) for x in out]
@@ -660,7 +661,7 @@ def test_fused_derivatives_static_segment_and_gradcheck(gen):
     assert float((a - torch.autograd.grad(ref, c, g)[0]).abs().max()) <= 1e-11
     r = KnotDomain(knots, p).span(t[::6])
     first = r - p
-    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t[::6], p, 2)]
+    w = [x.T.contiguous() for x in span_bases(knots, r, t[::6], p, 2, cumulative=True)]
     ctrl = ctrl.clone().requires_grad_()
     assert first.shape[0] >= 2 * (n - p)  # the tables' path, not the jets'
 
@@ -679,7 +680,7 @@ def test_fused_derivatives_vectorized_jacobian(gen):
     knots = knot_vector("uniform", p + 2, p, gen)
     t = domain_times(knots, p, 8)
     r = KnotDomain(knots, p).span(t)
-    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t, p, 2)]
+    w = [x.T.contiguous() for x in span_bases(knots, r, t, p, 2, cumulative=True)]
 
     def f(c):
         return torch.stack(_cumulative.derivatives(c, r - p, w))
@@ -698,7 +699,7 @@ def test_fused_derivatives_compile_fullgraph(gen):
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 20)
     r = KnotDomain(knots, p).span(t)
-    w = [x.T.contiguous() for x in _cumulative.basis(knots, r, t, p, 2)]
+    w = [x.T.contiguous() for x in span_bases(knots, r, t, p, 2, cumulative=True)]
 
     def f(c):
         return torch.stack(_cumulative.derivatives(c, r - p, w))
@@ -720,7 +721,8 @@ def test_forward_mode_and_transforms_match_reverse(gen):
     r, idx = spans(knots, t, p)
 
     def f(ctrl, t):
-        return torch.cat(_cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 2), 2))
+        weights = span_bases(knots, r, t, p, 2, cumulative=True)
+        return torch.cat(_cumulative.jets(ctrl[idx], weights, 2))
 
     fwd = torch.func.jacfwd(f, argnums=(0, 1))(ctrl, t)
     rev = torch.autograd.functional.jacobian(f, (ctrl, t))
@@ -746,7 +748,7 @@ def test_unix_time_knots_with_float32_control_points(gen):
     t = domain_times(knots, p, 13)
     r, idx = spans(knots, t, p)
     points = ctrl[idx]
-    weights = _cumulative.basis(knots, r, t, p, 2)
+    weights = span_bases(knots, r, t, p, 2, cumulative=True)
     ref = _cumulative.jets(points, weights, 2)
     low = _cumulative.jets(points.float(), [w.float() for w in weights], 2)
     fused = _cumulative.poses(ctrl.float(), r - p, weights[0].T.float())
@@ -764,7 +766,7 @@ def test_jets_compile_fullgraph(gen):
     r, idx = spans(knots, t, p)
 
     def f(ctrl, t):
-        return _cumulative.jets(ctrl[idx], _cumulative.basis(knots, r, t, p, 1), 1)
+        return _cumulative.jets(ctrl[idx], span_bases(knots, r, t, p, 1, cumulative=True), 1)
 
     compiled = torch.compile(f, fullgraph=True, backend="aot_eager")
     for a, b in zip(compiled(ctrl, t), f(ctrl, t), strict=True):
@@ -798,7 +800,7 @@ def test_basis_knot_gradients_ignore_unread_nan_knots():
         knots = torch.cat((torch.cat((clean[:-1], clean.new_tensor([bad]))), clean))
         knots.requires_grad_()
         r = torch.tensor([3, 4, 5]) + K
-        v = _cumulative.basis(knots, r, t, p, 1)
+        v = span_bases(knots, r, t, p, 1, cumulative=True)
         grads.append(torch.autograd.grad((v[0] * g).sum() + (v[1] * g).sum(), knots)[0])
     assert torch.equal(grads[0][:K], torch.zeros(K, dtype=F64))
     assert torch.isfinite(grads[0]).all() and torch.equal(grads[0], grads[1])
@@ -821,7 +823,7 @@ def test_segment_outer_op_matches_scatter(gen):
     knots = knot_vector("nonuniform", m, p, gen)
     t = domain_times(knots, p, 50)[torch.randperm(50, generator=gen)]
     r = KnotDomain(knots, p).span(t)
-    w = _cumulative.basis(knots, r, t, p, 0)[0].T.contiguous()
+    w = span_bases(knots, r, t, p, 0, cumulative=True)[0].T.contiguous()
 
     def f_poses(c):
         return _cumulative.poses(c, r - p, w)

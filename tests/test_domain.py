@@ -380,3 +380,61 @@ def test_one_parser_of_time_spans(bad, message):
     with pytest.raises(TypeError, match=r"^nn\.Bezier: expected a floating-point tensor for "
                                         r"domain"):
         Bezier(c, domain=torch.tensor([0, 1]))
+
+
+def test_local_times_against_numpy():
+    """KnotDomain.local_times is t - origin - u_r (numpy, float64), clamped to the span,
+    for shared and per-trajectory knots, with leading copies of the samples."""
+    from torch_dq._time import KnotDomain
+    k = np.array([0.0, 0, 0, 0, 1.5, 2.0, 4.0, 5.0, 5, 5, 5])
+    origin = 1.7e9
+    t = origin + np.array([0.0, 0.7, 1.5, 3.9, 5.0, 5.0 + 1e-6])
+    r = np.minimum(np.searchsorted(k, t - origin, side="right") - 1, 6)
+    ref = np.clip((t - origin) - k[r], 0.0, k[r + 1] - k[r])
+    one = KnotDomain(torch.from_numpy(k), 3, origin)
+    got = one.local_times(torch.from_numpy(t), torch.from_numpy(r))
+    np.testing.assert_allclose(got.numpy(), ref, rtol=0, atol=1e-15)
+    assert got[-1] == k[7] - k[6]  # a time past the end: clamped onto its span
+    rows = torch.from_numpy(np.stack([k, 2.0 * k]))
+    both = KnotDomain(rows, 3, torch.tensor([[origin], [origin - 1.0]], dtype=F64))
+    tt = torch.from_numpy(t[:4]).expand(3, 2, 4)  # 3 copies of 2 trajectories' samples
+    rr = torch.tensor([[3, 3, 4, 5], [3, 3, 3, 4]])
+    got = both.local_times(tt, rr)
+    rel = np.stack([t[:4] - origin, t[:4] - origin + 1.0])
+    ref = np.clip(rel - np.take_along_axis(rows.numpy(), rr.numpy(), 1), 0.0,
+                  np.diff(rows.numpy(), axis=1)[np.arange(2)[:, None], rr.numpy()])
+    assert got.shape == (3, 2, 4)
+    np.testing.assert_allclose(got.numpy(), np.broadcast_to(ref, (3, 2, 4)), rtol=0, atol=1e-15)
+
+
+def test_resolution_rule_against_numpy_spacing():
+    """time_step is numpy's spacing of the dtype at |t|; unresolved refuses float32 UNIX
+    seconds and coarse float32 times far from 0, never float64 nor narrow dtypes near 0."""
+    from torch_dq._time import MIN_RESOLUTION, time_step, unresolved
+    for dtype, np_dtype in ((torch.float32, np.float32), (torch.float16, np.float16)):
+        for x in (1.0, 3.0, 1000.5, 6.0e4):
+            assert float(time_step(dtype, x)) == float(np.spacing(np_dtype(x)))
+    assert float(time_step(torch.float32, 0.0)) == 0.0
+    assert bool(unresolved(torch.float32, 1.7e9 + 30.0, 30.0))  # steps of 128 s
+    assert not bool(unresolved(torch.float64, 1.7e9 + 30.0, 1e-3))
+    assert not bool(unresolved(torch.bfloat16, 1.0, 1.0))  # near 0: the caller's choice
+    step = float(np.spacing(np.float32(1e4)))  # 9.8e-4
+    assert bool(unresolved(torch.float32, 1e4, 0.99 * step / MIN_RESOLUTION))
+    assert not bool(unresolved(torch.float32, 1e4, 1.01 * step / MIN_RESOLUTION))
+
+
+def test_outside_is_the_domain_check():
+    """KnotDomain.outside flags exactly the times that check refuses (tolerance included)."""
+    from torch_dq._time import KnotDomain
+    dom = KnotDomain(torch.tensor([0.0, 0, 1, 2, 2], dtype=F64), 1, 100.0)
+    tol = float(dom.tolerance(F64))
+    t = torch.tensor([100.0 - 2 * tol, 100.0 - 0.5 * tol, 101.0, 102.0 + 0.5 * tol,
+                      102.0 + 2 * tol], dtype=F64)
+    assert dom.outside(t).tolist() == [True, False, False, False, True]
+    for ti, out in zip(t, dom.outside(t).tolist(), strict=True):
+        rel = dom.relative(ti[None], F64)
+        if out:
+            with pytest.raises(ValueError, match="must lie in"):
+                dom.check("f", rel, knots=None, extrapolate=False, fix="x")
+        else:
+            dom.check("f", rel, knots=None, extrapolate=False, fix="x")

@@ -25,7 +25,8 @@ The weights are polynomials of degree ``p`` on each span, and the curve is
 (as the cumulative basis, since each power is analytic in its weight): a cubic's
 accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
 
-- :func:`basis`: the cumulative weights of each time's span and their time derivatives.
+- the cumulative weights of each time's span and their time derivatives come from the
+  time model (:meth:`torch_dq._time.KnotDomain.bases` with ``cumulative=True``).
 - :func:`jets`: the curve and its exact time derivatives from the span's control points and
   the weights, in truncated Taylor arithmetic (:mod:`torch_dq._taylor`): the power's jets
   are eq. 11's (:func:`torch_dq._taylor.sclerp` from the identity; the derivative of
@@ -67,88 +68,14 @@ from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
 from ._kernels.weights import Angle, Weights, WeightSlopes, angle, angle_square
-from ._numerics import even, safe_denominator
+from ._numerics import even
 
-__all__ = ["basis", "derivatives", "jets", "poses"]
+__all__ = ["derivatives", "jets", "poses"]
 
-BASIS_CHUNK = 16384  # times per eager chunk of the basis (2x faster than 1e5 at once)
 JET_CHUNK = 16384  # times per eager chunk of the jets (their temporaries stay in cache)
 POSES_CHUNK = 16384  # times per eager chunk of the fused poses (fewer, larger ops than 8192)
 TABLE_MIN_TIMES = 2  # times per span start below which the span tables do not pay
 RUN_MIN_TIMES = 32  # times per span start from which sorted times run per span (_runs)
-
-
-def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
-                order: int) -> list[Tensor]:
-    r"""Taylor coefficients in ``t`` (``0..order``) of :math:`B_{r-p+m,p}`, ``m = 0..p``,
-    each ``(p + 1, ..., T)`` (``m`` leading): the polynomial pieces of span ``r``, evaluated
-    at ``t``.
-
-    Cox-de Boor on the span's knots :math:`u_{r-p+1}, \dots, u_{r+p}`: with
-    :math:`V_0 = (1)` and, for ``k = 1..p``,
-    :math:`\alpha_i = (t - u_i) / (u_{i+k} - u_i)`, ``i = r-k+1..r`` (0 where the
-    denominator is 0: the 0/0 terms of repeated knots),
-
-    .. math::
-        B_{i,k} = \alpha_i B_{i,k-1} + (1 - \alpha_{i+1}) B_{i+1,k-1},
-
-    i.e. :math:`V_k = (0, \alpha V_{k-1}) + ((1 - \alpha) V_{k-1}, 0)`. Every step is a
-    polynomial in ``t``, so ``t`` outside the span gives the pieces' continuation.
-    """
-    p = degree
-    # u_{r-p+1..r+p} as leading rows (2p, ..., T): every op below runs over contiguous rows
-    # of times (a trailing dim of p + 1 is several times slower on CPU)
-    offsets = torch.arange(1 - p, p + 1, device=r.device).view(-1, *[1] * r.dim())
-    K = knots.index_select(0, (r + offsets).reshape(-1)).view(2 * p, *r.shape)
-    V = [torch.ones_like(t)[None]] + [torch.zeros_like(t)[None] for _ in range(order)]
-    zero = torch.zeros_like(t)[None]
-    for k in range(1, p + 1):
-        left, right = K[p - k:p], K[p:p + k]
-        denom = right - left
-        empty = denom <= 0  # never inside a non-empty span; 0 / 0 = 0 all the same
-        safe = safe_denominator(denom, empty)
-        keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
-        alpha = (t - left) / safe * keep
-        aV = [alpha * V[0]]
-        if order:  # (alpha + slope h) V, truncated: the product by an affine function of t
-            slope = keep / safe
-            aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
-        V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
-             for a, v in zip(aV, V, strict=True)]
-    return V
-
-
-def basis(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int) -> list[Tensor]:
-    r"""The cumulative basis of each time's span and its time derivatives.
-
-    :math:`\tilde B_{r-p+j}(t) = \sum_{m=j}^{p} B_{r-p+m,p}(t)`, ``j = 1..p``
-    (:math:`\tilde B_{r-p} = 1` by the partition of unity, and :math:`\tilde B_l = 0` for
-    ``l > r``, so neither is returned).
-
-    Args:
-        knots: ``(K,)`` non-decreasing knots (uniform or not, clamped or not, repeated
-            interior knots allowed), in the time dtype.
-        r: ``(..., T)`` int64 spans, ``knots[r] <= t < knots[r + 1]``, ``r`` in
-            ``[p, n - 1]`` (``torch_dq._time.KnotDomain.span``).
-        t: ``(..., T)`` times in ``knots``' dtype. Times outside their span give the
-            polynomial continuation of the span's pieces (extrapolation).
-        degree: ``p >= 1``.
-        order: highest time derivative, ``>= 0``.
-
-    Returns:
-        ``order + 1`` tensors ``(..., T, p)``:
-        :math:`[\tilde B, d\tilde B/dt, \dots, d^{order}\tilde B/dt^{order}]` with
-        ``Bt[..., j - 1]`` :math:`= \tilde B_{r-p+j}(t)`; differentiable (any order) with
-        respect to ``t`` and ``knots``. Each is a view of ``(p, ..., T)`` rows (its
-        transpose, what the kernels read, is contiguous).
-    """
-    r, t = torch.broadcast_tensors(r, t)
-    flat_r, flat_t = r.reshape(-1), t.reshape(-1)
-    parts = [[math.factorial(k) * v[1:].flip(0).cumsum(0).flip(0)
-              for k, v in enumerate(_span_basis(knots, flat_r[i], flat_t[i], degree, order))]
-             for i in chunks(flat_r.shape[0], BASIS_CHUNK)]  # cache-sized temporaries
-    return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(degree, *r.shape).movedim(0, -1)
-            for x in zip(*parts, strict=True)]
 
 
 def _identity_rows(like: Tensor) -> Tensor:
@@ -193,8 +120,9 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
     Args:
         points: ``(..., T, p + 1, 8)`` the sign-aligned control points
             :math:`c_{r-p}, \dots, c_r` of each time's span.
-        weights: ``order + 1`` tensors ``(..., T, p)`` as :func:`basis` returns them
-            (rounded to ``points``' dtype): the weights :math:`w_j = \tilde B_{r-p+j}(t)`
+        weights: ``order + 1`` tensors ``(..., T, p)`` as
+            :meth:`torch_dq._time.KnotDomain.bases` returns them (cumulative; rounded to
+            ``points``' dtype): the weights :math:`w_j = \tilde B_{r-p+j}(t)`
             and their time derivatives.
         order: highest time derivative, ``0 <= order < len(weights)``; ``0`` gives the
             poses alone (the plain-op reference of :func:`poses`, which is faster in
@@ -570,7 +498,7 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`; the time
             reads ``ctrl[first .. first + p]``.
         weights: ``(p, N)`` the cumulative basis :math:`\tilde B_{r-p+j}(t)`, ``j = 1..p``
-            (:func:`basis`, transposed), in ``ctrl``'s dtype.
+            (:meth:`torch_dq._time.KnotDomain.bases`, transposed), in ``ctrl``'s dtype.
 
     Returns:
         ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
@@ -1006,7 +934,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).
         first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`.
         weights: ``order + 1`` tensors ``(p, N)``, the cumulative basis and its time
-            derivatives (:func:`basis`, transposed), in ``ctrl``'s dtype.
+            derivatives (:meth:`torch_dq._time.KnotDomain.bases`, transposed), in ``ctrl``'s dtype.
 
     Returns:
         ``order + 1`` tensors ``(N, 8)``: :math:`[X, \dot X, \dots, X^{(order)}]`.

@@ -2,7 +2,7 @@ r"""The split B-spline form's poses in component rows (private; :mod:`torch_dq.c
 
 The split form (SO(3) x R^3, readable reference :func:`torch_dq.curves._split`): for ``t``
 in the span :math:`u_r \le t < u_{r+1}` with the cumulative basis :math:`w_j = \tilde
-B_{r-p+j}(t)` (:func:`torch_dq._cumulative.basis`),
+B_{r-p+j}(t)` (:meth:`torch_dq._time.KnotDomain.bases`),
 
 .. math::
     R(t) = q_{r-p} \prod_{j=1}^p \exp(w_j h_{r-p+j}),\qquad
@@ -55,7 +55,7 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
         first: ``(B, T)`` int64 first control point :math:`r - p` of each time's span
             (within its curve).
         weights: ``(p, B, T)`` cumulative weights :math:`w_j`, ``j = 1..p``, in ``ctrl``'s
-            dtype (rows: :func:`torch_dq._cumulative.basis`'s layout moved back).
+            dtype (rows: :meth:`torch_dq._time.KnotDomain.bases`'s layout moved back).
 
     Returns:
         ``(B T, 8)`` unit dual quaternions, time-major within each curve.

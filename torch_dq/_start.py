@@ -33,7 +33,7 @@ from torch import Tensor
 from . import _checks, dualquat, quat
 from ._core import align_chain, twist_translation
 from ._numerics import threshold
-from ._time import bspline_basis
+from ._time import bspline_basis, time_step
 
 __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squares_start"]
 
@@ -78,8 +78,7 @@ def check_sample_times(fn: str, times: Tensor, n: int | None = None,
     if bad[1]:
         hint = ""
         if times.dtype != torch.float64:  # absolute timestamps collapse in float32
-            end = tt.abs().max().cpu()
-            ulp = float(torch.nextafter(end, end * 2) - end)  # the spacing at the largest time
+            ulp = float(time_step(times.dtype, tt.abs().max().cpu()))  # at the largest time
             hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g} (the times' "
                     f"units); pass absolute "
                     f"timestamps such as UNIX seconds as float64)")

@@ -6,14 +6,19 @@ the least-squares start and the estimation ask:
 
 - :meth:`~KnotDomain.relative`: ``t - origin`` in the wide time dtype (the only place an
   origin is subtracted);
-- :meth:`~KnotDomain.admit` and :meth:`~KnotDomain.check`: the domain rules of the public
-  contract (see below; the only place a domain is validated);
+- :meth:`~KnotDomain.admit`, :meth:`~KnotDomain.check` and :meth:`~KnotDomain.outside`:
+  the domain rules of the public contract (see below; one tolerance formula,
+  :meth:`~KnotDomain.tolerance`; the only place a domain is validated), and
+  :func:`unresolved`, the one rule for a time dtype too coarse for the times;
 - :meth:`~KnotDomain.span` and :meth:`~KnotDomain.locate`: the knot span of each time and
   its local parameter ``u = (t - u_r) / (u_{r+1} - u_r)`` with the slope ``du/dt``
   (Sophus' ``index_and_u``; the only span search); :meth:`~KnotDomain.de_boor_levels`: the
-  local parameters of every level of De Boor's scheme;
-- :meth:`~KnotDomain.basis` (Cox-de Boor, the design matrix of the least-squares start and
-  of Gauss-Newton) and :meth:`~KnotDomain.greville` (the Greville abscissae).
+  local parameters of every level of De Boor's scheme; :meth:`~KnotDomain.local_times`:
+  the time since the start of a span;
+- :meth:`~KnotDomain.bases` (:func:`span_bases`, the one Cox-de Boor: plain or cumulative
+  basis and their time derivatives), :meth:`~KnotDomain.basis` (its plain form, the design
+  matrix of the least-squares start and of Gauss-Newton) and :meth:`~KnotDomain.greville`
+  (the Greville abscissae).
 
 A Bézier curve of ``n`` control points on ``[0, L]`` is the B-spline of degree ``n - 1`` on
 the clamped knots ``(0, ..., 0, L, ..., L)`` (:meth:`KnotDomain.bezier`): one span, whose
@@ -44,15 +49,43 @@ import torch
 from torch import Tensor
 
 from . import _checks
+from ._kernels.layout import chunks
 from ._numerics import safe_denominator, threshold
 
-__all__ = ["KnotDomain", "bspline_basis", "checks_possible", "time_pair"]
+__all__ = ["MIN_RESOLUTION", "KnotDomain", "bspline_basis", "checks_possible", "span_bases",
+           "time_pair", "time_step", "unresolved"]
 
+BASIS_CHUNK = 16384  # times per eager chunk of the basis (2x faster than 1e5 at once)
 _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_contract.md)
-# Coarsest step of t's dtype at the ends of a domain far from 0 (absolute timestamps),
-# relative to its length, that the checks accept: float32 UNIX seconds do not pass.
-_MIN_RESOLUTION = 1e-3
+#: Coarsest step of a time dtype at the times' magnitude, relative to their span (a
+#: domain's length, a term's samples), that the checks accept far from 0 (absolute
+#: timestamps): float32 UNIX seconds (steps of 128 s) do not pass. The one resolution rule
+#: (:func:`unresolved`).
+MIN_RESOLUTION = 1e-4
 EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"
+
+
+def time_step(dtype: torch.dtype, at: float | Tensor) -> Tensor:
+    """The spacing of ``dtype``'s values at ``|at|`` (its unit in the last place:
+    ``eps 2^floor(log2 |at|)``; 0 at 0), a float64 tensor of ``at``'s shape."""
+    a = torch.as_tensor(at, dtype=torch.float64).abs()
+    nonzero = a > 0
+    exponent = torch.floor(torch.log2(torch.where(nonzero, a, 1.0)))
+    return torch.where(nonzero, torch.finfo(dtype).eps * torch.exp2(exponent), 0.0)
+
+
+def unresolved(dtype: torch.dtype, scale: float | Tensor, length: float | Tensor) -> Tensor:
+    """The one time-resolution rule: whether times of ``dtype`` whose largest magnitude is
+    ``scale``, spanning ``length``, lie far from 0 (``scale > 10 length``) and step by more
+    than :data:`MIN_RESOLUTION` of ``length`` there (float32 UNIX seconds). Times near 0 in
+    a narrow dtype (bfloat16 on ``[0, 1]``) are the caller's choice of precision, not a lost
+    origin; float64 times always pass (there is no wider dtype to ask for). A bool tensor of
+    the broadcast shape."""
+    scale = torch.as_tensor(scale, dtype=torch.float64)
+    length = torch.as_tensor(length, dtype=torch.float64, device=scale.device)
+    step = time_step(dtype, scale).to(scale.device)
+    coarse = (step > MIN_RESOLUTION * length) & (scale > 10.0 * length)
+    return coarse & (dtype != torch.float64)
 
 
 def checks_possible(*xs: Tensor) -> bool:
@@ -226,6 +259,12 @@ class KnotDomain:
         tol = self.tolerance(rel.dtype)
         return (rel < (lo - tol)[..., None]) | (rel > (hi + tol)[..., None])
 
+    def outside(self, t: Tensor) -> Tensor:
+        """Whether absolute times ``t (..., T)`` lie outside the domain by more than its
+        tolerance (the rule of :meth:`check` and :meth:`admit`, in float64): a bool tensor
+        ``(..., T)`` broadcast against the knots' batch, on their device."""
+        return self._outside(self.relative(t.detach().to(self.knots.device), torch.float64))
+
     def admit(self, rel: Tensor, extrapolate: bool) -> Tensor:
         """The relative times to evaluate: those within the tolerance of an end moved onto
         it (value only: the gradient with respect to ``t`` stays 1), those further out NaN;
@@ -312,20 +351,15 @@ class KnotDomain:
         return torch.maximum((lo + origin).abs(), (hi + origin).abs()), hi - lo
 
     def _unresolved(self, t_dtype: torch.dtype) -> Tensor:
-        """Whether absolute times (ends beyond 10 lengths of the domain from 0) of
-        ``t_dtype`` step by more than ``_MIN_RESOLUTION`` of the domain's length at its ends
-        (float32 UNIX seconds: steps of 128 s). Times near 0 in a narrow dtype (bfloat16 on
-        ``[0, 1]``) are the caller's choice of precision, not a lost origin."""
-        scale, length = self._scale_and_length()
-        return ((torch.finfo(t_dtype).eps * scale > _MIN_RESOLUTION * length)
-                & (scale > 10.0 * length))
+        """Whether times of ``t_dtype`` cannot resolve the domain (:func:`unresolved` at its
+        ends and length)."""
+        return unresolved(t_dtype, *self._scale_and_length())
 
     def _fail_unresolved(self, fn: str, t_dtype: torch.dtype) -> None:
         scale, length = (float(v.max()) for v in self._scale_and_length())
-        end = torch.tensor(scale, dtype=t_dtype)
-        step = float(torch.nextafter(end, end * 2) - end)
+        step = float(time_step(t_dtype, scale))
         _checks.fail(fn, f"t is {t_dtype}, whose values near {scale:.10g} are {step:.3g} apart "
-                         f"(t's units), more than {_MIN_RESOLUTION:g} of the domain's length "
+                         f"(t's units), more than {MIN_RESOLUTION:g} of the domain's length "
                          f"{length:.4g}: pass t as torch.float64")
 
     def _ends_str(self, dtype: torch.dtype) -> str:
@@ -394,6 +428,21 @@ class KnotDomain:
         width = right - left
         return r, ((rel - left) / width).to(dtype), (1.0 / width).to(dtype)
 
+    def local_times(self, t: Tensor, r: Tensor) -> Tensor:
+        """Time since the start of span ``r`` of absolute times ``t``, ``t - origin - u_r``
+        (float64, ``(..., T)``: ``t`` and ``r`` broadcast against each other and the knots'
+        batch), clamped to the span ``[0, u_{r+1} - u_r]`` (the rounding of times admitted
+        at its ends): a one-span curve's time (the per-sample evaluation of
+        ``torch_dq.fitting._local``)."""
+        rel = self.relative(t.detach(), torch.float64)
+        k = self.knots.detach().to(torch.float64)
+        shape = torch.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
+        k = k.expand(*shape[:-1], k.shape[-1])
+        r = r.expand(shape)
+        left = torch.take_along_dim(k, r, -1)
+        width = torch.take_along_dim(k, r + 1, -1) - left
+        return torch.minimum((rel - left).clamp_min(0.0), width)
+
     def de_boor_levels(self, rel: Tensor, r: Tensor, dtype: torch.dtype,
                        ) -> list[tuple[Tensor, Tensor]]:
         """Per level ``j = 1..p`` of De Boor's scheme the local parameters
@@ -434,12 +483,15 @@ class KnotDomain:
         of this module returns them, ``(..., T)`` and ``(..., T, p + 1)``, ``first`` indexing
         each trajectory's own control points."""
         r = self.span(rel)
-        if self.knots.dim() == 1:
-            return bspline_basis(rel, self.knots.to(rel.dtype), self.degree, r)
+        return r - self.degree, self.bases(rel, r)[0].contiguous()
+
+    def bases(self, rel: Tensor, r: Tensor, order: int = 0, *, cumulative: bool = False,
+              ) -> list[Tensor]:
+        """The basis of span ``r`` (from :meth:`span`) at relative times ``rel`` and its time
+        derivatives up to ``order``, plain or cumulative (:func:`span_bases`), computed in
+        ``rel``'s dtype: ``order + 1`` tensors ``(..., T, p + 1)`` or ``(..., T, p)``."""
         knots, flat_r = self.flat(r, rel.dtype)
-        first, values = bspline_basis(rel.expand(r.shape).reshape(-1), knots, self.degree,
-                                      flat_r.reshape(-1))
-        return first.view(r.shape) - (flat_r - r), values.view(*r.shape, -1)
+        return span_bases(knots, flat_r, rel, self.degree, order, cumulative=cumulative)
 
     def greville(self) -> Tensor:
         """Greville abscissae ``mean(knots[j + 1 .. j + p])``, ``(..., n)`` relative, float64."""
@@ -454,7 +506,7 @@ def bspline_basis(t: Tensor, knots: Tensor, degree: int, r: Tensor | None = None
 
     For ``t`` in the span :math:`[u_r, u_{r+1})` (:meth:`KnotDomain.span`), the
     ``degree + 1`` functions :math:`N_{r-p..r,\,p}(t)` that can be non-zero there (Piegl and
-    Tiller, *The NURBS Book*, A2.2).
+    Tiller, *The NURBS Book*, eq. 2.5; :func:`span_bases`).
 
     Args:
         t: ``(T,)`` times in ``[knots[degree], knots[n]]``.
@@ -466,19 +518,83 @@ def bspline_basis(t: Tensor, knots: Tensor, degree: int, r: Tensor | None = None
         ``(first, values)``: ``first = r - p`` ``(T,)`` int64 (the first control point the
         time depends on) and ``values`` ``(T, p + 1)``, non-negative, summing to 1.
     """
-    p = degree
     if r is None:
         r = KnotDomain(knots, degree).span(t)
-    values = torch.ones_like(t)[:, None]
-    for j in range(1, p + 1):
-        # N_{r-j..r, j} from N_{r-j+1..r, j-1} (A2.2's saved-term recursion)
-        new = torch.zeros(t.shape[0], j + 1, dtype=t.dtype, device=t.device)
-        for m in range(j):
-            lm = t - knots[r - j + 1 + m]  # t - u_{r-j+1+m}
-            rm = knots[r + 1 + m] - t  # u_{r+1+m} - t
-            denom = rm + lm
-            temp = values[:, m] / torch.where(denom > 0, denom, 1.0)
-            new[:, m] = new[:, m] + rm * temp
-            new[:, m + 1] = lm * temp
-        values = new
-    return r - p, values
+    return r - degree, span_bases(knots, r, t, degree)[0].contiguous()
+def _span_basis(knots: Tensor, r: Tensor, t: Tensor, degree: int,
+                order: int) -> list[Tensor]:
+    r"""Taylor coefficients in ``t`` (``0..order``) of :math:`B_{r-p+m,p}`, ``m = 0..p``,
+    each ``(p + 1, ..., T)`` (``m`` leading): the polynomial pieces of span ``r``, evaluated
+    at ``t``.
+
+    Cox-de Boor on the span's knots :math:`u_{r-p+1}, \dots, u_{r+p}`: with
+    :math:`V_0 = (1)` and, for ``k = 1..p``,
+    :math:`\alpha_i = (t - u_i) / (u_{i+k} - u_i)`, ``i = r-k+1..r`` (0 where the
+    denominator is 0: the 0/0 terms of repeated knots),
+
+    .. math::
+        B_{i,k} = \alpha_i B_{i,k-1} + (1 - \alpha_{i+1}) B_{i+1,k-1},
+
+    i.e. :math:`V_k = (0, \alpha V_{k-1}) + ((1 - \alpha) V_{k-1}, 0)`. Every step is a
+    polynomial in ``t``, so ``t`` outside the span gives the pieces' continuation.
+    """
+    p = degree
+    # u_{r-p+1..r+p} as leading rows (2p, ..., T): every op below runs over contiguous rows
+    # of times (a trailing dim of p + 1 is several times slower on CPU)
+    offsets = torch.arange(1 - p, p + 1, device=r.device).view(-1, *[1] * r.dim())
+    K = knots.index_select(0, (r + offsets).reshape(-1)).view(2 * p, *r.shape)
+    V = [torch.ones_like(t)[None]] + [torch.zeros_like(t)[None] for _ in range(order)]
+    zero = torch.zeros_like(t)[None]
+    for k in range(1, p + 1):
+        left, right = K[p - k:p], K[p:p + k]
+        denom = right - left
+        empty = denom <= 0  # never inside a non-empty span; 0 / 0 = 0 all the same
+        safe = safe_denominator(denom, empty)
+        keep = (~empty).to(t.dtype)  # a product, not torch.where (several times slower)
+        alpha = (t - left) / safe * keep
+        aV = [alpha * V[0]]
+        if order:  # (alpha + slope h) V, truncated: the product by an affine function of t
+            slope = keep / safe
+            aV += [alpha * V[i] + slope * V[i - 1] for i in range(1, order + 1)]
+        V = [torch.cat((zero, a)) + torch.cat((v - a, zero))
+             for a, v in zip(aV, V, strict=True)]
+    return V
+
+
+def span_bases(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int = 0, *,
+               cumulative: bool = False) -> list[Tensor]:
+    r"""The B-spline basis of each time's span and its time derivatives: the one Cox-de Boor
+    (``_span_basis``), plain or cumulative (basalt's ``_Cumulative`` flag).
+
+    Plain: :math:`B_{r-p+m,p}(t)`, ``m = 0..p`` (Piegl and Tiller, *The NURBS Book*, eq.
+    2.5). Cumulative: :math:`\tilde B_{r-p+j}(t) = \sum_{m=j}^{p} B_{r-p+m,p}(t)`, ``j =
+    1..p`` (:math:`\tilde B_{r-p} = 1` by the partition of unity, and :math:`\tilde B_l = 0`
+    for ``l > r``, so neither is returned).
+
+    Args:
+        knots: ``(K,)`` non-decreasing knots (uniform or not, clamped or not, repeated
+            interior knots allowed), in the time dtype (batched knots flattened by
+            :meth:`KnotDomain.flat`).
+        r: ``(..., T)`` int64 spans, ``knots[r] <= t < knots[r + 1]``, ``r`` in
+            ``[p, n - 1]`` (:meth:`KnotDomain.span`).
+        t: ``(..., T)`` times in ``knots``' dtype. Times outside their span give the
+            polynomial continuation of the span's pieces (extrapolation).
+        degree: ``p >= 1``.
+        order: highest time derivative, ``>= 0``.
+        cumulative: the cumulative basis instead of the plain one.
+
+    Returns:
+        ``order + 1`` tensors ``(..., T, w)``, ``w = p + 1`` (plain) or ``p`` (cumulative):
+        the basis and its time derivatives up to ``order``, ``[..., m]`` the ``m``-th
+        function of the span; differentiable (any order) with respect to ``t`` and
+        ``knots``. Each is a view of ``(w, ..., T)`` rows (its transpose, what the kernels
+        read, is contiguous).
+    """
+    r, t = torch.broadcast_tensors(r, t)
+    flat_r, flat_t = r.reshape(-1), t.reshape(-1)
+    parts = [[math.factorial(k) * (v[1:].flip(0).cumsum(0).flip(0) if cumulative else v)
+              for k, v in enumerate(_span_basis(knots, flat_r[i], flat_t[i], degree, order))]
+             for i in chunks(flat_r.shape[0], BASIS_CHUNK)]  # cache-sized temporaries
+    width = degree if cumulative else degree + 1
+    return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(width, *r.shape).movedim(0, -1)
+            for x in zip(*parts, strict=True)]

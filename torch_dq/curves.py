@@ -578,7 +578,7 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
     if form == "split":
         return _split_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
     if form == "cumulative":
-        weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
+        weights = dom.bases(rel, r, 0, cumulative=True)[0].to(dtype)
         if _kernels.fused_path(ctrl_c, weights):
             return _fused_cumulative(ctrl_c, r, [weights], p, batch)[0].to(ctrl.dtype)
         points = _span_points(ctrl_c, r, p, batch)
@@ -611,7 +611,7 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
     """The cumulative form (:mod:`torch_dq._cumulative`): its basis in the time dtype, rounded
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers: through
     the span tables (:func:`_fused_cumulative`) where the fused ops may run, else its jets."""
-    weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, dom.degree, order)
+    weights = dom.bases(rel, r, order, cumulative=True)
     return _product_of_powers(ctrl, r, [w.to(ctrl.dtype) for w in weights], dom.degree, batch)
 
 
@@ -628,7 +628,8 @@ def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: i
 def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
                 batch: torch.Size) -> list[Tensor]:
     r"""The split form (:func:`_split`) and its time derivatives to ``order``, from the
-    sign-aligned ``ctrl`` in its compute dtype, on the cumulative basis of :mod:`_cumulative`.
+    sign-aligned ``ctrl`` in its compute dtype, on the cumulative basis
+    (:meth:`KnotDomain.bases`).
 
     The poses alone: :func:`torch_dq._split.poses` (component rows, plain ops). With
     derivatives, the rotation is the cumulative form of the rotations alone (control points
@@ -639,7 +640,7 @@ def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: in
     :math:`d^{(k)} = \frac12 \sum_i \binom{k}{i} (0, p^{(i)})\, q^{(k-i)}`.
     """
     p, n, T = dom.degree, ctrl.shape[-2], r.shape[-1]
-    weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, order)
+    weights = dom.bases(rel, r, order, cumulative=True)
     weights = [w.to(ctrl.dtype) for w in weights]
     if order == 0:
         B = batch.numel()

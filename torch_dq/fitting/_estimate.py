@@ -69,8 +69,7 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
     """Times (widened by an estimated offset's bound) inside the trajectory's domain (per
     trajectory for per-trajectory knots)."""
     lo, hi = (torch.as_tensor(e, dtype=torch.float64) for e in trajectory.domain)
-    eps = torch.finfo(trajectory.control_points.dtype).eps
-    tol = (1e-9 + 4 * eps) * (hi - lo)  # the layer's relative knots round in its dtype
+    dom = trajectory.time_model  # its tolerance: the layer's own (KnotDomain.outside)
     for term in terms:
         name = type(term).__name__
         slot = term.slots()["time_offset"]
@@ -88,9 +87,9 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
             if t.dim() == 2 and (len(batch) != 1 or t.shape[0] != batch[0]):
                 _checks.fail(fn, f"{name} times {_checks.shape_str(t.shape)} do not match the "
                                  f"trajectory's batch {_checks.shape_str(batch)}")
-            first, last = (x.to(torch.float64).cpu() for x in ((t + a).amin(-1),
-                                                                (t + b).amax(-1)))
-            bad = ((first < lo - tol) | (last > hi + tol)).reshape(-1)
+            first, last = (x.to(torch.float64) for x in ((t + a).amin(-1), (t + b).amax(-1)))
+            bad = dom.outside(torch.stack((first, last), -1)).any(-1).reshape(-1).cpu()
+            first, last = first.cpu(), last.cpu()
             if bool(bad.any()):
                 i = int(bad.nonzero()[0, 0])
                 pick = lambda x: float(x.reshape(-1)[i] if x.numel() > 1 else x)  # noqa: E731

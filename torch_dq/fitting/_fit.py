@@ -23,7 +23,7 @@ from .._start import check_determined
 from .._start import check_sample_times as check_times
 from ..losses import pose_loss
 from ._estimate import estimate
-from ._terms import Poses, check_pose_data
+from ._terms import Poses, _pose_data, check_pose_data
 
 __all__ = ["FitHistory", "fit"]
 
@@ -347,21 +347,14 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
 def _check_poses(fn: str, poses) -> Tensor:
     """``(..., N, 8)`` finite target poses (matrices converted; rigid ones, with non-zero
     rotations: the measurement terms' check)."""
-    _checks.tensor(fn, "poses", poses)
-    matrices = None
-    if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
-        matrices = poses.detach()
-        poses = dualquat.from_matrix(poses)
-    elif poses.dim() < 2 or poses.shape[-1] != 8:
-        _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
-                         f"for poses, got shape {_checks.shape_str(poses.shape)}")
-    bad = ~torch.isfinite(poses.detach()).all(-1)
+    poses, matrices = _pose_data(fn, "poses", poses)  # detached, as fit's targets are
+    bad = ~torch.isfinite(poses).all(-1)
     if bool(bad.any()):
         where = bad.nonzero()[0].tolist()
         _checks.fail(fn, f"poses must be finite: {int(bad.sum())} non-finite pose(s), the "
                          f"first at index {tuple(where)}; drop or mask them before fitting")
     valid = torch.ones(poses.shape[:-1], dtype=torch.bool, device=poses.device)
-    check_pose_data(fn, "poses", poses.detach(), matrices, valid)
+    check_pose_data(fn, "poses", poses, matrices, valid)
     return poses
 
 

@@ -39,6 +39,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
+from .._time import MIN_RESOLUTION, time_step, unresolved
 from . import _robust
 from ._nuisance import Slot
 
@@ -80,20 +81,17 @@ def _first_bad(fn: str, message: str, bad: Tensor, hint: str = "") -> None:
 
 
 def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
-    """Fail when the times' dtype cannot resolve them: its spacing at the largest time
-    above ``1e-4`` of the time span (float32 UNIX timestamps round to steps of 128 s)."""
-    if t.dtype == torch.float64 or valid.sum() < 2:
+    """Fail when the times' dtype cannot resolve them (:func:`torch_dq._time.unresolved` at
+    the largest time and the span: float32 UNIX timestamps round to steps of 128 s)."""
+    if valid.sum() < 2:
         return
     v = t[valid].to(torch.float64)
-    end = float(v.abs().max())
-    if end == 0.0:
-        return
-    ulp = torch.finfo(t.dtype).eps * 2.0 ** math.floor(math.log2(end))
-    span = float(v.max() - v.min())
-    if ulp > 1e-4 * span:
+    end, span = float(v.abs().max()), float(v.max() - v.min())
+    if bool(unresolved(t.dtype, end, span)):
         _checks.fail(fn, f"{t.dtype} cannot resolve these {name}: its spacing at "
-                         f"{end:.6g} is {ulp:.3g} (the times' units), more than 1e-4 of "
-                         f"their span ({span:.3g} as rounded); pass times as torch.float64")
+                         f"{end:.6g} is {float(time_step(t.dtype, end)):.3g} (the times' "
+                         f"units), more than {MIN_RESOLUTION:g} of their span ({span:.3g} as "
+                         f"rounded); pass times as torch.float64")
 
 
 def _nuisance(name: str, doc: str) -> property:
