@@ -306,7 +306,7 @@ def test_standard_deviations_match_a_monte_carlo_scatter():
     truth (started there: the recovery test above starts far), and each parameter's reported
     standard deviation (mean over the draws) over the draws' scatter in [0.6, 1.5]
     (measured 0.89 to 1.20; the sample standard deviation of 30 draws is itself uncertain
-    by 13 %)."""
+    by 13 %; 100 draws of the same rig, run once: 0.87 to 1.10, every |error| / std < 3.9)."""
     draws, t1 = 30, 2.1
     frames = np.arange(0.3, t1 - 0.25, 0.05)
     obs = [simulate(frames, grid_points(), dt=0.012, line_delay=3e-5, noise=0.3, seed=100 + s)
