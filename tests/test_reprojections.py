@@ -106,16 +106,26 @@ def project_np(R, p, points, params):
     return np.stack((fu * ad + cu, fv * bd + cv), -1), z
 
 
+def project_moving_cv(R, p, points, params):
+    """cv2.projectPoints pixels of world points for body poses ``(R, p)`` (one per point),
+    the camera at ``E`` on the body: the points moved into the camera by scipy/numpy."""
+    cam = (R * E_ROT).inv().apply(points - p - R.apply(E_T))
+    K = np.array([[params[0], 0, params[2]], [0, params[1], params[3]], [0, 0, 1.0]])
+    pix = cv2.projectPoints(cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K,
+                            np.array([*params[4:8], 0.0]))[0]
+    return pix.reshape(-1, 2)
+
+
 def simulate(frames, points, *, dt, line_delay, params=RADTAN, noise=0.0, seed=0):
-    """Observations (times, points, pixels) of the grid at the frame times, with the rolling
-    shutter solved by fixed point (v = row of the point at t + dt + l v)."""
+    """Observations (times, points, pixels) of the grid at the frame times, OpenCV's pixels
+    with the rolling shutter solved by fixed point (v = row of the point at t + dt + l v)."""
     rng = np.random.default_rng(seed)
     tf = np.repeat(np.asarray(frames, dtype=float), len(points))
     pts = np.tile(points, (len(frames), 1))
     v = np.full(len(tf), params[3])
     for _ in range(8):
         R, p = body(tf + dt + line_delay * v)[:2]
-        pix = project_np(R, p, pts, params)[0]
+        pix = project_moving_cv(R, p, pts, params)
         v = pix[:, 1]
     pix = pix + noise * rng.standard_normal(pix.shape)
     return torch.from_numpy(tf), torch.from_numpy(pts), torch.from_numpy(pix)
@@ -287,6 +297,44 @@ def test_estimate_recovers_extrinsic_clock_line_delay_and_intrinsics(rig):
     assert est.std(cam, "intrinsics").shape == (8,) and est.std(cam, "line_delay").shape == ()
     chi2 = float(est.chi2[cam]) / float(est.dof[cam])
     assert 0.8 < chi2 < 1.2
+
+
+def test_standard_deviations_match_a_monte_carlo_scatter():
+    """30 draws of the pixel (0.3 px) and IMU noise on one rig (20 Hz rolling-shutter radtan
+    camera, 5 x 6 grid, 2.1 s; IMU at 200 Hz), solved together as a batch: every draw's
+    extrinsic, time offset, line delay and intrinsics within 4 standard deviations of the
+    truth (started there: the recovery test above starts far), and each parameter's reported
+    standard deviation (mean over the draws) over the draws' scatter in [0.6, 1.5]
+    (measured 0.89 to 1.20; the sample standard deviation of 30 draws is itself uncertain
+    by 13 %; 100 draws of the same rig, run once: 0.87 to 1.10, every |error| / std < 3.9)."""
+    draws, t1 = 30, 2.1
+    frames = np.arange(0.3, t1 - 0.25, 0.05)
+    obs = [simulate(frames, grid_points(), dt=0.012, line_delay=3e-5, noise=0.3, seed=100 + s)
+           for s in range(draws)]
+    ti = torch.linspace(0.0, t1, round(t1 * 200) + 1, dtype=F64)
+    times, points, pixels, gyro, accel = (torch.stack(x) for x in zip(
+        *[o + imu(ti.numpy(), 200 + s) for s, o in enumerate(obs)], strict=True))
+    spline = spline_of(0.0, t1)
+    traj = BSpline(torch.stack([spline.control_points.detach()] * draws), knots=spline.knots,
+                   form="cumulative")
+    e_true = extrinsic_dq()
+    cam = Reprojections(times, points, pixels, camera=make_camera(), sigma=0.3,
+                        extrinsic=Free(e_true), intrinsics=True, time_offset=Free(0.012),
+                        line_delay=Free(3e-5))
+    ti = ti.expand(draws, -1)
+    est = estimate(traj, [cam, Gyro(ti, gyro, sigma=0.005), Accel(
+        ti, accel, sigma=0.05, gravity=torch.from_numpy(G))], steps=20, verbose=False)
+    assert bool(est.converged.all()), est.reason
+    errors = {"extrinsic": dq.log(dq.mul(dq.conj(e_true), cam.extrinsic)),
+              "time_offset": cam.time_offset - 0.012, "line_delay": cam.line_delay - 3e-5,
+              "intrinsics": cam.intrinsics - torch.from_numpy(RADTAN)}
+    for name, err in errors.items():
+        err, std = err.reshape(draws, -1).numpy(), est.std(cam, name).reshape(draws, -1).numpy()
+        within(err, np.zeros_like(err), std)
+        ratio = std.mean(0) / err.std(0, ddof=1)
+        assert np.all((ratio > 0.6) & (ratio < 1.5)), (name, ratio)
+    chi2 = est.chi2[cam] / est.dof[cam]
+    assert bool(((chi2 > 0.9) & (chi2 < 1.1)).all()), chi2
 
 
 # ----------------------------------------------------------------------------- invalid points
