@@ -24,12 +24,22 @@ from scipy.spatial.transform import Rotation
 import torch_dq.dualquat as dq
 from torch_dq import quat
 from torch_dq.camera import Camera
-from torch_dq.fitting import (Accel, Free, Gyro, Poses, Positions, RelativePoses,
-                              Reprojections, Term, estimate)
+from torch_dq.fitting import (
+    Accel,
+    Free,
+    Gyro,
+    Poses,
+    Positions,
+    RelativePoses,
+    Reprojections,
+    Term,
+    estimate,
+)
 from torch_dq.fitting._charts import CHARTS, Direction, Pose, Scalar, Vector
 from torch_dq.fitting._estimate import _starts
 from torch_dq.fitting._nuisance import Slot
 from torch_dq.fitting._problem import Problem
+from torch_dq.fitting._terms import Options
 from torch_dq.nn import Bezier, BSpline
 
 F64 = torch.float64
@@ -131,8 +141,7 @@ class ClockDrift(Term):
 
     def __init__(self, times, positions, *, sigma, drift=None, time_offset=None) -> None:
         super().__init__([times], ["times"], positions, 1,
-                         torch.full((3,), float(sigma), dtype=F64), time_offset=time_offset,
-                         max_time_offset=0.1, robust=None, robust_k=None, mask=None)
+                         torch.full((3,), float(sigma), dtype=F64), Options(time_offset))
         self.register_buffer("positions", positions.detach())
         self.t0 = float(times[0])
         self._slots["drift"] = Slot(self._fn, "drift", Scalar(-0.05, 0.05), drift)

@@ -93,9 +93,9 @@ from .._start import check_sample_times as check_times
 from ._camera import Reprojections
 from ._estimate import estimate
 from ._fit import FitHistory, fit
+from ._imu import Accel, Gyro
 from ._nuisance import Free
 from ._robust import chi_quantile
-from ._imu import Accel, Gyro
 from ._terms import Poses, Positions, RelativePoses, Term
 from ._uncertainty import Estimate
 

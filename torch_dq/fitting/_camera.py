@@ -33,7 +33,7 @@ from torch import Tensor
 from .. import _checks, camera, dualquat
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
-from ._terms import Term, _masked, _nuisance, _sigma
+from ._terms import Options, Term, _masked, _nuisance, _sigma
 
 __all__ = ["Reprojections"]
 
@@ -124,8 +124,7 @@ class Reprojections(Term):
                              f"{_checks.shape_str(pixels.shape)} do not broadcast")
         pixels = pixels.detach().expand(*batch, 2)
         super().__init__([times], ["times"], pixels, 1, _sigma(fn, "sigma", sigma, 2),
-                         time_offset=time_offset, max_time_offset=max_time_offset,
-                         robust=robust, robust_k=robust_k, mask=mask)
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         points = points.detach().expand(*batch, 3)
         finite = torch.isfinite(points).all(-1)
         if bool((self.mask & ~finite).any()):

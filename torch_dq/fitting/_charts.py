@@ -138,8 +138,10 @@ class Scalar(Chart):
         """Bool, the shape of ``value``: on the upper bound, or on a negative lower bound
         (to ``1e-9`` relatively; a lower bound of zero, a line delay's, is its natural end
         and not reported)."""
-        top = value >= self.high * (1.0 - 1e-9)
-        return top | ((value <= self.low * (1.0 - 1e-9)) if self.low < 0 else False)
+        pinned = value >= self.high * (1.0 - 1e-9)
+        if self.low < 0:
+            pinned = pinned | (value <= self.low * (1.0 - 1e-9))
+        return pinned
 
     def outward(self, value: Tensor, gradient: Tensor) -> Tensor:
         """Bool: pinned with a descent direction ``-gradient`` pointing out of the range."""

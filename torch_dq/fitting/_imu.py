@@ -20,7 +20,7 @@ from torch import Tensor
 from .. import _checks, curves, dualquat, quat
 from ._charts import Direction, Vector
 from ._nuisance import Slot
-from ._terms import Term, _masked, _nuisance, _sigma, _vector_data
+from ._terms import Options, Term, _masked, _nuisance, _sigma, _vector_data
 
 __all__ = ["Accel", "Gyro"]
 
@@ -30,12 +30,12 @@ class _Imu(Term):
 
     dim = 3
 
-    def __init__(self, times, readings, sigma, bias, **kwargs) -> None:
+    def __init__(self, times, readings, sigma, bias, options: Options) -> None:
         fn = self._fn
         readings = _vector_data(fn, "readings", readings)
         super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
-                         **kwargs)
-        self.register_buffer("readings", _masked(readings, kwargs.get("mask"), 0.0))
+                         options)
+        self.register_buffer("readings", _masked(readings, options.mask, 0.0))
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
@@ -65,9 +65,8 @@ class Gyro(_Imu):
     def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
                  time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
                  robust_k: float | None = None, mask: Tensor | None = None) -> None:
-        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
-                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                         mask=mask)
+        super().__init__(times, readings, sigma, bias,
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         self._units_checked = False
 
     def _residual(self, ev, p):
@@ -201,9 +200,8 @@ class Accel(_Imu):
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
         fn = self._fn
-        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
-                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                         mask=mask)
+        super().__init__(times, readings, sigma, bias,
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         self._magnitude: float | None = None
         if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
             if not (math.isfinite(gravity) and float(gravity) > 0):

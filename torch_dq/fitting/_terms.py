@@ -37,6 +37,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
@@ -47,7 +48,7 @@ from . import _robust
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 
-__all__ = ["Poses", "Positions", "RelativePoses", "Term"]
+__all__ = ["Options", "Poses", "Positions", "RelativePoses", "Term"]
 
 
 def _sigma(fn: str, name: str, value, k: int) -> Tensor:
@@ -107,6 +108,44 @@ def _nuisance(name: str, doc: str) -> property:
     return property(lambda self: self._value(name), doc=doc)
 
 
+@dataclass(frozen=True)
+class Options:
+    """The keywords every term takes (one object, checked once by :meth:`check`).
+
+    Attributes:
+        time_offset: the sensor's clock offset (seconds): None, a float, ``True`` or a
+            :class:`~torch_dq.fitting.Free` (see :mod:`torch_dq.fitting`).
+        max_time_offset: bound on an estimated offset (seconds, ``>= 0``).
+        robust: None, ``"huber"`` or ``"cauchy"`` (case-insensitive).
+        robust_k: the kernel's scale (None: the 95 % chi quantile of the residual's size).
+        mask: ``(..., N)`` bool, False excludes a sample (None: every sample).
+    """
+
+    time_offset: object = None
+    max_time_offset: float = 0.1
+    robust: str | None = None
+    robust_k: float | None = None
+    mask: Tensor | None = None
+
+    def check(self, fn: str, dim: int) -> tuple[str | None, float, float]:
+        """The kernel, its scale and ``max_time_offset``, checked (errors name ``fn``)."""
+        robust, robust_k, max_time_offset = self.robust, self.robust_k, self.max_time_offset
+        kernel = robust.lower() if isinstance(robust, str) else robust
+        if kernel not in _robust.KERNELS:
+            _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
+        if robust_k is None:
+            robust_k = _robust.chi_quantile(dim)
+        if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
+                math.isfinite(robust_k) and float(robust_k) > 0):
+            _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
+        if isinstance(max_time_offset, bool) or not isinstance(
+                max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
+                                                       and float(max_time_offset) >= 0):
+            _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
+                             f"{max_time_offset!r}")
+        return kernel, float(robust_k), float(max_time_offset)
+
+
 class Term(torch.nn.Module):
     """Shared machinery of the measurement terms (see the module docstring).
 
@@ -128,28 +167,14 @@ class Term(torch.nn.Module):
         readings: Tensor
 
     def __init__(self, times: list[Tensor], names: list[str], data: Tensor, event: int,
-                 sigma: Tensor, *, time_offset, max_time_offset, robust, robust_k,
-                 mask) -> None:
-        """Check and store the samples' times, data, sigmas and options (called by the
-        subclasses, whose class docstrings describe the arguments)."""
+                 sigma: Tensor, options: Options) -> None:
+        """Check and store the samples' times, data, sigmas and the common keywords
+        (``options``; called by the subclasses, whose class docstrings describe the
+        arguments)."""
         super().__init__()
         fn = self._fn
-        kernel = robust.lower() if isinstance(robust, str) else robust
-        if kernel not in _robust.KERNELS:
-            _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
-        self.robust = kernel
-        if robust_k is None:
-            robust_k = _robust.chi_quantile(self.dim)
-        if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
-                math.isfinite(robust_k) and float(robust_k) > 0):
-            _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
-        self.robust_k = float(robust_k)
-        if isinstance(max_time_offset, bool) or not isinstance(
-                max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
-                                                       and float(max_time_offset) >= 0):
-            _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
-                             f"{max_time_offset!r}")
-        self.max_time_offset = float(max_time_offset)
+        self.robust, self.robust_k, self.max_time_offset = options.check(fn, self.dim)
+        time_offset, mask = options.time_offset, options.mask
         self._slots: dict[str, Slot] = {"time_offset": Slot(
             fn, "time_offset", Scalar(-self.max_time_offset, self.max_time_offset), time_offset)}
         _checks.tensor(fn, "data", data)
@@ -273,10 +298,15 @@ class Term(torch.nn.Module):
         lo = hi = like.new_zeros(())
         for name, rate in self.time_rates().items():
             slot = self._slots[name]
+            chart = slot.chart
+            if not isinstance(chart, Scalar):
+                _checks.fail(self._fn, f"{name} moves the samples' times (time_rates): its "
+                                       f"chart must be a Scalar, got {chart.describe()}",
+                             TypeError)
             if slot.estimated:
-                ends = [b * rate for b in (slot.chart.low, slot.chart.high)]
-                ends = [e if isinstance(e, Tensor) else like.new_tensor(e) for e in ends]
-                lo, hi = lo + torch.minimum(*ends), hi + torch.maximum(*ends)
+                r = torch.as_tensor(rate, dtype=torch.float64, device=like.device)
+                a, b = chart.low * r, chart.high * r
+                lo, hi = lo + torch.minimum(a, b), hi + torch.maximum(a, b)
             else:
                 v = slot.value(like)
                 part = (slot.identity(like) if v is None else v)[..., None] * rate
@@ -386,7 +416,7 @@ class _PoseTerm(Term):
     dim = 6
 
     def _store_poses(self, times: list[Tensor], names: list[str], poses: Tensor, rot_sigma,
-                     trans_sigma, **common) -> None:
+                     trans_sigma, options: Options) -> None:
         """Validate ``poses`` and the two sigmas, set up the term, keep the measured poses
         (normalized; masked samples replaced by the identity) as ``rotations`` and
         ``translations``."""
@@ -394,9 +424,9 @@ class _PoseTerm(Term):
         x, T = _pose_data(fn, "poses", poses)
         sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
                            _sigma(fn, "trans_sigma", trans_sigma, 3)))
-        Term.__init__(self, times, names, x, 1, sigma, **common)
+        Term.__init__(self, times, names, x, 1, sigma, options)
         check_pose_data(fn, "poses", x, T, self.mask)
-        safe = _masked(x, common["mask"], dualquat.identity(dtype=x.dtype, device=x.device))
+        safe = _masked(x, options.mask, dualquat.identity(dtype=x.dtype, device=x.device))
         q, t = dualquat.to_rt(dualquat.normalize(safe))
         self.register_buffer("rotations", q)
         self.register_buffer("translations", t)
@@ -440,8 +470,7 @@ class Poses(_PoseTerm):
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
         self._store_poses([times], ["times"], poses, rot_sigma, trans_sigma,
-                          time_offset=time_offset, max_time_offset=max_time_offset,
-                          robust=robust, robust_k=robust_k, mask=mask)
+                          Options(time_offset, max_time_offset, robust, robust_k, mask))
         self._slots["extrinsic"] = Slot(self._fn, "extrinsic", Pose(), extrinsic)
 
     extrinsic = _nuisance(
@@ -478,8 +507,7 @@ class Positions(Term):
         fn = self._fn
         positions = _vector_data(fn, "positions", positions)
         super().__init__([times], ["times"], positions, 1, _sigma(fn, "sigma", sigma, 3),
-                         time_offset=time_offset, max_time_offset=max_time_offset,
-                         robust=robust, robust_k=robust_k, mask=mask)
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         self.register_buffer("positions", _masked(positions, mask, 0.0))
         self._slots["lever_arm"] = Slot(fn, "lever_arm", Vector(3), lever_arm)
 
@@ -514,9 +542,8 @@ class RelativePoses(_PoseTerm):
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
         self._store_poses([times_from, times_to], ["times_from", "times_to"], poses, rot_sigma,
-                          trans_sigma, time_offset=time_offset,
-                          max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                          mask=mask)
+                          trans_sigma, Options(time_offset, max_time_offset, robust, robust_k,
+                                               mask))
 
     def _residual(self, ev, p):
         return self._pose_residual(dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0]))
