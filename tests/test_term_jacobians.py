@@ -325,3 +325,13 @@ def test_toy_term_with_a_time_moving_parameter_runs_through_estimate():
                  [Poses(tc[:80], truth[:80], rot_sigma=1e-3, trans_sigma=1e-3),
                   ClockDrift(inside, dq.to_rt(motion(inside))[1], sigma=1e-3,
                              drift=Free(0.0))], verbose=False)
+
+
+def test_a_time_moving_parameter_must_be_a_scalar():
+    """A term whose time-moving parameter has another chart is told so, naming it."""
+    t = torch.linspace(0.5, 1.5, 5, dtype=F64)
+    term = ClockDrift(t, torch.zeros(5, 3, dtype=F64), sigma=0.01, drift=Free(0.0))
+    term._slots["drift"] = Slot(term._fn, "drift", Vector(1), Free(torch.zeros(1, dtype=F64)))
+    with pytest.raises(TypeError, match=r"test\.ClockDrift: drift moves the samples' times "
+                                        r"\(time_rates\): its chart must be a Scalar"):
+        term.time_reach()

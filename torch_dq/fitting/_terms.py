@@ -278,7 +278,7 @@ class Term(torch.nn.Module):
         r"""The parameters that move the samples' times, and how: ``dt'_i / d\theta`` per
         present parameter name (a float or ``(..., N)``), ``t'_i = t_i + \sum_\theta \theta
         \, dt'_i/d\theta`` (affine; the same for every time argument). Such a parameter must
-        be a :class:`~torch_dq.fitting._charts.Scalar` that the residual does not read
+        be a ``Scalar`` (``torch_dq.fitting._charts``) that the residual does not read
         otherwise: the solver chains it through the curve's time derivative and widens the
         domain check by what its bounds reach (:meth:`time_reach`). Default: the time offset,
         rate 1."""
