@@ -291,15 +291,15 @@ def scaling(durations: list[float], threads: int, sides: list[str]) -> None:
 
 
 _PHASES = [  # (module, attribute, label) of the solver's phases (private: skipped if renamed)
-    ("_problem", "Problem.system", "Gauss-Newton system (Jacobians + assembly)"),
-    ("_problem", "Problem._span_derivatives", "  span derivatives (forward, both calls)"),
-    ("_problem", "Problem._through_spans", "  reverse passes through the spans"),
-    ("_problem", "sample_jacobians", "  residual Jacobians w.r.t. span derivatives"),
-    ("_problem", "_window_normal", "  assembly of the banded normal equations"),
-    ("_problem", "Problem.gradient", "gradient pass (predicted stop)"),
-    ("_problem", "Problem.data_cost", "trial costs (layer path)"),
-    ("_estimate", "_Solver.step", "damped solves (banded Cholesky + Schur)"),
-    ("_estimate", "_LevenbergMarquardt._prior_gradient", "prior gradients"),
+    ("_linearize", "Linearization.system", "Gauss-Newton system (Jacobians + assembly)"),
+    ("_linearize", "Linearization._span_derivatives",
+     "  span derivatives (forward, both calls)"),
+    ("_linearize", "Linearization._through_spans", "  reverse passes through the spans"),
+    ("_linearize", "sample_jacobians", "  residual Jacobians w.r.t. span derivatives"),
+    ("_linearize", "_window_normal", "  assembly of the banded normal equations"),
+    ("_problem", "Problem.data_cost", "trial costs (span path)"),
+    ("_solver", "DampedStep.step", "damped solves (banded Cholesky + Schur)"),
+    ("_lm", "LevenbergMarquardt._prior_gradient", "prior gradients"),
     ("_uncertainty", "Estimate._factor", "uncertainty factorisation"),
 ]
 

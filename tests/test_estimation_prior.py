@@ -197,8 +197,8 @@ def test_lack_of_progress_is_no_convergence(monkeypatch):
     """Steps shortened a millionfold lower the cost by less than tol relatively while the
     gradient is large: the old test ('the relative decrease fell below tol') called that
     converged; now converged is False and the reason says so."""
-    from torch_dq.fitting import _estimate
-    step = _estimate._Solver.step
+    from torch_dq.fitting import _solver
+    step = _solver.DampedStep.step
 
     def short(self, lam, gc, gn):
         dc, dn, ok = step(self, lam, gc, gn)
@@ -206,7 +206,7 @@ def test_lack_of_progress_is_no_convergence(monkeypatch):
             return 1e-6 * dc, 1e-6 * dn, ok
         return dc, dn, ok
 
-    monkeypatch.setattr(_estimate._Solver, "step", short)
+    monkeypatch.setattr(_solver.DampedStep, "step", short)
     tc, ti, cam, gy, ac = _camera_imu()
     off = dq.mul(dq.exp(E_TRUE), dq.exp(0.05 * torch.ones(6, dtype=F64)))
     spline = BSpline.from_dualquats(dq.mul(cam, dq.conj(off)), tc, n_ctrl=63,

@@ -29,9 +29,10 @@ Reprojections  ``project((T^-1 x(t') e)^-1 p)``,    pixels (:mod:`torch_dq.camer
 ``False`` absent, a tensor or float fixed, ``True`` / ``"estimate"`` estimated from a
 default start, a :class:`Free` estimated from its start with an optional Gaussian prior; one
 :class:`Free` given to several terms is one parameter. The time offset and the line delay
-move the samples' times (a term declares such parameters, :meth:`Term.time_shift`): the
-solver chains them through the curve's time derivative. Each is stepped, and its uncertainty
-reported, in a chart:
+move the samples' times (a term declares such parameters and their rates ``dt'_i /
+d theta``, :meth:`Term.time_rates`): the solver chains them through the curve's time
+derivative, and the domain check widens by what their bounds reach. Each is stepped, and its
+uncertainty reported, in a chart (one class per kind, ``torch_dq.fitting._charts``):
 
 ============  ==========  ====  ================================================
 kind          value       dim   chart
@@ -92,9 +93,10 @@ from .._start import check_sample_times as check_times
 from ._camera import Reprojections
 from ._estimate import estimate
 from ._fit import FitHistory, fit
+from ._imu import Accel, Gyro
 from ._nuisance import Free
 from ._robust import chi_quantile
-from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
+from ._terms import Poses, Positions, RelativePoses, Term
 from ._uncertainty import Estimate
 
 for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses,

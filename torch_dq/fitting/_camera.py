@@ -12,7 +12,7 @@ measured pixel ``(u, v)`` is predicted as
 ``\pi_\theta`` the camera model with intrinsics ``\theta`` (:func:`torch_dq.camera.project`),
 ``\delta t`` the time offset and ``\ell`` the rolling shutter's line delay (seconds per row;
 ``v`` the measured row). Both move the sample along the curve: the solver chains them through
-the curve's time derivative (:meth:`Term.time_shift`), ``dt'_i / d\ell = v_i``.
+the curve's time derivative (:meth:`Term.time_rates`), ``dt'_i / d\ell = v_i``.
 
 Observations whose point has no image (behind the camera, outside the model's domain) are
 excluded: their residual and Jacobian rows are zero (no NaN reaches the normal equations),
@@ -31,8 +31,9 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from ._nuisance import SizedSlot, Slot
-from ._terms import Term, _masked, _nuisance, _sigma
+from ._charts import Pose, Scalar, Vector
+from ._nuisance import Slot
+from ._terms import Options, Term, _masked, _nuisance, _sigma
 
 __all__ = ["Reprojections"]
 
@@ -123,8 +124,7 @@ class Reprojections(Term):
                              f"{_checks.shape_str(pixels.shape)} do not broadcast")
         pixels = pixels.detach().expand(*batch, 2)
         super().__init__([times], ["times"], pixels, 1, _sigma(fn, "sigma", sigma, 2),
-                         time_offset=time_offset, max_time_offset=max_time_offset,
-                         robust=robust, robust_k=robust_k, mask=mask)
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         points = points.detach().expand(*batch, 3)
         finite = torch.isfinite(points).all(-1)
         if bool((self.mask & ~finite).any()):
@@ -140,10 +140,11 @@ class Reprojections(Term):
         self.register_buffer("camera_params", params)
         if intrinsics is None or intrinsics is False:
             intrinsics = params
-        self._slots["extrinsic"] = Slot(fn, "extrinsic", "pose", extrinsic)
-        self._slots["target"] = Slot(fn, "target", "pose", target)
-        self._slots["intrinsics"] = SizedSlot(fn, "intrinsics", intrinsics, params.shape[0])
-        self._slots["line_delay"] = Slot(fn, "line_delay", "offset", line_delay)
+        self._slots["extrinsic"] = Slot(fn, "extrinsic", Pose(), extrinsic)
+        self._slots["target"] = Slot(fn, "target", Pose(), target)
+        self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics)
+        self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
+                                         line_delay)
         fixed = self._slots["line_delay"].fixed
         if fixed is not None and not bool((fixed >= 0).all()):
             _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
@@ -154,19 +155,12 @@ class Reprojections(Term):
     intrinsics = _nuisance("intrinsics", "The camera's parameters ``(..., P)``.")
     line_delay = _nuisance("line_delay", "The rolling shutter's line delay (s per row).")
 
-    time_params = ("time_offset", "line_delay")
-
-    def time_shift(self, p: dict[str, Tensor]) -> Tensor:
-        """``t' - t = time_offset + line_delay * v`` ``(..., N)``."""
-        shift = p["time_offset"]
+    def time_rates(self) -> dict[str, Tensor | float]:
+        """``t' - t = time_offset + line_delay * v``: rates 1 and the rows ``v (..., N)``."""
+        rates: dict[str, Tensor | float] = {"time_offset": 1.0}
         if self._slots["line_delay"].present:
-            shift = shift + p["line_delay"] * self.rows
-        return shift
-
-    def bounds(self, name: str) -> tuple[float, float]:
-        if name == "line_delay":
-            return 0.0, self.max_line_delay
-        return super().bounds(name)
+            rates["line_delay"] = self.rows
+        return rates
 
     def default_start(self, name, trajectory, ctrl, values):
         if name == "intrinsics":
@@ -192,10 +186,9 @@ class Reprojections(Term):
         """Predicted pixels and ``valid`` at the current values, the times moved by
         ``shift`` seconds more (no gradient)."""
         values = self.values(trajectory)
-        kinds = {k: s.kind for k, s in self._slots.items()}
         like = trajectory.control_points
         with torch.no_grad():
-            p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
+            p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()})
             t = self.times + self.time_shift(p).to(self.times.dtype) + shift
             lo, hi = (torch.as_tensor(e, dtype=t.dtype) for e in trajectory.domain)
             x = trajectory(torch.minimum(torch.maximum(t, lo[..., None]), hi[..., None]))

@@ -1,24 +1,13 @@
 r"""Nuisance parameters of the measurement terms: absent, fixed or estimated (:class:`Free`).
 
 Every nuisance argument of a term (``extrinsic``, ``lever_arm``, ``bias``, ``gravity``,
-``time_offset``) is resolved into a :class:`Slot`: ``None`` / ``False`` absent (identity or
-zero), a tensor or float fixed, ``True`` / ``"estimate"`` estimated from a default start,
-a :class:`Free` estimated from its ``start`` with an optional Gaussian prior. One
-:class:`Free` given to several terms is one parameter. Each kind has a chart, the local
-coordinates in which :func:`~torch_dq.fitting.estimate` steps and reports uncertainties:
-
-============  ==========  ====  ===============================================
-kind          value       dim   chart
-============  ==========  ====  ===============================================
-vector        ``(3,)``    3     ``v + delta`` (bias, lever arm)
-offset        ``()``      1     ``dt + delta`` (time offset, seconds)
-pose          ``(8,)``    6     ``e exp(delta)`` (extrinsic; body-frame twist)
-gravity       ``(3,)``    2     ``Exp(B delta) g``, ``B`` an orthonormal basis of the
-                                plane orthogonal to ``g`` (world axes; magnitude kept)
-params        ``(P,)``    P     ``v + delta`` (camera intrinsics; ``P`` the slot's size)
-============  ==========  ====  ===============================================
-
-Line delays (seconds per row) are of kind ``offset``, a target's pose of kind ``pose``.
+``time_offset``; a camera's ``target``, ``intrinsics``, ``line_delay``) is resolved into a
+:class:`Slot`: ``None`` / ``False`` absent (identity or zero), a tensor or float fixed,
+``True`` / ``"estimate"`` estimated from a default start, a :class:`Free` estimated from its
+``start`` with an optional Gaussian prior. One :class:`Free` given to several terms is one
+parameter. Each slot holds its chart (:mod:`torch_dq.fitting._charts`): the value's shape,
+the local coordinates in which :func:`~torch_dq.fitting.estimate` steps it and reports its
+uncertainty.
 """
 
 from __future__ import annotations
@@ -29,13 +18,10 @@ import weakref
 import torch
 from torch import Tensor
 
-from .. import _checks, dualquat, quat
+from .. import _checks
+from ._charts import Chart
 
-__all__ = ["Free", "SizedSlot", "Slot"]
-
-_DIMS = {"vector": 3, "offset": 1, "pose": 6, "gravity": 2}
-_SHAPES = {"vector": (3,), "offset": (), "pose": (8,), "gravity": (3,)}
-_SIZED = ("params",)  # kinds whose shape (size,) is the slot's
+__all__ = ["Free", "Slot"]
 
 
 class Free:
@@ -97,12 +83,12 @@ class Slot:
     Args:
         fn: public name of the term, for messages.
         name: argument name (``"bias"``, ...).
-        kind: ``"vector"``, ``"offset"``, ``"pose"`` or ``"gravity"``.
+        chart: the parameter's :class:`~torch_dq.fitting._charts.Chart`.
         arg: the user's argument.
     """
 
-    def __init__(self, fn: str, name: str, kind: str, arg) -> None:
-        self.fn, self.name, self.kind = fn, name, kind
+    def __init__(self, fn: str, name: str, chart: Chart, arg) -> None:
+        self.fn, self.name, self.chart = fn, name, chart
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:
@@ -121,10 +107,10 @@ class Slot:
         """Take ``free`` as this parameter: its start checked, and of this slot's kind
         (and shape) wherever else a live term uses it (one Free is one parameter)."""
         for other in list(free._slots):
-            if other.kind != self.kind or other.shape != self.shape:
+            if not other.chart.same_kind(self.chart):
                 _checks.fail(self.fn, f"{self.name} is given a fitting.Free that is also "
                                       f"{other.fn}'s {other.name}, a parameter of another kind "
-                                      f"({_describe(self)} vs {_describe(other)}): "
+                                      f"({self.chart.describe()} vs {other.chart.describe()}): "
                                       f"one Free is one parameter; pass separate Free objects")
         if free.start is not None:
             self._check_value(self.fn, f"{self.name} start", free.start)
@@ -145,10 +131,7 @@ class Slot:
                          if shape else f"expected a float or a tensor for {name}")
         if not bool(torch.isfinite(value).all()):
             _checks.fail(fn, f"{name} must be finite")
-        if self.kind == "pose" and not bool(dualquat.is_unit(value.double(), 1e-6).all()):
-            _checks.fail(fn, f"{name} must be unit dual quaternions")
-        if self.kind == "gravity" and not bool((value.norm(dim=-1) > 0).all()):
-            _checks.fail(fn, f"{name} must be non-zero")
+        self.chart.check(fn, name, value)
         return value
 
     @property
@@ -159,23 +142,19 @@ class Slot:
     def present(self) -> bool:
         return self.free is not None or self.fixed is not None
 
-    size = 0  # the value's length for a sized kind (:class:`SizedSlot`)
-
     @property
     def shape(self) -> tuple[int, ...]:
-        """The value's shape: the kind's, ``(size,)`` for a sized kind."""
-        return (self.size,) if self.kind in _SIZED else _SHAPES[self.kind]
+        """The value's shape (the chart's)."""
+        return self.chart.shape
 
     @property
     def dim(self) -> int:
         """Dimension of the chart."""
-        return self.size if self.kind in _SIZED else _DIMS[self.kind]
+        return self.chart.dim
 
     def identity(self, like: Tensor) -> Tensor:
         """The absent value (zero, identity) in ``like``'s dtype and device."""
-        if self.kind == "pose":
-            return dualquat.identity(dtype=like.dtype, device=like.device)
-        return like.new_zeros(self.shape)
+        return self.chart.identity(like)
 
     def value(self, like: Tensor) -> Tensor | None:
         """Current value (fixed, estimated, or start if given), None if a default start is
@@ -188,74 +167,3 @@ class Slot:
         if v is None:
             return None
         return torch.as_tensor(v).to(dtype=like.dtype, device=like.device)
-
-
-def _describe(slot: Slot) -> str:
-    """A slot's kind and its value's shape, for messages."""
-    shape = slot.shape
-    return f"{slot.kind} {'(' + ', '.join(map(str, shape)) + ',)' if shape else 'scalar'}"
-
-
-def retract(kind: str, value: Tensor, delta: Tensor) -> Tensor:
-    """The parameter moved by ``delta`` in its chart (see the module table).
-
-    Args:
-        kind: the parameter's kind.
-        value: ``(..., *shape)`` current values.
-        delta: ``(..., dim)`` chart steps (batch broadcast with ``value``'s).
-
-    Returns:
-        The moved values, batch broadcast.
-    """
-    if kind in ("vector", "params"):
-        return value + delta
-    if kind == "offset":
-        return value + delta[..., 0]
-    if kind == "pose":
-        return dualquat.mul(value, dualquat.exp(delta))
-    phi = (gravity_basis(value.detach()) @ delta[..., None])[..., 0]  # world rotation vector
-    return quat.rotate(quat.from_rotvec(phi), value)
-
-
-def gravity_basis(g: Tensor) -> Tensor:
-    """``(..., 3, 2)`` orthonormal basis of the plane orthogonal to ``g (..., 3)``."""
-    u = g / g.norm(dim=-1, keepdim=True)
-    e = torch.zeros_like(u)
-    e[..., 0] = 1.0
-    alt = torch.zeros_like(u)
-    alt[..., 1] = 1.0
-    e = torch.where((u[..., :1].abs() > 0.9), alt, e)
-    a = torch.linalg.cross(u, e)
-    a = a / a.norm(dim=-1, keepdim=True)
-    b = torch.linalg.cross(u, a)
-    return torch.stack((a, b), dim=-1)
-
-
-def chart_distance(kind: str, start: Tensor, value: Tensor) -> Tensor:
-    """``(..., dim)`` chart coordinates of ``value`` around ``start`` (for priors)."""
-    if kind in ("vector", "params"):
-        return value - start
-    if kind == "offset":
-        return (value - start)[..., None]
-    if kind == "pose":
-        return dualquat.log(dualquat.mul(dualquat.conj(start), value))
-    u0 = start / start.norm(dim=-1, keepdim=True)
-    u1 = value / value.norm(dim=-1, keepdim=True)
-    axis = torch.linalg.cross(u0, u1)
-    ang = torch.atan2(axis.norm(dim=-1), (u0 * u1).sum(-1))
-    phi = axis * (ang / axis.norm(dim=-1).clamp_min(1e-300))[..., None]
-    return (gravity_basis(start).mT @ phi[..., None])[..., 0]
-
-
-class SizedSlot(Slot):
-    """A :class:`Slot` of the kind ``"params"`` (camera intrinsics): a ``(size,)`` value,
-    chart ``v + delta``.
-
-    Args:
-        fn, name, arg: as :class:`Slot`.
-        size: the value's length ``P``.
-    """
-
-    def __init__(self, fn: str, name: str, arg, size: int) -> None:
-        self.size = int(size)
-        super().__init__(fn, name, "params", arg)

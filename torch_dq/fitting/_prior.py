@@ -36,7 +36,6 @@ import torch
 from torch import Tensor
 
 from ._banded import BandedCholesky
-from ._nuisance import chart_distance
 
 __all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "band_apply", "control_null",
            "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh",
@@ -167,7 +166,7 @@ def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: flo
 
 def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
     """``(..., m)`` chart coordinates of the nuisance ``values`` around their starts."""
-    parts = [chart_distance(p.kind, p.start, v).expand(*problem.batch, p.dim)
+    parts = [p.chart.local(p.start, v).expand(*problem.batch, p.dim)
              for p, v in zip(problem.params, values, strict=True)]
     if not parts:
         return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)

@@ -6,7 +6,8 @@ import torch
 
 from .. import _checks
 from ._camera import Reprojections
-from ._terms import Accel, Gyro, Poses, Positions, RelativePoses, Term
+from ._imu import Accel, Gyro
+from ._terms import Poses, Positions, RelativePoses, Term
 
 __all__ = ["check"]
 

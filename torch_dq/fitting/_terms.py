@@ -22,6 +22,10 @@ Gyro           ``R^T w + b_g``                                      body
 Accel          ``R^T (a - g) + b_a``                                body
 ============== ==================================================== =======================
 
+(the inertial terms :class:`~torch_dq.fitting.Gyro` and :class:`~torch_dq.fitting.Accel` are
+in ``torch_dq.fitting._imu``, :class:`~torch_dq.fitting.Reprojections` in
+``torch_dq.fitting._camera``).
+
 Times are the trajectory's (float64 absolute timestamps welcome), ``(N,)`` shared by the
 batch or ``(B, N)`` of their own; data carry the same leading batch. ``mask`` (bool, the
 samples' shape) excludes samples (their data may be NaN, their times are replaced by a
@@ -30,20 +34,22 @@ valid one of the row).
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
-import warnings
-from typing import TYPE_CHECKING, cast
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
-from .. import _checks, curves, dualquat, quat
+from .. import _checks, dualquat, quat
 from .._time import MIN_RESOLUTION, time_step, unresolved
 from . import _robust
+from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 
-__all__ = ["Accel", "Gyro", "Poses", "Positions", "RelativePoses", "Term"]
+__all__ = ["Options", "Poses", "Positions", "RelativePoses", "Term"]
 
 
 def _sigma(fn: str, name: str, value, k: int) -> Tensor:
@@ -100,6 +106,44 @@ def _nuisance(name: str, doc: str) -> property:
     return property(lambda self: self._value(name), doc=doc)
 
 
+@dataclass(frozen=True)
+class Options:
+    """The keywords every term takes (one object, checked once by :meth:`check`).
+
+    Attributes:
+        time_offset: the sensor's clock offset (seconds): None, a float, ``True`` or a
+            :class:`~torch_dq.fitting.Free` (see :mod:`torch_dq.fitting`).
+        max_time_offset: bound on an estimated offset (seconds, ``>= 0``).
+        robust: None, ``"huber"`` or ``"cauchy"`` (case-insensitive).
+        robust_k: the kernel's scale (None: the 95 % chi quantile of the residual's size).
+        mask: ``(..., N)`` bool, False excludes a sample (None: every sample).
+    """
+
+    time_offset: object = None
+    max_time_offset: float = 0.1
+    robust: str | None = None
+    robust_k: float | None = None
+    mask: Tensor | None = None
+
+    def check(self, fn: str, dim: int) -> tuple[str | None, float, float]:
+        """The kernel, its scale and ``max_time_offset``, checked (errors name ``fn``)."""
+        robust, robust_k, max_time_offset = self.robust, self.robust_k, self.max_time_offset
+        kernel = robust.lower() if isinstance(robust, str) else robust
+        if kernel not in _robust.KERNELS:
+            _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
+        if robust_k is None:
+            robust_k = _robust.chi_quantile(dim)
+        if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
+                math.isfinite(robust_k) and float(robust_k) > 0):
+            _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
+        if isinstance(max_time_offset, bool) or not isinstance(
+                max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
+                                                       and float(max_time_offset) >= 0):
+            _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
+                             f"{max_time_offset!r}")
+        return kernel, float(robust_k), float(max_time_offset)
+
+
 class Term(torch.nn.Module):
     """Shared machinery of the measurement terms (see the module docstring).
 
@@ -121,30 +165,16 @@ class Term(torch.nn.Module):
         readings: Tensor
 
     def __init__(self, times: list[Tensor], names: list[str], data: Tensor, event: int,
-                 sigma: Tensor, *, time_offset, max_time_offset, robust, robust_k,
-                 mask) -> None:
-        """Check and store the samples' times, data, sigmas and options (called by the
-        subclasses, whose class docstrings describe the arguments)."""
+                 sigma: Tensor, options: Options) -> None:
+        """Check and store the samples' times, data, sigmas and the common keywords
+        (``options``; called by the subclasses, whose class docstrings describe the
+        arguments)."""
         super().__init__()
         fn = self._fn
-        kernel = robust.lower() if isinstance(robust, str) else robust
-        if kernel not in _robust.KERNELS:
-            _checks.fail(fn, f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
-        self.robust = kernel
-        if robust_k is None:
-            robust_k = _robust.chi_quantile(self.dim)
-        if isinstance(robust_k, bool) or not isinstance(robust_k, numbers.Real) or not (
-                math.isfinite(robust_k) and float(robust_k) > 0):
-            _checks.fail(fn, f"robust_k must be a positive finite float, got {robust_k!r}")
-        self.robust_k = float(robust_k)
-        if isinstance(max_time_offset, bool) or not isinstance(
-                max_time_offset, numbers.Real) or not (math.isfinite(max_time_offset)
-                                                       and float(max_time_offset) >= 0):
-            _checks.fail(fn, f"max_time_offset must be a finite float >= 0, got "
-                             f"{max_time_offset!r}")
-        self.max_time_offset = float(max_time_offset)
-        self._slots: dict[str, Slot] = {"time_offset": Slot(fn, "time_offset", "offset",
-                                                            time_offset)}
+        self.robust, self.robust_k, self.max_time_offset = options.check(fn, self.dim)
+        time_offset, mask = options.time_offset, options.mask
+        self._slots: dict[str, Slot] = {"time_offset": Slot(
+            fn, "time_offset", Scalar(-self.max_time_offset, self.max_time_offset), time_offset)}
         _checks.tensor(fn, "data", data)
         if data.dim() < 1 + event:
             _checks.fail(fn, f"expected (..., N, ...) data, got {_checks.shape_str(data.shape)}")
@@ -242,42 +272,43 @@ class Term(torch.nn.Module):
         return out
 
     # -- parameters that move the samples' times
-    time_params: tuple[str, ...] = ("time_offset",)  # read through time_shift only
+    def time_rates(self) -> dict[str, Tensor | float]:
+        r"""The parameters that move the samples' times, and how: ``dt'_i / d\theta`` per
+        present parameter name (a float or ``(..., N)``), ``t'_i = t_i + \sum_\theta \theta
+        \, dt'_i/d\theta`` (affine; the same for every time argument). Such a parameter must
+        be a ``Scalar`` (``torch_dq.fitting._charts``) that the residual does not read
+        otherwise: the solver chains it through the curve's time derivative and widens the
+        domain check by what its bounds reach (:meth:`time_reach`). Default: the time offset,
+        rate 1."""
+        return {"time_offset": 1.0}
 
     def time_shift(self, p: dict[str, Tensor]) -> Tensor:
-        """Shift of the samples' times, ``t' = t + shift`` (``(..., N)`` or broadcastable,
-        the same for every time argument), from the per-sample values ``p``
-        (:meth:`per_sample`). Affine in the scalar parameters of :attr:`time_params`, which
-        the residual does not read otherwise: the solver chains them through the curve's time
-        derivative (``dt_i / dtheta`` by autograd of this function) and bounds the domain
-        check by what they can reach (:meth:`time_reach`). Default: the time offset."""
-        return p["time_offset"]
-
-    def bounds(self, name: str) -> tuple[float, float]:
-        """Range ``(low, high)`` of an estimated scalar parameter (``[-max_time_offset,
-        max_time_offset]`` for the time offset; unbounded otherwise)."""
-        if name == "time_offset":
-            return -self.max_time_offset, self.max_time_offset
-        return -math.inf, math.inf
+        """Shift of the samples' times ``t' - t`` (``(..., N)`` or broadcastable) from the
+        per-sample values ``p`` (:meth:`per_sample`) and :meth:`time_rates`."""
+        return functools.reduce(torch.add, [p[name] * rate
+                                            for name, rate in self.time_rates().items()])
 
     def time_reach(self) -> tuple[Tensor, Tensor]:
         """Lowest and highest :meth:`time_shift` ``(..., N)`` (float64) over the estimated
-        time parameters' :meth:`bounds`, the others at their values (exact: the shift is
-        affine in them)."""
+        time parameters' bounds (their charts'), the others at their values (exact: the
+        shift is affine in them)."""
         like = torch.empty((), dtype=torch.float64, device=self.sigma.device)
-        slots = {k: self._slots[k] for k in self.time_params if k in self._slots}
-        kinds = {k: s.kind for k, s in slots.items()}
-        base = {}
-        for k, s in slots.items():
-            v = s.value(like)
-            base[k] = s.identity(like) if s.estimated or v is None else v
-        s0 = self.time_shift(self.per_sample(base, kinds))
-        lo = hi = s0
-        for k, s in slots.items():
-            if s.estimated:
-                ends = [self.time_shift(self.per_sample({**base, k: like.new_tensor(b)}, kinds))
-                        - s0 for b in self.bounds(k)]
-                lo, hi = lo + torch.minimum(*ends), hi + torch.maximum(*ends)
+        lo = hi = like.new_zeros(())
+        for name, rate in self.time_rates().items():
+            slot = self._slots[name]
+            chart = slot.chart
+            if not isinstance(chart, Scalar):
+                _checks.fail(self._fn, f"{name} moves the samples' times (time_rates): its "
+                                       f"chart must be a Scalar, got {chart.describe()}",
+                             TypeError)
+            if slot.estimated:
+                r = torch.as_tensor(rate, dtype=torch.float64, device=like.device)
+                a, b = chart.low * r, chart.high * r
+                lo, hi = lo + torch.minimum(a, b), hi + torch.maximum(a, b)
+            else:
+                v = slot.value(like)
+                part = (slot.identity(like) if v is None else v)[..., None] * rate
+                lo, hi = lo + part, hi + part
         return lo, hi
 
     def solved(self, trajectory) -> None:
@@ -296,11 +327,9 @@ class Term(torch.nn.Module):
         r = r / self.sigma.to(r.dtype)
         return torch.where(self.mask[..., None], r, torch.zeros((), dtype=r.dtype))
 
-    @staticmethod
-    def per_sample(values: dict[str, Tensor], kinds: dict[str, str]) -> dict[str, Tensor]:
-        """Values with a sample dim inserted before the event dims."""
-        ev = {"vector": 1, "offset": 0, "pose": 1, "gravity": 1, "params": 1}
-        return {k: v.unsqueeze(v.dim() - ev[kinds[k]]) for k, v in values.items()}
+    def per_sample(self, values: dict[str, Tensor]) -> dict[str, Tensor]:
+        """Values by name with a sample dim inserted before their charts' event dims."""
+        return {k: self._slots[k].chart.per_sample(v) for k, v in values.items()}
 
     def forward(self, trajectory, ctrl: Tensor | None = None) -> Tensor:
         """Whitened residuals ``(..., N, k)`` of the trajectory (or of ``ctrl`` predicted
@@ -309,9 +338,8 @@ class Term(torch.nn.Module):
 
     def evaluate(self, trajectory, ctrl: Tensor | None, values: dict[str, Tensor]) -> Tensor:
         """Whitened residuals with the nuisance ``values`` (by name, batch first)."""
-        kinds = {k: s.kind for k, s in self._slots.items()}
         like = trajectory.control_points if ctrl is None else ctrl
-        p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()}, kinds)
+        p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()})
         derivs = [trajectory.derivatives(t + self.time_shift(p), self.order, ctrl=ctrl)
                   for t in self.times_list()]
         return self.residuals(derivs, p)
@@ -386,7 +414,7 @@ class _PoseTerm(Term):
     dim = 6
 
     def _store_poses(self, times: list[Tensor], names: list[str], poses: Tensor, rot_sigma,
-                     trans_sigma, **common) -> None:
+                     trans_sigma, options: Options) -> None:
         """Validate ``poses`` and the two sigmas, set up the term, keep the measured poses
         (normalized; masked samples replaced by the identity) as ``rotations`` and
         ``translations``."""
@@ -394,9 +422,9 @@ class _PoseTerm(Term):
         x, T = _pose_data(fn, "poses", poses)
         sigma = torch.cat((_sigma(fn, "rot_sigma", rot_sigma, 3),
                            _sigma(fn, "trans_sigma", trans_sigma, 3)))
-        Term.__init__(self, times, names, x, 1, sigma, **common)
+        Term.__init__(self, times, names, x, 1, sigma, options)
         check_pose_data(fn, "poses", x, T, self.mask)
-        safe = _masked(x, common["mask"], dualquat.identity(dtype=x.dtype, device=x.device))
+        safe = _masked(x, options.mask, dualquat.identity(dtype=x.dtype, device=x.device))
         q, t = dualquat.to_rt(dualquat.normalize(safe))
         self.register_buffer("rotations", q)
         self.register_buffer("translations", t)
@@ -440,9 +468,8 @@ class Poses(_PoseTerm):
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
         self._store_poses([times], ["times"], poses, rot_sigma, trans_sigma,
-                          time_offset=time_offset, max_time_offset=max_time_offset,
-                          robust=robust, robust_k=robust_k, mask=mask)
-        self._slots["extrinsic"] = Slot(self._fn, "extrinsic", "pose", extrinsic)
+                          Options(time_offset, max_time_offset, robust, robust_k, mask))
+        self._slots["extrinsic"] = Slot(self._fn, "extrinsic", Pose(), extrinsic)
 
     extrinsic = _nuisance(
         "extrinsic",
@@ -478,10 +505,9 @@ class Positions(Term):
         fn = self._fn
         positions = _vector_data(fn, "positions", positions)
         super().__init__([times], ["times"], positions, 1, _sigma(fn, "sigma", sigma, 3),
-                         time_offset=time_offset, max_time_offset=max_time_offset,
-                         robust=robust, robust_k=robust_k, mask=mask)
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
         self.register_buffer("positions", _masked(positions, mask, 0.0))
-        self._slots["lever_arm"] = Slot(fn, "lever_arm", "vector", lever_arm)
+        self._slots["lever_arm"] = Slot(fn, "lever_arm", Vector(3), lever_arm)
 
     lever_arm = _nuisance("lever_arm", "The lever arm ``l`` ``(..., 3)`` in body axes.")
 
@@ -514,231 +540,13 @@ class RelativePoses(_PoseTerm):
                  robust: str | None = None, robust_k: float | None = None,
                  mask: Tensor | None = None) -> None:
         self._store_poses([times_from, times_to], ["times_from", "times_to"], poses, rot_sigma,
-                          trans_sigma, time_offset=time_offset,
-                          max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                          mask=mask)
+                          trans_sigma, Options(time_offset, max_time_offset, robust, robust_k,
+                                               mask))
 
     def _residual(self, ev, p):
         return self._pose_residual(dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0]))
 
 
-class _Imu(Term):
-    """Shared construction of the inertial terms: readings ``(..., N, 3)``, bias."""
-
-    dim = 3
-
-    def __init__(self, times, readings, sigma, bias, **kwargs) -> None:
-        fn = self._fn
-        readings = _vector_data(fn, "readings", readings)
-        super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
-                         **kwargs)
-        self.register_buffer("readings", _masked(readings, kwargs.get("mask"), 0.0))
-        self._slots["bias"] = Slot(fn, "bias", "vector", bias)
-
-    bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
-
-
-class Gyro(_Imu):
-    r"""Gyroscope readings :math:`R^T \omega + b_g` (body axes, rad/s).
-
-    Args:
-        times: ``(N,)`` or ``(B, N)`` times.
-        readings: ``(..., N, 3)`` angular rates (rad/s, body axes).
-        sigma: noise (rad/s), a float or 3.
-        bias: ``(3,)`` bias, fixed or estimated (start zero).
-        time_offset: estimated without a start: from cross-correlating the measured and the
-            trajectory's angular rates over ``[-max_time_offset, max_time_offset]``.
-        max_time_offset, robust, robust_k, mask: as :class:`Poses`.
-
-    Warns:
-        UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
-            trajectory's angular rates (deg/s for rad/s), once, when
-            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`).
-    """
-
-    order = 1
-    _fn = "fitting.Gyro"
-
-    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
-                 time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
-                 robust_k: float | None = None, mask: Tensor | None = None) -> None:
-        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
-                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                         mask=mask)
-        self._units_checked = False
-
-    def _residual(self, ev, p):
-        x, dx = ev[0][:2]
-        w = curves.kinematics(x, dx, frame="body").angular_velocity
-        return w + p["bias"] - self.readings.to(w.dtype)
-
-    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
-        """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
-        warns when the readings look like deg/s (``_warn_degrees``)."""
-        if not self._units_checked:
-            self._units_checked = True
-            _warn_degrees(self, trajectory, ctrl)
-        return super().values(trajectory, ctrl)
-
-    def default_start(self, name, trajectory, ctrl, values):
-        if name != "time_offset":
-            return super().default_start(name, trajectory, ctrl, values)
-        return _correlate_offset(self, trajectory, ctrl)
-
-
-_DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
-
-
-def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
-    """Warn when the mean magnitude of the readings is within a factor 1.5 of
-    ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
-    into its domain; skipped where it barely turns, below 1e-3 rad/s)."""
-    t = term.times
-    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
-              for e in trajectory.domain)
-    t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
-                      hi[..., None] if hi.dim() else hi)
-    with torch.no_grad():
-        x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
-        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
-    w = term.mask.to(torch.float64)
-    pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
-    meas = float((term.readings.norm(dim=-1) * w).sum() / w.sum())
-    if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
-        warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
-                      f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
-                      f"angular rate {pred:.4g} rad/s (180/pi = 57.3); convert them with "
-                      f"torch.deg2rad", UserWarning, stacklevel=4)
-
-
-def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
-    """Time offset maximising the correlation of the measured and predicted body angular
-    rates (each axis centred: free of the bias): the prediction on a grid of ``max / 20``
-    spacing, interpolated at the shifted sample times for 81 offsets, the best refined by a
-    parabola."""
-    m = term.max_time_offset
-    like = torch.empty((), dtype=torch.float64, device=term.sigma.device)
-    if m == 0.0:
-        return like.new_zeros(())
-    t, meas, valid = term.times, term.readings, term.mask.to(torch.float64)
-    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
-              for e in trajectory.domain)  # per trajectory for per-trajectory knots
-    a, b = torch.maximum(lo, t.amin(-1) - m), torch.minimum(hi, t.amax(-1) + m)
-    size = max(2, int(float(((b - a) / (m / 20.0)).max())) + 2)
-    g = a[..., None] + (b - a)[..., None] * torch.linspace(0.0, 1.0, size, dtype=torch.float64,
-                                                          device=t.device)
-    a, b = a[..., None, None], b[..., None, None]
-    with torch.no_grad():
-        x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
-        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
-    offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
-    step = g[..., 1:2, None] - g[..., :1, None]
-    w = valid[..., None, None, :]
-    v = _centred(meas.transpose(-1, -2)[..., None, :, :], w)
-
-    def shifted(o: Tensor) -> Tensor:  # grid positions (..., O, N) of the shifted samples
-        return (torch.minimum(torch.maximum(t[..., None, :] + o[:, None], a), b) - a) / step
-
-    # offsets in chunks of 9: the (..., 9, 3, N) temporaries stay small for long IMU logs
-    corr = torch.cat([_correlation(_interpolate(rate, shifted(o)), v, w)
-                      for o in offsets.split(9)], -1)
-    k = corr.argmax(-1).clamp(1, 79)
-    c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
-    denom = c0 - 2 * c1 + c2
-    frac = torch.where(denom < 0, 0.5 * (c0 - c2) / denom.clamp(max=-1e-300), 0.0)
-    return (offsets[k] + frac.clamp(-1, 1) * (offsets[1] - offsets[0])).clamp(-m, m)
-
-
-def _interpolate(rate: Tensor, s: Tensor) -> Tensor:
-    """``rate (..., G, 3)`` linearly interpolated at grid positions ``s (..., O, N)``:
-    ``(..., O, 3, N)``."""
-    lead = torch.broadcast_shapes(rate.shape[:-2], s.shape[:-2])  # shared times: s (O, N)
-    s = s.expand(*lead, *s.shape[-2:])
-    j = s.floor().clamp(0, rate.shape[-2] - 2)
-    fr = (s - j)[..., None]
-    j = j.long()[..., None]  # (..., O, N, 1): rate gathered per sample
-    r = rate[..., None, :, :].expand(*s.shape[:-1], rate.shape[-2], 3)
-    pred = torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr
-    return pred.transpose(-1, -2)
-
-
-def _centred(v: Tensor, w: Tensor) -> Tensor:
-    """``v`` minus its ``w``-weighted mean over the last dim, times ``w``."""
-    return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
-
-
-def _correlation(pred: Tensor, v: Tensor, w: Tensor) -> Tensor:
-    """Correlation ``(..., O)`` of the centred predictions ``pred (..., O, 3, N)`` with the
-    centred measurements ``v``."""
-    u = _centred(pred, w)
-    return (u * v).sum((-1, -2)) / ((u * u).sum((-1, -2)) * (v * v).sum((-1, -2))).sqrt(
-    ).clamp_min(1e-300)
-
-
-class Accel(_Imu):
-    r"""Accelerometer readings (specific force) :math:`R^T (a - g) + b_a` (body axes).
-
-    Args:
-        times: ``(N,)`` or ``(B, N)`` times.
-        readings: ``(..., N, 3)`` specific forces (body axes, e.g. m/s²).
-        sigma: noise, a float or 3.
-        bias: ``(3,)`` bias, fixed or estimated (start zero).
-        gravity: a fixed ``(3,)`` world vector (default ``(0, 0, -9.81)``); a float
-            magnitude: its direction is estimated, started from the mean reading rotated to
-            world axes by the trajectory (:math:`g \approx -\overline{R f}`); or a
-            :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept).
-        time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
-    """
-
-    order = 2
-    _fn = "fitting.Accel"
-
-    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
-                 gravity=(0.0, 0.0, -9.81), time_offset=None, max_time_offset: float = 0.1,
-                 robust: str | None = None, robust_k: float | None = None,
-                 mask: Tensor | None = None) -> None:
-        fn = self._fn
-        super().__init__(times, readings, sigma, bias, time_offset=time_offset,
-                         max_time_offset=max_time_offset, robust=robust, robust_k=robust_k,
-                         mask=mask)
-        self._magnitude: float | None = None
-        if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
-            if not (math.isfinite(gravity) and float(gravity) > 0):
-                _checks.fail(fn, f"a gravity magnitude must be positive and finite, got "
-                                 f"{gravity!r}")
-            self._magnitude = float(gravity)
-            gravity = True
-        elif isinstance(gravity, (tuple, list)):
-            gravity = torch.tensor(gravity, dtype=torch.float64)
-        if gravity is None or gravity is False:
-            _checks.fail(fn, "gravity is required: a (3,) vector, a float magnitude or "
-                             "fitting.Free")
-        self._slots["gravity"] = Slot(fn, "gravity", "gravity", gravity)
-
-    gravity = _nuisance("gravity", "Gravity ``(..., 3)`` in world axes (fixed or estimated).")
-
-    def default_start(self, name, trajectory, ctrl, values):
-        if name != "gravity":
-            return super().default_start(name, trajectory, ctrl, values)
-        with torch.no_grad():
-            c = ctrl if ctrl is None else ctrl.detach()
-            x = trajectory(self.times + values["time_offset"][..., None], ctrl=c)
-            q = dualquat.to_rt(x)[0].to(torch.float64)
-            f = quat.rotate(q, self.readings - values["bias"][..., None, :])
-            w = self.mask[..., None].to(f.dtype)
-            mean = (f * w).sum(-2) / w.sum(-2)
-        magnitude = 9.81 if self._magnitude is None else self._magnitude
-        return -magnitude * mean / mean.norm(dim=-1, keepdim=True)
-
-    def _residual(self, ev, p):
-        x, dx, ddx = ev[0][:3]
-        k = curves.kinematics(x, dx, ddx, frame="body")
-        q = dualquat.to_rt(x)[0]
-        g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
-        a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
-        return a - g + p["bias"] - self.readings.to(g.dtype)
-
-
-for _cls in (Poses, Positions, RelativePoses, Gyro, Accel):  # help(Gyro.__init__): the args
+for _cls in (Poses, Positions, RelativePoses):  # help(Poses.__init__): the args
     _cls.__init__.__doc__ = _cls.__doc__
 del _cls

@@ -37,8 +37,8 @@ from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
 from ._banded import BandedCholesky
+from ._charts import Scalar
 from ._local import sample_jacobians, tangent_step
-from ._nuisance import gravity_basis
 from ._prior import NULL, REGULARISE, scaled_eigh
 
 __all__ = ["Estimate"]
@@ -96,17 +96,19 @@ class Estimate:
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
-    def __init__(self, problem, ctrl: Tensor, values: list[Tensor], history: dict) -> None:
-        self._problem, self._ctrl, self._values = problem, ctrl, values
-        self.loss: Tensor = history["loss"]
+    def __init__(self, summary, ctrl: Tensor, values: list[Tensor], history) -> None:
+        """Built by :func:`~torch_dq.fitting.estimate` from the solved problem's
+        ``Summary`` (``torch_dq.fitting._problem``), the solution and the loop's
+        ``History`` (``torch_dq.fitting._lm``)."""
+        self._problem, self._ctrl, self._values = summary, ctrl, values
+        self.loss: Tensor = history.loss
         self.final_loss: Tensor = self.loss[-1]
-        self.objective: Tensor = history["objective"]
-        self.steps: int = history["steps"]
-        self.converged: Tensor = history["converged"]
-        self.reason: str = history["reason"]
-        self._sys = history.get("system") if history.get("width") == problem.width(values) \
-            else None
-        self._pulled = int(history.get("pulled", 0))
+        self.objective: Tensor = history.objective
+        self.steps: int = history.steps
+        self.converged: Tensor = history.converged
+        self.reason: str = history.reason
+        self._system = summary.system
+        self._pulled = summary.pulled
         self._factored = False
 
     def __repr__(self) -> str:
@@ -124,19 +126,7 @@ class Estimate:
         ``(term, name, size)``, ``size`` the chart's dimension (bias, lever arm 3, time
         offset 1, extrinsic 6, gravity 2); a shared :class:`~torch_dq.fitting.Free` appears
         once, under the first term that holds it."""
-        p = self._problem
-        first: dict[int, tuple] = {}
-        for (i, name), q in p.index.items():
-            first.setdefault(id(q), (p.terms[i], name, q.dim))
-        return [first[id(q)] for q in p.params]
-
-    @property
-    def _system(self):
-        """The data-only Gauss-Newton system at the optimum (built on first use)."""
-        if self._sys is None:
-            p = self._problem
-            self._sys = p.system(self._ctrl, self._values, p.width(self._values))
-        return self._sys
+        return [(*q.uses[0], q.dim) for q in self._problem.params]
 
     def _per_term(self, what: str) -> dict:
         batch, s = self._problem.batch, self._system
@@ -166,7 +156,7 @@ class Estimate:
         counts = self._per_term("count")
         total = sum(counts.values())
         p = self._problem
-        params = 6 * p.spans.n - self._pulled + p.m
+        params = 6 * p.n - self._pulled + p.m
         return {t: c * (1.0 - params / total.clamp_min(1.0)) for t, c in counts.items()}
 
     def _factor_scale(self) -> Tensor:
@@ -228,7 +218,7 @@ class Estimate:
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         self._Z = self._chol.solve(cn)  # (Bf, n, 6, m)
-        S = system.nn + torch.diag(p.prior_information()).to(system.nn)
+        S = system.nn + torch.diag(p.prior_information).to(system.nn)
         S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
@@ -237,7 +227,7 @@ class Estimate:
         self._U, self._r = U, d.rsqrt()
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
-            weak = [f"{type(p.terms[i]).__name__}.{name}" for (i, name), q in p.index.items()
+            weak = [f"{type(t).__name__}.{name}" for q in p.params for t, name in q.uses
                     if bool((U[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
                             .any(-2)[bad].any())]
             warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
@@ -256,24 +246,17 @@ class Estimate:
     def _param(self, term, name: str):
         fn = "fitting.Estimate.std"
         p = self._problem
-        for i, t in enumerate(p.terms):
-            if t is term:
-                q = p.index.get((i, name))
-                if q is None:
-                    _checks.fail(fn, f"{type(term).__name__}.{name} was not estimated")
+        if not any(t is term for t in p.terms):
+            _checks.fail(fn, "term is not one of the estimated terms")
+        for q in p.params:
+            if any(t is term and n == name for t, n in q.uses):
                 return q
-        _checks.fail(fn, "term is not one of the estimated terms")
+        _checks.fail(fn, f"{type(term).__name__}.{name} was not estimated")
 
     def _chart_map(self, q) -> Tensor | None:
         """Map from the chart to the reported coordinates (gravity: world ``(3, 2)``)."""
-        if q.kind != "gravity":
-            return None
-        g = self._values[self._problem.params.index(q)].reshape(-1, 3)
-        cross = torch.linalg.cross(g[:, :, None].expand(-1, 3, 3),
-                                   torch.eye(3, dtype=g.dtype, device=g.device).expand(
-                                       g.shape[0], 3, 3),
-                                   dim=1)  # [g]x columns: g x e_j
-        return -cross @ gravity_basis(g)  # d(Exp(B d) g)/dd = -[g]x B
+        v = self._values[self._problem.params.index(q)]
+        return q.chart.report(v.reshape(-1, *q.chart.shape))
 
     def cov(self, *items: tuple, scaled: bool = False) -> Tensor:
         r"""Joint covariance ``(..., k, k)`` of ``(term, name)`` pairs in their charts.
@@ -320,12 +303,12 @@ class Estimate:
             C = torch.where(finite, M @ torch.where(finite, C, 0.0) @ M.mT, torch.inf)
         s = C.diagonal(dim1=-2, dim2=-1).clamp_min(0.0).sqrt()
         b = self._problem.batch
-        if q.kind == "offset":
+        if isinstance(q.chart, Scalar):
             v = self._values[self._problem.params.index(q)].reshape(-1, 1)
-            pinned = v.abs() >= q.bound * (1.0 - 1e-9)
+            pinned = q.chart.pinned(v)
             if bool(pinned.any()):
                 warnings.warn(f"fitting.Estimate: {type(term).__name__}.time_offset ended on "
-                              f"its bound max_time_offset={q.bound!r}: its standard "
+                              f"its bound max_time_offset={q.chart.high!r}: its standard "
                               f"deviation is inf (raise max_time_offset)", RuntimeWarning,
                               stacklevel=2)
             return torch.where(pinned, torch.inf, s).reshape(b)

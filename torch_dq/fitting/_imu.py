@@ -1,0 +1,245 @@
+r"""The inertial terms: gyroscope and accelerometer readings (body axes) with their biases.
+
+With ``x(t) = (R(t), p(t))`` the trajectory (body to world) and ``t' = t + dt``:
+:class:`Gyro` predicts :math:`R^T \omega + b_g` (``omega`` the world angular velocity),
+:class:`Accel` the specific force :math:`R^T (a - g) + b_a`. A gyroscope's estimated time
+offset without a start comes from cross-correlating angular rates; an estimated gravity
+direction without a start from the mean reading.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import warnings
+from typing import cast
+
+import torch
+from torch import Tensor
+
+from .. import _checks, curves, dualquat, quat
+from ._charts import Direction, Vector
+from ._nuisance import Slot
+from ._terms import Options, Term, _masked, _nuisance, _sigma, _vector_data
+
+__all__ = ["Accel", "Gyro"]
+
+
+class _Imu(Term):
+    """Shared construction of the inertial terms: readings ``(..., N, 3)``, bias."""
+
+    dim = 3
+
+    def __init__(self, times, readings, sigma, bias, options: Options) -> None:
+        fn = self._fn
+        readings = _vector_data(fn, "readings", readings)
+        super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
+                         options)
+        self.register_buffer("readings", _masked(readings, options.mask, 0.0))
+        self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
+
+    bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
+
+
+class Gyro(_Imu):
+    r"""Gyroscope readings :math:`R^T \omega + b_g` (body axes, rad/s).
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times.
+        readings: ``(..., N, 3)`` angular rates (rad/s, body axes).
+        sigma: noise (rad/s), a float or 3.
+        bias: ``(3,)`` bias, fixed or estimated (start zero).
+        time_offset: estimated without a start: from cross-correlating the measured and the
+            trajectory's angular rates over ``[-max_time_offset, max_time_offset]``.
+        max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Warns:
+        UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
+            trajectory's angular rates (deg/s for rad/s), once, when
+            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`).
+    """
+
+    order = 1
+    _fn = "fitting.Gyro"
+
+    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
+                 time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
+                 robust_k: float | None = None, mask: Tensor | None = None) -> None:
+        super().__init__(times, readings, sigma, bias,
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
+        self._units_checked = False
+
+    def _residual(self, ev, p):
+        x, dx = ev[0][:2]
+        w = curves.kinematics(x, dx, frame="body").angular_velocity
+        return w + p["bias"] - self.readings.to(w.dtype)
+
+    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
+        """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
+        warns when the readings look like deg/s (``_warn_degrees``)."""
+        if not self._units_checked:
+            self._units_checked = True
+            _warn_degrees(self, trajectory, ctrl)
+        return super().values(trajectory, ctrl)
+
+    def default_start(self, name, trajectory, ctrl, values):
+        if name != "time_offset":
+            return super().default_start(name, trajectory, ctrl, values)
+        return _correlate_offset(self, trajectory, ctrl)
+
+
+_DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
+
+
+def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
+    """Warn when the mean magnitude of the readings is within a factor 1.5 of
+    ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
+    into its domain; skipped where it barely turns, below 1e-3 rad/s)."""
+    t = term.times
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
+              for e in trajectory.domain)
+    t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
+                      hi[..., None] if hi.dim() else hi)
+    with torch.no_grad():
+        x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
+    w = term.mask.to(torch.float64)
+    pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
+    meas = float((term.readings.norm(dim=-1) * w).sum() / w.sum())
+    if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
+        warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
+                      f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
+                      f"angular rate {pred:.4g} rad/s (180/pi = 57.3); convert them with "
+                      f"torch.deg2rad", UserWarning, stacklevel=4)
+
+
+def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
+    """Time offset maximising the correlation of the measured and predicted body angular
+    rates (each axis centred: free of the bias): the prediction on a grid of ``max / 20``
+    spacing, interpolated at the shifted sample times for 81 offsets, the best refined by a
+    parabola."""
+    m = term.max_time_offset
+    like = torch.empty((), dtype=torch.float64, device=term.sigma.device)
+    if m == 0.0:
+        return like.new_zeros(())
+    t, meas, valid = term.times, term.readings, term.mask.to(torch.float64)
+    lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
+              for e in trajectory.domain)  # per trajectory for per-trajectory knots
+    a, b = torch.maximum(lo, t.amin(-1) - m), torch.minimum(hi, t.amax(-1) + m)
+    size = max(2, int(float(((b - a) / (m / 20.0)).max())) + 2)
+    g = a[..., None] + (b - a)[..., None] * torch.linspace(0.0, 1.0, size, dtype=torch.float64,
+                                                          device=t.device)
+    a, b = a[..., None, None], b[..., None, None]
+    with torch.no_grad():
+        x, dx = trajectory.derivatives(g, 1, ctrl=None if ctrl is None else ctrl.detach())
+        rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
+    offsets = torch.linspace(-m, m, 81, dtype=torch.float64, device=t.device)
+    step = g[..., 1:2, None] - g[..., :1, None]
+    w = valid[..., None, None, :]
+    v = _centred(meas.transpose(-1, -2)[..., None, :, :], w)
+
+    def shifted(o: Tensor) -> Tensor:  # grid positions (..., O, N) of the shifted samples
+        return (torch.minimum(torch.maximum(t[..., None, :] + o[:, None], a), b) - a) / step
+
+    # offsets in chunks of 9: the (..., 9, 3, N) temporaries stay small for long IMU logs
+    corr = torch.cat([_correlation(_interpolate(rate, shifted(o)), v, w)
+                      for o in offsets.split(9)], -1)
+    k = corr.argmax(-1).clamp(1, 79)
+    c0, c1, c2 = (corr.gather(-1, (k + d)[..., None])[..., 0] for d in (-1, 0, 1))
+    denom = c0 - 2 * c1 + c2
+    frac = torch.where(denom < 0, 0.5 * (c0 - c2) / denom.clamp(max=-1e-300), 0.0)
+    return (offsets[k] + frac.clamp(-1, 1) * (offsets[1] - offsets[0])).clamp(-m, m)
+
+
+def _interpolate(rate: Tensor, s: Tensor) -> Tensor:
+    """``rate (..., G, 3)`` linearly interpolated at grid positions ``s (..., O, N)``:
+    ``(..., O, 3, N)``."""
+    lead = torch.broadcast_shapes(rate.shape[:-2], s.shape[:-2])  # shared times: s (O, N)
+    s = s.expand(*lead, *s.shape[-2:])
+    j = s.floor().clamp(0, rate.shape[-2] - 2)
+    fr = (s - j)[..., None]
+    j = j.long()[..., None]  # (..., O, N, 1): rate gathered per sample
+    r = rate[..., None, :, :].expand(*s.shape[:-1], rate.shape[-2], 3)
+    pred = torch.take_along_dim(r, j, -2) * (1 - fr) + torch.take_along_dim(r, j + 1, -2) * fr
+    return pred.transpose(-1, -2)
+
+
+def _centred(v: Tensor, w: Tensor) -> Tensor:
+    """``v`` minus its ``w``-weighted mean over the last dim, times ``w``."""
+    return (v - (v * w).sum(-1, keepdim=True) / w.sum(-1, keepdim=True)) * w
+
+
+def _correlation(pred: Tensor, v: Tensor, w: Tensor) -> Tensor:
+    """Correlation ``(..., O)`` of the centred predictions ``pred (..., O, 3, N)`` with the
+    centred measurements ``v``."""
+    u = _centred(pred, w)
+    return (u * v).sum((-1, -2)) / ((u * u).sum((-1, -2)) * (v * v).sum((-1, -2))).sqrt(
+    ).clamp_min(1e-300)
+
+
+class Accel(_Imu):
+    r"""Accelerometer readings (specific force) :math:`R^T (a - g) + b_a` (body axes).
+
+    Args:
+        times: ``(N,)`` or ``(B, N)`` times.
+        readings: ``(..., N, 3)`` specific forces (body axes, e.g. m/s²).
+        sigma: noise, a float or 3.
+        bias: ``(3,)`` bias, fixed or estimated (start zero).
+        gravity: a fixed ``(3,)`` world vector (default ``(0, 0, -9.81)``); a float
+            magnitude: its direction is estimated, started from the mean reading rotated to
+            world axes by the trajectory (:math:`g \approx -\overline{R f}`); or a
+            :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept).
+        time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+    """
+
+    order = 2
+    _fn = "fitting.Accel"
+
+    def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
+                 gravity=(0.0, 0.0, -9.81), time_offset=None, max_time_offset: float = 0.1,
+                 robust: str | None = None, robust_k: float | None = None,
+                 mask: Tensor | None = None) -> None:
+        fn = self._fn
+        super().__init__(times, readings, sigma, bias,
+                         Options(time_offset, max_time_offset, robust, robust_k, mask))
+        self._magnitude: float | None = None
+        if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
+            if not (math.isfinite(gravity) and float(gravity) > 0):
+                _checks.fail(fn, f"a gravity magnitude must be positive and finite, got "
+                                 f"{gravity!r}")
+            self._magnitude = float(gravity)
+            gravity = True
+        elif isinstance(gravity, (tuple, list)):
+            gravity = torch.tensor(gravity, dtype=torch.float64)
+        if gravity is None or gravity is False:
+            _checks.fail(fn, "gravity is required: a (3,) vector, a float magnitude or "
+                             "fitting.Free")
+        self._slots["gravity"] = Slot(fn, "gravity", Direction(), gravity)
+
+    gravity = _nuisance("gravity", "Gravity ``(..., 3)`` in world axes (fixed or estimated).")
+
+    def default_start(self, name, trajectory, ctrl, values):
+        if name != "gravity":
+            return super().default_start(name, trajectory, ctrl, values)
+        with torch.no_grad():
+            c = ctrl if ctrl is None else ctrl.detach()
+            x = trajectory(self.times + values["time_offset"][..., None], ctrl=c)
+            q = dualquat.to_rt(x)[0].to(torch.float64)
+            f = quat.rotate(q, self.readings - values["bias"][..., None, :])
+            w = self.mask[..., None].to(f.dtype)
+            mean = (f * w).sum(-2) / w.sum(-2)
+        magnitude = 9.81 if self._magnitude is None else self._magnitude
+        return -magnitude * mean / mean.norm(dim=-1, keepdim=True)
+
+    def _residual(self, ev, p):
+        x, dx, ddx = ev[0][:3]
+        k = curves.kinematics(x, dx, ddx, frame="body")
+        q = dualquat.to_rt(x)[0]
+        g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
+        a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
+        return a - g + p["bias"] - self.readings.to(g.dtype)
+
+
+for _cls in (Gyro, Accel):  # help(Gyro.__init__): the args
+    _cls.__init__.__doc__ = _cls.__doc__
+del _cls

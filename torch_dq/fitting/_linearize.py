@@ -1,0 +1,283 @@
+r"""Linearisation of the problem of :func:`~torch_dq.fitting.estimate`: the terms' whitened
+residuals through the curve's spans, their exact Jacobians and the Gauss-Newton system.
+
+One evaluation path serves costs and Jacobians: a sample's time ``t' = t + shift`` (the
+term's :meth:`~torch_dq.fitting.Term.time_shift`) selects its span (``spans.first``), the
+span's control points are gathered and evaluated as a one-span curve
+(:class:`~torch_dq.fitting._local.SpanEvaluator`), the term maps the derivatives to
+residuals (:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial
+costs); :class:`Linearization` also differentiates: the residuals with respect to the span
+derivatives and the nuisance steps (one reverse pass over ``k`` copies), chained through the
+spans to the control points' steps and the samples' times, the times to the time-moving
+parameters by their declared rates (:meth:`~torch_dq.fitting.Term.time_rates`).
+
+The Gauss-Newton system has three blocks: the control-point band ``A_cc (..., n, w, 6, 6)``
+(a sample touches ``w`` consecutive control points), the coupling ``A_cn (..., n, 6, m)``
+and ``A_nn (..., m, m)``; the gradient ``g = J^T W r`` (``W`` the robust weights).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from . import _robust
+from ._local import sample_jacobians, tangent_step
+
+__all__ = ["Linearization", "System", "residuals"]
+
+_CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
+
+
+@dataclass
+class System:
+    """Gauss-Newton system (flattened batch ``Bf``): ``band (Bf, n, w, 6, 6)``, ``cn (Bf,
+    n, 6, m)``, ``nn (Bf, m, m)``, gradients ``gc (Bf, n, 6)``, ``gn (Bf, m)``; per term
+    whitened residuals and robust weights."""
+
+    band: Tensor
+    cn: Tensor
+    nn: Tensor
+    gc: Tensor
+    gn: Tensor
+    residuals: list[Tensor]
+    weights: list[Tensor]
+
+
+def _gather(ctrl: Tensor, first: Tensor, count: int, batch: torch.Size) -> Tensor:
+    """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` of each
+    sample (indices clamped to the last control point), ``first (..., N)``."""
+    n = ctrl.shape[-2]
+    idx = (first[..., None] + torch.arange(count, device=first.device)).clamp(max=n - 1)
+    shape = torch.broadcast_shapes(batch, first.shape[:-1])
+    N = first.shape[-1]
+    return ctrl.expand(*shape, n, 8).gather(
+        -2, idx.expand(*shape, N, count).reshape(*shape, N * count, 1).expand(
+            *shape, N * count, 8)).reshape(*shape, N, count, 8)
+
+
+def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
+    """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
+    spans (no domain check: :func:`~torch_dq.fitting.estimate` checked the times once)."""
+    term, spans = problem.terms[i], problem.spans
+    p = term.per_sample(problem.term_values(i, values))
+    shift = term.time_shift(p)
+    derivs = []
+    for t in term.times_list():
+        first = spans.first(t + shift)
+        pts = _gather(ctrl, first, spans.support, problem.batch)
+        derivs.append(spans.derivatives(pts, t + shift, first, term.order))
+    return term.residuals(derivs, p)
+
+
+def width(problem, values: list[Tensor]) -> int:
+    """Control points a sample's residual may touch (the band width ``w``)."""
+    spans = problem.spans
+    w = spans.support
+    for i, term in enumerate(problem.terms):
+        ts = term.times_list()
+        if len(ts) > 1:
+            dt = term.time_shift(term.per_sample(problem.term_values(i, values)))
+            f = [spans.first(t + dt) for t in ts]
+            w = max(w, int((f[1] - f[0]).abs().max()) + spans.support)
+    return min(w, spans.n)
+
+
+class Linearization:
+    """The Gauss-Newton system of a problem at a point (module docstring).
+
+    Args:
+        problem: the :class:`~torch_dq.fitting._problem.Problem` (its terms, spans, batch
+            and estimated parameters).
+    """
+
+    def __init__(self, problem) -> None:
+        self.p = problem
+        self.spans = problem.spans
+
+    def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there."""
+        p = self.p
+        Bf = max(p.batch.numel(), 1)
+        n, m, c = self.spans.n, p.m, 6 * w
+        G = Bf * (n + w)  # windows: batch row b, first control point f at b (n + w) + f
+        normal = ctrl.new_zeros(G, c + m + 1, c + m + 1)
+        rs, weights = [], []
+        for i in range(len(p.terms)):
+            r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
+            rs.append(r)
+            weights.append(wt)
+            N, k = r.shape[-2:]
+            sw = wt.expand(*p.batch, N).reshape(Bf, N, 1, 1).sqrt()
+            cols = [Jc.expand(*p.batch, N, k, w, 6).reshape(Bf, N, k, c)]
+            Jn_all = ctrl.new_zeros(Bf, N, k, m)
+            for name, J in Jn.items():
+                q = p.index[(i, name)]
+                Jn_all[..., q.offset:q.offset + q.dim] += J.expand(
+                    *p.batch, N, k, q.dim).reshape(Bf, N, k, q.dim)
+            cols += [Jn_all, r.expand(*p.batch, N, k).reshape(Bf, N, k, 1)]
+            Y = torch.cat(cols, dim=-1) * sw  # whitened, weighted rows [J_c | J_n | r]
+            normal += _window_normal(self._windows(f0, w).reshape(-1), Y.reshape(Bf * N, k, -1),
+                                     G)
+        band, cn, nn, gc, gn = _blocks(normal.reshape(Bf, n + w, c + m + 1, c + m + 1), n, w, m)
+        return System(band, cn, nn, gc, gn, rs, weights)
+
+    def _windows(self, f0: Tensor, w: int) -> Tensor:
+        """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
+        batch = self.p.batch
+        Bf, N = max(batch.numel(), 1), f0.shape[-1]
+        return (f0.expand(*batch, N).reshape(Bf, N)
+                + (torch.arange(Bf, device=f0.device) * (self.spans.n + w))[:, None])
+
+    def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
+        """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
+        term = self.p.terms[i]
+        r, f0, Jc, Jn = self._chained(i, ctrl, values, w)
+        wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
+        wt = wt * term.mask.to(wt.dtype)
+        return r, wt, f0, Jc, Jn
+
+    def _chained(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
+        """Per-sample whitened residuals ``(..., N, k)`` of term ``i``, its window start and
+        their Jacobians: the span derivatives at the current point, the residuals' Jacobians
+        with respect to them and to the nuisance steps, chained through the spans
+        (``_through_spans``), the times' to the time-moving parameters by their rates."""
+        p, term = self.p, self.p.terms[i]
+        vals = p.term_values(i, values)
+        rates = term.time_rates()
+        shift = term.time_shift(term.per_sample(vals))
+        times = [t + shift for t in term.times_list()]
+        firsts = [self.spans.first(t) for t in times]
+        n, sup = self.spans.n, self.spans.support
+        f0 = torch.stack(firsts).amin(0)
+        f0 = torch.minimum(f0, torch.full_like(f0, n - w))
+        gathered = _gather(ctrl, f0, w, p.batch)
+        est = [name for name in vals if (i, name) in p.index]
+        timed = [name for name in est if name in rates]  # move the times
+        nuisance = [name for name in est if name not in timed]  # read by the residual
+        offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
+        with torch.no_grad():  # the span derivatives at the current point
+            derivs = [torch.stack(self._span_derivatives(gathered, off, t, f, term.order), -2)
+                      for off, t, f in zip(offs, times, firsts, strict=True)]
+        r, J = self._residual_jacobians(i, vals, nuisance, derivs, gathered.shape[:-2])
+        L = len(derivs)
+        Jn = dict(zip(nuisance, J[L:], strict=True))
+        Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
+                                     bool(timed))
+        if Jt is not None:
+            for name in timed:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
+                rate = torch.as_tensor(rates[name], dtype=Jt.dtype, device=Jt.device)
+                Jn[name] = (Jt * rate.expand(Jt.shape[:-1])[..., None])[..., None]
+        N = times[0].shape[-1]
+        return r, f0.expand(*gathered.shape[:-3], N), Jc, Jn
+
+    def _residual_jacobians(self, i: int, vals: dict[str, Tensor], nuisance: list[str],
+                            derivs: list[Tensor], shape: torch.Size,
+                            ) -> tuple[Tensor, list[Tensor]]:
+        """Residuals of term ``i`` and their Jacobians with respect to the span derivatives
+        ``derivs (..., N, order + 1, 8)`` and to the chart steps of its ``nuisance``
+        parameters (``sample_jacobians``: one reverse pass over ``k`` copies)."""
+        term, L = self.p.terms[i], len(derivs)
+        slots = term.slots()
+
+        def residual(lv):
+            ps = term.per_sample(vals)
+            for name, d in zip(nuisance, lv[L:], strict=True):
+                ps[name] = slots[name].chart.retract(ps[name], d)
+            return term.residuals([d.unbind(-2) for d in lv[:L]], ps)
+
+        steps = [derivs[0].new_zeros(*shape, self.p.index[(i, name)].dim) for name in nuisance]
+        return sample_jacobians(residual, derivs + steps, term.dim)
+
+    def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
+                          order: int) -> tuple[Tensor, ...]:
+        """Derivatives at ``t`` of the spans ``first``, whose points are the window points
+        ``pts (..., N, w, 8)`` at offsets ``off (..., N, support)``."""
+        sup = self.spans.support
+        lead = pts.shape[:-3]
+        sel = torch.take_along_dim(pts, off.expand(*lead, off.shape[-2], sup)[..., None], dim=-2)
+        return self.spans.derivatives(sel, t, first, order)
+
+    def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
+                       firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
+                       ) -> tuple[Tensor, Tensor | None]:
+        r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
+        the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
+        with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
+        to the times (None otherwise: times without gradient take the cheaper path).
+
+        Chunks of ``_CHUNK >> order`` samples, each with its own window points (moved by
+        their own steps: the samples are independent), one forward and ``k`` reverse passes
+        (row ``j`` of ``Jd`` as the cotangent of pass ``j``): memory bounded by the chunk
+        whatever ``N``.
+        """
+        *shape, N, w, _ = gathered.shape
+        k = Jd[0].shape[-3]
+        Jc = gathered.new_zeros(*shape, N, k, w, 6)
+        Jt = gathered.new_zeros(*shape, N, k) if timed else None
+        size = max(1, _CHUNK >> order)
+        for a in range(0, N, size):
+            c = slice(a, a + size)
+            with torch.enable_grad():
+                dc = gathered.new_zeros(*shape, min(size, N - a), w, 6).requires_grad_()
+                dt = gathered.new_zeros(*shape, min(size, N - a)).requires_grad_(timed)
+                pts = tangent_step(gathered[..., c, :, :], dc)
+                D = [self._span_derivatives(pts, off[..., c, :], t[..., c] + dt, f[..., c],
+                                            order)
+                     for off, t, f in zip(offs, times, firsts, strict=True)]
+                for j in range(k):
+                    total = torch.stack([(d * J[..., c, j, o, :]).sum() for Dl, J in
+                                         zip(D, Jd, strict=True) for o, d in enumerate(Dl)])
+                    grads = torch.autograd.grad(total.sum(), [dc, dt] if timed else [dc],
+                                                retain_graph=j < k - 1)
+                    Jc[..., c, j, :, :] = grads[0]
+                    if Jt is not None:
+                        Jt[..., c, j] = grads[1]
+        return Jc, Jt
+
+
+def _blocks(normal: Tensor, n: int, w: int, m: int):
+    """The band, coupling, nuisance block and gradients from the per-window normal
+    matrices ``(Bf, n + w, 6 w + m + 1, 6 w + m + 1)`` (window ``f``'s block ``(a, a + d)``
+    is the band's ``(f + a, d)``, its rows ``a`` go to control point ``f + a``)."""
+    Bf, c = normal.shape[0], 6 * w
+    band = normal.new_zeros(Bf, n + w, w, 6, 6)
+    for a in range(w):
+        for d in range(w - a):
+            band[:, a:, d] += normal[:, :n + w - a, 6 * a:6 * a + 6,
+                                     6 * (a + d):6 * (a + d) + 6]
+    gc = normal.new_zeros(Bf, n + w, 6)
+    cn = normal.new_zeros(Bf, n + w, 6, m)
+    for a in range(w):
+        gc[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, -1]
+        cn[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, c:c + m]
+    nn = normal[:, :, c:c + m, c:c + m].sum(1)
+    gn = normal[:, :, c:c + m, -1].sum(1)
+    return band[:, :n], cn[:, :n], nn, gc[:, :n], gn
+
+
+def _window_normal(keys: Tensor, Y: Tensor, G: int) -> Tensor:
+    r"""Per window :math:`\sum_i Y_i^T Y_i` ``(G, q, q)`` of the samples' rows ``Y (S, k,
+    q)`` with window ``keys (S,)`` (in ``0 .. G - 1``), by batched matrix products.
+
+    The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
+    per used window: at most about twice as many pages as used windows, the padding at
+    most ``S``), one product per page, the pages summed into their windows.
+    """
+    S, k, q = Y.shape
+    if S == 0:
+        return Y.new_zeros(G, q, q)
+    order = torch.argsort(keys, stable=True)
+    keys = keys[order]
+    counts = torch.bincount(keys, minlength=G)
+    P = -(-S // int((counts > 0).sum()))
+    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[keys]
+    pages = -(-counts // P)
+    first_page = torch.cumsum(pages, 0) - pages
+    X = Y.new_zeros(int(pages.sum()) * P, k, q)
+    X[first_page[keys] * P + pos] = Y[order]  # page first_page + pos // P, slot pos % P
+    X = X.reshape(-1, P * k, q)
+    owner = torch.repeat_interleave(torch.arange(G, device=keys.device), pages)
+    return Y.new_zeros(G, q, q).index_add_(0, owner, X.mT @ X)

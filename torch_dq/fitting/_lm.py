@@ -1,0 +1,280 @@
+r"""The Levenberg-Marquardt loop of :func:`~torch_dq.fitting.estimate`.
+
+Each iteration linearises every term exactly (:mod:`torch_dq.fitting._linearize`), weights
+the samples by the robust kernels at the current residuals (iteratively reweighted least
+squares), and tries damped steps (:mod:`torch_dq.fitting._solver`) until each batch element
+accepts one that lowers its objective (data cost, the pulls of ``torch_dq.fitting._prior``
+and the Free priors) or gives up. Convergence: the scaled gradient test of
+:func:`~torch_dq.fitting.estimate`'s ``tol``. The loop knows the problem through
+:class:`~torch_dq.fitting._problem.Problem`'s objective (``data_cost``, ``prior_cost``,
+``retract``, ``system``) and the step through :class:`~torch_dq.fitting._solver.DampedStep`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .. import dualquat
+from . import _prior
+from ._charts import Scalar
+from ._linearize import System
+from ._problem import Problem
+from ._solver import DampedStep, Marquardt, SchurSolver
+
+__all__ = ["History", "LevenbergMarquardt", "Point"]
+
+_MAX_REJECTIONS = 8  # damping increases (x10 each) before a batch element stops
+_NONFINITE = "non-finite cost at the start"
+_EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
+_ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
+# sigma 1e-3 round to ~1e-13 on unit-scale data): no damped step lowering it is converged
+_LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
+
+
+@dataclass
+class Point:
+    """A point of the iteration: control points ``(..., n, 8)``, nuisance values, the
+    objective and the data cost ``(...)`` there."""
+
+    ctrl: Tensor
+    values: list[Tensor]
+    objective: Tensor
+    data: Tensor
+
+    def where(self, sel: Tensor, other: Point) -> Point:
+        """``other`` where ``sel (...)`` holds, this point elsewhere."""
+        def pick(a: Tensor, b: Tensor) -> Tensor:
+            event = (1,) * (a.dim() - sel.dim())
+            return torch.where(sel.reshape(torch.Size((*sel.shape, *event))), a, b)
+
+        return Point(pick(other.ctrl, self.ctrl),
+                     [pick(a, b) for a, b in zip(other.values, self.values, strict=True)],
+                     pick(other.objective, self.objective), pick(other.data, self.data))
+
+
+@dataclass
+class History:
+    """What the loop did: ``loss`` and ``objective`` ``(steps + 1, ...)``, ``steps`` run,
+    ``reason`` (joined per batch element), ``converged (...)``, the data ``system`` at the
+    last point, its band ``width`` and the control-point directions ``pulled``."""
+
+    loss: Tensor
+    objective: Tensor
+    steps: int
+    reason: str
+    converged: Tensor
+    system: System
+    width: int
+    pulled: int
+
+
+class LevenbergMarquardt:
+    """The iteration state: current point, damping, per-element stopping.
+
+    Args:
+        problem: the objective.
+        ctrl, values: the start.
+        prior: the numerical prior's weight (:mod:`torch_dq.fitting._prior`).
+        solver: the linear solver (:class:`~torch_dq.fitting._solver.SchurSolver`).
+    """
+
+    def __init__(self, problem: Problem, ctrl: Tensor, values: list[Tensor], prior: float,
+                 solver: SchurSolver | None = None) -> None:
+        self.p, self.start, self.solver = problem, ctrl, solver
+        self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
+        self.w = problem.width(values)
+        self.system = problem.system(ctrl, values, self.w)
+        self._pulls(prior)
+        self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
+                                  for t in problem.terms]).sum(0).reshape(self.Bf)
+        data, obj = self.objective(ctrl, values)
+        self.point = Point(ctrl, values, obj, data)
+        self.damping = Marquardt(self.Bf, ctrl)
+        like = self.damping.lam
+        self.stalled = torch.zeros_like(like, dtype=torch.bool)
+        self.decrement = torch.full_like(like, torch.inf)
+        flat = self.point.objective.reshape(self.Bf)
+        self.active = torch.isfinite(flat) & (flat > 0)
+        self.converged = flat == 0
+        self.reasons = ["" if a else "the cost is zero" if float(o) == 0 else _NONFINITE
+                        for o, a in zip(flat, self.active.tolist(), strict=True)]
+
+    def _pulls(self, prior: float) -> None:
+        """The pulls at the start and the directions no sample determines."""
+        s, p = self.system, self.p
+        cpull = _prior.control_pull(s.band, prior, bool(p.params))
+        info = torch.diag(p.prior_information().to(s.nn))
+        self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
+        self.null = _prior.control_null(s.band, cpull)
+        self.pulled = (int(_prior.undetermined(s.band).sum())
+                       + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
+
+    def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
+        """The pulls (``torch_dq.fitting._prior``) and the Free priors, ``(...)``."""
+        d = dualquat.log(dualquat.mul(dualquat.conj(self.start), c))
+        Pd = _prior.band_apply(self.pulls[0], d.reshape(self.Bf, self.n, 6, 1))
+        u = _prior.nuisance_chart(self.p, v)
+        Pn = self.pulls[1].reshape(*self.batch, self.p.m, self.p.m)
+        return ((d * Pd.reshape(d.shape)).sum((-1, -2))
+                + (u[..., None, :] @ Pn @ u[..., :, None])[..., 0, 0] + self.p.prior_cost(v))
+
+    def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:
+        """Data cost and objective (data plus the pulls and the Free priors), ``(...)``."""
+        data = torch.stack(self.p.data_cost(c, v)).sum(0)
+        return data, data + self._pull(c, v)
+
+    def _prior_gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the pulls and the Free priors in the step charts."""
+        x = self.point
+        with torch.enable_grad():
+            dc = x.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
+            dn = x.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
+            extra = self._pull(*self.p.retract(x.ctrl, x.values, dc, dn))
+            gc, gn = torch.autograd.grad(0.5 * extra.sum(), (dc, dn), allow_unused=True)
+        gc = torch.zeros_like(dc) if gc is None else gc
+        gn = torch.zeros_like(dn) if gn is None else gn
+        return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
+
+    def gradient(self) -> tuple[Tensor, Tensor]:
+        """Half the gradient of the objective at the current point (system plus pulls)."""
+        pc, pn = self._prior_gradient()
+        return self.system.gc + pc, self.system.gn + pn
+
+    def _bounded(self, gn: Tensor) -> Tensor:
+        """``gn`` without the components of bounded scalars on their bound whose descent
+        points outwards (a constrained optimum there: the projected gradient)."""
+        gn = gn.clone()
+        for q, v in zip(self.p.params, self.point.values, strict=True):
+            if isinstance(q.chart, Scalar):
+                out = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
+                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
+        return gn
+
+    def _step(self) -> DampedStep:
+        return DampedStep(self.system, self.pulls, self.null, self.p.prior_information(),
+                          self.solver)
+
+    def _decrement(self) -> tuple[Tensor, Tensor]:
+        r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
+        whether its solves succeeded: on directions without information it is no distance,
+        so it is the limit of :math:`g^T (H + \epsilon D)^{-1} g` as :math:`\epsilon \to
+        0` without its :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from
+        ``epsilon = REGULARISE`` and ``100 REGULARISE``."""
+        gc, gn = self.gradient()
+        gn = self._bounded(gn)
+        self.null = _prior.control_null(self.system.band, self.pulls[0])
+        step = self._step()
+        decs, ok = [], torch.ones_like(self.active)
+        for eps in (_prior.REGULARISE, _LOOSE * _prior.REGULARISE):
+            dc, dn, good = step.step(torch.full_like(self.damping.lam, eps), gc, gn)
+            decs.append(-((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)))
+            ok &= good
+        # g^T (H + eps D)^-1 g = d + c / eps: d extrapolated
+        return (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0), ok
+
+    def check(self, tol: float, final: bool = False) -> None:
+        r"""The scaled gradient test at the current point (its system built): an element
+        whose Newton decrement (:meth:`_decrement`) is at most ``tol * max(objective,
+        1e-20 * residual count)`` converged: the step left is at most ``sqrt(tol * chi2)``
+        standard deviations of any quantity, ``sqrt(tol * dof)`` scaled ones. An element
+        that stalled (its last accepted step lowered the objective by at most ``tol``
+        relatively) or, with ``final``, ran out of steps, stops unconverged."""
+        dec, ok = self._decrement()
+        self.decrement = torch.where(self.active, dec, self.decrement)
+        thr = tol * torch.maximum(self.point.objective.reshape(self.Bf), _EXACT * self.count)
+        good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
+        stop = self.active & ~good & (self.stalled | final)
+        for b in range(self.Bf):
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
+                   f"{float(thr[b]):.3g}"
+            if bool(good[b]):
+                self.reasons[b] = f"the scaled gradient test passed ({what})"
+            elif bool(stop[b]) and bool(self.stalled[b]):
+                self.reasons[b] = (f"no progress: a step lowered the objective by at most "
+                                   f"tol={tol!r} relatively, the gradient is not negligible "
+                                   f"({what}); not converged")
+            elif bool(stop[b]):
+                self.reasons[b] = f"steps reached before convergence ({what})"
+        self.converged |= good
+        self.active &= ~(good | stop)
+
+    def _trials(self, pending: Tensor) -> tuple[Point, Tensor]:
+        """Damped steps from the current point until each ``pending`` element accepts one
+        that lowers its objective or ``_MAX_REJECTIONS`` rises of its damping; the accepted
+        points (the current one elsewhere) and the elements still pending."""
+        x, batch, Bf = self.point, self.batch, self.Bf
+        gc, gn = self.gradient()
+        step = self._step()
+        new = x
+        for _ in range(_MAX_REJECTIONS):
+            dc, dn, ok = step.step(self.damping.lam, gc, gn)
+            ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)
+            tc, tv = self.p.retract(x.ctrl, x.values, dc.reshape(*batch, self.n, 6),
+                                    dn.reshape(*batch, self.p.m))
+            td, to = self.objective(tc, tv)
+            acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
+                                                                  x.objective.reshape(Bf))
+            new = new.where(acc.reshape(batch), Point(tc, tv, to, td))
+            pending = pending & ~acc
+            self.damping.reject(pending)
+            if not bool(pending.any()):
+                break
+        return new, pending
+
+    def iteration(self, tol: float) -> None:
+        """One Gauss-Newton system, damped trials until each element accepts or gives up."""
+        new, pending = self._trials(self.active.clone())
+        Bf, old = self.Bf, self.point.objective.reshape(self.Bf)
+        self.stalled = self.active & ~pending & ((old - new.objective.reshape(Bf))
+                                                 <= tol * new.objective.reshape(Bf))
+        exact = pending & (old <= _ROUNDOFF * self.count)
+        for b in pending.nonzero()[:, 0].tolist():
+            self.reasons[b] = (f"no damped step lowers the objective while the scaled gradient "
+                               f"test fails (g^T H^-1 g = {float(self.decrement[b]):.3g}): a "
+                               f"numerical minimum; not converged") if not bool(exact[b]) else (
+                f"no damped step lowers a cost at float64 roundoff (exact data: "
+                f"{float(old[b]):.3g})")
+        self.converged |= exact
+        self.active &= ~pending
+        self.damping.accept(pending)
+        self.point = new
+
+    def run(self, steps: int, tol: float, bar) -> History:
+        """Iterate up to ``steps`` times (progress on ``bar``, tqdm's methods, or None)."""
+        p = self.p
+        losses, objectives = [self.point.data.clone()], [self.point.objective.clone()]
+        done = 0
+        for k in range(steps):
+            if k:
+                self.system = p.system(self.point.ctrl, self.point.values, self.w)
+            self.check(tol)
+            if not bool(self.active.any()):
+                break
+            done = k + 1
+            self.iteration(tol)
+            losses.append(self.point.data.clone())
+            objectives.append(self.point.objective.clone())
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(cost=f"{float(self.point.data.sum()):.6e}",
+                                damping=f"{float(self.damping.lam.max()):.1e}")
+        if bool(self.active.any()):
+            if done:
+                self.system = p.system(self.point.ctrl, self.point.values, self.w)
+            self.check(tol, final=True)
+        return History(torch.stack(losses), torch.stack(objectives), done, self._reason(steps),
+                       self.converged.reshape(p.batch), self.system, self.w, self.pulled)
+
+    def _reason(self, steps: int) -> str:
+        """The stop reasons joined (with a warning when ``steps`` ran out)."""
+        reasons = self.reasons
+        if steps and any(r.startswith("steps reached") for r in reasons):
+            warnings.warn(f"fitting.estimate: steps={steps} reached before the scaled gradient "
+                          f"test passed; raise steps (the estimate may be far from the "
+                          f"optimum)", RuntimeWarning, stacklevel=4)
+        return reasons[0] if len(reasons) == 1 else "; ".join(
+            f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))

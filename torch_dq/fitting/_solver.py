@@ -1,0 +1,122 @@
+r"""The damped Gauss-Newton step of :func:`~torch_dq.fitting.estimate`: damping policy and
+linear solver, apart from the loop (:mod:`torch_dq.fitting._lm`).
+
+The system ``[[A, C], [C^T, N]] [dc; dn] = -[gc; gn]`` (``A`` the banded control-point
+block, ``C`` the coupling, ``N`` the nuisance block; data, pulls and Free priors) is damped by
+:class:`Marquardt` (``lam`` times its diagonal, floored) and solved by a linear solver:
+:class:`SchurSolver` factors ``A`` (``BandedCholesky``) and solves the ``m x m`` Schur
+complement :math:`S = N - C^T A^{-1} C`, :math:`O((N + n) m + m^3)`. Another solver (a
+second Schur level for a large block such as landmarks, ``docs/architecture.md``) replaces it
+with the same ``solve`` and leaves the loop alone.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from . import _prior
+from ._banded import BandedCholesky
+
+__all__ = ["DampedStep", "Marquardt", "SchurSolver"]
+
+
+class SchurSolver:
+    """Banded Cholesky of ``A`` and dense Cholesky of the Schur complement on the nuisance."""
+
+    def solve(self, band: Tensor, cn: Tensor, nn: Tensor, gc: Tensor, gn: Tensor,
+              ) -> tuple[Tensor, Tensor, Tensor]:
+        """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` (both factorisations
+        succeeded) of the system ``band (Bf, n, w, 6, 6)``, ``cn (Bf, n, 6, m)``, ``nn (Bf,
+        m, m)`` with gradients ``gc``, ``gn``."""
+        chol = BandedCholesky(band)
+        ok = chol.ok
+        m = nn.shape[-1]
+        if not m:
+            return -chol.solve(gc[..., None])[..., 0], gc.new_zeros(gc.shape[0], 0), ok
+        X = chol.solve(torch.cat((gc[..., None], cn), dim=-1))
+        y, Z = X[..., 0], X[..., 1:]
+        S = nn - torch.einsum("bnim,bniq->bmq", cn, Z)
+        rhs = -gn + torch.einsum("bnim,bni->bm", cn, y)
+        L, info = torch.linalg.cholesky_ex(0.5 * (S + S.mT))
+        ok = ok & (info == 0)
+        eye = torch.eye(m, dtype=S.dtype, device=S.device)
+        L = torch.where((info == 0)[:, None, None], L, eye)
+        dn = torch.cholesky_solve(rhs[..., None], L)[..., 0]
+        dc = -y - torch.einsum("bnim,bm->bni", Z, dn)
+        return dc, dn, ok
+
+
+class Marquardt:
+    """Damping policy: ``lam`` per batch element times the diagonal (Marquardt's scaling),
+    the control points' floored at ``WEAK`` times the typical information
+    (``torch_dq.fitting._prior.damping_floor``) and both at ``1e-12`` of its mean; ``lam``
+    starts at ``1e-4``, grows tenfold on a rejected step and falls tenfold (to ``1e-12``
+    at least) after an accepted one.
+
+    Args:
+        Bf: flattened batch size.
+        like: a float64 tensor on the device.
+    """
+
+    START, UP, DOWN, LEAST = 1e-4, 10.0, 10.0, 1e-12
+
+    def __init__(self, Bf: int, like: Tensor) -> None:
+        self.lam = torch.full((Bf,), self.START, dtype=torch.float64, device=like.device)
+
+    @staticmethod
+    def diagonals(data_band: Tensor, band: Tensor, nn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The damped diagonals of ``band`` (floored by the data band's typical
+        information) and of ``nn``, and the floor ``(Bf,)``."""
+        diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1).maximum(
+            _prior.damping_floor(data_band))
+        floor = 1e-12 * diag.mean((-1, -2)).clamp_min(1e-300)
+        return diag, nn.diagonal(dim1=-2, dim2=-1), floor
+
+    def reject(self, pending: Tensor) -> None:
+        """Raise the damping where a step was rejected (``pending``)."""
+        self.lam = torch.where(pending, self.lam * self.UP, self.lam)
+
+    def accept(self, pending: Tensor) -> None:
+        """Lower the damping where the iteration accepted a step (not ``pending``)."""
+        self.lam = torch.where(pending, self.lam, (self.lam / self.DOWN).clamp_min(self.LEAST))
+
+
+class DampedStep:
+    """The damped step of one iteration: the data system plus the pulls
+    (``torch_dq.fitting._prior``) and the Free priors, damped by ``lam`` times the
+    :class:`Marquardt` diagonals, solved by ``solver``, without the combinations of control
+    points that no sample determines.
+
+    Args:
+        system: the data :class:`~torch_dq.fitting._linearize.System`.
+        pulls: ``(Bf, n, w, 6, 6)`` and ``(Bf, m, m)`` pull information.
+        null: ``U`` and ``D U`` (``torch_dq.fitting._prior.control_null``).
+        prior_information: ``(m,)`` the Free priors' diagonal information.
+        solver: the linear solver (:class:`SchurSolver` by default).
+    """
+
+    def __init__(self, system, pulls: tuple[Tensor, Tensor], null: tuple[Tensor, Tensor],
+                 prior_information: Tensor, solver: SchurSolver | None = None) -> None:
+        self.s, self.null = system, null
+        self.solver = SchurSolver() if solver is None else solver
+        self.band = system.band + pulls[0]
+        self.nn = system.nn + torch.diag(prior_information.to(system.band)) + pulls[1]
+        self.diag, self.ndiag, self.floor = Marquardt.diagonals(system.band, self.band, self.nn)
+
+    def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
+        band = self.band.clone()
+        band[:, :, 0] += torch.diag_embed(lam[:, None, None] * (self.diag
+                                                                + self.floor[:, None, None]))
+        nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
+        dc, dn, ok = self.solver.solve(band, self.s.cn, nn, gc, gn)
+        return self._project(dc), dn, ok
+
+    def _project(self, dc: Tensor) -> Tensor:
+        """``dc`` without the combinations of control points that no sample determines (no
+        drift along them: ``torch_dq.fitting._prior.control_null``)."""
+        U, DU = self.null
+        if not U.shape[-1]:
+            return dc
+        return dc - torch.einsum("bnik,bk->bni", U, torch.einsum("bnik,bni->bk", DU, dc))
