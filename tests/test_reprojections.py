@@ -247,6 +247,57 @@ def test_jacobians_match_finite_differences(small):
                                            rtol=1e-6)
 
 
+def test_shared_frame_times_take_the_distinct_time_path_exactly(small, monkeypatch):
+    """Corners of one frame share its time (a global shutter): the solver evaluates the
+    spans once per distinct time; its Jacobians equal the per-sample path's and central
+    differences of the OpenCV residual (control points and the time offset)."""
+    import torch_dq.fitting._linearize as problem_module
+
+    traj, _, _, _, e, _, params = small
+    dt0 = 0.012
+    times, points, pixels = simulate([0.5, 0.55], grid_points(), dt=dt0, line_delay=0.0,
+                                     noise=0.5)  # 30 corners per frame
+    term = Reprojections(times, points, pixels, camera=make_camera(params=params.numpy()),
+                         sigma=0.5, extrinsic=Free(e), intrinsics=True, time_offset=Free(dt0))
+    calls = []
+    distinct = problem_module._distinct_times
+
+    def spy(*args):
+        out = distinct(*args)
+        calls.append(out is not None)
+        return out
+
+    monkeypatch.setattr(problem_module, "_distinct_times", spy)
+    ctrl, values, r, f0, Jc, Jn = _jacobians(traj, term)
+    assert calls and all(calls)  # both the evaluation and the chain took it
+    problem = Problem(traj, [term], ctrl.shape[:-2])
+    cost_rows = problem_module.residuals(problem, 0, ctrl, values)  # the trial costs' path
+    assert calls[-1]
+    torch.testing.assert_close(cost_rows, r, atol=1e-13, rtol=0)
+    monkeypatch.setattr(problem_module, "_distinct_times", lambda *args: None)
+    _, _, r2, f02, Jc2, Jn2 = _jacobians(traj, term)
+    torch.testing.assert_close(r, r2, atol=1e-13, rtol=0)
+    torch.testing.assert_close(Jc, Jc2, atol=1e-9, rtol=1e-12)
+    for name in Jn2:
+        torch.testing.assert_close(Jn[name], Jn2[name], atol=1e-9, rtol=1e-12)
+    identity = dq.exp(torch.zeros(6, dtype=F64))  # no target pose: the world frame
+    h, base = 1e-6, dict(e=e, target=identity, params=params, dt=dt0, line_delay=0.0)
+    fd = (reference(traj, term, **{**base, "dt": dt0 + h})
+          - reference(traj, term, **{**base, "dt": dt0 - h})) / (2 * h)
+    torch.testing.assert_close(Jn["time_offset"][..., 0], fd, atol=1e-4, rtol=1e-6)
+    k, j = int(f0[0]) + 1, 2
+    rows = (f0 + 1) == k
+
+    def step(s):
+        c = ctrl.clone()
+        c[k] = dq.mul(ctrl[k], dq.exp(s * torch.eye(6, dtype=F64)[j]))
+        return c
+
+    fd = (reference(traj, term, step(h), **base) - reference(traj, term, step(-h), **base))
+    torch.testing.assert_close(Jc[..., 1, j][rows], (fd / (2 * h))[rows], atol=1e-5,
+                               rtol=1e-6)
+
+
 # ----------------------------------------------------------------------------- recovery
 
 def imu(times, seed):

@@ -66,9 +66,17 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     shift = term.time_shift(p)
     derivs = []
     for t in term.times_list():
-        first = spans.first(t + shift)
-        pts = _gather(ctrl, first, spans.support, problem.batch)
-        derivs.append(spans.derivatives(pts, t + shift, first, term.order))
+        t = t + shift
+        first = spans.first(t)
+        shared = _distinct_times(t, first, 2)
+        if shared is None:
+            pts = _gather(ctrl, first, spans.support, problem.batch)
+            derivs.append(spans.derivatives(pts, t, first, term.order))
+            continue
+        u, inverse, pick = shared  # each distinct time evaluated once
+        pts = _gather(ctrl, first[pick], spans.support, problem.batch)
+        derivs.append(tuple(d.index_select(-2, inverse) for d in spans.derivatives(
+            pts, u, first[pick], term.order)))
     return term.residuals(derivs, p)
 
 
@@ -159,7 +167,7 @@ class Linearization:
         nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
         with torch.no_grad():  # the span derivatives at the current point
-            derivs = [torch.stack(self._span_derivatives(gathered, off, t, f, term.order), -2)
+            derivs = [self._current_derivatives(gathered, off, t, f, term.order)
                       for off, t, f in zip(offs, times, firsts, strict=True)]
         r, J = self._residual_jacobians(i, vals, nuisance, derivs, gathered.shape[:-2])
         L = len(derivs)
@@ -191,6 +199,18 @@ class Linearization:
         steps = [derivs[0].new_zeros(*shape, self.p.index[(i, name)].dim) for name in nuisance]
         return sample_jacobians(residual, derivs + steps, term.dim)
 
+    def _current_derivatives(self, gathered: Tensor, off: Tensor, t: Tensor, first: Tensor,
+                             order: int) -> Tensor:
+        """Span derivatives ``(..., N, order + 1, 8)`` at the samples' times ``t``, each
+        distinct time evaluated once when the batch shares them (:func:`_distinct_times`)."""
+        shared = _distinct_times(t, first, 2)
+        if shared is None:
+            return torch.stack(self._span_derivatives(gathered, off, t, first, order), -2)
+        u, inverse, pick = shared
+        d = torch.stack(self._span_derivatives(
+            gathered.index_select(-3, pick), off[pick], u, first[pick], order), -2)
+        return d.index_select(-3, inverse)
+
     def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
                           order: int) -> tuple[Tensor, ...]:
         """Derivatives at ``t`` of the spans ``first``, whose points are the window points
@@ -213,8 +233,12 @@ class Linearization:
         (row ``j`` of ``Jd`` as the cotangent of pass ``j``): memory bounded by the chunk
         whatever ``N``.
         """
+        k, O = Jd[0].shape[-3], 8 * (order + 1)
+        shared = _distinct_times(times[0], firsts[0], 2 * O / k) if len(times) == 1 else None
+        if shared is not None:  # one reverse pass per output of each distinct time
+            return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
+                                          *shared)
         *shape, N, w, _ = gathered.shape
-        k = Jd[0].shape[-3]
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         Jt = gathered.new_zeros(*shape, N, k) if timed else None
         size = max(1, _CHUNK >> order)
@@ -236,6 +260,63 @@ class Linearization:
                     if Jt is not None:
                         Jt[..., c, j] = grads[1]
         return Jc, Jt
+
+    def _through_distinct(self, gathered: Tensor, off: Tensor, first: Tensor, Jd: Tensor,
+                          order: int, timed: bool, t: Tensor, inverse: Tensor, pick: Tensor,
+                          ) -> tuple[Tensor, Tensor | None]:
+        r""":meth:`_through_spans` for samples that share their times (the corners of one
+        frame): the span derivatives' whole Jacobian ``(..., U, order + 1, 8, w, 6)`` at
+        the ``U`` distinct times ``t`` (sample ``pick[u]`` at ``t[u]``, sample ``i`` at
+        ``t[inverse[i]]``; a time fixes its span), one reverse pass per output component,
+        then each sample's rows ``Jd (..., N, k, order + 1, 8)`` times its time's
+        Jacobian. Exact, as the per-sample passes; cheaper when ``U (order + 1) 8`` is well
+        below ``N k``.
+        """
+        *shape, N, w, _ = gathered.shape
+        k, O, U = Jd.shape[-3], 8 * (order + 1), t.numel()
+        size = max(1, _CHUNK >> order)
+        Dc = gathered.new_zeros(*shape, U, O, w * 6)
+        Dt = gathered.new_zeros(*shape, U, O)
+        for a in range(0, U, size):
+            s = pick[a:a + size]
+            with torch.enable_grad():
+                dc = gathered.new_zeros(*shape, s.numel(), w, 6).requires_grad_()
+                dt = gathered.new_zeros(*shape, s.numel()).requires_grad_(timed)
+                pts = tangent_step(gathered.index_select(-3, s), dc)
+                D = torch.stack(self._span_derivatives(pts, off[s], t[a:a + size] + dt,
+                                                       first[s], order), -2).flatten(-2)
+                for o in range(O):
+                    grads = torch.autograd.grad(D[..., o].sum(), [dc, dt] if timed else [dc],
+                                                retain_graph=o < O - 1)
+                    Dc[..., a:a + size, o, :] = grads[0].flatten(-2)
+                    if timed:
+                        Dt[..., a:a + size, o] = grads[1]
+        Jd = Jd.flatten(-2)  # (..., N, k, O)
+        Jc = gathered.new_empty(*shape, N, k, w, 6)
+        Jt = gathered.new_empty(*shape, N, k) if timed else None
+        for a in range(0, N, _CHUNK):
+            i, c = inverse[a:a + _CHUNK], slice(a, a + _CHUNK)
+            Jc[..., c, :, :, :] = (Jd[..., c, :, :] @ Dc.index_select(-3, i)).unflatten(
+                -1, (w, 6))
+            if Jt is not None:
+                Jt[..., c, :] = (Jd[..., c, :, :] @ Dt.index_select(-2, i)[..., None])[..., 0]
+        return Jc, Jt
+
+
+def _distinct_times(t: Tensor, first: Tensor, ratio: float,
+                    ) -> tuple[Tensor, Tensor, Tensor] | None:
+    """The distinct times ``u (U,)`` of samples ``t (N,)`` (their spans ``first (N,)``),
+    ``inverse (N,)`` (``t = u[inverse]``) and one sample ``pick (U,)`` at each, when the
+    batch shares the times and ``N >= ratio U`` (evaluating per distinct time pays); else
+    None."""
+    if t.dim() != 1 or first.dim() != 1:
+        return None
+    u, inverse = torch.unique(t, return_inverse=True)
+    if t.numel() < ratio * u.numel():
+        return None
+    pick = torch.zeros_like(u, dtype=torch.int64).scatter_(
+        0, inverse, torch.arange(t.numel(), device=t.device))
+    return u, inverse, pick
 
 
 def _blocks(normal: Tensor, n: int, w: int, m: int):
