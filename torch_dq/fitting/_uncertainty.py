@@ -48,6 +48,25 @@ _Z999 = 3.2905  # the standard normal's 99.95 % quantile (two-sided 99.9 % band)
 _LOOSE = 100.0  # the second regularisation (times REGULARISE) that tells undetermined apart
 
 
+def _schur(chol: BandedCholesky, loose: BandedCholesky, cn: Tensor,
+           nn: Tensor) -> tuple[Tensor, Tensor]:
+    r"""``Z = A^{-1} C (Bf, n, 6, m)`` and the nuisance information ``S = N - C^T Z (Bf, m,
+    m)`` in the limit of no regularisation, from the band factored with ``eps D`` (``chol``)
+    and ``_LOOSE eps D`` (``loose``): both are linear in ``eps`` while ``eps D`` is small
+    against the information (Richardson's extrapolation to ``eps = 0``). The regularisation
+    alone adds ``eps`` times the diagonal summed over every control point that a nuisance
+    direction moves (an extrinsic's translation moves them all): on a weakly determined
+    direction (a lever arm against an accelerometer bias under a nearly constant rotation
+    rate) that was comparable to the data's information and shrank the standard deviation
+    by 1.25 (measured against a dense pseudo-inverse)."""
+    z1, z2 = chol.solve(cn), loose.solve(cn)
+    k = 1.0 / (_LOOSE - 1.0)
+    z = z1 + k * (z1 - z2)
+    s1 = torch.einsum("bnim,bniq->bmq", cn, z1)
+    s2 = torch.einsum("bnim,bniq->bmq", cn, z2)
+    return z, nn - (s1 + k * (s1 - s2))
+
+
 def _drop_undetermined(band: Tensor, cn: Tensor,
                        scale: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Decouple the control points without data information (a time gap, an end without
@@ -227,9 +246,8 @@ class Estimate:
             self._r = system.nn.new_ones(Bf, 0)
             self._inv = system.nn.new_zeros(Bf, 0)
             return
-        self._Z = self._chol.solve(cn)  # (Bf, n, 6, m)
         S = system.nn + torch.diag(p.prior_information()).to(system.nn)
-        S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
+        self._Z, S = _schur(self._chol, self._loose, cn, S)
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
                | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * scale)
