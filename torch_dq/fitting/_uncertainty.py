@@ -45,7 +45,22 @@ __all__ = ["Estimate"]
 
 _FLOOR = 1e-12  # information below this fraction of the largest diagonal entry: none
 _Z999 = 3.2905  # the standard normal's 99.95 % quantile (two-sided 99.9 % band)
+_UNEXCITED = 0.1  # a time offset's std above this fraction of its bound: barely excited
 _LOOSE = 100.0  # the second regularisation (times REGULARISE) that tells undetermined apart
+
+
+def _warn_unexcited(term, bound: float, s: Tensor) -> None:
+    """Warn where a time offset's finite std exceeds ``_UNEXCITED`` of its bound: the motion
+    barely excites it (a nearly constant rotation rate for a gyroscope, nearly constant
+    specific force for an accelerometer), the bound rather than the data limits it and the
+    linearised std is unreliable (issue 31: 3-4x overconfident, 1-sigma coverage 3-30 %)."""
+    weak = torch.isfinite(s) & (s > _UNEXCITED * bound)
+    if bool(weak.any()):
+        warnings.warn(f"fitting.Estimate: {type(term).__name__}.time_offset is barely excited "
+                      f"by the motion: its standard deviation {float(s[weak].max()):.3g} s "
+                      f"exceeds {_UNEXCITED:g} of max_time_offset={bound!r}, the data hardly "
+                      f"determine it and the standard deviation is unreliable (more varied "
+                      f"motion determines it)", RuntimeWarning, stacklevel=3)
 
 
 def _schur(chol: BandedCholesky, loose: BandedCholesky, cn: Tensor,
@@ -346,6 +361,7 @@ class Estimate:
                               f"its bound max_time_offset={q.bound!r}: its standard "
                               f"deviation is inf (raise max_time_offset)", RuntimeWarning,
                               stacklevel=2)
+            _warn_unexcited(term, q.bound, torch.where(pinned, torch.nan, s))
             return torch.where(pinned, torch.inf, s).reshape(b)
         return s.reshape(*b, s.shape[-1])
 
