@@ -344,7 +344,9 @@ class Estimate:
         extrinsic ``(..., 6)`` (``e exp(delta)``). ``scaled``: times
         :math:`\sqrt{\chi^2 / \nu}` over every term (see :meth:`cov`). A time offset that
         ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
-        says nothing of its uncertainty) gets inf and a warning."""
+        says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
+        tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
+        excites it (its linearised std is then unreliable)."""
         q = self._param(term, name)
         C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
@@ -361,7 +363,8 @@ class Estimate:
                               f"its bound max_time_offset={q.bound!r}: its standard "
                               f"deviation is inf (raise max_time_offset)", RuntimeWarning,
                               stacklevel=2)
-            _warn_unexcited(term, q.bound, torch.where(pinned, torch.nan, s))
+            if q.free.prior_std is None:  # with a prior, the std is the user's statement
+                _warn_unexcited(term, q.bound, torch.where(pinned, torch.nan, s))
             return torch.where(pinned, torch.inf, s).reshape(b)
         return s.reshape(*b, s.shape[-1])
 
