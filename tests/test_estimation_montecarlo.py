@@ -160,3 +160,62 @@ def test_starts_0_5_and_90_deg_apart_agree_within_a_tenth_of_a_std():
         assert bool(((value[1:] - value[0]).abs() < 0.1 * std[0]).all()), (
             name, (value[1:] - value[0]) / std[0])
         assert bool(((value[0] - truth).abs() < 4 * std[0]).all()), (name, value[0], truth)
+
+
+def _clock(side, gen):
+    """Camera poses (20 Hz) stamped 4.3 ms early (they show the motion at t + 4.3 ms) and an
+    IMU (100 Hz, from 0.013 s) on its own clock; knots every 0.037 s from 0.01 s before the
+    first pose: no knot falls on a sample, neither period nor the offset is a multiple of the
+    spacing. ``side``: the offset estimated on the camera's term or on the IMU's."""
+    tc = torch.linspace(0.0, 3.0, 61, dtype=F64)
+    ti = 0.013 + 0.01 * torch.arange(297, dtype=F64)
+    R, p, _, _ = motion(tc.numpy() + 0.0043)
+    x = dq.mul(dq.from_rt(torch.from_numpy(R.as_quat(scalar_first=True)), torch.from_numpy(p)),
+               dq.exp(E_TRUE))
+    q, pos = dq.to_rt(x)
+    cam = dq.from_rt(quat.mul(q, quat.from_rotvec(0.002 * torch.randn(
+        61, 3, generator=gen, dtype=F64))), pos + 0.002 * torch.randn(61, 3, generator=gen,
+                                                                      dtype=F64))
+    R, _, w, acc = motion(ti.numpy())
+    gy = torch.from_numpy(R.inv().apply(w) + BG) + 0.005 * torch.randn(297, 3, generator=gen,
+                                                                       dtype=F64)
+    ac = torch.from_numpy(R.inv().apply(acc - G) + BA) + 0.05 * torch.randn(
+        297, 3, generator=gen, dtype=F64)
+    e = dq.exp(E_TRUE)
+    qs, ps = dq.to_rt(dq.mul(cam, dq.conj(e)))
+    spline = BSpline.from_poses(qs, ps, tc, form="cumulative", knot_spacing=0.037,
+                                margin=0.02)
+    cam_clock, imu_clock = (Free(0.0), None) if side == "camera" else (None, Free(0.0))
+    terms = [Poses(tc, cam, rot_sigma=0.002, trans_sigma=0.002, extrinsic=Free(e),
+                   time_offset=cam_clock, max_time_offset=0.02),
+             Gyro(ti, gy, sigma=0.005, bias=True, time_offset=imu_clock,
+                  max_time_offset=0.02),
+             Accel(ti, ac, sigma=0.05, bias=True, time_offset=imu_clock,
+                   max_time_offset=0.02)]
+    est = estimate(spline, terms, verbose=False)
+    term = terms[0] if side == "camera" else terms[1]
+    return est, float(term.time_offset), float(est.std(term, "time_offset"))
+
+
+def test_camera_side_offset_on_misaligned_knots():
+    """Issue 31 (EuRoC-like): a camera clock 4.3 ms late, estimated on the camera's term on
+    knots aligned with no sample: converged, within 4 std of the truth, std below 1 ms
+    (measured 5.29 +- 0.94 ms)."""
+    est, cam, s_cam = _clock("camera", torch.Generator().manual_seed(9))
+    assert bool(est.converged), est.reason
+    assert abs(cam - 0.0043) < 4 * s_cam and s_cam < 1e-3, (cam, s_cam)
+
+
+@pytest.mark.xfail(strict=True, reason="open: the IMU-side solve stops at 'no damped step "
+                                       "lowers the objective' with g^T H^-1 g = 0.0545 "
+                                       "(0.23 std left), not converged (measured)")
+def test_imu_side_offset_on_misaligned_knots_agrees_with_the_camera_side():
+    """Issue 31 (EuRoC-like): an IMU-side offset on knots not aligned with the samples
+    ended at 31.95 +- 0.017 ms for 4 ms. The same data as the camera-side test with the
+    offset on the IMU's terms: -4.3 ms within 4 std (measured -5.11 +- 0.70 ms), agreeing
+    with the camera side's within 4 std of their difference, and converged."""
+    _, cam, s_cam = _clock("camera", torch.Generator().manual_seed(9))
+    est, imu, s_imu = _clock("imu", torch.Generator().manual_seed(9))
+    assert abs(imu + 0.0043) < 4 * s_imu and s_imu < 1e-3, (imu, s_imu)
+    assert abs(cam + imu) < 4 * (s_cam**2 + s_imu**2) ** 0.5, (cam, imu, s_cam, s_imu)
+    assert bool(est.converged), est.reason
