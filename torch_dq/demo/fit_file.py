@@ -49,8 +49,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from .. import _spacing, dualquat, io
+from .. import dualquat, io
 from .. import nn as dqnn
+from ..fitting import _knots as _spacing
 from ._common import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
@@ -189,6 +190,28 @@ def _split(n: int, holdout: int, degree: int) -> tuple[Tensor, Tensor]:
 
 # ----------------------------------------------------------------------------- fit
 
+def _refinement_check(times: Tensor, poses: Tensor, search: _spacing.SpacingSearch,
+                      steps: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Does refining the start help? Near the data limit (``n_ctrl`` close to the number of
+    poses) a least-squares fit can chase the noise between samples: the inner split of
+    ``search`` fitted at its chosen candidate, once as the start and once refined by
+    :func:`torch_dq.nn.fit` (``steps``): ``((rot, trans) before, (rot, trans) after)``, the
+    mean errors (rad, the poses' unit) at the inner check."""
+    times = times.detach().double()
+    fit, check = _spacing.inner_split(times.shape[0])
+    duration = float(times[fit][-1] - times[fit][0])
+    q, p = dualquat.to_rt(poses[fit])
+    spline = dqnn.BSpline.from_poses(q, p, times[fit], degree=search.degree, form=search.form,
+                                     n_ctrl=_spacing.n_ctrl(duration, search.candidates[
+                                         search.chosen], search.degree))
+    with torch.no_grad():
+        before = _spacing.errors_at(spline(times[check]), poses[check])
+    dqnn.fit(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
+             verbose=False)
+    with torch.no_grad():
+        return before, _spacing.errors_at(spline(times[check]), poses[check])
+
+
 def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spacing,
                   steps: int) -> tuple[float, str, int]:
     """The knot spacing (s) for the fitted poses, why, and the refinement steps to take."""
@@ -206,7 +229,7 @@ def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spa
         if steps and search.near_limit:  # close to interpolation: does refining help?
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                (r0, p0), (r1, p1) = _spacing.refinement_check(times, poses, search, steps)
+                (r0, p0), (r1, p1) = _refinement_check(times, poses, search, steps)
             if r1 > r0 and p1 > p0:
                 return search.spacing, (f"{search.reason()}; no refinement: on the inner "
                                         f"split it raised the errors from {math.degrees(r0):.3g}"
