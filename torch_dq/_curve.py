@@ -40,7 +40,8 @@ if TYPE_CHECKING:
     class _Parametrizations(Protocol):
         ctrl: _CtrlParametrization
 
-__all__ = ["Curve", "UnitDualQuaternion"]
+__all__ = ["Curve", "UnitDualQuaternion", "check_int", "extra_float", "extra_origins",
+           "poses_to_dq"]
 
 _RAW = "parametrizations.ctrl.original"  # state_dict key of the raw control points
 
@@ -77,13 +78,13 @@ class UnitDualQuaternion(torch.nn.Module):
 
 # ----------------------------------------------------------------------------- helpers
 
-def _check_int(fn: str, name: str, value, low: int, what: str) -> int:
+def check_int(fn: str, name: str, value, low: int, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
         _checks.fail(fn, f"{name} must be an int {what}, got {value!r}")
     return int(value)
 
 
-def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
+def extra_float(fn: str, state, key: str, positive: bool = False) -> float:
     """``state[key]`` of a saved extra state: a finite real number (``> 0`` if ``positive``)."""
     value = state.get(key) if isinstance(state, dict) else None
     if (isinstance(value, bool) or not isinstance(value, numbers.Real)
@@ -93,7 +94,7 @@ def _extra_float(fn: str, state, key: str, positive: bool = False) -> float:
     return float(value)
 
 
-def _extra_origins(fn: str, state, knots: Tensor) -> Tensor:
+def extra_origins(fn: str, state, knots: Tensor) -> Tensor:
     """``state["origin"]`` of a layer with ``(..., K)`` knots: a finite float64 tensor
     ``(..., 1)`` (one origin per trajectory), moved to the knots' device."""
     value = state.get("origin") if isinstance(state, dict) else None
@@ -106,7 +107,7 @@ def _extra_origins(fn: str, state, knots: Tensor) -> Tensor:
     return value.detach().to(knots.device)
 
 
-def _poses_to_dq(fn: str, rotations, translations) -> Tensor:
+def poses_to_dq(fn: str, rotations, translations) -> Tensor:
     """``(..., N, 8)`` dual quaternions from quaternions or matrices and translations."""
     _checks.tensor(fn, "rotations", rotations)
     _checks.tensor(fn, "translations", translations, 3)
@@ -373,9 +374,9 @@ class Curve(torch.nn.Module, abc.ABC):
         fn = f"{self._name}.load_state_dict"
         knots = self.time_model.knots
         if knots.dim() > 1:  # a float64 origin per trajectory
-            self._origin = _extra_origins(fn, state, knots)
+            self._origin = extra_origins(fn, state, knots)
         else:
-            self._origin = _extra_float(fn, state, "origin")
+            self._origin = extra_float(fn, state, "origin")
         self._restore(fn, state)
 
     @classmethod
@@ -500,7 +501,7 @@ class Curve(torch.nn.Module, abc.ABC):
             ``order + 1`` tensors, each ``(..., T, 8)``.
         """
         fn = f"{self._name}.derivatives"
-        order = _check_int(fn, "order", order, 0, "in 0..3")
+        order = check_int(fn, "order", order, 0, "in 0..3")
         if order > 3:
             _checks.fail(fn, f"order must be an int in 0..3, got {order!r}")
         ctrl = self._resolve(fn, ctrl)

@@ -81,8 +81,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _start, curves, dualquat
-from ._curve import (Curve, UnitDualQuaternion, _check_int, _extra_float, _extra_origins,
-                     _poses_to_dq)
+from ._curve import Curve, UnitDualQuaternion, check_int, extra_float, extra_origins, poses_to_dq
 from ._time import KnotDomain, time_pair
 from .fitting import FitHistory, fit
 from .fitting._knots import choose_knot_spacing
@@ -192,7 +191,7 @@ class Bezier(Curve):
         return {"length": self._length}
 
     def _restore(self, fn: str, state: dict[str, Any]) -> None:
-        self._length = _extra_float(fn, state, "length", positive=True)
+        self._length = extra_float(fn, state, "length", positive=True)
 
     @classmethod
     def _args_from_state(cls, fn: str, state_dict: Mapping[str, Any], raw: Tensor,
@@ -225,7 +224,7 @@ class Bezier(Curve):
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int = 4,
                  check: bool = True) -> Self:
-        n = _check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
+        n = check_int(fn, "n_ctrl", n_ctrl, 2, ">= 2")
         if isinstance(times, Tensor) and times.dim() > 1:
             _checks.fail(fn, f"expected (N,) times shared by the batch, got shape "
                              f"{_checks.shape_str(times.shape)}: a Bezier module has one domain "
@@ -282,7 +281,7 @@ class Bezier(Curve):
             True
         """
         fn = f"{cls._name}.from_poses"
-        x = _poses_to_dq(fn, rotations, translations)
+        x = poses_to_dq(fn, rotations, translations)
         return cls._from_dq(fn, x, times, n_ctrl=n_ctrl, check=check)
 
 
@@ -345,7 +344,7 @@ class BSpline(Curve):
                  check: bool = True, extrapolate: bool = False):
         super().__init__()
         fn = self._name
-        degree = _check_int(fn, "degree", degree, 1, ">= 1")
+        degree = check_int(fn, "degree", degree, 1, ">= 1")
         self.form = curves.check_form(fn, form)
         self._setup(ctrl, 2, check, extrapolate)
         raw = self.parametrizations.ctrl.original
@@ -416,7 +415,7 @@ class BSpline(Curve):
             degree = knots.shape[-1] - raw.shape[-2] - 1 if isinstance(knots, Tensor) else 3
         args = {"degree": degree, "form": extra.get("form", "de_boor")}
         if isinstance(knots, Tensor) and knots.dim() > 1:  # a row per trajectory
-            args["knots"] = knots.to(torch.float64) + _extra_origins(fn, extra, knots)
+            args["knots"] = knots.to(torch.float64) + extra_origins(fn, extra, knots)
         return args
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
@@ -473,7 +472,7 @@ class BSpline(Curve):
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int | None = None,
                  degree: int = 3, form: str = "de_boor", check: bool = True, *,
                  knot_spacing: float | None = None, margin: float = 0.0) -> Self:
-        degree = _check_int(fn, "degree", degree, 1, ">= 1")
+        degree = check_int(fn, "degree", degree, 1, ">= 1")
         form = curves.check_form(fn, form)
         margin = _check_seconds(fn, "margin", margin, 0.0)
         if knot_spacing is not None:
@@ -497,7 +496,7 @@ class BSpline(Curve):
             n_ctrl = max(math.ceil(span / knot_spacing - 1e-9), 1) + degree
         elif n_ctrl is None:  # chosen from the data
             n_ctrl = _chosen_n_ctrl(fn, x, t64, degree, form)
-        n = _check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
+        n = check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
         module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device), degree=degree,
                      knots=_uniform(n, degree, t0, t1), form=form, check=check)
         coarse = max(degree + 1, x.shape[-2] // _POSES_PER_COARSE_CTRL)
@@ -594,6 +593,6 @@ class BSpline(Curve):
             True
         """
         fn = f"{cls._name}.from_poses"
-        x = _poses_to_dq(fn, rotations, translations)
+        x = poses_to_dq(fn, rotations, translations)
         return cls._from_dq(fn, x, times, n_ctrl=n_ctrl, degree=degree, form=form,
                             check=check, knot_spacing=knot_spacing, margin=margin)
