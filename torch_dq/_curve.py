@@ -614,7 +614,7 @@ class Curve(torch.nn.Module, abc.ABC):
 
         The pose at ``t[..., i]`` is :meth:`evaluate_span` of the control points
         ``first[..., i] .. first[..., i] + w - 1`` only (``w =`` :attr:`span_size`): the span
-        of the time model (:meth:`torch_dq._time.KnotDomain.span`) holding ``t``; times
+        of the time model (``KnotDomain.span``) holding ``t``; times
         beyond the domain take the end spans. No domain check, no gradient.
 
         Args:

@@ -5,12 +5,13 @@ r"""Curve layers with learnable unit-dual-quaternion control points, in the call
   tensor is unconstrained and ``forward`` projects it with
   :func:`torch_dq.dualquat.normalize`, so the parameter seen by the module is a unit dual
   quaternion whatever an optimizer does to the raw tensor.
-- :class:`Curve`: the contract of a curve layer (an abstract base class): learnable control
-  points, a time model (:attr:`Curve.time_model`: knots relative to a float64 origin),
-  evaluation with exact time derivatives, kinematics and IMU readings, the Euclidean basis
-  of its least-squares problems (:meth:`Curve.basis`), construction from poses and from a
-  saved ``state_dict``. :mod:`torch_dq.fitting` recognises a layer by
-  ``isinstance(module, Curve)``.
+- :class:`Curve` (defined in ``torch_dq._curve``, below :mod:`torch_dq.fitting`): the
+  contract of a curve layer (an abstract base class): learnable control points, a time
+  model (:attr:`Curve.time_model`: knots relative to a float64 origin), evaluation with
+  exact time derivatives, kinematics and IMU readings, the Euclidean basis of its
+  least-squares problems (:meth:`Curve.basis`), construction from poses and from a saved
+  ``state_dict``, and the span structure that :mod:`torch_dq.fitting` uses and nothing
+  else (:meth:`Curve.support`, :meth:`Curve.local_times`, :meth:`Curve.evaluate_span`).
 - :class:`Bezier` and :class:`BSpline`: the two curves, wrapping
   :func:`torch_dq.curves.bezier` and :func:`torch_dq.curves.bspline` (any B-spline form,
   ``form="de_boor"``, ``"cumulative"`` or ``"split"``); ``forward(t, ctrl=...)`` (and
@@ -68,7 +69,6 @@ Example (a small network predicting trajectories, trained end to end):
     >>> x = spline(t, ctrl=raw)  # (5, 20, 8) unit dual quaternions
     >>> pose_loss(x, dq.identity()).backward()  # gradients reach net's weights
 """
-
 
 from __future__ import annotations
 
