@@ -40,6 +40,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, _start, curves, dualquat, losses, quat
+from .._curve import UnitDualQuaternion
 from .._time import KnotDomain
 
 __all__ = ["CHECK_EVERY", "DATA_LIMIT_STEPS", "GRID_RATIO", "SpacingSearch",
@@ -181,6 +182,8 @@ def _start_poses(times: Tensor, poses: Tensor, spacing: float, degree: int, form
     first, values = dom.basis(rel)
     ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
                                       form == "split").to(poses.dtype)
+    unit = UnitDualQuaternion()  # the layer's control points: assigned, then read
+    ctrl = unit(unit.right_inverse(ctrl))
     return curves.bspline(ctrl, dom.relative(at, torch.float64), degree, dom.knots,
                           check=False, extrapolate=True, form=form)
 
