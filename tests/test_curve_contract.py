@@ -155,3 +155,11 @@ def test_toy_curve_gauss_newton_system_against_finite_differences():
                                            rtol=1e-6, atol=1e-6)
     assert H.reshape(n, 6, n, 6).abs().amax((1, 3)).triu(w).max() == 0  # the band's width
     torch.testing.assert_close(system.gc[0].reshape(-1), g, rtol=1e-6, atol=1e-6)
+
+
+def test_fit_is_a_plain_re_export():
+    """``torch_dq.nn.fit`` is ``torch_dq.fitting.fit`` (no lazy module ``__getattr__``)."""
+    import torch_dq.nn
+
+    assert torch_dq.nn.fit is fitting.fit and torch_dq.nn.FitHistory is fitting.FitHistory
+    assert "__getattr__" not in vars(torch_dq.nn)
