@@ -1,4 +1,4 @@
-"""The knot spacing chosen from the data (issue 20): torch_dq._spacing."""
+"""The knot spacing chosen from the data (issue 20): torch_dq.fitting._knots."""
 
 import math
 
@@ -7,8 +7,8 @@ import pytest
 import torch
 
 import torch_dq.dualquat as dq
-from torch_dq import _spacing
-from torch_dq._spacing import choose_knot_spacing, knot_spacing_search
+from torch_dq.fitting import _knots as _spacing
+from torch_dq.fitting._knots import choose_knot_spacing, knot_spacing_search
 
 Rotation = pytest.importorskip("scipy.spatial.transform").Rotation
 
@@ -88,10 +88,10 @@ def test_data_limited_spacing_is_the_finest():
 
 
 def test_inner_split_every_fifth():
-    fit, check = _spacing._inner_split(13)
+    fit, check = _spacing.inner_split(13)
     assert check.tolist() == [2, 7]  # never the first or the last
     assert fit.tolist() == [0, 1, 3, 4, 5, 6, 8, 9, 10, 11, 12]
-    fit, check = _spacing._inner_split(8)
+    fit, check = _spacing.inner_split(8)
     assert check.tolist() == [2] and fit[-1] == 7
 
 

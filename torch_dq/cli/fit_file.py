@@ -49,9 +49,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from .. import _spacing, dualquat, io
+from .. import dualquat, io
 from .. import nn as dqnn
 from .._report import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
+from ..fitting import _knots
 from ._errors import OptionError
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "FitResult", "OptionError",
@@ -183,16 +184,38 @@ def _split(n: int, holdout: int, degree: int) -> tuple[Tensor, Tensor]:
 
 # ----------------------------------------------------------------------------- fit
 
+def _refinement_check(times: Tensor, poses: Tensor, search: _knots.SpacingSearch,
+                      steps: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Does refining the start help? Near the data limit (``n_ctrl`` close to the number of
+    poses) a least-squares fit can chase the noise between samples: the inner split of
+    ``search`` fitted at its chosen candidate, once as the start and once refined by
+    :func:`torch_dq.nn.fit` (``steps``): ``((rot, trans) before, (rot, trans) after)``, the
+    mean errors (rad, the poses' unit) at the inner check."""
+    times = times.detach().double()
+    fit, check = _knots.inner_split(times.shape[0])
+    duration = float(times[fit][-1] - times[fit][0])
+    q, p = dualquat.to_rt(poses[fit])
+    spline = dqnn.BSpline.from_poses(q, p, times[fit], degree=search.degree, form=search.form,
+                                     n_ctrl=_knots.n_ctrl(duration, search.candidates[
+                                         search.chosen], search.degree))
+    with torch.no_grad():
+        before = _knots.errors_at(spline(times[check]), poses[check])
+    dqnn.fit(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
+             verbose=False)
+    with torch.no_grad():
+        return before, _knots.errors_at(spline(times[check]), poses[check])
+
+
 def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spacing,
                   steps: int) -> tuple[float, str, int]:
     """The knot spacing (s) for the fitted poses, why, and the refinement steps to take."""
     n, duration = times.shape[0], float(times[-1] - times[0])
-    finest = _spacing.finest_spacing(duration, n, degree)
+    finest = _knots.finest_spacing(duration, n, degree)
     if knot_spacing == "auto":
         if n < 2 * (degree + 2):
             return finest, (f"the finest that {n} fitted poses determine (too few to choose "
                             f"by an inner hold-out)"), steps
-        search = _spacing.knot_spacing_search(times, poses, degree, form=form)
+        search = _knots.knot_spacing_search(times, poses, degree, form=form)
         if steps and search.data_limited:
             return search.spacing, (f"{search.reason()}; no refinement: with about as many "
                                     f"control points as poses, the least-squares start "
@@ -200,7 +223,7 @@ def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spa
         if steps and search.near_limit:  # close to interpolation: does refining help?
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                (r0, p0), (r1, p1) = _spacing.refinement_check(times, poses, search, steps)
+                (r0, p0), (r1, p1) = _refinement_check(times, poses, search, steps)
             if r1 > r0 and p1 > p0:
                 return search.spacing, (f"{search.reason()}; no refinement: on the inner "
                                         f"split it raised the errors from {math.degrees(r0):.3g}"
@@ -210,9 +233,9 @@ def _knot_spacing(times: Tensor, poses: Tensor, degree: int, form: str, knot_spa
     if knot_spacing > duration:
         raise OptionError(f"--knot-spacing {knot_spacing:g} s is longer than the "
                           f"{duration:.3f} s that the fitted poses span: pass --knot-spacing "
-                          f"{_spacing.round_down(duration):g} or less (a single knot span), "
+                          f"{_knots.round_down(duration):g} or less (a single knot span), "
                           f"or auto")
-    n_ctrl = _spacing.n_ctrl(duration, knot_spacing, degree)
+    n_ctrl = _knots.n_ctrl(duration, knot_spacing, degree)
     if n_ctrl > n:
         raise OptionError(f"a knot every {knot_spacing:g} s over {duration:.3f} s needs "
                           f"{n_ctrl} control points, more than the {n} fitted poses: pass "
@@ -224,7 +247,7 @@ def _fit(train: io.Trajectory, poses: Tensor, spacing: float, degree: int, form:
          steps: int, dtype: torch.dtype, verbose: bool) -> tuple[Any, Any, dict]:
     """The least-squares start, then ``steps`` of :func:`torch_dq.nn.fit`: (spline, history
     or None, timings in seconds)."""
-    n_ctrl = _spacing.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
+    n_ctrl = _knots.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     start = time.perf_counter()
     spline = dqnn.BSpline.from_poses(train.rotations.to(dtype), train.translations.to(dtype),
                                      train.times, n_ctrl=n_ctrl, degree=degree, form=form)
@@ -250,7 +273,7 @@ def _resampling(t0: float, t1: float, rate: float) -> Tensor:
     """``t0 + k / rate`` up to ``t1`` (float64 s); at most :data:`MAX_RESAMPLED` of them."""
     duration = t1 - t0
     if duration * rate >= MAX_RESAMPLED:
-        top = _spacing.round_down((MAX_RESAMPLED - 1) / duration)  # followed literally, works
+        top = _knots.round_down((MAX_RESAMPLED - 1) / duration)  # followed literally, works
         raise OptionError(f"--rate {rate:g} Hz over {duration:.3f} s gives more than "
                           f"{MAX_RESAMPLED} samples: pass --rate {top:g} or less")
     count = math.floor(duration * rate + 1e-9) + 1
@@ -459,7 +482,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     info["gaps_over_2_knot_spacings"], gap_note = _gap_note(traj, spacing)
     if gap_note:
         say(f"note: {gap_note}")
-    n_ctrl = _spacing.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
+    n_ctrl = _knots.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     say(f"knot spacing {spacing:g} s: {why}")
     say(f"B-spline ({form} form): degree {degree}, {n_ctrl} control points, fitted to "
         f"{len(fit_idx)} poses "

@@ -87,7 +87,7 @@ Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
 
 import torch  # noqa: F401  (the examples' namespace)
 
-from .._spacing import choose_knot_spacing
+from ._knots import choose_knot_spacing
 from .._start import bspline_basis, check_determined, least_squares_start
 from .._start import check_sample_times as check_times
 from ._camera import Reprojections

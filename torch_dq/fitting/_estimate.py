@@ -33,7 +33,7 @@ __all__ = ["estimate"]
 
 
 def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[Term]:
-    from ..nn import Curve
+    from .._curve import Curve
     if not isinstance(trajectory, Curve):
         _checks.fail(fn, f"expected a torch_dq.nn curve layer (BSpline or Bezier) for "
                          f"trajectory, got {type(trajectory).__name__}", TypeError)
@@ -96,22 +96,14 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
 
 
 def _warn_c1(trajectory, terms: list[Term]) -> None:
-    """Warn when an Accel term reads the accelerations of a B-spline that is not C2: the
-    de Boor form of degree >= 2 (C1) and the cumulative form of degree < 3 (C^(p-1)):
-    their accelerations jump at the knots."""
-    from ..nn import BSpline
-    if not (isinstance(trajectory, BSpline) and any(isinstance(t, Accel) for t in terms)):
-        return
-    p, form = trajectory.degree, trajectory.form
-    if form == "de_boor" and p >= 2:
-        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
-                      f"form='de_boor', which is only C1 (its accelerations jump at the "
-                      f"knots); build it with form='cumulative' for IMU work",
-                      UserWarning, stacklevel=3)
-    elif form == "cumulative" and p < 3:
-        warnings.warn(f"fitting.estimate: an Accel term with a degree-{p} B-spline of "
-                      f"form='cumulative', which is only C{p - 1} (its accelerations jump at "
-                      f"the knots); use degree >= 3 for IMU work", UserWarning, stacklevel=3)
+    """Warn when an Accel term reads the accelerations of a curve that is not C2
+    (:meth:`torch_dq.nn.Curve.acceleration_jumps`: a de Boor B-spline of degree >= 2, a
+    cumulative one of degree < 3): its accelerations jump at the knots."""
+    note = (trajectory.acceleration_jumps() if any(isinstance(t, Accel) for t in terms)
+            else None)
+    if note is not None:
+        warnings.warn(f"fitting.estimate: an Accel term with {note}", UserWarning,
+                      stacklevel=3)
 
 
 def _warn_pinned(problem: Problem, values: list[Tensor]) -> None:

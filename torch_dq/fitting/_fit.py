@@ -147,7 +147,7 @@ class FitProblem:
 
     def __init__(self, fn: str, module: torch.nn.Module, times: Tensor, poses: Tensor,
                  loss: Callable[[Tensor, Tensor], Tensor], exact: bool = False) -> None:
-        from ..nn import Curve
+        from .._curve import Curve
         poses = _check_poses(fn, poses)
         check_times(fn, times, poses.shape[-2], batched=True)
         self.module, self.loss = module, loss
@@ -324,7 +324,7 @@ def fit(module: torch.nn.Module, times: Tensor, poses: Tensor,
         _checks.fail(fn, f"prior must be a finite real number >= 0, got {prior!r}")
     if not callable(loss):
         _checks.fail(fn, f"expected a callable for loss, got {type(loss).__name__}", TypeError)
-    from ..nn import Curve
+    from .._curve import Curve
     name = _resolve_optimizer(fn, optimizer, isinstance(module, Curve), loss, lr)
     problem = FitProblem(fn, module, times, poses, loss, exact=name == "lm" and prior == 0)
     history = FitHistory(optimizer=name or type(optimizer).__name__)

@@ -1,15 +1,14 @@
 r"""Exact per-sample Jacobians of a curve layer from its spans (reverse mode).
 
-A pose of a degree-``p`` B-spline at ``t`` in the knot span ``[u_r, u_{r+1})`` depends on
-the control points ``r - p .. r`` and the knots ``u_{r-p+1} .. u_{r+p}`` only: it is the
-value of a one-span B-spline (``p + 1`` control points, knots ``u_{r-p} .. u_{r+p+1}``
-shifted to ``u_r = 0``, the same ``form``) at ``t - u_r``. Giving every sample its own copy
-of its span's control points, moved by its own local step ``c_j exp(delta_{i,j})``, makes
-the samples independent: reverse passes over all samples at once give every sample's
-Jacobian with respect to its span's steps, exactly (:class:`SpanEvaluator` evaluates all
-samples as one batch of one-span curves, each with its own span's knots; per-trajectory
-knots give each trajectory's spans their own). A Bézier curve is its own one-span curve
-(every pose depends on every control point).
+Through the span contract of :class:`torch_dq.nn.Curve` and nothing else: the pose at ``t``
+depends on the :attr:`~torch_dq.nn.Curve.span_size` control points from
+:meth:`~torch_dq.nn.Curve.support` on, through :meth:`~torch_dq.nn.Curve.evaluate_span` at
+the local time :meth:`~torch_dq.nn.Curve.local_times` (for a degree-``p`` B-spline: a
+one-span B-spline with its span's knots; a Bézier curve is its own span). Giving every
+sample its own copy of its span's control points, moved by its own local step
+``c_j exp(delta_{i,j})``, makes the samples independent: reverse passes over all samples at
+once give every sample's Jacobian with respect to its span's steps, exactly
+(:class:`SpanEvaluator` evaluates all samples as one batch of one-span curves).
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from .. import curves, dualquat
+from .. import dualquat
 
 __all__ = ["SpanEvaluator"]
 
@@ -27,46 +26,25 @@ _COPY_ELEMENTS = 1 << 21  # leaf elements times copies above which rows are sepa
 
 
 class SpanEvaluator:
-    """Span structure of a curve layer (B-spline or Bézier) and per-sample evaluation.
-
-    Reads the layer's time model (:class:`torch_dq._time.KnotDomain`): knots ``(K,)``
-    shared by every trajectory, or ``(..., K)`` with per-trajectory origins (each
-    trajectory's spans with their own knots). Span ids: ``row (n - p) + first``. Every
-    sample is evaluated as a one-span curve with its span's knots (shifted to ``u_r = 0``),
-    all samples in one call whatever their spans.
+    """Span structure of a curve layer and per-sample evaluation, through its contract.
 
     Args:
-        trajectory: a :class:`torch_dq.nn.BSpline` or :class:`torch_dq.nn.Bezier`.
+        trajectory: a :class:`torch_dq.nn.Curve`.
 
     Attributes:
-        n: number of control points; support: control points per span (``p + 1`` or ``n``).
+        n: number of control points; support: control points per span
+            (:attr:`~torch_dq.nn.Curve.span_size`); device: the control points' device.
     """
 
     def __init__(self, trajectory) -> None:
-        from ..nn import BSpline
-        self.domain = dom = trajectory.time_model
-        self.n, p = dom.n, dom.degree
-        self.bspline = isinstance(trajectory, BSpline)
-        self.form = getattr(trajectory, "form", "de_boor")
-        self.support = p + 1
+        self.trajectory = trajectory
+        self.n, self.support = trajectory.n_ctrl, trajectory.span_size
         self.device = trajectory.control_points.device
-        K = dom.knots.detach().to(torch.float64)
-        self.rows = torch.arange(K[..., 0].numel(), device=K.device).reshape(K.shape[:-1])
-        K = K.reshape(-1, K.shape[-1])
-        origin = torch.as_tensor(dom.origin, dtype=torch.float64, device=K.device)
-        self.origin = origin.reshape(-1).expand(K.shape[0])  # per row
-        win = K.unfold(-1, 2 * p + 2, 1)  # (rows, n - p, 2 p + 2): span r = p + first
-        self.start = win[..., p].reshape(-1)  # u_r relative to its row's origin
-        self.knots = win.reshape(-1, 2 * p + 2) - self.start[:, None]  # per span id
-        self.length = self.knots[:, p + 1]
 
     def first(self, t: Tensor) -> Tensor:
         """First control point ``(..., T)`` int64 of the span of each time ``t (..., T)``
         (batched knots broadcast into the leading dims)."""
-        if not self.bspline:
-            return torch.zeros(t.shape, dtype=torch.int64, device=t.device)
-        dom = self.domain
-        return dom.span(dom.relative(t.detach(), torch.float64)) - dom.degree
+        return self.trajectory.support(t)[0]
 
     def derivatives(self, points: Tensor, t: Tensor, first: Tensor, order: int,
                     ) -> tuple[Tensor, ...]:
@@ -77,27 +55,8 @@ class SpanEvaluator:
         ``points.shape[:-2]``; leading dims beyond it (copies, a shared batch) are evaluated
         with the same spans. ``t`` broadcasts against ``points.shape[:-2]``.
         """
-        lead = points.shape[:-2]
-        first = first.expand(lead[len(lead) - first.dim():])
-        S = first.numel()
-        pts = points.reshape(-1, S, self.support, 8)
-        row = self.rows[..., None].expand(first.shape).reshape(-1)
-        sid = row * (self.n - self.support + 1) + first.reshape(-1)
-        local = t.expand(lead).reshape(-1, S).to(torch.float64) - (
-            self.origin[row] + self.start[sid])
-        local = torch.minimum(local.clamp_min(0.0), self.length[sid])  # rounding
-        ctrl, tt = pts.reshape(-1, self.support, 8), local.reshape(-1, 1)
-        if self.bspline:
-            knots = self.knots[sid].expand(pts.shape[0], S, self.knots.shape[-1])
-            kw = dict(degree=self.support - 1, knots=knots.reshape(-1, knots.shape[-1]),
-                      check=False, extrapolate=True, form=self.form)
-            out = ((curves.bspline(ctrl, tt, **kw),) if order == 0 else
-                   curves.bspline_derivatives(ctrl, tt, order=order, **kw))
-        else:
-            kw = dict(domain=(0.0, float(self.length[0])), check=False, extrapolate=True)
-            out = ((curves.bezier(ctrl, tt, **kw),) if order == 0 else
-                   curves.bezier_derivatives(ctrl, tt, order=order, **kw))
-        return tuple(d.reshape(*lead, 8) for d in out)
+        local = self.trajectory.local_times(t, first)
+        return self.trajectory.evaluate_span(points, local, first, order)
 
 
 def tangent_step(points: Tensor, delta: Tensor) -> Tensor:

@@ -10,7 +10,9 @@ the caller: it splits the poses it is given once more,
    caller's held-out poses are;
 2. for each candidate spacing (a geometric grid, from the finest the inner fit determines,
    ``n_ctrl <= N_inner``, upwards in steps of :data:`GRID_RATIO`), builds the least-squares
-   start :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (no refinement: O(N) per
+   start of :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (the same knots and
+   :func:`torch_dq._start.least_squares_start`, evaluated by :func:`torch_dq.curves.bspline`,
+   so that the layers can use this module: it imports no layer; no refinement: O(N) per
    candidate, so the search takes seconds on 10^4 poses) and measures the mean rotation
    angle and translation error at the inner-check poses;
 3. keeps the *largest* spacing whose two errors are both within ``tolerance`` (2 %) of the
@@ -37,11 +39,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from . import _checks, dualquat, losses
+from .. import _checks, _start, curves, dualquat, losses, quat
+from .._curve import UnitDualQuaternion
+from .._time import KnotDomain
 
 __all__ = ["CHECK_EVERY", "DATA_LIMIT_STEPS", "GRID_RATIO", "SpacingSearch",
-           "choose_knot_spacing", "finest_spacing", "knot_spacing_search", "n_ctrl",
-           "refinement_check", "round_down", "round_up"]
+           "choose_knot_spacing", "errors_at", "finest_spacing", "inner_split",
+           "knot_spacing_search", "n_ctrl", "round_down", "round_up"]
 
 #: Ratio between consecutive candidate spacings.
 GRID_RATIO = 2 ** 0.25
@@ -103,7 +107,8 @@ class SpacingSearch:
     @property
     def near_limit(self) -> bool:
         """The chosen candidate has more control points than 80 % of the inner fit's poses
-        (where a refinement may chase noise: see :func:`refinement_check`)."""
+        (where a refinement may chase noise: the ``fit`` command checks it on the inner
+        split)."""
         return self.n_ctrl_fit > 0.8 * self.n_fit
 
     def reason(self) -> str:
@@ -162,19 +167,30 @@ def round_down(value: float, digits: int = 4) -> float:
     return float(f"{math.floor(value * scale + 1e-9) / scale:.{digits}g}")
 
 
-def _start(times: Tensor, poses: Tensor, spacing: float, degree: int, form: str):
-    """The least-squares start with knots at most ``spacing`` apart over ``times``."""
-    from . import nn  # the layers sit above this module
-
+def _start_poses(times: Tensor, poses: Tensor, spacing: float, degree: int, form: str,
+                 at: Tensor) -> Tensor:
+    """Poses at ``at`` of the least-squares start with knots at most ``spacing`` apart over
+    ``times``: what ``BSpline.from_poses(..., n_ctrl=n_ctrl(duration, spacing, degree))``
+    followed by a call at ``at`` gives (its knots, its start, in the poses' dtype)."""
+    n = n_ctrl(float(times[-1] - times[0]), spacing, degree)
     q, p = dualquat.to_rt(poses)
-    return nn.BSpline.from_poses(q, p, times, degree=degree, form=form,
-                                 n_ctrl=n_ctrl(float(times[-1] - times[0]), spacing, degree))
+    x64 = dualquat.from_rt(quat.normalize(q), p).to(torch.float64)
+    t0, t1 = float(times[0]), float(times[-1])
+    k64 = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
+    dom = KnotDomain((k64 - t0).to(poses.dtype), degree, t0)  # as the layer holds them
+    rel = dom.relative(times, torch.float64)
+    first, values = dom.basis(rel)
+    ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
+                                      form == "split").to(poses.dtype)
+    unit = UnitDualQuaternion()  # the layer's control points: assigned, then read
+    ctrl = unit(unit.right_inverse(ctrl))
+    return curves.bspline(ctrl, dom.relative(at, torch.float64), degree, dom.knots,
+                          check=False, extrapolate=True, form=form)
 
 
-def _errors_at(spline, times: Tensor, poses: Tensor) -> tuple[float, float]:
-    """Mean rotation (rad) and translation errors of ``spline`` at these poses."""
-    with torch.no_grad():
-        pred = spline(times).to(poses.dtype)
+def errors_at(pred: Tensor, poses: Tensor) -> tuple[float, float]:
+    """Mean rotation (rad) and translation errors of poses ``pred`` against ``poses``."""
+    pred = pred.detach().to(poses.dtype)
     rot = losses.rotation_angle(pred, poses).double()
     trans = losses.translation_error(pred, poses).double()
     return float(rot.mean()), float(trans.mean())
@@ -186,11 +202,11 @@ def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: f
     (the start's warnings about coarse knots are the search's business: silenced)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        spline = _start(times[fit], poses[fit], spacing, degree, form)
-    return _errors_at(spline, times[check], poses[check])
+        pred = _start_poses(times[fit], poses[fit], spacing, degree, form, times[check])
+    return errors_at(pred, poses[check])
 
 
-def _inner_split(n: int) -> tuple[Tensor, Tensor]:
+def inner_split(n: int) -> tuple[Tensor, Tensor]:
     """Indices of the inner fit (all but every :data:`CHECK_EVERY`-th pose; the first and
     the last among them) and of the inner check (the others)."""
     check = torch.zeros(n, dtype=torch.bool)
@@ -236,7 +252,7 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
         _checks.fail(fn, f"form must be 'de_boor', 'cumulative' or 'split', got {form!r}")
     times = times.detach().double()
     poses = poses.detach()
-    fit, check = _inner_split(times.shape[0])
+    fit, check = inner_split(times.shape[0])
     duration = float(times[fit][-1] - times[fit][0])
     spacing = finest_spacing(duration, fit.shape[0], degree)
     candidates: list[float] = []
@@ -268,36 +284,6 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
                          n_ctrl(duration, candidates[chosen], degree), form, limited, scale)
 
 
-def refinement_check(times: Tensor, poses: Tensor, search: SpacingSearch,
-                     steps: int) -> tuple[tuple[float, float], tuple[float, float]]:
-    r"""Does refining the start help? The inner hold-out of ``search``, before and after.
-
-    Near the data limit (``n_ctrl`` close to the number of poses) a least-squares fit can
-    chase the noise between samples: this fits the inner split at the chosen candidate, once
-    as the start and once refined by :func:`torch_dq.nn.fit` (``steps``), and measures both
-    at the inner check.
-
-    Args:
-        times, poses: as given to :func:`knot_spacing_search`.
-        search: its result.
-        steps: refinement steps.
-
-    Returns:
-        ``((rot, trans) of the start, (rot, trans) refined)``: mean errors (rad, the poses'
-        unit) at the inner check.
-    """
-    from .fitting import fit as refine  # fitting sits above this module
-
-    times = times.detach().double()
-    fit, check = _inner_split(times.shape[0])
-    spline = _start(times[fit], poses[fit], search.candidates[search.chosen], search.degree,
-                    search.form)
-    before = _errors_at(spline, times[check], poses[check])
-    refine(spline, times[fit], poses[fit].to(spline.control_points.dtype), steps=steps,
-           verbose=False)
-    return before, _errors_at(spline, times[check], poses[check])
-
-
 def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
                         tolerance: float = 0.02, form: str = "de_boor") -> float:
     r"""Seconds between knots for a B-spline fitted to these poses, chosen from the data.
@@ -309,7 +295,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
     errors at the inner check are both within ``tolerance`` of the best ones. Within two grid
     steps of the finest (the data limit the spacing) it returns the finest spacing all ``N``
     poses determine; otherwise (noise limits it) the spacing scaled by the density ratio
-    (about 0.8), never below that finest (see :mod:`torch_dq._spacing`). Pass only the poses
+    (about 0.8), never below that finest (see :mod:`torch_dq.fitting._knots`). Pass only the poses
     you fit: poses held out to measure the fit must not be among them. Costs one O(N)
     least-squares start per candidate (seconds for 10^4 poses).
 
