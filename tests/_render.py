@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import pathlib
 
+import _camera_imu_sim as sim
 import numpy as np
 
-import _camera_imu_sim as sim
-
-__all__ = ["T0", "aprilgrid_canvas", "euroc_folder", "pixel_rays", "render"]
+__all__ = ["T0", "aprilgrid_canvas", "camera_pose", "euroc_folder", "pixel_rays", "render"]
 
 T0 = 1000.0  # seconds added to every stamp of the written recording (positive nanoseconds)
 _CELLS = 10  # a 36h11 tag with a 2-bit border is 10 cells wide
@@ -36,7 +35,7 @@ def aprilgrid_canvas(cv2, rows=6, cols=6, size=0.088, spacing=0.3, cell_px=8, ma
     cells of white around it: the canvas (uint8) and the map ``S`` (3 x 3) from target
     metres ``(X, Y, 1)`` to canvas pixels (pixel centres at integers)."""
     tag = _CELLS * cell_px
-    gap = int(round(spacing * tag))
+    gap = round(spacing * tag)
     if abs(gap - spacing * tag) > 1e-9:
         raise ValueError(f"spacing {spacing} is not a whole number of canvas pixels")
     pitch, pad = tag + gap, margin * cell_px
