@@ -56,11 +56,13 @@ class _Walk:
     """Mixin of :class:`WalkGyro` and :class:`WalkAccel`: per-segment biases and ties."""
 
     sigma: Tensor
+    segment: Tensor  # (N,) each sample's segment (a tie's: the first of the two)
+    link: Tensor  # (N,) bool: the sample is a tie
     _slots: dict
 
     def _walk(self, fn: str, seg: Tensor, link: Tensor, walk: float, edges: Tensor,
               starts: Tensor) -> None:
-        Slot = type(self._slots["bias"])  # noqa: N806 (the fitting's slot class)
+        Slot = type(self._slots["bias"])  # the fitting's slot class (of the bias given)
         k, h = starts.shape[0], float(edges[1] - edges[0])
         for i in range(1, k):
             self._slots[f"bias_{i}"] = Slot(fn, f"bias_{i}", "vector", Free(start=starts[i]))
