@@ -288,3 +288,63 @@ def test_cli_user_errors(tmp_path, rolling_data, capsys):
     argv[argv.index("--imu-noise") + 1] = str(tmp_path / "bad.yaml")
     assert main(argv) == 2
     assert "gyroscope_noise_density" in capsys.readouterr().err
+
+
+WALK = (1e-3, 0.02)  # rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz): a drift visible in 3 s
+
+
+def _segment_means(t, b, edges):
+    seg = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 2)
+    inside = (t >= edges[0]) & (t <= edges[-1])
+    return np.stack([b[inside & (seg == k)].mean(0) for k in range(len(edges) - 1)])
+
+
+def test_random_walk_biases_follow_a_drifting_bias():
+    """Biases that drift as Wiener processes (numpy): with ``bias_walk`` the per-segment
+    biases, the extrinsics and the offsets are within 4 standard deviations of the truth
+    (the biases': each segment's mean of the simulated walk)."""
+    (t, g, a), cams = sim.rig(duration=DURATION, offset=OFFSET, seed=1)
+    rng = np.random.default_rng(5)
+    step = np.sqrt(np.diff(t, prepend=t[0]))[:, None]
+    drift_g = np.cumsum(WALK[0] * step * rng.standard_normal(g.shape), 0)
+    drift_a = np.cumsum(WALK[1] * step * rng.standard_normal(a.shape), 0)
+    obs = [tuple(_t(x) for x in c) for c in cams]
+    res = calibration.camera_imu([_camera(), _camera()], obs,
+                                 (_t(t), _t(g + drift_g), _t(a + drift_a)),
+                                 gyro_noise=sim.GYRO_DENSITY, accel_noise=sim.ACCEL_DENSITY,
+                                 pixel_sigma=0.3, bias_walk=WALK, bias_interval=0.25)
+    edges = res.bias_edges.numpy()
+    K = len(edges) - 1
+    assert K == 13 and np.allclose(np.diff(edges), np.diff(edges)[0])
+    assert res.gyro_bias.shape == res.accel_bias.shape == res.std["gyro_bias"].shape == (K, 3)
+    z = _errors_over_std(res, 0.0)
+    for key, truth in (("gyro_bias", sim.GYRO_BIAS + drift_g),
+                       ("accel_bias", sim.ACCEL_BIAS + drift_a)):
+        mean = _segment_means(t, truth, edges)
+        z[key] = (getattr(res, key).numpy() - mean) / res.std[key].numpy()
+        # the drift is resolved: it spans more than 4 standard deviations of a segment
+        assert np.abs((mean - mean[0]) / res.std[key].numpy()).max() > 4, key
+    for name, v in z.items():  # measured: 2.8 at most (accel_bias)
+        assert np.all(np.isfinite(v)) and np.all(np.abs(v) < 4.0), (name, v)
+    for term in res.terms[-2:]:
+        assert float(res.estimate.chi2[term] / res.estimate.dof[term]) < 1.25
+    # the ties: the gyroscope term's rows at the inner edges read (b_k+1 - b_k) over the
+    # walk's sigma over adjacent segment means, walk sqrt(2 h / 3)
+    gyro = res.terms[-2]
+    with torch.no_grad():
+        r = gyro(res.trajectory).numpy()
+    h = edges[1] - edges[0]
+    ties = np.diff(res.gyro_bias.numpy(), axis=0) / (WALK[0] * np.sqrt(2 * h / 3))
+    np.testing.assert_allclose(r[gyro.link.numpy()], ties, rtol=1e-9, atol=1e-12)
+
+
+def test_random_walk_arguments(rolling_data):
+    obs, imu = rolling_data
+    kw = {"gyro_noise": 1e-4, "accel_noise": 1e-3}
+    with pytest.raises(ValueError, match="camera_imu: expected bias_walk"):
+        calibration.camera_imu([_camera()], obs[:1], imu, bias_walk=1e-3, **kw)
+    with pytest.raises(ValueError, match=r"bias_walk\[1\]"):
+        calibration.camera_imu([_camera()], obs[:1], imu, bias_walk=(1e-3, -1.0), **kw)
+    with pytest.raises(ValueError, match="bias_interval"):
+        calibration.camera_imu([_camera()], obs[:1], imu, bias_walk=(1e-3, 1e-2),
+                               bias_interval=0.0, **kw)

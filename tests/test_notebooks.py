@@ -27,6 +27,7 @@ EXPECTED = {
     "07_estimation": ["07_trajectory.png", "07_kinematics.png"],
     "08_camera_rig": ["08_extrinsics.png", "08_residuals.png"],
     "09_deblurring": ["09_deblur_images.png", "09_deblur_loss.png"],
+    "10_calibration": ["10_detection.png", "10_errors.png", "10_reprojection.png", "10_imu.png"],
 }
 
 

@@ -47,6 +47,7 @@ from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _start
 from ._cameras import _cameras_data
+from ._walk import WalkAccel, WalkGyro, segments
 
 __all__ = ["CameraImuCalibration", "camera_imu"]
 
@@ -67,12 +68,13 @@ class CameraImuCalibration:
         time_offsets: ``(C,)`` seconds, IMU time = camera stamp + offset (Kalibr's
             ``timeshift_cam_imu``).
         line_delays: ``(C,)`` seconds per image row (zero for a global shutter).
-        gyro_bias, accel_bias: ``(3,)`` IMU axes.
+        gyro_bias, accel_bias: ``(3,)`` IMU axes; with ``bias_walk``, ``(K, 3)``: one per
+            segment of :attr:`bias_edges`.
         gravity: ``(3,)`` in the target's frame (m/s^2).
         std: standard deviations with the same keys: ``"extrinsics" (C, 6)`` in the chart
             ``e exp(delta)`` (rotation then translation, camera axes), ``"time_offsets"``
             and ``"line_delays"`` ``(C,)``, ``"gyro_bias"``, ``"accel_bias"``,
-            ``"gravity"`` ``(3,)``.
+            ``"gravity"`` ``(3,)`` (the biases ``(K, 3)`` with ``bias_walk``).
         reprojection_rms: ``(C,)`` root mean square of the pixel error's norm over the
             observations used (pixels).
         trajectory: the body's :class:`~torch_dq.nn.BSpline` (IMU frame in the target
@@ -83,6 +85,8 @@ class CameraImuCalibration:
         warnings: the warnings issued (degenerate motion), as text.
         timings: seconds per stage: ``"start"`` (target poses, offsets, orientations),
             ``"trajectory"`` (the start spline), ``"estimate"``, ``"uncertainties"``.
+        bias_edges: ``(K + 1,)`` the edges (IMU clock, seconds) of the biases' segments with
+            ``bias_walk``; None for constant biases.
     """
 
     cameras: list
@@ -99,6 +103,7 @@ class CameraImuCalibration:
     terms: list = field(repr=False)
     warnings: list = field(default_factory=list, repr=False)
     timings: dict = field(default_factory=dict, repr=False)
+    bias_edges: Tensor | None = field(default=None, repr=False)
 
     def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
         """Kalibr's ``camchain-imucam.yaml`` as a dict of plain lists and floats: per camera
@@ -353,7 +358,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                shared_time_offset: bool = False, knot_spacing: float = 0.05,
                max_time_offset: float = 0.1, max_line_delay: float = 1e-4,
                robust: str | None = None, steps: int = 30, prior: float = 0.0,
-               min_points: int = 6, verbose: bool = False) -> CameraImuCalibration:
+               min_points: int = 6, bias_walk: tuple[float, float] | None = None,
+               bias_interval: float = 1.0, verbose: bool = False) -> CameraImuCalibration:
     r"""Cameras' poses on an IMU, clock offsets, line delays, IMU biases and gravity from
     target observations and IMU readings (Kalibr's ``calibrate_imu_camera``).
 
@@ -386,6 +392,14 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             the IMU readings cover every control point, and a pull towards the start
             trajectory biases the extrinsics' translations).
         min_points: frames with fewer corners are left out.
+        bias_walk: None (default: constant biases) or the random walks
+            ``(gyroscope_random_walk, accelerometer_random_walk)`` of Kalibr's ``imu.yaml``
+            (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)): each bias is then piecewise constant over
+            segments of about ``bias_interval`` seconds, consecutive segments tied by the
+            walk's prior (the difference of adjacent segment means of a Wiener process has
+            the variance ``2/3 walk^2 interval`` per axis; private module
+            ``calibration._walk``); the biases come out ``(K, 3)``.
+        bias_interval: the segments' length (seconds) with ``bias_walk``.
 
     Returns:
         :class:`CameraImuCalibration`.
@@ -420,9 +434,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                           shared_time_offset, max_time_offset, max_line_delay, robust,
                           (lo, hi, reach))
     keep = (t_imu >= lo) & (t_imu <= hi)
-    gyro_term = Gyro(t_imu[keep], gyro[keep], sigma=sg, bias=Free(start=bg0))
-    accel_term = Accel(t_imu[keep], accel[keep], sigma=sa, bias=True, gravity=_GRAVITY)
-    terms = [*terms, gyro_term, accel_term]
+    terms = [*terms, *_imu_terms(t_imu[keep], gyro[keep], accel[keep], sg, sa, bg0,
+                                 bias_walk, bias_interval)]
     est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
     clock.append(time.perf_counter())
     res = _result(cams, terms, spline, est, rolling_shutter, notes)
@@ -430,6 +443,24 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     res.timings = dict(zip(("start", "trajectory", "estimate", "uncertainties"),
                            (b - a for a, b in itertools.pairwise(clock)), strict=True))
     return res
+
+
+def _imu_terms(t: Tensor, gyro: Tensor, accel: Tensor, sg: float, sa: float, bg0: Tensor,
+               walk, interval) -> list:
+    """The Gyro and Accel terms: constant biases, or piecewise constant tied by the random
+    walks ``walk`` over segments of about ``interval`` seconds."""
+    if walk is None:
+        return [Gyro(t, gyro, sigma=sg, bias=Free(start=bg0)),
+                Accel(t, accel, sigma=sa, bias=True, gravity=_GRAVITY)]
+    if not isinstance(walk, (tuple, list)) or len(walk) != 2:
+        _checks.fail(_FN, f"expected bias_walk to be None or (gyroscope_random_walk, "
+                          f"accelerometer_random_walk), got {walk!r}")
+    wg, wa = (_positive(f"bias_walk[{i}]", w) for i, w in enumerate(walk))
+    edges = segments(float(t[0]), float(t[-1]), _positive("bias_interval", interval))
+    k = edges.numel() - 1
+    return [WalkGyro(t, gyro, sigma=sg, edges=edges, walk=wg, starts=bg0.expand(k, 3)),
+            WalkAccel(t, accel, sigma=sa, edges=edges, walk=wa,
+                      starts=torch.zeros(k, 3, dtype=torch.float64), gravity=_GRAVITY)]
 
 
 def _camera_terms(cams, obs, e0, dt0, sigma, rolling, shared, max_offset, max_delay, robust,
@@ -472,7 +503,7 @@ def _result(cams, terms, spline, est, rolling, notes) -> CameraImuCalibration:
            "time_offsets": torch.stack([est.std(t, "time_offset").reshape(()) for t in reps]),
            "line_delays": torch.stack([est.std(t, "line_delay").reshape(()) if rolling
                                        else zero for t in reps]),
-           "gyro_bias": est.std(gyro, "bias"), "accel_bias": est.std(accel, "bias"),
+           "gyro_bias": _bias(est.std, gyro), "accel_bias": _bias(est.std, accel),
            "gravity": est.std(accel, "gravity")}
     rms = torch.stack([_reprojection_rms(t, spline) for t in reps])
     notes = list(notes)
@@ -482,6 +513,16 @@ def _result(cams, terms, spline, est, rolling, notes) -> CameraImuCalibration:
             warnings.warn(text, UserWarning, stacklevel=3)
             notes.append(text)
     return CameraImuCalibration(
-        cams, ext, offs, delays, gyro.bias.detach(), accel.bias.detach(),
-        accel.gravity.detach(), {k: v.detach() for k, v in std.items()}, rms, spline, est,
-        terms, notes)
+        cams, ext, offs, delays, _bias(lambda t, n: t._value(n), gyro),
+        _bias(lambda t, n: t._value(n), accel), accel.gravity.detach(),
+        {k: v.detach() for k, v in std.items()}, rms, spline, est, terms, notes,
+        bias_edges=getattr(gyro, "edges", None))
+
+
+def _bias(read, term) -> Tensor:
+    """``read(term, name)`` of the term's bias, ``(3,)``, or of each segment's, ``(K, 3)``
+    (a random-walk bias)."""
+    names = getattr(term, "names", None)
+    if names is None:
+        return read(term, "bias").detach()
+    return torch.stack([read(term, n).detach() for n in names])
