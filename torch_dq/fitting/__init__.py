@@ -87,25 +87,25 @@ Example (poses at 20 Hz and a gyroscope at 200 Hz with a bias):
 
 import torch  # noqa: F401  (the examples' namespace)
 
-from ._knots import choose_knot_spacing
-from .._start import bspline_basis, check_determined, least_squares_start
-from .._start import check_sample_times as check_times
+from .._start import bspline_basis, check_determined, least_squares_start  # noqa: F401
+from .._start import check_sample_times as check_times  # noqa: F401
 from ._camera import Reprojections
 from ._estimate import estimate
 from ._fit import FitHistory, fit
 from ._imu import Accel, Gyro
+from ._knots import choose_knot_spacing
 from ._nuisance import Free
 from ._robust import chi_quantile
-from ._terms import Poses, Positions, RelativePoses, Term
+from ._terms import Options, Poses, Positions, RelativePoses, Term
 from ._uncertainty import Estimate
 
-for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Poses, Positions, RelativePoses,
-             Reprojections, Term, chi_quantile, estimate, fit):
+for _obj in (Accel, Estimate, FitHistory, Free, Gyro, Options, Poses, Positions,
+             RelativePoses, Reprojections, Term, chi_quantile, estimate, fit):
     _obj.__module__ = __name__  # the public home of the names (and of their documentation)
 del _obj
 
 # bspline_basis, check_determined, check_times and least_squares_start stay importable from
 # here (0.2's names); they are documented where they live, torch_dq._start.
-__all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Poses", "Positions",
+__all__ = ["Accel", "Estimate", "FitHistory", "Free", "Gyro", "Options", "Poses", "Positions",
            "RelativePoses", "Reprojections", "Term", "chi_quantile", "choose_knot_spacing",
            "estimate", "fit"]

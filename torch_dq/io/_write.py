@@ -148,7 +148,7 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
               comments_first: bool = False) -> None:
     r"""Write a (resampled) trajectory with its velocities and accelerations as CSV.
 
-    The columns are :data:`CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy,
+    The columns are :data:`~torch_dq.io.CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy,
     wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit quaternion, m/s,
     rad/s, m/s², rad/s²; all vectors in the world frame: ``v = dp/dt``, ``w`` with
     ``dR/dt = [w]x R``, ``a = d²p/dt²``, ``alpha = dw/dt``), then the ``extra_columns``.
@@ -177,7 +177,7 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
             others, in its order: ``values`` an ``(N,)`` tensor or numpy array (bool,
             integer or floating), ``note`` the column's meaning and unit, appended to the
             units line as ``"; " + note``. Names are identifiers not in
-            :data:`CSV_COLUMNS`.
+            :data:`~torch_dq.io.CSV_COLUMNS`.
         comments_first: put the comment block (and the line counting it) before the header
             row.
 
