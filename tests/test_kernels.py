@@ -2,7 +2,7 @@
 
 Every public function backed by a custom autograd op runs it in eager reverse mode and its
 readable plain-op reference under ``torch.func`` transforms and forward-mode AD
-(``torch_dq._kernels.fused_path``). Here both are run on the same inputs, random and
+(``torch_dq._dispatch.fused_path``). Here both are run on the same inputs, random and
 degenerate (equal and opposite rotations, pure translations, relative rotations of 0,
 1e-9, 1e-6, 1e-3 rad, half turns, translations up to 1e3), and compared:
 
@@ -601,10 +601,10 @@ def test_kernels_and_references_agree_on_non_finite_input(gen):
 
 
 def test_index_add_compiled_is_the_scatter():
-    """``_kernels.index_add`` (an opaque op when compiled on CPU, so that inductor does not
+    """``_autograd.index_add`` (an opaque op when compiled on CPU, so that inductor does not
     lower the sums onto a few rows to atomic adds) gives ``Tensor.index_add``'s sums, eager
     and under ``torch.compile(fullgraph=True)``, along either dim and with repeated indices."""
-    from torch_dq._kernels import index_add
+    from torch_dq._autograd import index_add
 
     gen = torch.Generator().manual_seed(0)
     x = torch.randn(8, 5, generator=gen, dtype=torch.float64)

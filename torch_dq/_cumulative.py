@@ -53,16 +53,9 @@ import torch
 from torch import Tensor
 
 from . import _taylor
-from ._kernels import (
-    batched,
-    index_add,
-    opaque_scatter,
-    products,
-    reference_vjp,
-    save,
-    saved,
-    written_backward,
-)
+from ._autograd import index_add, reference_vjp, save, saved
+from ._dispatch import batched, opaque_scatter, written_backward
+from ._kernels import products
 from ._kernels.layout import chunks, rows_into, to_rows
 from ._kernels.sclerp import Frame
 from ._kernels.sclerp import weights as screw_weights
@@ -340,7 +333,7 @@ def _segment_outer(W: Tensor, G: Tensor, f: Tensor, F: int) -> Tensor:
     r""":math:`\sum_{n: f_n = s} W_n \otimes G_n` for every span start ``s``: ``W (n, k)``,
     ``G (n, 8)`` -> ``(F, k, 8)``, a scatter of the outer products (differentiable; sorted
     times run per span instead, :func:`_runs`); :func:`_segment_outer_op` where
-    :func:`~torch_dq._kernels.opaque_scatter`."""
+    :func:`~torch_dq._dispatch.opaque_scatter`."""
     if opaque_scatter(W):
         return _segment_outer_op(W, G, f, F)
     return W.new_zeros(F, W.shape[1], 8).index_add(0, f, W[:, :, None] * G[:, None, :])
@@ -575,7 +568,7 @@ def poses(ctrl: Tensor, first: Tensor, weights: Tensor) -> Tensor:
     Returns:
         ``(N, 8)``: :math:`c_{r-p} \prod_j (c_{r-p+j-1}^{-1} c_{r-p+j})^{w_j}`. Differentiable
         twice (reverse mode) with respect to ``ctrl`` and ``weights``. Under ``torch.func``
-        transforms and forward AD (:func:`torch_dq._kernels.fused_path` false) use
+        transforms and forward AD (:func:`torch_dq._dispatch.fused_path` false) use
         :func:`jets` instead, which this does not check. With fewer than
         ``TABLE_MIN_TIMES`` times per span start (``M - p`` of them; e.g. the estimator's
         one-span copies of each sample, where every time has a span of its own) the span
@@ -1000,7 +993,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     The tables, the pairs' angles and ``y = 1 - c`` are computed in float64
     (:func:`_difference_table`). Differentiable twice (reverse mode) with
     respect to ``ctrl`` and ``weights``; under ``torch.func`` transforms and forward AD
-    (:func:`torch_dq._kernels.fused_path` false) use :func:`jets`.
+    (:func:`torch_dq._dispatch.fused_path` false) use :func:`jets`.
 
     Args:
         ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).

@@ -38,7 +38,7 @@ Two implementations of each scheme: the readable level loops of this module
 any order of differentiation in any mode), and the fused op
 :func:`torch_dq._kernels.pyramid.pyramid` (all levels in one autograd op, O(output) memory).
 :func:`bezier` and :func:`bspline` run the fused op except under ``torch.func`` transforms
-and forward-mode AD (:func:`torch_dq._kernels.fused_path`), where a custom op cannot pass
+and forward-mode AD (:func:`torch_dq._dispatch.fused_path`), where a custom op cannot pass
 nested tangents on.
 
 The time derivatives (:func:`bezier_derivatives`, :func:`bspline_derivatives`) run the same
@@ -84,7 +84,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _cumulative, _kernels, _taylor, dualquat, quat
+from . import _checks, _cumulative, _dispatch, _taylor, dualquat, quat
 from ._core import align_chain, qmul, translation
 from ._kernels import jet_pyramid
 from ._kernels.layout import chunks
@@ -462,7 +462,7 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
     """
     fn = "curves.bezier"
     batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
-    if _kernels.fused_path(ctrl_c, s):
+    if _dispatch.fused_path(ctrl_c, s):
         return _fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
     return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
 
@@ -579,12 +579,12 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
         return _split_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
     if form == "cumulative":
         weights = _cumulative.basis(*dom.flat(r, rel.dtype), rel, p, 0)[0].to(dtype)
-        if _kernels.fused_path(ctrl_c, weights):
+        if _dispatch.fused_path(ctrl_c, weights):
             return _fused_cumulative(ctrl_c, r, [weights], p, batch)[0].to(ctrl.dtype)
         points = _span_points(ctrl_c, r, p, batch)
         return _cumulative.jets(points, [weights], 0)[0].to(ctrl.dtype)
     alphas = [alpha for alpha, _ in dom.de_boor_levels(rel, r, dtype)]
-    if _kernels.fused_path(ctrl_c, *alphas):
+    if _dispatch.fused_path(ctrl_c, *alphas):
         return _fused_bspline(ctrl_c, r, alphas, p, batch).to(ctrl.dtype)
     return _de_boor(_span_points(ctrl_c, r, p, batch), alphas).to(ctrl.dtype)
 
@@ -620,7 +620,7 @@ def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: i
     """The cumulative form on the cumulative ``weights`` (and their derivatives) of the spans
     ``r``: through the span tables (:func:`_fused_cumulative`) where the fused ops may run,
     else its jets."""
-    if _kernels.fused_path(ctrl, *weights):
+    if _dispatch.fused_path(ctrl, *weights):
         return _fused_cumulative(ctrl, r, weights, degree, batch)
     return _cumulative.jets(_span_points(ctrl, r, degree, batch), weights, len(weights) - 1)
 

@@ -43,7 +43,7 @@ import torch
 import torch.utils._pytree as _pytree
 from torch import Tensor
 
-from . import _checks, _kernels
+from . import _checks, _dispatch
 
 __all__ = [
     "Dual",
@@ -551,7 +551,7 @@ def sincos(x: Dual) -> tuple[Dual, Dual]:
         (Dual(real=tensor(0.), dual=tensor(2.)), Dual(real=tensor(1.), dual=tensor(-0.)))
     """
     a, b = _dual("dual.sincos", x)
-    if _kernels.fused_path(a, b):
+    if _dispatch.fused_path(a, b):
         s, s_d, c, c_d = _SinCos.apply(a, b)
     else:
         s, s_d, c, c_d = _sincos(a, b)

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _kernels, quat
+from . import _checks, _dispatch, quat
 from ._core import (
     canonical,
     dq_from_rt,
@@ -603,7 +603,7 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     _checks.pair(fn, a, b, 8)
     dtype = a.dtype
     a, b = torch.broadcast_tensors(lift(a), lift(b))
-    if _kernels.fused_path(a, b):
+    if _dispatch.fused_path(a, b):
         theta, theta_hat, degenerate = _dual_angle_kernel.dual_angle(a, b)
     else:
         theta, theta_hat, degenerate = _eqs4_5(a, b)
@@ -714,7 +714,7 @@ def sclerp(a: Tensor, b: Tensor, t: Tensor | float, shortest: bool = True) -> Te
     dtype = a.dtype
     a, b, t = (x.to(compute_dtype(dtype)) for x in (a, b, t))
     a, b, t = a.expand(*batch, 8), b.expand(*batch, 8), t.expand(batch)
-    if _kernels.fused_path(a, b, t):
+    if _dispatch.fused_path(a, b, t):
         out = _sclerp_kernel.sclerp(a, b, t, shortest)
     else:
         out = _eq11(a, b, t, shortest)

@@ -30,7 +30,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _kernels, _numerics
+from . import _checks, _dispatch, _numerics
 from ._core import canonical, lift, qconj, qmul, qrotate
 from ._kernels import slerp as _slerp_kernel
 
@@ -321,7 +321,7 @@ def slerp(q0: Tensor, q1: Tensor, t: Tensor | float, shortest: bool = True) -> T
     q0, q1, t = lift(q0).expand(*batch, 4), lift(q1).expand(*batch, 4), lift(t)
     if not shortest:
         out = _great_circle(q0, q1, t[..., None])
-    elif _kernels.fused_path(q0, q1, t):
+    elif _dispatch.fused_path(q0, q1, t):
         out = _slerp_kernel.slerp(q0, q1, t)
     else:
         out = _slerp_kernel.plain(q0, q1, t.expand(batch))

@@ -17,7 +17,8 @@ from typing import cast
 import torch
 from torch import Tensor
 
-from . import index_add, layout
+from .._autograd import index_add
+from . import layout
 from .layout import chunks, from_rows, to_rows
 from .sclerp import Frame, add_frame_terms, combine, frame, vjp_rows, weights
 from .weights import Angle, angle

@@ -10,7 +10,7 @@ sums of products of the strided components, :func:`dot`, and it writes the outpu
 gradients in place).
 
 There is no forward-mode rule: under ``torch.func`` transforms and forward AD the public
-functions run their readable references (:func:`torch_dq._kernels.fused_path`), so a
+functions run their readable references (:func:`torch_dq._dispatch.fused_path`), so a
 forward-mode call that reaches this op anyway raises instead of returning zeros. The backward
 also runs under a vmap started after the forward (``torch.autograd.functional.jacobian(...,
 vectorize=True)``, ``is_grads_batched=True``): a batched cotangent's chunks are concatenated
@@ -24,7 +24,7 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from . import batched
+from .._dispatch import batched
 from .layout import chunks, coef
 from .weights import Angle, Weights, WeightSlopes, screw_weights
 
