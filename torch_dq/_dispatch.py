@@ -15,7 +15,9 @@ import torch.autograd.forward_ad as _forward_ad
 from torch import Tensor
 from torch._C._functorch import is_functorch_wrapped_tensor, is_legacy_batchedtensor
 
-__all__ = ["batched", "fused_path", "opaque_scatter", "written_backward"]
+__all__ = ["batched", "fused_path", "opaque_scatter", "per_time_jets", "written_backward"]
+
+TABLE_MIN_TIMES = 2  # times per span start below which the span tables do not pay
 
 
 def fused_path(*tensors: Tensor) -> bool:
@@ -83,6 +85,15 @@ def opaque_scatter(x: Tensor) -> bool:
     ``x``'s device should run as an opaque op: compiled on CPU, outside a differentiated
     backward. There inductor lowers such scatters to atomic adds from every thread, which
     onto a few rows (64 control points from 4e5 level rows) cost several times aten's serial
-    kernel (:func:`index_add`; the cumulative form's ``_segment_outer``)."""
+    kernel (:func:`torch_dq._autograd.index_add`; the cumulative form's ``segment_outer``)."""
     return (torch.compiler.is_compiling() and x.device.type == "cpu"
             and not torch.is_grad_enabled())
+
+
+def per_time_jets(ctrl: Tensor, first: Tensor, p: int) -> bool:
+    """Whether the cumulative form's product of powers runs per time
+    (:func:`torch_dq._cumulative.jets`, not the span tables): eager, with fewer than
+    :data:`TABLE_MIN_TIMES` times per span start, where the span tables cost more than they
+    save (e.g. the estimator's one-span copies of each sample)."""
+    return (not torch.compiler.is_compiling()
+            and first.shape[0] < TABLE_MIN_TIMES * (ctrl.shape[0] - p))
