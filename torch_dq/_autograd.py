@@ -14,7 +14,7 @@ from torch import Tensor
 
 from ._dispatch import opaque_scatter
 
-__all__ = ["index_add", "reference_vjp", "save", "saved"]
+__all__ = ["InputsSaved", "index_add", "reference_vjp", "save", "saved"]
 
 
 def save(ctx: Any, items: list[Tensor | None]) -> None:
@@ -24,6 +24,17 @@ def save(ctx: Any, items: list[Tensor | None]) -> None:
     kept as attributes of ``ctx``."""
     ctx.known = [x is not None for x in items]
     ctx.save_for_backward(*(x for x in items if x is not None))
+
+
+class InputsSaved(torch.autograd.Function):
+    """Base of the ops whose ``setup_context`` saves their tensor inputs for the backward
+    (back, in order, from ``ctx.saved_tensors``) and keeps their other inputs (Python
+    constants) as the tuple ``ctx.constants``."""
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.save_for_backward(*(x for x in inputs if isinstance(x, Tensor)))
+        ctx.constants = tuple(x for x in inputs if not isinstance(x, Tensor))
 
 
 def saved(ctx: Any) -> list[Tensor | None]:

@@ -14,7 +14,7 @@ from torch import Tensor
 from ._numerics import compute_dtype, even
 
 __all__ = [
-    "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "lift", "qconj",
+    "Frozen", "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "lift", "qconj",
     "qmul", "qrotate", "split", "translation", "twist_translation",
 ]
 
@@ -121,3 +121,17 @@ def twist_translation(omega: Tensor, t: Tensor) -> Tensor:
     c3 = even("se3_c3", (omega * omega).sum(-1, keepdim=True))
     wxt = torch.linalg.cross(omega, t, dim=-1)
     return t - 0.5 * wxt + c3 * torch.linalg.cross(omega, wxt, dim=-1)
+
+
+class Frozen:
+    """Base of the immutable value types (:class:`~torch_dq.dual.Dual`,
+    :class:`~torch_dq.object.DualQuaternion`): their constructors set each slot once with
+    ``object.__setattr__``; setting or deleting an attribute afterwards raises."""
+
+    __slots__ = ()
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"{type(self).__name__} is immutable: cannot set {name!r}")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"{type(self).__name__} is immutable: cannot delete {name!r}")

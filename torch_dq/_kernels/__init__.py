@@ -19,8 +19,9 @@ runs each against its reference over random and degenerate inputs.
 - :mod:`.cumulative`, :mod:`.cumulative_jets`, :mod:`.cumulative_rows`, :mod:`.subsets`: the
   cumulative B-spline form's poses and time derivatives through span tables (reference:
   :func:`torch_dq._cumulative.jets`).
+- :mod:`.sincos`: the dual sine and cosine (reference: :func:`torch_dq.dual._sincos`).
 
-The dual sine and cosine (:class:`torch_dq.dual._SinCos`) follow the same dispatch
+Every public function chooses between kernel and reference the same way
 (:mod:`torch_dq._dispatch`); the helpers of the custom ops are in :mod:`torch_dq._autograd`.
 The modules import each other and the layers below, never this package.
 """
