@@ -156,8 +156,8 @@ def integer(fn: str, name: str, value, low: int, high: int | None = None,
     """``value`` as an ``int``: an integral number (not a ``bool``) in ``[low, high]``
     (``high=None``: no upper bound), else ``ValueError`` ``"<name> must be an int <rule>,
     got <value>"`` (``rule``: ``">= low"`` or ``"in low..high"`` unless given)."""
-    if (isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low
-            or (high is not None and value > high)):
+    if (isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < low
+            or (high is not None and int(value) > high)):
         if rule is None:
             rule = f">= {low}" if high is None else f"in {low}..{high}"
         fail(fn, f"{name} must be an int {rule}, got {value!r}")
