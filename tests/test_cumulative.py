@@ -21,6 +21,8 @@ from strategies import knot_vector, unit_quat
 import torch_dq.dualquat as dq
 from torch_dq import _cumulative, curves
 from torch_dq._core import align_chain
+from torch_dq._kernels import cumulative as kcum
+from torch_dq._kernels import cumulative_jets, cumulative_rows, subsets
 from torch_dq._time import KnotDomain, span_bases
 
 F64 = torch.float64
@@ -473,14 +475,14 @@ def test_fused_poses_runs_across_chunks_match_reference(gen, monkeypatch):
     """Sorted times run per span (one matrix product per run of a span start) with chunk
     boundaries inside runs (chunks of 37 times): values and gradients with respect to the
     control points and the weights (first and second order) equal the reference's."""
-    monkeypatch.setattr(_cumulative, "POSES_CHUNK", 37)
+    monkeypatch.setattr(cumulative_rows, "POSES_CHUNK", 37)
     p, n = 3, 7
     ctrl = align_chain(chain(n, gen))
     knots = knot_vector("nonuniform", n, p, gen)
     t = domain_times(knots, p, 200)
     r = KnotDomain(knots, p).span(t)
     first = r - p
-    runs = _cumulative._runs(first)
+    runs = cumulative_rows.sorted_runs(first)
     assert runs is not None and len(runs) == 6  # chunks of 37 times
     spans = [f for _, rs in runs for *_, f in rs]
     assert len(spans) > len(set(spans))  # some span's run is split between two chunks
@@ -510,8 +512,8 @@ def test_fused_poses_build_tables_of_starts_in_use(gen, monkeypatch):
         built.append(starts.tolist())
         return span_tables(ctrl, starts, p, used)
 
-    span_tables = _cumulative._span_tables
-    monkeypatch.setattr(_cumulative, "_span_tables", spy)
+    span_tables = kcum._span_tables
+    monkeypatch.setattr(kcum, "_span_tables", spy)
     p, n = 3, 7
     ctrl = torch.cat([align_chain(chain(n, gen)) for _ in range(3)])
     ctrl[9] = float("nan")  # curve 1, read by no time
@@ -606,8 +608,8 @@ def test_bag_jets_backward_is_autograds(gen, monkeypatch, p):
     1e-6 rad) and nearly opposite (pi - 1e-3) neighbours, sorted and scattered times,
     orders 1-3."""
     ran = []
-    monkeypatch.setattr(_cumulative._BagJets, "backward",
-                        staticmethod(lambda ctx, g, f=_cumulative._BagJets.backward:
+    monkeypatch.setattr(cumulative_jets._BagJets, "backward",
+                        staticmethod(lambda ctx, g, f=cumulative_jets._BagJets.backward:
                                      ran.append(1) or f(ctx, g)))
     n = p + 8
     steps = [dq.exp(torch.tensor([0.0, 0.0, 0.0, 0.1, 0.0, 0.2], dtype=F64)),
@@ -633,7 +635,7 @@ def test_bag_jets_backward_is_autograds(gen, monkeypatch, p):
             (written,) = torch.autograd.grad(out, c, g)
             assert ran
             with monkeypatch.context() as m:
-                m.setattr(_cumulative._BagJets, "applies", staticmethod(lambda *a: False))
+                m.setattr(cumulative_jets._BagJets, "applies", staticmethod(lambda *a: False))
                 (plain,) = torch.autograd.grad(_cumulative.derivatives(c, r - p, w), c, g)
             scale = float(plain.abs().max())
             assert float((written - plain).abs().max()) <= 1e-13 * scale
@@ -816,7 +818,7 @@ def test_segment_outer_op_matches_scatter(gen):
     G = torch.randn(n, 8, generator=gen, dtype=F64)
     f = torch.randint(0, F - 2, (n,), generator=gen)  # the last two starts unread
     ref = torch.zeros(F, k, 8, dtype=F64).index_add(0, f, W[:, :, None] * G[:, None, :])
-    out = _cumulative._segment_outer_op(W, G, f, F)
+    out = cumulative_rows._segment_outer_op(W, G, f, F)
     assert float((out - ref).abs().max()) <= 1e-12 and not out[-2:].any()
     p, m = 3, 8
     ctrl = align_chain(chain(m, gen))
@@ -843,8 +845,8 @@ def test_subset_jets_backward_is_autograds(gen, p, L):
     (a product of p dual-number polynomials, truncated)."""
     b_r = torch.randn(L, 2, p, 7, generator=gen, dtype=F64, requires_grad=True)
     b_d = torch.randn(L, 2, p, 7, generator=gen, dtype=F64, requires_grad=True)
-    out = _cumulative._SubsetJets.apply(b_r, b_d)
-    ref = _cumulative._subset_jets(b_r, b_d)  # the same ops, recorded by autograd
+    out = subsets.SubsetJets.apply(b_r, b_d)
+    ref = subsets.subset_jets(b_r, b_d)  # the same ops, recorded by autograd
     assert out.shape == (L, 2 ** (p + 1), 7)
     S = torch.randint(0, 2 ** p, (), generator=gen).item()
     bits = [(S >> j) & 1 for j in range(p)]
@@ -862,7 +864,7 @@ def test_subset_jets_backward_is_autograds(gen, p, L):
     b = torch.autograd.grad(ref, (b_r, b_d), g)
     assert all(float((x - y).abs().max()) <= 1e-12 for x, y in zip(a, b, strict=True))
     small = (b_r[..., :2].detach().requires_grad_(), b_d[..., :2].detach().requires_grad_())
-    assert torch.autograd.gradgradcheck(_cumulative._SubsetJets.apply, small)
+    assert torch.autograd.gradgradcheck(subsets.SubsetJets.apply, small)
 
 
 @pytest.mark.parametrize("compiled", [False, True])

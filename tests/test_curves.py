@@ -17,6 +17,7 @@ from strategies import unit_quat
 import torch_dq.dualquat as dq
 from torch_dq import curves
 from torch_dq._core import align_chain
+from torch_dq._fused_curves import span_points
 from torch_dq.curves import bezier, bspline, clamped_uniform_knots, screw_axis, twists, velocity
 
 F64 = torch.float64
@@ -291,7 +292,7 @@ def readable_bspline(ctrl, t, degree=3, knots=None):
                                                  "de_boor")
     c, r = align_chain(ctrl), dom.span(rel)
     alphas = [a for a, _ in dom.de_boor_levels(rel, r, ctrl.dtype)]
-    return curves._de_boor(curves._span_points(c, r, dom.degree, batch), alphas)
+    return curves._de_boor(span_points(c, r, dom.degree, batch), alphas)
 
 
 def degenerate_polygons(gen, dtype):

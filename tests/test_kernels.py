@@ -2,7 +2,7 @@
 
 Every public function backed by a custom autograd op runs it in eager reverse mode and its
 readable plain-op reference under ``torch.func`` transforms and forward-mode AD
-(``torch_dq._kernels.fused_path``). Here both are run on the same inputs, random and
+(``torch_dq._dispatch.fused_path``). Here both are run on the same inputs, random and
 degenerate (equal and opposite rotations, pure translations, relative rotations of 0,
 1e-9, 1e-6, 1e-3 rad, half turns, translations up to 1e3), and compared:
 
@@ -13,7 +13,7 @@ degenerate (equal and opposite rotations, pure translations, relative rotations 
   formula, finite differences) are in ``test_quat.py``;
 - the dual angle (eqs. 4-5): ``_kernels.dual_angle.dual_angle`` against
   ``dualquat._eqs4_5``, and the public ``angle`` with and without ``torch.func``;
-- dual sine and cosine: ``dual._SinCos`` against ``dual._sincos``;
+- dual sine and cosine: ``_kernels.sincos.SinCos`` against ``dual._sincos``;
 - the fused De Casteljau / De Boor pyramid: ``curves.bezier`` / ``curves.bspline`` against
   themselves under ``torch.func.vmap`` (the readable level loops) and against a De Casteljau
   loop of ``dualquat.sclerp`` written here.
@@ -42,6 +42,7 @@ from torch_dq._kernels import dual_angle as angle_kernel
 from torch_dq._kernels import jet_pyramid, layout
 from torch_dq._kernels import sclerp as sclerp_kernel
 from torch_dq._kernels import slerp as slerp_kernel
+from torch_dq._kernels.sincos import SinCos
 from torch_dq.dual import Dual
 
 EPS = torch.finfo(torch.float64).eps
@@ -356,7 +357,7 @@ def test_dual_angle_public_gradients_and_second_order(pairs):
 def test_sincos_op_against_plain_ops(gen):
     x = torch.randn(50, generator=gen, dtype=torch.float64) * 4
     y = torch.randn(50, generator=gen, dtype=torch.float64)
-    fused = D._SinCos.apply(x, y)
+    fused = SinCos.apply(x, y)
     plain = D._sincos(x, y)
     for f, p in zip(fused, plain, strict=True):
         assert torch.equal(f, p)
@@ -366,7 +367,7 @@ def test_sincos_op_against_plain_ops(gen):
     def through(op):
         return lambda a, b: torch.stack(op(a, b))
 
-    for h, r in zip(hvp_fused(through(D._SinCos.apply), (x, y), w, v),
+    for h, r in zip(hvp_fused(through(SinCos.apply), (x, y), w, v),
                     hvp_readable(through(D._sincos), (x, y), w, v), strict=True):
         assert rel(h, r) <= 8 * EPS
     # the public functions pick the op outside transforms and the plain ops inside
@@ -601,10 +602,10 @@ def test_kernels_and_references_agree_on_non_finite_input(gen):
 
 
 def test_index_add_compiled_is_the_scatter():
-    """``_kernels.index_add`` (an opaque op when compiled on CPU, so that inductor does not
+    """``_autograd.index_add`` (an opaque op when compiled on CPU, so that inductor does not
     lower the sums onto a few rows to atomic adds) gives ``Tensor.index_add``'s sums, eager
     and under ``torch.compile(fullgraph=True)``, along either dim and with repeated indices."""
-    from torch_dq._kernels import index_add
+    from torch_dq._autograd import index_add
 
     gen = torch.Generator().manual_seed(0)
     x = torch.randn(8, 5, generator=gen, dtype=torch.float64)

@@ -8,7 +8,9 @@ These checks only read shapes and dtypes: they never synchronise with a device.
 
 from __future__ import annotations
 
+import math
 import numbers
+from collections.abc import Callable
 from typing import NoReturn
 
 import torch
@@ -17,14 +19,20 @@ from torch import Tensor
 __all__ = [
     "as_float_tensor",
     "broadcast_batch",
+    "control_points",
     "factory_args",
     "fail",
+    "first_index",
     "flag",
     "host_all",
+    "integer",
     "pair",
+    "real",
+    "same_device",
     "same_dtype_device",
     "shape_str",
     "tensor",
+    "times",
 ]
 
 
@@ -141,6 +149,61 @@ def flag(fn: str, name: str, value) -> bool:
     if not isinstance(value, bool):
         fail(fn, f"expected {name} to be a bool (True or False), got {value!r}", TypeError)
     return value
+
+
+def integer(fn: str, name: str, value, low: int, high: int | None = None,
+            rule: str | None = None) -> int:
+    """``value`` as an ``int``: an integral number (not a ``bool``) in ``[low, high]``
+    (``high=None``: no upper bound), else ``ValueError`` ``"<name> must be an int <rule>,
+    got <value>"`` (``rule``: ``">= low"`` or ``"in low..high"`` unless given)."""
+    if (isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < low
+            or (high is not None and int(value) > high)):
+        if rule is None:
+            rule = f">= {low}" if high is None else f"in {low}..{high}"
+        fail(fn, f"{name} must be an int {rule}, got {value!r}")
+    return int(value)
+
+
+def real(fn: str, name: str, value, rule: str, ok: Callable[[float], bool] = lambda v: True,
+         finite: bool = True) -> float:
+    """``value`` as a ``float``: a real number (not a ``bool``), finite unless ``finite`` is
+    false, for which ``ok`` holds (NaN fails any comparison), else ``ValueError`` ``"<name>
+    must be <rule>, got <value>"``."""
+    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+            or (finite and not math.isfinite(value)) or not ok(float(value))):
+        fail(fn, f"{name} must be {rule}, got {value!r}")
+    return float(value)
+
+
+def first_index(mask: Tensor) -> tuple[int, ...]:
+    """The index of the first ``True`` of a bool tensor (row-major order), read on the host
+    (a device sync, for error messages); ``mask`` must hold one."""
+    return tuple(int(i) for i in mask.nonzero()[0])
+
+
+def same_device(fn: str, ref: Tensor, ref_name: str, name: str, x: Tensor) -> None:
+    """Check that ``x`` is on the device of ``ref`` (``TypeError`` naming both)."""
+    if x.device != ref.device:
+        fail(fn, f"{name} is on {x.device} but {ref_name} is on {ref.device}", TypeError)
+
+
+def control_points(fn: str, ctrl, min_points: int, what: str) -> None:
+    """Check ``ctrl``: ``(..., n, 8)`` floating dual quaternions, ``n >= min_points``
+    (``what`` says why, e.g. ``"at least 2 control points"``)."""
+    tensor(fn, "ctrl", ctrl, 8)
+    if ctrl.dim() < 2 or ctrl.shape[-2] < min_points:
+        fail(fn, f"expected a (..., n, 8) tensor for ctrl with n >= {min_points} ({what}), "
+                 f"got shape {shape_str(ctrl.shape)}")
+
+
+def times(fn: str, t, ctrl: Tensor) -> torch.Size:
+    """Check the times ``t`` ``(T,)`` or ``(..., T)`` of curves ``ctrl`` ``(..., n, 8)`` (on
+    its device); returns the broadcast batch shape of the two."""
+    tensor(fn, "t", t)
+    if t.dim() < 1:
+        fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
+    same_device(fn, ctrl, "ctrl", "t", t)
+    return broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1))
 
 
 def host_all(fn: str, what: str, mask: Tensor) -> bool:

@@ -2,8 +2,9 @@ r"""Unchecked building blocks shared by every module (private).
 
 The bottom of the import ladder (``_numerics``, ``_checks`` and this module, then ``dual ->
 quat -> dualquat -> curves -> nn``): products, conjugates, rotations, translations, sign
-alignment of a chain and the twist translation, on plain tensors with no argument checks.
-Public modules call these instead of reaching into each other's private names.
+alignment (hemispheres, chains), the twist translation and the immutable value base, on
+plain tensors with no argument checks. Public modules call these instead of reaching into
+each other's private names.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from torch import Tensor
 from ._numerics import compute_dtype, even
 
 __all__ = [
-    "align_chain", "canonical", "dq_from_rt", "dq_mul", "join", "lift", "qconj",
-    "qmul", "qrotate", "split", "translation", "twist_translation",
+    "Frozen", "align", "align_chain", "canonical", "dq_from_rt", "dq_mul", "hemisphere",
+    "join", "lift", "qconj", "qmul", "qrotate", "split", "translation", "twist_translation",
 ]
 
 
@@ -101,11 +102,23 @@ def dq_from_rt(r: Tensor, t: Tensor) -> Tensor:
     return join(r, 0.5 * qmul(t0, r))
 
 
+def hemisphere(x: Tensor, ref: Tensor) -> Tensor:
+    """``(...)``: -1 where the dot of the rotation quaternions (the first 4 components) of
+    ``x`` and ``ref`` (``(..., 4)`` or ``(..., 8)``, broadcast) is negative, else 1 (``-0.0``
+    counts as positive), in ``x``'s dtype: the sign that takes ``x`` to its representative
+    (``x`` and ``-x`` are the same rotation or pose) on ``ref``'s side."""
+    return torch.where((x[..., :4] * ref[..., :4]).sum(-1) < 0, -1.0, 1.0).to(x.dtype)
+
+
+def align(x: Tensor, ref: Tensor) -> Tensor:
+    """The representative ``+-x`` nearest to ``ref`` (:func:`hemisphere`)."""
+    return x * hemisphere(x, ref)[..., None]
+
+
 def align_chain(x: Tensor) -> Tensor:
     """Sign-align a sequence ``(..., N, 8)`` so that each element's real part has a
     non-negative dot with its predecessor's (same poses, continuous representatives)."""
-    dots = (x[..., 1:, :4] * x[..., :-1, :4]).sum(-1)
-    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(x.dtype), dim=-1)
+    flips = torch.cumprod(hemisphere(x[..., 1:, :], x[..., :-1, :]), dim=-1)
     return torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
 
 
@@ -121,3 +134,17 @@ def twist_translation(omega: Tensor, t: Tensor) -> Tensor:
     c3 = even("se3_c3", (omega * omega).sum(-1, keepdim=True))
     wxt = torch.linalg.cross(omega, t, dim=-1)
     return t - 0.5 * wxt + c3 * torch.linalg.cross(omega, wxt, dim=-1)
+
+
+class Frozen:
+    """Base of the immutable value types (:class:`~torch_dq.dual.Dual`,
+    :class:`~torch_dq.object.DualQuaternion`): their constructors set each slot once with
+    ``object.__setattr__``; setting or deleting an attribute afterwards raises."""
+
+    __slots__ = ()
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"{type(self).__name__} is immutable: cannot set {name!r}")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"{type(self).__name__} is immutable: cannot delete {name!r}")

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, dualquat, quat
-from ._core import align_chain, twist_translation
+from ._core import align, align_chain, twist_translation
 from ._numerics import threshold
 from ._time import bspline_basis, time_step
 
@@ -91,7 +91,7 @@ def _row(bad: Tensor) -> str:
     ``bad``."""
     if bad.dim() < 2:
         return ""
-    row = tuple(int(i) for i in bad.any(-1).nonzero()[0])
+    row = _checks.first_index(bad.any(-1))
     return f" in each row, not so in row {row}"
 
 
@@ -314,5 +314,4 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     C = torch.cat(coeffs, dim=-2)
     ctrl = _from_chart(centre, C, split)
     # the representative of each control point nearest to its anchor (the samples' chain)
-    dots = (ctrl[..., :4] * anchor[..., :4]).sum(-1, keepdim=True)
-    return torch.where(dots < 0, -ctrl, ctrl)
+    return align(ctrl, anchor)

@@ -43,7 +43,8 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from ._kernels import batched, fused_path, reference_vjp, save, saved, written_backward
+from ._autograd import reference_vjp, save, saved
+from ._dispatch import batched, fused_path, written_backward
 from ._numerics import piecewise, screw_series_terms, series_mask, threshold
 
 __all__ = ["corr", "dq_mul", "dq_rows", "mul", "pyramid", "qmul_rows", "sclerp",
@@ -263,7 +264,7 @@ def weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
     (:func:`torch_dq._numerics.piecewise`; on guarded inputs: pairs in the series in both
     rows see ``c = 0``). Order 0 is what the fused kernels compute
     (:func:`torch_dq._kernels.weights.screw_weights`). Where reverse mode will differentiate
-    jets of ``c`` alone (eager, :func:`torch_dq._kernels.fused_path`), one op whose
+    jets of ``c`` alone (eager, :func:`torch_dq._dispatch.fused_path`), one op whose
     backward is written out (:class:`_WeightJets`)."""
     if _WeightJets.applies(c, s):
         out = _WeightJets.apply(s, *c)
@@ -320,7 +321,7 @@ class _WeightJets(torch.autograd.Function):
     summed over the two rows of ``s``: the forward's ``G`` and the jets of ``H``
     (:func:`_weight_parts`), instead of autograd through the Taylor recurrences (about 5x
     the forward). Where the backward is itself differentiated or batched (``vmap``), the
-    plain ops' VJP (:func:`torch_dq._kernels.reference_vjp`)."""
+    plain ops' VJP (:func:`torch_dq._autograd.reference_vjp`)."""
 
     @staticmethod
     def applies(c: Jet, s: Jet) -> bool:

@@ -38,7 +38,7 @@ Two implementations of each scheme: the readable level loops of this module
 any order of differentiation in any mode), and the fused op
 :func:`torch_dq._kernels.pyramid.pyramid` (all levels in one autograd op, O(output) memory).
 :func:`bezier` and :func:`bspline` run the fused op except under ``torch.func`` transforms
-and forward-mode AD (:func:`torch_dq._kernels.fused_path`), where a custom op cannot pass
+and forward-mode AD (:func:`torch_dq._dispatch.fused_path`), where a custom op cannot pass
 nested tangents on.
 
 The time derivatives (:func:`bezier_derivatives`, :func:`bspline_derivatives`) run the same
@@ -78,17 +78,20 @@ element), never a silent extrapolation.
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
-from . import _checks, _cumulative, _kernels, _taylor, dualquat, quat
+from . import _checks, _cumulative, _dispatch, dualquat, quat
 from ._core import align_chain, qmul, translation
-from ._kernels import jet_pyramid
-from ._kernels.layout import chunks
-from ._kernels.pyramid import pyramid
+from ._fused_curves import (
+    fused_bezier,
+    fused_bspline,
+    fused_cumulative,
+    jet_scheme,
+    span_points,
+)
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype
 from ._split import poses as split_poses
@@ -116,27 +119,6 @@ FORMS = ("de_boor", "cumulative", "split")  # the B-spline forms (module docstri
 
 # ----------------------------------------------------------------------------- checks
 
-def _check_degree(fn: str, degree) -> int:
-    if isinstance(degree, bool) or not isinstance(degree, numbers.Integral) or degree < 1:
-        _checks.fail(fn, f"degree must be an int >= 1, got {degree!r}")
-    return int(degree)
-
-
-def _check_order(fn: str, order) -> int:
-    if (isinstance(order, bool) or not isinstance(order, numbers.Integral)
-            or not 0 <= int(order) <= _MAX_ORDER):
-        _checks.fail(fn, f"order must be an int in 0..{_MAX_ORDER}, got {order!r}")
-    return int(order)
-
-
-def _check_ctrl(fn: str, ctrl, min_points: int, what: str) -> None:
-    _checks.tensor(fn, "ctrl", ctrl, 8)
-    if ctrl.dim() < 2 or ctrl.shape[-2] < min_points:
-        got = _checks.shape_str(ctrl.shape)
-        _checks.fail(fn, f"expected a (..., n, 8) tensor for ctrl with n >= {min_points} "
-                         f"({what}), got shape {got}")
-
-
 def check_form(fn: str, form) -> str:
     """``form`` if it names a B-spline form (:data:`FORMS`), else ``ValueError``."""
     if not isinstance(form, str) or form not in FORMS:
@@ -144,20 +126,6 @@ def check_form(fn: str, form) -> str:
                          f"'cumulative' (Kim-Kim-Shin, C^(p-1)) or 'split' (SO(3) x R^3, "
                          f"C^(p-1)), got {form!r}")
     return form
-
-
-def _same_device(fn: str, ctrl: Tensor, name: str, x: Tensor) -> None:
-    if x.device != ctrl.device:
-        _checks.fail(fn, f"{name} is on {x.device} but ctrl is on {ctrl.device}", TypeError)
-
-
-def _time_batch(fn: str, t, ctrl: Tensor) -> torch.Size:
-    """Check ``t`` ``(T,)`` or ``(..., T)`` on ``ctrl``'s device; the broadcast batch shape."""
-    _checks.tensor(fn, "t", t)
-    if t.dim() < 1:
-        _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
-    _same_device(fn, ctrl, "t", t)
-    return _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1))
 
 
 def _time_dtype(ctrl: Tensor, *times: Tensor) -> torch.dtype:
@@ -173,7 +141,7 @@ def _domain(fn: str, domain, ctrl: Tensor) -> tuple[Tensor | float, Tensor | flo
     ends = time_pair(fn, "domain", domain, keep_tensors=True)
     for e in ends:
         if isinstance(e, Tensor):
-            _same_device(fn, ctrl, "domain", e)
+            _checks.same_device(fn, ctrl, "ctrl", "domain", e)
     return ends
 
 
@@ -209,14 +177,12 @@ def clamped_uniform_knots(n_ctrl: int, degree: int, dtype: torch.dtype | None = 
                dtype=torch.float64)
     """
     fn = "curves.clamped_uniform_knots"
-    degree = _check_degree(fn, degree)
-    if isinstance(n_ctrl, bool) or not isinstance(n_ctrl, numbers.Integral) or n_ctrl <= degree:
-        _checks.fail(fn, f"n_ctrl must be an int > degree = {degree}, got {n_ctrl!r}")
+    degree = _checks.integer(fn, "degree", degree, 1)
+    n_ctrl = _checks.integer(fn, "n_ctrl", n_ctrl, degree + 1, rule=f"> degree = {degree}")
     dtype = torch.get_default_dtype() if dtype is None else dtype
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         _checks.fail(fn, f"expected a floating dtype, got {dtype!r}", TypeError)
     t0, t1 = time_pair(fn, "domain", domain)  # symbolic ends under compile(dynamic=True)
-    n_ctrl = int(n_ctrl)
     inner = torch.linspace(t0, t1, n_ctrl - degree + 1, dtype=dtype, device=device)[1:-1]
     return torch.cat((inner.new_full((degree + 1,), t0), inner, inner.new_full((degree + 1,), t1)))
 
@@ -297,99 +263,6 @@ def _split(points: Tensor, weights: Tensor) -> Tensor:
     return dualquat.from_rt(rot, trans)
 
 
-# ----------------------------------------------------------------------------- span points
-
-def _span_points(ctrl: Tensor, r: Tensor, degree: int, batch: torch.Size) -> Tensor:
-    """The ``degree + 1`` control points of each time's span, ``(*batch, T, p + 1, C)``
-    (``ctrl (..., n, C)``), gathered through one flat index (the backward accumulates into
-    ``(B n, C)``)."""
-    n, T, C = ctrl.shape[-2], r.shape[-1], ctrl.shape[-1]
-    flat = ctrl.expand(*batch, n, C).reshape(-1, C)
-    offsets = (torch.arange(batch.numel(), device=r.device) * n).reshape(*batch, 1, 1)
-    idx = r[..., None] + torch.arange(-degree, 1, device=r.device) + offsets
-    idx = idx.expand(*batch, T, degree + 1)
-    return flat.index_select(0, idx.reshape(-1)).view(*batch, T, degree + 1, C)
-
-
-# ----------------------------------------------------------------------------- fused schemes
-
-def _fused_bezier(ctrl: Tensor, s: Tensor, batch: torch.Size) -> Tensor:
-    """De Casteljau through the fused op: every curve's ``m`` control points are level 0,
-    with ``alpha = s`` at every level."""
-    T, m, B = s.shape[-1], ctrl.shape[-2], batch.numel()
-    flat = ctrl.expand(*batch, m, 8).reshape(B * m, 8)
-    # idx[i, b T + k] = b m + i: the i-th control point of curve b, for each of its T times
-    idx = (torch.arange(B, device=s.device)[:, None] * m + torch.arange(m, device=s.device))
-    idx = idx.T[:, :, None].expand(m, B, T).reshape(m, B * T)
-    ss = s.expand(*batch, T).reshape(1, B * T)
-    out = pyramid(flat, idx, ss)  # one (1, B T) parameter row shared by every level
-    return out.view(*batch, T, 8)
-
-
-def _fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
-                   batch: torch.Size) -> Tensor:
-    """De Boor through the fused op, which gathers the ``degree + 1`` points of each time
-    itself and recomputes the levels in its backward (memory O(output))."""
-    p, n, T, B = degree, ctrl.shape[-2], r.shape[-1], batch.numel()
-    flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
-    offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1, 1)
-    idx = r[..., None] + torch.arange(-p, 1, device=r.device) + offsets  # (*batch, T, p + 1)
-    rows = [a.expand(*batch, T, p + 1 - j).reshape(B * T, p + 1 - j).T
-            for j, a in enumerate(alphas, start=1)]
-    out = pyramid(flat, idx.expand(*batch, T, p + 1).reshape(B * T, p + 1).T, rows)
-    return out.view(*batch, T, 8)
-
-
-def _fused_cumulative(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
-                      batch: torch.Size) -> list[Tensor]:
-    """The cumulative form and its time derivatives to ``len(weights) - 1`` through its fused
-    ops (:func:`torch_dq._cumulative.derivatives`, :func:`~torch_dq._cumulative.poses`),
-    which read the ``degree + 1`` points from ``c_{r-p}`` on and each pair's relative motion
-    once; ``weights``: the basis and its derivatives, ``(..., T, p)`` each."""
-    n, T, B = ctrl.shape[-2], r.shape[-1], batch.numel()
-    flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
-    offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1)
-    first = (r - degree + offsets).expand(*batch, T).reshape(B * T)
-    w = [x.expand(*batch, T, degree).reshape(B * T, degree).T for x in weights]
-    return [x.view(*batch, T, 8) for x in _cumulative.derivatives(flat, first, w)]
-
-
-# ----------------------------------------------------------------------------- time derivatives
-
-JET_CHUNK = 16384  # times per eager chunk of the jet scheme (its temporaries stay in cache)
-
-
-def _jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[Tensor]:
-    r"""The triangular scheme of :func:`_de_casteljau` / :func:`_de_boor` on jets: the
-    time derivatives ``0..order`` of every level, propagated through eq. 11 in truncated
-    Taylor arithmetic (:mod:`torch_dq._taylor`).
-
-    ``points (*batch, T, m, 8)``: level 0 (constant in time), evaluated as component rows
-    ``(8, m, n)`` over chunks of times; ``levels``: per level ``j``
-    the local parameters and their slopes ``d alpha / dt``, ``(..., T, m - j)`` (affine in
-    ``t``: no higher Taylor coefficients). Returns ``[x, dx/dt, ..., d^order x/dt^order]``.
-    """
-    T, m = points.shape[-3:-1]
-    n = batch.numel() * T
-    # Component rows (8, m, n): every op runs over contiguous rows of times.
-    points = points.reshape(n, m * 8).T.reshape(m, 8, n).transpose(0, 1)
-    flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j).T for x in level)
-            for j, level in enumerate(levels, start=1)]
-    outs = []
-    parts = chunks(n, JET_CHUNK)  # temporaries stay in cache
-    # split, not sliced: one backward node for all chunks, not a zero-filled copy of the
-    # whole gradient per chunk
-    pieces = points.split(JET_CHUNK, -1) if len(parts) > 1 else (points,)
-    for part, piece in zip(parts, pieces, strict=True):
-        # Zero Taylor coefficients are None (skipped): level 0 is constant, alpha affine.
-        jets = [[alpha[:, part].contiguous(), slope[:, part].contiguous(),
-                 *[None] * (order - 1)][:order + 1] for alpha, slope in flat]
-        q = jet_pyramid.pyramid(piece.contiguous(), jets, order)
-        outs.append([x.T for x in _taylor.derivatives(q)])
-    # contiguous: compiled, the one chunk's transpose would keep its column-major strides
-    return [torch.cat(xs).contiguous().view(*batch, T, 8) for xs in zip(*outs, strict=True)]
-
-
 # ----------------------------------------------------------------------------- public curves
 
 def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extrapolate: bool):
@@ -397,8 +270,8 @@ def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extra
     local parameter ``s`` and its slope (:class:`~torch_dq._time.KnotDomain`: one span)."""
     _checks.flag(fn, "check", check)
     _checks.flag(fn, "extrapolate", extrapolate)
-    _check_ctrl(fn, ctrl, 2, "at least 2 control points")
-    batch = _time_batch(fn, t, ctrl)
+    _checks.control_points(fn, ctrl, 2, "at least 2 control points")
+    batch = _checks.times(fn, t, ctrl)
     t0, t1 = _domain(fn, domain, ctrl)
     tdtype = _time_dtype(ctrl, t, *(e for e in (t0, t1) if isinstance(e, Tensor)))
     m = ctrl.shape[-2]
@@ -462,8 +335,8 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
     """
     fn = "curves.bezier"
     batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
-    if _kernels.fused_path(ctrl_c, s):
-        return _fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
+    if _dispatch.fused_path(ctrl_c, s):
+        return fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
     return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
 
 
@@ -507,12 +380,12 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
         tensor([[0.5000, 0.0000, 0.0000]])
     """
     fn = "curves.bezier_derivatives"
-    order = _check_order(fn, order)
+    order = _checks.integer(fn, "order", order, 0, _MAX_ORDER)
     batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
     T, m = s.shape[-1], ctrl_c.shape[-2]
     points = ctrl_c[..., None, :, :].expand(*batch, T, m, 8)
     levels = [(s[..., None], slope[..., None])] * (m - 1)  # the same parameter at every level
-    return tuple(x.to(ctrl.dtype) for x in _jet_scheme(points, levels, order, batch))
+    return tuple(x.to(ctrl.dtype) for x in jet_scheme(points, levels, order, batch))
 
 
 def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool,
@@ -522,23 +395,23 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
     _checks.flag(fn, "check", check)
     _checks.flag(fn, "extrapolate", extrapolate)
     form = check_form(fn, form)
-    _check_ctrl(fn, ctrl, 2, "at least 2 control points")
-    degree = _check_degree(fn, degree)
+    _checks.control_points(fn, ctrl, 2, "at least 2 control points")
+    degree = _checks.integer(fn, "degree", degree, 1)
     n = int(ctrl.shape[-2])
     if degree >= n:
         _checks.fail(fn, f"degree must be < the number of control points n = {n}, "
                          f"got degree {degree}")
     fix = "evaluate inside it, pass knots that cover it"
     if knots is None:
-        batch = _time_batch(fn, t, ctrl)
+        batch = _checks.times(fn, t, ctrl)
         tdtype = _time_dtype(ctrl, t)
         knots = clamped_uniform_knots(n, degree, dtype=tdtype, device=ctrl.device)
         fix += " (default knots: clamped uniform on [0, 1])"
         validate = None
     else:
         check_knots(fn, knots, ctrl, n + degree + 1)
-        _same_device(fn, ctrl, "knots", knots)
-        batch = _time_batch(fn, t, ctrl)
+        _checks.same_device(fn, ctrl, "ctrl", "knots", knots)
+        batch = _checks.times(fn, t, ctrl)
         if knots.dim() > 1:
             batch = _checks.broadcast_batch(fn, ctrl=(ctrl, 2), t=(t, 1), knots=(knots, 1))
         tdtype = _time_dtype(ctrl, t, knots)
@@ -579,14 +452,14 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
         return _split_jets(ctrl_c, dom, rel, r, 0, batch)[0].to(ctrl.dtype)
     if form == "cumulative":
         weights = dom.bases(rel, r, 0, cumulative=True)[0].to(dtype)
-        if _kernels.fused_path(ctrl_c, weights):
-            return _fused_cumulative(ctrl_c, r, [weights], p, batch)[0].to(ctrl.dtype)
-        points = _span_points(ctrl_c, r, p, batch)
+        if _dispatch.fused_path(ctrl_c, weights):
+            return fused_cumulative(ctrl_c, r, [weights], p, batch)[0].to(ctrl.dtype)
+        points = span_points(ctrl_c, r, p, batch)
         return _cumulative.jets(points, [weights], 0)[0].to(ctrl.dtype)
     alphas = [alpha for alpha, _ in dom.de_boor_levels(rel, r, dtype)]
-    if _kernels.fused_path(ctrl_c, *alphas):
-        return _fused_bspline(ctrl_c, r, alphas, p, batch).to(ctrl.dtype)
-    return _de_boor(_span_points(ctrl_c, r, p, batch), alphas).to(ctrl.dtype)
+    if _dispatch.fused_path(ctrl_c, *alphas):
+        return fused_bspline(ctrl_c, r, alphas, p, batch).to(ctrl.dtype)
+    return _de_boor(span_points(ctrl_c, r, p, batch), alphas).to(ctrl.dtype)
 
 
 def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: int,
@@ -602,7 +475,7 @@ def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: 
         xs = _split_jets(ctrl_c, dom, rel, r, order, batch)
     else:
         levels = dom.de_boor_levels(rel, r, dtype)
-        xs = _jet_scheme(_span_points(ctrl_c, r, p, batch), levels, order, batch)
+        xs = jet_scheme(span_points(ctrl_c, r, p, batch), levels, order, batch)
     return tuple(x.to(ctrl.dtype) for x in xs)
 
 
@@ -610,7 +483,7 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
                      batch: torch.Size) -> list[Tensor]:
     """The cumulative form (:mod:`torch_dq._cumulative`): its basis in the time dtype, rounded
     to the compute dtype of the sign-aligned ``ctrl``, then the product of powers: through
-    the span tables (:func:`_fused_cumulative`) where the fused ops may run, else its jets."""
+    the span tables (:func:`fused_cumulative`) where the fused ops may run, else its jets."""
     weights = dom.bases(rel, r, order, cumulative=True)
     return _product_of_powers(ctrl, r, [w.to(ctrl.dtype) for w in weights], dom.degree, batch)
 
@@ -618,11 +491,11 @@ def _cumulative_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, orde
 def _product_of_powers(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
                        batch: torch.Size) -> list[Tensor]:
     """The cumulative form on the cumulative ``weights`` (and their derivatives) of the spans
-    ``r``: through the span tables (:func:`_fused_cumulative`) where the fused ops may run,
+    ``r``: through the span tables (:func:`fused_cumulative`) where the fused ops may run,
     else its jets."""
-    if _kernels.fused_path(ctrl, *weights):
-        return _fused_cumulative(ctrl, r, weights, degree, batch)
-    return _cumulative.jets(_span_points(ctrl, r, degree, batch), weights, len(weights) - 1)
+    if _dispatch.fused_path(ctrl, *weights):
+        return fused_cumulative(ctrl, r, weights, degree, batch)
+    return _cumulative.jets(span_points(ctrl, r, degree, batch), weights, len(weights) - 1)
 
 
 def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: int,
@@ -652,9 +525,9 @@ def _split_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, r: Tensor, order: in
     rots = [x[..., :4] for x in _product_of_powers(torch.cat((q, torch.zeros_like(q)), -1),
                                                    r, weights, p, batch)]
     trans = translation(q, ctrl[..., 4:])  # (..., n, 3)
-    steps = _span_points(trans.diff(dim=-2), r - 1, p - 1, batch)  # (*batch, T, p, 3)
+    steps = span_points(trans.diff(dim=-2), r - 1, p - 1, batch)  # (*batch, T, p, 3)
     moves = [(w[..., None] * steps).sum(-2) for w in weights]  # not a matmul: tiny (p, 3)
-    moves[0] = moves[0] + _span_points(trans, r - p, 0, batch)[..., 0, :]
+    moves[0] = moves[0] + span_points(trans, r - p, 0, batch)[..., 0, :]
     pure = [torch.nn.functional.pad(v, (1, 0)) for v in moves]  # (0, p^(k))
     out = []
     for k, rot in enumerate(rots):
@@ -818,7 +691,7 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
         tensor([[0.5000, 0.0000, 0.0000]])
     """
     fn = "curves.bspline_derivatives"
-    order = _check_order(fn, order)
+    order = _checks.integer(fn, "order", order, 0, _MAX_ORDER)
     batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate,
                                              form)
     return _bspline_jets(ctrl, dom, rel, form, order, batch)

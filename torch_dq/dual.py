@@ -43,7 +43,9 @@ import torch
 import torch.utils._pytree as _pytree
 from torch import Tensor
 
-from . import _checks, _kernels
+from . import _checks, _dispatch
+from ._core import Frozen
+from ._kernels.sincos import SinCos
 
 __all__ = [
     "Dual",
@@ -71,7 +73,21 @@ def _is_number(x) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
-class Dual:
+def _operator(name: str, op: Callable[[Dual, Any, Tensor | None], Dual]):
+    """The binary operator ``name`` of :class:`Dual`: the other operand's ``(real, dual or
+    None)`` from :func:`_operand` (``NotImplemented`` for other types), then ``op(self,
+    real, dual)``."""
+    fn = f"Dual.{name}"
+
+    def method(self: Dual, other: Dual | Tensor | float) -> Dual:
+        o = _operand(fn, self, other)
+        return o if o is NotImplemented else op(self, *o)
+
+    method.__name__ = method.__qualname__ = name
+    return method
+
+
+class Dual(Frozen):
     r"""A dual number :math:`a + \epsilon b`, two tensors of one shape.
 
     A small frozen value type (not a ``Tensor`` subclass, not an ``nn.Module``). It is
@@ -140,12 +156,6 @@ class Dual:
         _set(self, real, dual)
         return self
 
-    def __setattr__(self, name, value):
-        raise AttributeError(f"Dual is immutable: cannot set {name!r}")
-
-    def __delattr__(self, name):
-        raise AttributeError(f"Dual is immutable: cannot delete {name!r}")
-
     def __reduce__(self):
         return (Dual, (self.real, self.dual))
 
@@ -200,50 +210,16 @@ class Dual:
     def __neg__(self) -> Dual:
         return Dual._make(-self.real, -self.dual)
 
-    def __add__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__add__", self, other)
-        if o is NotImplemented:
-            return o
-        c, d = o
-        return _new(self.real + c, self.dual if d is None else self.dual + d)
-
-    __radd__ = __add__
-
-    def __sub__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__sub__", self, other)
-        if o is NotImplemented:
-            return o
-        c, d = o
-        return _new(self.real - c, self.dual if d is None else self.dual - d)
-
-    def __rsub__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__rsub__", self, other)
-        if o is NotImplemented:
-            return o
-        c, d = o
-        return _new(c - self.real, -self.dual if d is None else d - self.dual)
-
-    def __mul__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__mul__", self, other)
-        if o is NotImplemented:
-            return o
-        return _mul(self.real, self.dual, *o)
-
-    __rmul__ = __mul__
-
-    def __truediv__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__truediv__", self, other)
-        if o is NotImplemented:
-            return o
-        c, d = o
-        return _div(self.real, self.dual, _as_like(c, self.real), d)
-
-    def __rtruediv__(self, other: Dual | Tensor | float) -> Dual:
-        o = _operand("Dual.__rtruediv__", self, other)
-        if o is NotImplemented:
-            return o
-        c, d = o
-        return _div(c, d, self.real, self.dual)
+    __add__ = __radd__ = _operator("__add__", lambda x, c, d: _new(
+        x.real + c, x.dual if d is None else x.dual + d))
+    __sub__ = _operator("__sub__", lambda x, c, d: _new(
+        x.real - c, x.dual if d is None else x.dual - d))
+    __rsub__ = _operator("__rsub__", lambda x, c, d: _new(
+        c - x.real, -x.dual if d is None else d - x.dual))
+    __mul__ = __rmul__ = _operator("__mul__", lambda x, c, d: _mul(x.real, x.dual, c, d))
+    __truediv__ = _operator("__truediv__", lambda x, c, d: _div(
+        x.real, x.dual, _as_like(c, x.real), d))
+    __rtruediv__ = _operator("__rtruediv__", lambda x, c, d: _div(c, d, x.real, x.dual))
 
 
 def _set(self: Dual, real, dual) -> None:
@@ -495,37 +471,6 @@ def apply(f: Callable[[Tensor], Tensor], df: Callable[[Tensor], Tensor], x: Dual
     return Dual(f(a), b * df(a))
 
 
-class _SinCos(torch.autograd.Function):
-    r"""``(a, b) -> (sin a, b cos a, cos a, -b sin a)``: dual sine and cosine together.
-
-    The forward evaluates ``sin a`` and ``cos a`` once; the backward saves only ``a`` and
-    ``b`` and recomputes them, with differentiable ops (so double backward works). No
-    forward-mode rule (a custom ``jvp`` is first order only: nested forward mode would give
-    zeros): :func:`sincos` runs the plain ops of :func:`_sincos` under ``torch.func``
-    transforms and forward-mode AD.
-    """
-
-    generate_vmap_rule = True
-
-    @staticmethod
-    def forward(a: Tensor, b: Tensor):
-        s, c = torch.sin(a), torch.cos(a)
-        return s, b * c, c, -b * s
-
-    @staticmethod
-    def setup_context(ctx, inputs, output):
-        ctx.save_for_backward(*inputs)
-
-    @staticmethod
-    def backward(ctx, g_s, g_sd, g_c, g_cd):
-        a, b = ctx.saved_tensors
-        s, c = torch.sin(a), torch.cos(a)
-        # d/da: (cos a, -b sin a, -sin a, -b cos a); d/db: (0, cos a, 0, -sin a).
-        grad_a = c * (g_s - b * g_cd) - s * (g_c + b * g_sd)
-        grad_b = c * g_sd - s * g_cd
-        return grad_a, grad_b
-
-
 def sincos(x: Dual) -> tuple[Dual, Dual]:
     r"""Dual sine and cosine together (paper section 2.2):
 
@@ -551,15 +496,16 @@ def sincos(x: Dual) -> tuple[Dual, Dual]:
         (Dual(real=tensor(0.), dual=tensor(2.)), Dual(real=tensor(1.), dual=tensor(-0.)))
     """
     a, b = _dual("dual.sincos", x)
-    if _kernels.fused_path(a, b):
-        s, s_d, c, c_d = _SinCos.apply(a, b)
+    if _dispatch.fused_path(a, b):
+        s, s_d, c, c_d = SinCos.apply(a, b)
     else:
         s, s_d, c, c_d = _sincos(a, b)
     return Dual._make(s, s_d), Dual._make(c, c_d)
 
 
 def _sincos(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """``(sin a, b cos a, cos a, -b sin a)`` in plain torch ops (reference of :class:`_SinCos`)."""
+    """``(sin a, b cos a, cos a, -b sin a)`` in plain torch ops (reference of
+    :class:`~torch_dq._kernels.sincos.SinCos`)."""
     s, c = torch.sin(a), torch.cos(a)
     return s, b * c, c, -b * s
 

@@ -22,11 +22,11 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from . import _checks, _kernels, quat
+from . import _checks, _dispatch, quat
 from ._core import (
-    canonical,
     dq_from_rt,
     dq_mul,
+    hemisphere,
     join,
     lift,
     qconj,
@@ -35,6 +35,16 @@ from ._core import (
     split,
     translation,
     twist_translation,
+)
+from ._dq_conversions import (
+    from_matrix,
+    from_pose7,
+    from_rt,
+    from_screw,
+    to_matrix,
+    to_pose7,
+    to_rt,
+    to_screw,
 )
 from ._kernels import dual_angle as _dual_angle_kernel
 from ._kernels import sclerp as _sclerp_kernel
@@ -77,6 +87,9 @@ __all__ = [
     "to_rt",
     "to_screw",
 ]
+
+for _f in (from_matrix, from_pose7, from_rt, from_screw, to_matrix, to_pose7, to_rt, to_screw):
+    _f.__module__ = __name__  # documented and pickled as torch_dq.dualquat.<name>
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -269,186 +282,6 @@ def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
     return finite & unit_real & ((r * d).sum(-1).abs() <= atol * scale)
 
 
-# ----------------------------------------------------------------------------- conversions
-
-def from_rt(q: Tensor, t: Tensor) -> Tensor:
-    r"""Rigid transform :math:`x \mapsto R(q) x + t` as a dual quaternion.
-
-    Args:
-        q: ``(..., 4)`` unit rotation quaternions ``(w, x, y, z)`` (not checked).
-        t: ``(..., 3)`` translations, batch broadcastable with ``q``.
-
-    Returns:
-        ``(..., 8)``: ``real = q``, ``dual = 0.5 (0, t) q``.
-
-    Example:
-        >>> from_rt(torch.tensor([1., 0., 0., 0.]), torch.tensor([2., 0., 0.]))
-        tensor([1., 0., 0., 0., 0., 1., 0., 0.])
-    """
-    fn = "dualquat.from_rt"
-    _checks.tensor(fn, "q", q, 4)
-    _checks.tensor(fn, "t", t, 3)
-    _checks.same_dtype_device(fn, q=q, t=t)
-    _checks.broadcast_batch(fn, q=(q, 1), t=(t, 1))
-    return dq_from_rt(lift(q), lift(t)).to(q.dtype)
-
-
-def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
-    r"""Rotation quaternion and translation of a unit dual quaternion.
-
-    Args:
-        x: ``(..., 8)`` unit dual quaternions (not checked).
-
-    Returns:
-        ``(q, t)``: ``(..., 4)`` (a copy of the real part, sign as given) and
-        ``(..., 3)`` translation :math:`t = 2\,\mathrm{vec}(d r^*)`.
-    """
-    _dq("dualquat.to_rt", "x", x)
-    r, d = split(lift(x))
-    return x[..., :4].clone(), translation(r, d).to(x.dtype)
-
-
-def from_matrix(T: Tensor) -> Tensor:
-    """Dual quaternion of ``(..., 4, 4)`` homogeneous rigid transforms.
-
-    The rotation block is converted with :func:`torch_dq.quat.from_matrix` (robust at every
-    angle, real part ``w >= 0``); the bottom row is not read.
-
-    Args:
-        T: ``(..., 4, 4)`` homogeneous matrices ``[[R, t], [0, 1]]`` (``R`` orthogonal, not
-            checked: see :func:`torch_dq.quat.from_matrix`).
-
-    Returns:
-        ``(..., 8)`` unit dual quaternions.
-    """
-    _checks.tensor("dualquat.from_matrix", "T", T, (4, 4))
-    Tl = lift(T)
-    return dq_from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
-
-
-def to_matrix(x: Tensor) -> Tensor:
-    """Homogeneous ``(..., 4, 4)`` matrices ``[[R, t], [0, 1]]`` of unit dual quaternions.
-
-    Args:
-        x: unit dual quaternions, not checked (``x`` and ``-x`` give the same matrix).
-    """
-    _dq("dualquat.to_matrix", "x", x)
-    r, d = split(lift(x))
-    top = torch.cat((quat.to_matrix(r), translation(r, d)[..., None]), dim=-1)
-    bottom = torch.zeros_like(top[..., :1, :])
-    bottom[..., 3] = 1.0
-    return torch.cat((top, bottom), dim=-2).to(x.dtype)
-
-
-def from_pose7(p: Tensor) -> Tensor:
-    """From the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
-
-    Args:
-        p: ``(..., 7)``: translation then a unit quaternion in scalar-last order
-            (not checked).
-    """
-    _checks.tensor("dualquat.from_pose7", "p", p, 7)
-    pl = lift(p)
-    return dq_from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]).to(p.dtype)
-
-
-def to_pose7(x: Tensor) -> Tensor:
-    """To the 7-vector ``(tx, ty, tz, qx, qy, qz, qw)`` of pypose and ROS.
-
-    Args:
-        x: ``(..., 8)`` unit dual quaternions (not checked); the quaternion keeps the sign of
-            the real part.
-    """
-    _dq("dualquat.to_pose7", "x", x)
-    r, d = split(lift(x))
-    return torch.cat((translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
-
-
-def from_screw(axis: Tensor, moment: Tensor, theta: Tensor | float, d: Tensor | float,
-               ) -> Tensor:
-    r"""Screw motion as a dual quaternion (the paper's eq. 2 with its typos fixed).
-
-    :math:`\cos\frac{\theta + \epsilon d}{2} + \sin\frac{\theta + \epsilon d}{2}
-    (l + \epsilon m)`, i.e. real part :math:`(\cos\frac\theta2, \sin\frac\theta2 l)` and dual
-    part :math:`(-\frac d2 \sin\frac\theta2,\ \sin\frac\theta2 m + \frac d2\cos\frac\theta2 l)`:
-    a rotation by ``theta`` about the line with Plücker coordinates ``(l, m)`` followed by a
-    translation ``d`` along it. ``theta = 0`` is a pure translation by ``d l``.
-
-    Args:
-        axis: ``(..., 3)`` unit direction ``l`` of the screw axis (not checked).
-        moment: ``(..., 3)`` moment ``m = p x l`` for any point ``p`` on the axis
-            (orthogonal to ``l``).
-        theta: ``(...)`` rotation angle in radians (tensor or float).
-        d: ``(...)`` translation along the axis (tensor or float).
-
-    Returns:
-        ``(..., 8)`` unit dual quaternions.
-    """
-    fn = "dualquat.from_screw"
-    _checks.tensor(fn, "axis", axis, 3)
-    _checks.tensor(fn, "moment", moment, 3)
-    theta = _checks.as_float_tensor(fn, "theta", theta, axis, "axis")
-    d = _checks.as_float_tensor(fn, "d", d, axis, "axis")
-    _checks.same_dtype_device(fn, axis=axis, moment=moment)
-    batch = _checks.broadcast_batch(fn, axis=(axis, 1), moment=(moment, 1), theta=(theta, 0),
-                                    d=(d, 0))
-    dtype = axis.dtype
-    axis, moment = lift(axis), lift(moment)
-    theta, d = lift(theta).expand(batch), lift(d).expand(batch)
-    s, c = torch.sin(0.5 * theta)[..., None], torch.cos(0.5 * theta)[..., None]
-    h = 0.5 * d[..., None]
-    real = torch.cat((c, s * axis), dim=-1)
-    dual = torch.cat((-h * s, s * moment + h * c * axis), dim=-1)
-    return join(real, dual).to(dtype)
-
-
-def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    r"""Screw parameters ``(axis, moment, theta, d)`` of unit dual quaternions.
-
-    The representative with :math:`r_w \ge 0` is used (at :math:`r_w = 0`, the one whose first
-    non-zero of x, y, z is positive, as in :func:`torch_dq.quat.to_axis_angle`), so ``theta``
-    is in ``[0, pi]`` and ``x``, ``-x`` give the same parameters.
-    With :math:`t` the translation and :math:`l` the rotation axis: :math:`d = t \cdot l` and
-    :math:`m = \frac12 (t \times l + (t - d l) \cot\frac\theta2)` (pytransform3d's formula).
-    A pure translation (``sin(theta / 2)`` below machine epsilon) gives ``axis = t / |t|``,
-    ``moment = 0``, ``theta = 0``, ``d = |t|``; the identity gives axis ``(1, 0, 0)`` and
-    zeros. Inverse of :func:`from_screw` up to the sign of (axis, theta, d).
-
-    Args:
-        x: ``(..., 8)`` unit dual quaternions (not checked).
-
-    Returns:
-        ``axis (..., 3)``, ``moment (..., 3)``, ``theta (...)``, ``d (...)``.
-    """
-    _dq("dualquat.to_screw", "x", x)
-    dtype, x = x.dtype, lift(x)
-    r, dq_ = split(x)
-    t = translation(r, dq_)
-    # scipy's canonical sign (w > 0, ties at w = 0 broken by x, y, z): x and -x agree at 180 deg
-    rc = canonical(r)
-    w, v = rc[..., :1], rc[..., 1:]
-    sin_half = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
-    theta = 2.0 * torch.atan2(sin_half, w)
-    eps = threshold("pure_translation", x.dtype)
-    translation_only = sin_half <= eps
-    t_norm = torch.linalg.vector_norm(t, dim=-1, keepdim=True)
-    fallback = torch.zeros_like(t)
-    fallback[..., 0] = 1.0
-    # A non-finite translation fails `t_norm <= eps` and gives a NaN axis (never the fallback).
-    no_dir = t_norm <= eps
-    t_dir = torch.where(no_dir, fallback, t / safe_denominator(t_norm, no_dir))
-    l = torch.where(translation_only, t_dir, v / safe_denominator(sin_half, translation_only))
-    d = (t * l).sum(-1, keepdim=True)
-    cot_half = w / safe_denominator(sin_half, translation_only)
-    m = 0.5 * (torch.linalg.cross(t, l, dim=-1) + (t - d * l) * cot_half)
-    m = torch.where(translation_only, torch.zeros_like(m), m)
-    theta = torch.where(translation_only, torch.zeros_like(theta), theta)
-    # A non-finite x gives NaN everywhere, not the finite limits of atan2 or of the branches.
-    finite = torch.isfinite(x).all(-1, keepdim=True)
-    l, m, theta, d = (nan_unless(finite, y).to(dtype) for y in (l, m, theta, d))
-    return l, m, theta[..., 0], d[..., 0]
-
-
 # ----------------------------------------------------------------------------- exp / log
 
 def exp(xi: Tensor) -> Tensor:
@@ -603,7 +436,7 @@ def angle(a: Tensor, b: Tensor) -> Dual:
     _checks.pair(fn, a, b, 8)
     dtype = a.dtype
     a, b = torch.broadcast_tensors(lift(a), lift(b))
-    if _kernels.fused_path(a, b):
+    if _dispatch.fused_path(a, b):
         theta, theta_hat, degenerate = _dual_angle_kernel.dual_angle(a, b)
     else:
         theta, theta_hat, degenerate = _eqs4_5(a, b)
@@ -649,7 +482,7 @@ def _eq6(a: Tensor, b: Tensor) -> Tensor:
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     t0, t1 = translation(P, Q), translation(R, S)
     (u0, none0), (u1, none1) = axis(P), axis(R)
-    sign = torch.where((P * R).sum(-1) < 0, -1.0, 1.0).to(P.dtype)
+    sign = hemisphere(R, P)
     d0, d1 = (t0 * u0).sum(-1), sign * (t1 * u1).sum(-1)
     return torch.where(none0 | none1, safe_norm(t1 - t0), (d1 - d0).abs())
 
@@ -714,7 +547,7 @@ def sclerp(a: Tensor, b: Tensor, t: Tensor | float, shortest: bool = True) -> Te
     dtype = a.dtype
     a, b, t = (x.to(compute_dtype(dtype)) for x in (a, b, t))
     a, b, t = a.expand(*batch, 8), b.expand(*batch, 8), t.expand(batch)
-    if _kernels.fused_path(a, b, t):
+    if _dispatch.fused_path(a, b, t):
         out = _sclerp_kernel.sclerp(a, b, t, shortest)
     else:
         out = _eq11(a, b, t, shortest)
@@ -749,7 +582,7 @@ def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
     """
     P, Q, R, S = a[..., :4], a[..., 4:], b[..., :4], b[..., 4:]
     c = (P * R).sum(-1)
-    sigma = torch.where(c < 0, -1.0, 1.0).to(c.dtype) if shortest else torch.ones_like(c)
+    sigma = hemisphere(R, P) if shortest else torch.ones_like(c)
     R, S = sigma[..., None] * R, sigma[..., None] * S  # b's representative nearest to a
     c, delta = sigma * c, (P * S).sum(-1) + (R * Q).sum(-1)  # eq. 1: c + eps delta
     weights = screw_weights(c, t, derivatives=False)
@@ -790,5 +623,5 @@ def dlb(weights: Tensor, xs: Tensor) -> Tensor:
                          f"{_checks.shape_str(xs.shape)}")
     _checks.broadcast_batch(fn, weights=(weights, 1), xs=(xs, 2))
     dtype, xs, weights = xs.dtype, lift(xs), lift(weights)
-    sign = torch.where((xs[..., :4] * xs[..., :1, :4]).sum(-1) < 0, -1.0, 1.0).to(xs.dtype)
+    sign = hemisphere(xs, xs[..., :1, :])
     return _normalize(((weights * sign)[..., None] * xs).sum(-2)).to(dtype)

@@ -18,8 +18,6 @@ Gauss-Newton one (``2 I`` for the rotation block in a chart ``b = a exp(xi)``).
 
 from __future__ import annotations
 
-import math
-import numbers
 from collections.abc import Callable
 
 import torch
@@ -157,9 +155,7 @@ def translation_error(a: Tensor, b: Tensor) -> Tensor:
 
 
 def _weight(fn: str, name: str, w) -> float:
-    if isinstance(w, bool) or not isinstance(w, numbers.Real) or not math.isfinite(w) or w < 0:
-        _checks.fail(fn, f"{name} must be a finite real number >= 0, got {w!r}")
-    return float(w)
+    return _checks.real(fn, name, w, "a finite real number >= 0", lambda v: v >= 0)
 
 
 def pose_loss(a: Tensor, b: Tensor, rot_weight: float = 1.0, trans_weight: float = 1.0,

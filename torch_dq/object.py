@@ -24,6 +24,7 @@ import torch.utils._pytree as _pytree
 from torch import Tensor
 
 from . import _checks, dualquat, quat
+from ._core import Frozen
 from .dual import Dual
 
 __all__ = ["DualQuaternion"]
@@ -32,7 +33,7 @@ __all__ = ["DualQuaternion"]
 _REPR_MAX_ITEMS = 4
 
 
-class DualQuaternion:
+class DualQuaternion(Frozen):
     r"""Unit dual quaternions ``(..., 8)`` as an immutable object.
 
     Layout, conventions and the meaning of every operation are those of
@@ -80,12 +81,6 @@ class DualQuaternion:
         self = object.__new__(cls)
         object.__setattr__(self, "_tensor", tensor)
         return self
-
-    def __setattr__(self, name, value):
-        raise AttributeError(f"DualQuaternion is immutable: cannot set {name!r}")
-
-    def __delattr__(self, name):
-        raise AttributeError(f"DualQuaternion is immutable: cannot delete {name!r}")
 
     def __reduce__(self):
         return (DualQuaternion, (self._tensor,))

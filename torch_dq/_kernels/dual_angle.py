@@ -87,7 +87,7 @@ class _DualAngle(torch.autograd.Function):
     ``atan2``'s finite limit.
 
     No forward-mode rule: a custom ``jvp`` would be first order only (nested forward mode
-    would give zeros), so :func:`torch_dq._kernels.fused_path` sends forward mode and every
+    would give zeros), so :func:`torch_dq._dispatch.fused_path` sends forward mode and every
     ``torch.func`` transform to the plain-op reference instead.
     """
 

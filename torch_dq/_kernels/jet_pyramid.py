@@ -33,15 +33,16 @@ import torch
 from torch import Tensor
 
 from .. import _taylor
+from .._autograd import reference_vjp, save, saved
+from .._dispatch import batched, written_backward
 from .._taylor import Jet, SclerpParts, corr
-from . import batched, reference_vjp, save, saved, written_backward
 
 
 def pyramid(points: Tensor, levels: list[Jet], order: int) -> Jet:
     """The jets ``(8, n)`` of the last level of the scheme (:func:`torch_dq._taylor.pyramid`)
     from level 0 ``points (8, m, n)`` (constant in time) and the levels' jets ``alpha
     (m - j, n)``: :class:`_JetPyramid` where reverse mode differentiates ``points`` alone,
-    eagerly (:func:`torch_dq._kernels.written_backward`), the plain jets elsewhere."""
+    eagerly (:func:`torch_dq._dispatch.written_backward`), the plain jets elsewhere."""
     if written_backward([points], [x for level in levels for x in level]):
         return list(_JetPyramid.apply(points, levels, order))
     return _taylor.pyramid([points, *[None] * order], levels)
@@ -64,7 +65,7 @@ class _Level(NamedTuple):
 class _JetPyramid(torch.autograd.Function):
     """:func:`torch_dq._taylor.pyramid` from constant ``points (8, m, n)`` with the
     backward of the module docstring (:func:`_level_vjp`, level after level). Its
-    intermediates go through ``save_for_backward`` (:func:`torch_dq._kernels.save`)."""
+    intermediates go through ``save_for_backward`` (:func:`torch_dq._autograd.save`)."""
 
     @staticmethod
     def forward(ctx, points: Tensor, levels: list[Jet], order: int):

@@ -17,7 +17,8 @@ from typing import cast
 import torch
 from torch import Tensor
 
-from . import index_add, layout
+from .._autograd import InputsSaved, index_add
+from . import layout
 from .layout import chunks, from_rows, to_rows
 from .sclerp import Frame, add_frame_terms, combine, frame, vjp_rows, weights
 from .weights import Angle, angle
@@ -61,7 +62,7 @@ def _levels(rows: Tensor, table: Tensor, first: Tensor, alphas: Tensor, m: int,
     return points, frames, ws
 
 
-class _Pyramid(torch.autograd.Function):
+class _Pyramid(InputsSaved):
     r"""The triangular scheme of De Casteljau and De Boor, fused (paper section 4).
 
     Level 0 holds ``m`` consecutive control points per output, ``ctrl[first + k]``,
@@ -93,15 +94,9 @@ class _Pyramid(torch.autograd.Function):
         return torch.cat(parts)
 
     @staticmethod
-    def setup_context(ctx, inputs, output):
-        ctrl, first, alphas, m = inputs
-        ctx.save_for_backward(ctrl, first, alphas)
-        ctx.m = m
-
-    @staticmethod
     def backward(ctx, grad):
         ctrl, first, alphas = ctx.saved_tensors
-        m, need_alpha = ctx.m, ctx.needs_input_grad[2]
+        (m,), need_alpha = ctx.constants, ctx.needs_input_grad[2]
         rows = to_rows(ctrl)
         table = _pair_table(rows)
         grad_rows = torch.zeros_like(rows)

@@ -10,7 +10,7 @@ sums of products of the strided components, :func:`dot`, and it writes the outpu
 gradients in place).
 
 There is no forward-mode rule: under ``torch.func`` transforms and forward AD the public
-functions run their readable references (:func:`torch_dq._kernels.fused_path`), so a
+functions run their readable references (:func:`torch_dq._dispatch.fused_path`), so a
 forward-mode call that reaches this op anyway raises instead of returning zeros. The backward
 also runs under a vmap started after the forward (``torch.autograd.functional.jacobian(...,
 vectorize=True)``, ``is_grads_batched=True``): a batched cotangent's chunks are concatenated
@@ -24,7 +24,8 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from . import batched
+from .._autograd import InputsSaved
+from .._dispatch import batched
 from .layout import chunks, coef
 from .weights import Angle, Weights, WeightSlopes, screw_weights
 
@@ -148,7 +149,7 @@ def add_frame_terms(grad_a: Tensor, grad_b: Tensor, A: Tensor, B: Tensor, sL_c: 
     grad_b[..., 4:, :].addcmul_(sL_d, P)
 
 
-class _Sclerp(torch.autograd.Function):
+class _Sclerp(InputsSaved):
     """Screw linear interpolation (eq. 11) with an analytic backward.
 
     Inputs are already broadcast: ``a, b (..., 8)``, ``t (...)``. Saves only the inputs;
@@ -169,14 +170,9 @@ class _Sclerp(torch.autograd.Function):
         return out
 
     @staticmethod
-    def setup_context(ctx, inputs, output):
-        a, b, t, shortest = inputs
-        ctx.save_for_backward(a, b, t)
-        ctx.shortest = shortest
-
-    @staticmethod
     def backward(ctx, grad):
         a, b, t = ctx.saved_tensors
+        (shortest,) = ctx.constants
         need_t = ctx.needs_input_grad[2]
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
         parts = chunks(t1.shape[0])
@@ -184,12 +180,12 @@ class _Sclerp(torch.autograd.Function):
             ga, gb = torch.empty_like(a2), torch.empty_like(b2)
             gt = t1.new_empty(t1.shape) if need_t else None
             for i in parts:
-                ct = _chunk_vjp(a2[i], b2[i], t1[i], g2[i], ctx.shortest, need_t,
+                ct = _chunk_vjp(a2[i], b2[i], t1[i], g2[i], shortest, need_t,
                                 (ga[i].T, gb[i].T))
                 if gt is not None:  # need_t
                     gt[i] = cast(Tensor, ct.t)  # not None with time_slopes=need_t
         else:  # a vmap over this backward, Dynamo or a double backward: no writes in place
-            done = [_chunk_vjp(a2[i], b2[i], t1[i], g2[i], ctx.shortest, need_t)
+            done = [_chunk_vjp(a2[i], b2[i], t1[i], g2[i], shortest, need_t)
                     for i in parts]
             ga = torch.cat([ct.a.T for ct in done])
             gb = torch.cat([ct.b.T for ct in done])

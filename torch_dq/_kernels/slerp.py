@@ -37,7 +37,8 @@ from typing import cast
 import torch
 from torch import Tensor
 
-from . import batched, reference_vjp
+from .._autograd import reference_vjp
+from .._dispatch import batched
 from .layout import chunks
 from .weights import slerp_weights
 

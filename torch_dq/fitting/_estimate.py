@@ -83,7 +83,9 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
             first, last = first.cpu(), last.cpu()
             if bool(bad.any()):
                 i = int(bad.nonzero()[0, 0])
-                pick = lambda x: float(x.reshape(-1)[i] if x.numel() > 1 else x)  # noqa: E731
+                def pick(x: Tensor, i: int = i) -> float:
+                    return float(x.reshape(-1)[i] if x.numel() > 1 else x)
+
                 row = f" (trajectory {i})" if lo.dim() or t.dim() == 2 else ""
                 fix = ("extend the trajectory or lower max_time_offset" if slot.estimated
                        else "extend the trajectory or drop those samples")

@@ -222,11 +222,8 @@ def _check_args(fn: str, times: Tensor, poses: Tensor, degree: int, tolerance: f
         _checks.fail(fn, f"expected times (N,) and poses (N, 8), got "
                          f"{_checks.shape_str(times.shape)} and "
                          f"{_checks.shape_str(poses.shape)}")
-    if isinstance(degree, bool) or not isinstance(degree, int) or degree < 1:
-        _checks.fail(fn, f"degree must be an int >= 1, got {degree!r}")
-    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
-            or not 0 <= tolerance < 1:
-        _checks.fail(fn, f"tolerance must be a number in [0, 1), got {tolerance!r}")
+    _checks.integer(fn, "degree", degree, 1)
+    _checks.real(fn, "tolerance", tolerance, "a number in [0, 1)", lambda v: 0 <= v < 1)
     t = times.detach()
     if not bool(torch.isfinite(t).all()) or not bool((t[1:] > t[:-1]).all()):
         _checks.fail(fn, "times must be finite and strictly increasing")

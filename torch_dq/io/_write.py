@@ -148,8 +148,8 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
               comments_first: bool = False) -> None:
     r"""Write a (resampled) trajectory with its velocities and accelerations as CSV.
 
-    The columns are :data:`~torch_dq.io.CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy,
-    wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit quaternion, m/s,
+    The columns are :data:`~torch_dq.io.CSV_COLUMNS`: ``t, x, y, z, qw, qx, qy, qz, vx, vy,
+    vz, wx, wy, wz, ax, ay, az, alpha_x, alpha_y, alpha_z`` (SI units: s, m, unit quaternion, m/s,
     rad/s, m/s², rad/s²; all vectors in the world frame: ``v = dp/dt``, ``w`` with
     ``dR/dt = [w]x R``, ``a = d²p/dt²``, ``alpha = dw/dt``), then the ``extra_columns``.
     The ``#`` comment block holds the units line (each extra column's note appended to it)
