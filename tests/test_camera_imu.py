@@ -384,20 +384,20 @@ def test_cli_random_walk_biases(tmp_path):
         "accelerometer_noise_density": sim.ACCEL_DENSITY,
         "accelerometer_random_walk": WALK[1], "update_rate": 200.0}))
     out = tmp_path / "out"
-    assert main([*_argv(tmp_path, out), "--bias-interval", "0.5"]) == 0
+    assert main([*_argv(tmp_path, out), "--bias-interval", "0.25"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     bias = summary["bias"]
     edges = np.array(bias["edges_s"]) - 100.0  # the CSVs' clock is shifted by 100 s
     K = bias["segments"]
-    assert bias["model"] == "random-walk" and bias["interval_s"] == 0.5
-    assert K == len(edges) - 1 == round((edges[-1] - edges[0]) / 0.5) and K >= 5
+    assert bias["model"] == "random-walk" and bias["interval_s"] == 0.25
+    assert K == len(edges) - 1 == round((edges[-1] - edges[0]) / 0.25) and K >= 10
     for key, truth in (("gyro_bias", sim.GYRO_BIAS + drift_g),
                        ("accel_bias", sim.ACCEL_BIAS + drift_a)):
         value = np.array(summary["values"][key]["value"])
         std = np.array(summary["values"][key]["std"])
         assert value.shape == std.shape == (K, 3) and np.all(std > 0)
         z = (value - _segment_means(t, truth, edges)) / std
-        assert np.all(np.abs(z) < 4.0), (key, z)
+        assert np.all(np.abs(z) < 4.0), (key, z)  # measured: 2.8 at most (accel_bias)
     assert set(summary["chi2"]) == {"reprojections_cam0", "reprojections_cam1", "gyro",
                                     "accel"}
     assert "one row per segment" in summary["notes"][0]

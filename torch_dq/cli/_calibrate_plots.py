@@ -60,14 +60,15 @@ def imu_figure(res, plt):
     walk = res.bias_edges is not None
     fig, axes = plt.subplots(4 if walk else 3, 1, figsize=(10, 11 if walk else 8.5))
     t0 = float(gyro.times[0])
-    for ax, term, unit in ((axes[0], gyro, "rad/s"), (axes[1], accel, "m/s$^2$")):
+    for ax, term, label, unit in ((axes[0], gyro, "gyroscope", "rad/s"),
+                                  (axes[1], accel, "accelerometer", "m/s$^2$")):
         r, t = _residuals(term, res.trajectory)
         if walk:  # the ties' rows are not readings
             keep = ~term.link.cpu().numpy()
             r, t = r[keep], t[keep]
         for k, name in enumerate("xyz"):
             ax.plot(t - t0, r[:, k], lw=0.5, label=name)
-        ax.set_ylabel(f"{type(term).__name__} residual ({unit})")
+        ax.set_ylabel(f"{label} residual ({unit})")
         ax.legend(loc="upper right", fontsize=8, ncol=3)
     axes[1].set_xlabel("time (s)")
     biases = (("gyro_bias", "mrad/s", 1e3), ("accel_bias", "cm/s$^2$", 1e2))
@@ -85,14 +86,12 @@ def _bias_steps(ax, res, key, unit, scale, t0):
     """``res``'s random-walk bias ``key`` per axis as steps over its segments, with the
     one-standard-deviation band."""
     edges = res.bias_edges.double().cpu().numpy() - t0
-    b = (getattr(res, key) * scale).double().cpu().numpy()
-    s = (res.std[key] * scale).double().cpu().numpy()
+    b, s = ((torch.cat((x, x[-1:])) * scale).double().cpu().numpy()  # last step drawn
+            for x in (getattr(res, key), res.std[key]))
     for k, name in enumerate("xyz"):
-        v, e = list(b[:, k]) + [b[-1, k]], list(s[:, k]) + [s[-1, k]]
-        lo = [x - y for x, y in zip(v, e, strict=True)]
-        hi = [x + y for x, y in zip(v, e, strict=True)]
-        ax.step(edges, v, where="post", lw=1.0, color=f"C{k}", label=name)
-        ax.fill_between(edges, lo, hi, step="post", color=f"C{k}", alpha=0.2, lw=0)
+        ax.step(edges, b[:, k], where="post", lw=1.0, color=f"C{k}", label=name)
+        ax.fill_between(edges, b[:, k] - s[:, k], b[:, k] + s[:, k], step="post",
+                        color=f"C{k}", alpha=0.2, lw=0)
     ax.set_ylabel(f"{key} ({unit})")
     ax.set_title(f"estimated {key}: {len(edges) - 1} segments tied by the random walk "
                  "(bands: one standard deviation)", fontsize=10)
