@@ -220,7 +220,8 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
     _write_inputs(tmp_path, obs, imu)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     out = tmp_path / "out"
-    assert main([*_argv(tmp_path, out), "--rolling-shutter", "--shared-time-offset"]) == 0
+    assert main([*_argv(tmp_path, out), "--rolling-shutter", "--shared-time-offset",
+                 "--bias", "constant"]) == 0
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
     chain = yaml.safe_load((out / "camchain-imucam.yaml").read_text())
     assert sorted(chain) == ["cam0", "cam1"] and "T_cn_cnm1" in chain["cam1"]
@@ -237,6 +238,9 @@ def test_cli_end_to_end(tmp_path, rolling_data, capsys):
     for key in ("extrinsics", "time_offsets", "line_delays", "gyro_bias", "accel_bias",
                 "gravity"):
         assert set(summary["values"][key]) >= {"value", "std"}
+    assert summary["bias"] == {"model": "constant", "interval_s": None, "edges_s": None,
+                               "segments": 1}
+    assert np.shape(summary["values"]["gyro_bias"]["std"]) == (3,)
     assert math.isclose(summary["values"]["line_delays"]["value"][0], LINE_DELAY,
                         rel_tol=0.05)
     assert set(summary["chi2"]) == {"reprojections_cam0", "reprojections_cam1", "gyro",
@@ -288,6 +292,19 @@ def test_cli_user_errors(tmp_path, rolling_data, capsys):
     argv[argv.index("--imu-noise") + 1] = str(tmp_path / "bad.yaml")
     assert main(argv) == 2
     assert "gyroscope_noise_density" in capsys.readouterr().err
+    for option, value in (("--bias", "linear"), ("--bias-interval", "0"),
+                          ("--bias-interval", "abc"), ("--bias-interval", "inf")):
+        assert main([*_argv(tmp_path, out), option, value]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"error: {option} must" in err, err
+    (tmp_path / "nowalk.yaml").write_text(yaml.safe_dump({
+        "gyroscope_noise_density": 1e-4, "accelerometer_noise_density": 1e-3}))
+    argv = _argv(tmp_path, out)
+    argv[argv.index("--imu-noise") + 1] = str(tmp_path / "nowalk.yaml")
+    assert main(argv) == 2  # the default --bias random-walk needs the walks
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "gyroscope_random_walk" in err and "--bias" in err
+    assert not out.exists()
 
 
 WALK = (1e-3, 0.02)  # rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz): a drift visible in 3 s
@@ -299,16 +316,22 @@ def _segment_means(t, b, edges):
     return np.stack([b[inside & (seg == k)].mean(0) for k in range(len(edges) - 1)])
 
 
-def test_random_walk_biases_follow_a_drifting_bias():
-    """Biases that drift as Wiener processes (numpy): with ``bias_walk`` the per-segment
-    biases, the extrinsics and the offsets are within 4 standard deviations of the truth
-    (the biases': each segment's mean of the simulated walk)."""
+def _drifting_rig():
+    """The global-shutter rig (seed 1) whose biases drift as Wiener processes of intensity
+    ``WALK`` (numpy): observations, IMU readings and the drifts ``(N, 3)``."""
     (t, g, a), cams = sim.rig(duration=DURATION, offset=OFFSET, seed=1)
     rng = np.random.default_rng(5)
     step = np.sqrt(np.diff(t, prepend=t[0]))[:, None]
     drift_g = np.cumsum(WALK[0] * step * rng.standard_normal(g.shape), 0)
     drift_a = np.cumsum(WALK[1] * step * rng.standard_normal(a.shape), 0)
-    obs = [tuple(_t(x) for x in c) for c in cams]
+    return [tuple(_t(x) for x in c) for c in cams], (t, g, a), (drift_g, drift_a)
+
+
+def test_random_walk_biases_follow_a_drifting_bias():
+    """Biases that drift as Wiener processes (numpy): with ``bias_walk`` the per-segment
+    biases, the extrinsics and the offsets are within 4 standard deviations of the truth
+    (the biases': each segment's mean of the simulated walk)."""
+    obs, (t, g, a), (drift_g, drift_a) = _drifting_rig()
     res = calibration.camera_imu([_camera(), _camera()], obs,
                                  (_t(t), _t(g + drift_g), _t(a + drift_a)),
                                  gyro_noise=sim.GYRO_DENSITY, accel_noise=sim.ACCEL_DENSITY,
@@ -348,3 +371,35 @@ def test_random_walk_arguments(rolling_data):
     with pytest.raises(ValueError, match="bias_interval"):
         calibration.camera_imu([_camera()], obs[:1], imu, bias_walk=(1e-3, 1e-2),
                                bias_interval=0.0, **kw)
+
+
+def test_cli_random_walk_biases(tmp_path):
+    """``calibrate`` with the default ``--bias random-walk`` on the drifting rig: the walks
+    come from imu.yaml, summary.json holds K segments (edges on the IMU clock), each bias
+    within 4 standard deviations of the simulated walk's mean over its segment."""
+    obs, (t, g, a), (drift_g, drift_a) = _drifting_rig()
+    _write_inputs(tmp_path, obs, tuple(_t(x) for x in (t, g + drift_g, a + drift_a)))
+    (tmp_path / "imu.yaml").write_text(yaml.safe_dump({
+        "gyroscope_noise_density": sim.GYRO_DENSITY, "gyroscope_random_walk": WALK[0],
+        "accelerometer_noise_density": sim.ACCEL_DENSITY,
+        "accelerometer_random_walk": WALK[1], "update_rate": 200.0}))
+    out = tmp_path / "out"
+    assert main([*_argv(tmp_path, out), "--bias-interval", "0.25"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    bias = summary["bias"]
+    edges = np.array(bias["edges_s"]) - 100.0  # the CSVs' clock is shifted by 100 s
+    K = bias["segments"]
+    assert bias["model"] == "random-walk" and bias["interval_s"] == 0.25
+    assert K == len(edges) - 1 == round((edges[-1] - edges[0]) / 0.25) and K >= 10
+    for key, truth in (("gyro_bias", sim.GYRO_BIAS + drift_g),
+                       ("accel_bias", sim.ACCEL_BIAS + drift_a)):
+        value = np.array(summary["values"][key]["value"])
+        std = np.array(summary["values"][key]["std"])
+        assert value.shape == std.shape == (K, 3) and np.all(std > 0)
+        z = (value - _segment_means(t, truth, edges)) / std
+        assert np.all(np.abs(z) < 4.0), (key, z)  # measured: 2.8 at most (accel_bias)
+    assert set(summary["chi2"]) == {"reprojections_cam0", "reprojections_cam1", "gyro",
+                                    "accel"}
+    assert "one row per segment" in summary["notes"][0]
+    pytest.importorskip("matplotlib")
+    assert (out / "imu.png").stat().st_size > 10000

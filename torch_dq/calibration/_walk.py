@@ -62,10 +62,11 @@ class _Walk:
 
     def _walk(self, fn: str, seg: Tensor, link: Tensor, walk: float, edges: Tensor,
               starts: Tensor) -> None:
-        Slot = type(self._slots["bias"])  # the fitting's slot class (of the bias given)
+        first = self._slots["bias"]  # the fitting's slot (class and chart) of the bias given
         k, h = starts.shape[0], float(edges[1] - edges[0])
         for i in range(1, k):
-            self._slots[f"bias_{i}"] = Slot(fn, f"bias_{i}", "vector", Free(start=starts[i]))
+            self._slots[f"bias_{i}"] = type(first)(fn, f"bias_{i}", first.chart,
+                                                   Free(start=starts[i]))
         self.register_buffer("segment", seg)  # type: ignore[attr-defined]
         self.register_buffer("link", link)  # type: ignore[attr-defined]
         self.walk_sigma = walk * math.sqrt(2.0 * h / 3.0)

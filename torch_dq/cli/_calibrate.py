@@ -3,8 +3,10 @@ the options are in :mod:`._parsers`).
 
 Reads Kalibr's target yaml (:func:`~torch_dq.calibration.read_target`), the IMU file
 (:func:`torch_dq.io.read_imu`), Kalibr's ``imu.yaml`` (``gyroscope_noise_density``,
-``accelerometer_noise_density``; ``gyroscope_random_walk``, ``accelerometer_random_walk`` and
-``update_rate`` are read and reported, the biases being constant here) and a camchain yaml
+``accelerometer_noise_density``; ``gyroscope_random_walk`` and ``accelerometer_random_walk``
+for ``--bias random-walk``, the default, as in Kalibr: ``camera_imu``'s ``bias_walk``, biases
+piecewise constant over ``--bias-interval`` seconds; ``update_rate`` is reported) and a
+camchain yaml
 (``cam0``, ``cam1``, ...: ``camera_model``, ``distortion_model``, ``resolution`` and, when
 known, ``intrinsics`` and ``distortion_coeffs``; without intrinsics they are calibrated first
 by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
@@ -15,10 +17,13 @@ by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
 - ``camchain-imucam.yaml``: Kalibr's keys and nesting (``T_cam_imu``, ``T_cn_cnm1``,
   ``timeshift_cam_imu``, the camera models), reloadable by
   :meth:`torch_dq.camera.Camera.from_kalibr`;
-- ``summary.json``: every value with its standard deviation, per-term chi2/dof, the
-  reprojection RMS per camera, the warnings;
+- ``summary.json``: every value with its standard deviation (random-walk biases ``(K, 3)``,
+  one row per segment, the segments' edges under ``bias``), per-term chi2/dof (keys unique:
+  ``reprojections_cam<i>``, ``gyro``, ``accel``), the reprojection RMS per camera, the
+  warnings;
 - figures (matplotlib, optional): ``reprojection.png`` (errors per camera over time and in
-  the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases).
+  the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases: random-walk
+  ones as steps over time with their standard deviation bands).
 
 User errors (unreadable or malformed files, options the data cannot satisfy, an output
 that would overwrite an input) end in one line on stderr and exit status 2.
@@ -27,6 +32,7 @@ that would overwrite an input) end in one line on stderr and exit status 2.
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -61,18 +67,41 @@ def _yaml(path: str) -> dict:
     return data
 
 
-def _noise(path: str) -> dict:
+_WALKS = ("gyroscope_random_walk", "accelerometer_random_walk")
+
+
+def _noise(path: str, walk: bool) -> dict:
+    """The noise densities of Kalibr's imu.yaml (and its random walks, required with
+    ``walk``); ``update_rate`` and, without ``walk``, the walks are copied as given."""
     data = _yaml(path)
     out = {}
-    for key in ("gyroscope_noise_density", "accelerometer_noise_density"):
+    for key in ("gyroscope_noise_density", "accelerometer_noise_density",
+                *(_WALKS if walk else ())):
         v = data.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
-            raise UserError(f"{path}: expected a positive number under {key}, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
+            need = " (needed by --bias random-walk; --bias constant does without)" * (
+                key in _WALKS)
+            raise UserError(f"{path}: expected a positive number under {key}, got {v!r}{need}")
         out[key] = float(v)
-    for key in ("gyroscope_random_walk", "accelerometer_random_walk", "update_rate"):
-        if key in data:
+    for key in (*_WALKS, "update_rate"):
+        if key in data and key not in out:
             out[key] = data[key]
     return out
+
+
+def _bias_options(args) -> tuple[bool, float]:
+    """``--bias`` (random-walk: True, constant: False) and ``--bias-interval`` (seconds)."""
+    model = str(args.bias).strip().lower()
+    if model not in ("random-walk", "constant"):
+        raise UserError(f"--bias must be random-walk or constant, got {args.bias!r}")
+    try:
+        interval = float(args.bias_interval)
+    except ValueError:
+        interval = math.nan
+    if not 0 < interval < math.inf:
+        raise UserError(f"--bias-interval must be a number of seconds > 0, got "
+                        f"{args.bias_interval!r}")
+    return model == "random-walk", interval
 
 
 def _camchain(path: str) -> list[dict]:
@@ -138,28 +167,50 @@ def _check_outputs(args) -> Path:
     return out
 
 
-def _summary(res, noise: dict, caught: list[str], elapsed: float) -> dict:
-    def val(x):
-        return x.detach().double().cpu().tolist()
+def _val(x):
+    return x.detach().double().cpu().tolist()
 
-    est = res.estimate
-    chi2 = {}
+
+def _chi2(res) -> dict:
+    """Per-term chi2, dof and chi2/dof keyed ``reprojections_cam<i>``, ``gyro``, ``accel``
+    (a suffix ``_2``, ``_3`` ... on a name taken already: the keys are unique)."""
+    from ..fitting import Accel, Gyro
+
+    est, chi2 = res.estimate, {}
     for i, term in enumerate(res.terms):
-        name = (f"reprojections_cam{i}" if i < len(res.cameras)
+        base = (f"reprojections_cam{i}" if i < len(res.cameras) else "gyro"
+                if isinstance(term, Gyro) else "accel" if isinstance(term, Accel)
                 else type(term).__name__.lower())
+        name, n = base, 1
+        while name in chi2:
+            n += 1
+            name = f"{base}_{n}"
         c, d = float(est.chi2[term]), float(est.dof[term])
         chi2[name] = {"chi2": c, "dof": d, "chi2_per_dof": c / d if d else None}
+    return chi2
+
+
+def _summary(res, noise: dict, caught: list[str], elapsed: float, interval: float) -> dict:
+    val, est = _val, res.estimate
+    walk = res.bias_edges is not None
+    bias = {"model": "random-walk" if walk else "constant",
+            "interval_s": interval if walk else None,
+            "edges_s": val(res.bias_edges) if walk else None,
+            "segments": int(res.bias_edges.numel() - 1) if walk else 1}
     values = {k: {"value": val(getattr(res, k)), "std": val(res.std[k])} for k in res.std}
     values["extrinsics"]["T_cam_imu"] = [res.to_kalibr()[f"cam{i}"]["T_cam_imu"]
                                          for i in range(len(res.cameras))]
-    return {"values": values, "chi2": chi2,
+    return {"values": values, "bias": bias, "chi2": _chi2(res),
             "reprojection_rms_px": val(res.reprojection_rms),
             "imu_noise": noise, "steps": int(est.steps),
             "converged": bool(est.converged.all()), "reason": est.reason,
             "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
-                      "(m) in camera axes; gravity in the target frame; biases constant "
-                      "(the random walks are not modelled)"]}
+                      "(m) in camera axes; gravity in the target frame; "
+                      + ("biases (K, 3): one row per segment between bias.edges_s (IMU "
+                         "clock, s), tied by imu.yaml's random walks; the IMU terms' chi2 "
+                         "counts the K - 1 ties" if walk else "biases constant (--bias "
+                         "constant: the random walks are not modelled)")]}
 
 
 def run(args) -> int:
@@ -180,10 +231,11 @@ def _run(args) -> int:
 
     if not args.pixel_sigma > 0:
         raise UserError(f"--pixel-sigma must be > 0, got {args.pixel_sigma}")
+    walk, interval = _bias_options(args)
     out = _check_outputs(args)
     start = time.perf_counter()
     target = read_target(args.target)
-    noise = _noise(args.imu_noise)
+    noise = _noise(args.imu_noise, walk)
     entries = _camchain(args.cameras)
     imu = io.read_imu(args.imu)
     say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} camera(s)")
@@ -196,7 +248,8 @@ def _run(args) -> int:
                          accel_noise=noise["accelerometer_noise_density"],
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
                          shared_time_offset=args.shared_time_offset,
-                         verbose=not args.quiet)
+                         bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
+                         bias_interval=interval, verbose=not args.quiet)
     caught = [" ".join(str(w.message).split()) for w in record]
     for text in caught:
         print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
@@ -205,7 +258,7 @@ def _run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
-    _write(out, res, entries, _summary(res, noise, caught, elapsed))
+    _write(out, res, entries, _summary(res, noise, caught, elapsed, interval))
     if not args.no_plots:
         _figures(out, res, say)
     for i in range(len(cams)):

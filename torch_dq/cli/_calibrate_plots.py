@@ -54,20 +54,54 @@ def reprojection_figure(res, plt):
 
 def imu_figure(res, plt):
     """Gyroscope and accelerometer residuals over time (IMU axes) and the biases with their
-    standard deviations."""
+    standard deviations: bars for constant biases, steps over time with one-std bands for
+    random-walk ones (``(K, 3)``, one row per segment of ``res.bias_edges``)."""
     gyro, accel = res.terms[-2], res.terms[-1]
-    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5))
-    for ax, term, unit in ((axes[0], gyro, "rad/s"), (axes[1], accel, "m/s$^2$")):
+    walk = res.bias_edges is not None
+    fig, axes = plt.subplots(4 if walk else 3, 1, figsize=(10, 11 if walk else 8.5))
+    t0 = float(gyro.times[0])
+    for ax, term, label, unit in ((axes[0], gyro, "gyroscope", "rad/s"),
+                                  (axes[1], accel, "accelerometer", "m/s$^2$")):
         r, t = _residuals(term, res.trajectory)
+        if walk:  # the ties' rows are not readings
+            keep = ~term.link.cpu().numpy()
+            r, t = r[keep], t[keep]
         for k, name in enumerate("xyz"):
-            ax.plot(t - t[0], r[:, k], lw=0.5, label=name)
-        ax.set_ylabel(f"{type(term).__name__} residual ({unit})")
+            ax.plot(t - t0, r[:, k], lw=0.5, label=name)
+        ax.set_ylabel(f"{label} residual ({unit})")
         ax.legend(loc="upper right", fontsize=8, ncol=3)
     axes[1].set_xlabel("time (s)")
-    ax = axes[2]
+    biases = (("gyro_bias", "mrad/s", 1e3), ("accel_bias", "cm/s$^2$", 1e2))
+    if walk:
+        for ax, (key, unit, scale) in zip(axes[2:], biases, strict=True):
+            _bias_steps(ax, res, key, unit, scale, t0)
+        axes[3].set_xlabel("time (s)")
+    else:
+        _bias_bars(axes[2], res, biases)
+    fig.tight_layout()
+    return fig
+
+
+def _bias_steps(ax, res, key, unit, scale, t0):
+    """``res``'s random-walk bias ``key`` per axis as steps over its segments, with the
+    one-standard-deviation band."""
+    edges = res.bias_edges.double().cpu().numpy() - t0
+    b, s = ((torch.cat((x, x[-1:])) * scale).double().cpu().numpy()  # last step drawn
+            for x in (getattr(res, key), res.std[key]))
+    for k, name in enumerate("xyz"):
+        ax.step(edges, b[:, k], where="post", lw=1.0, color=f"C{k}", label=name)
+        ax.fill_between(edges, b[:, k] - s[:, k], b[:, k] + s[:, k], step="post",
+                        color=f"C{k}", alpha=0.2, lw=0)
+    ax.set_ylabel(f"{key} ({unit})")
+    ax.set_title(f"estimated {key}: {len(edges) - 1} segments tied by the random walk "
+                 "(bands: one standard deviation)", fontsize=10)
+    ax.legend(loc="upper right", fontsize=8, ncol=3)
+
+
+def _bias_bars(ax, res, biases):
+    """Constant biases as bars per axis with one-standard-deviation error bars."""
     x = torch.arange(3).numpy()
-    for off, key, unit, scale in ((-0.2, "gyro_bias", "mrad/s", 1e3),
-                                  (0.2, "accel_bias", "cm/s$^2$", 1e2)):
+    for off, (key, unit, scale) in zip((-0.2, 0.2), biases, strict=True):
         ax.bar(x + off, (getattr(res, key) * scale).cpu().numpy(), width=0.35,
                yerr=(res.std[key] * scale).cpu().numpy(), capsize=3,
                label=f"{key} ({unit})")
@@ -75,5 +109,3 @@ def imu_figure(res, plt):
     ax.axhline(0.0, color="0.3", lw=0.5)
     ax.set_title("estimated biases (error bars: one standard deviation)", fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig

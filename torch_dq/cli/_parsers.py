@@ -226,5 +226,14 @@ def _add_calibrate(sub) -> None:
                    help="corner noise per axis (pixels)")
     p.add_argument("--shared-time-offset", action="store_true",
                    help="one clock offset for all cameras (hardware-synchronised)")
+    p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
+                   help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
+                        "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
+                        "accelerometer_random_walk, which it then requires; a Kalibr user's "
+                        "imu.yaml states them, and a bias that drifts over a long recording is "
+                        "then tracked, not folded into the extrinsics) or constant (one bias "
+                        "per sensor: right for short recordings of a stable IMU)")
+    p.add_argument("--bias-interval", default="1.0", metavar="SECONDS",
+                   help="length of the random-walk biases' segments (seconds, > 0)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings")
