@@ -303,7 +303,7 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
         A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
         A.scatter_(2, cols, values[idx] * mask[..., None])
         chart = centre[..., k, None, :]
-        xi = _chart_twists(chart, x[..., idx, :], split)  # (..., K, M, 6)
+        xi = _padded_twists(chart, x, idx, mask, split)  # (..., K, M, 6)
         # prior: unknown j at its own anchor, seen from the chart of anchor k
         near = anchor[..., base[:, None] + torch.arange(U, device=dev), :]  # (..., K, U, 8)
         prior = _chart_twists(chart, near, split)
@@ -316,3 +316,16 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     # the representative of each control point nearest to its anchor (the samples' chain)
     dots = (ctrl[..., :4] * anchor[..., :4]).sum(-1, keepdim=True)
     return torch.where(dots < 0, -ctrl, ctrl)
+
+
+def _padded_twists(chart: Tensor, x: Tensor, idx: Tensor, mask: Tensor,
+                   split: bool) -> Tensor:
+    """``(..., K, M, 6)`` chart twists (:func:`_chart_twists`) of the samples ``x[..., idx,
+    :]`` about ``chart (..., K, 1, 8)`` where ``mask (K, M)`` holds, zero elsewhere: only the
+    (window, sample) pairs are computed (windows of unequal length, as irregular sampling
+    gives, cost no padding)."""
+    kk, mm = mask.nonzero(as_tuple=True)
+    xi = _chart_twists(chart[..., kk, 0, :], x[..., idx[kk, mm], :], split)  # (..., P, 6)
+    out = x.new_zeros(*xi.shape[:-2], *mask.shape, 6)
+    out[..., kk, mm, :] = xi
+    return out
