@@ -91,7 +91,8 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
     if steps:
         def lm():
             s = start()
-            return s, dqnn.fit(s, train.times, poses[fit_idx], steps=steps, verbose=False)
+            return s, dqnn.fit(s, train.times, poses[fit_idx], steps=steps, verbose=False,
+                               tol=getattr(fit_file, "REFINE_TOL", 1e-9))  # as the command
 
         cpu, wall, (spline, history) = timed(lm, repeats)
         rows.append((f"LM ({history.steps} steps, start included)", cpu, wall))
