@@ -344,4 +344,3 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     # the representative of each control point nearest to its anchor (the samples' chain)
     dots = (ctrl[..., :4] * anchor[..., :4]).sum(-1, keepdim=True)
     return torch.where(dots < 0, -ctrl, ctrl)
-
