@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, dualquat, quat
-from ._core import align, align_chain, twist_translation
+from ._core import align, align_chain, qconj, qmul, qrotate, translation, twist_translation
 from ._numerics import threshold
 from ._time import bspline_basis, time_step
 
@@ -150,8 +150,20 @@ def _chart_twists(ref: Tensor, x: Tensor, split: bool = False) -> Tensor:
     form (SO(3) x R^3): the same rotation vector and the translation difference
     :math:`p_x - p_{ref}` (world axes) instead of the twist's linear part.
     """
-    y = dualquat.mul(dualquat.conj(ref), x)
-    r, t = dualquat.to_rt(y)
+    return _rt_twists(*_rt(ref), *_rt(x), split)
+
+
+def _rt(x: Tensor) -> tuple[Tensor, Tensor]:
+    """Rotation quaternion ``(..., 4)`` and translation ``(..., 3)`` of unit ``x (..., 8)``."""
+    return x[..., :4], translation(x[..., :4], x[..., 4:])
+
+
+def _rt_twists(rc: Tensor, pc: Tensor, rx: Tensor, px: Tensor, split: bool) -> Tensor:
+    """:func:`_chart_twists` of the poses ``(rx, px)`` about the charts ``(rc, pc)``
+    (rotation quaternions and translations, broadcast): :math:`ref^{-1} x` is the rotation
+    :math:`r_c^* r_x` and the translation :math:`R_c^T (p_x - p_c)`."""
+    inv = qconj(rc)
+    r = qmul(inv, rx)
     w, v = r[..., 0], r[..., 1:]
     s = torch.linalg.vector_norm(v, dim=-1)
     theta = 2.0 * torch.atan2(s, w)  # in [0, 2 pi]
@@ -160,8 +172,23 @@ def _chart_twists(ref: Tensor, x: Tensor, split: bool = False) -> Tensor:
     theta = torch.where(theta > full, theta - 2.0 * math.pi, theta)
     omega = theta[..., None] * axis
     if split:
-        return torch.cat((omega, dualquat.to_rt(x)[1] - dualquat.to_rt(ref)[1]), dim=-1)
-    return torch.cat((omega, twist_translation(omega, t)), dim=-1)
+        return torch.cat((omega, px - pc), dim=-1)
+    return torch.cat((omega, twist_translation(omega, qrotate(inv, px - pc))), dim=-1)
+
+
+def _pair_twists(chart: Tensor, rx: Tensor, px: Tensor, idx: Tensor, mask: Tensor,
+                 split: bool) -> Tensor:
+    """``(..., K, M, 6)`` chart twists of the samples ``(rx, px)[..., idx, :]`` about
+    ``chart (..., K, 8)`` where ``mask (K, M)`` holds, zero elsewhere: only the (window,
+    sample) pairs are computed (windows of unequal length, as irregular sampling gives,
+    cost no padding)."""
+    kk, mm = mask.nonzero(as_tuple=True)
+    s = idx[kk, mm]
+    rc, pc = _rt(chart[..., kk, :])
+    xi = _rt_twists(rc, pc, rx[..., s, :], px[..., s, :], split)  # (..., P, 6)
+    out = xi.new_zeros(*xi.shape[:-2], *mask.shape, 6)
+    out[..., kk, mm, :] = xi
+    return out
 
 
 def _from_chart(centre: Tensor, C: Tensor, split: bool) -> Tensor:
@@ -287,6 +314,7 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     mid = torch.where(hi > lo, 0.5 * (times[lo.clamp(max=N - 1)] + times[(hi - 1).clamp(min=0)]),
                       anchors)
     centre = _interpolate(x, times, mid)  # (..., n, 8)
+    rx, px = _rt(x)
     M = int((hi - lo).max())
     U = min(4 * h + 1, n)
     weight = _START_PRIOR * float((values * values).sum()) / n  # of the mean data weight
@@ -303,7 +331,7 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
         A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
         A.scatter_(2, cols, values[idx] * mask[..., None])
         chart = centre[..., k, None, :]
-        xi = _chart_twists(chart, x[..., idx, :], split)  # (..., K, M, 6)
+        xi = _pair_twists(centre[..., k, :], rx, px, idx, mask, split)  # (..., K, M, 6)
         # prior: unknown j at its own anchor, seen from the chart of anchor k
         near = anchor[..., base[:, None] + torch.arange(U, device=dev), :]  # (..., K, U, 8)
         prior = _chart_twists(chart, near, split)

@@ -167,21 +167,27 @@ def round_down(value: float, digits: int = 4) -> float:
     return float(f"{math.floor(value * scale + 1e-9) / scale:.{digits}g}")
 
 
-def _start_poses(times: Tensor, poses: Tensor, spacing: float, degree: int, form: str,
-                 at: Tensor) -> Tensor:
-    """Poses at ``at`` of the least-squares start with knots at most ``spacing`` apart over
-    ``times``: what ``BSpline.from_poses(..., n_ctrl=n_ctrl(duration, spacing, degree))``
-    followed by a call at ``at`` gives (its knots, its start, in the poses' dtype)."""
-    n = n_ctrl(float(times[-1] - times[0]), spacing, degree)
+def _unit64(poses: Tensor) -> Tensor:
+    """``(N, 8)`` the poses as ``BSpline.from_poses`` takes them: rotations normalised,
+    float64."""
     q, p = dualquat.to_rt(poses)
-    x64 = dualquat.from_rt(quat.normalize(q), p).to(torch.float64)
+    return dualquat.from_rt(quat.normalize(q), p).to(torch.float64)
+
+
+def _start_poses(times: Tensor, x64: Tensor, dtype: torch.dtype, spacing: float, degree: int,
+                 form: str, at: Tensor) -> Tensor:
+    """Poses at ``at`` of the least-squares start with knots at most ``spacing`` apart over
+    ``times``, fitted to ``x64`` (:func:`_unit64` of poses of ``dtype``): what
+    ``BSpline.from_poses(..., n_ctrl=n_ctrl(duration, spacing, degree))`` followed by a call
+    at ``at`` gives (its knots, its start, in the poses' dtype)."""
+    n = n_ctrl(float(times[-1] - times[0]), spacing, degree)
     t0, t1 = float(times[0]), float(times[-1])
     k64 = t0 + curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * (t1 - t0)
-    dom = KnotDomain((k64 - t0).to(poses.dtype), degree, t0)  # as the layer holds them
+    dom = KnotDomain((k64 - t0).to(dtype), degree, t0)  # as the layer holds them
     rel = dom.relative(times, torch.float64)
     first, values = dom.basis(rel)
     ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
-                                      form == "split").to(poses.dtype)
+                                      form == "split").to(dtype)
     unit = UnitDualQuaternion()  # the layer's control points: assigned, then read
     ctrl = unit(unit.right_inverse(ctrl))
     return curves.bspline(ctrl, dom.relative(at, torch.float64), degree, dom.knots,
@@ -196,14 +202,15 @@ def errors_at(pred: Tensor, poses: Tensor) -> tuple[float, float]:
     return float(rot.mean()), float(trans.mean())
 
 
-def _scores(times: Tensor, poses: Tensor, fit: Tensor, check: Tensor, spacing: float,
+def _scores(times: Tensor, x64: Tensor, at: Tensor, target: Tensor, spacing: float,
             degree: int, form: str) -> tuple[float, float]:
-    """Mean rotation (rad) and translation errors at ``check`` of the start fitted to ``fit``
-    (the start's warnings about coarse knots are the search's business: silenced)."""
+    """Mean rotation (rad) and translation errors at the times ``at`` against ``target`` of
+    the start fitted to ``x64`` at ``times`` (the start's warnings about coarse knots are the
+    search's business: silenced)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pred = _start_poses(times[fit], poses[fit], spacing, degree, form, times[check])
-    return errors_at(pred, poses[check])
+        pred = _start_poses(times, x64, target.dtype, spacing, degree, form, at)
+    return errors_at(pred, target)
 
 
 def inner_split(n: int) -> tuple[Tensor, Tensor]:
@@ -255,8 +262,9 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     candidates: list[float] = []
     rot: list[float] = []
     trans: list[float] = []
+    inner = (times[fit], _unit64(poses[fit]), times[check], poses[check])
     while len(candidates) < MAX_CANDIDATES and n_ctrl(duration, spacing, degree) > degree:
-        r, p = _scores(times, poses, fit, check, spacing, degree, form)
+        r, p = _scores(*inner, spacing, degree, form)
         candidates.append(spacing)
         rot.append(r)
         trans.append(p)
