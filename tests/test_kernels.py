@@ -39,7 +39,7 @@ import torch_dq.dual as D
 import torch_dq.dualquat as dq
 from torch_dq import _taylor, curves
 from torch_dq._kernels import dual_angle as angle_kernel
-from torch_dq._kernels import jet_pyramid, layout
+from torch_dq._kernels import jet_pyramid, jet_sclerp, layout
 from torch_dq._kernels import sclerp as sclerp_kernel
 from torch_dq._kernels import slerp as slerp_kernel
 from torch_dq._kernels.sincos import SinCos
@@ -541,7 +541,7 @@ def test_written_backwards_save_through_autograd(gen, form):
 
 
 def test_weight_jets_backward_is_the_plain_vjp(gen):
-    """``_taylor.weights`` on jets of ``c`` (its backward written out through the jets of
+    """``jet_sclerp.weights`` on jets of ``c`` (its backward written out through the jets of
     ``G`` and ``H = dG/dy``) against autograd through the Taylor recurrences, over both
     branches and the switch between them, orders 1-3; gradcheck (finite differences) and
     gradgradcheck (the plain VJP) on a few elements."""
@@ -556,11 +556,11 @@ def test_weight_jets_backward_is_the_plain_vjp(gen):
         a = [alpha, torch.full_like(alpha, 0.7)] + [None] * (order - 1)
         s = _taylor._stack(zip(_taylor._rsub(1.0, a), a, strict=True))
         cs = [x.clone().requires_grad_() for x in c]
-        F, G = _taylor.weights(cs, s)
+        F, G = jet_sclerp.weights(cs, s)
         assert type(F[0].grad_fn).__name__ == "_WeightJetsBackward"
         w = [torch.randn(x.shape, generator=gen, dtype=torch.float64) for x in F + G]
         fused = torch.autograd.grad(F + G, cs, w)
-        F2, G2, _ = _taylor._weight_parts(cs, s, with_H=False)
+        F2, G2, _ = _taylor.weight_parts(cs, s, with_H=False)
         plain = torch.autograd.grad(F2 + G2, cs, w)
         for x, r in zip(fused, plain, strict=True):
             assert rel(x, r) < 1e-11
@@ -568,7 +568,7 @@ def test_weight_jets_backward_is_the_plain_vjp(gen):
         s_few = [None if x is None else x[:, ::400] for x in s]
 
         def g(*cs, s_few=s_few):
-            F, G = _taylor.weights(list(cs), s_few)
+            F, G = jet_sclerp.weights(list(cs), s_few)
             return tuple(F + G)
 
         assert torch.autograd.gradcheck(g, tuple(few))

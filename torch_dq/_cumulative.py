@@ -29,7 +29,7 @@ accelerations are continuous, unlike those of the De Boor form (:math:`C^1`).
   time model (:meth:`torch_dq._time.KnotDomain.bases` with ``cumulative=True``).
 - :func:`jets`: the curve and its exact time derivatives from the span's control points and
   the weights, in truncated Taylor arithmetic (:mod:`torch_dq._taylor`): the power's jets
-  are eq. 11's (:func:`torch_dq._taylor.sclerp` from the identity; the derivative of
+  are eq. 11's (:func:`torch_dq._kernels.jet_sclerp.sclerp` from the identity; the derivative of
   :math:`x^{w(t)}` is :math:`x^w \log(x)\, \dot w`), their product a Leibniz product.
 - :func:`poses`: the poses alone, eagerly and compiled as one fused autograd op
   (:mod:`torch_dq._kernels.cumulative`): each power from the identity is
@@ -57,6 +57,7 @@ from . import _taylor
 from ._dispatch import per_time_jets
 from ._kernels import cumulative as _poses_kernel
 from ._kernels import cumulative_jets as _derivatives_kernel
+from ._kernels import jet_sclerp
 from ._kernels.layout import chunks
 
 __all__ = ["derivatives", "jets", "poses"]
@@ -83,7 +84,7 @@ def _chunk_jets(P: Tensor, w: _taylor.Jet) -> _taylor.Jet:
     ``(8, N)`` per coefficient."""
     order = len(w) - 1
     rel = _taylor.dq_rows(_conj_rows(P[:, :-1]), P[:, 1:])  # c_{j-1}^-1 c_j, (8, p, N)
-    powers = _taylor.sclerp([_identity_rows(P), *[None] * order], [rel, *[None] * order], w)
+    powers = jet_sclerp.sclerp([_identity_rows(P), *[None] * order], [rel, *[None] * order], w)
     x: _taylor.Jet = [P[:, 0], *[None] * order]
     factors = [[None] * (P.shape[1] - 1) if e is None else e.unbind(1) for e in powers]
     for j in range(P.shape[1] - 1):

@@ -1,5 +1,6 @@
-r"""Truncated Taylor arithmetic ("jets") and eq. 11 on jets (private; used by
-:mod:`torch_dq.curves` for exact time derivatives).
+r"""Truncated Taylor arithmetic ("jets") and eq. 11's weights on jets (private; used by
+:mod:`torch_dq.curves` for exact time derivatives; eq. 11 itself on jets, with the
+weights' custom op: :mod:`torch_dq._kernels.jet_sclerp`).
 
 A jet of order ``K`` is a list of ``K + 1`` tensors, the normalised Taylor coefficients
 :math:`x_k = x^{(k)}(t) / k!` of a quantity along time. Sums are coefficient-wise; the other
@@ -9,7 +10,7 @@ operations are the classical recurrences of automatic Taylor expansion (Griewank
 satisfies. Every step is plain torch ops, so the jets are differentiable again (reverse
 mode, twice) with respect to everything they were computed from.
 
-:func:`sclerp` is the paper's eq. 11 on jets, in the notation of
+:func:`torch_dq._kernels.jet_sclerp.sclerp` is the paper's eq. 11 on jets, in the notation of
 :func:`torch_dq.dualquat.sclerp` (readable reference): with :math:`a = P + \epsilon Q`,
 :math:`b = R + \epsilon S`, :math:`c = P \cdot R` and :math:`\delta = P\cdot S + R\cdot Q`,
 
@@ -26,7 +27,7 @@ from the jets of :math:`\theta = \arccos c`, :math:`\sin\theta`, :math:`\sin s\t
 derivatives in :math:`y` that the jets need
 (:func:`torch_dq._numerics.screw_series_terms`).
 
-This is the one implementation of eq. 11's weights (:func:`weights`; :func:`series`,
+This is the one implementation of eq. 11's weights (:func:`weight_parts`; :func:`series`,
 :func:`closed`, :func:`angle`): a jet of order 0 is what the fused kernels evaluate, and
 :mod:`torch_dq._kernels.weights` calls these functions with one coefficient, adding the
 slopes their analytic backward needs.
@@ -43,12 +44,10 @@ from typing import NamedTuple, cast
 import torch
 from torch import Tensor
 
-from ._autograd import reference_vjp, save, saved
-from ._dispatch import batched, fused_path, written_backward
+from ._dispatch import fused_path
 from ._numerics import piecewise, screw_series_terms, series_mask, threshold
 
-__all__ = ["corr", "dq_mul", "dq_rows", "mul", "pyramid", "qmul_rows", "sclerp",
-           "sclerp_parts", "weights_vjp"]
+__all__ = ["corr", "dq_mul", "dq_rows", "mul", "qmul_rows", "weight_parts", "weights_vjp"]
 
 Jet = list[Tensor | None]  # None: a coefficient known to be zero (skipped, never computed)
 
@@ -257,24 +256,12 @@ def closed(s: Jet, ang: AngleJets, with_G: bool = True) -> Closed:
     return Closed(F, G, st, sin_st, cos_st, sin2)
 
 
-def weights(c: Jet, s: Jet) -> tuple[Jet, Jet]:
-    """Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
+def weight_parts(c: Jet, s: Jet, with_H: bool) -> tuple[Jet, Jet, Jet]:
+    r"""Jets of the weights ``F, G`` of eq. 11 (module docstring) at ``cos(theta) = c``
     ``(...)`` for ``s (2, ...)`` (rows ``1 - t`` and ``t``), ``c >= 0``: the series where
     ``y max(1, s^2)`` is below the switch point of their order, the closed forms elsewhere
     (:func:`torch_dq._numerics.piecewise`; on guarded inputs: pairs in the series in both
-    rows see ``c = 0``). Order 0 is what the fused kernels compute
-    (:func:`torch_dq._kernels.weights.screw_weights`). Where reverse mode will differentiate
-    jets of ``c`` alone (eager, :func:`torch_dq._dispatch.fused_path`), one op whose
-    backward is written out (:class:`_WeightJets`)."""
-    if _WeightJets.applies(c, s):
-        out = _WeightJets.apply(s, *c)
-        return list(out[:len(c)]), list(out[len(c):])
-    F, G, _ = _weight_parts(c, s, with_H=False)
-    return F, G
-
-
-def _weight_parts(c: Jet, s: Jet, with_H: bool) -> tuple[Jet, Jet, Jet]:
-    r""":func:`weights`' jets ``F, G`` and, ``with_H``, the jets of :math:`H = \partial_y G`
+    rows see ``c = 0``), in plain ops; and, ``with_H``, the jets of :math:`H = \partial_y G`
     (``[]`` without): the series' :math:`2 a_2\,` :func:`nested` ``(u, 2)``, the closed
     form :math:`((1 - s^2) F - 3 G \cos\theta) / \sin^2\theta`
     (:mod:`torch_dq._kernels.weights`)."""
@@ -306,47 +293,6 @@ def _weight_parts(c: Jet, s: Jet, with_H: bool) -> tuple[Jet, Jet, Jet]:
     return parts[:n], parts[n:2 * n], parts[2 * n:]
 
 
-class _WeightJets(torch.autograd.Function):
-    r""":func:`weights` on jets ``c`` (``order >= 1``) for jets ``s`` that are not
-    differentiated, with the backward written out: the jets of :math:`F(y(t), s(t))` depend
-    on the coefficients of :math:`y = 1 - c` through the jets of its partial derivative along
-    the path,
-    :math:`\partial F_k / \partial y_i = (\partial_y F)_{k - i} = G_{k - i}` (perturb
-    :math:`y(t)` by :math:`\varepsilon t^i`), and likewise :math:`\partial G_k / \partial y_i
-    = H_{k - i}`; so
-
-    .. math::
-        \bar c_i = -\sum_{k \ge i} \big(\bar F_k\, G_{k - i} + \bar G_k\, H_{k - i}\big)
-
-    summed over the two rows of ``s``: the forward's ``G`` and the jets of ``H``
-    (:func:`_weight_parts`), instead of autograd through the Taylor recurrences (about 5x
-    the forward). Where the backward is itself differentiated or batched (``vmap``), the
-    plain ops' VJP (:func:`torch_dq._autograd.reference_vjp`)."""
-
-    @staticmethod
-    def applies(c: Jet, s: Jet) -> bool:
-        """Whether :func:`weights` takes this op: order >= 1, eager, reverse mode on ``c``
-        alone (the plain ops give ``s``'s gradient and every other mode)."""
-        return len(c) > 1 and written_backward(c, s)
-
-    @staticmethod
-    def forward(ctx, s: Jet, *c: Tensor | None):
-        F, G, H = _weight_parts(list(c), s, with_H=True)
-        ctx.set_materialize_grads(False)
-        save(ctx, [*c, *G, *H, *s])
-        return (*F, *G)
-
-    @staticmethod
-    def backward(ctx, *grads):
-        n, items = len(grads) // 2, saved(ctx)
-        c, G, H, s = (items[k * n:(k + 1) * n] for k in range(4))
-        if batched(*grads) or torch.is_grad_enabled():
-            return (None, *_plain_weights_vjp(c, s, grads))
-        yb = weights_vjp(list(grads[:n]), list(grads[n:]), G, H, [x is not None for x in c])
-        return (None, *(None if ci is None or g is None else (-g).sum_to_size(ci.shape)
-                        for ci, g in zip(c, yb, strict=True)))
-
-
 def corr(terms, i: int, value: float = 1.0) -> Tensor | None:
     r"""The adjoint of Cauchy products :math:`z = x * y` (:func:`mul`), coefficient ``i``:
     ``value`` :math:`\sum_{(\bar z, y)} \sum_{k \ge i} \bar z_k\, y_{k - i}` over the
@@ -355,102 +301,12 @@ def corr(terms, i: int, value: float = 1.0) -> Tensor | None:
 
 
 def weights_vjp(Fb: Jet, Gb: Jet, G: Jet, H: Jet, need: list[bool]) -> Jet:
-    r"""The cotangents of the jets of :math:`y = 1 - c` from those of :func:`weights`'
-    ``F, G`` (:class:`_WeightJets`): :math:`\bar y_i = \sum_{k \ge i} \bar F_k G_{k - i}
+    r"""The cotangents of the jets of :math:`y = 1 - c` from those of :func:`weight_parts`'
+    ``F, G`` (:class:`torch_dq._kernels.jet_sclerp._WeightJets`):
+    :math:`\bar y_i = \sum_{k \ge i} \bar F_k G_{k - i}
     + \bar G_k H_{k - i}`, per row of ``s`` (``G, H``: the forward's jets), for the
     coefficients ``i`` where ``need`` holds (``None`` elsewhere)."""
     return [corr([(Fb, G), (Gb, H)], i) if wanted else None for i, wanted in enumerate(need)]
-
-
-def _plain_weights_vjp(c: Jet, s: Jet, grads) -> list[Tensor | None]:
-    """:class:`_WeightJets`' cotangents of ``c`` through the plain ops (differentiable again;
-    batched under ``vmap``)."""
-    at = [i for i, x in enumerate(c) if x is not None]
-
-    def reference(*known: Tensor) -> tuple[Tensor, ...]:
-        jet: Jet = [None] * len(c)
-        for i, x in zip(at, known, strict=True):
-            jet[i] = x
-        F, G, _ = _weight_parts(jet, s, with_H=False)
-        return tuple(torch.zeros_like(cast(Tensor, F[0])) if x is None else x for x in F + G)
-
-    zero = torch.zeros_like
-    outs = reference(*(cast(Tensor, c[i]) for i in at))
-    cot = tuple(zero(o) if g is None else g for o, g in zip(outs, grads, strict=True))
-    got = reference_vjp(reference, tuple(cast(Tensor, c[i]) for i in at), cot)
-    out: list[Tensor | None] = [None] * len(c)
-    for i, g in zip(at, got, strict=True):
-        out[i] = g
-    return out
-
-
-class SclerpParts(NamedTuple):
-    """:func:`sclerp_parts`: the interpolated jets and the intermediates of the written-out
-    backward (:mod:`torch_dq._kernels.jet_pyramid`)."""
-
-    q: Jet  # (8, ...)
-    sign: Tensor  # (...): +-1, b's sign change
-    F: Jet  # (2, 1, ...)
-    G: Jet  # (2, 1, ...)
-    H: Jet  # (2, ...), [] without with_H
-    delta: Jet  # (...)
-    D: Jet  # (4, ...): G_0 P + G_1 R
-
-
-def sclerp(A: Jet, B: Jet, alpha: Jet) -> Jet:
-    r"""Eq. 11 (shortest path) on jets of component rows: ``A, B (8, ...)``, ``alpha (...)``
-    per coefficient (module docstring). The sign choice is the one of the current value
-    (constant nearby). Components first: every product runs over contiguous rows and every
-    dot product is a sum over the leading dim (fast on CPU, unlike a trailing dim of 4 or 8).
-    """
-    return sclerp_parts(A, B, alpha).q
-
-
-def sclerp_parts(A: Jet, B: Jet, alpha: Jet, with_H: bool = False) -> SclerpParts:
-    r""":func:`sclerp` and its intermediates (:class:`SclerpParts`; ``with_H``: also the jets
-    of :math:`H = \partial_y G`, for a written-out backward)."""
-    A0, B0 = cast(Tensor, A[0]), cast(Tensor, B[0])
-    sign = 1.0 - 2.0 * ((A0[:4] * B0[:4]).sum(0) < 0).to(B0.dtype)
-    B = _scale(B, sign)  # b's representative nearest to a
-    # c = P.R and delta = P.S + Q.R in one product: a against b and against b's halves swapped
-    dots = mul(A, [None if b is None else torch.stack((b, b.roll(4, 0))) for b in B])
-    c = [None if d is None else d[0, :4].sum(0) for d in dots]
-    delta = [None if d is None else d[1].sum(0) for d in dots]
-    # s = 1 - t for a, t for b
-    s = _stack(zip(_rsub(1.0, alpha), alpha, strict=True))
-    F, G, H = _weight_parts(c, s, with_H=True) if with_H else (*weights(c, s), [])
-    F, G = ([None if w is None else w[:, None] for w in jet] for jet in (F, G))
-    X = _stack(zip(A, B, strict=True))
-    q = [None if x is None else x.sum(0) for x in mul(F, X)]  # F_0 a + F_1 b
-    D = [None if x is None else x.sum(0) for x in mul(G, [None if x is None else x[:, :4]
-                                                          for x in X])]
-    correction = mul(delta, D)
-    q = [None if x is None else _dual_minus(x, corr) for x, corr in zip(q, correction,
-                                                                       strict=True)]
-    return SclerpParts(q, sign, F, G, H, delta, D)
-
-
-def _dual_minus(x: Tensor, corr: Tensor | None) -> Tensor:
-    """Rows ``x (8, ...)`` with ``corr (4, ...)`` subtracted from the dual half."""
-    real, dual = x.split(4)
-    return torch.cat((real, cast(Tensor, _lin(dual, 1.0, corr, -1.0))))
-
-
-def pyramid(q: Jet, levels: list[Jet], kept: list[SclerpParts] | None = None) -> Jet:
-    """The triangular scheme of De Casteljau / De Boor on jets (readable; its written-out
-    backward: :mod:`torch_dq._kernels.jet_pyramid`): level 0 ``q (8, m, n)``, then per
-    level the jets ``alpha (m - j, n)`` of its local parameters; returns the jets of the
-    last level, ``(8, n)``. ``kept``: a list to which each level's :func:`sclerp_parts`
-    (with ``H``) is appended."""
-    for alpha in levels:
-        a, b = ([None if x is None else x[:, sl] for x in q]
-                for sl in (slice(None, -1), slice(1, None)))
-        if kept is None:
-            q = sclerp(a, b, alpha)
-        else:
-            kept.append(sclerp_parts(a, b, alpha, with_H=True))
-            q = kept[-1].q
-    return [None if x is None else x[:, 0] for x in q]
 
 
 def derivatives(jet: Jet) -> list[Tensor]:

@@ -20,6 +20,8 @@ runs each against its reference over random and degenerate inputs.
   cumulative B-spline form's poses and time derivatives through span tables (reference:
   :func:`torch_dq._cumulative.jets`).
 - :mod:`.sincos`: the dual sine and cosine (reference: :func:`torch_dq.dual._sincos`).
+- :mod:`.jet_sclerp`, :mod:`.jet_pyramid`: eq. 11 and the triangular scheme on Taylor jets
+  (the weights' op :class:`.jet_sclerp._WeightJets`; jet arithmetic: :mod:`torch_dq._taylor`).
 
 Every public function chooses between kernel and reference the same way
 (:mod:`torch_dq._dispatch`); the helpers of the custom ops are in :mod:`torch_dq._autograd`.

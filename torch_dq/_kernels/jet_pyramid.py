@@ -1,8 +1,8 @@
 r"""The triangular scheme of De Casteljau and De Boor on jets, with its backward written out
 (private).
 
-The readable scheme is :func:`torch_dq._taylor.pyramid` (eq. 11 on jets,
-:func:`torch_dq._taylor.sclerp`, level after level). :class:`_JetPyramid` runs it as it is
+The readable scheme is :func:`.jet_sclerp.pyramid` (eq. 11 on jets,
+:func:`.jet_sclerp.sclerp`, level after level). :class:`_JetPyramid` runs it as it is
 and differentiates it by hand instead of through autograd's record of the Taylor
 recurrences (thousands of small ops per chunk, and a zero-filled gradient for every slice
 of a level). With ``*`` the Cauchy product over the time coefficients, a level computes
@@ -35,21 +35,23 @@ from torch import Tensor
 from .. import _taylor
 from .._autograd import reference_vjp, save, saved
 from .._dispatch import batched, written_backward
-from .._taylor import Jet, SclerpParts, corr
+from .._taylor import Jet, corr
+from . import jet_sclerp
+from .jet_sclerp import SclerpParts
 
 
 def pyramid(points: Tensor, levels: list[Jet], order: int) -> Jet:
-    """The jets ``(8, n)`` of the last level of the scheme (:func:`torch_dq._taylor.pyramid`)
+    """The jets ``(8, n)`` of the last level of the scheme (:func:`jet_sclerp.pyramid`)
     from level 0 ``points (8, m, n)`` (constant in time) and the levels' jets ``alpha
     (m - j, n)``: :class:`_JetPyramid` where reverse mode differentiates ``points`` alone,
     eagerly (:func:`torch_dq._dispatch.written_backward`), the plain jets elsewhere."""
     if written_backward([points], [x for level in levels for x in level]):
         return list(_JetPyramid.apply(points, levels, order))
-    return _taylor.pyramid([points, *[None] * order], levels)
+    return jet_sclerp.pyramid([points, *[None] * order], levels)
 
 
 class _Level(NamedTuple):
-    """What the backward of a level keeps (jets; :func:`torch_dq._taylor.sclerp_parts`):
+    """What the backward of a level keeps (jets; :func:`jet_sclerp.sclerp_parts`):
     its input ``q (8, L + 1, n)``, ``b``'s sign change and the weights' and correction's
     jets."""
 
@@ -63,14 +65,14 @@ class _Level(NamedTuple):
 
 
 class _JetPyramid(torch.autograd.Function):
-    """:func:`torch_dq._taylor.pyramid` from constant ``points (8, m, n)`` with the
+    """:func:`jet_sclerp.pyramid` from constant ``points (8, m, n)`` with the
     backward of the module docstring (:func:`_level_vjp`, level after level). Its
     intermediates go through ``save_for_backward`` (:func:`torch_dq._autograd.save`)."""
 
     @staticmethod
     def forward(ctx, points: Tensor, levels: list[Jet], order: int):
         kept: list[SclerpParts] = []
-        out = _taylor.pyramid([points, *[None] * order], levels, kept)
+        out = jet_sclerp.pyramid([points, *[None] * order], levels, kept)
         ctx.set_materialize_grads(False)
         items = [points, *(x for level in levels for x in level)]
         for j, p in enumerate(kept):  # the input of level j + 1 is level j's output
@@ -103,7 +105,7 @@ def _plain_vjp(points: Tensor, levels: list[Jet], order: int, grads) -> Tensor:
     again; batched under ``vmap``)."""
 
     def reference(p: Tensor) -> tuple[Tensor, ...]:
-        out = _taylor.pyramid([p, *[None] * order], levels)
+        out = jet_sclerp.pyramid([p, *[None] * order], levels)
         return tuple(torch.zeros_like(p[:, 0]) if x is None else x for x in out)
 
     cot = tuple(torch.zeros_like(points[:, 0]) if g is None else g for g in grads)

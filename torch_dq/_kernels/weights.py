@@ -30,7 +30,7 @@ truncated series is used, elsewhere the closed forms
     F_s = \frac{\theta\cos s\theta}{\sin\theta},\quad
     G_s = \frac{\cos s\theta - s\theta\sin s\theta - F_s\cos\theta}{\sin^2\theta}.
 
-``F`` and ``G`` are computed once, on jets (:func:`torch_dq._taylor.weights`): the kernels
+``F`` and ``G`` are computed once, on jets (:func:`torch_dq._taylor.weight_parts`): the kernels
 call its series and closed forms with one Taylor coefficient and add :math:`H, F_s, G_s`.
 Switch point and number of terms: :data:`torch_dq._numerics.THRESHOLDS` ``"screw_series"``
 (order 0).
