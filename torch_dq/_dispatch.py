@@ -68,8 +68,8 @@ def batched(*grads: Tensor | None) -> bool:
     ``torch.autograd.functional.jacobian`` / ``hessian`` with ``vectorize=True`` and
     ``torch.autograd.grad(..., is_grads_batched=True)`` run the backward under ``vmap``
     after the forward has already taken the fused path. The fused backwards (chunk loops,
-    ``out=`` writes, host reads) cannot be batched; they return :func:`reference_vjp`
-    instead.
+    ``out=`` writes, host reads) cannot be batched; they return
+    :func:`torch_dq._autograd.reference_vjp` instead.
 
     Args:
         *grads: the backward's cotangents (``None`` for outputs without one).
