@@ -164,7 +164,8 @@ def _add_fit(sub) -> None:
                           "print the biases, gravity (and offset) with standard deviations "
                           "(on the cumulative form unless --form says otherwise)")
     fit.add_argument("--time-offset", choices=("estimate",), default=None,
-                     help="with --imu: estimate the IMU's clock offset (at most 0.1 s)")
+                     help="with --imu: estimate the IMU's clock offset (at most 0.1 s; on "
+                          "a degree-4 B-spline unless --degree says otherwise)")
     fit.add_argument("--out", metavar="DIR", default=DEFAULTS["out"], help="output folder")
     fit.add_argument("--overwrite", action="store_true",
                      help="replace the results of an earlier run in --out (never the input)")
@@ -180,7 +181,10 @@ def _add_fit_model(fit: argparse.ArgumentParser, defaults: dict) -> None:
                           "the fitted poses alone (the largest spacing whose errors on every "
                           "5th fitted pose, fitted on the rest, are within 2%% of the best)")
     fit.add_argument("--degree", type=_positive_int, default=defaults["degree"],
-                     help="B-spline degree")
+                     help="B-spline degree (default 3; 4 with --imu and --time-offset "
+                          "estimate: a quartic's accelerations are C1 in time, so the "
+                          "accelerometer's cost is smooth in the offset; a lower --degree is "
+                          "kept, with a warning)")
     fit.add_argument("--form", type=str.lower, choices=("de_boor", "cumulative", "split"),
                      default=defaults["form"],
                      help="B-spline form: de_boor, the paper's De Boor pyramid of sclerps (C1 "

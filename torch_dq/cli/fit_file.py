@@ -419,7 +419,8 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
 
 def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             times: str | os.PathLike[str] | Tensor | None = None, duplicates: str = "error",
-            knot_spacing: float | str = "auto", degree: int = 3, form: str | None = None,
+            knot_spacing: float | str = "auto", degree: int | None = None,
+            form: str | None = None,
             holdout: int = 2,
             steps: int = 50, rate: float | None = None, dtype: torch.dtype = torch.float64,
             out: str = "torch_dq_fit", overwrite: bool = False,
@@ -435,7 +436,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
         knot_spacing: seconds between knots (``n_ctrl = ceil(duration / knot_spacing) +
             degree``), or ``"auto"`` (default): chosen from the fitted poses alone by
             :func:`torch_dq.fitting.choose_knot_spacing`.
-        degree: B-spline degree.
+        degree: B-spline degree; ``None`` (default): 4 with ``imu`` and
+            ``time_offset="estimate"`` (accelerations C1 in time, so the accelerometer's cost
+            is smooth in the offset: ``torch_dq.cli.fit_imu.default_degree``), else 3.
         form: the B-spline form (:class:`torch_dq.nn.BSpline`): ``"de_boor"`` (the paper's
             De Boor pyramid of sclerps, C1 at knots), ``"cumulative"`` (Kim-Kim-Shin, C2
             for a cubic: continuous accelerations, for IMU work) or ``"split"`` (cumulative
@@ -476,6 +479,10 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     """
     if form is None:
         form = "cumulative" if imu is not None else "de_boor"
+    if degree is None:
+        from .fit_imu import default_degree
+
+        degree = default_degree(imu, time_offset)
     _check_options(knot_spacing, degree, form, holdout, steps, rate)
     path, out = os.fspath(path), os.fspath(out)
     _check_inputs(path, out, times, imu, time_offset, overwrite, plots)

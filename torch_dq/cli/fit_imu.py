@@ -12,7 +12,9 @@ The knots are chosen for the IMU: a knot every :data:`IMU_SAMPLES_PER_SPAN` IMU 
 (finer than the pose-only fit's spacing, never coarser), the curve started anew on the
 fitted poses at that spacing (``BSpline.from_poses(..., knot_spacing=)``, smoothing between
 the poses), so that the curve can follow the motion that the IMU sees between the poses.
-With ``time_offset="estimate"`` the curve's domain reaches :data:`MAX_OFFSET` beyond the
+With ``time_offset="estimate"`` the B-spline is a quartic unless a degree is given
+(:func:`default_degree`: its accelerations are C1 in time, so the accelerometer's cost is
+smooth in the offset), and the curve's domain reaches :data:`MAX_OFFSET` beyond the
 first and the last pose (``from_poses(..., margin=)``), so that every IMU sample within the
 poses' time span stays inside it whatever the offset (the estimate's domain check, widened
 by :meth:`~torch_dq.fitting.Term.time_reach`): none is cut at the ends.
@@ -40,7 +42,8 @@ from .. import dualquat, fitting, io, quat
 from ..nn import BSpline
 from ._errors import OptionError
 
-__all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "MAX_OFFSET", "fit_with_imu"]
+__all__ = ["GRAVITY", "IMU_SAMPLES_PER_SPAN", "MAX_OFFSET", "OFFSET_DEGREE", "default_degree",
+           "fit_with_imu"]
 
 #: Gravity's magnitude (m/s²); its direction in the file's world frame is estimated.
 GRAVITY = 9.81
@@ -50,6 +53,19 @@ MAX_OFFSET = 0.1
 
 #: The IMU fit's knot spacing, in IMU sampling periods.
 IMU_SAMPLES_PER_SPAN = 5
+
+#: The B-spline degree when an IMU clock offset is estimated and ``--degree`` is not given:
+#: a quartic's accelerations are C1 in time, so the accelerometer's cost is smooth in the
+#: offset (a cubic's are only C0: the cost kinks as samples cross knots, and the solve can
+#: stall short of the optimum). Kalibr and basalt likewise fit on splines of degree 4-5.
+OFFSET_DEGREE = 4
+
+
+def default_degree(imu, time_offset: str | None) -> int:
+    """The ``fit`` command's B-spline degree when none is given: :data:`OFFSET_DEGREE` with
+    an IMU file and ``time_offset="estimate"``, else 3 (an explicit degree is always kept:
+    :func:`torch_dq.fitting.estimate` then warns where it is below 4)."""
+    return OFFSET_DEGREE if imu is not None and time_offset == "estimate" else 3
 
 
 def _imu_sigma(readings: Tensor) -> Tensor:

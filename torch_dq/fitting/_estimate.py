@@ -108,6 +108,40 @@ def _warn_c1(trajectory, terms: list[Term]) -> None:
                       stacklevel=3)
 
 
+def _kinked_accelerations(trajectory) -> str | None:
+    """What the curve is where its accelerations are not C1 in time (a B-spline with
+    interior knots of form ``"de_boor"``, C1 only, or of degree < 4: a cumulative or split
+    degree-p B-spline is C(p-1), its accelerations C(p-3)); None where they are (a Bezier
+    curve, a single span, a cumulative or split B-spline of degree >= 4)."""
+    form = getattr(trajectory, "form", None)
+    if form is None or trajectory.n_ctrl <= trajectory.degree + 1:
+        return None
+    if form == "de_boor" or trajectory.degree < 4:
+        return f"a degree-{trajectory.degree} B-spline of form={form!r}"
+    return None
+
+
+def _warn_offset_kinks(trajectory, terms: list[Term]) -> None:
+    """Warn for a term reading accelerations (``order >= 2``: :class:`Accel`) whose samples'
+    times an estimated parameter moves, on a curve whose accelerations are not C1 in time:
+    its cost kinks in that parameter as samples cross knots, and Gauss-Newton stalls short of
+    the optimum (Kalibr and basalt fit time offsets on splines of order 5-6, degree 4-5)."""
+    curve = _kinked_accelerations(trajectory)
+    if curve is None:
+        return
+    for term in terms:
+        moving = [n for n in term.time_rates() if term.slots()[n].estimated]
+        if term.order >= 2 and moving:
+            name = f"{type(term).__name__}.{moving[0]}"
+            warnings.warn(f"fitting.estimate: {name} is estimated on {curve}, whose "
+                          f"accelerations are not C1 in time: the {type(term).__name__} cost "
+                          f"kinks in {name} as samples cross knots and the solve may stop "
+                          f"short of the optimum; use a B-spline of degree >= 4 "
+                          f"(form='cumulative' or 'split', e.g. BSpline.from_poses(..., "
+                          f"degree=4, form='cumulative'))", RuntimeWarning, stacklevel=3)
+            return
+
+
 def _warn_pinned(problem: Problem, values: list[Tensor]) -> None:
     """Warn for a time offset that ended on its ``max_time_offset`` bound."""
     for q, v in zip(problem.params, values, strict=True):
@@ -207,7 +241,10 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             C2 (``form="de_boor"`` of degree >= 2, ``form="cumulative"`` of degree < 3):
             its accelerations jump at the knots.
         RuntimeWarning: ``steps`` reached before convergence; a time offset that ended on
-            its ``max_time_offset``.
+            its ``max_time_offset``; an :class:`~torch_dq.fitting.Accel` term's time offset
+            estimated on a curve whose accelerations are not C1 in time (a B-spline of
+            degree < 4, or of form ``"de_boor"``): its cost kinks in the offset as samples
+            cross knots, and the solve may stall; use degree >= 4.
         TypeError: a trajectory that is not a curve layer, terms that are not terms.
 
     Example:
@@ -230,6 +267,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     batch = ctrl.shape[:-2]
     _check_domains(fn, trajectory, terms, batch)
     _warn_c1(trajectory, terms)
+    _warn_offset_kinks(trajectory, terms)
     problem = Problem(trajectory, terms, batch)
     values = _starts(fn, problem, ctrl)
     bar = reporter(int(steps), verbose, "torch_dq.estimate")

@@ -188,7 +188,10 @@ class Accel(_Imu):
         gravity: a fixed ``(3,)`` world vector (default ``(0, 0, -9.81)``); a float
             magnitude: its direction is estimated, started from the mean reading rotated to
             world axes by the trajectory (:math:`g \approx -\overline{R f}`); or a
-            :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept).
+            :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept; the
+            mean-reading direction replaces it where that explains the readings better,
+            the bias absorbed: from a start far off, e.g. 90 deg, Gauss-Newton can end in
+            the flipped-gravity local minimum).
         time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
     """
 
@@ -218,6 +221,16 @@ class Accel(_Imu):
 
     gravity = _nuisance("gravity", "Gravity ``(..., 3)`` in world axes (fixed or estimated).")
 
+    def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
+        """As :meth:`Term.values`; an estimated gravity with the caller's start (before any
+        estimate) starts instead from the mean reading where that explains the readings
+        better (``_better_gravity``)."""
+        out = super().values(trajectory, ctrl)
+        free = self._slots["gravity"].free
+        if free is not None and free.start is not None and free.value is None:
+            out["gravity"] = _better_gravity(self, trajectory, ctrl, out)
+        return out
+
     def default_start(self, name, trajectory, ctrl, values):
         if name != "gravity":
             return super().default_start(name, trajectory, ctrl, values)
@@ -238,6 +251,27 @@ class Accel(_Imu):
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
         a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
+
+
+def _better_gravity(term: Accel, trajectory, ctrl, values: dict[str, Tensor]) -> Tensor:
+    """Per trajectory, the caller's gravity start or the mean-reading one
+    (:meth:`Accel.default_start`, the caller's norm), whichever leaves the smaller sum of
+    squared whitened residuals with the bias absorbed (each axis centred). Gauss-Newton on
+    the sphere started far from the readings' direction (90 deg) can step past the horizon
+    into the flipped-gravity local minimum when the bias is estimated: the bias absorbs the
+    mean of the readings, and what is left to tell gravity's sign is the tilt's variation."""
+    given = values["gravity"].to(torch.float64)
+    alt = term.default_start("gravity", trajectory, ctrl, values)
+    alt = alt * (given.norm(dim=-1, keepdim=True) / alt.norm(dim=-1, keepdim=True))
+    c = None if ctrl is None else ctrl.detach()
+    w = term.mask[..., None].to(torch.float64)
+    costs = []
+    with torch.no_grad():
+        for g in (given, alt):
+            r = term.evaluate(trajectory, c, {**values, "gravity": g}).to(torch.float64)
+            mean = (r * w).sum(-2, keepdim=True) / w.sum(-2, keepdim=True).clamp_min(1.0)
+            costs.append(((r - mean) * w).square().sum((-1, -2)))
+    return torch.where((costs[1] < costs[0])[..., None], alt, given)
 
 
 for _cls in (Gyro, Accel):  # help(Gyro.__init__): the args
