@@ -138,3 +138,17 @@ def test_calibrate_without_pyyaml_is_one_line(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("torch-dq calibrate: error: ")
     assert "needs PyYAML: pip install torch_dq[calib]" in err[0]
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0", "-1"])
+def test_calibrate_pixel_sigma_is_a_finite_positive_number(capsys, value):
+    """``--pixel-sigma inf`` passed the parser: the cameras were calibrated first, then
+    ``calibration.camera_imu`` refused ``pixel_sigma`` (not the option's name)."""
+    args = ["calibrate", "--target", "t.yaml", "--imu", "i.csv", "--imu-noise", "n.yaml",
+            "--cameras", "c.yaml", "--corners", "c0.csv", "--out", "out", "--pixel-sigma",
+            value]
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    assert (f"argument --pixel-sigma: expected a finite number > 0, got {value}"
+            in capsys.readouterr().err)
