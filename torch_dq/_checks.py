@@ -28,6 +28,7 @@ __all__ = [
     "integer",
     "pair",
     "real",
+    "rigid_matrix",
     "same_device",
     "same_dtype_device",
     "shape_str",
@@ -179,6 +180,32 @@ def first_index(mask: Tensor) -> tuple[int, ...]:
     """The index of the first ``True`` of a bool tensor (row-major order), read on the host
     (a device sync, for error messages); ``mask`` must hold one."""
     return tuple(int(i) for i in mask.nonzero()[0])
+
+
+def rigid_matrix(fn: str, name: str, T: Tensor, atol: float = 1e-3) -> None:
+    """Opt-in value check (a device sync): every ``(..., 3, 3)`` matrix of ``T`` a rotation
+    (``max |R^T R - I| <= atol``, determinant > 0), every ``(..., 4, 4)`` one homogeneous
+    rigid (its rotation block so, its bottom row ``(0, 0, 0, 1)`` within ``atol``, all
+    finite); else a ``ValueError`` naming the first bad matrix and what is wrong with it.
+    ``atol`` grows to 8 ulp of a coarser dtype (float16, bfloat16 round rotations so)."""
+    atol = max(atol, 8.0 * torch.finfo(T.dtype).eps)
+    R = T[..., :3, :3].double()
+    err = (R.mT @ R - torch.eye(3, dtype=R.dtype, device=R.device)).abs().amax((-2, -1))
+    det = torch.linalg.det(R)
+    bottom = (T[..., 3, :].double() - torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=R.dtype,
+                                                   device=R.device)).abs().amax(-1) \
+        if T.shape[-1] == 4 else torch.zeros_like(det)
+    ok = (err <= atol) & (det > 0) & (bottom <= atol) & torch.isfinite(T).flatten(-2).all(-1)
+    if host_all(fn, "check=True", ok):
+        return
+    i = first_index(~ok)
+    where = f"{name}[{', '.join(map(str, i))}]" if i else name
+    kind = "rigid transform" if T.shape[-1] == 4 else "rotation"
+    fail(fn, f"{where} is not a {kind}: max |R^T R - I| = {float(err[i]):.3g}, "
+             f"det R = {float(det[i]):.3g}"
+             + (f", bottom row {T[i][3].tolist()}" if T.shape[-1] == 4 else "")
+             + f" (a rotation has max |R^T R - I| <= {atol:g} and det R = +1"
+             + (", a bottom row (0, 0, 0, 1)" if T.shape[-1] == 4 else "") + ")")
 
 
 def same_device(fn: str, ref: Tensor, ref_name: str, name: str, x: Tensor) -> None:

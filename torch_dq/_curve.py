@@ -113,6 +113,7 @@ def poses_to_dq(fn: str, rotations, translations) -> Tensor:
     _checks.tensor(fn, "translations", translations, 3)
     _checks.same_dtype_device(fn, rotations=rotations, translations=translations)
     if rotations.dim() >= 3 and tuple(rotations.shape[-2:]) == (3, 3):
+        _checks.rigid_matrix(fn, "rotations", rotations)
         q, nd = quat.from_matrix(rotations), 2
     elif rotations.dim() >= 2 and rotations.shape[-1] == 4:
         q, nd = quat.normalize(rotations), 1
@@ -352,6 +353,7 @@ class Curve(torch.nn.Module, abc.ABC):
         if T.dim() < 3:
             _checks.fail(fn, f"expected a (..., N, 4, 4) tensor for T, got shape "
                              f"{_checks.shape_str(T.shape)}")
+        _checks.rigid_matrix(fn, "T", T)
         return cls._from_dq(fn, dualquat.from_matrix(T), times, **kwargs)
 
     @classmethod

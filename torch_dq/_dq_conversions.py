@@ -56,7 +56,7 @@ def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
     return x[..., :4].clone(), translation(r, d).to(x.dtype)
 
 
-def from_matrix(T: Tensor) -> Tensor:
+def from_matrix(T: Tensor, check: bool = False) -> Tensor:
     """Dual quaternion of ``(..., 4, 4)`` homogeneous rigid transforms.
 
     The rotation block is converted with :func:`torch_dq.quat.from_matrix` (robust at every
@@ -64,12 +64,18 @@ def from_matrix(T: Tensor) -> Tensor:
 
     Args:
         T: ``(..., 4, 4)`` homogeneous matrices ``[[R, t], [0, 1]]`` (``R`` orthogonal, not
-            checked: see :func:`torch_dq.quat.from_matrix`).
+            checked unless ``check``: see :func:`torch_dq.quat.from_matrix`).
+        check: raise ``ValueError`` unless every matrix is rigid: ``R`` a rotation within
+            1e-3 (``max |R^T R - I|``, determinant > 0), the bottom row ``(0, 0, 0, 1)``
+            within 1e-3, all finite (one device sync). Without it a scaled, sheared or
+            reflecting matrix gives some unit dual quaternion, not an error.
 
     Returns:
         ``(..., 8)`` unit dual quaternions.
     """
     _checks.tensor("dualquat.from_matrix", "T", T, (4, 4))
+    if _checks.flag("dualquat.from_matrix", "check", check):
+        _checks.rigid_matrix("dualquat.from_matrix", "T", T)
     Tl = lift(T)
     return dq_from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
 

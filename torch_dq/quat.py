@@ -382,7 +382,7 @@ def log(q: Tensor) -> Tensor:
     return _log(lift(q)).to(q.dtype)
 
 
-def from_matrix(R: Tensor) -> Tensor:
+def from_matrix(R: Tensor, check: bool = False) -> Tensor:
     r"""Quaternion of a rotation matrix (Shepperd 1978, Markley 2008), scipy's canonical sign.
 
     Every entry of :math:`4 q q^T` is a sum of matrix entries; the row with the largest
@@ -390,8 +390,12 @@ def from_matrix(R: Tensor) -> Tensor:
     happens for any rotation, 180 degrees included.
 
     Args:
-        R: ``(..., 3, 3)`` rotation matrices (orthogonality is not checked; a nearly
-            orthogonal matrix gives a nearby unit quaternion, not the nearest rotation).
+        R: ``(..., 3, 3)`` rotation matrices (orthogonality is not checked unless
+            ``check``; a nearly orthogonal matrix gives a nearby unit quaternion, not the
+            nearest rotation).
+        check: raise ``ValueError`` unless every matrix is a rotation within 1e-3
+            (``max |R^T R - I|``, determinant > 0): a reflection or a scaled matrix
+            otherwise gives an unrelated unit quaternion (one device sync).
 
     Returns:
         ``(..., 4)`` unit quaternions with ``w >= 0``; for ``w == 0`` the first non-zero of
@@ -402,6 +406,8 @@ def from_matrix(R: Tensor) -> Tensor:
         tensor([0., 1., 0., 0.])
     """
     _checks.tensor("quat.from_matrix", "R", R, (3, 3))
+    if _checks.flag("quat.from_matrix", "check", check):
+        _checks.rigid_matrix("quat.from_matrix", "R", R)
     dtype = R.dtype
     r = lift(R)
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (row.unbind(-1) for row in r.unbind(-2))

@@ -30,10 +30,15 @@ def _fit(parser, args) -> int:
 
 
 def _calibrate(parser, args) -> int:
-    """``python -m torch_dq calibrate``."""
+    """``python -m torch_dq calibrate``: a missing optional dependency (PyYAML for Kalibr's
+    yamls, OpenCV for ``--images``) ends, like a user error, in one line naming what to
+    install and exit status 2."""
     from ._calibrate import run
 
-    return run(args)
+    try:
+        return run(args)
+    except ImportError as exc:
+        return exit_on_error("torch-dq calibrate", exc)
 
 
 def _demo(parser, args) -> int:
@@ -81,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         The exit status: 0 on success (also when matplotlib is missing: the figures are
         skipped with a one-line notice), 2 on bad arguments or options the data cannot
         satisfy (``fit``: the message names a value that works) and when ``fit`` or
-        ``calibrate`` meets a malformed or unreadable file: one line on stderr, no
-        traceback.
+        ``calibrate`` meets a malformed or unreadable file (``calibrate`` also when an
+        optional dependency it needs is missing): one line on stderr, no traceback.
     """
     parser = build_parser()
     args = parser.parse_args(argv)

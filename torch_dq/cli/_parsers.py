@@ -226,7 +226,7 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--rolling-shutter", action="store_true",
                    help="estimate each camera's line delay")
-    p.add_argument("--pixel-sigma", type=float, default=1.0,
+    p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
     p.add_argument("--shared-time-offset", action="store_true",
                    help="one clock offset for all cameras (hardware-synchronised)")

@@ -20,7 +20,7 @@ from ._text import (
     seconds_from_ns,
     split,
 )
-from ._units import warn_imu_time_unit
+from ._units import warn_imu_time_unit, warn_imu_units
 
 __all__ = ["read_imu"]
 
@@ -75,7 +75,9 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
     Warns:
         UserWarning: times read as seconds (``time_unit="auto"``) whose median step is
             0.5 s or more while nanoseconds, microseconds or milliseconds give an IMU's rate
-            (20 Hz to 5 kHz).
+            (20 Hz to 5 kHz); accelerometer readings in g (their mean about 1 long, not
+            gravity's 9.81 m/s²); gyroscope readings averaging gravity's magnitude while the
+            accelerometer's are small (the two sets of columns swapped).
 
     Example:
         >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP
@@ -110,5 +112,6 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         t = t[keep]
         if time_unit == "auto":
             warn_imu_time_unit(fn, path, t)
+    warn_imu_units(fn, path, v[keep, :3], v[keep, 3:])
     return as_tensor(t), as_tensor(v[keep, :3]), as_tensor(v[keep, 3:])
 

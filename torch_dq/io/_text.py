@@ -158,8 +158,9 @@ def seconds_from_ns(ns: list[Decimal], keep: np.ndarray) -> np.ndarray:
 def header_row(path, lines: list[int], texts: list[str], header: list[str]
                ) -> tuple[list[int], list[str], list[str]]:
     """A header row written without the leading ``#`` (its first field a name) moved from
-    the data to the header: ``(lines, texts, header)``."""
-    if not texts[0][:1].isalpha():
+    the data to the header: ``(lines, texts, header)``. A first field that reads as a number
+    (``nan``, ``inf``) is data, not a name."""
+    if not texts[0][:1].isalpha() or NUMBER.fullmatch(re.split(r"[\s,]+", texts[0])[0]):
         return lines, texts, header
     if len(texts) == 1:
         raise TrajectoryFileError(path, None, "no data (the file holds only a header)")

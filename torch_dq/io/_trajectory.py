@@ -36,7 +36,8 @@ from ._text import (
 )
 from ._units import warn_time_unit
 
-__all__ = ["EUROC_COLUMNS", "FORMATS", "TUM_COLUMNS", "Trajectory", "read_trajectory"]
+__all__ = ["EUROC_COLUMNS", "FORMATS", "TUM_COLUMNS", "Trajectory", "narrow_hint",
+           "read_trajectory"]
 
 #: The file formats :func:`torch_dq.io.read_trajectory` and
 #: :func:`torch_dq.io.write_trajectory` know.
@@ -108,11 +109,22 @@ def _matrix_rotations(path, lines: list[int], R: np.ndarray, atol: float) -> np.
     return quat.normalize(quat.from_matrix(torch.from_numpy(np.ascontiguousarray(R)))).numpy()
 
 
-def _read_tum(path, lines, texts, atol: float, duplicates: str):
+def _quaternion_columns(header: list[str]) -> list[int]:
+    """The columns of ``qx, qy, qz, qw`` in a TUM row: ``4, 5, 6, 7``, unless the header's
+    last line names 8 columns whose last four are the quaternion's in another order (``qw qx
+    qy qz``, ``q_w ...`` or ``w x y z``; spaces or commas), which is then followed."""
+    names = header[-1].lower().replace(",", " ").split() if header else []
+    tail = [n.removeprefix("q").strip("_") for n in names[4:]] if len(names) == 8 else []
+    if sorted(tail) != ["w", "x", "y", "z"]:
+        return [4, 5, 6, 7]
+    return [4 + tail.index(c) for c in "xyzw"]
+
+
+def _read_tum(path, lines, texts, header, atol: float, duplicates: str):
     v = floats(path, lines, split(texts, commas=False), TUM_COLUMNS)
     keep = check_times(path, lines, v[:, 0], duplicates)
-    q = _unit_quaternions(path, lines, quat.from_xyzw(torch.from_numpy(v[:, 4:8])).numpy(),
-                         atol)
+    xyzw = v[:, _quaternion_columns(header)]
+    q = _unit_quaternions(path, lines, quat.from_xyzw(torch.from_numpy(xyzw)).numpy(), atol)
     return v[keep, 0], q[keep], v[keep, 1:4]
 
 
@@ -139,7 +151,7 @@ def _read_euroc(path, lines, texts, header, atol: float, duplicates: str):
     return seconds_from_ns(ns, keep), q[keep], v[keep, 0:3]
 
 
-def _narrow_hint(times) -> str:
+def narrow_hint(times) -> str:
     """What to say when the times of an array repeat: a float32 array rounds UNIX seconds."""
     dtype = getattr(times, "dtype", None)
     if dtype is None or dtype in (torch.float64, np.float64):
@@ -179,7 +191,7 @@ def _kitti_times(fn: str, path, times, n_poses: int) -> tuple[np.ndarray, object
                          f"{_checks.shape_str(t.shape)}")
     if not np.isfinite(t).all():
         _checks.fail(fn, "times must be finite")
-    hint = _narrow_hint(times.detach().cpu() if isinstance(times, Tensor) else times)
+    hint = narrow_hint(times.detach().cpu() if isinstance(times, Tensor) else times)
     return t, "times", list(range(1, n_poses + 1)), hint
 
 
@@ -226,7 +238,10 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
             TUM's columns (``# timestamp tx ty tz qx qy qz qw``, with spaces or commas) means
             TUM; comma-separated rows or a ``#timestamp,...`` header mean EuRoC, except 8
             fields with a decimal time and no ``[ns]`` header (TUM with commas); else 8
-            whitespace-separated columns mean TUM and 12 KITTI.
+            whitespace-separated columns mean TUM and 12 KITTI. The header may also be a
+            first row without ``#``. A TUM header that names the quaternion columns in
+            another order (``# timestamp tx ty tz qw qx qy qz``; ``q_w`` or ``w`` alike) is
+            followed.
         times: KITTI only (required there): the times file (one time in seconds per line,
             like KITTI's ``times.txt``) or a ``(N,)`` array of seconds, one per pose (keep
             absolute times float64: a float32 array rounds UNIX seconds to 128 s steps, and
@@ -258,9 +273,10 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
     Warns:
         UserWarning: times that look like nanoseconds, microseconds or milliseconds (poses
             hours apart, or nearly still in seconds while plausible in the finer unit; TUM
-            and KITTI). Quaternion columns in another order cannot be told from the poses
-            alone (a permutation of the components keeps the angle between any two
-            rotations); ``python -m torch_dq fit --imu`` tells them by the gyroscope.
+            and KITTI). Quaternion columns in another order than the header names (or
+            than TUM's, without a header) cannot be told from the poses alone (a
+            permutation of the components keeps the angle between any two rotations);
+            ``python -m torch_dq fit --imu`` tells them by the gyroscope.
 
     Example:
         >>> traj = read_trajectory("tests/data/tum_fr1_xyz_sub.txt")  # doctest: +SKIP
@@ -279,14 +295,14 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         _checks.fail(fn, f"atol must be a finite number > 0, got {atol!r}")
     if duplicates not in ("error", "first"):
         _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
-    lines, texts, header = read_lines(path)
+    lines, texts, header = header_row(path, *read_lines(path))
     if format == "auto":
         format = _detect(path, lines, texts, header)
     if times is not None and format != "kitti":
         _checks.fail(fn, f"times= applies to KITTI files only ({format.upper()} files hold "
                          f"their own times)")
     if format == "tum":
-        t, q, p = _read_tum(path, lines, texts, atol, duplicates)
+        t, q, p = _read_tum(path, lines, texts, header, atol, duplicates)
     elif format == "euroc":
         t, q, p = _read_euroc(path, lines, texts, header, atol, duplicates)
     else:

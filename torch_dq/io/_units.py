@@ -3,7 +3,10 @@ r"""Times written in another unit than seconds: the readers' warnings (private).
 A trajectory's times are implausible as seconds where poses lie hours apart or barely move
 while a finer unit (nanoseconds, microseconds, milliseconds) gives plausible motion
 (:func:`warn_time_unit`); an IMU's where its samples lie 0.5 s or more apart while a finer
-unit gives an IMU's rate (:func:`warn_imu_time_unit`).
+unit gives an IMU's rate (:func:`warn_imu_time_unit`). An accelerometer's readings average
+to gravity's 9.81 m/s² (the specific force of a body that ends near where it started): a
+mean near 1 says g, a gyroscope whose mean is gravity's says the columns are swapped
+(:func:`warn_imu_units`).
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["warn_imu_time_unit", "warn_time_unit"]
+__all__ = ["warn_imu_time_unit", "warn_imu_units", "warn_time_unit"]
 
 #: Motion no recording reaches (m/s, rad/s): times read in the wrong unit reach it or
 #: stay below ``_STILL`` where another unit gives plausible motion.
@@ -73,3 +76,25 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
                           f"{1 / scale:.0e}", UserWarning, stacklevel=3)
             return
 
+
+
+def warn_imu_units(fn: str, path, gyro: np.ndarray, accel: np.ndarray) -> None:
+    """Warn when the mean accelerometer reading is about 1 long (and its median magnitude
+    too: g, not m/s²), or when the gyroscope's is about gravity's (7 to 14) while the
+    accelerometer's readings are small (median magnitude below 5: the columns swapped)."""
+    if len(accel) < 3:
+        return
+    mean_a, mean_g = (float(np.linalg.norm(x.mean(axis=0))) for x in (accel, gyro))
+    size_a = float(np.median(np.linalg.norm(accel, axis=1)))
+    if 7.0 <= mean_g <= 14.0 and size_a < 5.0:
+        what = (f"the gyroscope and accelerometer columns look swapped: the gyroscope "
+                f"readings average {mean_g:.3g} long, as gravity's 9.81 m/s^2 does, the "
+                f"accelerometer's are {size_a:.3g} (median); the columns are t gx gy gz ax "
+                f"ay az")
+    elif 0.7 <= mean_a <= 1.4 and 0.7 <= size_a <= 1.4:
+        what = (f"the accelerometer readings look like g (standard gravity), not m/s^2: "
+                f"they average {mean_a:.3g} long where gravity reads 9.81 m/s^2; multiply "
+                f"them by 9.80665")
+    else:
+        return
+    warnings.warn(f"{fn}: {os.fspath(path)}: {what}", UserWarning, stacklevel=3)

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, quat
-from ._trajectory import EUROC_COLUMNS, FORMATS, TUM_COLUMNS, Trajectory
+from ._trajectory import EUROC_COLUMNS, FORMATS, TUM_COLUMNS, Trajectory, narrow_hint
 
 __all__ = ["CSV_COLUMNS", "write_csv", "write_trajectory"]
 
@@ -39,7 +39,31 @@ def _trajectory_arrays(fn: str, trajectory) -> tuple[np.ndarray, np.ndarray, np.
         _checks.fail(fn, f"expected times (N,), rotations (N, 4) and translations (N, 3), "
                          f"got {_checks.shape_str(t.shape)}, {_checks.shape_str(q.shape)} "
                          f"and {_checks.shape_str(p.shape)}")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        _checks.fail(fn, f"trajectory.times[{int(np.flatnonzero(bad)[0])}] is "
+                         f"{float(t[bad][0])}: "
+                         f"times must be finite")
+    steps = np.flatnonzero(~(np.diff(t) > 0))
+    if steps.size:
+        i = int(steps[0])
+        _checks.fail(fn, f"trajectory.times must increase strictly: times[{i + 1}] = "
+                         f"{float(t[i + 1])!r} follows times[{i}] = {float(t[i])!r} "
+                         f"({steps.size} of the {t.size - 1} steps do not increase)"
+                         f"{narrow_hint(trajectory.times.detach().cpu())}")
     return t, q, p
+
+
+def _check_poses(fn: str, q: np.ndarray, p: np.ndarray) -> None:
+    """Finite translations and unit quaternions (``| |q| - 1 | <= 1e-3``, what
+    :func:`~torch_dq.io.read_trajectory` accepts by default), else a ``ValueError``."""
+    norm = np.linalg.norm(q, axis=1)
+    rows = np.flatnonzero(~(np.isfinite(p).all(axis=1) & (np.abs(norm - 1.0) <= 1e-3)))
+    if rows.size:
+        i = int(rows[0])
+        _checks.fail(fn, f"pose {i} (of {rows.size} bad) has translation {p[i].tolist()} and "
+                         f"a quaternion of norm {norm[i]:.6g}: translations must be finite "
+                         f"and rotations unit quaternions (within 1e-3)")
 
 
 def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, format: str = "tum",
@@ -59,7 +83,16 @@ def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, forma
         format: ``"tum"`` (default; ``t x y z qx qy qz qw``), ``"kitti"`` (3x4 matrix rows;
             the times go to ``times_path``) or ``"euroc"`` (the 8 pose columns, integer
             nanoseconds).
-        times_path: KITTI only (required there): the times file to write.
+        times_path: KITTI only (required there): the times file to write (another file
+            than ``path``).
+
+    Raises:
+        ValueError: what :func:`read_trajectory` would reject: times that are not finite or
+            not strictly increasing (float32 UNIX seconds, rounded to 128 s steps, say so),
+            non-finite translations, rotations whose norm is not 1 within 1e-3; a bad
+            ``format``, ``times_path`` missing for KITTI, given for another format or equal
+            to ``path``. Nothing is written then.
+        TypeError: ``trajectory`` is not a :class:`Trajectory`.
 
     Example:
         >>> write_trajectory("/tmp/traj.txt", traj)  # doctest: +SKIP
@@ -70,6 +103,10 @@ def write_trajectory(path: str | os.PathLike[str], trajectory: Trajectory, forma
     if (format == "kitti") != (times_path is not None):
         _checks.fail(fn, "times_path is required for format='kitti' and only there")
     t, q, p = _trajectory_arrays(fn, trajectory)
+    _check_poses(fn, q, p)
+    if times_path is not None and os.path.abspath(times_path) == os.path.abspath(path):
+        _checks.fail(fn, f"times_path and path are the same file ({os.fspath(path)}): the "
+                         f"times would overwrite the poses")
     if format == "tum":
         _write_rows(path, np.column_stack((t, p, quat.to_xyzw(torch.from_numpy(q)).numpy())),
                     "# " + " ".join(TUM_COLUMNS))
@@ -182,8 +219,9 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
             row.
 
     Raises:
-        ValueError: shapes that do not match ``N`` times, kinematics without accelerations,
-            a bad or repeated extra column name.
+        ValueError: shapes that do not match ``N`` times, times that are not finite or not
+            strictly increasing, kinematics without accelerations, a bad or repeated extra
+            column name.
         TypeError: a ``trajectory`` that is not a :class:`Trajectory`, non-floating tensors,
             extra columns that are not ``(values, note)`` pairs of numbers.
 
