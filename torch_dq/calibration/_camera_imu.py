@@ -55,6 +55,7 @@ _FN = "calibration.camera_imu"
 _GRAVITY = 9.81
 _MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
 _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
+_SAME_TIME = 1e-3  # seconds: body-pose samples closer than this are one in the start spline
 
 
 @dataclass
@@ -258,13 +259,17 @@ def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> T
 def _start_trajectory(samples: list[tuple[Tensor, Tensor]], lo: float, hi: float,
                       knot_spacing: float) -> BSpline:
     """Cumulative cubic B-spline with knots every ``knot_spacing`` over ``[lo, hi]`` from
-    body poses ``(times, poses)``: a coarse spline (knots every 0.1 s) fit to the poses,
-    sampled four times per knot span (constant beyond its domain) and refit."""
+    body poses ``(times, poses)`` (of several cameras: one per 1 ms): a coarse spline (knots
+    every 0.1 s) fit to the poses, sampled four times per knot span (constant beyond its
+    domain) and refit."""
     t = torch.cat([s[0] for s in samples])
     order = torch.argsort(t, stable=True)
     t, x = t[order], torch.cat([s[1] for s in samples])[order]
     first = torch.ones_like(t, dtype=torch.bool)
-    first[1:] = t.diff() > 0  # equal stamps of several cameras: the first camera's pose
+    # stamps of several cameras within _SAME_TIME of each other (synchronised cameras whose
+    # offsets' starts differ by microseconds): the first camera's pose, not a turn of the
+    # poses' noise over microseconds
+    first[1:] = t.diff() > _SAME_TIME
     t, x = t[first], x[first]
     n = max(4, math.ceil(float(t[-1] - t[0]) / 0.1) + 3)
     q, p = dualquat.to_rt(x)
