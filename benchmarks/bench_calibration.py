@@ -25,6 +25,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import sys
 import time
@@ -75,8 +76,9 @@ def main() -> int:
     print(f"torch_dq camera-IMU calibration benchmark (EuRoC stand-in): {args.duration:g} s, "
           f"{[int(o[0].numel()) for o in obs]} corners per camera, {imu[0].size} IMU "
           f"samples, {'rolling' if delay else 'global'} shutter; torch {torch.__version__}, "
-          f"{args.threads} thread(s), {platform.processor() or platform.machine()}; "
-          f"simulated in {t_sim:.1f} s")
+          f"{args.threads} thread(s), {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; simulated in "
+          f"{t_sim:.1f} s")
     t0 = time.perf_counter()
     res = calibration.camera_imu(
         cameras, obs, tuple(_f64(x) for x in imu), gyro_noise=sim.GYRO_DENSITY,
