@@ -70,7 +70,7 @@ def _matrix(R, t) -> np.ndarray:
 
 
 DEFAULT = Rig(K=(K, K), dist=(DIST, DIST),
-              T_imu_cam=tuple(_matrix(R, t) for R, t in zip(R_IMU_CAM, T_IMU_CAM)),
+              T_imu_cam=tuple(_matrix(R, t) for R, t in zip(R_IMU_CAM, T_IMU_CAM, strict=True)),
               rot_amp=np.array([0.12, 0.12, 0.15]), pos_amp=np.array([0.10, 0.07, 0.08]))
 
 # EuRoC's calib_imu stand-in: the published intrinsics (tests/data/calibration/README.md),

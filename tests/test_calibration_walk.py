@@ -23,7 +23,7 @@ from torch_dq.camera import Camera
 
 pytest.importorskip("cv2")
 sys.path.insert(0, os.path.dirname(__file__))
-import _camera_imu_sim as sim  # noqa: E402
+import _camera_imu_sim as sim
 
 WALK = (1e-3, 0.02)  # rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz): a drift resolved in 3 s
 OFFSET = 0.004
