@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _camera_imu_sim as sim  # noqa: E402
 import _render  # noqa: E402
 
-DURATION = 6.0  # seconds (the benchmark: 72)
+DURATION = 5.0  # seconds (the benchmark: 72)
 
 
 def _t(x):
@@ -62,7 +62,7 @@ def test_camera_imu_meets_the_euroc_thresholds(standin):
                                  accel_noise=sim.ACCEL_DENSITY, pixel_sigma=0.3)
     values = _assert_thresholds(dualquat.to_matrix(res.extrinsics).numpy(),
                                 res.time_offsets.numpy(), res.reprojection_rms.numpy())
-    # measured: 0.02 deg, 0.9 mm, 10 us, 0.42 px; relative 0.012 deg, 0.21 mm: far inside
+    # measured: 0.02 deg, 0.8 mm, 2 us, 0.42 px; relative 0.007 deg, 0.12 mm: far inside
     # the thresholds, and consistent with the uncertainties (the offsets within 4 std)
     assert np.all(np.abs(res.time_offsets.numpy()) < 4 * res.std["time_offsets"].numpy())
     assert values["cam0 reprojection RMS (px)"] > 0.38  # 0.3 px per axis: 0.42 px
@@ -82,7 +82,7 @@ def test_cli_meets_the_euroc_thresholds(standin, tmp_path):
     T = [np.linalg.inv(np.array(chain[f"cam{i}"]["T_cam_imu"])) for i in range(2)]
     offsets = [chain[f"cam{i}"]["timeshift_cam_imu"] for i in range(2)]
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["bias"]["model"] == "random-walk" and summary["bias"]["segments"] >= 6
+    assert summary["bias"]["model"] == "random-walk" and summary["bias"]["segments"] >= 5
     _assert_thresholds(T, offsets, summary["reprojection_rms_px"])
     # Kalibr's T_cn_cnm1: the relative pose from the joint calibration, as written
     rel = np.array(chain["cam1"]["T_cn_cnm1"]) @ np.linalg.inv(T[0]) @ T[1]
