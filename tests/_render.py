@@ -112,19 +112,22 @@ def _write_imu(path: pathlib.Path, t, g, a) -> None:
             f.write(f"{n}," + ",".join(f"{x:.12g}" for x in (*gi, *ai)) + "\n")
 
 
-def _write_kalibr(root: pathlib.Path, cameras: int) -> None:
-    k, d = sim.K, sim.DIST
+def _write_kalibr(root: pathlib.Path, cameras: int, spec: sim.Rig = sim.DEFAULT) -> None:
+    """Kalibr's target.yaml, imu.yaml (EuRoC's ADIS16448) and camchain.yaml (the rig's
+    true intrinsics) in ``root``."""
     (root / "target.yaml").write_text(
         "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: 0.088\ntagSpacing: 0.3\n")
     (root / "imu.yaml").write_text(
-        f"gyroscope_noise_density: {sim.GYRO_DENSITY}\ngyroscope_random_walk: 1.9393e-05\n"
+        f"gyroscope_noise_density: {sim.GYRO_DENSITY}\n"
+        f"gyroscope_random_walk: {sim.EUROC_WALK[0]}\n"
         f"accelerometer_noise_density: {sim.ACCEL_DENSITY}\n"
-        "accelerometer_random_walk: 3.0e-3\nupdate_rate: 200.0\nrostopic: /imu0\n")
+        f"accelerometer_random_walk: {sim.EUROC_WALK[1]}\nupdate_rate: 200.0\nrostopic: /imu0\n")
     chain = ""
     for i in range(cameras):
+        k = sim.intrinsics(i, spec)
         chain += (f"cam{i}:\n  camera_model: pinhole\n  distortion_model: radtan\n"
-                  f"  intrinsics: [{k[0, 0]}, {k[1, 1]}, {k[0, 2]}, {k[1, 2]}]\n"
-                  f"  distortion_coeffs: [{', '.join(str(x) for x in d)}]\n"
+                  f"  intrinsics: [{', '.join(repr(x) for x in k[:4])}]\n"
+                  f"  distortion_coeffs: [{', '.join(repr(x) for x in k[4:])}]\n"
                   f"  resolution: [{sim.RESOLUTION[0]}, {sim.RESOLUTION[1]}]\n"
                   f"  rostopic: /cam{i}/image_raw\n")
     (root / "camchain.yaml").write_text(chain)
@@ -136,6 +139,23 @@ def _write_corners(path: pathlib.Path, times, points, pixels) -> None:
         f.write("t_ns,u_px,v_px,X_m,Y_m,Z_m\n")
         for n, u, p in zip(ns, pixels, points, strict=True):
             f.write(f"{n},{u[0]:.17g},{u[1]:.17g},{p[0]:.17g},{p[1]:.17g},{p[2]:.17g}\n")
+
+
+def kalibr_files(root, imu, cams, spec: sim.Rig = sim.DEFAULT) -> dict:
+    """Write a simulated recording without images to ``root`` (created): the IMU readings
+    ``imu`` as EuRoC's ``mav0/imu0/data.csv``, Kalibr's yamls (:func:`_write_kalibr`) and
+    each camera's corners ``cams[i] = (times, points, pixels)`` as ``cam<i>_corners.csv``
+    (stamps + :data:`T0`). Returns the paths as :func:`euroc_folder` does, without
+    ``"images"``."""
+    root = pathlib.Path(root)
+    (root / "mav0" / "imu0").mkdir(parents=True, exist_ok=True)
+    _write_imu(root / "mav0" / "imu0" / "data.csv", *imu)
+    _write_kalibr(root, len(cams), spec)
+    for i, c in enumerate(cams):
+        _write_corners(root / f"cam{i}_corners.csv", *c)
+    return {"corners": [root / f"cam{i}_corners.csv" for i in range(len(cams))],
+            "imu": root / "mav0" / "imu0" / "data.csv", "target": root / "target.yaml",
+            "imu_noise": root / "imu.yaml", "cameras": root / "camchain.yaml"}
 
 
 def euroc_folder(root, duration=2.0, cameras=2, fps=20.0, offset=0.004, seed=0,

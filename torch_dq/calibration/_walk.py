@@ -15,8 +15,12 @@ The ties are rows of the term itself (``K - 1`` pseudo-samples at the segment bo
 reading zero, their residual the tie instead of the IMU's prediction): the estimate's
 chi2 and degrees of freedom of the term count them, and no change of the solver is needed
 (a term's residuals may read any of its nuisance parameters). Between segment means, the
-walk's variation within a segment (of variance :math:`\sigma_w^2 h / 3` about its mean) is
-not modelled: ``h`` should keep it below the readings' noise over the segment.
+walk's variation within a segment is not modelled (its deviation from the segment mean has
+the variance :math:`\sigma_w^2 h / 6` averaged over the segment, :math:`\sigma_w^2 h / 3` at
+its ends): ``h`` should keep it below the segment mean's uncertainty from the readings'
+white noise of density :math:`\sigma_n`, :math:`\sigma_n / \sqrt{h}`, that is
+:math:`h \le \sqrt{3}\,\sigma_n / \sigma_w` (:func:`~torch_dq.calibration.camera_imu`'s
+``bias_interval``).
 """
 
 from __future__ import annotations

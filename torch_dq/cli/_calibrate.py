@@ -5,8 +5,9 @@ Reads Kalibr's target yaml (:func:`~torch_dq.calibration.read_target`), the IMU 
 (:func:`torch_dq.io.read_imu`), Kalibr's ``imu.yaml`` (``gyroscope_noise_density``,
 ``accelerometer_noise_density``; ``gyroscope_random_walk`` and ``accelerometer_random_walk``
 for ``--bias random-walk``, the default, as in Kalibr: ``camera_imu``'s ``bias_walk``, biases
-piecewise constant over ``--bias-interval`` seconds; ``update_rate`` is reported) and a
-camchain yaml
+piecewise constant over ``--bias-interval`` seconds, at most ``sqrt(3)`` times the smaller
+ratio of noise density to random walk, 1.15 s for EuRoC's IMU: ``camera_imu``'s
+``bias_interval``; ``update_rate`` is reported) and a camchain yaml
 (``cam0``, ``cam1``, ...: ``camera_model``, ``distortion_model``, ``resolution`` and, when
 known, ``intrinsics`` and ``distortion_coeffs``; without intrinsics they are calibrated first
 by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
