@@ -472,3 +472,4 @@ def test_fit_cli_tells_swapped_quaternion_columns_by_the_gyroscope(tmp_path):
         found[name] = json.loads((out / "summary.json").read_text())["warnings"]
     assert not any("quaternion columns" in w for w in found["right"]), found["right"]
     assert any("look like qw qx qy qz" in w for w in found["w_first"]), found["w_first"]
+    assert sum("quaternion columns" in w for w in found["w_first"]) == 1, found["w_first"]

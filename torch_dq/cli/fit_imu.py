@@ -186,14 +186,14 @@ def _warn_quaternion_order(times: Tensor, poses: Tensor, t_imu: Tensor, gyro: Te
     if len(times) < 10:
         return
     now = _misfit(times, q, t_imu, gyro)
-    for name, order in _ORDERS.items():
-        other = _misfit(times, q[:, order], t_imu, gyro)
-        if now > 0.3 and other < 0.25 * now:
-            warnings.warn(f"the poses' quaternion columns look like {name}: the gyroscope "
-                          f"explains their angular rates up to {100 * other:.2g} % in that "
-                          f"order and {100 * now:.2g} % as read; reorder the columns if so",
-                          UserWarning, stacklevel=3)
-
+    others = {name: _misfit(times, q[:, order], t_imu, gyro) for name, order in _ORDERS.items()}
+    best = min(others.values())
+    if now > 0.3 and best < 0.25 * now:  # one warning, naming every order that fits as well
+        names = " or ".join(n for n, o in others.items() if o <= 1.1 * best + 1e-12)
+        warnings.warn(f"the poses' quaternion columns look like {names}: the gyroscope "
+                      f"explains their angular rates up to {100 * best:.2g} % in that order "
+                      f"and {100 * now:.2g} % as read; reorder the columns if so",
+                      UserWarning, stacklevel=3)
 
 def _chi2(est, terms) -> dict:
     """Per term (by class name): chi2, degrees of freedom and their ratio."""
