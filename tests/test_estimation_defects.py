@@ -348,6 +348,23 @@ def test_gyro_in_degrees_per_second_warns(gen):
     gyro.values(spline_on(t, x, 0.15))
 
 
+def test_accel_in_g_warns(gen):
+    """Readings in g (mean magnitude about 1 against gravity's 9.81): a warning naming g at
+    the estimate's start; the same readings in m/s^2 give none."""
+    import warnings
+    t = grid(0.0, 3.0, 20)
+    ti = grid(0.2, 2.8, 100)
+    x = poses_of(t)
+    ac = imu_of(ti.numpy())[1]
+    cam = Poses(t, x, rot_sigma=0.002, trans_sigma=0.002)
+    with pytest.warns(UserWarning, match="look like g, not m/s"):
+        estimate(spline_on(t, x, 0.15), [cam, Accel(ti, ac / 9.80665, sigma=0.05, bias=True)],
+                 steps=1, verbose=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Accel(ti, ac, sigma=0.05, bias=True).values(spline_on(t, x, 0.15))
+
+
 # ----------------------------------------------------------------------------- 8. fine knots
 
 def test_from_poses_on_knots_finer_than_the_poses_with_a_margin():

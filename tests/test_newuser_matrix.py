@@ -70,6 +70,6 @@ def test_constructors_refuse_non_rigid_matrices():
     with pytest.raises(ValueError, match=r"BSpline.from_matrices: T\[0\] is not a rigid "
                                          r"transform"):
         nn.BSpline.from_matrices(_BAD["scale"](T), t, n_ctrl=6)
-    with pytest.raises(ValueError, match=r"fitting.Poses: poses\[0\] is not a rigid transform"):
+    with pytest.raises(ValueError, match=r"fitting.Poses: poses must be rigid .*sample 0"):
         fitting.Poses(t, _BAD["shear"](T), rot_sigma=1e-3, trans_sigma=1e-3)
     fitting.Poses(t, T, rot_sigma=1e-3, trans_sigma=1e-3)  # rigid matrices still work

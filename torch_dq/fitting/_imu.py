@@ -37,6 +37,7 @@ class _Imu(Term):
                          options)
         self.register_buffer("readings", _masked(readings, options.mask, 0.0))
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
+        self._units_checked = False  # the readings' units, checked once (first values())
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
@@ -67,7 +68,6 @@ class Gyro(_Imu):
                  robust_k: float | None = None, mask: Tensor | None = None) -> None:
         super().__init__(times, readings, sigma, bias,
                          Options(time_offset, max_time_offset, robust, robust_k, mask))
-        self._units_checked = False
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
@@ -193,6 +193,10 @@ class Accel(_Imu):
             the bias absorbed: from a start far off, e.g. 90 deg, Gauss-Newton can end in
             the flipped-gravity local minimum).
         time_offset, max_time_offset, robust, robust_k, mask: as :class:`Poses`.
+
+    Warns:
+        UserWarning: readings whose mean magnitude is about ``|gravity| / 9.80665`` (g for
+            m/s²), once, when :func:`~torch_dq.fitting.estimate` starts.
     """
 
     order = 2
@@ -229,6 +233,9 @@ class Accel(_Imu):
         free = self._slots["gravity"].free
         if free is not None and free.start is not None and free.value is None:
             out["gravity"] = _better_gravity(self, trajectory, ctrl, out)
+        if not self._units_checked:
+            self._units_checked = True
+            _warn_g_units(self, out["gravity"])
         return out
 
     def default_start(self, name, trajectory, ctrl, values):
@@ -251,6 +258,22 @@ class Accel(_Imu):
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
         a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
+
+
+_STANDARD_GRAVITY = 9.80665  # m/s^2 per g
+
+
+def _warn_g_units(term: Accel, gravity: Tensor) -> None:
+    """Warn when the readings look like g, not m/s^2: their mean magnitude within a
+    factor 1.5 of ``|gravity| / 9.80665`` (a body at rest reads ``|gravity|`` in m/s^2)."""
+    w = term.mask.to(torch.float64)
+    meas = float((term.readings.norm(dim=-1).to(torch.float64) * w).sum() / w.sum())
+    g = float(gravity.detach().to(torch.float64).norm(dim=-1).mean())
+    ratio = g / meas if meas > 0 else math.inf
+    if _STANDARD_GRAVITY / 1.5 < ratio < 1.5 * _STANDARD_GRAVITY:
+        warnings.warn(f"{term._fn}: the readings look like g, not m/s^2: their mean "
+                      f"magnitude {meas:.4g} is {ratio:.3g} times smaller than gravity's "
+                      f"{g:.4g} m/s^2; multiply them by 9.80665", UserWarning, stacklevel=4)
 
 
 def _better_gravity(term: Accel, trajectory, ctrl, values: dict[str, Tensor]) -> Tensor:

@@ -355,7 +355,6 @@ def _pose_data(fn: str, name: str, poses: Tensor) -> tuple[Tensor, Tensor | None
     (None for dual quaternions), detached."""
     _checks.tensor(fn, name, poses)
     if poses.dim() >= 3 and tuple(poses.shape[-2:]) == (4, 4):
-        _checks.rigid_matrix(fn, name, poses)
         return dualquat.from_matrix(poses.detach()), poses.detach()
     if poses.dim() < 2 or poses.shape[-1] != 8:
         _checks.fail(fn, f"expected (..., N, 8) dual quaternions or (..., N, 4, 4) matrices "
