@@ -79,7 +79,7 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
     cpu, wall, chosen = timed(lambda: fit_file._knot_spacing(
         train.times, train.poses(), 3, "de_boor", "auto", 50), repeats)
     rows.append(("knot search", cpu, wall))
-    spacing, _, steps = chosen
+    spacing, why, steps = chosen
     n_ctrl = _knots.n_ctrl(float(train.times[-1] - train.times[0]), spacing, 3)
 
     def start():
@@ -103,8 +103,9 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
     cpu, wall, (rot, trans) = timed(heldout, repeats)
     rows.append(("held-out evaluation", cpu, wall))
     print(f"file {path}: {len(traj)} poses, knot spacing {spacing:g} s ({n_ctrl} control "
-          f"points), held-out mean {1e3 * float(trans.mean()):.4f} mm, "
-          f"{float(rot.mean()):.4f} deg")
+          f"points; the search {why.split(' from ')[0]}), held-out mean "
+          f"{1e3 * float(trans.mean()):.4f} mm, {float(rot.mean()):.4f} deg, median "
+          f"{1e3 * float(trans.median()):.4f} mm, {float(rot.median()):.4f} deg")
     return rows
 
 

@@ -51,7 +51,9 @@ def test_search_reports_what_it_tried():
     s = knot_spacing_search(t, x)
     assert list(s.candidates) == sorted(s.candidates) and len(s.candidates) >= 3
     ratios = np.diff(np.log(s.candidates)) / math.log(_spacing.GRID_RATIO)
-    np.testing.assert_allclose(ratios, 1.0, atol=0.01)  # the geometric grid (4-digit values)
+    # points of the geometric grid (4-digit values), coarse to fine: one or two steps apart
+    np.testing.assert_allclose(ratios, np.round(ratios), atol=0.01)
+    assert set(np.round(ratios).tolist()) <= {1.0, 2.0}
     i = s.chosen
     # the chosen candidate is within 2 % of the best of both errors, no larger one is
     assert s.rot_mean[i] <= 1.02 * min(s.rot_mean) + 1e-15

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 import torch
@@ -19,6 +19,7 @@ from torch import Tensor
 __all__ = [
     "as_float_tensor",
     "broadcast_batch",
+    "broadcast_shapes",
     "control_points",
     "factory_args",
     "fail",
@@ -84,6 +85,32 @@ def same_dtype_device(fn: str, **named: Tensor) -> None:
             fail(fn, f"{name} is on {x.device} but {first_name} is on {first.device}", TypeError)
 
 
+def broadcast_shapes(*shapes: Sequence[int] | int) -> torch.Size:
+    """``torch.broadcast_shapes`` of shapes (sequences of ints) in plain Python: the same
+    result (an int ``n`` reads as ``(n,)``), and the same ``RuntimeError`` where they do not
+    broadcast, without the first
+    call's import of sympy (about a second of a process's start).
+
+    Example:
+        >>> broadcast_shapes((2, 1), (3,), ())
+        torch.Size([2, 3])
+    """
+    out: list[int] = []
+    for shape in shapes:
+        dims = [shape] if isinstance(shape, int) else list(shape)
+        if len(dims) > len(out):
+            out = [1] * (len(dims) - len(out)) + out
+        for k, d in enumerate(dims, start=len(out) - len(dims)):
+            if d < 0:
+                raise RuntimeError(f"broadcast_shapes: negative dimension {d} in {tuple(dims)}")
+            if d != out[k] and d != 1:
+                if out[k] != 1:
+                    raise RuntimeError(f"shape mismatch: objects cannot be broadcast to a "
+                                       f"single shape, {tuple(dims)} against {tuple(out)}")
+                out[k] = d
+    return torch.Size(out)
+
+
 def broadcast_batch(fn: str, **named: tuple[Tensor, int]) -> torch.Size:
     """Broadcast the batch shapes of several arguments.
 
@@ -97,7 +124,7 @@ def broadcast_batch(fn: str, **named: tuple[Tensor, int]) -> torch.Size:
     """
     shapes = {name: x.shape[: x.dim() - nd] for name, (x, nd) in named.items()}
     try:
-        return torch.broadcast_shapes(*shapes.values())
+        return broadcast_shapes(*shapes.values())
     except RuntimeError:
         listed = ", ".join(f"{n} {shape_str(s)}" for n, s in shapes.items())
         fail(fn, f"batch shapes do not broadcast: {listed}")

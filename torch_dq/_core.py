@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ._checks import broadcast_shapes
 from ._numerics import compute_dtype, even
 
 __all__ = [
@@ -52,7 +53,7 @@ def qrotate(q: Tensor, v: Tensor) -> Tensor:
 
     ``q (..., 4)`` and ``v (..., 3)`` broadcast across any numbers of batch dims.
     """
-    shape = (*torch.broadcast_shapes(q.shape[:-1], v.shape[:-1]), 3)
+    shape = (*broadcast_shapes(q.shape[:-1], v.shape[:-1]), 3)
     w, u, v = q[..., :1], q[..., 1:].expand(shape), v.expand(shape)
     t = 2.0 * torch.linalg.cross(u, v, dim=-1)
     return v + w * t + torch.linalg.cross(u, t, dim=-1)

@@ -134,7 +134,7 @@ def poses_to_dq(fn: str, rotations, translations) -> Tensor:
 def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) -> Tensor:
     """The least-squares start of each trajectory of a batch on its own knots (rows of
     ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
-    batch = torch.broadcast_shapes(x.shape[:-2], dom.knots.shape[:-1], rel.shape[:-1])
+    batch = _checks.broadcast_shapes(x.shape[:-2], dom.knots.shape[:-1], rel.shape[:-1])
     N, K = x.shape[-2], dom.knots.shape[-1]
     rows = zip(x.expand(*batch, N, 8).reshape(-1, N, 8), rel.expand(*batch, N).reshape(-1, N),
                dom.knots.expand(*batch, K).reshape(-1, K), strict=True)
@@ -647,7 +647,7 @@ class Curve(torch.nn.Module, abc.ABC):
         dom = self.time_model
         p, k = dom.degree, dom.knots.detach().to(torch.float64)
         if k.dim() > 1:  # a row of knots per trajectory
-            lead = torch.broadcast_shapes(k.shape[:-1], first.shape[:-1])
+            lead = _checks.broadcast_shapes(k.shape[:-1], first.shape[:-1])
             k, first = k.expand(*lead, k.shape[-1]), first.expand(*lead, first.shape[-1])
             lo, hi = k.gather(-1, first + p), k.gather(-1, first + p + 1)
         else:

@@ -128,7 +128,7 @@ def kinematics(x: Tensor, dx: Tensor, ddx: Tensor | None = None,
     if frame == "body":
         rc = qconj(x[..., :4])
         out = tuple(None if v is None else qrotate(rc, v) for v in out)
-    batch = torch.broadcast_shapes(*(v.shape[:-1] for v in (x, dx, ddx) if v is not None))
+    batch = _checks.broadcast_shapes(*(v.shape[:-1] for v in (x, dx, ddx) if v is not None))
     omega, v, alpha, a = (None if u is None else u.expand(*batch, 3).to(dtype) for u in out)
     assert omega is not None and v is not None  # velocities are always computed
     return Kinematics(omega, v, alpha, a)
@@ -194,7 +194,7 @@ def imu(x: Tensor, dx: Tensor, ddx: Tensor,
     omega, _, _, a = _world(x, dx, ddx)
     rc = qconj(x[..., :4])
     gyro, accel = qrotate(rc, omega), qrotate(rc, a - g)
-    batch = torch.broadcast_shapes(x.shape[:-1], dx.shape[:-1], ddx.shape[:-1], g.shape[:-1])
+    batch = _checks.broadcast_shapes(x.shape[:-1], dx.shape[:-1], ddx.shape[:-1], g.shape[:-1])
     return gyro.expand(*batch, 3).to(dtype), accel.expand(*batch, 3).to(dtype)
 
 

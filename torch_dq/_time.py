@@ -108,7 +108,7 @@ def _take(knots: Tensor, idx: Tensor) -> Tensor:
         return knots[idx]
     extra = idx.dim() - knots.dim()  # 1 for (..., T, m) indices
     flat = idx.flatten(-2) if extra else idx
-    lead = torch.broadcast_shapes(knots.shape[:-1], flat.shape[:-1])
+    lead = _checks.broadcast_shapes(knots.shape[:-1], flat.shape[:-1])
     out = torch.take_along_dim(knots.expand(*lead, knots.shape[-1]),
                                flat.expand(*lead, flat.shape[-1]), -1)
     return out.view(*lead, *idx.shape[idx.dim() - 1 - extra:])
@@ -372,7 +372,7 @@ class KnotDomain:
         """For batched knots: the absolute times of the first trajectory with a time
         outside its domain, and that domain for the message (``of trajectory (b,) [t0,
         t1]``)."""
-        lead = torch.broadcast_shapes(rel.shape[:-1], self.knots.shape[:-1])
+        lead = _checks.broadcast_shapes(rel.shape[:-1], self.knots.shape[:-1])
         rel = rel.expand(*lead, rel.shape[-1])
         row = self._first_row(self._outside(rel))
         t0, t1 = (float(torch.as_tensor(e).expand(lead)[row]) for e in self.domain())
@@ -409,7 +409,7 @@ class KnotDomain:
         p, n, k = self.degree, self.n, self.knots.detach().to(rel.dtype)
         inner = k[..., p + 1:n]
         if k.dim() > 1:
-            lead = torch.broadcast_shapes(k.shape[:-1], rel.shape[:-1])
+            lead = _checks.broadcast_shapes(k.shape[:-1], rel.shape[:-1])
             inner, rel = inner.expand(*lead, n - p - 1), rel.expand(*lead, rel.shape[-1])
             end = k[..., n:n + 1].expand(*lead, 1)
         else:
@@ -436,7 +436,7 @@ class KnotDomain:
         ``torch_dq.fitting._local``)."""
         rel = self.relative(t.detach(), torch.float64)
         k = self.knots.detach().to(torch.float64)
-        shape = torch.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
+        shape = _checks.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
         k = k.expand(*shape[:-1], k.shape[-1])
         r = r.expand(shape)
         left = torch.take_along_dim(k, r, -1)

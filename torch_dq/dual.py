@@ -231,7 +231,7 @@ def _broadcast(real: Tensor, dual: Tensor) -> tuple[Tensor, Tensor]:
     """Both parts expanded to their common shape (no copy; unchanged if already equal)."""
     if real.shape == dual.shape:
         return real, dual
-    shape = torch.broadcast_shapes(real.shape, dual.shape)
+    shape = _checks.broadcast_shapes(real.shape, dual.shape)
     return real.expand(shape), dual.expand(shape)
 
 

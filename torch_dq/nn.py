@@ -97,7 +97,7 @@ __all__ = ["BSpline", "Bezier", "Curve", "FitHistory", "UnitDualQuaternion", "fi
 def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> int:
     """``n_ctrl`` from the knot spacing chosen from the data (``from_poses(n_ctrl=None)``)."""
     if x.dim() > 2 or t64.dim() > 1:
-        batch = torch.broadcast_shapes(x.shape[:-2], t64.shape[:-1])
+        batch = _checks.broadcast_shapes(x.shape[:-2], t64.shape[:-1])
         _checks.fail(fn, f"n_ctrl=None chooses the knots from one trajectory's poses; pass "
                          f"n_ctrl for a batch of shape {_checks.shape_str(batch)}")
     h = choose_knot_spacing(t64, x.detach().to(torch.float64).cpu(), degree, form=form)

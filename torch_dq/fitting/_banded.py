@@ -2,21 +2,27 @@ r"""Symmetric positive definite block-banded matrices: Cholesky, solves, selecte
 
 A matrix of ``n`` block rows of size ``s`` whose block ``(k, k + d)`` vanishes for
 ``d >= w`` is stored as its upper band ``band (..., n, w, s, s)`` (block ``(k, k + d)`` at
-``band[..., k, d]``). Grouping ``g`` consecutive block rows (a multiple of ``w - 1``, about
-16: fewer sequential steps on larger dense blocks) makes it
-block-tridiagonal with diagonal blocks ``D_j`` and sub-diagonal blocks ``E_j`` (group ``j``
-against group ``j - 1``), whose block :math:`LDL^T` factorisation is
+``band[..., k, d]``). Grouping ``g = max(w - 1, 1)`` consecutive block rows makes it
+block-tridiagonal with ``G`` diagonal blocks ``D_j`` and sub-diagonal blocks ``E_j`` (group
+``j`` against group ``j - 1``, ``E_0 = 0``), of size ``b = g s``.
+
+The factorisation is *block cyclic reduction* (odd-even reduction; Heller, "Some aspects of
+the cyclic reduction algorithm for block tridiagonal linear systems", SIAM J. Numer. Anal.
+13, 1976): the even groups do not touch each other, so all of them are eliminated at once
+(batched Cholesky factors :math:`C_i C_i^T = D_i`, :math:`L_i = C_i^{-1} E_i`,
+:math:`R_i = C_i^{-1} E_{i+1}^T`), which leaves a block-tridiagonal Schur complement on the
+odd groups,
 
 .. math::
-    S_0 = D_0, \quad S_j = D_j - E_j S_{j-1}^{-1} E_j^T, \quad L_j = E_j S_{j-1}^{-1},
+    D'_k = D_k - R_{k-1}^T R_{k-1} - L_{k+1}^T L_{k+1}, \qquad
+    E'_k = -R_{k-1}^T L_{k-1},
 
-each :math:`S_j` held by its Cholesky factor: :math:`O(n)` time and memory. The selected
-inverse (Takahashi's recursion, from :math:`\Sigma L = L^{-T} S^{-1}`)
-
-.. math::
-    \Sigma_{G-1,G-1} = S_{G-1}^{-1}, \quad \Sigma_{j+1,j} = -\Sigma_{j+1,j+1} L_{j+1}, \quad
-    \Sigma_{j,j} = S_j^{-1} - \Sigma_{j+1,j}^T L_{j+1}
-
+reduced in turn: :math:`\lceil \log_2 G \rceil` batched levels in place of ``G`` sequential
+steps, :math:`O(n b^2)` flops. It is the Cholesky factorisation of the matrix with its
+groups permuted (odd-even order), so it is as stable as Cholesky on a positive definite
+matrix. The selected inverse (Takahashi's recursion, from the coarsest level back:
+:math:`\Sigma_{i,i\pm1} = -D_i^{-1} (E_i \Sigma_{i-1,i\pm1} + E_{i+1}^T \Sigma_{i+1,i\pm1})`,
+:math:`\Sigma_{ii} = D_i^{-1} - D_i^{-1} (E_i \Sigma_{i-1,i} + E_{i+1}^T \Sigma_{i+1,i})`)
 gives the blocks of :math:`A^{-1}` inside the band of the grouped matrix (the covariance of
 every ``g + 1`` consecutive block rows) without forming the dense inverse.
 """
@@ -27,8 +33,6 @@ import torch
 from torch import Tensor
 
 __all__ = ["BandedCholesky"]
-
-_GROUP_ROWS = 16  # block rows per group (a multiple of w - 1): Python steps vs dense work
 
 
 def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
@@ -53,8 +57,92 @@ def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
             E.permute(order).reshape(*batch, G, g * s, g * s))
 
 
+def _pad(x: Tensor, count: int, front: bool = False) -> Tensor:
+    """``x (..., G, p, q)`` with zero blocks added to reach ``count`` along ``G`` (at the
+    end, or one in front when ``front``)."""
+    extra = count - x.shape[-3] if not front else 1
+    if extra <= 0:
+        return x
+    z = x.new_zeros(*x.shape[:-3], extra, *x.shape[-2:])
+    return torch.cat((z, x) if front else (x, z), dim=-3)
+
+
+def _interleave(even: Tensor, odd: Tensor) -> Tensor:
+    """Blocks ``even[0], odd[0], even[1], odd[1], ...`` along ``-3`` (``len(even)`` is
+    ``len(odd)`` or one more)."""
+    G = even.shape[-3] + odd.shape[-3]
+    both = torch.stack(torch.broadcast_tensors(even, _pad(odd, even.shape[-3])), dim=-3)
+    return both.flatten(-4, -3)[..., :G, :, :]
+
+
+class _Level:
+    """One level of the reduction: the even groups' factors and couplings.
+
+    Attributes:
+        C: ``(..., ne, b, b)`` lower Cholesky factors of the even diagonal blocks.
+        L, R: ``(..., ne, b, b)`` :math:`C^{-1} E_i` and :math:`C^{-1} E_{i+1}^T` (zero
+            where there is no neighbour).
+        ok: ``(...)`` every factor succeeded.
+    """
+
+    def __init__(self, D: Tensor, E: Tensor) -> None:
+        G = D.shape[-3]
+        ne, h = (G + 1) // 2, G // 2
+        self.G = G
+        C, info = torch.linalg.cholesky_ex(D[..., 0::2, :, :])
+        bad = info != 0
+        self.ok = ~bad.any(-1)
+        # a failed element continues on the identity: its own results are flagged
+        eye = torch.eye(D.shape[-1], dtype=D.dtype, device=D.device)
+        self.C = torch.where(bad[..., None, None], eye, C)
+        right = _pad(E[..., 1::2, :, :].mT, ne)
+        LR = torch.linalg.solve_triangular(self.C, torch.cat((E[..., 0::2, :, :], right), -1),
+                                           upper=False)
+        b = D.shape[-1]
+        self.L, self.R = LR[..., :b], LR[..., b:]
+        Lnext = _pad(self.L[..., 1:, :, :], h)[..., :h, :, :]
+        Rprev = self.R[..., :h, :, :]
+        self.D = D[..., 1::2, :, :] - Rprev.mT @ Rprev - Lnext.mT @ Lnext
+        self.E = -(Rprev.mT @ self.L[..., :h, :, :])
+
+    def forward(self, b: Tensor) -> tuple[Tensor, Tensor]:
+        """``y`` of the even groups and the right-hand side of the odd ones."""
+        h = self.G // 2
+        y = torch.linalg.solve_triangular(self.C, b[..., 0::2, :, :], upper=False)
+        odd = (b[..., 1::2, :, :] - self.R[..., :h, :, :].mT @ y[..., :h, :, :]
+               - _pad(self.L[..., 1:, :, :].mT @ y[..., 1:, :, :], h)[..., :h, :, :])
+        return y, odd
+
+    def back(self, y: Tensor, x_odd: Tensor) -> Tensor:
+        """All groups' solution from ``y`` and the odd groups' solution."""
+        ne = y.shape[-3]
+        left = _pad(x_odd, 0, front=True)[..., :ne, :, :]  # x_{i-1}
+        right = _pad(x_odd, ne)  # x_{i+1}
+        x_even = torch.linalg.solve_triangular(
+            self.C.mT, y - self.L @ left - self.R @ right, upper=True)
+        return _interleave(x_even, x_odd)
+
+    def inverse(self, diag: Tensor, sub: Tensor) -> tuple[Tensor, Tensor]:
+        """The blocks of the inverse at this level from those of the odd groups."""
+        ne = self.C.shape[-3]
+        eye = torch.eye(self.C.shape[-1], dtype=self.C.dtype, device=self.C.device)
+        Ci = torch.linalg.solve_triangular(self.C, eye, upper=False)
+        P, Q = Ci.mT @ self.L, Ci.mT @ self.R  # D^-1 E_i, D^-1 E_{i+1}^T
+        d_left = _pad(diag, 0, front=True)[..., :ne, :, :]  # Sigma_{i-1,i-1}
+        d_right = _pad(diag, ne)  # Sigma_{i+1,i+1}
+        s_far = _pad(sub, 0, front=True)[..., :ne, :, :]  # Sigma_{i+1,i-1}
+        to_left = -(P @ d_left + Q @ s_far)  # Sigma_{i,i-1}
+        to_right = -(P @ s_far.mT + Q @ d_right)  # Sigma_{i,i+1}
+        own = Ci.mT @ Ci - P @ to_left.mT - Q @ to_right.mT
+        own = 0.5 * (own + own.mT)
+        # sub[j] = Sigma_{j+1,j}: Sigma_{i+1,i} for even j = i, Sigma_{i,i-1} for odd j = i - 1
+        fine_sub = _interleave(to_right.mT, to_left[..., 1:, :, :])
+        return _interleave(own, diag), _pad(fine_sub, self.G)[..., :self.G, :, :]
+
+
 class BandedCholesky:
-    """Block :math:`LDL^T` factorisation of a symmetric block-banded matrix (module doc).
+    """Block cyclic reduction of a symmetric positive definite block-banded matrix (module
+    doc).
 
     Args:
         band: ``(..., n, w, s, s)`` upper band (blocks past the last row are ignored).
@@ -70,7 +158,6 @@ class BandedCholesky:
         beyond = torch.arange(n, device=dev)[:, None] + torch.arange(w, device=dev) >= n
         band = band.masked_fill(beyond[:, :, None, None], 0.0)
         g = max(w - 1, 1)
-        g *= max(1, min(_GROUP_ROWS // g, -(-n // g)))  # fewer, larger groups: fewer steps
         G = -(-n // g)
         pad = G * g - n
         if pad:  # identity rows after the last block row
@@ -78,24 +165,14 @@ class BandedCholesky:
             eye[..., 0, :, :] = torch.eye(s, dtype=band.dtype, device=dev)
             band = torch.cat((band, eye), dim=-4)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
-        D, self.E = _grouped(band, g)
-        self.chol: list[Tensor] = []
-        self.L: list[Tensor] = []  # L_j = E_j S_{j-1}^-1 (L_0 unused)
+        D, E = _grouped(band, g)
+        self.levels: list[_Level] = []
         ok = torch.ones(batch, dtype=torch.bool, device=dev)
-        for j in range(G):
-            S = D[..., j, :, :]
-            if j:
-                Lj = torch.cholesky_solve(self.E[..., j, :, :].mT, self.chol[-1]).mT
-                S = S - Lj @ self.E[..., j, :, :].mT
-                self.L.append(Lj)
-            else:
-                self.L.append(torch.zeros_like(S))
-            C, info = torch.linalg.cholesky_ex(S)
-            bad = info != 0
-            ok &= ~bad
-            # a failed element continues on the identity: its own results are flagged
-            eye = torch.eye(S.shape[-1], dtype=S.dtype, device=dev)
-            self.chol.append(torch.where(bad[..., None, None], eye, C))
+        while D.shape[-3]:
+            level = _Level(D, E)
+            ok &= level.ok
+            self.levels.append(level)
+            D, E = level.D, level.E
         self.ok = ok
 
     def solve(self, rhs: Tensor) -> Tensor:
@@ -106,31 +183,25 @@ class BandedCholesky:
         if pad:
             rhs = torch.cat((rhs, rhs.new_zeros(*rb, pad, s, r)), dim=-3)
         b = rhs.reshape(*rb, G, g * s, r)
-        y = [b[..., 0, :, :]]
-        for j in range(1, G):
-            y.append(b[..., j, :, :] - self.L[j] @ y[-1])
-        x = [torch.cholesky_solve(y[G - 1], self.chol[G - 1])]
-        for j in range(G - 2, -1, -1):
-            z = torch.cholesky_solve(y[j], self.chol[j])
-            x.append(z - self.L[j + 1].mT @ x[-1])
-        x.reverse()
-        return torch.stack(x, dim=-3).reshape(*rb, G * g, s, r)[..., :n, :, :]
+        ys = []
+        for level in self.levels:
+            y, b = level.forward(b)
+            ys.append(y)
+        x = b  # no group left: (..., 0, g s, r)
+        for level, y in zip(reversed(self.levels), reversed(ys), strict=True):
+            x = level.back(y, x)
+        return x.reshape(*x.shape[:-3], G * g, s, r)[..., :n, :, :]
 
     def selected_inverse(self) -> tuple[Tensor, Tensor]:
         """Blocks of :math:`A^{-1}` of the grouped matrix: ``diag (..., G, g s, g s)`` and
         ``sub (..., G, g s, g s)`` (``sub[j]`` the block of groups ``(j + 1, j)``, the last
         one zero)."""
-        G = self.G
-        eye = torch.eye(self.g * self.s, dtype=self.chol[0].dtype, device=self.chol[0].device)
-        diag = [torch.cholesky_solve(eye, self.chol[G - 1])]
-        sub = [torch.zeros_like(diag[0])]
-        for j in range(G - 2, -1, -1):
-            low = -diag[-1] @ self.L[j + 1]  # Sigma_{j+1, j}
-            diag.append(torch.cholesky_solve(eye, self.chol[j]) - low.mT @ self.L[j + 1])
-            sub.append(low)
-        diag.reverse()
-        sub.reverse()
-        return torch.stack(diag, dim=-3), torch.stack(sub, dim=-3)
+        last = self.levels[-1]
+        diag = last.D  # (..., 0, b, b)
+        sub = last.E
+        for level in reversed(self.levels):
+            diag, sub = level.inverse(diag, sub)
+        return diag, sub
 
     def window_covariance(self, first: Tensor, width: int) -> Tensor:
         r"""Covariance blocks of the ``width`` consecutive block rows ``first .. first +

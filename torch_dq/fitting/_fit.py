@@ -173,7 +173,7 @@ class FitProblem:
         """The :class:`Poses` term of ``pose_loss`` with these weights; the targets take the
         batch shape they broadcast to with the control points'."""
         try:
-            batch = torch.broadcast_shapes(self.batch, self.target.shape[:-2])
+            batch = _checks.broadcast_shapes(self.batch, self.target.shape[:-2])
         except RuntimeError:
             _checks.fail(fn, f"batch shapes do not broadcast: poses "
                              f"{_checks.shape_str(self.target.shape[:-2])}, the module's "

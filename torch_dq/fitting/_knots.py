@@ -8,8 +8,10 @@ the caller: it splits the poses it is given once more,
 1. *inner fit*: all but every :data:`CHECK_EVERY`-th pose (80 % of them, the first and the
    last included); *inner check*: the others, each between two fitted neighbours, as the
    caller's held-out poses are;
-2. for each candidate spacing (a geometric grid, from the finest the inner fit determines,
-   ``n_ctrl <= N_inner``, upwards in steps of :data:`GRID_RATIO`), builds the least-squares
+2. for candidate spacings of a geometric grid (from the finest the inner fit determines,
+   ``n_ctrl <= N_inner``, upwards in steps of :data:`GRID_RATIO`; coarse to fine: every
+   other one until the errors have clearly risen past their lowest, then the ones between
+   next to those near the lowest, where the choice lies), builds the least-squares
    start of :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (the same knots and
    :func:`torch_dq._start.least_squares_start`, evaluated by :func:`torch_dq.curves.bspline`,
    so that the layers can use this module: it imports no layer; no refinement: O(N) per
@@ -115,7 +117,8 @@ class SpacingSearch:
         """What was tried, what was chosen and why, in two sentences (the command line
         prints it; units: seconds, degrees, millimetres for metre poses)."""
         i, c = self.chosen, self.candidates
-        tried = (f"tried {len(c)} spacings from {c[0]:.4g} s to {c[-1]:.4g} s (ratio 2^(1/4)),"
+        tried = (f"tried {len(c)} spacings from {c[0]:.4g} s to {c[-1]:.4g} s (grid ratio "
+                 f"2^(1/4), coarse to fine),"
                  f" each fitted to {self.n_fit} of the {self.n} poses and checked on the "
                  f"other {self.n_check}")
         within = (self.rot_mean[i] <= (1 + self.tolerance) * min(self.rot_mean) + 1e-15
@@ -241,6 +244,43 @@ def _check_args(fn: str, times: Tensor, poses: Tensor, degree: int, tolerance: f
                          f"of them fit, half check), got {times.shape[0]}")
 
 
+def _grid(duration: float, n_fit: int, degree: int) -> list[float]:
+    """The candidate spacings: from the finest the inner fit determines up, in steps of
+    :data:`GRID_RATIO` (each rounded up to 4 digits), at most :data:`MAX_CANDIDATES`, while
+    they leave more than ``degree`` control points."""
+    grid = [finest_spacing(duration, n_fit, degree)]
+    while len(grid) < MAX_CANDIDATES and n_ctrl(duration, grid[-1], degree) > degree:
+        grid.append(round_up(grid[-1] * GRID_RATIO))
+    return grid if n_ctrl(duration, grid[-1], degree) > degree else grid[:-1]
+
+
+def _coarse_to_fine(score, size: int, tolerance: float) -> dict[int, tuple[float, float]]:
+    r"""Scores ``{grid index: (rot, trans)}`` of the grid points :func:`knot_spacing_search`
+    needs, ``score(i)`` computing one: every other point from the finest up until both
+    errors pass :math:`1 + 10\,tol` (at most 2) times their lowest so far (coarser knots
+    only get worse), then the points between whose neighbour is *near* the best (both
+    errors within :math:`1 + 8\,tol` of the lowest), until none is left. The choice
+    (the lowest errors, the largest point within ``tol`` of them) lies among those."""
+    stop, near = min(2.0, 1.0 + 10.0 * tolerance), 1.0 + 8.0 * tolerance
+    scores: dict[int, tuple[float, float]] = {}
+    for i in range(0, size, 2):
+        scores[i] = score(i)
+        lows = [min(v) for v in zip(*scores.values(), strict=True)]
+        if all(e > stop * low + 1e-12 for e, low in zip(scores[i], lows, strict=True)):
+            break
+    top = max(scores)
+    while True:
+        lows = [min(v) for v in zip(*scores.values(), strict=True)]
+        close = [i for i, e in scores.items()
+                 if all(v <= near * low + 1e-15 for v, low in zip(e, lows, strict=True))]
+        todo = sorted({j for i in close for j in (i - 1, i + 1)
+                       if 0 <= j <= top and j not in scores})
+        if not todo:
+            return scores
+        for j in todo:
+            scores[j] = score(j)
+
+
 def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
                         tolerance: float = 0.02, form: str = "de_boor") -> SpacingSearch:
     r"""The knot spacing search of :func:`choose_knot_spacing`, with what it tried.
@@ -258,19 +298,13 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     poses = poses.detach()
     fit, check = inner_split(times.shape[0])
     duration = float(times[fit][-1] - times[fit][0])
-    spacing = finest_spacing(duration, fit.shape[0], degree)
-    candidates: list[float] = []
-    rot: list[float] = []
-    trans: list[float] = []
+    grid = _grid(duration, fit.shape[0], degree)
     inner = (times[fit], _unit64(poses[fit]), times[check], poses[check])
-    while len(candidates) < MAX_CANDIDATES and n_ctrl(duration, spacing, degree) > degree:
-        r, p = _scores(*inner, spacing, degree, form)
-        candidates.append(spacing)
-        rot.append(r)
-        trans.append(p)
-        if r > 2 * min(rot) + 1e-12 and p > 2 * min(trans) + 1e-12:
-            break  # well past the best: coarser knots only get worse
-        spacing = round_up(spacing * GRID_RATIO)
+    scores = _coarse_to_fine(lambda i: _scores(*inner, grid[i], degree, form), len(grid),
+                             tolerance)
+    index = sorted(scores)
+    candidates = [grid[i] for i in index]
+    rot, trans = [scores[i][0] for i in index], [scores[i][1] for i in index]
     rot_best, trans_best = min(rot), min(trans)
     ratio = [max(r / max(rot_best, 1e-300), p / max(trans_best, 1e-300))
              for r, p in zip(rot, trans, strict=True)]
@@ -281,7 +315,7 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     whole = float(times[-1] - times[0])
     finest = finest_spacing(whole, times.shape[0], degree)
     scale = (whole / (times.shape[0] - 1)) / (duration / (fit.shape[0] - 1))
-    limited = chosen <= DATA_LIMIT_STEPS
+    limited = index[chosen] <= DATA_LIMIT_STEPS
     spacing = finest if limited else max(round_up(candidates[chosen] * scale), finest)
     return SpacingSearch(spacing, tuple(candidates), tuple(rot), tuple(trans), chosen, best,
                          float(tolerance), int(fit.shape[0]), int(check.shape[0]),
@@ -302,7 +336,7 @@ def choose_knot_spacing(times: Tensor, poses: Tensor, degree: int = 3, *,
     poses determine; otherwise (noise limits it) the spacing scaled by the density ratio
     (about 0.8), never below that finest (see :mod:`torch_dq.fitting._knots`). Pass only the poses
     you fit: poses held out to measure the fit must not be among them. Costs one O(N)
-    least-squares start per candidate (seconds for 10^4 poses).
+    least-squares start per candidate tried (about a second for 10^4 poses).
 
     Args:
         times: ``(N,)`` strictly increasing times (float64 UNIX seconds welcome).
