@@ -109,7 +109,7 @@ class LevenbergMarquardt:
         cpull = _prior.control_pull(s.band, prior, bool(p.params))
         info = torch.diag(p.prior_information().to(s.nn))
         self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
-        self.null = _prior.control_null(s.band, cpull)
+        self.null, self._null_of = _prior.control_null(s.band, cpull), s
         self.pulled = (int(_prior.undetermined(s.band).sum())
                        + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
 
@@ -166,7 +166,9 @@ class LevenbergMarquardt:
         ``epsilon = REGULARISE`` and ``100 REGULARISE``."""
         gc, gn = self.gradient()
         gn = self._bounded(gn)
-        self.null = _prior.control_null(self.system.band, self.pulls[0])
+        if self._null_of is not self.system:  # factored once per system
+            self.null = _prior.control_null(self.system.band, self.pulls[0])
+            self._null_of = self.system
         step = self._step()
         decs, ok = [], torch.ones_like(self.active)
         for eps in (_prior.REGULARISE, _LOOSE * _prior.REGULARISE):
