@@ -292,6 +292,13 @@ def test_cli_user_errors(tmp_path, rolling_data, capsys):
     argv[argv.index("--imu-noise") + 1] = str(tmp_path / "bad.yaml")
     assert main(argv) == 2
     assert "gyroscope_noise_density" in capsys.readouterr().err
+    (tmp_path / "small.yaml").write_text(  # another grid: the corners are not its points
+        "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: 0.06\ntagSpacing: 0.3\n")
+    argv = _argv(tmp_path, out)
+    argv[argv.index("--target") + 1] = str(tmp_path / "small.yaml")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not a corner of the target" in err, err
     for option, value in (("--bias", "linear"), ("--bias-interval", "0"),
                           ("--bias-interval", "abc"), ("--bias-interval", "inf")):
         assert main([*_argv(tmp_path, out), option, value]) == 2

@@ -114,6 +114,23 @@ def _camchain(path: str) -> list[dict]:
     return [data[k] for k in names]
 
 
+def _on_target(path, points, target, target_path) -> None:
+    """A corners file whose points are not the target's (another grid, tag size or
+    spacing: its metric scale would be wrong) is a user error naming the first one."""
+    import torch
+
+    ref = target.points.to(points.dtype)
+    gap = torch.cdist(points, ref).amin(-1) if len(points) else points.new_zeros(0)
+    tol = 1e-4 * max(float(ref.abs().max()), 1e-3)
+    bad = (gap > tol).nonzero()
+    if len(bad):
+        i = int(bad[0])
+        raise UserError(f"{path}: the point {points[i].tolist()} (row {i + 1}) is not a "
+                        f"corner of the target in {target_path} (nearest {float(gap[i]):.3g} "
+                        f"m away; {int(len(bad))} of {len(points)} rows are off): the "
+                        f"corners were measured on another target, or --target is not it")
+
+
 def _observations(args, target, n: int):
     from ..calibration import detect_folder, read_corners
 
@@ -124,7 +141,10 @@ def _observations(args, target, n: int):
         raise UserError(f"the camchain has {n} camera(s): give one --corners or --images per "
                         f"camera, got {len(sources)}")
     if args.corners:
-        return [tuple(read_corners(p)[:3]) for p in args.corners]
+        obs = [tuple(read_corners(p)[:3]) for p in args.corners]
+        for path, (_, points, _) in zip(args.corners, obs, strict=True):
+            _on_target(path, points, target, args.target)
+        return obs
     return [tuple(detect_folder(p, target)[:3]) for p in args.images]
 
 
