@@ -68,15 +68,10 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
-        shared = _distinct_times(t, first, 2)
-        if shared is None:
-            pts = _gather(ctrl, first, spans.support, problem.batch)
-            derivs.append(spans.derivatives(pts, t, first, term.order))
-            continue
-        u, inverse, pick = shared  # each distinct time evaluated once
-        pts = _gather(ctrl, first[pick], spans.support, problem.batch)
-        derivs.append(tuple(d.index_select(-2, inverse) for d in spans.derivatives(
-            pts, u, first[pick], term.order)))
+        derivs.append(_per_distinct(
+            lambda _, u, f: spans.derivatives(_gather(ctrl, f, spans.support, problem.batch),
+                                              u, f, term.order),
+            t, first, _distinct_times(t, first, 2)))
     return term.residuals(derivs, p)
 
 
@@ -166,14 +161,21 @@ class Linearization:
         timed = [name for name in est if name in rates]  # move the times
         nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
+        shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
+        rated = bool(timed) and term.order < 3  # time columns from the next derivative
+        lists = list(zip(offs, times, firsts, shared, strict=True))
         with torch.no_grad():  # the span derivatives at the current point
-            derivs = [self._current_derivatives(gathered, off, t, f, term.order)
-                      for off, t, f in zip(offs, times, firsts, strict=True)]
+            derivs = [self._current_derivatives(gathered, *x, term.order) for x in lists]
         r, J = self._residual_jacobians(i, vals, nuisance, derivs, gathered.shape[:-2])
         L = len(derivs)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
-                                     bool(timed))
+                                     bool(timed) and not rated, shared)
+        if rated:
+            with torch.no_grad():  # the next derivatives (the residuals' own stay those above)
+                nxt = [self._current_derivatives(gathered, *x, term.order + 1)[..., 1:, :]
+                       for x in lists]
+            Jt = self._time_columns(times, firsts, J[:L], nxt)
         if Jt is not None:
             for name in timed:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
                 rate = torch.as_tensor(rates[name], dtype=Jt.dtype, device=Jt.device)
@@ -200,16 +202,31 @@ class Linearization:
         return sample_jacobians(residual, derivs + steps, term.dim)
 
     def _current_derivatives(self, gathered: Tensor, off: Tensor, t: Tensor, first: Tensor,
-                             order: int) -> Tensor:
+                             shared, order: int) -> Tensor:
         """Span derivatives ``(..., N, order + 1, 8)`` at the samples' times ``t``, each
-        distinct time evaluated once when the batch shares them (:func:`_distinct_times`)."""
-        shared = _distinct_times(t, first, 2)
-        if shared is None:
-            return torch.stack(self._span_derivatives(gathered, off, t, first, order), -2)
-        u, inverse, pick = shared
-        d = torch.stack(self._span_derivatives(
-            gathered.index_select(-3, pick), off[pick], u, first[pick], order), -2)
-        return d.index_select(-3, inverse)
+        distinct time evaluated once where ``shared`` (:func:`_distinct_times`) says so."""
+        def evaluate(pick, u, f):
+            pts, o = ((gathered, off) if pick is None else
+                      (gathered.index_select(-3, pick), off[pick]))
+            return self._span_derivatives(pts, o, u, f, order)
+
+        return torch.stack(_per_distinct(evaluate, t, first, shared), -2)
+
+    def _time_columns(self, times: list[Tensor], firsts: list[Tensor], Jd: list[Tensor],
+                      nxt: list[Tensor]) -> Tensor:
+        r"""``(..., N, k)``: the residuals' Jacobian with respect to the samples' time shift,
+        exactly: span derivative ``o`` moves with ``t`` as derivative ``o + 1`` times the
+        local times' rate (:meth:`~torch_dq.fitting._local.SpanEvaluator.time_rate`), so
+        :math:`\sum_l \sum_o J_{d,l,o} \cdot d_{l,o+1}\, \dot s_l` over the times lists
+        ``l`` (``Jd (..., N, k, order + 1, 8)``, ``nxt (..., N, order + 1, 8)`` the
+        derivatives ``1 .. order + 1``)."""
+        Jt = None
+        for t, f, J, d in zip(times, firsts, Jd, nxt, strict=True):
+            col = torch.einsum("...koc,...oc->...k", J, d)
+            col = col * self.spans.time_rate(t, f)[..., None]
+            Jt = col if Jt is None else Jt + col
+        assert Jt is not None
+        return Jt
 
     def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
                           order: int) -> tuple[Tensor, ...]:
@@ -222,11 +239,14 @@ class Linearization:
 
     def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                        firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
+                       shared: list,
                        ) -> tuple[Tensor, Tensor | None]:
         r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
         the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
         with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
-        to the times (None otherwise: times without gradient take the cheaper path).
+        to the times (None otherwise: times without gradient take the cheaper path; the
+        time columns of orders 0 to 2 come from :meth:`_time_columns`). ``shared``: each
+        list's :func:`_distinct_times`.
 
         Chunks of ``_CHUNK >> order`` samples, each with its own window points (moved by
         their own steps: the samples are independent), one forward and ``k`` reverse passes
@@ -234,10 +254,11 @@ class Linearization:
         whatever ``N``.
         """
         k, O = Jd[0].shape[-3], 8 * (order + 1)
-        shared = _distinct_times(times[0], firsts[0], 2 * O / k) if len(times) == 1 else None
-        if shared is not None:  # one reverse pass per output of each distinct time
+        one = shared[0] if len(times) == 1 else None
+        if one is not None and times[0].numel() >= 2 * O / k * one[0].numel():
+            # one reverse pass per output of each distinct time
             return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
-                                          *shared)
+                                          *one)
         *shape, N, w, _ = gathered.shape
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         Jt = gathered.new_zeros(*shape, N, k) if timed else None
@@ -301,6 +322,18 @@ class Linearization:
             if Jt is not None:
                 Jt[..., c, :] = (Jd[..., c, :, :] @ Dt.index_select(-2, i)[..., None])[..., 0]
         return Jc, Jt
+
+
+def _per_distinct(evaluate, t: Tensor, first: Tensor, shared,
+                  ) -> tuple[Tensor, ...]:
+    """``evaluate(pick, u, f)`` (per-sample span derivatives ``(..., M, 8)`` of the samples
+    ``pick`` (None: all) at times ``u``, spans ``f``) at every sample of ``t``, ``first
+    (..., N)``: once per distinct time, gathered, where ``shared`` (:func:`_distinct_times`)
+    holds them; else at every sample."""
+    if shared is None:
+        return evaluate(None, t, first)
+    u, inverse, pick = shared
+    return tuple(d.index_select(-2, inverse) for d in evaluate(pick, u, first[pick]))
 
 
 def _distinct_times(t: Tensor, first: Tensor, ratio: float,
