@@ -29,6 +29,7 @@ from ._local import sample_jacobians, tangent_step
 __all__ = ["Linearization", "System", "residuals"]
 
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
+_ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their copies)
 
 
 @dataclass
@@ -112,20 +113,30 @@ class Linearization:
             r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
             rs.append(r)
             weights.append(wt)
-            N, k = r.shape[-2:]
-            sw = wt.expand(*p.batch, N).reshape(Bf, N, 1, 1).sqrt()
-            cols = [Jc.expand(*p.batch, N, k, w, 6).reshape(Bf, N, k, c)]
-            Jn_all = ctrl.new_zeros(Bf, N, k, m)
-            for name, J in Jn.items():
-                q = p.index[(i, name)]
-                Jn_all[..., q.offset:q.offset + q.dim] += J.expand(
-                    *p.batch, N, k, q.dim).reshape(Bf, N, k, q.dim)
-            cols += [Jn_all, r.expand(*p.batch, N, k).reshape(Bf, N, k, 1)]
-            Y = torch.cat(cols, dim=-1) * sw  # whitened, weighted rows [J_c | J_n | r]
-            normal += _window_normal(self._windows(f0, w).reshape(-1), Y.reshape(Bf * N, k, -1),
-                                     G)
+            keys = self._windows(f0, w)
+            for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
+                Y = self._rows(i, slice(a, a + _ROWS), r, wt, Jc, Jn, w)
+                normal += _window_normal(keys[:, a:a + _ROWS].reshape(-1), Y.flatten(0, 1), G)
         band, cn, nn, gc, gn = _blocks(normal.reshape(Bf, n + w, c + m + 1, c + m + 1), n, w, m)
         return System(band, cn, nn, gc, gn, rs, weights)
+
+    def _rows(self, i: int, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
+              Jn: dict[str, Tensor], w: int) -> Tensor:
+        """``(Bf, S, k, 6 w + m + 1)``: the whitened rows ``[J_c | J_n | r]`` of term ``i``'s
+        samples ``c`` weighted by the square roots of their robust weights ``wt``."""
+        p = self.p
+        Bf, m, k = max(p.batch.numel(), 1), p.m, r.shape[-1]
+        r, wt, Jc = r[..., c, :], wt[..., c], Jc[..., c, :, :, :]
+        S = r.shape[-2]
+        sw = wt.expand(*p.batch, S).reshape(Bf, S, 1, 1).sqrt()
+        cols = [Jc.expand(*p.batch, S, k, w, 6).reshape(Bf, S, k, 6 * w)]
+        Jn_all = r.new_zeros(Bf, S, k, m)
+        for name, J in Jn.items():
+            q = p.index[(i, name)]
+            Jn_all[..., q.offset:q.offset + q.dim] += J[..., c, :, :].expand(
+                *p.batch, S, k, q.dim).reshape(Bf, S, k, q.dim)
+        cols += [Jn_all, r.expand(*p.batch, S, k).reshape(Bf, S, k, 1)]
+        return torch.cat(cols, dim=-1) * sw
 
     def _windows(self, f0: Tensor, w: int) -> Tensor:
         """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
