@@ -8,8 +8,10 @@ span's control points are gathered and evaluated as a one-span curve
 residuals (:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial
 costs); :class:`Linearization` also differentiates: the residuals with respect to the span
 derivatives and the nuisance steps (one reverse pass over ``k`` copies), chained through the
-spans to the control points' steps and the samples' times, the times to the time-moving
-parameters by their declared rates (:meth:`~torch_dq.fitting.Term.time_rates`).
+spans to the control points' steps (``k`` reverse passes over per-sample span copies) and
+the samples' times (the next time derivative of the span: no time in that graph), the times
+to the time-moving parameters by their declared rates
+(:meth:`~torch_dq.fitting.Term.time_rates`).
 
 The Gauss-Newton system has three blocks: the control-point band ``A_cc (..., n, w, 6, 6)``
 (a sample touches ``w`` consecutive control points), the coupling ``A_cn (..., n, 6, m)``
@@ -63,17 +65,29 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
     spans (no domain check: :func:`~torch_dq.fitting.estimate` checked the times once)."""
     term, spans = problem.terms[i], problem.spans
-    p = term.per_sample(problem.term_values(i, values))
+    vals = problem.term_values(i, values)
+    p = term.per_sample(vals)
     shift = term.time_shift(p)
+    order = term.order + _rated(problem, i, vals)  # the linearisation's evaluation, the same
     derivs = []
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
         derivs.append(_per_distinct(
             lambda _, u, f: spans.derivatives(_gather(ctrl, f, spans.support, problem.batch),
-                                              u, f, term.order),
-            t, first, _distinct_times(t, first, 2)))
+                                              u, f, order),
+            t, first, _distinct_times(t, first, 2))[:term.order + 1])
     return term.residuals(derivs, p)
+
+
+def _rated(problem, i: int, vals: dict[str, Tensor]) -> bool:
+    """Whether term ``i``'s spans are evaluated to one derivative more than it reads: its
+    times move with an estimated parameter and it reads orders 0 to 2, so the linearisation
+    takes its time columns from the next derivative (:meth:`Linearization._time_columns`);
+    the cost path evaluates the same, so costs and linearisation agree to the bit."""
+    rates = problem.terms[i].time_rates()
+    return problem.terms[i].order < 3 and any(
+        (i, name) in problem.index and name in rates for name in vals)
 
 
 def width(problem, values: list[Tensor]) -> int:
@@ -173,20 +187,18 @@ class Linearization:
         nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
-        rated = bool(timed) and term.order < 3  # time columns from the next derivative
-        lists = list(zip(offs, times, firsts, shared, strict=True))
-        with torch.no_grad():  # the span derivatives at the current point
-            derivs = [self._current_derivatives(gathered, *x, term.order) for x in lists]
-        r, J = self._residual_jacobians(i, vals, nuisance, derivs, gathered.shape[:-2])
+        rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
+        with torch.no_grad():  # the span derivatives at the current point (and the next)
+            derivs = [self._current_derivatives(gathered, *x, o - 1 + rated)
+                      for x in zip(offs, times, firsts, shared, strict=True)]
+        r, J = self._residual_jacobians(i, vals, nuisance, [d[..., :o, :] for d in derivs],
+                                        gathered.shape[:-2])
         L = len(derivs)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
                                      bool(timed) and not rated, shared)
         if rated:
-            with torch.no_grad():  # the next derivatives (the residuals' own stay those above)
-                nxt = [self._current_derivatives(gathered, *x, term.order + 1)[..., 1:, :]
-                       for x in lists]
-            Jt = self._time_columns(times, firsts, J[:L], nxt)
+            Jt = self._time_columns(times, firsts, J[:L], [d[..., 1:, :] for d in derivs])
         if Jt is not None:
             for name in timed:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
                 rate = torch.as_tensor(rates[name], dtype=Jt.dtype, device=Jt.device)
