@@ -243,13 +243,9 @@ class Linearization:
         :math:`\sum_l \sum_o J_{d,l,o} \cdot d_{l,o+1}\, \dot s_l` over the times lists
         ``l`` (``Jd (..., N, k, order + 1, 8)``, ``nxt (..., N, order + 1, 8)`` the
         derivatives ``1 .. order + 1``)."""
-        Jt = None
-        for t, f, J, d in zip(times, firsts, Jd, nxt, strict=True):
-            col = torch.einsum("...koc,...oc->...k", J, d)
-            col = col * self.spans.time_rate(t, f)[..., None]
-            Jt = col if Jt is None else Jt + col
-        assert Jt is not None
-        return Jt
+        cols = [torch.einsum("...koc,...oc->...k", J, d) * self.spans.time_rate(t, f)[..., None]
+                for t, f, J, d in zip(times, firsts, Jd, nxt, strict=True)]
+        return sum(cols[1:], cols[0])
 
     def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
                           order: int) -> tuple[Tensor, ...]:
