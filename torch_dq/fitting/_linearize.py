@@ -8,8 +8,10 @@ span's control points are gathered and evaluated as a one-span curve
 residuals (:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial
 costs); :class:`Linearization` also differentiates: the residuals with respect to the span
 derivatives and the nuisance steps (one reverse pass over ``k`` copies), chained through the
-spans to the control points' steps and the samples' times, the times to the time-moving
-parameters by their declared rates (:meth:`~torch_dq.fitting.Term.time_rates`).
+spans to the control points' steps (``k`` reverse passes over per-sample span copies) and
+the samples' times (the next time derivative of the span: no time in that graph), the times
+to the time-moving parameters by their declared rates
+(:meth:`~torch_dq.fitting.Term.time_rates`).
 
 The Gauss-Newton system has three blocks: the control-point band ``A_cc (..., n, w, 6, 6)``
 (a sample touches ``w`` consecutive control points), the coupling ``A_cn (..., n, 6, m)``
@@ -29,6 +31,7 @@ from ._local import sample_jacobians, tangent_step
 __all__ = ["Linearization", "System", "residuals"]
 
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
+_ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their copies)
 
 
 @dataclass
@@ -62,22 +65,29 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
     spans (no domain check: :func:`~torch_dq.fitting.estimate` checked the times once)."""
     term, spans = problem.terms[i], problem.spans
-    p = term.per_sample(problem.term_values(i, values))
+    vals = problem.term_values(i, values)
+    p = term.per_sample(vals)
     shift = term.time_shift(p)
+    order = term.order + _rated(problem, i, vals)  # the linearisation's evaluation, the same
     derivs = []
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
-        shared = _distinct_times(t, first, 2)
-        if shared is None:
-            pts = _gather(ctrl, first, spans.support, problem.batch)
-            derivs.append(spans.derivatives(pts, t, first, term.order))
-            continue
-        u, inverse, pick = shared  # each distinct time evaluated once
-        pts = _gather(ctrl, first[pick], spans.support, problem.batch)
-        derivs.append(tuple(d.index_select(-2, inverse) for d in spans.derivatives(
-            pts, u, first[pick], term.order)))
+        derivs.append(_per_distinct(
+            lambda _, u, f: spans.derivatives(_gather(ctrl, f, spans.support, problem.batch),
+                                              u, f, order),
+            t, first, _distinct_times(t, first, 2))[:term.order + 1])
     return term.residuals(derivs, p)
+
+
+def _rated(problem, i: int, vals: dict[str, Tensor]) -> bool:
+    """Whether term ``i``'s spans are evaluated to one derivative more than it reads: its
+    times move with an estimated parameter and it reads orders 0 to 2, so the linearisation
+    takes its time columns from the next derivative (:meth:`Linearization._time_columns`);
+    the cost path evaluates the same, so costs and linearisation agree to the bit."""
+    rates = problem.terms[i].time_rates()
+    return problem.terms[i].order < 3 and any(
+        (i, name) in problem.index and name in rates for name in vals)
 
 
 def width(problem, values: list[Tensor]) -> int:
@@ -117,20 +127,30 @@ class Linearization:
             r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
             rs.append(r)
             weights.append(wt)
-            N, k = r.shape[-2:]
-            sw = wt.expand(*p.batch, N).reshape(Bf, N, 1, 1).sqrt()
-            cols = [Jc.expand(*p.batch, N, k, w, 6).reshape(Bf, N, k, c)]
-            Jn_all = ctrl.new_zeros(Bf, N, k, m)
-            for name, J in Jn.items():
-                q = p.index[(i, name)]
-                Jn_all[..., q.offset:q.offset + q.dim] += J.expand(
-                    *p.batch, N, k, q.dim).reshape(Bf, N, k, q.dim)
-            cols += [Jn_all, r.expand(*p.batch, N, k).reshape(Bf, N, k, 1)]
-            Y = torch.cat(cols, dim=-1) * sw  # whitened, weighted rows [J_c | J_n | r]
-            normal += _window_normal(self._windows(f0, w).reshape(-1), Y.reshape(Bf * N, k, -1),
-                                     G)
+            keys = self._windows(f0, w)
+            for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
+                Y = self._rows(i, slice(a, a + _ROWS), r, wt, Jc, Jn, w)
+                normal += _window_normal(keys[:, a:a + _ROWS].reshape(-1), Y.flatten(0, 1), G)
         band, cn, nn, gc, gn = _blocks(normal.reshape(Bf, n + w, c + m + 1, c + m + 1), n, w, m)
         return System(band, cn, nn, gc, gn, rs, weights)
+
+    def _rows(self, i: int, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
+              Jn: dict[str, Tensor], w: int) -> Tensor:
+        """``(Bf, S, k, 6 w + m + 1)``: the whitened rows ``[J_c | J_n | r]`` of term ``i``'s
+        samples ``c`` weighted by the square roots of their robust weights ``wt``."""
+        p = self.p
+        Bf, m, k = max(p.batch.numel(), 1), p.m, r.shape[-1]
+        r, wt, Jc = r[..., c, :], wt[..., c], Jc[..., c, :, :, :]
+        S = r.shape[-2]
+        sw = wt.expand(*p.batch, S).reshape(Bf, S, 1, 1).sqrt()
+        cols = [Jc.expand(*p.batch, S, k, w, 6).reshape(Bf, S, k, 6 * w)]
+        Jn_all = r.new_zeros(Bf, S, k, m)
+        for name, J in Jn.items():
+            q = p.index[(i, name)]
+            Jn_all[..., q.offset:q.offset + q.dim] += J[..., c, :, :].expand(
+                *p.batch, S, k, q.dim).reshape(Bf, S, k, q.dim)
+        cols += [Jn_all, r.expand(*p.batch, S, k).reshape(Bf, S, k, 1)]
+        return torch.cat(cols, dim=-1) * sw
 
     def _windows(self, f0: Tensor, w: int) -> Tensor:
         """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
@@ -166,14 +186,19 @@ class Linearization:
         timed = [name for name in est if name in rates]  # move the times
         nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
-        with torch.no_grad():  # the span derivatives at the current point
-            derivs = [self._current_derivatives(gathered, off, t, f, term.order)
-                      for off, t, f in zip(offs, times, firsts, strict=True)]
-        r, J = self._residual_jacobians(i, vals, nuisance, derivs, gathered.shape[:-2])
+        shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
+        rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
+        with torch.no_grad():  # the span derivatives at the current point (and the next)
+            derivs = [self._current_derivatives(gathered, *x, o - 1 + rated)
+                      for x in zip(offs, times, firsts, shared, strict=True)]
+        r, J = self._residual_jacobians(i, vals, nuisance, [d[..., :o, :] for d in derivs],
+                                        gathered.shape[:-2])
         L = len(derivs)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
-                                     bool(timed))
+                                     bool(timed) and not rated, shared)
+        if rated:
+            Jt = self._time_columns(times, firsts, J[:L], [d[..., 1:, :] for d in derivs])
         if Jt is not None:
             for name in timed:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
                 rate = torch.as_tensor(rates[name], dtype=Jt.dtype, device=Jt.device)
@@ -200,16 +225,27 @@ class Linearization:
         return sample_jacobians(residual, derivs + steps, term.dim)
 
     def _current_derivatives(self, gathered: Tensor, off: Tensor, t: Tensor, first: Tensor,
-                             order: int) -> Tensor:
+                             shared, order: int) -> Tensor:
         """Span derivatives ``(..., N, order + 1, 8)`` at the samples' times ``t``, each
-        distinct time evaluated once when the batch shares them (:func:`_distinct_times`)."""
-        shared = _distinct_times(t, first, 2)
-        if shared is None:
-            return torch.stack(self._span_derivatives(gathered, off, t, first, order), -2)
-        u, inverse, pick = shared
-        d = torch.stack(self._span_derivatives(
-            gathered.index_select(-3, pick), off[pick], u, first[pick], order), -2)
-        return d.index_select(-3, inverse)
+        distinct time evaluated once where ``shared`` (:func:`_distinct_times`) says so."""
+        def evaluate(pick, u, f):
+            pts, o = ((gathered, off) if pick is None else
+                      (gathered.index_select(-3, pick), off[pick]))
+            return self._span_derivatives(pts, o, u, f, order)
+
+        return torch.stack(_per_distinct(evaluate, t, first, shared), -2)
+
+    def _time_columns(self, times: list[Tensor], firsts: list[Tensor], Jd: list[Tensor],
+                      nxt: list[Tensor]) -> Tensor:
+        r"""``(..., N, k)``: the residuals' Jacobian with respect to the samples' time shift,
+        exactly: span derivative ``o`` moves with ``t`` as derivative ``o + 1`` times the
+        local times' rate (:meth:`~torch_dq.fitting._local.SpanEvaluator.time_rate`), so
+        :math:`\sum_l \sum_o J_{d,l,o} \cdot d_{l,o+1}\, \dot s_l` over the times lists
+        ``l`` (``Jd (..., N, k, order + 1, 8)``, ``nxt (..., N, order + 1, 8)`` the
+        derivatives ``1 .. order + 1``)."""
+        cols = [torch.einsum("...koc,...oc->...k", J, d) * self.spans.time_rate(t, f)[..., None]
+                for t, f, J, d in zip(times, firsts, Jd, nxt, strict=True)]
+        return sum(cols[1:], cols[0])
 
     def _span_derivatives(self, pts: Tensor, off: Tensor, t: Tensor, first: Tensor,
                           order: int) -> tuple[Tensor, ...]:
@@ -222,11 +258,14 @@ class Linearization:
 
     def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                        firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
+                       shared: list,
                        ) -> tuple[Tensor, Tensor | None]:
         r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
         the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
         with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
-        to the times (None otherwise: times without gradient take the cheaper path).
+        to the times (None otherwise: times without gradient take the cheaper path; the
+        time columns of orders 0 to 2 come from :meth:`_time_columns`). ``shared``: each
+        list's :func:`_distinct_times`.
 
         Chunks of ``_CHUNK >> order`` samples, each with its own window points (moved by
         their own steps: the samples are independent), one forward and ``k`` reverse passes
@@ -234,10 +273,11 @@ class Linearization:
         whatever ``N``.
         """
         k, O = Jd[0].shape[-3], 8 * (order + 1)
-        shared = _distinct_times(times[0], firsts[0], 2 * O / k) if len(times) == 1 else None
-        if shared is not None:  # one reverse pass per output of each distinct time
+        one = shared[0] if len(times) == 1 else None
+        if one is not None and times[0].numel() >= 2 * O / k * one[0].numel():
+            # one reverse pass per output of each distinct time
             return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
-                                          *shared)
+                                          *one)
         *shape, N, w, _ = gathered.shape
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         Jt = gathered.new_zeros(*shape, N, k) if timed else None
@@ -301,6 +341,18 @@ class Linearization:
             if Jt is not None:
                 Jt[..., c, :] = (Jd[..., c, :, :] @ Dt.index_select(-2, i)[..., None])[..., 0]
         return Jc, Jt
+
+
+def _per_distinct(evaluate, t: Tensor, first: Tensor, shared,
+                  ) -> tuple[Tensor, ...]:
+    """``evaluate(pick, u, f)`` (per-sample span derivatives ``(..., M, 8)`` of the samples
+    ``pick`` (None: all) at times ``u``, spans ``f``) at every sample of ``t``, ``first
+    (..., N)``: once per distinct time, gathered, where ``shared`` (:func:`_distinct_times`)
+    holds them; else at every sample."""
+    if shared is None:
+        return evaluate(None, t, first)
+    u, inverse, pick = shared
+    return tuple(d.index_select(-2, inverse) for d in evaluate(pick, u, first[pick]))
 
 
 def _distinct_times(t: Tensor, first: Tensor, ratio: float,

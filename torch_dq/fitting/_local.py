@@ -58,6 +58,21 @@ class SpanEvaluator:
         local = self.trajectory.local_times(t, first)
         return self.trajectory.evaluate_span(points, local, first, order)
 
+    def time_rate(self, t: Tensor, first: Tensor) -> Tensor:
+        r"""``d local / d t`` ``(...)`` of :meth:`~torch_dq.nn.Curve.local_times` at ``t``
+        (``t``'s and ``first``'s broadcast shape): 1 inside a span, 0 where the local time is
+        clamped, what reverse mode gives at a clamp's edge.
+
+        The span derivatives' Jacobian with respect to a sample's time is then the next
+        derivative times this rate (:meth:`derivatives` are time derivatives of the
+        contract), with no time in an autograd graph of the span.
+        """
+        shift = t.detach().new_zeros(torch.broadcast_shapes(t.shape, first.shape))
+        with torch.enable_grad():
+            shift.requires_grad_()
+            local = self.trajectory.local_times(t.detach() + shift, first)
+            return torch.autograd.grad(local.sum(), shift)[0]
+
 
 def tangent_step(points: Tensor, delta: Tensor) -> Tensor:
     r"""``points exp(delta)`` to first order in ``delta``: :math:`c + c\,(0, \omega/2, 0,

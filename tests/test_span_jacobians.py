@@ -1,0 +1,109 @@
+"""The span derivatives' Jacobians that the Gauss-Newton systems chain (issue 34): with
+respect to the window's tangent steps ``c_j exp(delta_j)`` (one reverse pass per residual
+row) and to the sample's time (the next time derivative times the local time's rate, no
+time in the graph), against reverse mode through the layer's public ``derivatives`` written
+here, per sample (the control points moved in the full curve, the time shifted): de Boor,
+cumulative and Bezier curves, orders 0 to 2, generic and near-degenerate spans (identical
+consecutive control points, a 180 degree increment), a batch of curves.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+import torch_dq.dualquat as dq
+from torch_dq.fitting._linearize import Linearization
+from torch_dq.fitting._local import SpanEvaluator, tangent_step
+from torch_dq.nn import Bezier, BSpline
+
+F64 = torch.float64
+
+
+def _ctrl(n: int, degenerate: bool, batch: tuple[int, ...]) -> torch.Tensor:
+    g = torch.Generator().manual_seed(7)
+    c = dq.exp(0.4 * torch.randn(*batch, n, 6, generator=g, dtype=F64))
+    if degenerate:  # c_2 == c_1, and a half turn about z from c_3 to c_4
+        c = c.clone()
+        c[..., 2, :] = c[..., 1, :]
+        half = torch.tensor([0.0, 0.0, math.pi, 0.1, 0.0, 0.0], dtype=F64)
+        c[..., 4, :] = dq.mul(c[..., 3, :], dq.exp(half))
+    return c
+
+
+def _curve(kind: str, degenerate: bool, batch: tuple[int, ...]):
+    if kind == "bezier":
+        return Bezier(_ctrl(5, degenerate, batch), domain=(0.0, 2.0))
+    knots = torch.linspace(0.0, 2.0, 5, dtype=F64)
+    knots = torch.cat((knots[:1].repeat(3), knots, knots[-1:].repeat(3)))
+    return BSpline(_ctrl(7, degenerate, batch), degree=3, knots=knots, form=kind)
+
+
+def _reference(curve, t: torch.Tensor, first: torch.Tensor, order: int):
+    """Per sample, reverse mode through ``curve.derivatives`` of the whole curve: ``(..., N,
+    O, w, 6)`` with respect to the span's steps and ``(..., N, O)`` to the time."""
+    ctrl, w = curve.control_points.detach(), curve.span_size
+    rows_c, rows_t = [], []
+    for i in range(t.numel()):
+        f = int(first[i])
+
+        def fn(delta, dt, i=i, f=f):
+            moved = torch.cat((ctrl[..., :f, :], tangent_step(ctrl[..., f:f + w, :], delta),
+                               ctrl[..., f + w:, :]), -2)
+            d = curve.derivatives(t[i:i + 1] + dt, order, ctrl=moved)
+            return torch.stack(d, -2)[..., 0, :, :].flatten(-2)
+
+        Jc, Jt = torch.autograd.functional.jacobian(
+            fn, (ctrl.new_zeros(w, 6), ctrl.new_zeros(())))
+        # Jc (..., O, w, 6) of the batch's rows together: each row moved by the same delta,
+        # row b's outputs depend on row b's points only
+        rows_c.append(Jc)
+        rows_t.append(Jt)
+    return torch.stack(rows_c, -4), torch.stack(rows_t, -2)
+
+
+@pytest.mark.parametrize(("degenerate", "batch"), [(False, ()), (True, ()), (True, (2,))])
+@pytest.mark.parametrize("order", [0, 1, 2])
+@pytest.mark.parametrize("kind", ["de_boor", "cumulative", "bezier"])
+def test_fast_span_jacobians_equal_reverse_mode(kind, order, degenerate, batch):
+    curve = _curve(kind, degenerate, batch)
+    spans = SpanEvaluator(curve)
+    lin = Linearization(SimpleNamespace(spans=spans))
+    t = torch.tensor([0.05, 0.5, 0.77, 1.0, 1.31, 1.9], dtype=F64)  # 0.5, 1.0: knots
+    first = spans.first(t)
+    w = curve.span_size
+    f0 = first.clamp(max=spans.n - w)
+    ctrl = curve.control_points.detach()
+    idx = f0[:, None] + torch.arange(w)
+    gathered = ctrl[..., idx, :]  # (..., N, w, 8)
+    off = (first - f0)[:, None] + torch.arange(spans.support)
+    O = 8 * (order + 1)
+    Jd = torch.eye(O, dtype=F64).reshape(O, order + 1, 8).expand(*batch, t.numel(), O,
+                                                                    order + 1, 8)
+    Jc, none = lin._through_spans(gathered, [off], [t], [first], [Jd], order, False, [None])
+    assert none is None
+    with torch.no_grad():
+        nxt = lin._current_derivatives(gathered, off, t, first, None, order + 1)[..., 1:, :]
+    Jt = lin._time_columns([t], [first], [Jd], [nxt])
+    ref_c, ref_t = _reference(curve, t, first, order)
+    assert torch.isfinite(ref_c).all() and torch.isfinite(ref_t).all()
+    scale = max(1.0, float(ref_c.abs().max()), float(ref_t.abs().max()))
+    torch.testing.assert_close(Jc / scale, ref_c / scale, atol=1e-10, rtol=0)
+    torch.testing.assert_close(Jt / scale, ref_t / scale, atol=1e-10, rtol=0)
+    # the general path (the time in the graph, for orders above 2) agrees with both
+    Jc2, Jt2 = lin._through_spans(gathered, [off], [t], [first], [Jd], order, True, [None])
+    torch.testing.assert_close(Jc2 / scale, ref_c / scale, atol=1e-10, rtol=0)
+    torch.testing.assert_close(Jt2 / scale, ref_t / scale, atol=1e-10, rtol=0)
+
+
+def test_time_rate_is_zero_where_the_local_time_is_clamped():
+    """Beyond the end (extrapolated samples are clamped into the last span) the time column
+    vanishes, as reverse mode through the clamp gives."""
+    curve = _curve("cumulative", False, ())
+    spans = SpanEvaluator(curve)
+    t = torch.tensor([0.3, 2.0 + 1e-3], dtype=F64)
+    rate = spans.time_rate(t, spans.first(t))
+    assert rate.tolist() == [1.0, 0.0]
