@@ -68,8 +68,9 @@ def _chart(e, ref):
 
 def test_extrinsic_start_does_not_decide_the_extrinsic():
     """Issue 31: an extrinsic started 5 deg / 7 cm off stayed 4.9 deg off (the pull on
-    every control point pinned the trajectory, and with it the extrinsic). Now the starts
-    at the truth and 5 deg / 7 cm off, and prior=0, agree within 0.1 standard deviation."""
+    every control point pinned the trajectory, and with it the extrinsic). Now the start
+    5 deg / 7 cm off, under the default prior and prior=0, agrees with the start at the truth
+    within 0.1 standard deviation (the truth under prior=0 adds nothing to these two)."""
     data = _camera_imu()
     off = dq.mul(dq.exp(E_TRUE), dq.exp(torch.tensor([0.06, -0.05, 0.04, 0.04, -0.04, 0.04],
                                                      dtype=F64)))
@@ -78,7 +79,7 @@ def test_extrinsic_start_does_not_decide_the_extrinsic():
     std = est.std(cam, "extrinsic")
     ref, ref_bias = cam.extrinsic.clone(), acc.bias.clone()
     assert bool(est.converged)
-    for start, prior in ((off, 1e-3), (off, 0.0), (dq.exp(E_TRUE), 0.0)):
+    for start, prior in ((off, 1e-3), (off, 0.0)):
         est2, (cam2, _, acc2), _ = _solve(data, start, prior=prior)
         assert bool(est2.converged), est2.reason
         assert bool((_chart(cam2.extrinsic, ref).abs() < 0.1 * std).all()), (
@@ -345,11 +346,11 @@ def test_time_offset_on_its_bound_warns_and_has_no_std():
     """A gyroscope 60 ms late with max_time_offset=0.02: the offset ends on the bound; the
     estimate warns and std gives inf with a warning (not a finite curvature value)."""
     gen = torch.Generator().manual_seed(2)
-    tc, ti = grid(0.0, 4.0, 20), grid(0.2, 3.8, 100)
+    tc, ti = grid(0.0, 2.0, 20), grid(0.2, 1.8, 100)
     x = noisy_poses(poses_of(tc), gen, 0.002, 0.002)
     gy = imu_of(ti.numpy() + 0.06)[0] + randn(gen, len(ti), 3, scale=0.005)
     gyro = Gyro(ti, gy, sigma=0.005, time_offset=Free(0.0), max_time_offset=0.02)
-    spline = BSpline.from_dualquats(x, tc, n_ctrl=43, form="cumulative")
+    spline = BSpline.from_dualquats(x, tc, n_ctrl=23, form="cumulative")
     with pytest.warns(RuntimeWarning, match="ended on its bound max_time_offset=0.02"):
         est = estimate(spline, [Poses(tc, x, rot_sigma=0.002, trans_sigma=0.002), gyro],
                        verbose=False)

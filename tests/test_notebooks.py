@@ -1,8 +1,9 @@
 """Execute every notebook in notebooks/ and check the figures each one writes.
 
 The notebooks read ``TORCH_DQ_FIGURES`` (default ``figures``) for their output folder, so the
-figures land in ``tmp_path`` and the repository stays clean. Skipped cleanly when nbclient,
-nbformat, ipykernel or matplotlib is missing.
+figures land in ``tmp_path`` and the repository stays clean, and ``TORCH_DQ_NOTEBOOK_QUICK=1``
+for smaller sizes (fewer optimiser steps, a shorter recording: every cell still runs).
+Skipped cleanly when nbclient, nbformat, ipykernel or matplotlib is missing.
 """
 
 import pathlib
@@ -50,6 +51,7 @@ def test_notebook_stored_without_outputs(name):
 def test_notebook_executes_and_writes_figures(name, tmp_path, monkeypatch):
     figures = tmp_path / "figures"
     monkeypatch.setenv("TORCH_DQ_FIGURES", str(figures))
+    monkeypatch.setenv("TORCH_DQ_NOTEBOOK_QUICK", "1")
     nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
     client = nbclient.NotebookClient(nb, timeout=180, kernel_name="python3",
                                      resources={"metadata": {"path": str(NB_DIR)}})
