@@ -116,40 +116,70 @@ class Linearization:
         self.spans = problem.spans
 
     def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there."""
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there.
+
+        Each term's rows carry only the nuisance columns its samples' windows touch
+        (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
+        random walk its own), so a window's normal matrix stays small however many
+        nuisance parameters the problem has; :class:`_Normal` scatters them into place."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
-        n, m, c = self.spans.n, p.m, 6 * w
+        n, c = self.spans.n, 6 * w
         G = Bf * (n + w)  # windows: batch row b, first control point f at b (n + w) + f
-        normal = ctrl.new_zeros(G, c + m + 1, c + m + 1)
+        acc = _Normal(ctrl, Bf, n, w, p.m)
         rs, weights = [], []
         for i in range(len(p.terms)):
             r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
             rs.append(r)
             weights.append(wt)
             keys = self._windows(f0, w)
+            local, gcols, valid = self._columns(i, Jn, keys, G)
             for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
-                Y = self._rows(i, slice(a, a + _ROWS), r, wt, Jc, Jn, w)
-                normal += _window_normal(keys[:, a:a + _ROWS].reshape(-1), Y.flatten(0, 1), G)
-        band, cn, nn, gc, gn = _blocks(normal.reshape(Bf, n + w, c + m + 1, c + m + 1), n, w, m)
-        return System(band, cn, nn, gc, gn, rs, weights)
+                k = keys[:, a:a + _ROWS]
+                Y = self._rows(i, slice(a, a + _ROWS), r, wt, Jc, Jn, w,
+                               local[k], valid[k])
+                acc.add(_window_normal(k.reshape(-1), Y.flatten(0, 1), G), c, gcols)
+        return acc.system(rs, weights)
+
+    def _columns(self, i: int, Jn: dict[str, Tensor], keys: Tensor, G: int,
+                 ) -> tuple[Tensor, Tensor, Tensor]:
+        """Per window ``(G, M)``: the term's nuisance columns its samples touch (a nonzero
+        Jacobian entry), as the term's own (``local``) and the problem's (``gcols``)
+        indices, and ``valid`` (False on padding; ``M`` the most any window touches)."""
+        p, Bf = self.p, keys.shape[0]
+        N = keys.shape[-1]
+        act, glob = [], []
+        for name, J in Jn.items():
+            q = p.index[(i, name)]
+            act.append((J != 0).any(-2).expand(*p.batch, N, q.dim).reshape(Bf, N, q.dim))
+            glob.append(torch.arange(q.offset, q.offset + q.dim, device=keys.device))
+        if not act:
+            empty = keys.new_zeros(G, 0)
+            return empty, empty, empty.bool()
+        per = torch.cat(act, -1).flatten(0, 1).to(torch.int32)
+        touched = per.new_zeros(G, per.shape[-1]).index_add_(0, keys.reshape(-1), per) > 0
+        M = int(touched.sum(-1).max())
+        local = torch.sort(touched.to(torch.int32), dim=-1, descending=True, stable=True)[1][:, :M]
+        return local, torch.cat(glob)[local], touched.gather(-1, local)
 
     def _rows(self, i: int, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
-              Jn: dict[str, Tensor], w: int) -> Tensor:
-        """``(Bf, S, k, 6 w + m + 1)``: the whitened rows ``[J_c | J_n | r]`` of term ``i``'s
-        samples ``c`` weighted by the square roots of their robust weights ``wt``."""
+              Jn: dict[str, Tensor], w: int, local: Tensor, valid: Tensor) -> Tensor:
+        """``(Bf, S, k, 6 w + M + 1)``: the whitened rows ``[J_c | J_n | r]`` of term
+        ``i``'s samples ``c`` weighted by the square roots of their robust weights ``wt``,
+        ``J_n`` in their windows' columns ``local (Bf, S, M)`` (zero where not ``valid``)."""
         p = self.p
-        Bf, m, k = max(p.batch.numel(), 1), p.m, r.shape[-1]
+        Bf, k = max(p.batch.numel(), 1), r.shape[-1]
         r, wt, Jc = r[..., c, :], wt[..., c], Jc[..., c, :, :, :]
         S = r.shape[-2]
         sw = wt.expand(*p.batch, S).reshape(Bf, S, 1, 1).sqrt()
         cols = [Jc.expand(*p.batch, S, k, w, 6).reshape(Bf, S, k, 6 * w)]
-        Jn_all = r.new_zeros(Bf, S, k, m)
-        for name, J in Jn.items():
-            q = p.index[(i, name)]
-            Jn_all[..., q.offset:q.offset + q.dim] += J[..., c, :, :].expand(
-                *p.batch, S, k, q.dim).reshape(Bf, S, k, q.dim)
-        cols += [Jn_all, r.expand(*p.batch, S, k).reshape(Bf, S, k, 1)]
+        if local.shape[-1]:
+            own = torch.cat([J[..., c, :, :].expand(*p.batch, S, k, J.shape[-1]).reshape(
+                Bf, S, k, J.shape[-1]) for J in Jn.values()], -1)
+            M = local.shape[-1]
+            cols.append(own.gather(-1, local[:, :, None, :].expand(Bf, S, k, M))
+                        * valid[:, :, None, :])
+        cols.append(r.expand(*p.batch, S, k).reshape(Bf, S, k, 1))
         return torch.cat(cols, dim=-1) * sw
 
     def _windows(self, f0: Tensor, w: int) -> Tensor:
@@ -371,24 +401,61 @@ def _distinct_times(t: Tensor, first: Tensor, ratio: float,
     return u, inverse, pick
 
 
-def _blocks(normal: Tensor, n: int, w: int, m: int):
-    """The band, coupling, nuisance block and gradients from the per-window normal
-    matrices ``(Bf, n + w, 6 w + m + 1, 6 w + m + 1)`` (window ``f``'s block ``(a, a + d)``
-    is the band's ``(f + a, d)``, its rows ``a`` go to control point ``f + a``)."""
-    Bf, c = normal.shape[0], 6 * w
+class _Normal:
+    """The normal equations summed from per-window blocks ``(G, 6 w + M + 1, ...)`` whose
+    nuisance columns are given per window (``gcols (G, M)``): ``[J_c | r]`` per window
+    (the band and ``g_c``), the coupling shifted to its control points, ``A_nn`` and
+    ``g_n`` scattered to their columns."""
+
+    def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int) -> None:
+        self.Bf, self.n, self.w, self.m = Bf, n, w, m
+        G = Bf * (n + w)
+        self.cc = like.new_zeros(G, 6 * w + 1, 6 * w + 1)
+        self.cn = like.new_zeros(G, 6, m)
+        self.nn = like.new_zeros(Bf * m * m)
+        self.gn = like.new_zeros(Bf * m)
+        self.batch = torch.arange(G, device=like.device) // (n + w)
+
+    def add(self, block: Tensor, c: int, gcols: Tensor) -> None:
+        """Add the per-window blocks (window ``g``'s nuisance column ``j`` is the
+        problem's ``gcols[g, j]``; padding columns are zero)."""
+        G, M = gcols.shape
+        keep = torch.cat((torch.arange(c, device=block.device),
+                          torch.tensor([block.shape[-1] - 1], device=block.device)))
+        self.cc += block.index_select(-2, keep).index_select(-1, keep)
+        if not M:
+            return
+        nuis = slice(c, c + M)
+        for a in range(self.w):  # rows a of window g belong to control point g + a
+            self.cn[a:].scatter_add_(-1, gcols[:G - a, None, :].expand(G - a, 6, M),
+                                     block[:G - a, 6 * a:6 * a + 6, nuis])
+        row = self.batch[:, None] * self.m + gcols
+        self.nn.index_add_(0, (row[:, :, None] * self.m + gcols[:, None, :]).reshape(-1),
+                           block[:, nuis, nuis].reshape(-1))
+        self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
+
+    def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
+        Bf, n, w, m = self.Bf, self.n, self.w, self.m
+        band, gc = _band(self.cc.reshape(Bf, n + w, 6 * w + 1, 6 * w + 1), n, w)
+        cn = self.cn.reshape(Bf, n + w, 6, m)[:, :n]
+        return System(band, cn, self.nn.reshape(Bf, m, m), gc, self.gn.reshape(Bf, m), rs,
+                      weights)
+
+
+def _band(normal: Tensor, n: int, w: int) -> tuple[Tensor, Tensor]:
+    """The band ``(Bf, n, w, 6, 6)`` and ``g_c (Bf, n, 6)`` from the per-window normal
+    matrices of ``[J_c | r]`` ``(Bf, n + w, 6 w + 1, 6 w + 1)`` (window ``f``'s block
+    ``(a, a + d)`` is the band's ``(f + a, d)``, its rows ``a`` go to control point ``f +
+    a``)."""
+    Bf = normal.shape[0]
     band = normal.new_zeros(Bf, n + w, w, 6, 6)
+    gc = normal.new_zeros(Bf, n + w, 6)
     for a in range(w):
+        gc[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, -1]
         for d in range(w - a):
             band[:, a:, d] += normal[:, :n + w - a, 6 * a:6 * a + 6,
                                      6 * (a + d):6 * (a + d) + 6]
-    gc = normal.new_zeros(Bf, n + w, 6)
-    cn = normal.new_zeros(Bf, n + w, 6, m)
-    for a in range(w):
-        gc[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, -1]
-        cn[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, c:c + m]
-    nn = normal[:, :, c:c + m, c:c + m].sum(1)
-    gn = normal[:, :, c:c + m, -1].sum(1)
-    return band[:, :n], cn[:, :n], nn, gc[:, :n], gn
+    return band[:, :n], gc[:, :n]
 
 
 def _window_normal(keys: Tensor, Y: Tensor, G: int) -> Tensor:
