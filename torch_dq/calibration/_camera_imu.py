@@ -416,8 +416,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             constant biases (``bias_walk=None``) suffice: for recordings shorter than that
             bound (on EuRoC's IMU about a second; a 72 s recording needs the walk). Finer
             segments resolve the walk no better than the readings allow and cost time (six
-            parameters each, dense in the solver: 24 s of EuRoC-like data at 1 s segments
-            took 2.1 times the constant biases' time); coarser ones let the unmodelled
+            parameters each: 72 s of EuRoC-like data at 1 s segments took 1.3 times the
+            constant biases' time); coarser ones let the unmodelled
             drift leak into the other values beyond their standard deviations (a 3 s
             simulated rig with walks ``(1e-3, 0.02)``, bound 0.17 s: errors within 3.5
             standard deviations at the bound and at half of it, up to 4.8 at eight times
