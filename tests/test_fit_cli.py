@@ -346,6 +346,10 @@ def test_earlier_results_need_overwrite(tmp_path, capsys):
     assert (out / "summary.json").read_bytes() == stamp
     assert main([*args, "--overwrite", "--steps", "2"]) == 0
     assert json.loads((out / "summary.json").read_text())["fit"]["steps"] <= 2
+    missing = ["fit", str(tmp_path / "missing.txt"), "--out", str(out), "--no-plots"]
+    assert main(missing) == 2  # the missing input is named, not the earlier results
+    line = _error_line(capsys)
+    assert "missing.txt" in line and "No such file" in line, line
 
 
 def test_five_poses_with_defaults_one_line_with_working_hints(tmp_path, capsys):

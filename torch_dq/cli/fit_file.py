@@ -36,6 +36,7 @@ Example:
 
 from __future__ import annotations
 
+import errno
 import functools
 import inspect
 import json
@@ -531,6 +532,9 @@ def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
     if time_offset and imu is None:
         raise OptionError("--time-offset estimate needs an IMU file: pass --imu IMU_FILE")
     inputs = [path] + [os.fspath(f) for f in (times, imu) if isinstance(f, (str, os.PathLike))]
+    for source in inputs:  # a missing input first: before what --out holds
+        if not os.path.isfile(source):
+            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), source)
     _check_out(out, inputs, overwrite, plots)
 
 
