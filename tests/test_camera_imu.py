@@ -176,6 +176,11 @@ def test_arguments(rolling_data):
     late = (obs[0][0] + 1000.0, obs[0][1], obs[0][2])
     with pytest.raises(ValueError, match="overlap"):
         calibration.camera_imu([_camera()], [late], imu, **kw)
+    noise = torch.randn(imu[1].shape, generator=torch.Generator().manual_seed(3),
+                        dtype=imu[1].dtype)  # a log of another recording: unrelated rates
+    with pytest.raises(ValueError, match=r"camera 0: the gyroscope's angular speeds do not "
+                                         r"follow the camera's \(best correlation 0\.[0-2]"):
+        calibration.camera_imu([_camera()], obs[:1], (imu[0], noise, imu[2]), **kw)
 
 
 def _write_inputs(tmp_path, obs, imu, intrinsics=True):

@@ -215,9 +215,14 @@ def _mean_gyro(t: Tensor, gyro: Tensor, a: Tensor, b: Tensor) -> Tensor:
     return (integral(b) - integral(a)) / (b - a)[:, None]
 
 
-def _offset(imu_t, gyro, w_cam, a, b, max_offset: float) -> float:
+_MIN_CORRELATION = 0.3  # of the angular speeds at the best offset: below, unrelated logs
+
+
+def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
     """Time offset maximising the correlation of the angular speeds over ``[-max, max]``
-    (0.5 ms grid, refined by a parabola through the best three)."""
+    (0.5 ms grid, refined by a parabola through the best three); a ``ValueError`` when even
+    the best correlation is below ``_MIN_CORRELATION`` (the IMU log is not this motion's,
+    or its clock is further off than ``max_offset``)."""
     offsets = torch.arange(-max_offset, max_offset + 1e-12, 5e-4, dtype=torch.float64)
     speed = w_cam.norm(dim=-1)
     speed = speed - speed.mean()
@@ -226,6 +231,11 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float) -> float:
     s = s.reshape(offsets.numel(), -1)
     s = s - s.mean(-1, keepdim=True)
     c = (s * speed).sum(-1) / (s.norm(dim=-1) * speed.norm()).clamp_min(1e-300)
+    if not float(c.max()) >= _MIN_CORRELATION:
+        _checks.fail(_FN, f"camera {camera}: the gyroscope's angular speeds do not follow the "
+                          f"camera's (best correlation {float(c.max()):.2f} over offsets "
+                          f"within +-{max_offset:g} s): the IMU log is not this recording's, "
+                          f"or its clock differs by more than max_time_offset")
     k = int(c.argmax().clamp(1, c.numel() - 2))
     c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
@@ -294,7 +304,7 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
             _checks.fail(_FN, f"camera {i}: only {t.numel()} frames give the target a pose "
                               f"(at least 10 with >= {min_points} corners are needed)")
         w, a, b = _camera_rates(t, T)
-        dt = _offset(t_imu, gyro, w, a, b, max_offset)
+        dt = _offset(t_imu, gyro, w, a, b, max_offset, i)
         q, bias = _kabsch(w, _mean_gyro(t_imu, gyro, a + dt, b + dt))
         rot.append(q)
         offs.append(dt)
@@ -428,7 +438,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
 
     Raises:
         ValueError: mismatched lists or shapes, non-positive noises, fewer than 10 frames of
-            a camera with a target pose, IMU and frames that do not overlap by 1 s.
+            a camera with a target pose, IMU and frames that do not overlap by 1 s, a
+            gyroscope whose angular speeds do not follow a camera's at any offset within
+            ``max_time_offset`` (correlation below 0.3: another recording's log).
         TypeError: cameras that are not :class:`~torch_dq.camera.Camera`.
 
     Warns:
@@ -445,11 +457,11 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
     clock = [time.perf_counter()]
+    reach = max_line_delay * max(c.resolution[1] for c in cams) if rolling_shutter else 0.0
+    lo, hi = _domain(obs, t_imu, max_time_offset + 1e-6, max_time_offset + reach + 1e-6)
     e0, dt0, bg0, samples = _starts(cams, obs, (t_imu, gyro, accel), max_time_offset,
                                     min_points)
     clock.append(time.perf_counter())
-    reach = max_line_delay * max(c.resolution[1] for c in cams) if rolling_shutter else 0.0
-    lo, hi = _domain(obs, t_imu, max_time_offset + 1e-6, max_time_offset + reach + 1e-6)
     spline = _start_trajectory(samples, lo, hi, knot_spacing)
     clock.append(time.perf_counter())
     terms: list = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
