@@ -569,6 +569,13 @@ def test_imu_biases_and_offset_recovered(tmp_path, capsys, pose_noise):
     assert abs(off["value"] - dt) < 5 * off["std"] + 1e-3, off
     g = np.array(imu["gravity_m_s2"]["value"])
     np.testing.assert_allclose(g, [0.0, 0.0, -9.81], atol=0.02)
+    # noise levels from the data: right for noisy poses (no rescaling, chi2/dof near 1);
+    # noise-free poses leave the pose-only fit's model error in them: one variance step
+    ratios = [v["chi2_per_dof"] for v in imu["chi2"].values()]
+    if pose_noise:
+        assert imu["sigmas"]["rescaled_by"] is None and all(0.5 < r < 2 for r in ratios)
+    else:
+        assert imu["sigmas"]["rescaled_by"][0] < 0.5, imu["sigmas"]
 
 
 def test_imu_ends_kept_when_the_offset_is_estimated(tmp_path):

@@ -195,6 +195,17 @@ def _warn_quaternion_order(times: Tensor, poses: Tensor, t_imu: Tensor, gyro: Te
                       f"and {100 * now:.2g} % as read; reorder the columns if so",
                       UserWarning, stacklevel=3)
 
+def _variance_step(est, terms) -> list[float] | None:
+    """``sqrt(chi2/dof)`` per term where a term's chi2/dof is outside ``[0.5, 2]`` (the
+    noise levels taken from the data before the joint fit misdescribe its residuals: the
+    pose-only fit's residuals hold its model error), else None."""
+    ratios = [float(est.chi2[term].sum()) / max(float(est.dof[term].sum()), 1.0)
+              for term in terms]
+    if all(0.5 <= r <= 2.0 for r in ratios):
+        return None
+    return [math.sqrt(max(r, 1e-12)) for r in ratios]
+
+
 def _chi2(est, terms) -> dict:
     """Per term (by class name): chi2, degrees of freedom and their ratio."""
     out = {}
@@ -228,7 +239,9 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
 
     Returns:
         The fitted curve, and the ``"imu"`` entry of ``summary.json``: the file, samples
-        used, the knots (spacing, count, why), noise levels, gyro and accelerometer biases,
+        used, the knots (spacing, count, why), noise levels (taken from the data; where a
+        first joint fit's chi2/dof of a term falls outside ``[0.5, 2]``, all rescaled once by
+        ``sqrt(chi2/dof)`` and fitted again: ``rescaled_by``), gyro and accelerometer biases,
         gravity, the time offset (each ``{"value", "std"}``), each term's ``chi2``, ``dof``
         and ``chi2_per_dof``, and the estimate's steps and reason.
 
@@ -247,20 +260,37 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     t, gyro, accel, dropped = t[keep], gyro[keep], accel[keep], int((~keep).sum())
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
     _warn_quaternion_order(times, poses, t, gyro)
-    terms = [fitting.Poses(times, poses.double(), rot_sigma=rot_s, trans_sigma=trans_s),
-             fitting.Gyro(t, gyro, sigma=gyro_s, bias=True, time_offset=clock),
-             fitting.Accel(t, accel, sigma=accel_s, bias=True, gravity=GRAVITY,
-                           time_offset=clock)]
+    sig = [rot_s, trans_s, gyro_s, accel_s]
+
+    def terms_at(s: list) -> list:
+        return [fitting.Poses(times, poses.double(), rot_sigma=s[0], trans_sigma=s[1]),
+                fitting.Gyro(t, gyro, sigma=s[2], bias=True, time_offset=clock),
+                fitting.Accel(t, accel, sigma=s[3], bias=True, gravity=GRAVITY,
+                              time_offset=clock)]
+
+    terms = terms_at(sig)
     say(f"IMU fit knots: every {knots['spacing_s']:.4g} s, {knots['n_ctrl']} control points "
         f"({knots['reason']})")
     say(f"IMU: {path}: {len(t)} samples ({dropped} outside the poses' time span left out); "
         f"noise from the data: poses {math.degrees(rot_s):.3g} deg, {1e3 * trans_s:.3g} mm "
         f"per axis; gyro {float(gyro_s.mean()):.3g} rad/s, accel {float(accel_s.mean()):.3g} "
         f"m/s^2")
-    est = fitting.estimate(spline, terms, steps=steps, verbose=False)
+    with warnings.catch_warnings(record=True) as first:  # kept if no second fit runs
+        warnings.simplefilter("always")
+        est = fitting.estimate(spline, terms, steps=steps, verbose=False)
+    scale = _variance_step(est, terms)
+    for w in first if scale is None else ():
+        warnings.warn(w.message, stacklevel=2)
+    if scale is not None:  # one variance-component step: the sigmas the residuals show
+        say("noise levels rescaled by sqrt(chi2/dof) of a first fit: poses, gyro, accel x "
+            + ", ".join(f"{f:.3g}" for f in scale))
+        sig = [sig[0] * scale[0], sig[1] * scale[0], sig[2] * scale[1], sig[3] * scale[2]]
+        terms = terms_at(sig)
+        est = fitting.estimate(spline, terms, steps=steps, verbose=False)
     result = {"file": path, "samples": len(t), "left_out": dropped, "knots": knots,
-              "sigmas": {"rot_rad": rot_s, "trans_m": trans_s, "gyro_rad_s": gyro_s.tolist(),
-                         "accel_m_s2": accel_s.tolist()},
+              "sigmas": {"rot_rad": float(sig[0]), "trans_m": float(sig[1]),
+                         "gyro_rad_s": sig[2].tolist(), "accel_m_s2": sig[3].tolist(),
+                         "rescaled_by": scale},
               "gyro_bias_rad_s": _stats(est, terms[1], "bias"),
               "accel_bias_m_s2": _stats(est, terms[2], "bias"),
               "gravity_m_s2": _stats(est, terms[2], "gravity"),
