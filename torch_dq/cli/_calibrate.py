@@ -127,7 +127,7 @@ def _on_target(path, points, target, target_path) -> None:
         i = int(bad[0])
         raise UserError(f"{path}: the point {points[i].tolist()} (row {i + 1}) is not a "
                         f"corner of the target in {target_path} (nearest {float(gap[i]):.3g} "
-                        f"m away; {int(len(bad))} of {len(points)} rows are off): the "
+                        f"m away; {len(bad)} of {len(points)} rows are off): the "
                         f"corners were measured on another target, or --target is not it")
 
 
