@@ -260,7 +260,7 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     t, gyro, accel, dropped = t[keep], gyro[keep], accel[keep], int((~keep).sum())
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
     _warn_quaternion_order(times, poses, t, gyro)
-    sig = [rot_s, trans_s, gyro_s, accel_s]
+    sig: list = [rot_s, trans_s, gyro_s, accel_s]  # rad, m, (3,) rad/s, (3,) m/s^2
 
     def terms_at(s: list) -> list:
         return [fitting.Poses(times, poses.double(), rot_sigma=s[0], trans_sigma=s[1]),
