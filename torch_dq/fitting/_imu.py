@@ -154,7 +154,7 @@ def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
 def _interpolate(rate: Tensor, s: Tensor) -> Tensor:
     """``rate (..., G, 3)`` linearly interpolated at grid positions ``s (..., O, N)``:
     ``(..., O, 3, N)``."""
-    lead = torch.broadcast_shapes(rate.shape[:-2], s.shape[:-2])  # shared times: s (O, N)
+    lead = _checks.broadcast_shapes(rate.shape[:-2], s.shape[:-2])  # shared times: s (O, N)
     s = s.expand(*lead, *s.shape[-2:])
     j = s.floor().clamp(0, rate.shape[-2] - 2)
     fr = (s - j)[..., None]

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .. import _checks
 from . import _robust
 from ._local import sample_jacobians, tangent_step
 
@@ -54,7 +55,7 @@ def _gather(ctrl: Tensor, first: Tensor, count: int, batch: torch.Size) -> Tenso
     sample (indices clamped to the last control point), ``first (..., N)``."""
     n = ctrl.shape[-2]
     idx = (first[..., None] + torch.arange(count, device=first.device)).clamp(max=n - 1)
-    shape = torch.broadcast_shapes(batch, first.shape[:-1])
+    shape = _checks.broadcast_shapes(batch, first.shape[:-1])
     N = first.shape[-1]
     return ctrl.expand(*shape, n, 8).gather(
         -2, idx.expand(*shape, N, count).reshape(*shape, N * count, 1).expand(

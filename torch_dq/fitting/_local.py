@@ -18,7 +18,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from .. import dualquat
+from .. import _checks, dualquat
 
 __all__ = ["SpanEvaluator"]
 
@@ -67,7 +67,7 @@ class SpanEvaluator:
         derivative times this rate (:meth:`derivatives` are time derivatives of the
         contract), with no time in an autograd graph of the span.
         """
-        shift = t.detach().new_zeros(torch.broadcast_shapes(t.shape, first.shape))
+        shift = t.detach().new_zeros(_checks.broadcast_shapes(t.shape, first.shape))
         with torch.enable_grad():
             shift.requires_grad_()
             local = self.trajectory.local_times(t.detach() + shift, first)
