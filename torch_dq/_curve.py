@@ -661,6 +661,11 @@ class Curve(torch.nn.Module, abc.ABC):
         accelerometer reads them (a B-spline of form ``"de_boor"`` and degree >= 2: C1)."""
         return None
 
+    def acceleration_kinks(self) -> str | None:
+        """None where the accelerations are C1 in time; else what the curve is, for the
+        estimation's warning on an accelerometer's estimated time offset (its cost kinks)."""
+        return None
+
     # -- 0.1 (deprecated, through the converter torch_dq._compat01)
     def normalize_time(self, times: Tensor) -> Tensor:
         """Deprecated: the identity (modules now take the caller's time directly).

@@ -468,6 +468,13 @@ class BSpline(Curve):
                     f"accelerations jump at the knots); use degree >= 3 for IMU work")
         return None
 
+    def acceleration_kinks(self) -> str | None:
+        # a de Boor B-spline is C1, a cumulative or split degree-p one C(p-1): its
+        # accelerations are C1 from degree 4 on (a single span is smooth)
+        if self.n_ctrl <= self.degree + 1 or (self.form != "de_boor" and self.degree >= 4):
+            return None
+        return f"a degree-{self.degree} B-spline of form={self.form!r}"
+
     @classmethod
     def _from_dq(cls, fn: str, x: Tensor, times: Tensor, n_ctrl: int | None = None,
                  degree: int = 3, form: str = "de_boor", check: bool = True, *,

@@ -108,25 +108,13 @@ def _warn_c1(trajectory, terms: list[Term]) -> None:
                       stacklevel=3)
 
 
-def _kinked_accelerations(trajectory) -> str | None:
-    """What the curve is where its accelerations are not C1 in time (a B-spline with
-    interior knots of form ``"de_boor"``, C1 only, or of degree < 4: a cumulative or split
-    degree-p B-spline is C(p-1), its accelerations C(p-3)); None where they are (a Bezier
-    curve, a single span, a cumulative or split B-spline of degree >= 4)."""
-    form = getattr(trajectory, "form", None)
-    if form is None or trajectory.n_ctrl <= trajectory.degree + 1:
-        return None
-    if form == "de_boor" or trajectory.degree < 4:
-        return f"a degree-{trajectory.degree} B-spline of form={form!r}"
-    return None
-
-
 def _warn_offset_kinks(trajectory, terms: list[Term]) -> None:
     """Warn for a term reading accelerations (``order >= 2``: :class:`Accel`) whose samples'
     times an estimated parameter moves, on a curve whose accelerations are not C1 in time:
     its cost kinks in that parameter as samples cross knots, and Gauss-Newton stalls short of
-    the optimum (Kalibr and basalt fit time offsets on splines of order 5-6, degree 4-5)."""
-    curve = _kinked_accelerations(trajectory)
+    the optimum (Kalibr and basalt fit time offsets on splines of order 5-6, degree 4-5;
+    :meth:`torch_dq.nn.Curve.acceleration_kinks`)."""
+    curve = trajectory.acceleration_kinks()
     if curve is None:
         return
     for term in terms:
