@@ -292,8 +292,10 @@ def scaling(durations: list[float], threads: int, sides: list[str]) -> None:
 
 _PHASES = [  # (module, attribute, label) of the solver's phases (private: skipped if renamed)
     ("_linearize", "Linearization.system", "Gauss-Newton system (Jacobians + assembly)"),
+    ("_local", "SpanEvaluator.shared",
+     "  span derivatives at the point (shared control points; costs too)"),
     ("_linearize", "Linearization._span_derivatives",
-     "  span derivatives (forward, both calls)"),
+     "  span derivatives on per-sample copies (the reverse passes' forward)"),
     ("_linearize", "Linearization._through_spans", "  reverse passes through the spans"),
     ("_linearize", "sample_jacobians", "  residual Jacobians w.r.t. span derivatives"),
     ("_linearize", "_window_normal", "  assembly of the banded normal equations"),

@@ -16,6 +16,7 @@ import pytest
 import torch
 
 import torch_dq.dualquat as dq
+from torch_dq._curve import span_points
 from torch_dq.fitting._linearize import Linearization
 from torch_dq.fitting._local import SpanEvaluator, tangent_step
 from torch_dq.nn import Bezier, BSpline
@@ -77,8 +78,7 @@ def test_fast_span_jacobians_equal_reverse_mode(kind, order, degenerate, batch):
     w = curve.span_size
     f0 = first.clamp(max=spans.n - w)
     ctrl = curve.control_points.detach()
-    idx = f0[:, None] + torch.arange(w)
-    gathered = ctrl[..., idx, :]  # (..., N, w, 8)
+    gathered = span_points(ctrl, f0, w)  # (..., N, w, 8) of the sign-aligned chain
     off = (first - f0)[:, None] + torch.arange(spans.support)
     O = 8 * (order + 1)
     Jd = torch.eye(O, dtype=F64).reshape(O, order + 1, 8).expand(*batch, t.numel(), O,
@@ -86,7 +86,7 @@ def test_fast_span_jacobians_equal_reverse_mode(kind, order, degenerate, batch):
     Jc, none = lin._through_spans(gathered, [off], [t], [first], [Jd], order, False, [None])
     assert none is None
     with torch.no_grad():
-        nxt = lin._current_derivatives(gathered, off, t, first, None, order + 1)[..., 1:, :]
+        nxt = torch.stack(spans.shared(ctrl, t, first, order + 1), -2)[..., 1:, :]
     Jt = lin._time_columns([t], [first], [Jd], [nxt])
     ref_c, ref_t = _reference(curve, t, first, order)
     assert torch.isfinite(ref_c).all() and torch.isfinite(ref_t).all()
@@ -107,3 +107,43 @@ def test_time_rate_is_zero_where_the_local_time_is_clamped():
     t = torch.tensor([0.3, 2.0 + 1e-3], dtype=F64)
     rate = spans.time_rate(t, spans.first(t))
     assert rate.tolist() == [1.0, 0.0]
+
+
+@pytest.mark.parametrize("batch", [(), (2,)])
+@pytest.mark.parametrize("kind", ["de_boor", "cumulative", "split", "bezier"])
+def test_shared_span_derivatives_equal_the_per_sample_spans(kind, batch):
+    """``Curve.span_derivatives`` (the costs' and linearisation points' evaluation, a
+    B-spline's span tables shared by the samples of a span) gives what ``evaluate_span``
+    gives on each sample's copy of its span, at knots, inside spans and beyond both ends
+    (local times clamped), on identical neighbours, a half turn and a control point of the
+    other sign, orders 0 to 3."""
+    curve = _curve(kind, True, batch)
+    spans = SpanEvaluator(curve)
+    t = torch.tensor([-0.2, 0.0, 0.05, 0.5, 0.77, 1.0, 1.31, 1.9, 2.0, 2.3], dtype=F64)
+    first = spans.first(t)
+    ctrl = curve.control_points.detach().clone()
+    ctrl[..., 3, :] = -ctrl[..., 3, :]  # the same pose: the spans must agree on one sign
+    for order in range(4):
+        shared = spans.shared(ctrl, t, first, order)
+        copies = spans.derivatives(span_points(ctrl, first, curve.span_size), t, first, order)
+        assert len(shared) == order + 1
+        for a, b in zip(shared, copies, strict=True):
+            assert a.shape == (*batch, t.numel(), 8)
+            scale = max(1.0, float(b.abs().max()))
+            torch.testing.assert_close(a / scale, b / scale, atol=1e-12, rtol=0)
+
+
+def test_shared_span_derivatives_with_a_row_of_knots_per_trajectory():
+    """Batched knots: each row's spans from its own knots, as its per-sample copies."""
+    ctrl = _ctrl(7, False, (2,))
+    base = torch.linspace(0.0, 2.0, 5, dtype=F64)
+    rows = torch.stack((base, base * 1.5 + 0.1))
+    knots = torch.cat((rows[:, :1].repeat(1, 3), rows, rows[:, -1:].repeat(1, 3)), -1)
+    curve = BSpline(ctrl, degree=3, knots=knots, form="cumulative")
+    spans = SpanEvaluator(curve)
+    t = torch.tensor([[0.1, 0.9, 1.7], [0.2, 1.6, 3.0]], dtype=F64)
+    first = spans.first(t)
+    shared = spans.shared(ctrl, t, first, 2)
+    copies = spans.derivatives(span_points(ctrl, first, 4), t, first, 2)
+    for a, b in zip(shared, copies, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-12, rtol=0)

@@ -5,14 +5,13 @@ Public through :mod:`torch_dq.nn` (``torch_dq.nn.Curve``, ``torch_dq.nn.UnitDual
 where the concrete layers (:class:`torch_dq.nn.Bezier`, :class:`torch_dq.nn.BSpline`) and the
 time and domain rules are documented. :mod:`torch_dq.fitting` imports this module only:
 the estimation works on any :class:`Curve` through its span contract
-(:meth:`Curve.support`, :meth:`Curve.local_times`, :meth:`Curve.evaluate_span`).
+(:meth:`Curve.support`, :meth:`Curve.local_times`, :meth:`Curve.evaluate_span`, and
+:meth:`Curve.span_derivatives` for many samples at once).
 """
 
 from __future__ import annotations
 
 import abc
-import math
-import numbers
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -20,7 +19,9 @@ import torch
 from torch import Tensor
 from torch.nn.utils import parametrize
 
-from . import _checks, _compat01, _start, curves, dualquat, quat
+from . import _checks, _compat01, _start, curves, dualquat
+from ._core import align_chain
+from ._curve_args import check_int, extra_float, extra_origins
 from ._time import KnotDomain
 
 if TYPE_CHECKING:
@@ -40,8 +41,7 @@ if TYPE_CHECKING:
     class _Parametrizations(Protocol):
         ctrl: _CtrlParametrization
 
-__all__ = ["Curve", "UnitDualQuaternion", "check_int", "extra_float", "extra_origins",
-           "poses_to_dq"]
+__all__ = ["Curve", "UnitDualQuaternion", "span_points"]
 
 _RAW = "parametrizations.ctrl.original"  # state_dict key of the raw control points
 
@@ -78,59 +78,6 @@ class UnitDualQuaternion(torch.nn.Module):
 
 # ----------------------------------------------------------------------------- helpers
 
-def check_int(fn: str, name: str, value, low: int, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
-        _checks.fail(fn, f"{name} must be an int {what}, got {value!r}")
-    return int(value)
-
-
-def extra_float(fn: str, state, key: str, positive: bool = False) -> float:
-    """``state[key]`` of a saved extra state: a finite real number (``> 0`` if ``positive``)."""
-    value = state.get(key) if isinstance(state, dict) else None
-    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
-            or not math.isfinite(value) or (positive and not float(value) > 0)):
-        _checks.fail(fn, f"expected a finite{' positive' if positive else ''} {key!r} in the "
-                         f"extra state, got {state!r}")
-    return float(value)
-
-
-def extra_origins(fn: str, state, knots: Tensor) -> Tensor:
-    """``state["origin"]`` of a layer with ``(..., K)`` knots: a finite float64 tensor
-    ``(..., 1)`` (one origin per trajectory), moved to the knots' device."""
-    value = state.get("origin") if isinstance(state, dict) else None
-    shape = (*knots.shape[:-1], 1)
-    if (not isinstance(value, Tensor) or value.dtype != torch.float64
-            or tuple(value.shape) != shape or not bool(torch.isfinite(value).all())):
-        _checks.fail(fn, f"expected a finite float64 'origin' tensor of shape "
-                         f"{_checks.shape_str(shape)} (one per trajectory) in the extra state, "
-                         f"got {state!r}")
-    return value.detach().to(knots.device)
-
-
-def poses_to_dq(fn: str, rotations, translations) -> Tensor:
-    """``(..., N, 8)`` dual quaternions from quaternions or matrices and translations."""
-    _checks.tensor(fn, "rotations", rotations)
-    _checks.tensor(fn, "translations", translations, 3)
-    _checks.same_dtype_device(fn, rotations=rotations, translations=translations)
-    if rotations.dim() >= 3 and tuple(rotations.shape[-2:]) == (3, 3):
-        _checks.rigid_matrix(fn, "rotations", rotations)
-        q, nd = quat.from_matrix(rotations), 2
-    elif rotations.dim() >= 2 and rotations.shape[-1] == 4:
-        q, nd = quat.normalize(rotations), 1
-    else:
-        _checks.fail(fn, f"expected (..., N, 4) quaternions or (..., N, 3, 3) matrices for "
-                         f"rotations, got shape {_checks.shape_str(rotations.shape)}")
-    if translations.dim() < 2:
-        _checks.fail(fn, f"expected a (..., N, 3) tensor for translations, got shape "
-                         f"{_checks.shape_str(translations.shape)}")
-    if translations.shape[-2] != rotations.shape[rotations.dim() - nd - 1]:
-        _checks.fail(fn, f"rotations and translations must hold the same number N of poses, "
-                         f"got rotations {_checks.shape_str(rotations.shape)} and "
-                         f"translations {_checks.shape_str(translations.shape)}")
-    _checks.broadcast_batch(fn, rotations=(q, 2), translations=(translations, 2))
-    return dualquat.from_rt(q, translations)
-
-
 def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) -> Tensor:
     """The least-squares start of each trajectory of a batch on its own knots (rows of
     ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
@@ -145,6 +92,21 @@ def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) ->
         out.append(_start.least_squares_start(xb, tb, first, values, n, one.greville(),
                                               split))
     return torch.stack(out).view(*batch, n, 8)
+
+
+def span_points(ctrl: Tensor, first: Tensor, count: int) -> Tensor:
+    """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` of each
+    sample (``first (..., N)``, broadcasting against ``ctrl``'s batch; indices clamped to
+    the last point) of the sign-aligned chain of ``ctrl (..., n, 8)``
+    (:func:`torch_dq._core.align_chain`): the representatives that every evaluation of the
+    curve reads, so per-sample copies and the shared points give one sign."""
+    n = ctrl.shape[-2]
+    idx = (first[..., None] + torch.arange(count, device=first.device)).clamp(max=n - 1)
+    shape = _checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1])
+    N = first.shape[-1]
+    chain = align_chain(ctrl).expand(*shape, n, 8)
+    flat = idx.expand(*shape, N, count).reshape(*shape, N * count, 1)
+    return chain.gather(-2, flat.expand(*shape, N * count, 8)).reshape(*shape, N, count, 8)
 
 
 # ----------------------------------------------------------------------------- pickling
@@ -237,6 +199,27 @@ class Curve(torch.nn.Module, abc.ABC):
             ``order + 1`` tensors ``(..., 8)`` (``points.shape[:-2]``): the pose and its
             derivatives with respect to time, of ``points``' dtype.
         """
+
+    def span_derivatives(self, ctrl: Tensor, local: Tensor, first: Tensor, order: int,
+                         ) -> tuple[Tensor, ...]:
+        r""":meth:`evaluate_span` of every sample at once, the span points read from the
+        shared control points ``ctrl (..., n, 8)`` (:func:`span_points`): what the
+        estimation's costs and linearisation points evaluate (its Jacobians differentiate
+        :meth:`evaluate_span` on per-sample copies). A layer whose evaluation shares work
+        between the samples of a span (a B-spline's span tables) overrides it; the values
+        agree with :meth:`evaluate_span` to rounding.
+
+        Args:
+            ctrl: ``(..., n, 8)`` unit dual quaternions.
+            local: ``(..., N)`` local times (:meth:`local_times`).
+            first: ``(..., N)`` int64 spans (:meth:`support`).
+            order: highest time derivative, 0 to 3.
+
+        Returns:
+            ``order + 1`` tensors ``(..., N, 8)``.
+        """
+        return self.evaluate_span(span_points(ctrl, first, self.span_size), local, first,
+                                  order)
 
     @property
     def _min_samples(self) -> int:
@@ -644,16 +627,20 @@ class Curve(torch.nn.Module, abc.ABC):
         Returns:
             ``(...)`` float64 local times, ``t``'s and ``first``'s broadcast shape.
         """
+        lo, hi = self._span_bounds(first)
+        local = self.time_model.relative(t, torch.float64) - lo
+        return torch.minimum(local.clamp_min(0.0), hi - lo)  # rounding at the ends
+
+    def _span_bounds(self, first: Tensor) -> tuple[Tensor, Tensor]:
+        """The knots ``u_{first + p}``, ``u_{first + p + 1}`` relative to the origin, float64
+        (with a row of knots per trajectory, broadcast against its batch)."""
         dom = self.time_model
         p, k = dom.degree, dom.knots.detach().to(torch.float64)
         if k.dim() > 1:  # a row of knots per trajectory
             lead = _checks.broadcast_shapes(k.shape[:-1], first.shape[:-1])
             k, first = k.expand(*lead, k.shape[-1]), first.expand(*lead, first.shape[-1])
-            lo, hi = k.gather(-1, first + p), k.gather(-1, first + p + 1)
-        else:
-            lo, hi = k[first + p], k[first + p + 1]
-        local = dom.relative(t, torch.float64) - lo
-        return torch.minimum(local.clamp_min(0.0), hi - lo)  # rounding at the ends
+            return k.gather(-1, first + p), k.gather(-1, first + p + 1)
+        return k[first + p], k[first + p + 1]
 
     def acceleration_jumps(self) -> str | None:
         """None where the accelerations are continuous in time (the curve is C2); else what

@@ -463,12 +463,14 @@ def _bspline_pose(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str,
 
 
 def _bspline_jets(ctrl: Tensor, dom: KnotDomain, rel: Tensor, form: str, order: int,
-                  batch: torch.Size) -> tuple[Tensor, ...]:
+                  batch: torch.Size, r: Tensor | None = None) -> tuple[Tensor, ...]:
     """The B-spline of ``form`` and its time derivatives to ``order`` (as
-    :func:`_bspline_pose`), each ``(*batch, T, 8)`` in ``ctrl``'s dtype."""
+    :func:`_bspline_pose`), each ``(*batch, T, 8)`` in ``ctrl``'s dtype; ``r`` the spans
+    of ``rel`` where the caller fixed them (a time at a knot read from the span before it),
+    else :meth:`KnotDomain.span`."""
     dtype = compute_dtype(ctrl.dtype)
     ctrl_c, p = align_chain(ctrl.to(dtype)), dom.degree
-    r = dom.span(rel)
+    r = dom.span(rel) if r is None else r
     if form == "cumulative":
         xs = _cumulative_jets(ctrl_c, dom, rel, r, order, batch)
     elif form == "split":

@@ -81,7 +81,8 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _start, curves, dualquat
-from ._curve import Curve, UnitDualQuaternion, check_int, extra_float, extra_origins, poses_to_dq
+from ._curve import Curve, UnitDualQuaternion
+from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._time import KnotDomain, time_pair
 from .fitting import FitHistory, fit
 from .fitting._knots import choose_knot_spacing
@@ -456,6 +457,17 @@ class BSpline(Curve):
         out = ((curves.bspline(ctrl, tt, **kw),) if order == 0 else
                curves.bspline_derivatives(ctrl, tt, order=order, **kw))
         return tuple(d.reshape(*lead, 8) for d in out)
+
+    def span_derivatives(self, ctrl: Tensor, local: Tensor, first: Tensor, order: int,
+                         ) -> tuple[Tensor, ...]:
+        # the form's own evaluation at the given spans: the cumulative form's span tables
+        # are built once per span, not once per sample
+        lo, _ = self._span_bounds(first)
+        rel = lo + local
+        batch = _checks.broadcast_shapes(ctrl.shape[:-2], rel.shape[:-1],
+                                         self._knots.shape[:-1])
+        return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch,
+                                    r=first + self.degree)
 
     def acceleration_jumps(self) -> str | None:
         p, form = self.degree, self.form

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .. import _checks
+from .._curve import span_points
 from . import _robust
 from ._local import sample_jacobians, tangent_step
 
@@ -50,18 +50,6 @@ class System:
     weights: list[Tensor]
 
 
-def _gather(ctrl: Tensor, first: Tensor, count: int, batch: torch.Size) -> Tensor:
-    """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` of each
-    sample (indices clamped to the last control point), ``first (..., N)``."""
-    n = ctrl.shape[-2]
-    idx = (first[..., None] + torch.arange(count, device=first.device)).clamp(max=n - 1)
-    shape = _checks.broadcast_shapes(batch, first.shape[:-1])
-    N = first.shape[-1]
-    return ctrl.expand(*shape, n, 8).gather(
-        -2, idx.expand(*shape, N, count).reshape(*shape, N * count, 1).expand(
-            *shape, N * count, 8)).reshape(*shape, N, count, 8)
-
-
 def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
     spans (no domain check: :func:`~torch_dq.fitting.estimate` checked the times once)."""
@@ -74,10 +62,8 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
-        derivs.append(_per_distinct(
-            lambda _, u, f: spans.derivatives(_gather(ctrl, f, spans.support, problem.batch),
-                                              u, f, order),
-            t, first, _distinct_times(t, first, 2))[:term.order + 1])
+        derivs.append(_per_distinct(lambda _, u, f: spans.shared(ctrl, u, f, order),
+                                    t, first, _distinct_times(t, first, 2))[:term.order + 1])
     return term.residuals(derivs, p)
 
 
@@ -212,7 +198,7 @@ class Linearization:
         n, sup = self.spans.n, self.spans.support
         f0 = torch.stack(firsts).amin(0)
         f0 = torch.minimum(f0, torch.full_like(f0, n - w))
-        gathered = _gather(ctrl, f0, w, p.batch)
+        gathered = span_points(ctrl, f0, w)
         est = [name for name in vals if (i, name) in p.index]
         timed = [name for name in est if name in rates]  # move the times
         nuisance = [name for name in est if name not in timed]  # read by the residual
@@ -220,8 +206,9 @@ class Linearization:
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
         rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
         with torch.no_grad():  # the span derivatives at the current point (and the next)
-            derivs = [self._current_derivatives(gathered, *x, o - 1 + rated)
-                      for x in zip(offs, times, firsts, shared, strict=True)]
+            derivs = [torch.stack(_per_distinct(
+                lambda _, u, f: self.spans.shared(ctrl, u, f, o - 1 + rated), t, first, s), -2)
+                for t, first, s in zip(times, firsts, shared, strict=True)]
         r, J = self._residual_jacobians(i, vals, nuisance, [d[..., :o, :] for d in derivs],
                                         gathered.shape[:-2])
         L = len(derivs)
@@ -254,17 +241,6 @@ class Linearization:
 
         steps = [derivs[0].new_zeros(*shape, self.p.index[(i, name)].dim) for name in nuisance]
         return sample_jacobians(residual, derivs + steps, term.dim)
-
-    def _current_derivatives(self, gathered: Tensor, off: Tensor, t: Tensor, first: Tensor,
-                             shared, order: int) -> Tensor:
-        """Span derivatives ``(..., N, order + 1, 8)`` at the samples' times ``t``, each
-        distinct time evaluated once where ``shared`` (:func:`_distinct_times`) says so."""
-        def evaluate(pick, u, f):
-            pts, o = ((gathered, off) if pick is None else
-                      (gathered.index_select(-3, pick), off[pick]))
-            return self._span_derivatives(pts, o, u, f, order)
-
-        return torch.stack(_per_distinct(evaluate, t, first, shared), -2)
 
     def _time_columns(self, times: list[Tensor], firsts: list[Tensor], Jd: list[Tensor],
                       nxt: list[Tensor]) -> Tensor:

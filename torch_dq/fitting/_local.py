@@ -58,6 +58,15 @@ class SpanEvaluator:
         local = self.trajectory.local_times(t, first)
         return self.trajectory.evaluate_span(points, local, first, order)
 
+    def shared(self, ctrl: Tensor, t: Tensor, first: Tensor, order: int,
+               ) -> tuple[Tensor, ...]:
+        """Derivatives ``order + 1`` x ``(..., 8)`` at ``t (..., N)`` of the spans ``first``,
+        every sample reading the shared control points ``ctrl (..., n, 8)``
+        (:meth:`~torch_dq.nn.Curve.span_derivatives`): the costs and the linearisation
+        points, without per-sample copies."""
+        traj = self.trajectory
+        return traj.span_derivatives(ctrl, traj.local_times(t, first), first, order)
+
     def time_rate(self, t: Tensor, first: Tensor) -> Tensor:
         r"""``d local / d t`` ``(...)`` of :meth:`~torch_dq.nn.Curve.local_times` at ``t``
         (``t``'s and ``first``'s broadcast shape): 1 inside a span, 0 where the local time is
