@@ -203,7 +203,7 @@ class Curve(torch.nn.Module, abc.ABC):
     def span_derivatives(self, ctrl: Tensor, local: Tensor, first: Tensor, order: int,
                          ) -> tuple[Tensor, ...]:
         r""":meth:`evaluate_span` of every sample at once, the span points read from the
-        shared control points ``ctrl (..., n, 8)`` (:func:`span_points`): what the
+        shared control points ``ctrl (..., n, 8)`` (``torch_dq._curve.span_points``): what the
         estimation's costs and linearisation points evaluate (its Jacobians differentiate
         :meth:`evaluate_span` on per-sample copies). A layer whose evaluation shares work
         between the samples of a span (a B-spline's span tables) overrides it; the values
