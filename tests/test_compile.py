@@ -2,7 +2,8 @@
 change in the number of samples does not recompile.
 
 The compiled functions run on the ``aot_eager`` backend (dynamo + AOTAutograd, the graphs
-inductor would receive, without its slow code generation) and are compared with eager
+inductor would receive, without its slow code generation; dynamo's own ``eager`` backend for
+inference, where there is no backward to trace) and are compared with eager
 evaluation; ``CompileCounterWithBackend`` counts the frames dynamo compiled: with
 ``fullgraph=True`` (no graph break allowed), one frame per grad mode across the sizes means
 no recompilation.
@@ -52,7 +53,7 @@ def _check(fn, make_inputs, wrt, n_dynamic=1):
     ``make_inputs(n)`` returns the inputs with ``n`` samples; the leading axis (the
     samples) of the first ``n_dynamic`` ones is marked dynamic.
     """
-    infer, infer_count = _compiled(fn)
+    infer, infer_count = _compiled(fn, "eager")  # no backward to trace: dynamo alone
     train, train_count = _compiled(fn)
     for n in SIZES:
         inputs = make_inputs(n)
@@ -80,9 +81,10 @@ def test_sclerp_compiles_as_one_graph(gen):
 
 @pytest.mark.parametrize("curve", ["bezier", "bspline", "split"])
 def test_curve_compiles_as_one_graph(gen, curve):
-    """Gradients with respect to the control points and the times (every level's alpha);
-    ``split``: the B-spline's split form (plain ops on component rows)."""
-    ctrl = unit_dq((4,), gen) if curve == "bezier" else unit_dq((7,), gen)
+    """``partial(curves.bezier / bspline, check=False)`` with a batch of two control
+    polygons: gradients with respect to the control points and the times (every level's
+    alpha); ``split``: the B-spline's split form (plain ops on component rows)."""
+    ctrl = unit_dq((2, 4), gen) if curve == "bezier" else unit_dq((2, 7), gen)
     fn = (functools.partial(curves.bspline, check=False, form="split") if curve == "split"
           else functools.partial(getattr(curves, curve), check=False))
     _check(lambda t, c: fn(c, t), lambda n: (_times(gen, n), ctrl), wrt=(0, 1))

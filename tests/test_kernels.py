@@ -564,8 +564,10 @@ def test_weight_jets_backward_is_the_plain_vjp(gen):
         plain = torch.autograd.grad(F2 + G2, cs, w)
         for x, r in zip(fused, plain, strict=True):
             assert rel(x, r) < 1e-11
-        few = [x[::400].detach().clone().requires_grad_() for x in c]
-        s_few = [None if x is None else x[:, ::400] for x in s]
+        # the two smallest y (the series) and two of the second half (the closed forms)
+        pick = torch.cat((torch.topk(y, 2, largest=False).indices, torch.tensor([2000, 3000])))
+        few = [x[pick].detach().clone().requires_grad_() for x in c]
+        s_few = [None if x is None else x[:, pick] for x in s]
 
         def g(*cs, s_few=s_few):
             F, G = jet_sclerp.weights(list(cs), s_few)
