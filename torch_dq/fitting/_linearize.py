@@ -1,16 +1,18 @@
 r"""Linearisation of the problem of :func:`~torch_dq.fitting.estimate`: the terms' whitened
 residuals through the curve's spans, their exact Jacobians and the Gauss-Newton system.
 
-One evaluation path serves costs and Jacobians: a sample's time ``t' = t + shift`` (the
-term's :meth:`~torch_dq.fitting.Term.time_shift`) selects its span (``spans.first``), the
-span's control points are gathered and evaluated as a one-span curve
-(:class:`~torch_dq.fitting._local.SpanEvaluator`), the term maps the derivatives to
-residuals (:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial
-costs); :class:`Linearization` also differentiates: the residuals with respect to the span
-derivatives and the nuisance steps (one reverse pass over ``k`` copies), chained through the
-spans to the control points' steps (``k`` reverse passes over per-sample span copies) and
-the samples' times (the next time derivative of the span: no time in that graph), the times
-to the time-moving parameters by their declared rates
+One evaluation serves the costs and the linearisation points: a sample's time ``t' = t +
+shift`` (the term's :meth:`~torch_dq.fitting.Term.time_shift`) selects its span
+(``spans.first``), the curve evaluates every sample's span from the shared control points
+(:meth:`~torch_dq.fitting._local.SpanEvaluator.shared`, the layer's own evaluation: a
+B-spline's span tables once per span), the term maps the derivatives to residuals
+(:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial costs);
+:class:`Linearization` also differentiates, on per-sample copies of the spans' points
+(``torch_dq._curve.span_points``: the same sign-aligned chain, so the signs agree): the
+residuals with respect to the span derivatives and the nuisance steps (one reverse pass over
+``k`` copies), chained through the spans to the control points' steps (``k`` reverse passes
+over per-sample span copies) and the samples' times (the next time derivative of the span:
+no time in that graph), the times to the time-moving parameters by their declared rates
 (:meth:`~torch_dq.fitting.Term.time_rates`).
 
 The Gauss-Newton system has three blocks: the control-point band ``A_cc (..., n, w, 6, 6)``
