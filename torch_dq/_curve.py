@@ -22,6 +22,7 @@ from torch.nn.utils import parametrize
 from . import _checks, _compat01, _start, curves, dualquat
 from ._core import align_chain
 from ._curve_args import check_int, extra_float, extra_origins
+from ._fused_curves import span_points as gather_span_points
 from ._time import KnotDomain
 
 if TYPE_CHECKING:
@@ -95,18 +96,13 @@ def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) ->
 
 
 def span_points(ctrl: Tensor, first: Tensor, count: int) -> Tensor:
-    """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` of each
-    sample (``first (..., N)``, broadcasting against ``ctrl``'s batch; indices clamped to
-    the last point) of the sign-aligned chain of ``ctrl (..., n, 8)``
-    (:func:`torch_dq._core.align_chain`): the representatives that every evaluation of the
-    curve reads, so per-sample copies and the shared points give one sign."""
-    n = ctrl.shape[-2]
-    idx = (first[..., None] + torch.arange(count, device=first.device)).clamp(max=n - 1)
-    shape = _checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1])
-    N = first.shape[-1]
-    chain = align_chain(ctrl).expand(*shape, n, 8)
-    flat = idx.expand(*shape, N, count).reshape(*shape, N * count, 1)
-    return chain.gather(-2, flat.expand(*shape, N * count, 8)).reshape(*shape, N, count, 8)
+    """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` (at most the
+    last) of each sample (``first (..., N)``, broadcasting against ``ctrl``'s batch) of the
+    sign-aligned chain of ``ctrl (..., n, 8)`` (:func:`torch_dq._core.align_chain`): the
+    representatives every evaluation of the curve reads, so per-sample copies and the
+    shared points give one sign."""
+    batch = torch.Size(_checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1]))
+    return gather_span_points(align_chain(ctrl), first + count - 1, count - 1, batch)
 
 
 # ----------------------------------------------------------------------------- pickling

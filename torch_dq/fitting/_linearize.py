@@ -64,8 +64,8 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
-        derivs.append(_per_distinct(lambda _, u, f: spans.shared(ctrl, u, f, order),
-                                    t, first, _distinct_times(t, first, 2))[:term.order + 1])
+        derivs.append(_point_derivatives(spans, ctrl, t, first, _distinct_times(t, first, 2),
+                                         order)[:term.order + 1])
     return term.residuals(derivs, p)
 
 
@@ -208,9 +208,8 @@ class Linearization:
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
         rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
         with torch.no_grad():  # the span derivatives at the current point (and the next)
-            derivs = [torch.stack(_per_distinct(
-                lambda _, u, f: self.spans.shared(ctrl, u, f, o - 1 + rated), t, first, s), -2)
-                for t, first, s in zip(times, firsts, shared, strict=True)]
+            derivs = [torch.stack(_point_derivatives(self.spans, ctrl, t, f, s, o - 1 + rated), -2)
+                      for t, f, s in zip(times, firsts, shared, strict=True)]
         r, J = self._residual_jacobians(i, vals, nuisance, [d[..., :o, :] for d in derivs],
                                         gathered.shape[:-2])
         L = len(derivs)
@@ -352,16 +351,17 @@ class Linearization:
         return Jc, Jt
 
 
-def _per_distinct(evaluate, t: Tensor, first: Tensor, shared,
-                  ) -> tuple[Tensor, ...]:
-    """``evaluate(pick, u, f)`` (per-sample span derivatives ``(..., M, 8)`` of the samples
-    ``pick`` (None: all) at times ``u``, spans ``f``) at every sample of ``t``, ``first
-    (..., N)``: once per distinct time, gathered, where ``shared`` (:func:`_distinct_times`)
-    holds them; else at every sample."""
+def _point_derivatives(spans, ctrl: Tensor, t: Tensor, first: Tensor, shared, order: int,
+                       ) -> tuple[Tensor, ...]:
+    """Span derivatives ``order + 1`` x ``(..., N, 8)`` at the samples' times ``t``, spans
+    ``first (..., N)``, from the shared control points ``ctrl``
+    (:meth:`~torch_dq.fitting._local.SpanEvaluator.shared`): once per distinct time,
+    gathered, where ``shared`` (:func:`_distinct_times`) holds them; else at every sample.
+    The one evaluation of the costs and of the linearisation points."""
     if shared is None:
-        return evaluate(None, t, first)
+        return spans.shared(ctrl, t, first, order)
     u, inverse, pick = shared
-    return tuple(d.index_select(-2, inverse) for d in evaluate(pick, u, first[pick]))
+    return tuple(d.index_select(-2, inverse) for d in spans.shared(ctrl, u, first[pick], order))
 
 
 def _distinct_times(t: Tensor, first: Tensor, ratio: float,
