@@ -490,3 +490,28 @@ def test_fit_cli_tells_swapped_quaternion_columns_by_the_gyroscope(tmp_path):
     assert not any("quaternion columns" in w for w in found["right"]), found["right"]
     assert any("look like qw qx qy qz" in w for w in found["w_first"]), found["w_first"]
     assert sum("quaternion columns" in w for w in found["w_first"]) == 1, found["w_first"]
+
+
+def test_an_offset_beyond_the_domain_names_the_margin_that_fixes_it():
+    """A camera clock offset estimated on a trajectory built from the same poses reaches
+    ``max_time_offset`` beyond the domain: the error says which ``margin`` of
+    ``from_dualquats`` covers it, and with that margin the estimate runs and finds the
+    offset (a new user's path: the message alone was "extend the trajectory")."""
+    t = torch.linspace(0.0, 4.0, 81, dtype=F64)
+    twist = torch.stack((0.3 * torch.sin(t), 0.2 * torch.cos(0.7 * t), 0.1 * t,
+                         torch.sin(0.5 * t), 0.5 * torch.cos(0.3 * t), 0.2 * t), -1)
+    truth = BSpline.from_dualquats(dq.exp(twist), t, n_ctrl=30, form="cumulative", margin=0.1)
+    seen = truth(t + 0.02).detach()  # the sample stamped t shows the body at t + 0.02
+    gyro_times = torch.linspace(0.0, 4.0, 401, dtype=F64)
+    with torch.no_grad():
+        x, dx = truth.derivatives(gyro_times, 1)
+    gyro = Gyro(gyro_times, 2.0 * dq.mul(dq.conj(x), dx)[..., 1:4], sigma=1e-3)  # the clock
+    offset = Free()
+    poses = Poses(t, seen, rot_sigma=1e-3, trans_sigma=1e-3, time_offset=offset)
+    with pytest.raises(ValueError, match=r"margin=0\.1\b.*or lower max_time_offset"):
+        estimate(BSpline.from_dualquats(seen, t, n_ctrl=30, form="cumulative"), [poses, gyro],
+                 verbose=False)
+    spline = BSpline.from_dualquats(seen, t, n_ctrl=30, form="cumulative", margin=0.1)
+    est = estimate(spline, [poses, gyro], verbose=False)
+    assert est.converged.all()
+    assert abs(float(offset.value) - 0.02) < 5e-4

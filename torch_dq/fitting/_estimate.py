@@ -87,8 +87,11 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                     return float(x.reshape(-1)[i] if x.numel() > 1 else x)
 
                 row = f" (trajectory {i})" if lo.dim() or t.dim() == 2 else ""
-                fix = ("extend the trajectory or lower max_time_offset" if slot.estimated
-                       else "extend the trajectory or drop those samples")
+                need = max(pick(lo) - pick(first), pick(last) - pick(hi))
+                extend = (f"extend the trajectory (nn.BSpline.from_dualquats / from_poses(..., "
+                          f"margin={need:.3g}) reaches that far beyond its samples)")
+                fix = (f"{extend} or lower max_time_offset" if slot.estimated
+                       else f"{extend} or drop those samples")
                 if pick(last) - pick(first) < 1e-3 * (pick(hi) - pick(lo)) or (
                         pick(first) > pick(hi) or pick(last) < pick(lo)):
                     fix += " (are the times in the trajectory's units and origin?)"
