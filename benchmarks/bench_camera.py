@@ -250,7 +250,7 @@ def _solver_costs(spline, term):
     problem = Problem(spline, [term], ctrl.shape[:-2])
     values = _starts("bench", problem, ctrl)
     w = problem.width(values)
-    return (lambda: problem.linearization._term_jacobians(0, ctrl, values, w),
+    return (lambda: problem.linearization._term_jacobians(0, problem.terms[0], ctrl, values, w),
             lambda: problem.system(ctrl, values, w))
 
 

@@ -189,7 +189,7 @@ def _jacobians(traj, term):
     problem = Problem(traj, [term], ctrl.shape[:-2])
     values = _starts("test", problem, ctrl)
     w = problem.width(values)
-    r, f0, Jc, Jn = problem.linearization._chained(0, ctrl, values, w)
+    r, f0, Jc, Jn = problem.linearization._chained(0, problem.terms[0], ctrl, values, w)
     return ctrl, values, r, f0, Jc, Jn
 
 

@@ -175,7 +175,7 @@ def _solver_jacobian(problem, ctrl, values):
     """The dense ``(N k, 6 n + m)`` Jacobian the solver uses for term 0, and ``r``."""
     lin = problem.linearization
     w = problem.width(values)
-    r, f0, Jc, Jn = lin._chained(0, ctrl, values, w)
+    r, f0, Jc, Jn = lin._chained(0, problem.terms[0], ctrl, values, w)
     N, k = r.shape[-2:]
     n, m = ctrl.shape[-2], problem.m
     J = torch.zeros(N, k, 6 * n + m, dtype=F64)
@@ -236,7 +236,7 @@ def test_costs_and_jacobians_take_one_path(name):
     problem = Problem(traj, [term], ctrl.shape[:-2])
     values = _starts("test", problem, ctrl)
     r_cost = _linearize.residuals(problem, 0, ctrl, values)
-    r_lin = problem.linearization._chained(0, ctrl, values, problem.width(values))[0]
+    r_lin = problem.linearization._chained(0, term, ctrl, values, problem.width(values))[0]
     torch.testing.assert_close(r_cost, r_lin, atol=0, rtol=0)
     torch.testing.assert_close(r_cost, term(traj).detach(), atol=1e-10, rtol=1e-10)
 

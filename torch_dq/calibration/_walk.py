@@ -71,8 +71,8 @@ class _Walk:
         for i in range(1, k):
             self._slots[f"bias_{i}"] = type(first)(fn, f"bias_{i}", first.chart,
                                                    Free(start=starts[i]))
-        self.register_buffer("segment", seg)  # type: ignore[attr-defined]
-        self.register_buffer("link", link)  # type: ignore[attr-defined]
+        self._buffer("segment", seg, 0)  # type: ignore[attr-defined]
+        self._buffer("link", link, 0)  # type: ignore[attr-defined]
         self.walk_sigma = walk * math.sqrt(2.0 * h / 3.0)
         self.segments = k
         self.edges = edges

@@ -134,10 +134,10 @@ class Reprojections(Term):
             _checks.fail(fn, f"max_line_delay must be a positive finite float, got "
                              f"{max_line_delay!r}")
         self.max_line_delay = float(max_line_delay)
-        self.register_buffer("points", _masked(points, self.mask, 1.0))
-        self.register_buffer("pixels", _masked(pixels, self.mask, 0.0))
-        self.register_buffer("rows", self.pixels[..., 1].to(torch.float64))
-        self.register_buffer("camera_params", params)
+        self._buffer("points", _masked(points, self.mask, 1.0), 1)
+        self._buffer("pixels", _masked(pixels, self.mask, 0.0), 1)
+        self._buffer("rows", self.pixels[..., 1].to(torch.float64), 0)
+        self._buffer("camera_params", params)
         if intrinsics is None or intrinsics is False:
             intrinsics = params
         self._slots["extrinsic"] = Slot(fn, "extrinsic", Pose(), extrinsic)

@@ -35,7 +35,7 @@ class _Imu(Term):
         readings = _vector_data(fn, "readings", readings)
         super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
                          options)
-        self.register_buffer("readings", _masked(readings, options.mask, 0.0))
+        self._buffer("readings", _masked(readings, options.mask, 0.0), 1)
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
         self._units_checked = False  # the readings' units, checked once (first values())
 

@@ -33,6 +33,7 @@ from ._local import sample_jacobians, tangent_step
 
 __all__ = ["Linearization", "System", "residuals"]
 
+PART = 1 << 16  # samples of a term linearised at once (Term.parts: bounds the memory)
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
 _ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their copies)
 
@@ -54,12 +55,18 @@ class System:
 
 def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
     """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
-    spans (no domain check: :func:`~torch_dq.fitting.estimate` checked the times once)."""
-    term, spans = problem.terms[i], problem.spans
+    spans, a part of at most ``PART`` samples at a time (no domain check:
+    :func:`~torch_dq.fitting.estimate` checked the times once)."""
     vals = problem.term_values(i, values)
+    order = problem.terms[i].order + _rated(problem, i, vals)  # as the linearisation's
+    return torch.cat([_part_residuals(problem.spans, term, ctrl, vals, order)
+                      for term in problem.terms[i].parts(PART)], -2)
+
+
+def _part_residuals(spans, term, ctrl: Tensor, vals: dict[str, Tensor], order: int,
+                    ) -> Tensor:
     p = term.per_sample(vals)
     shift = term.time_shift(p)
-    order = term.order + _rated(problem, i, vals)  # the linearisation's evaluation, the same
     derivs = []
     for t in term.times_list():
         t = t + shift
@@ -113,22 +120,31 @@ class Linearization:
         nuisance parameters the problem has; :class:`_Normal` scatters them into place."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
-        n, c = self.spans.n, 6 * w
-        G = Bf * (n + w)  # windows: batch row b, first control point f at b (n + w) + f
-        acc = _Normal(ctrl, Bf, n, w, p.m)
+        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)  # windows: row b, first control
+        # point f at b (n + w) + f
         rs, weights = [], []
         for i in range(len(p.terms)):
-            r, wt, f0, Jc, Jn = self._term_jacobians(i, ctrl, values, w)
-            rs.append(r)
-            weights.append(wt)
-            keys = self._windows(f0, w)
-            local, gcols, valid = self._columns(i, Jn, keys, G)
-            for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
-                k = keys[:, a:a + _ROWS]
-                Y = self._rows(i, slice(a, a + _ROWS), r, wt, Jc, Jn, w,
-                               local[k], valid[k])
-                acc.add(_window_normal(k.reshape(-1), Y.flatten(0, 1), G), c, gcols)
+            parts = [self._add_part(acc, i, term, ctrl, values, w)
+                     for term in p.terms[i].parts(PART)]  # memory bounded by a part
+            rs.append(torch.cat([r for r, _ in parts], -2))
+            weights.append(torch.cat([wt for _, wt in parts], -1))
         return acc.system(rs, weights)
+
+    def _add_part(self, acc: _Normal, i: int, term, ctrl: Tensor, values: list[Tensor],
+                  w: int) -> tuple[Tensor, Tensor]:
+        """Add the normal equations of ``term`` (term ``i`` or a part of its samples,
+        :meth:`~torch_dq.fitting.Term.parts`) to ``acc``; its residuals and robust
+        weights."""
+        G = acc.band.shape[0]
+        r, wt, f0, Jc, Jn = self._term_jacobians(i, term, ctrl, values, w)
+        keys = self._windows(f0, w)
+        local, gcols, valid = self._columns(i, Jn, keys, G)
+        for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
+            k = keys[:, a:a + _ROWS]
+            Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w, local[k], valid[k])
+            win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
+            acc.add(win, block, 6 * w, gcols[win])
+        return r, wt
 
     def _columns(self, i: int, Jn: dict[str, Tensor], keys: Tensor, G: int,
                  ) -> tuple[Tensor, Tensor, Tensor]:
@@ -151,7 +167,7 @@ class Linearization:
         local = torch.sort(touched.to(torch.int32), dim=-1, descending=True, stable=True)[1][:, :M]
         return local, torch.cat(glob)[local], touched.gather(-1, local)
 
-    def _rows(self, i: int, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
+    def _rows(self, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
               Jn: dict[str, Tensor], w: int, local: Tensor, valid: Tensor) -> Tensor:
         """``(Bf, S, k, 6 w + M + 1)``: the whitened rows ``[J_c | J_n | r]`` of term
         ``i``'s samples ``c`` weighted by the square roots of their robust weights ``wt``,
@@ -178,20 +194,21 @@ class Linearization:
         return (f0.expand(*batch, N).reshape(Bf, N)
                 + (torch.arange(Bf, device=f0.device) * (self.spans.n + w))[:, None])
 
-    def _term_jacobians(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
-        """Whitened residuals, robust weights, window start and Jacobians of term ``i``."""
-        term = self.p.terms[i]
-        r, f0, Jc, Jn = self._chained(i, ctrl, values, w)
+    def _term_jacobians(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int):
+        """Whitened residuals, robust weights, window start and Jacobians of ``term`` (term
+        ``i`` or a part of it)."""
+        r, f0, Jc, Jn = self._chained(i, term, ctrl, values, w)
         wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
         wt = wt * term.mask.to(wt.dtype)
         return r, wt, f0, Jc, Jn
 
-    def _chained(self, i: int, ctrl: Tensor, values: list[Tensor], w: int):
-        """Per-sample whitened residuals ``(..., N, k)`` of term ``i``, its window start and
+    def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int):
+        """Per-sample whitened residuals ``(..., N, k)`` of ``term`` (term ``i`` or a part
+        of it), its window start and
         their Jacobians: the span derivatives at the current point, the residuals' Jacobians
         with respect to them and to the nuisance steps, chained through the spans
         (``_through_spans``), the times' to the time-moving parameters by their rates."""
-        p, term = self.p, self.p.terms[i]
+        p = self.p
         vals = p.term_values(i, values)
         rates = term.time_rates()
         shift = term.time_shift(term.per_sample(vals))
@@ -210,7 +227,7 @@ class Linearization:
         with torch.no_grad():  # the span derivatives at the current point (and the next)
             derivs = [torch.stack(_point_derivatives(self.spans, ctrl, t, f, s, o - 1 + rated), -2)
                       for t, f, s in zip(times, firsts, shared, strict=True)]
-        r, J = self._residual_jacobians(i, vals, nuisance, [d[..., :o, :] for d in derivs],
+        r, J = self._residual_jacobians(i, term, vals, nuisance, [d[..., :o, :] for d in derivs],
                                         gathered.shape[:-2])
         L = len(derivs)
         Jn = dict(zip(nuisance, J[L:], strict=True))
@@ -225,13 +242,14 @@ class Linearization:
         N = times[0].shape[-1]
         return r, f0.expand(*gathered.shape[:-3], N), Jc, Jn
 
-    def _residual_jacobians(self, i: int, vals: dict[str, Tensor], nuisance: list[str],
+    def _residual_jacobians(self, i: int, term, vals: dict[str, Tensor], nuisance: list[str],
                             derivs: list[Tensor], shape: torch.Size,
                             ) -> tuple[Tensor, list[Tensor]]:
-        """Residuals of term ``i`` and their Jacobians with respect to the span derivatives
-        ``derivs (..., N, order + 1, 8)`` and to the chart steps of its ``nuisance``
-        parameters (``sample_jacobians``: one reverse pass over ``k`` copies)."""
-        term, L = self.p.terms[i], len(derivs)
+        """Residuals of ``term`` (term ``i`` or a part) and their Jacobians with respect to
+        the span derivatives ``derivs (..., N, order + 1, 8)`` and to the chart steps of its
+        ``nuisance`` parameters (``sample_jacobians``: one reverse pass over ``k``
+        copies)."""
+        L = len(derivs)
         slots = term.slots()
 
         def residual(lv):
@@ -381,82 +399,74 @@ def _distinct_times(t: Tensor, first: Tensor, ratio: float,
 
 
 class _Normal:
-    """The normal equations summed from per-window blocks ``(G, 6 w + M + 1, ...)`` whose
-    nuisance columns are given per window (``gcols (G, M)``): ``[J_c | r]`` per window
-    (the band and ``g_c``), the coupling shifted to its control points, ``A_nn`` and
-    ``g_n`` scattered to their columns."""
+    """The normal equations summed from the blocks of the windows a chunk of samples uses,
+    ``(U, 6 w + M + 1, ...)`` (``[J_c | J_n | r]``, the nuisance columns given per window):
+    window ``f``'s block ``(a, a + d)`` added to the band at ``(f + a, d)`` and its rows
+    ``a`` to control point ``f + a`` (``g_c``, the coupling), ``A_nn`` and ``g_n``
+    scattered to their columns. Memory: the band and the coupling, whatever the samples."""
 
     def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int) -> None:
         self.Bf, self.n, self.w, self.m = Bf, n, w, m
-        G = Bf * (n + w)
-        self.cc = like.new_zeros(G, 6 * w + 1, 6 * w + 1)
-        self.cn = like.new_zeros(G, 6, m)
+        G = Bf * (n + w)  # window f of batch row b is b (n + w) + f
+        self.band = like.new_zeros(G, w, 6, 6)
+        self.gc = like.new_zeros(G, 6)
+        self.cn = like.new_zeros(G * 6 * m)
         self.nn = like.new_zeros(Bf * m * m)
         self.gn = like.new_zeros(Bf * m)
-        self.batch = torch.arange(G, device=like.device) // (n + w)
+        self.rows = torch.arange(6, device=like.device)
 
-    def add(self, block: Tensor, c: int, gcols: Tensor) -> None:
-        """Add the per-window blocks (window ``g``'s nuisance column ``j`` is the
-        problem's ``gcols[g, j]``; padding columns are zero)."""
-        G, M = gcols.shape
-        keep = torch.cat((torch.arange(c, device=block.device),
-                          torch.tensor([block.shape[-1] - 1], device=block.device)))
-        self.cc += block.index_select(-2, keep).index_select(-1, keep)
+    def add(self, windows: Tensor, block: Tensor, c: int, gcols: Tensor) -> None:
+        """Add the blocks ``(U, q, q)`` of the ``windows (U,)`` (window ``u``'s nuisance
+        column ``j`` is the problem's ``gcols[u, j]``; padding columns are zero)."""
+        w, m = self.w, self.m
+        for a in range(w):
+            rows = slice(6 * a, 6 * a + 6)
+            self.gc.index_add_(0, windows + a, block[:, rows, -1])
+            for d in range(w - a):
+                self.band[:, d].index_add_(0, windows + a,
+                                           block[:, rows, 6 * (a + d):6 * (a + d) + 6])
+        M = gcols.shape[-1]
         if not M:
             return
         nuis = slice(c, c + M)
-        for a in range(self.w):  # rows a of window g belong to control point g + a
-            self.cn[a:].scatter_add_(-1, gcols[:G - a, None, :].expand(G - a, 6, M),
-                                     block[:G - a, 6 * a:6 * a + 6, nuis])
-        row = self.batch[:, None] * self.m + gcols
-        self.nn.index_add_(0, (row[:, :, None] * self.m + gcols[:, None, :]).reshape(-1),
+        for a in range(w):  # rows a of window f belong to control point f + a
+            at = ((windows + a)[:, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, :]
+            self.cn.index_add_(0, at.reshape(-1), block[:, 6 * a:6 * a + 6, nuis].reshape(-1))
+        row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
+        self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
                            block[:, nuis, nuis].reshape(-1))
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
 
     def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
         Bf, n, w, m = self.Bf, self.n, self.w, self.m
-        band, gc = _band(self.cc.reshape(Bf, n + w, 6 * w + 1, 6 * w + 1), n, w)
+        band = self.band.reshape(Bf, n + w, w, 6, 6)[:, :n]
+        gc = self.gc.reshape(Bf, n + w, 6)[:, :n]
         cn = self.cn.reshape(Bf, n + w, 6, m)[:, :n]
         return System(band, cn, self.nn.reshape(Bf, m, m), gc, self.gn.reshape(Bf, m), rs,
                       weights)
 
 
-def _band(normal: Tensor, n: int, w: int) -> tuple[Tensor, Tensor]:
-    """The band ``(Bf, n, w, 6, 6)`` and ``g_c (Bf, n, 6)`` from the per-window normal
-    matrices of ``[J_c | r]`` ``(Bf, n + w, 6 w + 1, 6 w + 1)`` (window ``f``'s block
-    ``(a, a + d)`` is the band's ``(f + a, d)``, its rows ``a`` go to control point ``f +
-    a``)."""
-    Bf = normal.shape[0]
-    band = normal.new_zeros(Bf, n + w, w, 6, 6)
-    gc = normal.new_zeros(Bf, n + w, 6)
-    for a in range(w):
-        gc[:, a:] += normal[:, :n + w - a, 6 * a:6 * a + 6, -1]
-        for d in range(w - a):
-            band[:, a:, d] += normal[:, :n + w - a, 6 * a:6 * a + 6,
-                                     6 * (a + d):6 * (a + d) + 6]
-    return band[:, :n], gc[:, :n]
-
-
-def _window_normal(keys: Tensor, Y: Tensor, G: int) -> Tensor:
-    r"""Per window :math:`\sum_i Y_i^T Y_i` ``(G, q, q)`` of the samples' rows ``Y (S, k,
-    q)`` with window ``keys (S,)`` (in ``0 .. G - 1``), by batched matrix products.
+def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
+    r"""The windows ``(U,)`` that samples' rows ``Y (S, k, q)`` with window ``keys (S,)``
+    use, and per window :math:`\sum_i Y_i^T Y_i` ``(U, q, q)``, by batched matrix products.
 
     The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
     per used window: at most about twice as many pages as used windows, the padding at
     most ``S``), one product per page, the pages summed into their windows.
     """
     S, k, q = Y.shape
+    windows, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
+    U = windows.numel()
     if S == 0:
-        return Y.new_zeros(G, q, q)
-    order = torch.argsort(keys, stable=True)
-    keys = keys[order]
-    counts = torch.bincount(keys, minlength=G)
-    P = -(-S // int((counts > 0).sum()))
-    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[keys]
+        return windows, Y.new_zeros(0, q, q)
+    order = torch.argsort(inverse, stable=True)
+    inverse = inverse[order]
+    P = -(-S // U)
+    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[inverse]
     pages = -(-counts // P)
     first_page = torch.cumsum(pages, 0) - pages
     X = Y.new_zeros(int(pages.sum()) * P, k, q)
-    X[first_page[keys] * P + pos] = Y[order]  # page first_page + pos // P, slot pos % P
+    X[first_page[inverse] * P + pos] = Y[order]  # page first_page + pos // P, slot pos % P
     X = X.reshape(-1, P * k, q)
-    owner = torch.repeat_interleave(torch.arange(G, device=keys.device), pages)
-    return Y.new_zeros(G, q, q).index_add_(0, owner, X.mT @ X)
+    owner = torch.repeat_interleave(torch.arange(U, device=keys.device), pages)
+    return windows, Y.new_zeros(U, q, q).index_add_(0, owner, X.mT @ X)

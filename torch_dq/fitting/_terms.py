@@ -34,6 +34,7 @@ valid one of the row).
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import numbers
@@ -170,6 +171,7 @@ class Term(torch.nn.Module):
         (``options``; called by the subclasses, whose class docstrings describe the
         arguments)."""
         super().__init__()
+        self._sample_events: dict[str, int | None] = {}
         fn = self._fn
         self.robust, self.robust_k, self.max_time_offset = options.check(fn, self.dim)
         time_offset, mask = options.time_offset, options.mask
@@ -202,12 +204,40 @@ class Term(torch.nn.Module):
         finite = torch.isfinite(data.detach()).reshape(*mask.shape, -1).all(-1)
         _first_bad(fn, "the measurements must be finite", mask & ~finite,
                    " (mask the samples that are not)")
-        self.register_buffer("mask", mask.clone())
-        self.register_buffer("sigma", sigma)
+        self._buffer("mask", mask.clone(), 0)
+        self._buffer("sigma", sigma)
         self._names = list(names)
         for name, t in zip(names, times, strict=True):
-            self.register_buffer(name, self._fill_times(fn, name, t.detach(), mask))
+            self._buffer(name, self._fill_times(fn, name, t.detach(), mask), 0)
         self.N = n
+
+    def _buffer(self, name: str, value: Tensor, event: int | None = None) -> None:
+        """Register buffer ``name``: per sample (``(..., N, *event dims)``, ``event`` the
+        number of event dims) or, with ``event=None``, the whole term's. A term whose
+        buffers are all registered so can be cut into parts (:meth:`parts`)."""
+        self.register_buffer(name, value)
+        self._sample_events[name] = event
+
+    def parts(self, size: int) -> list[Term]:
+        """The term cut into consecutive parts of at most ``size`` samples: shallow copies
+        whose per-sample buffers are views of this term's (the linearisation streams a long
+        term a part at a time, its memory bounded by the part). ``[self]`` when the term is
+        no longer, or holds a buffer registered without :meth:`_buffer` (a term defined
+        outside the library: its buffers' sample dims are unknown)."""
+        if self.N <= size or set(self._buffers) - set(self._sample_events):
+            return [self]
+        out = []
+        for a in range(0, self.N, size):
+            part = copy.copy(self)
+            part._buffers = dict(self._buffers)
+            for name, event in self._sample_events.items():
+                b = self._buffers[name]
+                if event is not None and b is not None:
+                    part._buffers[name] = b.narrow(b.dim() - 1 - event, a,
+                                                   min(size, self.N - a))
+            part.N = part.mask.shape[-1]
+            out.append(part)
+        return out
 
     def _fill_times(self, fn: str, name: str, t: Tensor, mask: Tensor) -> Tensor:
         """Valid times as given; masked ones replaced by the largest valid one before them
@@ -426,8 +456,8 @@ class _PoseTerm(Term):
         check_pose_data(fn, "poses", x, T, self.mask)
         safe = _masked(x, options.mask, dualquat.identity(dtype=x.dtype, device=x.device))
         q, t = dualquat.to_rt(dualquat.normalize(safe))
-        self.register_buffer("rotations", q)
-        self.register_buffer("translations", t)
+        self._buffer("rotations", q, 1)
+        self._buffer("translations", t, 1)
 
     def _pose_residual(self, x: Tensor) -> Tensor:
         q, t = dualquat.to_rt(x)
@@ -506,7 +536,7 @@ class Positions(Term):
         positions = _vector_data(fn, "positions", positions)
         super().__init__([times], ["times"], positions, 1, _sigma(fn, "sigma", sigma, 3),
                          Options(time_offset, max_time_offset, robust, robust_k, mask))
-        self.register_buffer("positions", _masked(positions, mask, 0.0))
+        self._buffer("positions", _masked(positions, mask, 0.0), 1)
         self._slots["lever_arm"] = Slot(fn, "lever_arm", Vector(3), lever_arm)
 
     lever_arm = _nuisance("lever_arm", "The lever arm ``l`` ``(..., 3)`` in body axes.")
