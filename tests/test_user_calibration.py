@@ -1,0 +1,92 @@
+"""An outside tester's bad inputs to ``calibration.camera_imu`` (0.5.0 trial): times in
+nanoseconds, float32 times, a gyroscope in deg/s, unsorted or non-finite samples. Each must
+end in a ``ValueError`` / ``TypeError`` that names the argument and the likely cause, before
+any estimation; each test failed before its fix (nanoseconds: a 1.9 TB allocation; deg/s: a
+finite calibration with a warning; float32 UNIX seconds: "strictly increasing")."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from torch_dq import calibration
+from torch_dq.camera import Camera
+
+pytest.importorskip("cv2")
+sys.path.insert(0, os.path.dirname(__file__))
+import _camera_imu_sim as sim
+
+UNIX = 1403709385.0
+KW = {"gyro_noise": sim.GYRO_DENSITY, "accel_noise": sim.ACCEL_DENSITY, "pixel_sigma": 0.3,
+      "steps": 1}
+
+
+def _t(x):
+    return torch.as_tensor(np.asarray(x), dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """One camera of the simulated rig (3 s, 4 ms clock offset) and its IMU, in UNIX seconds."""
+    (t, g, a), cams = sim.rig(duration=3.0, offset=0.004, seed=1)
+    k = sim.K
+    cam = Camera("pinhole-radtan", _t([k[0, 0], k[1, 1], k[0, 2], k[1, 2], *sim.DIST]),
+                 sim.RESOLUTION)
+    ot, op, ou = (_t(x) for x in cams[0])
+    return cam, (ot + UNIX, op, ou), (_t(t) + UNIX, _t(g), _t(a))
+
+
+def _call(cam, obs, imu):
+    return calibration.camera_imu([cam], [obs], imu, **KW)
+
+
+def test_nanosecond_times_are_named(rig):
+    cam, (ot, op, ou), (t, g, a) = rig
+    ns_imu = (torch.round(t * 1e9), g, a)
+    with pytest.raises(ValueError, match=r"camera_imu: .*imu times.* nanoseconds"):
+        _call(cam, (torch.round(ot * 1e9), op, ou), ns_imu)
+    with pytest.raises(ValueError, match=r"camera_imu: .*imu times.* nanoseconds"):
+        _call(cam, (ot, op, ou), ns_imu)
+    with pytest.raises(ValueError, match=r"camera_imu: .*observations\[0\] times.* "
+                                         r"nanoseconds"):
+        _call(cam, (torch.round(ot * 1e9), op, ou), (t, g, a))
+
+
+def test_float32_times_are_a_type_error(rig):
+    cam, (ot, op, ou), (t, g, a) = rig
+    with pytest.raises(TypeError, match=r"expected float64 seconds for imu times"):
+        _call(cam, (ot, op, ou), (t.float(), g.float(), a.float()))
+    with pytest.raises(TypeError, match=r"expected float64 seconds for observations\[0\] times"):
+        _call(cam, (ot.float(), op.float(), ou.float()), (t, g, a))
+
+
+def test_gyroscope_in_degrees_per_second_is_an_error(rig):
+    cam, obs, (t, g, a) = rig
+    with pytest.raises(ValueError, match=r"camera_imu: camera 0: the gyroscope's angular "
+                                         r"speeds are 5\d\.\d times the camera's.*deg/s.*"
+                                         r"torch\.deg2rad"):
+        _call(cam, obs, (t, torch.rad2deg(g), a))
+
+
+def test_unsorted_and_non_finite_samples_are_located(rig):
+    cam, (ot, op, ou), (t, g, a) = rig
+    swapped = t.clone()
+    swapped[[40, 41]] = swapped[[41, 40]]
+    with pytest.raises(ValueError, match=r"camera_imu: imu times must be strictly increasing: "
+                                         r"sample 41 .* sample 40"):
+        _call(cam, (ot, op, ou), (swapped, g, a))
+    bad = g.clone()
+    bad[7, 1] = float("nan")
+    with pytest.raises(ValueError, match=r"camera_imu: imu gyro holds a non-finite value "
+                                         r"at sample 7"):
+        _call(cam, (ot, op, ou), (t, bad, a))
+    assert torch.isnan(bad[7, 1]) and torch.equal(swapped[40:42], t[[41, 40]])  # untouched
+    pixels = ou.clone()
+    pixels[3, 0] = float("inf")
+    with pytest.raises(ValueError, match=r"camera_imu: observations\[0\] pixels holds a "
+                                         r"non-finite value at sample 3"):
+        _call(cam, (ot, op, pixels), (t, g, a))
