@@ -77,7 +77,8 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
             0.5 s or more while nanoseconds, microseconds or milliseconds give an IMU's rate
             (20 Hz to 5 kHz); accelerometer readings in g (their mean about 1 long, not
             gravity's 9.81 m/s²); gyroscope readings averaging gravity's magnitude while the
-            accelerometer's are small (the two sets of columns swapped).
+            accelerometer's are small (the two sets of columns swapped); gyroscope readings
+            57 times what the accelerometer's turning says (deg/s, not rad/s).
 
     Example:
         >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP
@@ -112,6 +113,6 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         t = t[keep]
         if time_unit == "auto":
             warn_imu_time_unit(fn, path, t)
-    warn_imu_units(fn, path, v[keep, :3], v[keep, 3:])
+    warn_imu_units(fn, path, t, v[keep, :3], v[keep, 3:])
     return as_tensor(t), as_tensor(v[keep, :3]), as_tensor(v[keep, 3:])
 

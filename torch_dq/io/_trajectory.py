@@ -50,7 +50,7 @@ EUROC_COLUMNS = ("#timestamp [ns]", "p_RS_R_x [m]", "p_RS_R_y [m]", "p_RS_R_z [m
                  "q_RS_w []", "q_RS_x []", "q_RS_y []", "q_RS_z []")
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class Trajectory:
     r"""Timestamped rigid poses (body to world): ``x -> R(rotations[i]) x + translations[i]``.
 
@@ -66,6 +66,23 @@ class Trajectory:
     times: Tensor
     rotations: Tensor
     translations: Tensor
+
+    def __post_init__(self) -> None:
+        """Check the fields' types and shapes (their values, as finiteness, order and unit
+        norm, are :func:`write_trajectory`'s and the readers' to check)."""
+        fn = "io.Trajectory"
+        t = _checks.tensor(fn, "times", self.times)
+        q = _checks.tensor(fn, "rotations", self.rotations)
+        p = _checks.tensor(fn, "translations", self.translations)
+        if t.dim() != 1 or q.shape != (t.numel(), 4) or p.shape != (t.numel(), 3):
+            _checks.fail(fn, f"expected times (N,), rotations (N, 4) (w, x, y, z) and "
+                             f"translations (N, 3), got {_checks.shape_str(t.shape)}, "
+                             f"{_checks.shape_str(q.shape)} and {_checks.shape_str(p.shape)}")
+
+    def __repr__(self) -> str:
+        n = len(self)
+        span = (f", times {float(self.times[0])!r} to {float(self.times[-1])!r}" if n else "")
+        return f"Trajectory({n} poses{span}, dtype={self.times.dtype})"
 
     def __len__(self) -> int:
         return self.times.shape[0]

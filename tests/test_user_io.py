@@ -1,0 +1,60 @@
+"""An outside tester's uses of ``torch_dq.io`` (0.5.0 trial): a ``Trajectory`` built by hand
+with mismatched or non-tensor fields, its printed form, and IMU files whose gyroscope reads
+deg/s. Each test failed before its fix (the Trajectory was accepted, and failed later or
+not at all; the deg/s file was read without a word)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from torch_dq import io, quat
+
+sys.path.insert(0, os.path.dirname(__file__))
+import _camera_imu_sim as sim  # noqa: E402
+
+F64 = torch.float64
+
+
+def test_trajectory_checks_its_fields():
+    t = torch.arange(5, dtype=F64)
+    q, p = quat.identity((5,), F64), torch.zeros(5, 3, dtype=F64)
+    cases = [((t, q[:3], p), ValueError, r"io\.Trajectory: expected times \(N,\), rotations "
+                                         r"\(N, 4\) .* got \(5,\), \(3, 4\) and \(5, 3\)"),
+             ((t, p, p), ValueError, r"got \(5,\), \(5, 3\) and \(5, 3\)"),
+             ((t[:, None], q, p), ValueError, r"got \(5, 1\)"),
+             (([0.0, 1.0], q[:2], p[:2]), TypeError, r"io\.Trajectory: expected a torch\.Tensor "
+                                                     r"for times, got list"),
+             ((t.long(), q, p), TypeError, r"floating-point tensor for times")]
+    for args, kind, message in cases:
+        with pytest.raises(kind, match=message):
+            io.Trajectory(*args)
+    traj = io.Trajectory(t, q, p)
+    assert len(traj.select(slice(1, 3))) == 2
+    assert repr(traj) == "Trajectory(5 poses, times 0.0 to 4.0, dtype=torch.float64)"
+    assert repr(traj.select(slice(0, 0))) == "Trajectory(0 poses, dtype=torch.float64)"
+
+
+def _imu_file(tmp_path, scale, name="imu.txt"):
+    """The simulated rig's IMU (rad/s times ``scale``) as a ``t gx gy gz ax ay az`` file."""
+    (t, g, a), _ = sim.rig(duration=4.0, seed=3)
+    path = tmp_path / name
+    np.savetxt(path, np.column_stack((t + 100.0, scale * g, a)), fmt="%.12g",
+               header="t gx gy gz ax ay az")
+    return path
+
+
+def test_read_imu_names_a_gyroscope_in_degrees_per_second(tmp_path):
+    with pytest.warns(UserWarning, match=r"io\.read_imu: .*imu\.txt: the gyroscope readings "
+                                         r"look like deg/s, not rad/s: .*torch\.deg2rad"):
+        _, gyro, _ = io.read_imu(_imu_file(tmp_path, 180.0 / np.pi))
+    assert gyro.abs().max() > 30.0  # read as written: the warning names the fix
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        io.read_imu(_imu_file(tmp_path, 1.0, "ok.txt"))
