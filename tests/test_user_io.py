@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ import torch
 from torch_dq import io, quat
 
 sys.path.insert(0, os.path.dirname(__file__))
-import _camera_imu_sim as sim  # noqa: E402
+import _camera_imu_sim as sim
 
 F64 = torch.float64
 
@@ -53,8 +54,6 @@ def test_read_imu_names_a_gyroscope_in_degrees_per_second(tmp_path):
                                          r"look like deg/s, not rad/s: .*torch\.deg2rad"):
         _, gyro, _ = io.read_imu(_imu_file(tmp_path, 180.0 / np.pi))
     assert gyro.abs().max() > 30.0  # read as written: the warning names the fix
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         io.read_imu(_imu_file(tmp_path, 1.0, "ok.txt"))

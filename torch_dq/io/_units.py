@@ -90,7 +90,7 @@ def gyro_scale(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[floa
     the noise enter as uncorrelated residuals, lowering the correlation, not biasing ``s``."""
     if len(t) < 20:
         return 1.0, 0.0
-    k = max(1, int(round(0.025 / max(float(np.median(np.diff(t))), 1e-12))))
+    k = max(1, round(0.025 / max(float(np.median(np.diff(t))), 1e-12)))
     df = accel[2 * k:] - accel[:-2 * k]
     c = np.cross(gyro[k:-k], accel[k:-k]) * (t[2 * k:] - t[:-2 * k])[:, None]
     dot, cc, ff = -float((df * c).sum()), float((c * c).sum()), float((df * df).sum())
