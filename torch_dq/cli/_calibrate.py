@@ -243,8 +243,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from .. import io
-    from ..calibration import camera_imu, read_target
+    from ..calibration import read_target
 
     def say(text: str) -> None:
         if not args.quiet:
@@ -258,22 +257,7 @@ def _run(args) -> int:
     target = read_target(args.target)
     noise = _noise(args.imu_noise, walk)
     entries = _camchain(args.cameras)
-    imu = io.read_imu(args.imu)
-    say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} camera(s)")
-    obs = _observations(args, target, len(entries))
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        cams = _cameras(entries, obs, args.cameras, say)
-        say("estimating (start from the gyroscope and the target poses, then one joint fit)")
-        res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
-                         accel_noise=noise["accelerometer_noise_density"],
-                         pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
-                         shared_time_offset=args.shared_time_offset,
-                         bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
-                         bias_interval=interval, verbose=not args.quiet)
-    caught = [" ".join(str(w.message).split()) for w in record]
-    for text in caught:
-        print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    cams, res, caught = _estimate(args, target, noise, entries, walk, interval, say)
     elapsed = time.perf_counter() - start
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -288,6 +272,39 @@ def _run(args) -> int:
             f"+- {1e3 * float(res.std['time_offsets'][i]):.3f} ms")
     say(f"wrote {out} in {elapsed:.1f} s")
     return 0
+
+
+def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: float, say
+              ) -> tuple[list, object, list[str]]:
+    """Read the IMU and the corners, calibrate cameras without intrinsics, run
+    :func:`~torch_dq.calibration.camera_imu`: ``(cameras, result, warnings)``. Every warning
+    (the readers' included) is printed as one ``warning:`` line on stderr, also when an
+    error ends the run."""
+    from .. import io
+    from ..calibration import camera_imu
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        try:
+            imu = io.read_imu(args.imu)
+            say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
+                f"camera(s)")
+            obs = _observations(args, target, len(entries))
+            cams = _cameras(entries, obs, args.cameras, say)
+            say("estimating (start from the gyroscope and the target poses, then one joint "
+                "fit)")
+            res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
+                             accel_noise=noise["accelerometer_noise_density"],
+                             pixel_sigma=args.pixel_sigma,
+                             rolling_shutter=args.rolling_shutter,
+                             shared_time_offset=args.shared_time_offset,
+                             bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
+                             bias_interval=interval, verbose=not args.quiet)
+        finally:
+            caught = [" ".join(str(w.message).split()) for w in record]
+            for text in caught:
+                print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    return cams, res, caught
 
 
 def _write(out: Path, res, entries, summary: dict) -> None:
