@@ -57,3 +57,23 @@ def test_read_imu_names_a_gyroscope_in_degrees_per_second(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         io.read_imu(_imu_file(tmp_path, 1.0, "ok.txt"))
+
+
+def test_kitti_reads_back_with_the_writers_keyword(tmp_path):
+    """write_trajectory(..., "kitti", times_path=T) wrote a file that read_trajectory(...,
+    "kitti", times_path=T) refused with a bare Python TypeError (the reader's name is
+    ``times``): the reader takes ``times_path`` too."""
+    t = 1305031098.6659 + 0.01 * torch.arange(6, dtype=F64)
+    axis = torch.tensor([0.0, 0.0, 1.0], dtype=F64)
+    traj = io.Trajectory(t, quat.from_axis_angle(axis, 0.1 * torch.arange(6, dtype=F64)),
+                         torch.rand(6, 3, dtype=F64))
+    io.write_trajectory(tmp_path / "p.txt", traj, "kitti", times_path=tmp_path / "t.txt")
+    back = io.read_trajectory(tmp_path / "p.txt", "kitti", times_path=tmp_path / "t.txt")
+    assert torch.equal(back.times, t)
+    torch.testing.assert_close(back.translations, traj.translations, rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"io\.read_trajectory: times and times_path name "
+                                         r"the same argument"):
+        io.read_trajectory(tmp_path / "p.txt", "kitti", tmp_path / "t.txt",
+                           times_path=tmp_path / "t.txt")
+    with pytest.raises(ValueError, match=r"times= applies to KITTI files only"):
+        io.read_trajectory(tmp_path / "p.txt", "tum", times_path=tmp_path / "t.txt")

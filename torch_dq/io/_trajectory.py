@@ -246,7 +246,8 @@ def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
 
 def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
                     times: str | os.PathLike[str] | Tensor | npt.ArrayLike | None = None, *,
-                    atol: float = 1e-3, duplicates: str = "error") -> Trajectory:
+                    atol: float = 1e-3, duplicates: str = "error",
+                    times_path: str | os.PathLike[str] | None = None) -> Trajectory:
     r"""Read timestamped poses from a TUM, KITTI or EuRoC file.
 
     Args:
@@ -270,6 +271,8 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         duplicates: ``"error"`` (default): a repeated timestamp is an error;
             ``"first"``: keep the first pose of each repeated timestamp (real files have
             them, e.g. TUM freiburg2_desk at line 10863).
+        times_path: the same as ``times`` (a times file), by :func:`write_trajectory`'s
+            name for it; give one of the two.
 
     Returns:
         :class:`Trajectory` of float64 CPU tensors: ``times (N,)`` in seconds (EuRoC's
@@ -283,8 +286,8 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
             repeated timestamps, a non-unit quaternion (the message gives its norm), a
             non-orthonormal or reflecting KITTI rotation, a times file of another length,
             an empty file.
-        ValueError: bad ``format``/``atol``/``duplicates``, KITTI without ``times``, or
-            ``times`` given for another format.
+        ValueError: bad ``format``/``atol``/``duplicates``, KITTI without ``times``,
+            ``times`` given for another format, or both ``times`` and ``times_path``.
         OSError: the file cannot be opened.
 
     Warns:
@@ -312,6 +315,11 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         _checks.fail(fn, f"atol must be a finite number > 0, got {atol!r}")
     if duplicates not in ("error", "first"):
         _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
+    if times_path is not None:
+        if times is not None:
+            _checks.fail(fn, "times and times_path name the same argument (the KITTI times "
+                             "file): give one")
+        times = times_path
     lines, texts, header = header_row(path, *read_lines(path))
     if format == "auto":
         format = _detect(path, lines, texts, header)
