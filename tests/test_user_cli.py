@@ -1,16 +1,19 @@
-"""An outside tester's ``python -m torch_dq calibrate`` runs (0.5.0 trial): an IMU file in
-deg/s ends in one error line naming the unit, after one ``warning:`` line from the reader,
-with no Python warning format (file, line, source) on stderr. Failed before its fix (the
-reader's warning came as a Python warning with its source line, the calibration finished
-on readings 57 times too large)."""
+"""An outside tester's ``python -m torch_dq calibrate`` and ``fit --imu`` runs (0.5.0
+trial): an IMU file in deg/s ends in one error line naming the unit (``calibrate``: after one
+``warning:`` line from the reader, with no Python warning format on stderr). Failed before
+the fixes (``calibrate``: the reader's warning came as a Python warning with its source
+line and the calibration finished on readings 57 times too large; ``fit --imu``: exit 0 with
+held-out rotation errors of 110 degrees)."""
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from torch_dq.__main__ import main
 
@@ -34,3 +37,26 @@ def test_calibrate_names_a_gyroscope_in_degrees_per_second(tmp_path, capsys):
     assert err[1].startswith("torch-dq calibrate: error: calibration.camera_imu: camera 0: "
                              "the gyroscope's angular speeds are 57.3 times the camera's")
     assert not out.exists()
+
+
+def test_fit_imu_names_a_gyroscope_in_degrees_per_second(tmp_path, capsys):
+    import _camera_imu_sim as sim
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 6.0, 0.05)
+    R, p, _, _ = sim.motion(t)
+    np.savetxt(tmp_path / "poses.txt", np.column_stack(
+        [1.7e9 + t, p + 1e-3 * rng.standard_normal(p.shape), Rotation.from_matrix(R).as_quat()]),
+        fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
+    ti = np.arange(0.0, 6.0, 0.005)
+    _, _, gyro, accel = sim.motion(ti)
+    np.savetxt(tmp_path / "imu.txt", np.column_stack([1.7e9 + ti, np.rad2deg(gyro), accel]),
+               fmt="%.9f", header="t gx gy gz ax ay az")
+    out = tmp_path / "out"
+    argv = ["fit", str(tmp_path / "poses.txt"), "--imu", str(tmp_path / "imu.txt"), "--out",
+            str(out), "--no-plots", "--quiet"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert re.match(r"torch-dq fit: error: .*imu\.txt: the gyroscope's angular rates are "
+                    r"5\d\.\d times the poses' .*deg/s", err[-1]), err
+    assert not (out / "summary.json").exists()
