@@ -90,3 +90,20 @@ def test_unsorted_and_non_finite_samples_are_located(rig):
     with pytest.raises(ValueError, match=r"camera_imu: observations\[0\] pixels holds a "
                                          r"non-finite value at sample 3"):
         _call(cam, (ot, op, pixels), (t, g, a))
+
+
+def test_read_corners_refuses_a_repeated_row(tmp_path):
+    """A corner listed twice (a file concatenated with itself, a detector's log written
+    twice) was read as two observations: double weight in every estimate, without a word.
+    Coinciding points of another tag (tag_spacing 0) stay legitimate."""
+    head = "# t_ns,tag_id,corner_idx,u_px,v_px,X_m,Y_m,Z_m\n"
+    rows = ["1403709385487836928,6,0,274.6642,57.4390,0.0,0.1144,0.0",
+            "1403709385487836928,6,1,235.9239,51.5984,0.088,0.1144,0.0",
+            "1403709385487836928,7,0,235.9239,51.5984,0.088,0.1144,0.0"]
+    path = tmp_path / "c.csv"
+    path.write_text(head + "\n".join(rows) + "\n")
+    assert calibration.read_corners(path)[0].shape == (3,)
+    path.write_text(head + "\n".join(rows + rows[1:2]) + "\n")
+    with pytest.raises(calibration.CornersFileError, match=r"c\.csv, line 5: the same row as "
+                                                           r"line 3"):
+        calibration.read_corners(path)
