@@ -107,3 +107,28 @@ def test_read_corners_refuses_a_repeated_row(tmp_path):
     with pytest.raises(calibration.CornersFileError, match=r"c\.csv, line 5: the same row as "
                                                            r"line 3"):
         calibration.read_corners(path)
+
+
+def test_camera_imu_options_are_checked(rig):
+    """``rolling_shutter="yes"``, ``shared_time_offset=1``, ``min_points=0`` and
+    ``bias_interval=0`` were accepted without a word."""
+    cam, obs, imu = rig
+    for name, value, message in (("rolling_shutter", "yes", "rolling_shutter to be a bool"),
+                                 ("shared_time_offset", 1, "shared_time_offset to be a bool"),
+                                 ("min_points", 0, r"min_points must be an int >= 4"),
+                                 ("min_points", 5.5, r"min_points must be an int >= 4"),
+                                 ("bias_interval", 0.0, "bias_interval to be a positive"),
+                                 ("verbose", None, "verbose to be a bool")):
+        with pytest.raises((ValueError, TypeError), match=r"calibration\.camera_imu: .*"
+                                                          + message):
+            calibration.camera_imu([cam], [obs], imu, **(KW | {name: value}))
+
+
+def test_cameras_names_a_tuple_given_for_the_list(rig):
+    """One camera's ``(times, points, pixels)`` given as ``observations`` (not in a list)
+    was read as three cameras: "expected models ... (3, as observations), got 1"."""
+    _, obs, _ = rig
+    with pytest.raises(ValueError, match=r"calibration\.cameras: expected observations to "
+                                         r"be a list of \(times, points, pixels\) tuples, "
+                                         r"one per camera: observations\[0\] is a Tensor"):
+        calibration.cameras(obs, ["pinhole-radtan"], [sim.RESOLUTION])

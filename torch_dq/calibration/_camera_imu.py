@@ -511,6 +511,11 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     pixel_sigma = _positive("pixel_sigma", pixel_sigma)
     knot_spacing = _positive("knot_spacing", knot_spacing)
     max_time_offset = _positive("max_time_offset", max_time_offset)
+    _positive("bias_interval", bias_interval)
+    min_points = _checks.integer(_FN, "min_points", min_points, 4)
+    for name, value in (("rolling_shutter", rolling_shutter),
+                        ("shared_time_offset", shared_time_offset), ("verbose", verbose)):
+        _checks.flag(_FN, name, value)
     notes = _motion_warnings(gyro, accel)
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
