@@ -77,3 +77,26 @@ def test_kitti_reads_back_with_the_writers_keyword(tmp_path):
                            times_path=tmp_path / "t.txt")
     with pytest.raises(ValueError, match=r"times= applies to KITTI files only"):
         io.read_trajectory(tmp_path / "p.txt", "tum", times_path=tmp_path / "t.txt")
+
+
+def test_read_imu_names_seconds_under_a_nanosecond_header(tmp_path):
+    """A EuRoC header (``#timestamp [ns]``) over times written in seconds was read as
+    nanoseconds with fractions: samples 5e-12 s apart, without a word."""
+    head = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+            "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n")
+    rows = "".join(f"{1403715273.262 + 0.005 * k:.3f},0.1,0.2,0.3,0.1,0.2,9.8\n"
+                   for k in range(50))
+    path = tmp_path / "data.csv"
+    path.write_text(head + rows)
+    with pytest.warns(UserWarning, match=r"io\.read_imu: .*data\.csv: the times look like "
+                                         r"seconds, not nanoseconds: .*5e-12 s apart .* "
+                                         r"time_unit='s'"):
+        io.read_imu(path)
+    t, _, _ = io.read_imu(path, time_unit="s")
+    assert abs(float(t[1] - t[0]) - 0.005) < 1e-6
+    ns = "".join(f"{1403715273262000000 + 5000000 * k},0.1,0.2,0.3,0.1,0.2,9.8\n"
+                 for k in range(50))
+    path.write_text(head + ns)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert abs(float(io.read_imu(path)[0][1] - 1403715273.267)) < 1e-6
