@@ -100,3 +100,16 @@ def test_read_imu_names_seconds_under_a_nanosecond_header(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert abs(float(io.read_imu(path)[0][1] - 1403715273.267)) < 1e-6
+
+
+def test_read_trajectory_names_seconds_under_a_nanosecond_header(tmp_path):
+    """The same for EuRoC ground truth: decimal seconds under ``#timestamp [ns]`` were read
+    as poses 5e-12 s apart (a 1.4 s long 'UNIX time'), without a word."""
+    head = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], "
+            "q_RS_y [], q_RS_z []\n")
+    path = tmp_path / "gt.csv"
+    path.write_text(head + "".join(f"{1403636579.758 + 0.005 * k:.3f},{0.01 * k},0,0,1,0,0,0\n"
+                                   for k in range(50)))
+    with pytest.warns(UserWarning, match=r"io\.read_trajectory: .*gt\.csv: the times look "
+                                         r"like seconds, not nanoseconds"):
+        io.read_trajectory(path)

@@ -20,7 +20,7 @@ from ._text import (
     seconds_from_ns,
     split,
 )
-from ._units import warn_imu_ns_unit, warn_imu_time_unit, warn_imu_units
+from ._units import warn_imu_time_unit, warn_imu_units, warn_ns_unit
 
 __all__ = ["read_imu"]
 
@@ -109,7 +109,7 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         ns = nanoseconds(path, lines, [f[0] for f in rows], fractions=stated)
         keep = check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
         t = seconds_from_ns(ns, keep)
-        warn_imu_ns_unit(fn, path, t)
+        warn_ns_unit(fn, path, t)
     else:
         t = floats(path, lines, [f[:1] for f in rows], names[:1])[:, 0]
         keep = check_times(path, lines, t, duplicates)

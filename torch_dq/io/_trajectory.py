@@ -34,7 +34,7 @@ from ._text import (
     seconds_from_ns,
     split,
 )
-from ._units import warn_time_unit
+from ._units import warn_ns_unit, warn_time_unit
 
 __all__ = ["EUROC_COLUMNS", "FORMATS", "TUM_COLUMNS", "Trajectory", "narrow_hint",
            "read_trajectory"]
@@ -334,5 +334,7 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         t, q, p = _read_kitti(fn, path, lines, texts, times, atol, duplicates)
     if format != "euroc":  # EuRoC states nanoseconds
         warn_time_unit(fn, path, t, q, p)
+    else:
+        warn_ns_unit(fn, path, t, longest=5.0)
     return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
 

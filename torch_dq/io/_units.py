@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["gyro_scale", "warn_imu_ns_unit", "warn_imu_time_unit", "warn_imu_units",
+__all__ = ["gyro_scale", "warn_imu_time_unit", "warn_imu_units", "warn_ns_unit",
            "warn_time_unit"]
 
 #: Motion no recording reaches (m/s, rad/s): times read in the wrong unit reach it or
@@ -80,15 +80,16 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
 
 
 
-def warn_imu_ns_unit(fn: str, path, t: np.ndarray) -> None:
-    """Warn when IMU times read as nanoseconds (a ``[ns]`` header, or ``time_unit="ns"``)
-    lie less than 10 us apart (median; beyond any IMU's rate) while seconds, milliseconds or
-    microseconds give an IMU's rate (20 Hz to 5 kHz): decimal seconds under EuRoC's header."""
+def warn_ns_unit(fn: str, path, t: np.ndarray, longest: float = 0.05) -> None:
+    """Warn when times read as nanoseconds (a ``[ns]`` header, or ``time_unit="ns"``) lie
+    less than 10 us apart (median; beyond any sensor's rate) while seconds, milliseconds or
+    microseconds put them 0.2 ms to ``longest`` s apart (an IMU: 0.05 s; poses: 5 s):
+    decimal seconds under EuRoC's header."""
     step = float(np.median(np.diff(t))) if len(t) > 2 else 1.0
     if step >= 1e-5:
         return
     for name, scale in (("seconds", 1e9), ("milliseconds", 1e6), ("microseconds", 1e3)):
-        if 2e-4 <= step * scale <= 0.05:
+        if 2e-4 <= step * scale <= longest:
             warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
                           f"nanoseconds: read as nanoseconds the samples lie {step:.3g} s "
                           f"apart (median), {1 / (step * scale):.4g} Hz as {name}; pass "
