@@ -335,6 +335,7 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
     if format != "euroc":  # EuRoC states nanoseconds
         warn_time_unit(fn, path, t, q, p)
     else:
-        warn_ns_unit(fn, path, t, longest=5.0)
+        warn_ns_unit(fn, path, t, longest=5.0, fix="write the times as integer nanoseconds, "
+                                                    "as EuRoC's header says")
     return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
 

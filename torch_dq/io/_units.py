@@ -80,11 +80,13 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
 
 
 
-def warn_ns_unit(fn: str, path, t: np.ndarray, longest: float = 0.05) -> None:
+def warn_ns_unit(fn: str, path, t: np.ndarray, longest: float = 0.05,
+                 fix: str = "pass time_unit='s' for seconds or write integer nanoseconds"
+                 ) -> None:
     """Warn when times read as nanoseconds (a ``[ns]`` header, or ``time_unit="ns"``) lie
     less than 10 us apart (median; beyond any sensor's rate) while seconds, milliseconds or
     microseconds put them 0.2 ms to ``longest`` s apart (an IMU: 0.05 s; poses: 5 s):
-    decimal seconds under EuRoC's header."""
+    decimal seconds under EuRoC's header; ``fix`` says what to do."""
     step = float(np.median(np.diff(t))) if len(t) > 2 else 1.0
     if step >= 1e-5:
         return
@@ -92,8 +94,7 @@ def warn_ns_unit(fn: str, path, t: np.ndarray, longest: float = 0.05) -> None:
         if 2e-4 <= step * scale <= longest:
             warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
                           f"nanoseconds: read as nanoseconds the samples lie {step:.3g} s "
-                          f"apart (median), {1 / (step * scale):.4g} Hz as {name}; pass "
-                          f"time_unit='s' for seconds or write integer nanoseconds",
+                          f"apart (median), {1 / (step * scale):.4g} Hz as {name}; {fix}",
                           UserWarning, stacklevel=3)
             return
 
