@@ -39,8 +39,12 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ._errors import exit_on_error
+
+if TYPE_CHECKING:
+    from ..calibration import CameraImuCalibration
 
 __all__ = ["run"]
 
@@ -275,7 +279,7 @@ def _run(args) -> int:
 
 
 def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: float, say
-              ) -> tuple[list, object, list[str]]:
+              ) -> tuple[list, CameraImuCalibration, list[str]]:
     """Read the IMU and the corners, calibrate cameras without intrinsics, run
     :func:`~torch_dq.calibration.camera_imu`: ``(cameras, result, warnings)``. Every warning
     (the readers' included) is printed as one ``warning:`` line on stderr, also when an
