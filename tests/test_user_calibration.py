@@ -132,3 +132,17 @@ def test_cameras_names_a_tuple_given_for_the_list(rig):
                                          r"be a list of \(times, points, pixels\) tuples, "
                                          r"one per camera: observations\[0\] is a Tensor"):
         calibration.cameras(obs, ["pinhole-radtan"], [sim.RESOLUTION])
+
+
+def test_read_target_takes_numbers_without_a_dot(tmp_path):
+    """``tagSize: 88e-3`` (YAML 1.1 reads it as the string '88e-3') was refused as "tagSize
+    must be a finite real number > 0, got '88e-3'"."""
+    path = tmp_path / "april.yaml"
+    path.write_text("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: 88e-3\n"
+                    "tagSpacing: 3e-1\n")
+    assert calibration.read_target(path) == calibration.Target("aprilgrid", 6, 6, 0.088, 0.3)
+    path.write_text("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: abc\n"
+                    "tagSpacing: 0.3\n")
+    with pytest.raises(ValueError, match=r"april\.yaml: tagSize must be a finite real number "
+                                         r"> 0, got 'abc'"):
+        calibration.read_target(path)

@@ -60,3 +60,21 @@ def test_fit_imu_names_a_gyroscope_in_degrees_per_second(tmp_path, capsys):
     assert re.match(r"torch-dq fit: error: .*imu\.txt: the gyroscope's angular rates are "
                     r"5\d\.\d times the poses' .*deg/s", err[-1]), err
     assert not (out / "summary.json").exists()
+
+
+def test_imu_yaml_numbers_without_a_dot(tmp_path):
+    """``gyroscope_noise_density: 1e-4`` (no dot: YAML 1.1 and PyYAML read it as the string
+    '1e-4') was refused as "expected a positive number ..., got '1e-4'"."""
+    from torch_dq.cli._calibrate import UserError, _noise
+
+    path = tmp_path / "imu.yaml"
+    path.write_text("gyroscope_noise_density: 1e-4\naccelerometer_noise_density: 2E-3\n"
+                    "gyroscope_random_walk: 2.0e-5\naccelerometer_random_walk: 3e-3\n")
+    assert _noise(str(path), walk=True) == {
+        "gyroscope_noise_density": 1e-4, "accelerometer_noise_density": 2e-3,
+        "gyroscope_random_walk": 2e-5, "accelerometer_random_walk": 3e-3}
+    for bad in ("abc", "-1e-4", "nan", "inf", "true"):
+        path.write_text(f"gyroscope_noise_density: {bad}\naccelerometer_noise_density: 1e-3\n")
+        with pytest.raises(UserError, match="expected a positive number under "
+                                            "gyroscope_noise_density"):
+            _noise(str(path), walk=False)

@@ -77,12 +77,19 @@ _WALKS = ("gyroscope_random_walk", "accelerometer_random_walk")
 
 def _noise(path: str, walk: bool) -> dict:
     """The noise densities of Kalibr's imu.yaml (and its random walks, required with
-    ``walk``); ``update_rate`` and, without ``walk``, the walks are copied as given."""
+    ``walk``; numbers written without a dot, ``1e-4``, which YAML 1.1 reads as strings,
+    taken as numbers); ``update_rate`` and, without ``walk``, the walks are copied as
+    given."""
     data = _yaml(path)
     out = {}
     for key in ("gyroscope_noise_density", "accelerometer_noise_density",
                 *(_WALKS if walk else ())):
         v = data.get(key)
+        if isinstance(v, str):  # 1e-4 without a dot: a string to YAML 1.1 (PyYAML)
+            try:
+                v = float(v)
+            except ValueError:
+                pass
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
             need = " (needed by --bias random-walk; --bias constant does without)" * (
                 key in _WALKS)
