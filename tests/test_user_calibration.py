@@ -146,3 +146,20 @@ def test_read_target_takes_numbers_without_a_dot(tmp_path):
     with pytest.raises(ValueError, match=r"april\.yaml: tagSize must be a finite real number "
                                          r"> 0, got 'abc'"):
         calibration.read_target(path)
+
+
+def test_clock_offset_beyond_the_bound_is_named(rig):
+    """A clock 0.15 s off with the default max_time_offset 0.1 ended in fitting.estimate's
+    "Reprojections's time_offset starts at 0.1 s, outside its max_time_offset=0.1" (a start
+    the user never gave): camera_imu names the bound and the way out."""
+    cam, (ot, op, ou), (t, g, a) = rig
+    (ti, gi, ai), cams = sim.rig(duration=3.0, offset=0.15, seed=1)
+    obs = tuple(_t(x) for x in cams[0])
+    with pytest.raises(ValueError, match=r"calibration\.camera_imu: camera 0: the angular "
+                                         r"speeds correlate best at the bound of the "
+                                         r"offsets searched \(\+0\.1 s;.*raise "
+                                         r"max_time_offset"):
+        calibration.camera_imu([cam], [obs], (_t(ti), _t(gi), _t(ai)), **KW)
+    res = calibration.camera_imu([cam], [obs], (_t(ti), _t(gi), _t(ai)),
+                                 **(KW | {"max_time_offset": 0.2, "steps": 10}))
+    assert abs(float(res.time_offsets[0]) - 0.15) < 1e-3

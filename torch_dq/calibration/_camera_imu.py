@@ -262,7 +262,8 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
     """Time offset maximising the correlation of the angular speeds over ``[-max, max]``
     (0.5 ms grid, refined by a parabola through the best three); a ``ValueError`` when even
     the best correlation is below ``_MIN_CORRELATION`` (the IMU log is not this motion's,
-    or its clock is further off than ``max_offset``)."""
+    or its clock is further off than ``max_offset``) or lies at the grid's end (the offset
+    likely beyond ``max_offset``)."""
     offsets = torch.arange(-max_offset, max_offset + 1e-12, 5e-4, dtype=torch.float64)
     speed = w_cam.norm(dim=-1)
     speed = speed - speed.mean()
@@ -276,7 +277,13 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
                           f"camera's (best correlation {float(c.max()):.2f} over offsets "
                           f"within +-{max_offset:g} s): the IMU log is not this recording's, "
                           f"or its clock differs by more than max_time_offset")
-    k = int(c.argmax().clamp(1, c.numel() - 2))
+    best = int(c.argmax())
+    if best in (0, c.numel() - 1):
+        _checks.fail(_FN, f"camera {camera}: the angular speeds correlate best at the bound of "
+                          f"the offsets searched ({float(offsets[best]):+g} s; correlation "
+                          f"{float(c[best]):.2f}): the clock offset is likely beyond "
+                          f"max_time_offset={max_offset:g} s; raise max_time_offset")
+    k = best
     c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
