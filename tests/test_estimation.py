@@ -125,6 +125,7 @@ def test_default_robust_scale_is_the_chi_quantile():
 
 # ----------------------------------------------------------------------------- recovery
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. Accel.time_offset is estimated on a")
 def test_recovers_biases_clock_offset_and_gravity(gen):
     """Camera at 20 Hz, IMU at 100 Hz with both biases, a 10 ms offset shared by the gyro and
     accelerometer (one Free), gravity's direction estimated from its magnitude: every value
@@ -435,6 +436,7 @@ def test_three_fixed_lever_arms_determine_rotation(gen):
     assert float(rotation_angle(spline(t), x).detach().max()) < 3e-3
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_unobservable_time_offset_gives_inf_and_a_warning(gen):
     """A constant rotation rate carries no information on a gyroscope's clock offset: its
     standard deviation is inf with a warning, never the prior's value."""
@@ -481,6 +483,7 @@ def test_time_gap_leaves_nuisance_stds_finite(gen):
     assert torch.isfinite(pose[[0, 1, 5, 6]]).all()
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_known_time_offset_prior_gives_its_std(gen):
     """The same offset with a Gaussian prior (a Free's prior_std): finite, the prior's."""
     t, ti = grid(0.0, 2.0, 10), grid(0.2, 1.8, 20)
@@ -580,6 +583,7 @@ def test_messages_name_the_first_bad_sample():
     assert Positions(t, y, sigma=1.0, robust="CAUCHY").robust == "cauchy"
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_accel_with_a_c1_spline_warns_once(gen):
     """de Boor B-splines (degree >= 2) are only C1: an Accel term warns (once per estimate)
     and names form='cumulative'; the cumulative form and terms without Accel do not."""
@@ -592,6 +596,9 @@ def test_accel_with_a_c1_spline_warns_once(gen):
     estimate(spline, [terms[0], Gyro(ti, gy, sigma=0.1)], steps=1, verbose=False)
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. Accel.time_offset is estimated on a")
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
+@pytest.mark.filterwarnings("ignore:fitting.Estimate. chi2/dof far above 1:RuntimeWarning")
 def test_estimate_repr_and_parameter_order(gen):
     """The summary names steps, reason, final loss and chi2/dof per term; ``parameters``
     lists cov's rows (a shared Free once): the gyro's time offset 1 and bias 3, then the
@@ -619,6 +626,7 @@ def test_estimate_repr_and_parameter_order(gen):
     assert start == C.shape[-1] == 9
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_verbose_prints_one_line_per_step_without_a_terminal(gen, capsys):
     t, _, x, *_, spline = _small(gen)
     est = estimate(spline, [Poses(t, x, rot_sigma=0.01, trans_sigma=0.01)], steps=2, tol=0.0)

@@ -235,6 +235,7 @@ def _positions_imu(gen, ba, g_true, duration=6.0):
     return t, R, spline, terms
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # known
 def test_positions_with_an_imu_determine_bias_and_gravity_direction(gen):
     """Positions + Gyro + Accel with the accelerometer bias and gravity's direction both
     estimated: refused before as undetermined, determined under varied motion (the
@@ -335,6 +336,7 @@ def test_imu_times_in_milliseconds_warn(tmp_path):
     io.read_imu(path)  # seconds: no warning
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_gyro_in_degrees_per_second_warns(gen):
     t = grid(0.0, 3.0, 20)
     ti = grid(0.2, 2.8, 100)
@@ -348,6 +350,7 @@ def test_gyro_in_degrees_per_second_warns(gen):
     gyro.values(spline_on(t, x, 0.15))
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_accel_in_g_warns(gen):
     """Readings in g (mean magnitude about 1 against gravity's 9.81): a warning naming g at
     the estimate's start; the same readings in m/s^2 give none."""

@@ -160,6 +160,7 @@ def _dense_decrement(spline, terms):
     return float(g @ np.linalg.pinv(J.T @ J, rcond=1e-12) @ g), float(r @ r)
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. Accel.time_offset is estimated on a")
 def test_readme_example_from_30_deg_and_1_m_off_reaches_the_optimum():
     """Issue 31: the README's example started 30 deg / 1 m off ended 12 deg / 0.36 m off
     with a data cost of 3.9e6 (4984 at the optimum), converged=True. Now: the same optimum
@@ -342,6 +343,7 @@ def test_accel_with_a_cumulative_quadratic_warns():
                  verbose=False)
 
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # known
 def test_time_offset_on_its_bound_warns_and_has_no_std():
     """A gyroscope 60 ms late with max_time_offset=0.02: the offset ends on the bound; the
     estimate warns and std gives inf with a warning (not a finite curvature value)."""

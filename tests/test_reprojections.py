@@ -499,6 +499,7 @@ def test_domain_check_widens_by_the_line_delay():
 
 # ----------------------------------------------------------------------------- batches
 
+@pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_batches_with_their_own_times_are_independent_problems():
     """Two camera-only problems with their own frame times, intrinsics estimated: the batch
     gives each element's own estimate."""

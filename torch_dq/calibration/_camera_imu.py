@@ -153,28 +153,68 @@ def _arguments(cameras, observations, imu):
                           f"({len(cameras)}), got {got}")
     if not isinstance(imu, (list, tuple)) or len(imu) != 3:
         _checks.fail(_FN, "expected imu to be a (times (N,), gyro (N, 3), accel (N, 3)) tuple")
-    names = ("imu times", "imu gyro", "imu accel")
-    t, g, a = (_checks.tensor(_FN, n, x).detach().to("cpu", torch.float64)
-               for n, x in zip(names, imu, strict=True))
-    if t.dim() != 1 or g.shape != (t.numel(), 3) or a.shape != (t.numel(), 3):
-        _checks.fail(_FN, f"expected imu as times (N,), gyro (N, 3), accel (N, 3), got "
-                          f"{_checks.shape_str(t.shape)}, {_checks.shape_str(g.shape)}, "
-                          f"{_checks.shape_str(a.shape)}")
-    if t.numel() < 10 or not bool((t.diff() > 0).all()):
-        _checks.fail(_FN, "expected at least 10 IMU samples with strictly increasing times")
-    if not bool(torch.isfinite(t).all() & torch.isfinite(g).all() & torch.isfinite(a).all()):
-        _checks.fail(_FN, "imu holds non-finite values")
+    t, g, a = _samples("imu", ("times", "gyro", "accel"), imu, (None, 3, 3))
+    if t.numel() < 10:
+        _checks.fail(_FN, f"expected at least 10 IMU samples, got {t.numel()}")
+    _seconds("imu times", t, 0.5)
     obs = []
     for i, o in enumerate(observations):
         if not isinstance(o, (list, tuple)) or len(o) != 3:
             _checks.fail(_FN, f"expected observations[{i}] to be (times, points, pixels)")
-        ot, op, ou = (_checks.tensor(_FN, f"observations[{i}]", x).detach().to(
-            "cpu", torch.float64) for x in o)
-        if ot.dim() != 1 or op.shape != (ot.numel(), 3) or ou.shape != (ot.numel(), 2):
-            _checks.fail(_FN, f"expected observations[{i}] as times (N,), points (N, 3), "
-                              f"pixels (N, 2)")
+        ot, op, ou = _samples(f"observations[{i}]", ("times", "points", "pixels"), o,
+                              (None, 3, 2), increasing=False)
+        _seconds(f"observations[{i}] times", ot.unique(), 10.0)
         obs.append((ot, op, ou))
     return list(cameras), obs, (t, g, a)
+
+
+def _samples(label: str, fields: tuple[str, ...], xs, widths: tuple,
+             increasing: bool = True) -> list[Tensor]:
+    """``label``'s ``(times (N,), values (N, w)...)`` checked (float64 times, matching
+    shapes, finite, times strictly increasing where ``increasing``), as float64 CPU copies."""
+    names = [f"{label} {f}" for f in fields]
+    out = []
+    for n, x, w in zip(names, xs, widths, strict=True):
+        x = _checks.tensor(_FN, n, x).detach()
+        if w is None and x.dtype != torch.float64:
+            _checks.fail(_FN, f"expected float64 seconds for {n}, got {x.dtype} (float32 "
+                              f"holds UNIX seconds to 128 s)", TypeError)
+        out.append(x.to("cpu", torch.float64))
+    t = out[0]
+    shapes = [(t.numel(),) if w is None else (t.numel(), w) for w in widths]
+    if t.dim() != 1 or [tuple(x.shape) for x in out] != shapes:
+        want = ", ".join(f"{f} {'(N,)' if w is None else f'(N, {w})'}"
+                         for f, w in zip(fields, widths, strict=True))
+        _checks.fail(_FN, f"expected {label} as {want}, got "
+                          f"{', '.join(_checks.shape_str(x.shape) for x in out)}")
+    for n, x in zip(names, out, strict=True):
+        bad = ~torch.isfinite(x)
+        if bool(bad.any()):
+            _checks.fail(_FN, f"{n} holds a non-finite value at sample "
+                              f"{_checks.first_index(bad)[0]}")
+    back = (t.diff() <= 0).nonzero()
+    if increasing and back.numel():
+        k = int(back[0]) + 1
+        _checks.fail(_FN, f"{names[0]} must be strictly increasing: sample {k} "
+                          f"({float(t[k])!r}) is not after sample {k - 1} "
+                          f"({float(t[k - 1])!r})")
+    return out
+
+
+def _seconds(name: str, t: Tensor, longest: float) -> None:
+    """A ``ValueError`` where the median step of the sorted times ``t`` exceeds ``longest``
+    seconds while as nanoseconds it would be a sensor's (an IMU at 0.5 s: 2 Hz; frames at
+    10 s): times in nanoseconds (or microseconds, milliseconds), not seconds."""
+    step = float(t.diff().median()) if t.numel() > 2 else 0.0
+    if step <= longest:
+        return
+    for unit, scale in (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3)):
+        if step * scale <= longest:
+            _checks.fail(_FN, f"{name} look like {unit}, not seconds: read as seconds they "
+                              f"lie {step:.4g} s apart (median), as {unit} {step * scale:.4g}"
+                              f" s; divide them by {1 / scale:.0e} (io.read_imu and "
+                              f"calibration.read_corners return seconds)")
+    _checks.fail(_FN, f"{name} lie {step:.4g} s apart (median): expected seconds")
 
 
 def _frame_poses(cam: Camera, obs, min_points: int) -> tuple[Tensor, Tensor]:
@@ -222,7 +262,8 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
     """Time offset maximising the correlation of the angular speeds over ``[-max, max]``
     (0.5 ms grid, refined by a parabola through the best three); a ``ValueError`` when even
     the best correlation is below ``_MIN_CORRELATION`` (the IMU log is not this motion's,
-    or its clock is further off than ``max_offset``)."""
+    or its clock is further off than ``max_offset``) or lies at the grid's end (the offset
+    likely beyond ``max_offset``)."""
     offsets = torch.arange(-max_offset, max_offset + 1e-12, 5e-4, dtype=torch.float64)
     speed = w_cam.norm(dim=-1)
     speed = speed - speed.mean()
@@ -236,11 +277,33 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
                           f"camera's (best correlation {float(c.max()):.2f} over offsets "
                           f"within +-{max_offset:g} s): the IMU log is not this recording's, "
                           f"or its clock differs by more than max_time_offset")
-    k = int(c.argmax().clamp(1, c.numel() - 2))
+    best = int(c.argmax())
+    if best in (0, c.numel() - 1):
+        _checks.fail(_FN, f"camera {camera}: the angular speeds correlate best at the bound of "
+                          f"the offsets searched ({float(offsets[best]):+g} s; correlation "
+                          f"{float(c[best]):.2f}): the clock offset is likely beyond "
+                          f"max_time_offset={max_offset:g} s; raise max_time_offset")
+    k = best
     c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
     return float(offsets[k]) + max(-1.0, min(1.0, frac)) * 5e-4
+
+
+def _check_scale(w_cam: Tensor, w_imu: Tensor, camera: int) -> None:
+    """A ``ValueError`` where the gyroscope's centred angular speeds are more than 3 times
+    the camera's or less than a third of them (the correlation of :func:`_offset` is blind
+    to a scale): readings in deg/s (57.3 times) or another unit than rad/s."""
+    spread = [float((w - w.mean(0)).norm(dim=-1).square().mean().sqrt()) for w in
+              (w_cam, w_imu)]
+    ratio = spread[1] / max(spread[0], 1e-300)
+    if 1.0 / 3.0 <= ratio <= 3.0:
+        return
+    hint = ("deg/s, not rad/s: convert them with torch.deg2rad" if 40.0 <= ratio <= 80.0
+            else "another unit than rad/s")
+    _checks.fail(_FN, f"camera {camera}: the gyroscope's angular speeds are {ratio:.3g} times "
+                      f"the camera's (RMS about their means, {spread[1]:.3g} against "
+                      f"{spread[0]:.3g} rad/s): the readings look like {hint}")
 
 
 def _kabsch(w_cam: Tensor, w_body: Tensor) -> tuple[Tensor, Tensor]:
@@ -305,7 +368,9 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
                               f"(at least 10 with >= {min_points} corners are needed)")
         w, a, b = _camera_rates(t, T)
         dt = _offset(t_imu, gyro, w, a, b, max_offset, i)
-        q, bias = _kabsch(w, _mean_gyro(t_imu, gyro, a + dt, b + dt))
+        w_imu = _mean_gyro(t_imu, gyro, a + dt, b + dt)
+        _check_scale(w, w_imu, i)
+        q, bias = _kabsch(w, w_imu)
         rot.append(q)
         offs.append(dt)
         biases.append(bias)
@@ -453,6 +518,11 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     pixel_sigma = _positive("pixel_sigma", pixel_sigma)
     knot_spacing = _positive("knot_spacing", knot_spacing)
     max_time_offset = _positive("max_time_offset", max_time_offset)
+    _positive("bias_interval", bias_interval)
+    min_points = _checks.integer(_FN, "min_points", min_points, 4)
+    for name, value in (("rolling_shutter", rolling_shutter),
+                        ("shared_time_offset", shared_time_offset), ("verbose", verbose)):
+        _checks.flag(_FN, name, value)
     notes = _motion_warnings(gyro, accel)
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)

@@ -141,6 +141,10 @@ def _arguments(observations, models, resolution, robust, robust_k, max_iteration
         _checks.fail(_FN, "expected observations to be a non-empty list of (times, points, "
                           "pixels), one per camera")
     C = len(observations)
+    if isinstance(observations[0], torch.Tensor):
+        _checks.fail(_FN, "expected observations to be a list of (times, points, pixels) "
+                          "tuples, one per camera: observations[0] is a Tensor (one camera's "
+                          "tuple goes in a list: [(times, points, pixels)])")
     for name, x in (("models", models), ("resolution", resolution)):
         if not isinstance(x, Sequence) or isinstance(x, str) or len(x) != C:
             n = len(x) if isinstance(x, Sequence) and not isinstance(x, str) else type(x).__name__

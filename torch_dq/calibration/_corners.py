@@ -107,6 +107,17 @@ def _cells(path, names: list[str], sep: str | None, lines: list[int],
     return np.char.strip(np.array(rows, dtype=str))
 
 
+def _repeated(path, cells: np.ndarray, lines: list[int]) -> None:
+    """A :class:`CornersFileError` on the first row that repeats an earlier one cell for
+    cell: the same corner twice (a file written twice) would weigh double in every fit."""
+    seen: dict[str, int] = {}
+    for k, key in enumerate(map("\x1f".join, cells.tolist())):
+        j = seen.setdefault(key, k)
+        if j != k:
+            raise CornersFileError(path, lines[k], f"the same row as line {lines[j]} (a "
+                                                   f"corner listed twice would count twice)")
+
+
 def _numbers(path, cells: np.ndarray, lines: list[int], names: list[str],
              dtype: type) -> np.ndarray:
     """Convert string columns, naming the first bad cell (line and column)."""
@@ -168,7 +179,8 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
         CornersFileError: (a ``ValueError``) naming the file and the line: no header, a
             header without the time, pixel or point columns (or with both variants of
             one), a row with the wrong number of columns, a value that is not a finite
-            number, a ``t_ns`` that is not an integer, an empty file.
+            number, a ``t_ns`` that is not an integer, a row repeating an earlier one, an
+            empty file.
         OSError: the file cannot be opened.
 
     Warns:
@@ -195,6 +207,7 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
     names, sep, at, lines, texts = _lines(path)
     ti, unit, pix, pts = _columns(path, names, at)
     cells = _cells(path, names, sep, lines, texts)
+    _repeated(path, cells, lines)
     sub = lambda idx: [names[i] for i in idx]  # noqa: E731
     values = _numbers(path, cells[:, pix + pts], lines, sub(pix + pts), np.float64)
     if unit == "ns":

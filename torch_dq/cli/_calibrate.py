@@ -39,8 +39,12 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ._errors import exit_on_error
+
+if TYPE_CHECKING:
+    from ..calibration import CameraImuCalibration
 
 __all__ = ["run"]
 
@@ -73,12 +77,19 @@ _WALKS = ("gyroscope_random_walk", "accelerometer_random_walk")
 
 def _noise(path: str, walk: bool) -> dict:
     """The noise densities of Kalibr's imu.yaml (and its random walks, required with
-    ``walk``); ``update_rate`` and, without ``walk``, the walks are copied as given."""
+    ``walk``; numbers written without a dot, ``1e-4``, which YAML 1.1 reads as strings,
+    taken as numbers); ``update_rate`` and, without ``walk``, the walks are copied as
+    given."""
     data = _yaml(path)
     out = {}
     for key in ("gyroscope_noise_density", "accelerometer_noise_density",
                 *(_WALKS if walk else ())):
         v = data.get(key)
+        if isinstance(v, str):  # 1e-4 without a dot: a string to YAML 1.1 (PyYAML)
+            try:
+                v = float(v)
+            except ValueError:
+                pass
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
             need = " (needed by --bias random-walk; --bias constant does without)" * (
                 key in _WALKS)
@@ -243,8 +254,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from .. import io
-    from ..calibration import camera_imu, read_target
+    from ..calibration import read_target
 
     def say(text: str) -> None:
         if not args.quiet:
@@ -258,22 +268,7 @@ def _run(args) -> int:
     target = read_target(args.target)
     noise = _noise(args.imu_noise, walk)
     entries = _camchain(args.cameras)
-    imu = io.read_imu(args.imu)
-    say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} camera(s)")
-    obs = _observations(args, target, len(entries))
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        cams = _cameras(entries, obs, args.cameras, say)
-        say("estimating (start from the gyroscope and the target poses, then one joint fit)")
-        res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
-                         accel_noise=noise["accelerometer_noise_density"],
-                         pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
-                         shared_time_offset=args.shared_time_offset,
-                         bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
-                         bias_interval=interval, verbose=not args.quiet)
-    caught = [" ".join(str(w.message).split()) for w in record]
-    for text in caught:
-        print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    cams, res, caught = _estimate(args, target, noise, entries, walk, interval, say)
     elapsed = time.perf_counter() - start
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -288,6 +283,39 @@ def _run(args) -> int:
             f"+- {1e3 * float(res.std['time_offsets'][i]):.3f} ms")
     say(f"wrote {out} in {elapsed:.1f} s")
     return 0
+
+
+def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: float, say
+              ) -> tuple[list, CameraImuCalibration, list[str]]:
+    """Read the IMU and the corners, calibrate cameras without intrinsics, run
+    :func:`~torch_dq.calibration.camera_imu`: ``(cameras, result, warnings)``. Every warning
+    (the readers' included) is printed as one ``warning:`` line on stderr, also when an
+    error ends the run."""
+    from .. import io
+    from ..calibration import camera_imu
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        try:
+            imu = io.read_imu(args.imu)
+            say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
+                f"camera(s)")
+            obs = _observations(args, target, len(entries))
+            cams = _cameras(entries, obs, args.cameras, say)
+            say("estimating (start from the gyroscope and the target poses, then one joint "
+                "fit)")
+            res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
+                             accel_noise=noise["accelerometer_noise_density"],
+                             pixel_sigma=args.pixel_sigma,
+                             rolling_shutter=args.rolling_shutter,
+                             shared_time_offset=args.shared_time_offset,
+                             bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
+                             bias_interval=interval, verbose=not args.quiet)
+        finally:
+            caught = [" ".join(str(w.message).split()) for w in record]
+            for text in caught:
+                print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    return cams, res, caught
 
 
 def _write(out: Path, res, entries, summary: dict) -> None:

@@ -159,10 +159,11 @@ def _imu_spline(spline, times: Tensor, poses: Tensor, imu_times: Tensor, margin:
 _ORDERS = {"qw qx qy qz (w first)": [1, 2, 3, 0], "qx qy qz qw (w last)": [3, 0, 1, 2]}
 
 
-def _misfit(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor) -> float:
-    """How badly the poses' body angular rates (finite differences of consecutive
-    rotations) explain the gyroscope's up to one rotation between their axes (Kabsch, both
-    centred: free of a bias): the residual's share of the readings' scatter, in [0, 1]."""
+def _rate_pairs(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor
+                ) -> tuple[Tensor, Tensor, Tensor]:
+    """The poses' body angular rates (finite differences of consecutive rotations) and the
+    gyroscope's readings interpolated at their midpoints, both centred (free of a bias),
+    ``(M, 3)`` each, and the rotation ``R`` (Kabsch) that best maps the first to the second."""
     rel = quat.to_rotvec(quat.mul(quat.conj(q[:-1]), q[1:]))
     dt = (times[1:] - times[:-1])[:, None]
     mid = 0.5 * (times[1:] + times[:-1])
@@ -174,8 +175,33 @@ def _misfit(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor) -> float:
     a, b = a - a.mean(0), b - b.mean(0)
     U, _, Vh = torch.linalg.svd(b.mT @ a)
     d = torch.sign(torch.linalg.det(U @ Vh))
-    R = U @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ Vh
+    return a, b, U @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ Vh
+
+
+def _misfit(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor) -> float:
+    """How badly the poses' body angular rates explain the gyroscope's up to one rotation
+    between their axes (:func:`_rate_pairs`): the residual's share of the readings' scatter,
+    in [0, 1]."""
+    a, b, R = _rate_pairs(times, q, t_imu, gyro)
     return float((b - a @ R.mT).square().sum() / b.square().sum().clamp_min(1e-300))
+
+
+def _check_gyro_units(path: str, times: Tensor, poses: Tensor, t_imu: Tensor,
+                      gyro: Tensor) -> None:
+    """An :class:`OptionError` where the gyroscope's rates follow the poses' (correlation
+    0.5 or more after :func:`_rate_pairs`' rotation) at 30 to 100 times their size: deg/s
+    (57.3), not rad/s. A fit on them ends far off (held-out rotations 110 deg off)."""
+    if len(times) < 10:
+        return
+    a, b, R = _rate_pairs(times, dualquat.to_rt(poses.double())[0], t_imu, gyro)
+    ar = a @ R.mT
+    fit = float((b * ar).sum())
+    scale = fit / max(float(ar.square().sum()), 1e-300)
+    corr = fit / max(float(ar.norm() * b.norm()), 1e-300)
+    if corr >= 0.5 and 30.0 <= scale <= 100.0:
+        raise OptionError(f"{path}: the gyroscope's angular rates are {scale:.3g} times the "
+                          f"poses' (correlation {corr:.2f}): the readings look like deg/s, "
+                          f"not rad/s; multiply them by pi/180")
 
 
 def _warn_quaternion_order(times: Tensor, poses: Tensor, t_imu: Tensor, gyro: Tensor) -> None:
@@ -259,6 +285,7 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     keep = _reachable(path, spline, t, clock, hint)
     t, gyro, accel, dropped = t[keep], gyro[keep], accel[keep], int((~keep).sum())
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
+    _check_gyro_units(path, times, poses, t, gyro)
     _warn_quaternion_order(times, poses, t, gyro)
     sig: list = [rot_s, trans_s, gyro_s, accel_s]  # rad, m, (3,) rad/s, (3,) m/s^2
 

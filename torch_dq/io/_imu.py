@@ -20,7 +20,7 @@ from ._text import (
     seconds_from_ns,
     split,
 )
-from ._units import warn_imu_time_unit, warn_imu_units
+from ._units import warn_imu_time_unit, warn_imu_units, warn_ns_unit
 
 __all__ = ["read_imu"]
 
@@ -75,9 +75,12 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
     Warns:
         UserWarning: times read as seconds (``time_unit="auto"``) whose median step is
             0.5 s or more while nanoseconds, microseconds or milliseconds give an IMU's rate
-            (20 Hz to 5 kHz); accelerometer readings in g (their mean about 1 long, not
-            gravity's 9.81 m/s²); gyroscope readings averaging gravity's magnitude while the
-            accelerometer's are small (the two sets of columns swapped).
+            (20 Hz to 5 kHz); times read as nanoseconds less than 10 us apart while
+            seconds (or ms, us) give such a rate (decimal seconds under a ``[ns]``
+            header); accelerometer readings in g (their mean about 1 long, not gravity's
+            9.81 m/s²); gyroscope readings averaging gravity's magnitude while the
+            accelerometer's are small (the two sets of columns swapped); gyroscope readings
+            57 times what the accelerometer's turning says (deg/s, not rad/s).
 
     Example:
         >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP
@@ -106,12 +109,13 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
         ns = nanoseconds(path, lines, [f[0] for f in rows], fractions=stated)
         keep = check_times(path, lines, np.array(ns, dtype=object), duplicates, unit="ns")
         t = seconds_from_ns(ns, keep)
+        warn_ns_unit(fn, path, t)
     else:
         t = floats(path, lines, [f[:1] for f in rows], names[:1])[:, 0]
         keep = check_times(path, lines, t, duplicates)
         t = t[keep]
         if time_unit == "auto":
             warn_imu_time_unit(fn, path, t)
-    warn_imu_units(fn, path, v[keep, :3], v[keep, 3:])
+    warn_imu_units(fn, path, t, v[keep, :3], v[keep, 3:])
     return as_tensor(t), as_tensor(v[keep, :3]), as_tensor(v[keep, 3:])
 

@@ -34,7 +34,7 @@ from ._text import (
     seconds_from_ns,
     split,
 )
-from ._units import warn_time_unit
+from ._units import warn_ns_unit, warn_time_unit
 
 __all__ = ["EUROC_COLUMNS", "FORMATS", "TUM_COLUMNS", "Trajectory", "narrow_hint",
            "read_trajectory"]
@@ -50,7 +50,7 @@ EUROC_COLUMNS = ("#timestamp [ns]", "p_RS_R_x [m]", "p_RS_R_y [m]", "p_RS_R_z [m
                  "q_RS_w []", "q_RS_x []", "q_RS_y []", "q_RS_z []")
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class Trajectory:
     r"""Timestamped rigid poses (body to world): ``x -> R(rotations[i]) x + translations[i]``.
 
@@ -66,6 +66,23 @@ class Trajectory:
     times: Tensor
     rotations: Tensor
     translations: Tensor
+
+    def __post_init__(self) -> None:
+        """Check the fields' types and shapes (their values, as finiteness, order and unit
+        norm, are :func:`write_trajectory`'s and the readers' to check)."""
+        fn = "io.Trajectory"
+        t = _checks.tensor(fn, "times", self.times)
+        q = _checks.tensor(fn, "rotations", self.rotations)
+        p = _checks.tensor(fn, "translations", self.translations)
+        if t.dim() != 1 or q.shape != (t.numel(), 4) or p.shape != (t.numel(), 3):
+            _checks.fail(fn, f"expected times (N,), rotations (N, 4) (w, x, y, z) and "
+                             f"translations (N, 3), got {_checks.shape_str(t.shape)}, "
+                             f"{_checks.shape_str(q.shape)} and {_checks.shape_str(p.shape)}")
+
+    def __repr__(self) -> str:
+        n = len(self)
+        span = (f", times {float(self.times[0])!r} to {float(self.times[-1])!r}" if n else "")
+        return f"Trajectory({n} poses{span}, dtype={self.times.dtype})"
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -229,7 +246,8 @@ def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
 
 def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
                     times: str | os.PathLike[str] | Tensor | npt.ArrayLike | None = None, *,
-                    atol: float = 1e-3, duplicates: str = "error") -> Trajectory:
+                    atol: float = 1e-3, duplicates: str = "error",
+                    times_path: str | os.PathLike[str] | None = None) -> Trajectory:
     r"""Read timestamped poses from a TUM, KITTI or EuRoC file.
 
     Args:
@@ -253,6 +271,8 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         duplicates: ``"error"`` (default): a repeated timestamp is an error;
             ``"first"``: keep the first pose of each repeated timestamp (real files have
             them, e.g. TUM freiburg2_desk at line 10863).
+        times_path: the same as ``times`` (a times file), by :func:`write_trajectory`'s
+            name for it; give one of the two.
 
     Returns:
         :class:`Trajectory` of float64 CPU tensors: ``times (N,)`` in seconds (EuRoC's
@@ -266,8 +286,8 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
             repeated timestamps, a non-unit quaternion (the message gives its norm), a
             non-orthonormal or reflecting KITTI rotation, a times file of another length,
             an empty file.
-        ValueError: bad ``format``/``atol``/``duplicates``, KITTI without ``times``, or
-            ``times`` given for another format.
+        ValueError: bad ``format``/``atol``/``duplicates``, KITTI without ``times``,
+            ``times`` given for another format, or both ``times`` and ``times_path``.
         OSError: the file cannot be opened.
 
     Warns:
@@ -295,6 +315,11 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         _checks.fail(fn, f"atol must be a finite number > 0, got {atol!r}")
     if duplicates not in ("error", "first"):
         _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
+    if times_path is not None:
+        if times is not None:
+            _checks.fail(fn, "times and times_path name the same argument (the KITTI times "
+                             "file): give one")
+        times = times_path
     lines, texts, header = header_row(path, *read_lines(path))
     if format == "auto":
         format = _detect(path, lines, texts, header)
@@ -309,5 +334,8 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
         t, q, p = _read_kitti(fn, path, lines, texts, times, atol, duplicates)
     if format != "euroc":  # EuRoC states nanoseconds
         warn_time_unit(fn, path, t, q, p)
+    else:
+        warn_ns_unit(fn, path, t, longest=5.0, fix="write the times as integer nanoseconds, "
+                                                    "as EuRoC's header says")
     return Trajectory(as_tensor(t), as_tensor(q), as_tensor(p))
 

@@ -5,7 +5,8 @@ while a finer unit (nanoseconds, microseconds, milliseconds) gives plausible mot
 (:func:`warn_time_unit`); an IMU's where its samples lie 0.5 s or more apart while a finer
 unit gives an IMU's rate (:func:`warn_imu_time_unit`). An accelerometer's readings average
 to gravity's 9.81 m/s² (the specific force of a body that ends near where it started): a
-mean near 1 says g, a gyroscope whose mean is gravity's says the columns are swapped
+mean near 1 says g, a gyroscope whose mean is gravity's says the columns are swapped, and
+an accelerometer turning 57 times slower than the gyroscope says deg/s
 (:func:`warn_imu_units`).
 """
 
@@ -16,7 +17,8 @@ import warnings
 
 import numpy as np
 
-__all__ = ["warn_imu_time_unit", "warn_imu_units", "warn_time_unit"]
+__all__ = ["gyro_scale", "warn_imu_time_unit", "warn_imu_units", "warn_ns_unit",
+           "warn_time_unit"]
 
 #: Motion no recording reaches (m/s, rad/s): times read in the wrong unit reach it or
 #: stay below ``_STILL`` where another unit gives plausible motion.
@@ -78,23 +80,74 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
 
 
 
-def warn_imu_units(fn: str, path, gyro: np.ndarray, accel: np.ndarray) -> None:
-    """Warn when the mean accelerometer reading is about 1 long (and its median magnitude
-    too: g, not m/s²), or when the gyroscope's is about gravity's (7 to 14) while the
-    accelerometer's readings are small (median magnitude below 5: the columns swapped)."""
-    if len(accel) < 3:
+def warn_ns_unit(fn: str, path, t: np.ndarray, longest: float = 0.05,
+                 fix: str = "pass time_unit='s' for seconds or write integer nanoseconds"
+                 ) -> None:
+    """Warn when times read as nanoseconds (a ``[ns]`` header, or ``time_unit="ns"``) lie
+    less than 10 us apart (median; beyond any sensor's rate) while seconds, milliseconds or
+    microseconds put them 0.2 ms to ``longest`` s apart (an IMU: 0.05 s; poses: 5 s):
+    decimal seconds under EuRoC's header; ``fix`` says what to do."""
+    step = float(np.median(np.diff(t))) if len(t) > 2 else 1.0
+    if step >= 1e-5:
         return
+    for name, scale in (("seconds", 1e9), ("milliseconds", 1e6), ("microseconds", 1e3)):
+        if 2e-4 <= step * scale <= longest:
+            warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
+                          f"nanoseconds: read as nanoseconds the samples lie {step:.3g} s "
+                          f"apart (median), {1 / (step * scale):.4g} Hz as {name}; {fix}",
+                          UserWarning, stacklevel=3)
+            return
+
+
+def gyro_scale(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[float, float]:
+    r"""The factor ``s`` by which the gyroscope's readings explain the turning of the
+    accelerometer's, and the correlation of that fit (0 where they do not turn).
+
+    A specific force ``f`` fixed in the world (gravity, mostly) turns in the IMU's axes as
+    :math:`\dot f = -\omega \times f`; central differences of ``f`` over about 0.05 s against
+    :math:`\omega \times f \, \Delta t` by least squares give ``s`` (1 for rad/s, 1/57.3 for
+    deg/s: the readings' scale is ``1 / s`` times rad/s); the body's own accelerations and
+    the noise enter as uncorrelated residuals, lowering the correlation, not biasing ``s``."""
+    if len(t) < 20:
+        return 1.0, 0.0
+    k = max(1, round(0.025 / max(float(np.median(np.diff(t))), 1e-12)))
+    df = accel[2 * k:] - accel[:-2 * k]
+    c = np.cross(gyro[k:-k], accel[k:-k]) * (t[2 * k:] - t[:-2 * k])[:, None]
+    dot, cc, ff = -float((df * c).sum()), float((c * c).sum()), float((df * df).sum())
+    if not (cc > 0.0 and ff > 0.0):
+        return 1.0, 0.0
+    return dot / cc, dot / np.sqrt(cc * ff)
+
+
+def _imu_units_guess(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str | None:
+    """The message of a likely unit error of :func:`warn_imu_units`, or None."""
     mean_a, mean_g = (float(np.linalg.norm(x.mean(axis=0))) for x in (accel, gyro))
     size_a = float(np.median(np.linalg.norm(accel, axis=1)))
     if 7.0 <= mean_g <= 14.0 and size_a < 5.0:
-        what = (f"the gyroscope and accelerometer columns look swapped: the gyroscope "
+        return (f"the gyroscope and accelerometer columns look swapped: the gyroscope "
                 f"readings average {mean_g:.3g} long, as gravity's 9.81 m/s^2 does, the "
                 f"accelerometer's are {size_a:.3g} (median); the columns are t gx gy gz ax "
                 f"ay az")
-    elif 0.7 <= mean_a <= 1.4 and 0.7 <= size_a <= 1.4:
-        what = (f"the accelerometer readings look like g (standard gravity), not m/s^2: "
+    if 0.7 <= mean_a <= 1.4 and 0.7 <= size_a <= 1.4:
+        return (f"the accelerometer readings look like g (standard gravity), not m/s^2: "
                 f"they average {mean_a:.3g} long where gravity reads 9.81 m/s^2; multiply "
                 f"them by 9.80665")
-    else:
+    scale, corr = gyro_scale(t, gyro, accel)
+    if corr >= 0.2 and 1.0 / 100.0 <= scale <= 1.0 / 30.0:
+        return (f"the gyroscope readings look like deg/s, not rad/s: the accelerometer's "
+                f"readings turn {1.0 / scale:.3g} times slower than the gyroscope says (180/pi"
+                f" = 57.3; fit correlation {corr:.2f}); convert them with torch.deg2rad")
+    return None
+
+
+def warn_imu_units(fn: str, path, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> None:
+    """Warn when the mean accelerometer reading is about 1 long (and its median magnitude
+    too: g, not m/s²), when the gyroscope's is about gravity's (7 to 14) while the
+    accelerometer's readings are small (median magnitude below 5: the columns swapped), or
+    when the accelerometer's readings turn about 57 times slower than the gyroscope's say
+    (:func:`gyro_scale`, with a correlation of 0.2 at least: deg/s, not rad/s)."""
+    if len(accel) < 3:
         return
-    warnings.warn(f"{fn}: {os.fspath(path)}: {what}", UserWarning, stacklevel=3)
+    what = _imu_units_guess(t, gyro, accel)
+    if what:
+        warnings.warn(f"{fn}: {os.fspath(path)}: {what}", UserWarning, stacklevel=3)
