@@ -350,6 +350,24 @@ def test_gyro_in_degrees_per_second_warns(gen):
     gyro.values(spline_on(t, x, 0.15))
 
 
+def test_long_gyro_records_are_unit_checked_on_strided_samples(monkeypatch):
+    """A long record's units check reads evenly strided samples (its memory bounded): with
+    8 of 100 samples read, deg/s still warns and rad/s does not."""
+    import warnings
+
+    from torch_dq.fitting import _imu
+    monkeypatch.setattr(_imu, "_UNITS_SAMPLES", 8)
+    t = grid(0.0, 3.0, 20)
+    ti = grid(0.2, 2.8, 100)
+    x = poses_of(t)
+    gy = imu_of(ti.numpy(), bg=(0.01, -0.02, 0.005))[0]
+    with pytest.warns(UserWarning, match="deg/s"):
+        Gyro(ti, torch.rad2deg(gy), sigma=0.3).values(spline_on(t, x, 0.15))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Gyro(ti, gy, sigma=0.005).values(spline_on(t, x, 0.15))
+
+
 @pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # on purpose
 def test_accel_in_g_warns(gen):
     """Readings in g (mean magnitude about 1 against gravity's 9.81): a warning naming g at

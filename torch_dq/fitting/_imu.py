@@ -89,13 +89,18 @@ class Gyro(_Imu):
 
 
 _DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
+_UNITS_SAMPLES = 1 << 15  # samples the units check reads at most
 
 
 def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
     """Warn when the mean magnitude of the readings is within a factor 1.5 of
     ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
-    into its domain; skipped where it barely turns, below 1e-3 rad/s)."""
-    t = term.times
+    into its domain; skipped where it barely turns, below 1e-3 rad/s). Long records are
+    read at ``_UNITS_SAMPLES`` evenly strided samples (the check needs the mean magnitudes,
+    not every sample: its memory stays that of a short record)."""
+    stride = -(-term.N // _UNITS_SAMPLES)
+    t, mask, readings = (term.times[..., ::stride], term.mask[..., ::stride],
+                         term.readings[..., ::stride, :])
     lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
               for e in trajectory.domain)
     t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
@@ -103,9 +108,9 @@ def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
     with torch.no_grad():
         x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
         rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
-    w = term.mask.to(torch.float64)
+    w = mask.to(torch.float64)
     pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
-    meas = float((term.readings.norm(dim=-1) * w).sum() / w.sum())
+    meas = float((readings.norm(dim=-1) * w).sum() / w.sum())
     if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
         warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
                       f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
