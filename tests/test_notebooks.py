@@ -7,7 +7,8 @@ Skipped cleanly when nbclient, nbformat, ipykernel or matplotlib is missing.
 
 Each executed notebook also goes into the jupyter cache of ``tests/test_docs.py``'s build
 (``docs/_build/.jupyter_cache_tests``, keyed by the code cells), which then renders it
-instead of executing it a second time (``tests/conftest.py`` runs this file first).
+instead of executing it a second time (``tests/conftest.py`` runs this file among the
+first, the docs well after it).
 """
 
 import contextlib
