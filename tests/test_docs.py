@@ -5,13 +5,17 @@ The build is ``sphinx-build -W --keep-going -n -b html docs <tmp>`` (Sphinx, aut
 napoleon, myst-nb) with ``nitpicky = True``: a malformed docstring, a cross-reference that
 does not resolve (to torch_dq, or to an outside name missing from ``docs/conf.py``'s
 ``EXTERNAL`` table), a page missing from a toctree or a notebook that does not execute fails
-it. The notebooks are executed by the build (cached in ``docs/_build/.jupyter_cache``) and
-their pages show their outputs and figures. Skipped, with the reason, when the ``docs`` extra
-is not installed.
+it. The notebooks are executed by the build and their pages show their outputs and figures:
+here with ``TORCH_DQ_NOTEBOOK_QUICK=1`` (the smaller sizes of ``tests/test_notebooks.py``) and
+one thread per kernel, cached apart from the real docs' outputs (in
+``docs/_build/.jupyter_cache_tests``, so a clean clone runs them once at the small sizes and
+a real build never shows them). Skipped, with the reason, when the ``docs`` extra is not
+installed.
 """
 
 import doctest
 import importlib
+import os
 import pathlib
 import pkgutil
 import re
@@ -53,9 +57,13 @@ def html(tmp_path_factory) -> pathlib.Path:
                                          "pip install -e '.[docs]'")
     pytest.importorskip("myst_nb", reason="the docs build needs myst-nb (the docs extra)")
     out = tmp_path_factory.mktemp("docs")
+    cache = DOCS / "_build" / ".jupyter_cache_tests"
     cmd = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-n", "-q", "-b", "html",
+           "-D", f"nb_execution_cache_path={cache}",
            "-d", str(out / "doctrees"), str(DOCS), str(out / "html")]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    env = {**os.environ, "TORCH_DQ_NOTEBOOK_QUICK": "1", "OMP_NUM_THREADS": "1",
+           "TORCH_DQ_FIGURES": str(out / "figures")}
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
     assert res.returncode == 0, f"sphinx-build failed:\n{res.stdout}\n{res.stderr}"
     return out / "html"
 

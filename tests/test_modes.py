@@ -5,8 +5,8 @@ Status (each line is asserted below):
 
 - ``torch.compile(fullgraph=True)``: sclerp, angle and a ``torch_dq.nn`` layer compile
   without graph breaks, forward and backward, and match eager (backend ``aot_eager`` here to
-  stay fast; one inductor test); bezier/bspline with ``check=False`` in
-  ``tests/test_compile.py``. The plain
+  stay fast; one inductor test); sclerp (two sizes, both grad modes) and bezier/bspline
+  with ``check=False`` in ``tests/test_compile.py``. The plain
   algebra (``mul``, ``exp``, ``log``, ...) has no custom op and no branch on values.
   The value checks that need the host are skipped under compile (times outside the
   domain give NaN), so the default arguments compile with ``fullgraph=True`` too.
@@ -52,9 +52,8 @@ def _data(gen):
 
 # Compiled functions, kept small (compilation time grows with the unrolled levels).
 COMPILED = {
-    "sclerp": (dq.sclerp, lambda d: (d[0], d[1], d[2])),
     "angle": (lambda a, b: torch.stack(tuple(dq.angle(a, b)), -1), lambda d: (d[0], d[1])),
-}  # the curves: tests/test_compile.py (batched control polygons, two sizes, both modes)
+}  # sclerp and the curves: tests/test_compile.py (two sizes, both grad modes)
 
 
 def _curve_args(gen):
@@ -128,8 +127,9 @@ def test_compile_default_checks_skipped_outside_times_nan(gen):
 
 
 def test_compile_nn_layer(gen):
-    """A layer's forward and backward (through the unit-dual-quaternion parametrization)."""
-    module = dqnn.BSpline(unit_dq((2, 4), gen), degree=2, check=False)
+    """A layer's forward and backward (through the unit-dual-quaternion parametrization).
+    Degree 1 (one level: the curves' levels under compile are ``tests/test_compile.py``'s)."""
+    module = dqnn.BSpline(unit_dq((2, 4), gen), degree=1, check=False)
     t = torch.linspace(0, 1, 7, dtype=F64)
     torch._dynamo.reset()
     compiled = torch.compile(module, backend="aot_eager", fullgraph=True)

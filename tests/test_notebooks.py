@@ -4,8 +4,15 @@ The notebooks read ``TORCH_DQ_FIGURES`` (default ``figures``) for their output f
 figures land in ``tmp_path`` and the repository stays clean, and ``TORCH_DQ_NOTEBOOK_QUICK=1``
 for smaller sizes (fewer optimiser steps, a shorter recording: every cell still runs).
 Skipped cleanly when nbclient, nbformat, ipykernel or matplotlib is missing.
+
+Each executed notebook also goes into the jupyter cache of ``tests/test_docs.py``'s build
+(``docs/_build/.jupyter_cache_tests``, keyed by the code cells), which then renders it
+instead of executing it a second time (``tests/conftest.py`` runs this file among the
+first, the docs well after it).
 """
 
+import contextlib
+import importlib.util
 import pathlib
 
 import pytest
@@ -16,6 +23,7 @@ pytest.importorskip("ipykernel")
 pytest.importorskip("matplotlib")
 
 NB_DIR = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
+DOCS_CACHE = NB_DIR.parent / "docs" / "_build" / ".jupyter_cache_tests"
 
 # The figures each notebook must write into $TORCH_DQ_FIGURES.
 EXPECTED = {
@@ -52,6 +60,7 @@ def test_notebook_executes_and_writes_figures(name, tmp_path, monkeypatch):
     figures = tmp_path / "figures"
     monkeypatch.setenv("TORCH_DQ_FIGURES", str(figures))
     monkeypatch.setenv("TORCH_DQ_NOTEBOOK_QUICK", "1")
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # the kernel shares the cores with pytest -n
     nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
     client = nbclient.NotebookClient(nb, timeout=180, kernel_name="python3",
                                      resources={"metadata": {"path": str(NB_DIR)}})
@@ -62,3 +71,22 @@ def test_notebook_executes_and_writes_figures(name, tmp_path, monkeypatch):
     for fig in EXPECTED[name]:
         path = figures / fig
         assert path.is_file() and path.stat().st_size > 10_000, f"{name} did not write {fig}"
+    _share_with_the_docs_build(nb, NB_DIR / f"{name}.ipynb")
+
+
+def _share_with_the_docs_build(nb, path):
+    """Store the executed notebook where the docs test's build looks it up (myst-nb's
+    ``cache`` mode); without the docs extra, or while that build holds the cache's database,
+    the build executes the notebook itself."""
+    if importlib.util.find_spec("jupyter_cache") is None:
+        return
+    from jupyter_cache import get_cache
+    from jupyter_cache.base import CacheBundleIn
+    from sqlalchemy.exc import OperationalError
+    stored = nbformat.read(path, as_version=4)  # the cache's key: the file's cells, metadata
+    for cell, run in zip(stored.cells, nb.cells, strict=True):
+        if cell.cell_type == "code":
+            cell.outputs, cell.execution_count = run.outputs, run.execution_count
+    with contextlib.suppress(OperationalError):
+        get_cache(str(DOCS_CACHE)).cache_notebook_bundle(
+            CacheBundleIn(stored, str(path)), check_validity=False, overwrite=True)

@@ -25,24 +25,19 @@ def _mypy(*args: str, cwd: str) -> subprocess.CompletedProcess:
                           text=True, timeout=600)
 
 
-@pytest.fixture(scope="module")
-def mypy_cache(tmp_path_factory):
-    # One cache outside the repository for both checks (no .mypy_cache left behind): the
-    # first is a full check from an empty cache, the second (same options: the project's
-    # config) reuses its analysis of torch instead of redoing it.
-    return str(tmp_path_factory.mktemp("mypy") / "cache")
-
-
-def test_package_is_mypy_clean(mypy_cache):
-    result = _mypy("--cache-dir", mypy_cache, "torch_dq", cwd=ROOT)
+def test_package_is_mypy_clean_and_user_code_sees_the_public_signatures(tmp_path):
+    # One test, so both mypy runs share one cache outside the repository (no .mypy_cache
+    # left behind) in one process whatever the xdist scheduling: the first is a full check
+    # from an empty cache, the second (same options: the project's config) reuses its
+    # analysis of torch instead of redoing it.
+    cache = str(tmp_path / "cache")
+    result = _mypy("--cache-dir", cache, "torch_dq", cwd=ROOT)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Success: no issues found" in result.stdout, result.stdout
-
-
-def test_user_code_sees_the_public_signatures(tmp_path, mypy_cache):
     # From outside the repository: mypy must find the installed (editable) package and its
     # py.typed marker, so a wrong argument type is an error and the return types are known.
-    user = tmp_path / "user.py"
+    user = tmp_path / "user" / "user.py"
+    user.parent.mkdir()
     user.write_text(textwrap.dedent("""
         import torch
         import torch_dq
@@ -53,8 +48,8 @@ def test_user_code_sees_the_public_signatures(tmp_path, mypy_cache):
         reveal_type(BSpline(torch_dq.dualquat.identity((6,))).domain)
         torch_dq.dualquat.sclerp("a", a, 0.5)
     """))
-    result = _mypy("--config-file", os.path.join(ROOT, "setup.cfg"), "--cache-dir", mypy_cache,
-                   "--python-version", "3.10", str(user), cwd=tmp_path)
+    result = _mypy("--config-file", os.path.join(ROOT, "setup.cfg"), "--cache-dir", cache,
+                   "--python-version", "3.10", str(user), cwd=user.parent)
     out = result.stdout
     assert 'Revealed type is "torch._tensor.Tensor"' in out, out
     # mypy < 2 prints builtins.float, mypy >= 2 float; a module with a row of knots per
