@@ -85,3 +85,37 @@ def test_start_is_the_refined_curve_within_a_tenth_of_the_noise(fits):
     noise = np.median(trans)
     assert np.median(moved) < 0.1 * noise and np.quantile(moved, 0.95) < 0.25 * noise, (
         np.median(moved), np.quantile(moved, 0.95), noise)
+
+
+def _se3_log(T):
+    """(6,) rotation vector and linear part of the twist of a 4x4 rigid transform, scipy."""
+    from scipy.linalg import logm
+    L = np.real(logm(T))
+    return np.array([L[2, 1], L[0, 2], L[1, 0], *L[:3, 3]])
+
+
+def test_window_pair_twists_match_the_matrix_logarithm():
+    """The start's chart twists of (window, sample) pairs, each window's chart converted
+    once and gathered per pair: scipy's matrix logarithm of ``chart^-1 x`` (and, for the
+    split form, the rotation vector and the world translation difference)."""
+    from torch_dq import _start
+
+    gen = torch.Generator().manual_seed(3)
+    x = dualquat.exp(0.7 * torch.randn(12, 6, generator=gen, dtype=torch.float64))
+    chart = dualquat.exp(0.7 * torch.randn(3, 6, generator=gen, dtype=torch.float64))
+    rx, px = dualquat.to_rt(x)
+    idx = torch.tensor([[0, 1, 2, 3], [4, 5, 6, 6], [7, 8, 9, 11]])
+    mask = torch.tensor([[True] * 4, [True, True, True, False], [True] * 4])
+    for split in (False, True):
+        xi = _start._pair_twists(chart, rx, px, idx, mask, split).numpy()
+        Tc = dualquat.to_matrix(chart).numpy()
+        Tx = dualquat.to_matrix(x).numpy()
+        for k, m in np.argwhere(np.ones(mask.shape, dtype=bool)):
+            if not mask[k, m]:
+                assert (xi[k, m] == 0).all()
+                continue
+            rel = np.linalg.inv(Tc[k]) @ Tx[idx[k, m]]
+            ref = _se3_log(rel)
+            if split:
+                ref[3:] = Tx[idx[k, m], :3, 3] - Tc[k, :3, 3]
+            np.testing.assert_allclose(xi[k, m], ref, atol=1e-10)
