@@ -103,10 +103,17 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
     cpu, wall, (rot, trans) = timed(heldout, repeats)
     rows.append(("held-out evaluation", cpu, wall))
     print(f"file {path}: {len(traj)} poses, knot spacing {spacing:g} s ({n_ctrl} control "
-          f"points; the search {why.split(' from ')[0]}), held-out mean "
-          f"{1e3 * float(trans.mean()):.4f} mm, {float(rot.mean()):.4f} deg, median "
-          f"{1e3 * float(trans.median()):.4f} mm, {float(rot.median()):.4f} deg")
+          f"points; the search {why.split(' from ')[0]}), held-out {_errors(rot, trans)}")
+    if steps:  # what LM buys on the held-out poses (issue 34: LM only where it pays)
+        rot0, trans0 = pose_errors(evaluate(start(), traj.times[held_idx]), poses[held_idx])
+        print(f"the least-squares start alone (no LM): held-out {_errors(rot0, trans0)}")
     return rows
+
+
+def _errors(rot, trans) -> str:
+    """Mean and median held-out errors, mm and degrees."""
+    return (f"mean {1e3 * float(trans.mean()):.4f} mm, {float(rot.mean()):.4f} deg, median "
+            f"{1e3 * float(trans.median()):.4f} mm, {float(rot.median()):.4f} deg")
 
 
 def main() -> None:

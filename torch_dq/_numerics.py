@@ -77,7 +77,7 @@ THRESHOLDS: dict[str, Callable[..., float]] = {
     # (the values sum to 1), singular to working precision (9.1e-13 in float64).
     "basis_nonzero": lambda eps: 4096.0 * eps,
     # Rotation angle 2 atan2(|v|, w) in [0, 2 pi] within which of 2 pi a relative rotation
-    # counts as a full turn (angle - 2 pi, _start._chart_twists): a fixed 1e-6 rad, far
+    # counts as a full turn (angle - 2 pi, _start._rt_twists): a fixed 1e-6 rad, far
     # above the rounding of the angle there in float64, and at least 4 ulps of 2 pi
     # (8 pi eps: 3e-6 in float32, where 1e-6 would be 2 ulps).
     "full_turn": lambda eps: max(1e-6, 8.0 * math.pi * eps),

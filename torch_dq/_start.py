@@ -140,8 +140,16 @@ def check_determined(fn: str, first: Tensor, values: Tensor, n: int,
 
 # ----------------------------------------------------------------------------- start
 
-def _chart_twists(ref: Tensor, x: Tensor, split: bool = False) -> Tensor:
-    r"""Twists :math:`\xi` with :math:`\exp(\xi) = \pm ref^{-1} x`, continuous along a chain.
+def _rt(x: Tensor) -> tuple[Tensor, Tensor]:
+    """Rotation quaternion ``(..., 4)`` and translation ``(..., 3)`` of unit ``x (..., 8)``."""
+    return x[..., :4], translation(x[..., :4], x[..., 4:])
+
+
+def _rt_twists(rc: Tensor, pc: Tensor, rx: Tensor, px: Tensor, split: bool) -> Tensor:
+    r"""Chart twists :math:`\xi` with :math:`\exp(\xi) = \pm ref^{-1} x`, continuous along
+    a chain, of the poses ``x = (rx, px)`` about the charts ``ref = (rc, pc)`` (rotation
+    quaternions and translations, broadcast): :math:`ref^{-1} x` is the rotation
+    :math:`r_c^* r_x` and the translation :math:`R_c^T (p_x - p_c)`.
 
     ``x`` and ``ref`` must be sign-aligned along the trajectory (neighbours with
     non-negative real dots): the rotation angle ``2 atan2(|v|, w)`` of the relative real
@@ -150,18 +158,6 @@ def _chart_twists(ref: Tensor, x: Tensor, split: bool = False) -> Tensor:
     form (SO(3) x R^3): the same rotation vector and the translation difference
     :math:`p_x - p_{ref}` (world axes) instead of the twist's linear part.
     """
-    return _rt_twists(*_rt(ref), *_rt(x), split)
-
-
-def _rt(x: Tensor) -> tuple[Tensor, Tensor]:
-    """Rotation quaternion ``(..., 4)`` and translation ``(..., 3)`` of unit ``x (..., 8)``."""
-    return x[..., :4], translation(x[..., :4], x[..., 4:])
-
-
-def _rt_twists(rc: Tensor, pc: Tensor, rx: Tensor, px: Tensor, split: bool) -> Tensor:
-    """:func:`_chart_twists` of the poses ``(rx, px)`` about the charts ``(rc, pc)``
-    (rotation quaternions and translations, broadcast): :math:`ref^{-1} x` is the rotation
-    :math:`r_c^* r_x` and the translation :math:`R_c^T (p_x - p_c)`."""
     inv = qconj(rc)
     r = qmul(inv, rx)
     w, v = r[..., 0], r[..., 1:]
@@ -184,7 +180,8 @@ def _pair_twists(chart: Tensor, rx: Tensor, px: Tensor, idx: Tensor, mask: Tenso
     cost no padding)."""
     kk, mm = mask.nonzero(as_tuple=True)
     s = idx[kk, mm]
-    rc, pc = _rt(chart[..., kk, :])
+    rc, pc = _rt(chart)  # per window, then gathered per pair
+    rc, pc = rc[..., kk, :], pc[..., kk, :]
     xi = _rt_twists(rc, pc, rx[..., s, :], px[..., s, :], split)  # (..., P, 6)
     out = xi.new_zeros(*xi.shape[:-2], *mask.shape, 6)
     out[..., kk, mm, :] = xi
@@ -192,7 +189,7 @@ def _pair_twists(chart: Tensor, rx: Tensor, px: Tensor, idx: Tensor, mask: Tenso
 
 
 def _from_chart(centre: Tensor, C: Tensor, split: bool) -> Tensor:
-    """The poses of chart coordinates ``C (..., 6)`` about ``centre`` (:func:`_chart_twists`'
+    """The poses of chart coordinates ``C (..., 6)`` about ``centre`` (:func:`_rt_twists`'
     inverse): ``centre exp(C)``, or with ``split`` the rotation ``R_c Exp(omega)`` and the
     translation ``p_c + v``."""
     if not split:
@@ -281,7 +278,7 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
         values: ``(N, w)`` float64 basis values (see ``BSpline.basis``).
         n: number of control points.
         anchors: ``(n,)`` float64 anchor times (Greville abscissae), in ``times``' units.
-        split: chart coordinates of the split form (:func:`_chart_twists`): rotation vector
+        split: chart coordinates of the split form (:func:`_rt_twists`): rotation vector
             and translation difference, which its rotation and translation are affine in to
             first order (its translation exactly).
 
@@ -315,6 +312,7 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
                       anchors)
     centre = _interpolate(x, times, mid)  # (..., n, 8)
     rx, px = _rt(x)
+    ra, pa = _rt(anchor)
     M = int((hi - lo).max())
     U = min(4 * h + 1, n)
     weight = _START_PRIOR * float((values * values).sum()) / n  # of the mean data weight
@@ -330,11 +328,11 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
         cols = torch.where(mask[..., None], cols, torch.arange(w, device=dev))
         A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
         A.scatter_(2, cols, values[idx] * mask[..., None])
-        chart = centre[..., k, None, :]
         xi = _pair_twists(centre[..., k, :], rx, px, idx, mask, split)  # (..., K, M, 6)
         # prior: unknown j at its own anchor, seen from the chart of anchor k
-        near = anchor[..., base[:, None] + torch.arange(U, device=dev), :]  # (..., K, U, 8)
-        prior = _chart_twists(chart, near, split)
+        near = base[:, None] + torch.arange(U, device=dev)  # (K, U)
+        rc, pc = _rt(centre[..., k, None, :])
+        prior = _rt_twists(rc, pc, ra[..., near, :], pa[..., near, :], split)
         G = A.mT @ A + weight * torch.eye(U, dtype=x.dtype, device=dev)
         rhs = A.mT @ xi + weight * prior
         sol = torch.cholesky_solve(rhs, torch.linalg.cholesky(G))  # (..., K, U, 6)
