@@ -13,6 +13,7 @@ import functools
 import math
 import os
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -458,7 +459,12 @@ def test_from_poses_constant_screw_is_exact_beyond_a_half_turn(turns, gen):
                        torch.tensor([1.0, 2.0, 3.0], dtype=F64))
     x = dq.mul(start, dq.exp(s[:, None] * xi))
     x = x * torch.where(torch.rand(41, generator=gen) < 0.5, -1.0, 1.0).to(F64)[:, None]
-    for module in (BSpline.from_dualquats(x, s, n_ctrl=6), Bezier.from_dualquats(x, s, n_ctrl=6)):
+    with warnings.catch_warnings(record=True) as caught:  # 1.4 turns: 2.2 rad per knot span
+        warnings.simplefilter("always")
+        spline = BSpline.from_dualquats(x, s, n_ctrl=6)
+    assert [str(w.message).startswith("nn.BSpline.from_dualquats: the poses turn at up to")
+            for w in caught] == ([True] if turns > 1 else [])
+    for module in (spline, Bezier.from_dualquats(x, s, n_ctrl=6)):
         rot, trans = errors(module(s), x)
         assert rot < 1e-9 and trans < 1e-9
 

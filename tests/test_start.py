@@ -47,7 +47,8 @@ def test_start_warns_beyond_with_a_spacing_that_works():
     """2.5 rad per span: a UserWarning with the rate found and a knot spacing that, used
     literally, gives an exact start."""
     times, T = spin(10.0)
-    with pytest.warns(UserWarning, match=r"turn at up to 10 rad per unit of time \(rad/s for "
+    with pytest.warns(UserWarning, match=r"^nn\.BSpline\.from_matrices: the poses turn at up "
+                                         r"to 10 rad per unit of time \(rad/s for "
                                          r"times in seconds\), 2\.5 rad per knot span of "
                                          r"0\.25.*use knots at most [0-9.]+ apart") as record:
         BSpline.from_matrices(T, times, n_ctrl=round(6.0 / 0.25) + 3)

@@ -79,7 +79,8 @@ class UnitDualQuaternion(torch.nn.Module):
 
 # ----------------------------------------------------------------------------- helpers
 
-def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) -> Tensor:
+def _start_rows(fn: str, x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool,
+                ) -> Tensor:
     """The least-squares start of each trajectory of a batch on its own knots (rows of
     ``dom.knots``) and its own relative times ``rel (..., N)``: ``(..., n, 8)`` float64."""
     batch = _checks.broadcast_shapes(x.shape[:-2], dom.knots.shape[:-1], rel.shape[:-1])
@@ -90,7 +91,7 @@ def _start_rows(x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool) ->
     for xb, tb, kb in rows:  # a constructor's loop: each row its own windows and charts
         one = KnotDomain(kb, dom.degree)
         first, values = one.basis(tb)
-        out.append(_start.least_squares_start(xb, tb, first, values, n, one.greville(),
+        out.append(_start.least_squares_start(fn, xb, tb, first, values, n, one.greville(),
                                               split))
     return torch.stack(out).view(*batch, n, 8)
 
@@ -313,10 +314,10 @@ class Curve(torch.nn.Module, abc.ABC):
         rel = dom.relative(t64, torch.float64)
         split = self._split_charts
         if dom.knots.dim() > 1:
-            ctrl = _start_rows(x64, rel, dom, n, split)
+            ctrl = _start_rows(fn, x64, rel, dom, n, split)
         else:
             first, values = dom.basis(rel)
-            ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
+            ctrl = _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(),
                                               split)
         self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
         return self

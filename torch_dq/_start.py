@@ -207,7 +207,7 @@ def _interpolate(x: Tensor, times: Tensor, at: Tensor) -> Tensor:
     return dualquat.sclerp(x[..., r - 1, :], x[..., r, :], u)
 
 
-def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int]:
+def _window_reach(fn: str, x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int]:
     """The reach ``a`` of the windows (:func:`least_squares_start`) of each trajectory of
     the sign-aligned ``x`` (flattened batch): the largest in ``0..h`` whose ``2a + h + 1``
     knot spans turn by less than ``_MAX_WINDOW_TURN`` at the trajectory's fastest rotation
@@ -228,7 +228,7 @@ def _window_reach(x: Tensor, times: Tensor, anchors: Tensor, h: int) -> list[int
     rate = turn / spacing
     if turn * (h + 1) > _MAX_WINDOW_TURN:
         ok = 0.9 * _MAX_WINDOW_TURN / (h + 1) / rate  # followed literally, it works
-        warnings.warn(f"the poses turn at up to {rate:.3g} rad per unit of time (rad/s for "
+        warnings.warn(f"{fn}: the poses turn at up to {rate:.3g} rad per unit of time (rad/s for "
                       f"times in seconds), {turn:.3g} rad per knot span of {spacing:.3g}: the "
                       f"least-squares start is unreliable above "
                       f"{_MAX_WINDOW_TURN / (h + 1):.3g} rad per span; use knots at most "
@@ -245,8 +245,8 @@ def _angle_rate(a: Tensor, b: Tensor, dt: Tensor) -> Tensor:
     return torch.where(dt > 0, rate, 0.0).amax(-1)
 
 
-def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
-                        anchors: Tensor, split: bool = False) -> Tensor:
+def least_squares_start(fn: str, x: Tensor, times: Tensor, first: Tensor, values: Tensor,
+                        n: int, anchors: Tensor, split: bool = False) -> Tensor:
     r"""Control points fit to poses by windowed least squares in local charts.
 
     The anchors :math:`a_j` are the poses interpolated (``sclerp`` between the neighbouring
@@ -286,7 +286,7 @@ def least_squares_start(x: Tensor, times: Tensor, first: Tensor, values: Tensor,
         ``(..., n, 8)`` float64 unit dual quaternions.
     """
     x = align_chain(x)
-    reach = _window_reach(x, times, anchors, values.shape[1] - 1)
+    reach = _window_reach(fn, x, times, anchors, values.shape[1] - 1)
     if len(set(reach)) > 1:  # trajectories of a batch turning at different rates
         flat = x.reshape(-1, *x.shape[-2:])
         out = [_windowed(flat[b], times, first, values, n, anchors, a, split)

@@ -189,8 +189,8 @@ def _start_poses(times: Tensor, x64: Tensor, dtype: torch.dtype, spacing: float,
     dom = KnotDomain((k64 - t0).to(dtype), degree, t0)  # as the layer holds them
     rel = dom.relative(times, torch.float64)
     first, values = dom.basis(rel)
-    ctrl = _start.least_squares_start(x64, rel, first, values, n, dom.greville(),
-                                      form == "split").to(dtype)
+    ctrl = _start.least_squares_start("fitting.choose_knot_spacing", x64, rel, first, values,
+                                      n, dom.greville(), form == "split").to(dtype)
     unit = UnitDualQuaternion()  # the layer's control points: assigned, then read
     ctrl = unit(unit.right_inverse(ctrl))
     return curves.bspline(ctrl, dom.relative(at, torch.float64), degree, dom.knots,
