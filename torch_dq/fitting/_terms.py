@@ -222,7 +222,7 @@ class Term(torch.nn.Module):
         """The term cut into consecutive parts of at most ``size`` samples: shallow copies
         whose per-sample buffers are views of this term's (the linearisation streams a long
         term a part at a time, its memory bounded by the part). ``[self]`` when the term is
-        no longer, or holds a buffer registered without :meth:`_buffer` (a term defined
+        no longer, or holds a buffer registered without ``_buffer`` (a term defined
         outside the library: its buffers' sample dims are unknown)."""
         if self.N <= size or set(self._buffers) - set(self._sample_events):
             return [self]
