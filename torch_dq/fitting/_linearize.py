@@ -120,8 +120,7 @@ class Linearization:
         nuisance parameters the problem has; :class:`_Normal` scatters them into place."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
-        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)  # windows: row b, first control
-        # point f at b (n + w) + f
+        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
         rs, weights = [], []
         for i in range(len(p.terms)):
             parts = [self._add_part(acc, i, term, ctrl, values, w)
@@ -143,7 +142,7 @@ class Linearization:
             k = keys[:, a:a + _ROWS]
             Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w, local[k], valid[k])
             win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
-            acc.add(win, block, 6 * w, gcols[win])
+            acc.add(win, block, gcols[win])
         return r, wt
 
     def _columns(self, i: int, Jn: dict[str, Tensor], keys: Tensor, G: int,
@@ -169,8 +168,8 @@ class Linearization:
 
     def _rows(self, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
               Jn: dict[str, Tensor], w: int, local: Tensor, valid: Tensor) -> Tensor:
-        """``(Bf, S, k, 6 w + M + 1)``: the whitened rows ``[J_c | J_n | r]`` of term
-        ``i``'s samples ``c`` weighted by the square roots of their robust weights ``wt``,
+        """``(Bf, S, k, 6 w + M + 1)``: the whitened rows ``[J_c | J_n | r]`` of the term's
+        samples ``c`` weighted by the square roots of their robust weights ``wt``,
         ``J_n`` in their windows' columns ``local (Bf, S, M)`` (zero where not ``valid``)."""
         p = self.p
         Bf, k = max(p.batch.numel(), 1), r.shape[-1]
@@ -204,10 +203,10 @@ class Linearization:
 
     def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int):
         """Per-sample whitened residuals ``(..., N, k)`` of ``term`` (term ``i`` or a part
-        of it), its window start and
-        their Jacobians: the span derivatives at the current point, the residuals' Jacobians
-        with respect to them and to the nuisance steps, chained through the spans
-        (``_through_spans``), the times' to the time-moving parameters by their rates."""
+        of it), its window start and their Jacobians: the span derivatives at the current
+        point, the residuals' Jacobians with respect to them and to the nuisance steps,
+        chained through the spans (``_through_spans``), the times' to the time-moving
+        parameters by their rates."""
         p = self.p
         vals = p.term_values(i, values)
         rates = term.time_rates()
@@ -415,23 +414,22 @@ class _Normal:
         self.gn = like.new_zeros(Bf * m)
         self.rows = torch.arange(6, device=like.device)
 
-    def add(self, windows: Tensor, block: Tensor, c: int, gcols: Tensor) -> None:
-        """Add the blocks ``(U, q, q)`` of the ``windows (U,)`` (window ``u``'s nuisance
-        column ``j`` is the problem's ``gcols[u, j]``; padding columns are zero)."""
-        w, m = self.w, self.m
-        for a in range(w):
-            rows = slice(6 * a, 6 * a + 6)
-            self.gc.index_add_(0, windows + a, block[:, rows, -1])
+    def add(self, windows: Tensor, block: Tensor, gcols: Tensor) -> None:
+        """Add the blocks ``(U, q, q)`` of the ``windows (U,)``, columns ``[J_c (6 w) | J_n
+        (M) | r]`` (window ``u``'s nuisance column ``j`` is the problem's ``gcols[u, j]``;
+        padding columns are zero)."""
+        w, m, M = self.w, self.m, gcols.shape[-1]
+        nuis = slice(6 * w, 6 * w + M)
+        for a in range(w):  # rows a of window f belong to control point f + a
+            rows, at = slice(6 * a, 6 * a + 6), windows + a
+            self.gc.index_add_(0, at, block[:, rows, -1])
             for d in range(w - a):
-                self.band[:, d].index_add_(0, windows + a,
-                                           block[:, rows, 6 * (a + d):6 * (a + d) + 6])
-        M = gcols.shape[-1]
+                self.band[:, d].index_add_(0, at, block[:, rows, 6 * (a + d):6 * (a + d) + 6])
+            if M:
+                cols = (at[:, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, :]
+                self.cn.index_add_(0, cols.reshape(-1), block[:, rows, nuis].reshape(-1))
         if not M:
             return
-        nuis = slice(c, c + M)
-        for a in range(w):  # rows a of window f belong to control point f + a
-            at = ((windows + a)[:, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, :]
-            self.cn.index_add_(0, at.reshape(-1), block[:, 6 * a:6 * a + 6, nuis].reshape(-1))
         row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
         self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
                            block[:, nuis, nuis].reshape(-1))

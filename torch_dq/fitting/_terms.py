@@ -230,12 +230,11 @@ class Term(torch.nn.Module):
         for a in range(0, self.N, size):
             part = copy.copy(self)
             part._buffers = dict(self._buffers)
+            part.N = min(size, self.N - a)
             for name, event in self._sample_events.items():
                 b = self._buffers[name]
                 if event is not None and b is not None:
-                    part._buffers[name] = b.narrow(b.dim() - 1 - event, a,
-                                                   min(size, self.N - a))
-            part.N = part.mask.shape[-1]
+                    part._buffers[name] = b.narrow(b.dim() - 1 - event, a, part.N)
             out.append(part)
         return out
 
