@@ -283,11 +283,10 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
                           f"the offsets searched ({float(offsets[best]):+g} s; correlation "
                           f"{float(c[best]):.2f}): the clock offset is likely beyond "
                           f"max_time_offset={max_offset:g} s; raise max_time_offset")
-    k = best
-    c0, c1, c2 = (float(c[k + d]) for d in (-1, 0, 1))
+    c0, c1, c2 = (float(c[best + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
-    return float(offsets[k]) + max(-1.0, min(1.0, frac)) * 5e-4
+    return float(offsets[best]) + max(-1.0, min(1.0, frac)) * 5e-4
 
 
 def _check_scale(w_cam: Tensor, w_imu: Tensor, camera: int) -> None:
