@@ -16,9 +16,9 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "nan_unless", "piecewise",
-    "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms", "select",
-    "series_mask", "threshold",
+    "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "nan_unless",
+    "piecewise", "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms",
+    "select", "series_mask", "threshold",
 ]
 
 
@@ -279,6 +279,47 @@ def even(name: str, x2: Tensor) -> Tensor:
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
     return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+
+
+def _sinc_slope(th: Tensor) -> Tensor:
+    return (torch.cos(th) - torch.sin(th) / th) / (2.0 * th * th)
+
+
+def _c3_slope(th: Tensor) -> Tensor:
+    s, c = th * th, 0.5 * th / torch.tan(0.5 * th)
+    return -(0.5 * c / s - 0.125 / torch.sin(0.5 * th) ** 2 + (1.0 - c) / s) / s
+
+
+#: ``d f / d x2`` of some functions of :data:`_EVEN`, closed forms in theta (from
+#: :math:`f' = (d f / d\theta) / (2 \theta)`; :math:`\beta = (1 - \sigma) / x_2`,
+#: :math:`\gamma = (1 - c) / x_2` with :math:`c = \frac\theta2 \cot\frac\theta2`).
+_EVEN_SLOPES = {
+    "sinc": _sinc_slope,
+    "se3_c1": lambda th: (torch.sin(th) / th - 2.0 * (1.0 - torch.cos(th)) / (th * th))
+    / (2.0 * th * th),
+    "se3_c2": lambda th: -(_sinc_slope(th) + (th - torch.sin(th)) / th**3) / (th * th),
+    "se3_c3": _c3_slope,
+}
+
+
+def even_slope(name: str, x2: Tensor) -> tuple[Tensor, Tensor]:
+    r""":func:`even` and its derivative :math:`df / dx_2` (``"sinc"``, ``"se3_c1"``,
+    ``"se3_c2"``, ``"se3_c3"``): the series and its term-by-term derivative below the same
+    switch point (its first neglected term, times the number of terms, stays far below an ulp
+    there), the closed forms of :data:`_EVEN_SLOPES` above it (their cancellation, about
+    :math:`\epsilon / x_2`, is small at the switch). For dual numbers:
+    :math:`f(x_2 + \varepsilon y) = f(x_2) + \varepsilon f'(x_2) y`."""
+    coeffs, exact = _EVEN[name]
+    small = x2 < threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
+    series: Tensor | float = coeffs[_EVEN_TERMS - 1]
+    slope: Tensor | float = (_EVEN_TERMS - 1) * coeffs[_EVEN_TERMS - 1]
+    for i in reversed(range(_EVEN_TERMS - 1)):
+        series = series * x2 + coeffs[i]
+        if i:
+            slope = slope * x2 + i * coeffs[i]
+    th = torch.sqrt(torch.where(small, 1.0, x2))
+    return (torch.where(small, series, exact(th)),
+            torch.where(small, slope, _EVEN_SLOPES[name](th)))
 
 
 def power_of_two_scale(x: Tensor) -> Tensor:

@@ -80,7 +80,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from . import _checks, _compat01, _start, curves, dualquat
+from . import _checks, _compat01, _cumulative_lie, _start, curves, dualquat
 from ._curve import Curve, UnitDualQuaternion
 from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._time import KnotDomain, time_pair
@@ -468,6 +468,31 @@ class BSpline(Curve):
                                          self._knots.shape[:-1])
         return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch,
                                     r=first + self.degree)
+
+    def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
+                 pose: Tensor) -> Tensor | None:
+        # the cumulative form's in its Lie algebra (torch_dq._cumulative_lie), the span
+        # quantities once per distinct span; the other forms' by reverse passes
+        if self.form != "cumulative" or cotangents.shape[-2] > 3:
+            return None
+        p, (k, O) = self.degree, cotangents.shape[-3:-1]
+        lead = _checks.broadcast_shapes(points.shape[:-2], cotangents.shape[:-3],
+                                        pose.shape[:-1])
+        first = first.expand(lead[len(lead) - first.dim():])
+        lo, _ = self._span_bounds(first)
+        rel, r = (lo + local).expand(lead), (first + p).expand(lead)
+        weights = self.time_model.bases(rel, r, O - 1, cumulative=True)
+        N = lead[-1] if lead else 1
+        key = first.expand(lead).reshape(-1) + self.n_ctrl * torch.arange(
+            math.prod(lead), device=first.device).div(N, rounding_mode="floor")
+        spans, inverse = torch.unique(key, return_inverse=True)
+        pick = torch.zeros_like(spans).scatter_(0, inverse, torch.arange(
+            key.numel(), device=key.device))
+        G = _cumulative_lie.vjp(points.expand(*lead, p + 1, 8).reshape(-1, p + 1, 8)[pick],
+                                inverse, [w.to(points.dtype).reshape(-1, p) for w in weights],
+                                cotangents.expand(*lead, k, O, 8).reshape(-1, k, O, 8),
+                                pose.expand(*lead, 8).reshape(-1, 8))
+        return G.reshape(*lead, k, p + 1, 6)
 
     def acceleration_jumps(self) -> str | None:
         p, form = self.degree, self.form

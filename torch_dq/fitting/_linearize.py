@@ -231,7 +231,8 @@ class Linearization:
         L = len(derivs)
         Jn = dict(zip(nuisance, J[L:], strict=True))
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
-                                     bool(timed) and not rated, shared)
+                                     bool(timed) and not rated, shared,
+                                     [d[..., 0, :] for d in derivs])
         if rated:
             Jt = self._time_columns(times, firsts, J[:L], [d[..., 1:, :] for d in derivs])
         if Jt is not None:
@@ -276,27 +277,37 @@ class Linearization:
                           order: int) -> tuple[Tensor, ...]:
         """Derivatives at ``t`` of the spans ``first``, whose points are the window points
         ``pts (..., N, w, 8)`` at offsets ``off (..., N, support)``."""
-        sup = self.spans.support
+        return self.spans.derivatives(self._select(pts, off), t, first, order)
+
+    def _select(self, pts: Tensor, off: Tensor) -> Tensor:
+        """``(..., N, support, 8)``: the span points at offsets ``off (..., N, support)`` of
+        the window points ``pts (..., N, w, 8)``."""
         lead = pts.shape[:-3]
-        sel = torch.take_along_dim(pts, off.expand(*lead, off.shape[-2], sup)[..., None], dim=-2)
-        return self.spans.derivatives(sel, t, first, order)
+        return torch.take_along_dim(pts, off.expand(*lead, *off.shape[-2:])[..., None], dim=-2)
 
     def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                        firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
-                       shared: list,
+                       shared: list, poses: list[Tensor],
                        ) -> tuple[Tensor, Tensor | None]:
         r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
         the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
         with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
         to the times (None otherwise: times without gradient take the cheaper path; the
         time columns of orders 0 to 2 come from :meth:`_time_columns`). ``shared``: each
-        list's :func:`_distinct_times`.
+        list's :func:`_distinct_times`; ``poses``: each list's poses ``(..., N, 8)``.
+
+        Without the times: the layer's closed form where it has one (:meth:`_closed_form`).
+        Else by reverse passes:
 
         Chunks of ``_CHUNK >> order`` samples, each with its own window points (moved by
         their own steps: the samples are independent), one forward and ``k`` reverse passes
         (row ``j`` of ``Jd`` as the cotangent of pass ``j``): memory bounded by the chunk
         whatever ``N``.
         """
+        if not timed:
+            closed = self._closed_form(gathered, offs, times, firsts, Jd, poses)
+            if closed is not None:
+                return closed, None
         k, O = Jd[0].shape[-3], 8 * (order + 1)
         one = shared[0] if len(times) == 1 else None
         if one is not None and times[0].numel() >= 2 * O / k * one[0].numel():
@@ -325,6 +336,33 @@ class Linearization:
                     if Jt is not None:
                         Jt[..., c, j] = grads[1]
         return Jc, Jt
+
+    def _closed_form(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
+                     firsts: list[Tensor], Jd: list[Tensor], poses: list[Tensor],
+                     ) -> Tensor | None:
+        """:meth:`_through_spans` by the layer's closed-form vector-Jacobian products
+        (:meth:`~torch_dq.fitting._local.SpanEvaluator.vjp`), ``_CHUNK`` samples at a time,
+        each times list's span columns added at its offsets in the window; None where the
+        layer has none."""
+        *shape, N, w, _ = gathered.shape
+        k, sup = Jd[0].shape[-3], self.spans.support
+        whole = w == sup and len(times) == 1  # the window is the span (offsets 0 .. w - 1)
+        Jc = gathered.new_zeros(*shape, N, k, w, 6)
+        for a in range(0, N, _CHUNK):
+            c = slice(a, a + _CHUNK)
+            for off, t, f, J, x in zip(offs, times, firsts, Jd, poses, strict=True):
+                o = off[..., c, :]
+                pts = gathered[..., c, :, :] if whole else self._select(gathered[..., c, :, :], o)
+                G = self.spans.vjp(pts, t[..., c], f[..., c], J[..., c, :, :, :],
+                                   x[..., c, :])
+                if G is None:
+                    return None
+                if whole:
+                    Jc[..., c, :, :, :] = G
+                else:
+                    at = o[..., None, :, None].expand(*G.shape[:-3], k, sup, 6)
+                    Jc[..., c, :, :, :].scatter_add_(-2, at, G)
+        return Jc
 
     def _through_distinct(self, gathered: Tensor, off: Tensor, first: Tensor, Jd: Tensor,
                           order: int, timed: bool, t: Tensor, inverse: Tensor, pick: Tensor,

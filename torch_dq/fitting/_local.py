@@ -58,6 +58,15 @@ class SpanEvaluator:
         local = self.trajectory.local_times(t, first)
         return self.trajectory.evaluate_span(points, local, first, order)
 
+    def vjp(self, points: Tensor, t: Tensor, first: Tensor, cotangents: Tensor, pose: Tensor,
+            ) -> Tensor | None:
+        """The layer's closed-form :meth:`~torch_dq.nn.Curve.span_vjp` at ``t`` of the spans
+        ``first`` with points ``points (..., support, 8)`` and poses ``pose (..., 8)``:
+        ``(..., k, support, 6)`` from ``cotangents (..., k, O, 8)``, or None (no closed
+        form: reverse passes)."""
+        local = self.trajectory.local_times(t, first)
+        return self.trajectory.span_vjp(points, local, first, cotangents, pose)
+
     def shared(self, ctrl: Tensor, t: Tensor, first: Tensor, order: int,
                ) -> tuple[Tensor, ...]:
         """Derivatives ``order + 1`` x ``(..., 8)`` at ``t (..., N)`` of the spans ``first``,
