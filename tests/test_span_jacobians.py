@@ -229,3 +229,32 @@ def test_closed_form_span_jacobians_in_float32():
     assert Jc.dtype == torch.float32
     err = float((Jc.double() - ref).abs().max() / ref.abs().max())
     assert err < 1e-5, err
+
+
+@pytest.mark.parametrize("kind", ["cumulative", "de_boor"])
+def test_span_jacobians_of_samples_that_share_their_times(kind):
+    """The corners of a frame share its time: the whole Jacobian once per distinct time (the
+    cumulative form's closed form, the de Boor form's reverse passes), each sample's rows
+    times it, as reverse mode through ``derivatives`` gives per sample."""
+    from torch_dq.fitting._linearize import _distinct_times
+
+    curve = _curve(kind, True, ())
+    spans = SpanEvaluator(curve)
+    lin = Linearization(SimpleNamespace(spans=spans))
+    u = torch.tensor([0.05, 0.77, 1.0, 1.9], dtype=F64)
+    t = u.repeat_interleave(20)  # 20 corners per frame
+    first = spans.first(t)
+    shared = _distinct_times(t, first, 2)
+    assert shared is not None
+    ctrl = curve.control_points.detach()
+    off = torch.arange(spans.support).expand(t.numel(), spans.support)
+    g = torch.Generator().manual_seed(5)
+    Jd = torch.randn(t.numel(), 2, 1, 8, generator=g, dtype=F64)
+    with torch.no_grad():
+        pose = spans.shared(ctrl, t, first, 0)[0]
+    Jc, none = lin._through_spans(span_points(ctrl, first, spans.support), [off], [t], [first],
+                                  [Jd], 0, False, [shared], [pose])
+    assert none is None
+    ref, _ = _reference(curve, u, spans.first(u), 0)  # (U, 8, w, 6)
+    want = torch.einsum("nkc,ncwj->nkwj", Jd.flatten(-2), ref.repeat_interleave(20, 0))
+    torch.testing.assert_close(Jc, want, atol=1e-10, rtol=0)

@@ -97,8 +97,10 @@ def _polynomial(powers: tuple[Tensor, ...], c0: Tensor | float, c1: tuple[Tensor
     scalars: real and dual parts) of :func:`_powers`."""
     W, V, W2, WV = powers[:4]
     (a1, b1), (a2, b2) = c1, c2
-    eye = torch.eye(3, dtype=W.dtype, device=W.device)[..., None]
-    return c0 * eye + a1 * W + a2 * W2, b1 * W + a1 * V + b2 * W2 + a2 * WV
+    real = (W2 * a2).addcmul_(W, a1)
+    for i in range(3):
+        real[i, i] += c0
+    return real, (W * b1).addcmul_(V, a1).addcmul_(W2, b2).addcmul_(WV, a2)
 
 
 def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
@@ -109,11 +111,20 @@ def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
 
 
 def _rows(a: Tensor, m: tuple[Tensor, Tensor]) -> Tensor:
-    """Rows ``a (6, k, S)`` times the dual matrix ``m``: :math:`(a_\\omega A + a_v B,\\ a_v
-    A)`."""
-    A, B = (x[:, :, None] for x in m)
-    aw, av = a[:3, None], a[3:, None]
-    return torch.cat(((aw * A).sum(0) + (av * B).sum(0), (av * A).sum(0)))
+    r"""Rows ``a (6, k, S)`` times the dual matrix ``m``: :math:`(a_\omega A + a_v B,\ a_v
+    A)`, accumulated in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
+    several times more)."""
+    A, B = m
+    out = torch.empty_like(a)
+    w, v = out[:3], out[3:]
+    torch.mul(a[0, None], A[0, :, None], out=w)
+    torch.mul(a[3, None], A[0, :, None], out=v)
+    for i in range(3):
+        if i:
+            w.addcmul_(a[i, None], A[i, :, None])
+            v.addcmul_(a[3 + i, None], A[i, :, None])
+        w.addcmul_(a[3 + i, None], B[i, :, None])
+    return out
 
 
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
@@ -141,21 +152,21 @@ def _qconj(a: Tensor) -> Tensor:
 
 
 def _left_t(x: Tensor, g: Tensor) -> Tensor:
-    """:math:`L(x)^T g` (``x (8, 1, S)``, rows ``g (8, k, S)``): the cotangent of ``y``
-    through :math:`y \\mapsto x y`, :math:`(r^* g_a + d^* g_b,\\ r^* g_b)`."""
+    r""":math:`L(x)^T g` (``x (8, 1, S)``, rows ``g (8, k, S)``): the cotangent of ``y``
+    through :math:`y \mapsto x y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
     r, d = _qconj(x[:4]), _qconj(x[4:])
     return torch.cat((_qmul(r, g[:4]) + _qmul(d, g[4:]), _qmul(r, g[4:])))
 
 
 def _right_t(x: Tensor, u: Tensor) -> Tensor:
-    """:math:`R(x)^T u`: the cotangent of ``y`` through :math:`y \\mapsto y x`,
-    :math:`(u_a r^* + u_b d^*,\\ u_b r^*)`."""
+    r""":math:`R(x)^T u`: the cotangent of ``y`` through :math:`y \mapsto y x`,
+    :math:`(u_a r^* + u_b d^*,\ u_b r^*)`."""
     r, d = _qconj(x[:4]), _qconj(x[4:])
     return torch.cat((_qmul(u[:4], r) + _qmul(u[4:], d), _qmul(u[4:], r)))
 
 
 def _pure(xi: Tensor) -> Tensor:
-    """:math:`h(\\xi) = (0, \\omega/2, 0, v/2)` ``(8, ...)`` of twists ``(6, ...)``."""
+    r""":math:`h(\xi) = (0, \omega/2, 0, v/2)` ``(8, ...)`` of twists ``(6, ...)``."""
     zero = torch.zeros_like(xi[:1])
     return torch.cat((zero, 0.5 * xi[:3], zero, 0.5 * xi[3:]))
 

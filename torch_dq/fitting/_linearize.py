@@ -10,8 +10,10 @@ B-spline's span tables once per span), the term maps the derivatives to residual
 :class:`Linearization` also differentiates, on per-sample copies of the spans' points
 (``torch_dq._curve.span_points``: the same sign-aligned chain, so the signs agree): the
 residuals with respect to the span derivatives and the nuisance steps (one reverse pass over
-``k`` copies), chained through the spans to the control points' steps (``k`` reverse passes
-over per-sample span copies) and the samples' times (the next time derivative of the span:
+``k`` copies), chained through the spans to the control points' steps (the layer's closed
+form, :meth:`~torch_dq.nn.Curve.span_vjp`, where it has one: a cumulative B-spline's; else
+``k`` reverse passes over per-sample span copies; the whole Jacobian once per distinct time
+where samples share their times) and the samples' times (the next time derivative of the span:
 no time in that graph), the times to the time-moving parameters by their declared rates
 (:meth:`~torch_dq.fitting.Term.time_rates`).
 
@@ -304,16 +306,16 @@ class Linearization:
         (row ``j`` of ``Jd`` as the cotangent of pass ``j``): memory bounded by the chunk
         whatever ``N``.
         """
+        k, O = Jd[0].shape[-3], 8 * (order + 1)
+        one = shared[0] if len(times) == 1 else None
+        if one is not None and times[0].numel() >= 2 * O / k * one[0].numel():
+            # the whole Jacobian once per distinct time
+            return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
+                                          poses[0], *one)
         if not timed:
             closed = self._closed_form(gathered, offs, times, firsts, Jd, poses)
             if closed is not None:
                 return closed, None
-        k, O = Jd[0].shape[-3], 8 * (order + 1)
-        one = shared[0] if len(times) == 1 else None
-        if one is not None and times[0].numel() >= 2 * O / k * one[0].numel():
-            # one reverse pass per output of each distinct time
-            return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
-                                          *one)
         *shape, N, w, _ = gathered.shape
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         Jt = gathered.new_zeros(*shape, N, k) if timed else None
@@ -365,18 +367,47 @@ class Linearization:
         return Jc
 
     def _through_distinct(self, gathered: Tensor, off: Tensor, first: Tensor, Jd: Tensor,
-                          order: int, timed: bool, t: Tensor, inverse: Tensor, pick: Tensor,
-                          ) -> tuple[Tensor, Tensor | None]:
+                          order: int, timed: bool, pose: Tensor, t: Tensor, inverse: Tensor,
+                          pick: Tensor) -> tuple[Tensor, Tensor | None]:
         r""":meth:`_through_spans` for samples that share their times (the corners of one
         frame): the span derivatives' whole Jacobian ``(..., U, order + 1, 8, w, 6)`` at
         the ``U`` distinct times ``t`` (sample ``pick[u]`` at ``t[u]``, sample ``i`` at
         ``t[inverse[i]]``; a time fixes its span), one reverse pass per output component,
         then each sample's rows ``Jd (..., N, k, order + 1, 8)`` times its time's
         Jacobian. Exact, as the per-sample passes; cheaper when ``U (order + 1) 8`` is well
-        below ``N k``.
+        below ``N k``. Without the times, the whole Jacobian is the layer's closed form
+        (:meth:`_closed_form` of the identity's rows) where it has one.
         """
         *shape, N, w, _ = gathered.shape
-        k, O, U = Jd.shape[-3], 8 * (order + 1), t.numel()
+        k, O = Jd.shape[-3], 8 * (order + 1)
+        Dc = None if timed else self._closed_form(
+            gathered.index_select(-3, pick), [off[pick]], [t], [first[pick]],
+            [torch.eye(O, dtype=Jd.dtype, device=Jd.device).reshape(O, order + 1, 8).expand(
+                t.numel(), O, order + 1, 8)],
+            [pose.index_select(-2, pick)])
+        Dt: Tensor | None = None
+        if Dc is None:
+            Dc, Dt = self._distinct_passes(gathered, off, first, order, timed, t, pick)
+        else:
+            Dc = Dc.flatten(-2)
+        Jd = Jd.flatten(-2)  # (..., N, k, O)
+        Jc = gathered.new_empty(*shape, N, k, w, 6)
+        Jt = gathered.new_empty(*shape, N, k) if timed else None
+        for a in range(0, N, _CHUNK):
+            i, c = inverse[a:a + _CHUNK], slice(a, a + _CHUNK)
+            Jc[..., c, :, :, :] = (Jd[..., c, :, :] @ Dc.index_select(-3, i)).unflatten(
+                -1, (w, 6))
+            if Jt is not None and Dt is not None:
+                Jt[..., c, :] = (Jd[..., c, :, :] @ Dt.index_select(-2, i)[..., None])[..., 0]
+        return Jc, Jt
+
+    def _distinct_passes(self, gathered: Tensor, off: Tensor, first: Tensor, order: int,
+                         timed: bool, t: Tensor, pick: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`_through_distinct`'s whole Jacobians ``(..., U, O, w 6)`` and ``(..., U,
+        O)`` by one reverse pass per output component over copies of the distinct times'
+        spans."""
+        *shape, _, w, _ = gathered.shape
+        O, U = 8 * (order + 1), t.numel()
         size = max(1, _CHUNK >> order)
         Dc = gathered.new_zeros(*shape, U, O, w * 6)
         Dt = gathered.new_zeros(*shape, U, O)
@@ -394,16 +425,7 @@ class Linearization:
                     Dc[..., a:a + size, o, :] = grads[0].flatten(-2)
                     if timed:
                         Dt[..., a:a + size, o] = grads[1]
-        Jd = Jd.flatten(-2)  # (..., N, k, O)
-        Jc = gathered.new_empty(*shape, N, k, w, 6)
-        Jt = gathered.new_empty(*shape, N, k) if timed else None
-        for a in range(0, N, _CHUNK):
-            i, c = inverse[a:a + _CHUNK], slice(a, a + _CHUNK)
-            Jc[..., c, :, :, :] = (Jd[..., c, :, :] @ Dc.index_select(-3, i)).unflatten(
-                -1, (w, 6))
-            if Jt is not None:
-                Jt[..., c, :] = (Jd[..., c, :, :] @ Dt.index_select(-2, i)[..., None])[..., 0]
-        return Jc, Jt
+        return Dc, Dt
 
 
 def _point_derivatives(spans, ctrl: Tensor, t: Tensor, first: Tensor, shared, order: int,
