@@ -46,7 +46,7 @@ from ..camera import Camera
 from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _start
-from ._cameras import _cameras_data
+from ._cameras import _cameras_data, _inside
 from ._walk import WalkAccel, WalkGyro, segments
 
 __all__ = ["CameraImuCalibration", "camera_imu"]
@@ -55,6 +55,9 @@ _FN = "calibration.camera_imu"
 _GRAVITY = 9.81
 _MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
 _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
+# pixels may stray this fraction of the image's size outside it (a corner refined at the
+# border, the noise of a simulation); a camera of another resolution reaches far beyond
+_SLACK = 0.01
 _SAME_TIME = 1e-3  # seconds: body-pose samples closer than this are one in the start spline
 
 
@@ -164,6 +167,7 @@ def _arguments(cameras, observations, imu):
         ot, op, ou = _samples(f"observations[{i}]", ("times", "points", "pixels"), o,
                               (None, 3, 2), increasing=False)
         _seconds(f"observations[{i}] times", ot.unique(), 10.0)
+        _inside(i, ou, cameras[i].resolution, _FN, "cameras[{i}].resolution", _SLACK)
         obs.append((ot, op, ou))
     return list(cameras), obs, (t, g, a)
 
