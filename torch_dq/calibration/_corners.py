@@ -226,7 +226,6 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
     ti, unit, pix, pts = _columns(path, names, at)
     cells = _cells(path, names, sep, lines, texts)
     _repeated(path, cells, lines)
-    _seen_twice(path, names, cells, ti, lines)
     sub = lambda idx: [names[i] for i in idx]  # noqa: E731
     values = _numbers(path, cells[:, pix + pts], lines, sub(pix + pts), np.float64)
     if unit == "ns":
@@ -238,6 +237,7 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
             warnings.warn(f"{fn}: {os.fspath(path)}: the column 't' (seconds) looks like "
                           f"{hint}; convert it to seconds (or name integer nanoseconds "
                           f"'t_ns')", UserWarning, stacklevel=2)
+    _seen_twice(path, names, cells, ti, lines)
     as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
     out = (as_tensor(times), as_tensor(values[:, 2:]), as_tensor(values[:, :2]))
     if not extra:
