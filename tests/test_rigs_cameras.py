@@ -155,3 +155,36 @@ def test_camera_imu_refuses_pixels_outside_the_resolution(resolution):
     with pytest.raises(ValueError, match=r"calibration\.camera_imu: observations\[0\] pixels "
                                          r"reach [uv] = \d+, outside cameras\[0\]\.resolution"):
         calibration.camera_imu([cam], [obs], imu, gyro_noise=1e-4, accel_noise=1e-3)
+
+
+def test_camera_imu_refuses_normalised_coordinates_for_pixels():
+    imu, (ft, pts, px) = _tiny_recording()
+    cam = Camera("pinhole", torch.tensor([450.0, 450.0, 370.0, 240.0], dtype=F64), (752, 480))
+    normalised = (px - cam.params[2:]) / cam.params[:2]  # x/z, y/z: within [-0.8, 0.8]
+    with pytest.raises(ValueError, match=r"camera_imu: observations\[0\]: the pixels all lie "
+                                         r"within 0\.8\d* of \(0, 0\).*normalised"):
+        calibration.camera_imu([cam], [(ft, pts, normalised)], imu, gyro_noise=1e-4,
+                               accel_noise=1e-3)
+
+
+def test_camera_imu_refuses_target_points_in_millimetres():
+    imu, (ft, pts, px) = _tiny_recording()
+    pts = pts * 1000.0 * 100  # a 10 m board in mm
+    cam = Camera("pinhole", torch.tensor([450.0, 450.0, 370.0, 240.0], dtype=F64), (752, 480))
+    with pytest.raises(ValueError, match=r"observations\[0\] points span 1\.414e\+04 \(metres "
+                                         r"expected\): millimetres\?"):
+        calibration.camera_imu([cam], [(ft, pts, px)], imu, gyro_noise=1e-4, accel_noise=1e-3)
+
+
+def test_reprojections_warns_on_normalised_coordinates():
+    from torch_dq import fitting
+    cam = Camera("pinhole", torch.tensor([450.0, 450.0, 370.0, 240.0], dtype=F64), (752, 480))
+    t = torch.linspace(0.1, 0.9, 8, dtype=F64)
+    pts = torch.rand(8, 3, dtype=F64) * torch.tensor([0.5, 0.5, 0.0], dtype=F64)
+    pix = torch.rand(8, 2, dtype=F64) * 1.2 - 0.6
+    with pytest.warns(UserWarning, match=r"fitting\.Reprojections: the pixels all lie within"):
+        fitting.Reprojections(t, pts, pix, camera=cam, sigma=1.0)
+    # pixels of a target near the image's corner, a few pixels wide, stay quiet: a spread
+    # of pixels beyond 4 px
+    pix = torch.rand(8, 2, dtype=F64) * 30.0
+    fitting.Reprojections(t, pts, pix, camera=cam, sigma=1.0)

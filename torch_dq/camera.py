@@ -475,6 +475,24 @@ def _numbers(fn: str, name: str, value, count: int) -> list[float]:
     return [float(v) for v in value]
 
 
+def _normalised_hint(pixels: Tensor, params: Tensor) -> str | None:
+    """A sentence where ``(M, 2)`` measured pixels look like normalised image coordinates
+    (``x / z``, ``y / z``) of a camera with the ``(P,)`` params: all of them within 4 of
+    ``(0, 0)``, the top-left pixel, while the principal point lies over 20 px from it;
+    else None. (A target seen in pixels is spread over more than a few pixels and sits
+    near the image's corner only by accident.)"""
+    if pixels.numel() == 0:
+        return None
+    reach = float(pixels.detach().abs().max())
+    centre = float(params.detach()[2:4].abs().min())
+    if reach >= 4.0 or centre <= 20.0:
+        return None
+    return (f"the pixels all lie within {reach:.3g} of (0, 0) while the principal point is "
+            f"at ({float(params[2]):.6g}, {float(params[3]):.6g}): they look like normalised "
+            f"coordinates (x/z, y/z), not pixels; project them with the camera's "
+            f"intrinsics (u = fu x/z + cu, v = fv y/z + cv, then the distortion)")
+
+
 def _yaml_number(value):
     """``value``, or the number a string reads as: YAML 1.1 (PyYAML) reads ``2e-4`` (no dot)
     as a string, and a quoted ``'6'`` is one; an integral string reads as an ``int``."""
