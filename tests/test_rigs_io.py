@@ -53,5 +53,5 @@ def test_read_corners_coinciding_corners_of_two_tags_stay(tmp_path):
     # an AprilGrid of spacing 0: tag 0's corner 1 is tag 1's corner 0
     path = tmp_path / "corners.csv"
     path.write_text(_CORNERS + "1403709395937837056,1,0,110.5,200.25,0.088,0.0,0.0\n")
-    t, p, u = calibration.read_corners(path)
+    t, p, _ = calibration.read_corners(path)
     assert t.shape == (4,) and p[1].tolist() == p[3].tolist()
