@@ -79,8 +79,8 @@ class Reprojections(Term):
     :func:`~torch_dq.fitting.estimate`).
 
     Warns:
-        UserWarning: pixels that look like normalised coordinates (all within 4 of ``(0,
-        0)`` while the principal point is not).
+        UserWarning: pixels that look like normalised coordinates (all within 4 of the
+        origin ``(0, 0)`` while the principal point is not).
 
     Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
         >>> import torch_dq.dualquat as dq
