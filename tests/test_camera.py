@@ -589,7 +589,7 @@ def test_camera_value_semantics_and_errors():
            ({**KALIBR["pinhole"], "distortion_model": "fov"}, "'fov'"),
            ({**KALIBR["pinhole-radtan"], "distortion_coeffs": [0.1, 0.2]}, "distortion_coeffs"),
            ({**KALIBR["double-sphere"], "intrinsics": EUROC[:4]}, "intrinsics"),
-           ({**KALIBR["pinhole"], "resolution": [640.0, 480]}, "resolution")]
+           ({**KALIBR["pinhole"], "resolution": [640.5, 480]}, "resolution")]
     for entry, word in bad:
         with pytest.raises(ValueError, match=rf"^camera.Camera.from_kalibr: .*{word}"):
             Camera.from_kalibr({"resolution": [640, 480], **entry})

@@ -80,6 +80,12 @@ MODELS: dict[str, tuple[str, ...]] = {
 # radtan lens (k1 = -0.35, f = 300 px on 752 x 480) and 3-4 on fisheyes: 8 leave a margin.
 # The two differentiable steps that follow square the error twice more.
 _ITERATIONS = 8
+# The equidistant root's safeguarded iteration: Newton where it stays in the bracket,
+# bisection where it leaves it (near the fold). 12 steps invert every pixel that OpenCV
+# inverts on a 101 x 101 grid of a strong fisheye's image (k1 = 0.6, tests/test_rigs_cameras.py;
+# on a 301 x 301 grid 24 steps add 10 of 90,601 pixels within a hair of the fold) and cost
+# 1.3-1.5 times the 8 plain Newton steps they replace (1e6 pixels, one loaded thread).
+_ITERATIONS_BRACKETED = 12
 
 
 def _checked(fn: str, model, params, x, name: str, event: int) -> torch.Size:
@@ -99,6 +105,14 @@ _SAFE = {model: (1.0, 1.0) + (0.0,) * (len(names) - 2) for model, names in MODEL
 _SAFE["double-sphere"] = (1.0, 1.0, 0.0, 0.0, 0.0, 0.5)
 
 
+def _in_domain(model: str, p: list[Tensor]) -> Tensor:
+    """The ``(...)`` mask of parameters (``p`` unbound) inside the model's domain."""
+    ok = (p[0] > 0) & (p[1] > 0)
+    if model == "double-sphere":
+        ok = ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1)
+    return ok
+
+
 def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """The parameters and coordinates as lists of tensors in the compute dtype, and the
     ``(...)`` mask of parameters inside the model's domain: ``fu, fv > 0`` and for the double
@@ -108,9 +122,7 @@ def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Te
     outputs and gradients, no host read)."""
     cd = compute_dtype(x.dtype)
     p = list(params.to(cd).unbind(-1))
-    ok = (p[0] > 0) & (p[1] > 0)
-    if model == "double-sphere":
-        ok = ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1)
+    ok = _in_domain(model, p)
     p = [torch.where(ok, c, s) for c, s in zip(p, _SAFE[model], strict=True)]
     return p, list(x.to(cd).unbind(-1)), ok
 
@@ -286,7 +298,8 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           map's Jacobian determinant is not positive, or where the iteration did not
           converge (no preimage: beyond the largest distorted radius).
         - equidistant: 1-D Newton on :math:`\theta_d(\theta) = |m|` (``m`` the normalised
-          pixel), :math:`\theta` kept in :math:`[0, \pi/2]`. Invalid where the root is at
+          pixel) safeguarded by bisection in a bracket of the first root within
+          :math:`[0, \pi/2]`. Invalid where the root is at
           or beyond 90 degrees (``z <= 0``: not an image of :func:`project`), where
           :math:`d\theta_d/d\theta \le 0` at the root (fold-over) or where it did not
           converge.
@@ -377,17 +390,26 @@ def _unproject_radtan(p, a, b):
 
 
 def _equidistant_root(k, s):
-    r"""Detached Newton iterations on :math:`\theta_d(\theta) = \sqrt s`, theta kept in
-    :math:`[0, \pi/2]`; returns :math:`\rho = \theta / \theta_d` (1 at the centre) and
-    whether the root is valid."""
+    r"""Detached safeguarded Newton iterations on :math:`\theta_d(\theta) = \sqrt s`: a
+    bracket ``[lo, hi]`` of the first root starts at :math:`[0, \pi/2]`, a Newton step that
+    leaves it (or a slope that is not positive: beyond the fold) is replaced by bisection
+    (Press et al., Numerical Recipes, 3rd ed., sec. 9.4, ``rtsafe``); a plain Newton
+    iteration started beyond the fold stays there (a strong fisheye, ``k1 = 0.6``, at 69
+    degrees). Returns :math:`\rho = \theta / \theta_d` (1 at the centre) and whether the
+    root is valid."""
     half_pi = 0.5 * math.pi
     td = torch.sqrt(s)
+    lo, hi = torch.zeros_like(td), torch.full_like(td, half_pi)
     theta = torch.clamp(td, max=half_pi)
-    for _ in range(_ITERATIONS):
+    for _ in range(_ITERATIONS_BRACKETED):
         t = theta * theta
-        slope = _poly_slope(k, t)
-        step = (theta * _poly(k, t) - td) / torch.where(slope > 0, slope, 1.0)
-        theta = torch.clamp(theta - step, min=0.0, max=half_pi)
+        g, slope = theta * _poly(k, t) - td, _poly_slope(k, t)
+        rising = slope > 0
+        lo = torch.where(rising & (g < 0), theta, lo)
+        hi = torch.where(~rising | (g > 0), theta, hi)
+        step = theta - g / torch.where(rising, slope, 1.0)
+        inside = rising & (step > lo) & (step < hi)
+        theta = torch.where(g == 0, theta, torch.where(inside, step, 0.5 * (lo + hi)))
     t = theta * theta
     ok = (_converged(abs(theta * _poly(k, t) - td), td) & (theta < half_pi)
           & (_poly_slope(k, t) > 0))
@@ -455,6 +477,43 @@ def _numbers(fn: str, name: str, value, count: int) -> list[float]:
     return [float(v) for v in value]
 
 
+def _normalised_hint(pixels: Tensor, params: Tensor) -> str | None:
+    """A sentence where ``(M, 2)`` measured pixels look like normalised image coordinates
+    (``x / z``, ``y / z``) of a camera with the ``(P,)`` params: all of them within 4 of
+    ``(0, 0)``, the top-left pixel, while the principal point lies over 20 px from it;
+    else None. (A target seen in pixels is spread over more than a few pixels and sits
+    near the image's corner only by accident.)"""
+    if pixels.numel() == 0:
+        return None
+    reach = float(pixels.detach().abs().max())
+    centre = float(params.detach()[2:4].abs().min())
+    if reach >= 4.0 or centre <= 20.0:
+        return None
+    return (f"the pixels all lie within {reach:.3g} of (0, 0) while the principal point is "
+            f"at ({float(params[2]):.6g}, {float(params[3]):.6g}): they look like normalised "
+            f"coordinates (x/z, y/z), not pixels; project them with the camera's "
+            f"intrinsics (u = fu x/z + cu, v = fv y/z + cv, then the distortion)")
+
+
+def _yaml_number(value):
+    """``value``, or the number a string reads as: YAML 1.1 (PyYAML) reads ``2e-4`` (no dot)
+    as a string, and a quoted ``'6'`` is one; an integral string reads as an ``int``."""
+    if isinstance(value, str):
+        for kind in (int, float):
+            try:
+                return kind(value)
+            except ValueError:
+                pass
+    return value
+
+
+def _kalibr_list(value) -> list | object:
+    """A Kalibr list with :func:`_yaml_number` applied (other values as they are)."""
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        return [_yaml_number(v) for v in value]
+    return value
+
+
 def _resolution(fn: str, res) -> tuple[int, int]:
     """``(width, height)``: two positive ints."""
     if (not isinstance(res, Sequence) or isinstance(res, str) or len(res) != 2
@@ -478,6 +537,13 @@ class Camera:
         params: ``(P,)`` floating tensor in the model's order (a sequence of numbers is
             turned into a float64 tensor).
         resolution: ``(width, height)`` in pixels, positive ints.
+
+    Raises:
+        ValueError: an unknown model, params of the wrong shape, not finite or outside the
+            model's domain (``fu``, ``fv`` not positive; for the double sphere ``xi <= -1``
+            or ``alpha`` outside ``[0, 1]``: a camera that projects nothing), a bad
+            resolution.
+        TypeError: params that are not floating point.
 
     Example:
         >>> cam = Camera.from_kalibr({
@@ -508,6 +574,12 @@ class Camera:
         if params.shape != (len(MODELS[self.model]),):
             _checks.fail(fn, f"expected a ({len(MODELS[self.model])},) tensor for params of a "
                              f"{self.model!r} camera, got shape {_checks.shape_str(params.shape)}")
+        values = params.detach()
+        if not bool((torch.isfinite(values).all() & _in_domain(self.model, list(values))).item()):
+            limits = " > -1, alpha in [0, 1]" if self.model == "double-sphere" else ""
+            _checks.fail(fn, f"expected finite params of a {self.model!r} camera with fu, fv "
+                             f"> 0{' and xi' + limits if limits else ''} ("
+                             f"{', '.join(MODELS[self.model])}), got {values.tolist()}")
         object.__setattr__(self, "params", params)
         object.__setattr__(self, "resolution", _resolution(fn, self.resolution))
 
@@ -542,8 +614,10 @@ class Camera:
                 (``none``, ``radtan``, ``equidistant``; absent means ``none``),
                 ``intrinsics`` (``[fu, fv, pu, pv]``; ``[xi, alpha, fu, fv, pu, pv]`` for
                 ``ds``), ``distortion_coeffs`` (4 numbers for radtan and equidistant, none
-                otherwise) and ``resolution`` (``[width, height]``); other keys
-                (``T_cam_imu``, ``rostopic``, ...) are ignored.
+                or zeros otherwise) and ``resolution`` (``[width, height]``, ints or
+                integral floats); other keys (``T_cam_imu``, ``rostopic``, ...) are
+                ignored. Numbers written without a dot (``2e-4``), which YAML 1.1 (PyYAML)
+                reads as strings, are read as numbers.
             dtype, device: of the params tensor.
 
         Raises:
@@ -560,12 +634,19 @@ class Camera:
                              f"{names[1]!r}: expected pinhole with none, radtan or "
                              f"equidistant, or ds with none")
         model = _FROM_KALIBR[names]
-        intr = _numbers(fn, "intrinsics", entry.get("intrinsics"), 6 if names[0] == "ds" else 4)
-        coeffs = _numbers(fn, "distortion_coeffs", entry.get("distortion_coeffs", []),
-                          0 if names[1] == "none" else 4)
+        intr = _numbers(fn, "intrinsics", _kalibr_list(entry.get("intrinsics")),
+                        6 if names[0] == "ds" else 4)
+        raw = _kalibr_list(entry.get("distortion_coeffs", []))
+        if names[1] == "none" and isinstance(raw, list) and all(
+                isinstance(v, numbers.Real) and v == 0 for v in raw):
+            raw = []  # no distortion written as zeros
+        coeffs = _numbers(fn, "distortion_coeffs", raw, 0 if names[1] == "none" else 4)
         params = intr[2:] + intr[:2] if names[0] == "ds" else intr + coeffs
+        res = _kalibr_list(entry.get("resolution"))
+        if isinstance(res, list):  # 752.0: an integral float is the int
+            res = [int(v) if isinstance(v, float) and v.is_integer() else v for v in res]
         return cls(model, torch.tensor(params, dtype=dtype, device=device),
-                   _resolution(fn, entry.get("resolution")))
+                   _resolution(fn, res))
 
     def to_kalibr(self) -> dict:
         """This camera as one entry of a Kalibr ``camchain.yaml``: a dict of plain Python

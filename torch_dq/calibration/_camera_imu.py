@@ -42,11 +42,11 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat, quat
-from ..camera import Camera
+from ..camera import Camera, _normalised_hint
 from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _start
-from ._cameras import _cameras_data
+from ._cameras import _cameras_data, _inside
 from ._walk import WalkAccel, WalkGyro, segments
 
 __all__ = ["CameraImuCalibration", "camera_imu"]
@@ -55,6 +55,10 @@ _FN = "calibration.camera_imu"
 _GRAVITY = 9.81
 _MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
 _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
+# pixels may stray this fraction of the image's size outside it (a corner refined at the
+# border, the noise of a simulation); a camera of another resolution reaches far beyond
+_SLACK = 0.01
+_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (mm)
 _SAME_TIME = 1e-3  # seconds: body-pose samples closer than this are one in the start spline
 
 
@@ -163,9 +167,25 @@ def _arguments(cameras, observations, imu):
             _checks.fail(_FN, f"expected observations[{i}] to be (times, points, pixels)")
         ot, op, ou = _samples(f"observations[{i}]", ("times", "points", "pixels"), o,
                               (None, 3, 2), increasing=False)
-        _seconds(f"observations[{i}] times", ot.unique(), 10.0)
+        _units(i, cameras[i], ot, op, ou)
         obs.append((ot, op, ou))
     return list(cameras), obs, (t, g, a)
+
+
+def _units(i: int, cam: Camera, times: Tensor, points: Tensor, pixels: Tensor) -> None:
+    """Camera ``i``'s observations in seconds, metres and pixels of its image: a
+    ``ValueError`` for times in nanoseconds (or us, ms), pixels outside the resolution or
+    that look like normalised coordinates, target points spread over more than 20 m."""
+    _seconds(f"observations[{i}] times", times.unique(), 10.0)
+    _inside(i, pixels, cam.resolution, _FN, "cameras[{i}].resolution", _SLACK)
+    hint = _normalised_hint(pixels, cam.params)
+    if hint is not None:
+        _checks.fail(_FN, f"observations[{i}]: {hint}")
+    span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0
+    if span > _LARGEST_TARGET:
+        _checks.fail(_FN, f"observations[{i}] points span {span:.4g} (metres expected): "
+                          f"millimetres? Kalibr's targets and read_corners' X_m, Y_m, Z_m "
+                          f"are in metres; divide them by 1000")
 
 
 def _samples(label: str, fields: tuple[str, ...], xs, widths: tuple,
@@ -501,7 +521,10 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
         :class:`CameraImuCalibration`.
 
     Raises:
-        ValueError: mismatched lists or shapes, non-positive noises, fewer than 10 frames of
+        ValueError: mismatched lists or shapes, non-positive noises, pixels outside a
+            camera's resolution (by over 1 % of its size) or that look like normalised
+            coordinates (all within 4 px of ``(0, 0)``), target points spread over more
+            than 20 m (millimetres, not metres), fewer than 10 frames of
             a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
             ``max_time_offset`` (correlation below 0.3: another recording's log).

@@ -178,18 +178,22 @@ def _arguments(observations, models, resolution, robust, robust_k, max_iteration
     return obs, [str(m) for m in models], res
 
 
-def _inside(i: int, pixels: Tensor, res: tuple[int, int]) -> None:
+def _inside(i: int, pixels: Tensor, res: tuple[int, int], fn: str = _FN,
+            where: str = "resolution[{i}]", slack: float = 0.0) -> None:
     """Check that camera ``i``'s pixels lie in its image: ``(0, 0)`` is the centre of the
-    top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``."""
+    top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``,
+    widened by ``slack`` times the image's size (``fn`` and ``where``, the resolution's
+    argument with ``{i}``, name the caller's)."""
     if pixels.numel() == 0:
         return
     for axis, name, size in ((0, "u", res[0]), (1, "v", res[1])):
         lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
-        if lo < -0.5 or hi > size - 0.5:
-            _checks.fail(_FN, f"observations[{i}] pixels reach {name} = "
-                              f"{lo if lo < -0.5 else hi:.6g}, outside resolution[{i}] = "
-                              f"{res} (expected {name} in [-0.5, {size - 0.5}]; is the "
-                              f"resolution (width, height) of that camera?)")
+        low, high = -0.5 - slack * size, size - 0.5 + slack * size
+        if lo < low or hi > high:
+            _checks.fail(fn, f"observations[{i}] pixels reach {name} = "
+                             f"{lo if lo < low else hi:.6g}, outside {where.format(i=i)} = "
+                             f"{res} (expected {name} in [{low:.6g}, {high:.6g}]; is the "
+                             f"resolution (width, height) of that camera?)")
 
 
 def _cameras_data(obs, models, res, min_points) -> tuple[list[_Camera], Tensor]:

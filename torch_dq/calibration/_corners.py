@@ -118,6 +118,24 @@ def _repeated(path, cells: np.ndarray, lines: list[int]) -> None:
                                                    f"corner listed twice would count twice)")
 
 
+def _seen_twice(path, names: list[str], cells: np.ndarray, ti: int, lines: list[int]) -> None:
+    """A :class:`CornersFileError` on the first row whose time, ``tag_id`` and
+    ``corner_idx`` repeat an earlier row's with other values (one corner detected twice in
+    one frame, at two pixels: which is it?). Without those columns nothing is checked (the
+    corners of adjacent tags coincide on an AprilGrid of spacing 0)."""
+    if "tag_id" not in names or "corner_idx" not in names:
+        return
+    cols = [ti, names.index("tag_id"), names.index("corner_idx")]
+    seen: dict[str, int] = {}
+    for k, key in enumerate(map("\x1f".join, cells[:, cols].tolist())):
+        j = seen.setdefault(key, k)
+        if j != k:
+            raise CornersFileError(path, lines[k], f"tag_id {cells[k, cols[1]]} corner_idx "
+                                                   f"{cells[k, cols[2]]} again in the frame "
+                                                   f"{cells[k, ti]} (first on line "
+                                                   f"{lines[j]}): one corner detected twice")
+
+
 def _numbers(path, cells: np.ndarray, lines: list[int], names: list[str],
              dtype: type) -> np.ndarray:
     """Convert string columns, naming the first bad cell (line and column)."""
@@ -179,8 +197,8 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
         CornersFileError: (a ``ValueError``) naming the file and the line: no header, a
             header without the time, pixel or point columns (or with both variants of
             one), a row with the wrong number of columns, a value that is not a finite
-            number, a ``t_ns`` that is not an integer, a row repeating an earlier one, an
-            empty file.
+            number, a ``t_ns`` that is not an integer, a row repeating an earlier one, a
+            ``tag_id`` and ``corner_idx`` twice in one frame, an empty file.
         OSError: the file cannot be opened.
 
     Warns:
@@ -219,6 +237,7 @@ def read_corners(path: str | os.PathLike[str], *, extra: bool = False) -> tuple:
             warnings.warn(f"{fn}: {os.fspath(path)}: the column 't' (seconds) looks like "
                           f"{hint}; convert it to seconds (or name integer nanoseconds "
                           f"'t_ns')", UserWarning, stacklevel=2)
+    _seen_twice(path, names, cells, ti, lines)
     as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
     out = (as_tensor(times), as_tensor(values[:, 2:]), as_tensor(values[:, :2]))
     if not extra:

@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks
+from ..camera import _yaml_number
 
 __all__ = ["Target", "aprilgrid", "checkerboard", "read_target"]
 
@@ -198,17 +199,6 @@ def yaml_module(fn: str):
     return yaml
 
 
-def _number(value):
-    """``value``, or the float of a string that reads as one (``88e-3``: YAML 1.1 has no
-    floats without a dot, so PyYAML reads it as a string)."""
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            pass
-    return value
-
-
 def read_target(path: str | os.PathLike[str]) -> Target:
     r"""Read Kalibr's target yaml (``april_6x6.yaml``, ``checkerboard.yaml``).
 
@@ -268,7 +258,7 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         _checks.fail(fn, where + f"a {kind} target needs {', '.join(keys)}; missing "
                                  f"{', '.join(missing)}")
     try:
-        return Target(kind, *(_number(doc[k]) for k in keys))
+        return Target(kind, *(_yaml_number(doc[k]) for k in keys))
     except ValueError as exc:
         names = dict(zip(("rows", "cols", "size", "spacing"), keys, strict=True))
         message = str(exc).removeprefix("calibration.Target: ")

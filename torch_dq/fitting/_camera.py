@@ -31,6 +31,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
+from ..camera import _normalised_hint
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma
@@ -76,6 +77,10 @@ class Reprojections(Term):
     Residual ``(..., N, 2)``: predicted minus measured pixel over ``sigma``; zero for masked
     observations and for points without an image (``term.invalid`` counts them after
     :func:`~torch_dq.fitting.estimate`).
+
+    Warns:
+        UserWarning: pixels that look like normalised coordinates (all within 4 of the
+        origin ``(0, 0)`` while the principal point is not).
 
     Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
         >>> import torch_dq.dualquat as dq
@@ -134,6 +139,9 @@ class Reprojections(Term):
             _checks.fail(fn, f"max_line_delay must be a positive finite float, got "
                              f"{max_line_delay!r}")
         self.max_line_delay = float(max_line_delay)
+        hint = _normalised_hint(pixels[self.mask], params)
+        if hint is not None:
+            warnings.warn(f"{fn}: {hint}", UserWarning, stacklevel=2)
         self._buffer("points", _masked(points, self.mask, 1.0), 1)
         self._buffer("pixels", _masked(pixels, self.mask, 0.0), 1)
         self._buffer("rows", self.pixels[..., 1].to(torch.float64), 0)

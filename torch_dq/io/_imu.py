@@ -3,6 +3,7 @@ r"""IMU files: gyroscope and accelerometer samples (private; :func:`torch_dq.io.
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 from torch import Tensor
@@ -39,6 +40,25 @@ def _imu_unit(header: list[str], first: str, time_unit: str) -> str:
     return "ns" if INTEGER.fullmatch(first) and len(first.lstrip("-")) >= 16 else "s"
 
 
+# units a header may state that read_imu does not return: degrees (per second), g
+_FOREIGN_UNITS = ((re.compile(r"\[\s*deg|\bdeg\s*/\s*s\b|\bdps\b", re.IGNORECASE),
+                   "the gyroscope in degrees per second", "rad/s: multiply those columns "
+                   "by pi / 180"),
+                  (re.compile(r"\[\s*g\s*\]"), "the accelerometer in g",
+                   "m/s^2: multiply those columns by 9.80665"))
+
+
+def _check_header_units(path, header: list[str]) -> None:
+    """A :class:`TrajectoryFileError` where the header states a unit other than rad/s or
+    m/s^2 (``w_x [deg s^-1]``, ``gx [deg/s]``, ``ax [g]``): read as they are, the readings
+    would be 57 (or 9.8) times off."""
+    for pattern, what, fix in _FOREIGN_UNITS:
+        if header and pattern.search(header[-1]):
+            raise TrajectoryFileError(path, None, f"the header gives {what} "
+                                                  f"({header[-1].strip()!r}); read_imu "
+                                                  f"returns {fix}")
+
+
 def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
              duplicates: str = "error") -> tuple[Tensor, Tensor, Tensor]:
     r"""Read IMU samples: EuRoC ``imu0/data.csv`` or plain ``t gx gy gz ax ay az`` files.
@@ -68,7 +88,8 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
     Raises:
         TrajectoryFileError: (a ``ValueError``) naming the file and the line: not 7
             columns, a value that is not a finite number, unsorted or repeated times, an
-            empty file.
+            empty file; naming the file: a header that states the gyroscope in degrees
+            (``[deg s^-1]``, ``deg/s``) or the accelerometer in ``[g]``.
         ValueError: bad ``time_unit`` or ``duplicates``.
         OSError: the file cannot be opened.
 
@@ -96,6 +117,7 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
     if duplicates not in ("error", "first"):
         _checks.fail(fn, f"duplicates must be 'error' or 'first', got {duplicates!r}")
     lines, texts, header = header_row(path, *read_lines(path))
+    _check_header_units(path, header)
     rows = split(texts, commas=False)
     unit = _imu_unit(header, rows[0][0], time_unit)
     names = _EUROC_IMU_COLUMNS if unit == "ns" else _IMU_COLUMNS
