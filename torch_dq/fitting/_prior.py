@@ -98,6 +98,8 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
     lam, V = torch.linalg.eigh(_windows(band, v) / outer)
+    if nuisance:  # relative to the window's best-determined direction, at most typical
+        threshold = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
     W = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer
     pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
     for a in range(v):
@@ -164,10 +166,10 @@ def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: flo
     return P * (s[:, :, None] * s[:, None, :])
 
 
-def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
-    """``(..., m)`` chart coordinates of the nuisance ``values`` around their starts."""
-    parts = [p.chart.local(p.start, v).expand(*problem.batch, p.dim)
-             for p, v in zip(problem.params, values, strict=True)]
+def nuisance_chart(problem, anchor: list[Tensor], values: list[Tensor]) -> Tensor:
+    """``(..., m)`` chart coordinates of the nuisance ``values`` around ``anchor``."""
+    parts = [p.chart.local(a, v).expand(*problem.batch, p.dim)
+             for p, a, v in zip(problem.params, anchor, values, strict=True)]
     if not parts:
         return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)
     return torch.cat(parts, -1)
