@@ -96,8 +96,10 @@ def test_camera_clock_offset_is_the_datas():
     data = _camera_imu(seed=6, cam_offset=0.004)
     found = []
     for start, prior in ((0.0, 1e-3), (-0.005, 1e-3), (0.0, 0.0)):
-        est, (cam, *_), _ = _solve(data, dq.exp(E_TRUE), prior=prior, offset=Free(start))
-        # prior=0 leaves the ends' weak control points to crawl: "no progress" (measured)
+        with warnings.catch_warnings():  # prior=0: the ends' weak control points crawl
+            if prior == 0.0:  # ("no progress" or steps reached: measured)
+                warnings.filterwarnings("ignore", "fitting.estimate: steps=", RuntimeWarning)
+            est, (cam, *_), _ = _solve(data, dq.exp(E_TRUE), prior=prior, offset=Free(start))
         assert bool(est.converged) or prior == 0.0, est.reason
         found.append((float(cam.time_offset), float(est.std(cam, "time_offset"))))
     (v0, s0), *rest = found

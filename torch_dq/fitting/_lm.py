@@ -34,6 +34,7 @@ _NONFINITE = "non-finite cost at the start"
 _EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
 _ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
 # sigma 1e-3 round to ~1e-13 on unit-scale data): no damped step lowering it is converged
+_LEFT_OUT = 1e6  # the pulls' stiffening in the scaled gradient test when they are re-anchored
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
@@ -178,8 +179,10 @@ class LevenbergMarquardt:
                 gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
         return gn
 
-    def _step(self) -> DampedStep:
-        return DampedStep(self.system, self.pulls, self.null, self.p.prior_information(),
+    def _step(self, stiff: float = 1.0) -> DampedStep:
+        """The damped step, the pulls ``stiff`` times stiffer."""
+        pulls = self.pulls if stiff == 1.0 else tuple(stiff * P for P in self.pulls)
+        return DampedStep(self.system, pulls, self.null, self.p.prior_information(),
                           self.solver)
 
     def _decrement(self) -> tuple[Tensor, Tensor]:
@@ -193,7 +196,9 @@ class LevenbergMarquardt:
         if self._null_of is not self.system:  # factored once per system
             self.null = _prior.control_null(self.system.band, self.pulls[0])
             self._null_of = self.system
-        step = self._step()
+        # re-anchored pulls (nuisance estimated) hold their directions where they are: those
+        # are left out like the directions without information (a stiffer pull)
+        step = self._step(_LEFT_OUT if self.p.params else 1.0)
         decs, ok = [], torch.ones_like(self.active)
         for eps in (_prior.REGULARISE, _LOOSE * _prior.REGULARISE):
             dc, dn, good = step.step(torch.full_like(self.damping.lam, eps), gc, gn)
