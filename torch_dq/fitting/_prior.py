@@ -93,8 +93,9 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
             below 1 (at least ``NULL``): where only a less informative sensor sees the
             control points (poses at the ends of an IMU record, 1e-6 of the accelerometer's
             typical information but well determined: 1 mm), information is judged against
-            what determines them there, not against the accelerometer; without them (a trajectory from poses or positions alone,
-            where a pull can decide no other parameter) it is ``p`` itself, so that the
+            what determines them there, not against the accelerometer; without them (a
+            trajectory from poses or positions alone, where a pull can decide no other
+            parameter) it is ``p`` itself, so that the
             weakly determined edges of long time gaps stay near the start instead of
             swinging to the few samples' least-squares answer (TUM fr2_desk: 40 deg).
     """
