@@ -181,7 +181,7 @@ class LevenbergMarquardt:
 
     def _step(self, stiff: float = 1.0) -> DampedStep:
         """The damped step, the pulls ``stiff`` times stiffer."""
-        pulls = self.pulls if stiff == 1.0 else tuple(stiff * P for P in self.pulls)
+        pulls = self.pulls if stiff == 1.0 else (stiff * self.pulls[0], stiff * self.pulls[1])
         return DampedStep(self.system, pulls, self.null, self.p.prior_information(),
                           self.solver)
 
