@@ -346,7 +346,8 @@ def test_accel_with_a_cumulative_quadratic_warns():
 
 
 @pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # known
-def test_time_offset_on_its_bound_warns_and_has_no_std():
+@pytest.mark.filterwarnings("ignore:fitting.Estimate. chi2/dof far above 1:RuntimeWarning")
+def test_time_offset_on_its_bound_warns_and_has_no_std():  # the clipped offset: chi2/dof 1.7
     """A gyroscope 60 ms late with max_time_offset=0.02: the offset ends on the bound; the
     estimate warns and std gives inf with a warning (not a finite curvature value)."""
     gen = torch.Generator().manual_seed(2)
