@@ -96,8 +96,10 @@ def test_camera_clock_offset_is_the_datas():
     data = _camera_imu(seed=6, cam_offset=0.004)
     found = []
     for start, prior in ((0.0, 1e-3), (-0.005, 1e-3), (0.0, 0.0)):
-        est, (cam, *_), _ = _solve(data, dq.exp(E_TRUE), prior=prior, offset=Free(start))
-        # prior=0 leaves the ends' weak control points to crawl: "no progress" (measured)
+        with warnings.catch_warnings():  # prior=0: the ends' weak control points crawl
+            if prior == 0.0:  # ("no progress" or steps reached: measured)
+                warnings.filterwarnings("ignore", "fitting.estimate: steps=", RuntimeWarning)
+            est, (cam, *_), _ = _solve(data, dq.exp(E_TRUE), prior=prior, offset=Free(start))
         assert bool(est.converged) or prior == 0.0, est.reason
         found.append((float(cam.time_offset), float(est.std(cam, "time_offset"))))
     (v0, s0), *rest = found
@@ -344,7 +346,8 @@ def test_accel_with_a_cumulative_quadratic_warns():
 
 
 @pytest.mark.filterwarnings("ignore:fitting.estimate. steps=:RuntimeWarning")  # known
-def test_time_offset_on_its_bound_warns_and_has_no_std():
+@pytest.mark.filterwarnings("ignore:fitting.Estimate. chi2/dof far above 1:RuntimeWarning")
+def test_time_offset_on_its_bound_warns_and_has_no_std():  # the clipped offset: chi2/dof 1.7
     """A gyroscope 60 ms late with max_time_offset=0.02: the offset ends on the bound; the
     estimate warns and std gives inf with a warning (not a finite curvature value)."""
     gen = torch.Generator().manual_seed(2)

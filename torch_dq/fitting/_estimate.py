@@ -189,6 +189,12 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     parameter is estimated) are pulled to the start with weight ``prior``, nuisance directions
     without information (below ``1e-9``, scaled) likewise, and combinations of control
     points that no sample resolves (knots closer than the samples) are never stepped along.
+    With estimated nuisance parameters the pulls are found again and anchored at every
+    linearisation point (a damping along those directions, not a spring to the start: an
+    extrinsic that turns turns every control point with it), a window's information is judged
+    against its own best-determined direction (control points seen only by poses are not
+    undetermined next to an accelerometer's), and the pulled directions are left out of the
+    convergence test.
     Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
     trajectory's placement) ends where the data put it, whatever its start.
     Levenberg-Marquardt in local charts (``c_k exp(delta_k)`` and the nuisance charts of

@@ -16,7 +16,11 @@ more information is not pulled at all. (A threshold of ``1e-3`` pulled combinati
 accelerometer determines and moved an extrinsic by a standard deviation; the weak
 combinations at the edges of TUM fr2_desk's long gaps, between ``1e-5`` and ``1e-3``, are
 left to the data: they swing by 40 deg there, the data's least-squares answer, with large
-standard deviations.) While the Levenberg-Marquardt damping is large, its diagonal is at
+standard deviations.) With estimated nuisance parameters a window's threshold is relative to
+its own best-determined direction where that is below the typical information
+(:func:`control_pull`), and :mod:`torch_dq.fitting._lm` re-anchors the pulls at every
+linearisation point: they hold undetermined directions where the iteration has them, never
+against the data. While the Levenberg-Marquardt damping is large, its diagonal is at
 least ``WEAK`` times the typical information, so that weak points do not outrun the
 others; it vanishes with the damping.
 
@@ -85,8 +89,13 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
         prior: the pull's relative weight ``p >= 0``.
         nuisance: whether nuisance parameters are estimated. With them the threshold is
             ``min(p, SPARSE)`` (a pull on combinations that an IMU weakly determines would
-            move an extrinsic); without them (a trajectory from poses or positions alone,
-            where a pull can decide no other parameter) it is ``p`` itself, so that the
+            move an extrinsic) times the window's largest scaled eigenvalue where that is
+            below 1 (at least ``NULL``): where only a less informative sensor sees the
+            control points (poses at the ends of an IMU record, 1e-6 of the accelerometer's
+            typical information but well determined: 1 mm), information is judged against
+            what determines them there, not against the accelerometer; without them (a
+            trajectory from poses or positions alone, where a pull can decide no other
+            parameter) it is ``p`` itself, so that the
             weakly determined edges of long time gaps stay near the start instead of
             swinging to the few samples' least-squares answer (TUM fr2_desk: 40 deg).
     """
@@ -98,6 +107,8 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
     lam, V = torch.linalg.eigh(_windows(band, v) / outer)
+    if nuisance:  # relative to the window's best-determined direction, at most typical
+        threshold = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
     W = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer
     pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
     for a in range(v):
@@ -164,10 +175,10 @@ def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: flo
     return P * (s[:, :, None] * s[:, None, :])
 
 
-def nuisance_chart(problem, values: list[Tensor]) -> Tensor:
-    """``(..., m)`` chart coordinates of the nuisance ``values`` around their starts."""
-    parts = [p.chart.local(p.start, v).expand(*problem.batch, p.dim)
-             for p, v in zip(problem.params, values, strict=True)]
+def nuisance_chart(problem, anchor: list[Tensor], values: list[Tensor]) -> Tensor:
+    """``(..., m)`` chart coordinates of the nuisance ``values`` around ``anchor``."""
+    parts = [p.chart.local(a, v).expand(*problem.batch, p.dim)
+             for p, a, v in zip(problem.params, anchor, values, strict=True)]
     if not parts:
         return torch.zeros(*problem.batch, 0, dtype=torch.float64, device=problem.spans.device)
     return torch.cat(parts, -1)

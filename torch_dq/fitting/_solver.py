@@ -51,8 +51,8 @@ class Marquardt:
     """Damping policy: ``lam`` per batch element times the diagonal (Marquardt's scaling),
     the control points' floored at ``WEAK`` times the typical information
     (``torch_dq.fitting._prior.damping_floor``) and both at ``1e-12`` of its mean; ``lam``
-    starts at ``1e-4``, grows tenfold on a rejected step and falls tenfold (to ``1e-12``
-    at least) after an accepted one.
+    starts at ``1e-4``, grows tenfold on a rejected step (to ``1e-4`` at least) and falls
+    tenfold (to ``1e-12`` at least) after an accepted one.
 
     Args:
         Bf: flattened batch size.
@@ -75,7 +75,7 @@ class Marquardt:
 
     def reject(self, pending: Tensor) -> None:
         """Raise the damping where a step was rejected (``pending``)."""
-        self.lam = torch.where(pending, self.lam * self.UP, self.lam)
+        self.lam = torch.where(pending, (self.lam * self.UP).clamp_min(self.START), self.lam)
 
     def accept(self, pending: Tensor) -> None:
         """Lower the damping where the iteration accepted a step (not ``pending``)."""

@@ -45,6 +45,9 @@ __all__ = ["Estimate"]
 
 _FLOOR = 1e-12  # information below this fraction of the largest diagonal entry: none
 _Z999 = 3.2905  # the standard normal's 99.95 % quantile (two-sided 99.9 % band)
+_FAR = 1.5  # chi2/dof above which (and above the band) a term's sigmas are too small: the
+# standard deviations 20 % too small at least (2 let an accelerometer at 1.57 on knots too
+# far apart for it pass silently, its bias 2.4 std off along a weak direction)
 _UNEXCITED = 0.1  # a time offset's std above this fraction of its bound: barely excited
 _LOOSE = 100.0  # the second regularisation (times REGULARISE) that tells undetermined apart
 
@@ -200,20 +203,26 @@ class Estimate:
         return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
     def _check_chi2(self) -> None:
-        r"""Warn where a term's :math:`\chi^2` exceeds both twice its ``dof`` and the
-        upper end of the two-sided 99.9 % band of the chi-square distribution (Wilson and
-        Hilferty's cube-root approximation): its sigmas are too small for its residuals."""
+        r"""Warn where a term's :math:`\chi^2` exceeds both ``_FAR = 1.5`` times its ``dof``
+        and the upper end of the two-sided 99.9 % band of the chi-square distribution
+        (Wilson and Hilferty's cube-root approximation): its sigmas are too small for its
+        residuals, or (an IMU term) the trajectory's knots too far apart for its readings."""
         bad = []
         for term, c in self.chi2.items():
             nu = self.dof[term].clamp_min(1.0)
             upper = nu * (1.0 - 2.0 / (9.0 * nu) + _Z999 * (2.0 / (9.0 * nu)).sqrt()) ** 3
             ratio = c / nu
-            if bool(((c > upper) & (ratio > 2.0)).any()):
-                bad.append(f"{type(term).__name__} {float(ratio.max()):.3g}")
+            if bool(((c > upper) & (ratio > _FAR)).any()):
+                bad.append((type(term).__name__, f"{float(ratio.max()):.3g}", term.order))
         if bad:
-            warnings.warn(f"fitting.Estimate: chi2/dof far above 1 ({', '.join(bad)}): the "
-                          f"sigmas do not describe the residuals, the standard deviations are "
-                          f"too small (std(..., scaled=True) scales them by sqrt(chi2/dof))",
+            imu = [name for name, _, order in bad if order >= 1]
+            hint = (f"; for {', '.join(imu)}: or the trajectory's knots are too far apart for "
+                    f"its readings (BSpline.from_poses(..., knot_spacing=...) finer)"
+                    if imu else "")
+            warnings.warn(f"fitting.Estimate: chi2/dof far above 1 "
+                          f"({', '.join(f'{n} {r}' for n, r, _ in bad)}): the sigmas do not "
+                          f"describe the residuals, the standard deviations are too small "
+                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof)){hint}",
                           RuntimeWarning, stacklevel=4)
 
     @property
