@@ -37,7 +37,7 @@ from ._time import bspline_basis, time_step
 
 __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squares_start"]
 
-_MAX_WINDOW_ELEMENTS = 1 << 22  # bound on (windows x samples x unknowns) per chunk
+_MAX_WINDOW_ELEMENTS = 1 << 22  # bound on the numbers held per chunk of windows
 _START_PRIOR = 1e-3  # pull of the windowed least squares towards the anchors (see below)
 # Largest rotation (rad) across one window of the start: the twists lifted into a window's
 # chart hold rotations up to a full turn (2 pi) either side of it, but the translation part
@@ -312,8 +312,9 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     centre = _interpolate(x, times, mid)  # (..., n, 8)
     window = _Windows(_rt(x), _rt(centre), _rt(anchor), first, values, lo, hi - lo, a,
                       _START_PRIOR * float((values * values).sum()) / n, split)
-    # windows per chunk: each pair carries ~8 w numbers, each window its U x U system
-    chunk = max(1, _MAX_WINDOW_ELEMENTS // (int((hi - lo).max()) * 8 * w + window.U ** 2))
+    # windows per chunk: each (window, sample) pair carries ~w (w + 8) numbers, each window
+    # its U x U system
+    chunk = max(1, _MAX_WINDOW_ELEMENTS // (int((hi - lo).max()) * w * (w + 8) + window.U ** 2))
     C = torch.cat([window.coefficients(ks[i:i + chunk]) for i in range(0, n, chunk)], dim=-2)
     ctrl = _from_chart(centre, C, split)
     # the representative of each control point nearest to its anchor (the samples' chain)
