@@ -172,22 +172,6 @@ def _rt_twists(rc: Tensor, pc: Tensor, rx: Tensor, px: Tensor, split: bool) -> T
     return torch.cat((omega, twist_translation(omega, qrotate(inv, px - pc))), dim=-1)
 
 
-def _pair_twists(chart: Tensor, rx: Tensor, px: Tensor, idx: Tensor, mask: Tensor,
-                 split: bool) -> Tensor:
-    """``(..., K, M, 6)`` chart twists of the samples ``(rx, px)[..., idx, :]`` about
-    ``chart (..., K, 8)`` where ``mask (K, M)`` holds, zero elsewhere: only the (window,
-    sample) pairs are computed (windows of unequal length, as irregular sampling gives,
-    cost no padding)."""
-    kk, mm = mask.nonzero(as_tuple=True)
-    s = idx[kk, mm]
-    rc, pc = _rt(chart)  # per window, then gathered per pair
-    rc, pc = rc[..., kk, :], pc[..., kk, :]
-    xi = _rt_twists(rc, pc, rx[..., s, :], px[..., s, :], split)  # (..., P, 6)
-    out = xi.new_zeros(*xi.shape[:-2], *mask.shape, 6)
-    out[..., kk, mm, :] = xi
-    return out
-
-
 def _from_chart(centre: Tensor, C: Tensor, split: bool) -> Tensor:
     """The poses of chart coordinates ``C (..., 6)`` about ``centre`` (:func:`_rt_twists`'
     inverse): ``centre exp(C)``, or with ``split`` the rotation ``R_c Exp(omega)`` and the
