@@ -183,3 +183,28 @@ def curves_knots(n, degree, duration):
     from torch_dq import curves
 
     return curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * duration
+
+
+def test_windowed_start_of_a_bezier_curve_is_its_least_squares():
+    """A global basis (Bernstein, a Bézier curve: every window holds every sample, one span)
+    gives the same control points as the numpy window-by-window reference."""
+    from math import comb
+
+    from torch_dq import _start
+    from torch_dq._core import align_chain
+
+    gen = torch.Generator().manual_seed(6)
+    times = torch.sort(torch.rand(50, generator=gen, dtype=torch.float64) * 5.0).values
+    speed = torch.tensor([0.1, 0.3, -0.2, 0.4, 0.1, 0.2], dtype=torch.float64)
+    noise = 0.01 * torch.randn(50, 6, generator=gen, dtype=torch.float64)
+    x = align_chain(dualquat.exp(times[:, None] * speed + noise))
+    n = 6
+    u = ((times - times[0]) / (times[-1] - times[0])).numpy()
+    values = torch.tensor(np.stack([comb(n - 1, j) * u ** j * (1 - u) ** (n - 1 - j)
+                                    for j in range(n)], axis=1))
+    first = torch.zeros(50, dtype=torch.int64)
+    anchors = times[0] + torch.arange(n, dtype=torch.float64) / (n - 1) * (times[-1] - times[0])
+    for split in (False, True):
+        got = _start._windowed(x, times, first, values, n, anchors, n - 1, split)
+        ref = _window_reference(x, times, first, values, n, anchors, n - 1, split)
+        np.testing.assert_allclose(dualquat.to_matrix(got).numpy(), ref, atol=1e-10)

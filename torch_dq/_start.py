@@ -296,9 +296,10 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     centre = _interpolate(x, times, mid)  # (..., n, 8)
     window = _Windows(_rt(x), _rt(centre), _rt(anchor), first, values, lo, hi - lo, a,
                       _START_PRIOR * float((values * values).sum()) / n, split)
-    # windows per chunk: each (window, sample) pair carries ~w (w + 8) numbers, each window
-    # its U x U system
-    chunk = max(1, _MAX_WINDOW_ELEMENTS // (int((hi - lo).max()) * w * (w + 8) + window.U ** 2))
+    # windows per chunk: each (window, sample) pair carries ~3 w + 16 numbers, each window
+    # its system
+    chunk = max(1, _MAX_WINDOW_ELEMENTS // (int((hi - lo).max()) * (3 * w + 16)
+                                            + (window.U + w) ** 2))
     C = torch.cat([window.coefficients(ks[i:i + chunk]) for i in range(0, n, chunk)], dim=-2)
     ctrl = _from_chart(centre, C, split)
     # the representative of each control point nearest to its anchor (the samples' chain)
@@ -324,6 +325,10 @@ class _Windows:
         self.first, self.values, self.lo, self.count = first, values, lo, count
         self.a, self.h, self.weight, self.split = a, values.shape[1] - 1, weight, split
         self.n, self.U = rtc[0].shape[-2], 2 * (a + self.h) + 1
+        w = values.shape[1]  # the Gram of the samples of each span (first control point f)
+        self.spans = values.new_zeros(self.n - self.h, w, w)
+        for j in range(w):  # column by column: N x w numbers at a time
+            self.spans[:, :, j].index_add_(0, first, values * values[:, j, None])
 
     def _pairs(self, k: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """The (window, sample) pairs of windows ``k``: their window's position in ``k``,
@@ -335,15 +340,17 @@ class _Windows:
             torch.cumsum(count, 0) - count)[kk]
         return kk, s, self.first[s] - (k - self.h - self.a)[kk]
 
-    def _z(self, K: int, kk: Tensor, vs: Tensor, cols: Tensor) -> Tensor:
-        """``(K, U)``: :math:`G^{-1} e_r` of each window, ``G`` summed from the pairs' outer
-        products of basis values."""
-        U, like = self.U, vs
-        flat = (kk[:, None, None] * U + cols[:, :, None]) * U + cols[:, None, :]
-        G = like.new_zeros(K * U * U).index_add_(0, flat.reshape(-1),
-                                                 (vs[:, :, None] * vs[:, None, :]).reshape(-1))
-        G = G.view(K, U, U) + self.weight * torch.eye(U, dtype=like.dtype, device=like.device)
-        e = like.new_zeros(K, U, 1)
+    def _z(self, k: Tensor) -> Tensor:
+        """``(K, U)``: :math:`G^{-1} e_r` of windows ``k``, ``G`` summed from the Grams of
+        the spans ``k - h - a .. k + a`` that their samples start in."""
+        U, w, spans, like = self.U, self.h + 1, self.spans, self.spans
+        G = like.new_zeros(len(k), U + w, U + w)  # a margin for the loop's last blocks
+        for d in range(2 * self.a + self.h + 1):
+            f = k - self.h - self.a + d
+            ok = ((f >= 0) & (f < spans.shape[0])).to(like.dtype)[:, None, None]
+            G[:, d:d + w, d:d + w] += spans[f.clamp(0, spans.shape[0] - 1)] * ok
+        G = G[:, :U, :U] + self.weight * torch.eye(U, dtype=like.dtype, device=like.device)
+        e = like.new_zeros(len(k), U, 1)
         e[:, self.h + self.a] = 1.0
         return torch.cholesky_solve(e, torch.linalg.cholesky(G))[..., 0]
 
@@ -352,7 +359,7 @@ class _Windows:
         kk, s, c = self._pairs(k)
         vs = self.values[s]  # (P, w)
         cols = c[:, None] + torch.arange(self.h + 1, device=k.device)
-        z = self._z(len(k), kk, vs, cols)
+        z = self._z(k)
         (rx, px), (rc, pc), (ra, pa) = self.rtx, self.rtc, self.rta
         rc, pc = rc[..., k, :], pc[..., k, :]
         xi = _rt_twists(rc[..., kk, :], pc[..., kk, :], rx[..., s, :], px[..., s, :],
