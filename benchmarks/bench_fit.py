@@ -15,6 +15,9 @@ Each stage: process CPU seconds (summed over threads) and wall seconds, best of
 ``--repeats``. Prints the machine, the date, torch's version and the threads.
 
     python benchmarks/bench_fit.py [--poses 10000] [--file PATH] [--threads 1] [--repeats 3]
+        [--stages-only]
+
+``--stages-only`` skips the whole ``run_fit`` and the fresh process (for paired A/B runs).
 """
 
 from __future__ import annotations
@@ -122,6 +125,8 @@ def main() -> None:
     parser.add_argument("--file", default=None, help="time this file instead")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--stages-only", action="store_true",
+                        help="skip run_fit in process and the command's process")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     warnings.simplefilter("ignore")
@@ -142,6 +147,8 @@ def main() -> None:
             print(f"{name:<34}{cpu:8.3f}{wall:8.3f}")
         print(f"{'fitting (search, start, LM, held-out)':<34}{sum(r[1] for r in fit_rows):8.3f}"
               f"{sum(r[2] for r in fit_rows):8.3f}")
+        if args.stages_only:
+            return
         cpu, wall, _ = timed(lambda: fit_file.run_fit(
             path, duplicates="first", out=os.path.join(tmp, "out"), overwrite=True,
             plots=False, verbose=False), 1)

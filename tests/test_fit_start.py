@@ -94,28 +94,117 @@ def _se3_log(T):
     return np.array([L[2, 1], L[0, 2], L[1, 0], *L[:3, 3]])
 
 
-def test_window_pair_twists_match_the_matrix_logarithm():
-    """The start's chart twists of (window, sample) pairs, each window's chart converted
-    once and gathered per pair: scipy's matrix logarithm of ``chart^-1 x`` (and, for the
-    split form, the rotation vector and the world translation difference)."""
+def _window_reference(x, times, first, values, n, anchors, a, split):
+    """Control points of :func:`torch_dq._start.least_squares_start` with windows of reach
+    ``a``, window by window in numpy: each window's padded design matrix over its columns
+    ``max(0, k - 2h) ..``, scipy's matrix logarithm of ``chart^-1 x`` for the twists (the
+    split form: rotation vector and world translation difference), the full 6-column solve
+    of the regularised normal equations, the chart composed by scipy's matrix exponential.
+    The charts and anchors are the start's (pose interpolation, tested elsewhere)."""
+    from scipy.linalg import expm
+
     from torch_dq import _start
 
-    gen = torch.Generator().manual_seed(3)
-    x = dualquat.exp(0.7 * torch.randn(12, 6, generator=gen, dtype=torch.float64))
-    chart = dualquat.exp(0.7 * torch.randn(3, 6, generator=gen, dtype=torch.float64))
-    rx, px = dualquat.to_rt(x)
-    idx = torch.tensor([[0, 1, 2, 3], [4, 5, 6, 6], [7, 8, 9, 11]])
-    mask = torch.tensor([[True] * 4, [True, True, True, False], [True] * 4])
-    for split in (False, True):
-        xi = _start._pair_twists(chart, rx, px, idx, mask, split).numpy()
-        Tc = dualquat.to_matrix(chart).numpy()
-        Tx = dualquat.to_matrix(x).numpy()
-        for k, m in np.argwhere(np.ones(mask.shape, dtype=bool)):
-            if not mask[k, m]:
-                assert (xi[k, m] == 0).all()
-                continue
-            rel = np.linalg.inv(Tc[k]) @ Tx[idx[k, m]]
-            ref = _se3_log(rel)
+    w = values.shape[1]
+    h = w - 1
+    anchor = _start._interpolate(x, times, anchors)
+    ks = torch.arange(n)
+    lo = torch.searchsorted(first, ks - h - a).tolist()
+    hi = torch.searchsorted(first, ks + a, right=True).tolist()
+    mid = [0.5 * float(times[lo[k]] + times[hi[k] - 1]) for k in range(n)]
+    centre = dualquat.to_matrix(_start._interpolate(x, times, torch.tensor(
+        mid, dtype=torch.float64))).numpy()
+    Tx, Ta = dualquat.to_matrix(x).numpy(), dualquat.to_matrix(anchor).numpy()
+    weight = 1e-3 * float((values * values).sum()) / n
+    U = min(4 * h + 1, n)
+    out = []
+    for k in range(n):
+        base = min(max(k - 2 * h, 0), n - U)
+
+        def twist(T, c=centre[k]):
+            ref = _se3_log(np.linalg.inv(c) @ T)
             if split:
-                ref[3:] = Tx[idx[k, m], :3, 3] - Tc[k, :3, 3]
-            np.testing.assert_allclose(xi[k, m], ref, atol=1e-10)
+                ref[3:] = T[:3, 3] - c[:3, 3]
+            return ref
+
+        A = np.zeros((hi[k] - lo[k], U))
+        rhs = np.zeros((hi[k] - lo[k], 6))
+        for row, i in enumerate(range(lo[k], hi[k])):
+            A[row, int(first[i]) - base + np.arange(w)] = values[i].numpy()
+            rhs[row] = twist(Tx[i])
+        prior = np.stack([twist(Ta[base + u]) for u in range(U)])
+        C = np.linalg.solve(A.T @ A + weight * np.eye(U), A.T @ rhs + weight * prior)[k - base]
+        if split:
+            from scipy.spatial.transform import Rotation as R
+            T = np.eye(4)
+            T[:3, :3] = centre[k][:3, :3] @ R.from_rotvec(C[:3]).as_matrix()
+            T[:3, 3] = centre[k][:3, 3] + C[3:]
+        else:
+            L = np.zeros((4, 4))
+            L[:3, :3] = [[0, -C[2], C[1]], [C[2], 0, -C[0]], [-C[1], C[0], 0]]
+            L[:3, 3] = C[3:]
+            T = centre[k] @ expm(L)
+        out.append(T)
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("reach", [3, 1])
+@pytest.mark.parametrize("split", [False, True])
+def test_windowed_start_is_each_windows_least_squares(reach, split):
+    """The start keeps only each window's own control point, from one solve G z = e_r per
+    window and the (window, sample) pairs' twists weighted by A z: the same control points
+    as solving each window's padded least squares for all its unknowns (numpy, scipy's
+    matrix logarithm), at irregular times with a gap, for a batch of two trajectories.
+    (``_start._windowed`` before solved every window for all its unknowns: equal to 1e-14.)"""
+    from torch_dq import _start
+    from torch_dq._core import align_chain
+    from torch_dq._time import KnotDomain
+
+    gen = torch.Generator().manual_seed(5)
+    times = torch.sort(torch.rand(70, generator=gen, dtype=torch.float64) * 6.0).values
+    times = torch.cat((times[:40], times[40:] + 2.0))  # a 2 s gap
+    speed = torch.tensor([[0.1, -0.1, 0.3, 0.5, 0.2, -0.1], [-0.1, 0.2, 0.05, 0.0, 0.6, 0.3]],
+                         dtype=torch.float64)  # windows turning by less than pi (logm's branch)
+    noise = 0.02 * torch.randn(2, 70, 6, generator=gen, dtype=torch.float64)
+    x = align_chain(dualquat.exp(times[:, None] * speed[:, None, :] + noise))
+    n, degree = 14, 3
+    knots = curves_knots(n, degree, float(times[-1] - times[0]))
+    dom = KnotDomain(knots, degree, float(times[0]))
+    rel = dom.relative(times, torch.float64)
+    first, values = dom.basis(rel)
+    got = _start._windowed(x, rel, first, values, n, dom.greville(), reach, split)
+    for b in range(2):
+        ref = _window_reference(x[b], rel, first, values, n, dom.greville(), reach, split)
+        np.testing.assert_allclose(dualquat.to_matrix(got[b]).numpy(), ref, atol=1e-10)
+
+
+def curves_knots(n, degree, duration):
+    """Clamped uniform knots of ``n`` control points over ``[0, duration]``."""
+    from torch_dq import curves
+
+    return curves.clamped_uniform_knots(n, degree, dtype=torch.float64) * duration
+
+
+def test_windowed_start_of_a_bezier_curve_is_its_least_squares():
+    """A global basis (Bernstein, a Bézier curve: every window holds every sample, one span)
+    gives the same control points as the numpy window-by-window reference."""
+    from math import comb
+
+    from torch_dq import _start
+    from torch_dq._core import align_chain
+
+    gen = torch.Generator().manual_seed(6)
+    times = torch.sort(torch.rand(50, generator=gen, dtype=torch.float64) * 5.0).values
+    speed = torch.tensor([0.1, 0.3, -0.2, 0.4, 0.1, 0.2], dtype=torch.float64)
+    noise = 0.01 * torch.randn(50, 6, generator=gen, dtype=torch.float64)
+    x = align_chain(dualquat.exp(times[:, None] * speed + noise))
+    n = 6
+    u = ((times - times[0]) / (times[-1] - times[0])).numpy()
+    values = torch.tensor(np.stack([comb(n - 1, j) * u ** j * (1 - u) ** (n - 1 - j)
+                                    for j in range(n)], axis=1))
+    first = torch.zeros(50, dtype=torch.int64)
+    anchors = times[0] + torch.arange(n, dtype=torch.float64) / (n - 1) * (times[-1] - times[0])
+    for split in (False, True):
+        got = _start._windowed(x, times, first, values, n, anchors, n - 1, split)
+        ref = _window_reference(x, times, first, values, n, anchors, n - 1, split)
+        np.testing.assert_allclose(dualquat.to_matrix(got).numpy(), ref, atol=1e-10)

@@ -37,7 +37,7 @@ from ._time import bspline_basis, time_step
 
 __all__ = ["bspline_basis", "check_determined", "check_sample_times", "least_squares_start"]
 
-_MAX_WINDOW_ELEMENTS = 1 << 22  # bound on (windows x samples x unknowns) per chunk
+_MAX_WINDOW_ELEMENTS = 1 << 22  # bound on the numbers held per chunk of windows
 _START_PRIOR = 1e-3  # pull of the windowed least squares towards the anchors (see below)
 # Largest rotation (rad) across one window of the start: the twists lifted into a window's
 # chart hold rotations up to a full turn (2 pi) either side of it, but the translation part
@@ -172,22 +172,6 @@ def _rt_twists(rc: Tensor, pc: Tensor, rx: Tensor, px: Tensor, split: bool) -> T
     return torch.cat((omega, twist_translation(omega, qrotate(inv, px - pc))), dim=-1)
 
 
-def _pair_twists(chart: Tensor, rx: Tensor, px: Tensor, idx: Tensor, mask: Tensor,
-                 split: bool) -> Tensor:
-    """``(..., K, M, 6)`` chart twists of the samples ``(rx, px)[..., idx, :]`` about
-    ``chart (..., K, 8)`` where ``mask (K, M)`` holds, zero elsewhere: only the (window,
-    sample) pairs are computed (windows of unequal length, as irregular sampling gives,
-    cost no padding)."""
-    kk, mm = mask.nonzero(as_tuple=True)
-    s = idx[kk, mm]
-    rc, pc = _rt(chart)  # per window, then gathered per pair
-    rc, pc = rc[..., kk, :], pc[..., kk, :]
-    xi = _rt_twists(rc, pc, rx[..., s, :], px[..., s, :], split)  # (..., P, 6)
-    out = xi.new_zeros(*xi.shape[:-2], *mask.shape, 6)
-    out[..., kk, mm, :] = xi
-    return out
-
-
 def _from_chart(centre: Tensor, C: Tensor, split: bool) -> Tensor:
     """The poses of chart coordinates ``C (..., 6)`` about ``centre`` (:func:`_rt_twists`'
     inverse): ``centre exp(C)``, or with ``split`` the rotation ``R_c Exp(omega)`` and the
@@ -301,8 +285,7 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     N, w = values.shape
     h = w - 1
     anchor = _interpolate(x, times, anchors)  # (..., n, 8)
-    dev = x.device
-    ks = torch.arange(n, device=dev)
+    ks = torch.arange(n, device=x.device)
     lo = torch.searchsorted(first, ks - h - a, right=False)
     hi = torch.searchsorted(first, ks + a, right=True)
     # The chart of each window: the pose interpolated at the middle time of its samples (the
@@ -311,33 +294,82 @@ def _windowed(x: Tensor, times: Tensor, first: Tensor, values: Tensor, n: int,
     mid = torch.where(hi > lo, 0.5 * (times[lo.clamp(max=N - 1)] + times[(hi - 1).clamp(min=0)]),
                       anchors)
     centre = _interpolate(x, times, mid)  # (..., n, 8)
-    rx, px = _rt(x)
-    ra, pa = _rt(anchor)
-    M = int((hi - lo).max())
-    U = min(4 * h + 1, n)
-    weight = _START_PRIOR * float((values * values).sum()) / n  # of the mean data weight
-    chunk = max(1, _MAX_WINDOW_ELEMENTS // max(1, M * (U + 8)))
-    coeffs = []
-    for start in range(0, n, chunk):
-        k = ks[start:start + chunk]
-        idx = lo[k, None] + torch.arange(M, device=dev)
-        mask = idx < hi[k, None]
-        idx = idx.clamp(max=N - 1)
-        base = (k - 2 * h).clamp(0, n - U)
-        cols = first[idx][..., None] - base[:, None, None] + torch.arange(w, device=dev)
-        cols = torch.where(mask[..., None], cols, torch.arange(w, device=dev))
-        A = torch.zeros(len(k), M, U, dtype=x.dtype, device=dev)
-        A.scatter_(2, cols, values[idx] * mask[..., None])
-        xi = _pair_twists(centre[..., k, :], rx, px, idx, mask, split)  # (..., K, M, 6)
-        # prior: unknown j at its own anchor, seen from the chart of anchor k
-        near = base[:, None] + torch.arange(U, device=dev)  # (K, U)
-        rc, pc = _rt(centre[..., k, None, :])
-        prior = _rt_twists(rc, pc, ra[..., near, :], pa[..., near, :], split)
-        G = A.mT @ A + weight * torch.eye(U, dtype=x.dtype, device=dev)
-        rhs = A.mT @ xi + weight * prior
-        sol = torch.cholesky_solve(rhs, torch.linalg.cholesky(G))  # (..., K, U, 6)
-        coeffs.append(sol[..., torch.arange(len(k), device=dev), k - base, :])
-    C = torch.cat(coeffs, dim=-2)
+    window = _Windows(_rt(x), _rt(centre), _rt(anchor), first, values, lo, hi - lo, a,
+                      _START_PRIOR * float((values * values).sum()) / n, split)
+    # windows per chunk: each (window, sample) pair carries ~3 w + 16 numbers, each window
+    # its system
+    chunk = max(1, _MAX_WINDOW_ELEMENTS // (int((hi - lo).max()) * (3 * w + 16)
+                                            + (window.U + w) ** 2))
+    C = torch.cat([window.coefficients(ks[i:i + chunk]) for i in range(0, n, chunk)], dim=-2)
     ctrl = _from_chart(centre, C, split)
     # the representative of each control point nearest to its anchor (the samples' chain)
     return align(ctrl, anchor)
+
+
+class _Windows:
+    r"""The windows of :func:`_windowed`, solved for their own control point only.
+
+    Window ``k`` holds the samples whose support starts at control points ``k - h - a ..
+    k + a`` (``h`` the degree), which touch the ``U = 2 (a + h) + 1`` columns ``k - h - a ..
+    k + a + h`` (those outside ``0 .. n - 1`` hold no data and no prior: zero, decoupled).
+    With its design matrix ``A``, chart twists :math:`\xi` and prior twists ``P`` (weight
+    ``weight``), the window's least squares is :math:`G C = A^T \xi + weight\,P` with
+    :math:`G = A^T A + weight\,I`; only :math:`C_r` is kept (``r = h + a``, the window's own
+    control point), so with :math:`z = G^{-1} e_r` (one solve per window, ``G`` symmetric)
+    :math:`C_r = \sum_i (A z)_i \xi_i + weight\,z^T P`: the twists are weighted and summed
+    per (window, sample) pair, without the padded ``A`` or a 6-column solve.
+    """
+
+    def __init__(self, rtx, rtc, rta, first, values, lo, count, a, weight, split):
+        self.rtx, self.rtc, self.rta = rtx, rtc, rta
+        self.first, self.values, self.lo, self.count = first, values, lo, count
+        self.a, self.h, self.weight, self.split = a, values.shape[1] - 1, weight, split
+        self.n, self.U = rtc[0].shape[-2], 2 * (a + self.h) + 1
+        w = values.shape[1]  # the Gram of the samples of each span (first control point f)
+        self.spans = values.new_zeros(self.n - self.h, w, w)
+        for j in range(w):  # column by column: N x w numbers at a time
+            self.spans[:, :, j].index_add_(0, first, values * values[:, j, None])
+
+    def _pairs(self, k: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The (window, sample) pairs of windows ``k``: their window's position in ``k``,
+        the sample and the column of its first basis value in the window."""
+        dev = k.device
+        count = self.count[k]
+        kk = torch.repeat_interleave(torch.arange(len(k), device=dev), count)
+        s = self.lo[k][kk] + torch.arange(kk.shape[0], device=dev) - (
+            torch.cumsum(count, 0) - count)[kk]
+        return kk, s, self.first[s] - (k - self.h - self.a)[kk]
+
+    def _z(self, k: Tensor) -> Tensor:
+        """``(K, U)``: :math:`G^{-1} e_r` of windows ``k``, ``G`` summed from the Grams of
+        the spans ``k - h - a .. k + a`` that their samples start in."""
+        U, w, spans, like = self.U, self.h + 1, self.spans, self.spans
+        G = like.new_zeros(len(k), U + w, U + w)  # a margin for the loop's last blocks
+        for d in range(2 * self.a + self.h + 1):
+            f = k - self.h - self.a + d
+            ok = ((f >= 0) & (f < spans.shape[0])).to(like.dtype)[:, None, None]
+            G[:, d:d + w, d:d + w] += spans[f.clamp(0, spans.shape[0] - 1)] * ok
+        G = G[:, :U, :U] + self.weight * torch.eye(U, dtype=like.dtype, device=like.device)
+        e = like.new_zeros(len(k), U, 1)
+        e[:, self.h + self.a] = 1.0
+        return torch.cholesky_solve(e, torch.linalg.cholesky(G))[..., 0]
+
+    def coefficients(self, k: Tensor) -> Tensor:
+        """``(..., K, 6)`` the chart coordinates of control points ``k`` in their windows."""
+        kk, s, c = self._pairs(k)
+        vs = self.values[s]  # (P, w)
+        cols = c[:, None] + torch.arange(self.h + 1, device=k.device)
+        z = self._z(k)
+        (rx, px), (rc, pc), (ra, pa) = self.rtx, self.rtc, self.rta
+        rc, pc = rc[..., k, :], pc[..., k, :]
+        xi = _rt_twists(rc[..., kk, :], pc[..., kk, :], rx[..., s, :], px[..., s, :],
+                        self.split)  # (..., P, 6)
+        weighted = (vs * z[kk[:, None], cols]).sum(-1)[:, None] * xi  # (A z)_i xi_i
+        out = weighted.new_zeros(*weighted.shape[:-2], len(k), 6).index_add_(-2, kk, weighted)
+        # prior: unknown j at its own anchor, seen from the window's chart
+        near = (k - self.h - self.a)[:, None] + torch.arange(self.U, device=k.device)
+        z = z * ((near >= 0) & (near < self.n))
+        near = near.clamp(0, self.n - 1)
+        prior = _rt_twists(rc[..., None, :], pc[..., None, :], ra[..., near, :],
+                           pa[..., near, :], self.split)  # (..., K, U, 6)
+        return out + self.weight * (z[..., None] * prior).sum(-2)

@@ -10,7 +10,7 @@ the caller: it splits the poses it is given once more,
    caller's held-out poses are;
 2. for candidate spacings of a geometric grid (from the finest the inner fit determines,
    ``n_ctrl <= N_inner``, upwards in steps of :data:`GRID_RATIO`; coarse to fine: every
-   other one until the errors have clearly risen past their lowest, then the ones between
+   other one until an error has clearly risen past its lowest, then the ones between
    next to those near the lowest, where the choice lies), builds the least-squares
    start of :meth:`torch_dq.nn.BSpline.from_poses` on the inner fit (the same knots and
    :func:`torch_dq._start.least_squares_start`, evaluated by :func:`torch_dq.curves.bspline`,
@@ -256,17 +256,18 @@ def _grid(duration: float, n_fit: int, degree: int) -> list[float]:
 
 def _coarse_to_fine(score, size: int, tolerance: float) -> dict[int, tuple[float, float]]:
     r"""Scores ``{grid index: (rot, trans)}`` of the grid points :func:`knot_spacing_search`
-    needs, ``score(i)`` computing one: every other point from the finest up until both
-    errors pass :math:`1 + 10\,tol` (at most 2) times their lowest so far (coarser knots
-    only get worse), then the points between whose neighbour is *near* the best (both
-    errors within :math:`1 + 8\,tol` of the lowest), until none is left. The choice
-    (the lowest errors, the largest point within ``tol`` of them) lies among those."""
+    needs, ``score(i)`` computing one: every other point from the finest up until either
+    error passes :math:`1 + 10\,tol` (at most 2) times its lowest so far (coarser knots
+    only get worse, and the choice needs both errors within :math:`1 + tol` of their
+    lowest), then the points between whose neighbour is *near* the best (both errors
+    within :math:`1 + 8\,tol` of the lowest), until none is left. The choice (the lowest
+    errors, the largest point within ``tol`` of them) lies among those."""
     stop, near = min(2.0, 1.0 + 10.0 * tolerance), 1.0 + 8.0 * tolerance
     scores: dict[int, tuple[float, float]] = {}
     for i in range(0, size, 2):
         scores[i] = score(i)
         lows = [min(v) for v in zip(*scores.values(), strict=True)]
-        if all(e > stop * low + 1e-12 for e, low in zip(scores[i], lows, strict=True)):
+        if any(e > stop * low + 1e-12 for e, low in zip(scores[i], lows, strict=True)):
             break
     top = max(scores)
     while True:
