@@ -12,6 +12,7 @@ and the Free priors) or gives up. Convergence: the scaled gradient test of
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -98,6 +99,7 @@ class LevenbergMarquardt:
         data, obj = self.objective(ctrl, values)
         self.point = Point(ctrl, values, obj, data)
         self.damping = Marquardt(self.Bf, ctrl)
+        self.timed, self.span = _time_columns(problem)
         like = self.damping.lam
         self.stalled = torch.zeros_like(like, dtype=torch.bool)
         self.decrement = torch.full_like(like, torch.inf)
@@ -244,6 +246,7 @@ class LevenbergMarquardt:
         for _ in range(_MAX_REJECTIONS):
             dc, dn, ok = step.step(self.damping.lam, gc, gn)
             ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)
+            dc, dn = self._in_time_trust(dc, dn)
             tc, tv = self.p.retract(x.ctrl, x.values, dc.reshape(*batch, self.n, 6),
                                     dn.reshape(*batch, self.p.m))
             td, to = self.objective(tc, tv)
@@ -255,6 +258,20 @@ class LevenbergMarquardt:
             if not bool(pending.any()):
                 break
         return new, pending
+
+    def _in_time_trust(self, dc: Tensor, dn: Tensor) -> tuple[Tensor, Tensor]:
+        """The step ``(dc, dn)`` shortened, its direction kept, where it would move the
+        samples' times by more than one knot span (``_time_columns``): a time's
+        linearisation holds within a fraction of a span. Far from the data (a 1 rad
+        extrinsic's start on knots that interpolate noise-free poses) a step that lowered
+        the cost through the other parameters also moved the clock offsets by several
+        spans, out to their bounds, and the estimate stopped there unconverged."""
+        if self.timed is None:
+            return dc, dn
+        cols, rates = self.timed
+        move = (dn[:, cols].abs() * rates).amax(-1)
+        f = torch.where(move > self.span, self.span / move, torch.ones_like(move))
+        return dc * f[:, None, None], dn * f[:, None]
 
     def iteration(self, tol: float) -> None:
         """One Gauss-Newton system, damped trials until each element accepts or gives up."""
@@ -310,3 +327,23 @@ class LevenbergMarquardt:
         return reasons[0] if len(reasons) == 1 else "; ".join(
             f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
 
+
+def _time_columns(problem: Problem) -> tuple[tuple[Tensor, Tensor] | None, float]:
+    """The nuisance columns that move the samples' times (a clock offset, a line delay:
+    :meth:`~torch_dq.fitting.Term.time_rates`) with their largest rates, or None; and the
+    trajectory's shortest knot span."""
+    cols, rates = [], []
+    for q in problem.params:
+        r = [float(torch.as_tensor(t.time_rates()[name]).abs().max()) for t, name in q.uses
+             if name in t.time_rates()]
+        if r and q.dim == 1:
+            cols.append(q.offset)
+            rates.append(max(r))
+    knots = problem.spans.trajectory.time_model.knots.detach().to(torch.float64)
+    gaps = knots.diff(dim=-1)
+    span = float(gaps[gaps > 0].min()) if bool((gaps > 0).any()) else math.inf
+    if not cols:
+        return None, span
+    like = problem.spans.trajectory.control_points
+    return (torch.tensor(cols, device=like.device),
+            torch.tensor(rates, dtype=like.dtype, device=like.device)), span
