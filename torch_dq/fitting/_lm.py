@@ -93,6 +93,7 @@ class LevenbergMarquardt:
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
         self.system = problem.system(ctrl, values, self.w)
+        self._null_of: System | None = None  # the system the null space was found for
         self._pulls(prior)
         self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                                   for t in problem.terms]).sum(0).reshape(self.Bf)
@@ -122,7 +123,9 @@ class LevenbergMarquardt:
     def _relinearize(self) -> None:
         """The data system at the current point (and the pulls re-anchored there, with
         estimated nuisance parameters: :meth:`_reanchor`)."""
+        del self.system, self._null_of  # the old system freed before the new is built
         self.system = self.p.system(self.point.ctrl, self.point.values, self.w)
+        self._null_of = None
         if self.p.params:
             self._reanchor()
 
@@ -135,6 +138,7 @@ class LevenbergMarquardt:
         start's charts) in the old frame, against the extrinsic: TUM fr1_xyz with an
         identity extrinsic start stalled 46 standard deviations off."""
         self.start, self.anchor = self.point.ctrl, self.point.values
+        del self.pulls, self.null  # the old ones freed before the new are made (memory)
         self._pulls(self.prior)
         x = self.point
         self.point = Point(x.ctrl, x.values, x.data + self._pull(x.ctrl, x.values), x.data)
