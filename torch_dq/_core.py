@@ -16,7 +16,8 @@ from ._checks import broadcast_shapes
 from ._numerics import compute_dtype, even
 
 __all__ = [
-    "Frozen", "align", "align_chain", "canonical", "dq_from_rt", "dq_mul", "hemisphere",
+    "Frozen", "align", "align_chain", "canonical", "distinct", "dq_from_rt", "dq_mul",
+    "hemisphere",
     "join", "lift", "qconj", "qmul", "qrotate", "split", "translation", "twist_translation",
 ]
 
@@ -149,3 +150,12 @@ class Frozen:
 
     def __delattr__(self, name):
         raise AttributeError(f"{type(self).__name__} is immutable: cannot delete {name!r}")
+
+
+def distinct(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The distinct values ``u (U,)`` of ``x (N,)``, ``inverse (N,)`` (``x = u[inverse]``) and
+    the index ``pick (U,)`` of one element holding each."""
+    u, inverse = torch.unique(x, return_inverse=True)
+    pick = torch.zeros_like(u, dtype=torch.int64).scatter_(
+        0, inverse, torch.arange(x.numel(), device=x.device))
+    return u, inverse, pick

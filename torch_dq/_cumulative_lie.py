@@ -47,8 +47,10 @@ import torch
 from torch import Tensor
 
 from . import dualquat
-from ._core import dq_mul, qconj
+from ._core import dq_mul
+from ._cumulative import _conj_rows
 from ._numerics import even_slope
+from ._taylor import dq_rows, qmul_rows
 
 __all__ = ["vjp"]
 
@@ -139,30 +141,18 @@ def _row_ad(a: Tensor, z: Tensor) -> Tensor:
     return torch.cat((_cross(a[:3], z[:3]) + _cross(a[3:], z[3:]), _cross(a[3:], z[:3])))
 
 
-def _qmul(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton products of component-major ``(4, ...)`` quaternions (broadcasting)."""
-    return torch.stack((a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-                        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-                        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-                        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]))
-
-
-def _qconj(a: Tensor) -> Tensor:
-    return torch.cat((a[:1], -a[1:]))
-
-
 def _left_t(x: Tensor, g: Tensor) -> Tensor:
     r""":math:`L(x)^T g` (``x (8, 1, S)``, rows ``g (8, k, S)``): the cotangent of ``y``
     through :math:`y \mapsto x y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
-    r, d = _qconj(x[:4]), _qconj(x[4:])
-    return torch.cat((_qmul(r, g[:4]) + _qmul(d, g[4:]), _qmul(r, g[4:])))
+    c = _conj_rows(x)
+    return torch.cat((qmul_rows(c[:4], g[:4]) + qmul_rows(c[4:], g[4:]), qmul_rows(c[:4], g[4:])))
 
 
 def _right_t(x: Tensor, u: Tensor) -> Tensor:
     r""":math:`R(x)^T u`: the cotangent of ``y`` through :math:`y \mapsto y x`,
     :math:`(u_a r^* + u_b d^*,\ u_b r^*)`."""
-    r, d = _qconj(x[:4]), _qconj(x[4:])
-    return torch.cat((_qmul(u[:4], r) + _qmul(u[4:], d), _qmul(u[4:], r)))
+    c = _conj_rows(x)
+    return torch.cat((qmul_rows(u[:4], c[:4]) + qmul_rows(u[4:], c[4:]), qmul_rows(u[4:], c[:4])))
 
 
 def _pure(xi: Tensor) -> Tensor:
@@ -219,8 +209,7 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> list[Ten
         pose = pose + _right_t(hV, u[1])
         rate = u[1]
         if O > 2:
-            r, d = hV[:4], hV[4:]
-            H2 = torch.cat((_qmul(r, r), _qmul(r, d) + _qmul(d, r))) + _pure(Vd)[:, None]
+            H2 = dq_rows(hV, hV) + _pure(Vd)[:, None]
             pose = pose + _right_t(H2, u[2])
             rate = rate + _right_t(hV, u[2]) + _left_t(hV, u[2])
         rates.append(rate)
@@ -236,7 +225,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], rows: list[Tens
     pose alone)."""
     O, p = len(rows), d.shape[0]
     a = list(rows)  # pose, V, Vd
-    out: list[Tensor] = [d] * p
+    out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         if O > 2:
@@ -251,9 +240,9 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], rows: list[Tens
             c = c + lj[1] * a[1]
         if O > 2:
             c = c + lj[2] * a[2] + lj[1] * _row_ad(a[2], fw["V"][j])
-        out[j] = c
+        out.append(c)
         a = [_rows(r, fw["M"][j]) for r in a]
-    return out, a[0]
+    return out[::-1], a[0]
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -274,8 +263,7 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`.
     """
     p = points.shape[-2] - 1
-    rel = dq_mul(torch.cat((qconj(points[:, :-1, :4]), qconj(points[:, :-1, 4:])), -1),
-                 points[:, 1:])
+    rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
     d = dualquat.log(rel).permute(1, 2, 0).index_select(-1, inverse)  # (p, 6, S)
     powers = [_powers(dj) for dj in d]
     lam = [w.T.contiguous() for w in weights]

@@ -81,6 +81,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _cumulative_lie, _start, curves, dualquat
+from ._core import distinct
 from ._curve import Curve, UnitDualQuaternion
 from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._time import KnotDomain, time_pair
@@ -485,9 +486,7 @@ class BSpline(Curve):
         N = lead[-1] if lead else 1
         key = first.expand(lead).reshape(-1) + self.n_ctrl * torch.arange(
             math.prod(lead), device=first.device).div(N, rounding_mode="floor")
-        spans, inverse = torch.unique(key, return_inverse=True)
-        pick = torch.zeros_like(spans).scatter_(0, inverse, torch.arange(
-            key.numel(), device=key.device))
+        _, inverse, pick = distinct(key)
         G = _cumulative_lie.vjp(points.expand(*lead, p + 1, 8).reshape(-1, p + 1, 8)[pick],
                                 inverse, [w.to(points.dtype).reshape(-1, p) for w in weights],
                                 cotangents.expand(*lead, k, O, 8).reshape(-1, k, O, 8),

@@ -35,7 +35,6 @@ def _structure() -> Tensor:
 
 
 _STRUCTURE = _structure()
-_LEFT = _STRUCTURE.reshape(8, 8, 8).permute(2, 1, 0).reshape(8, 64)  # [i, 8 k + j] = C[k, i, j]
 
 
 def right_matrix(b: Tensor) -> Tensor:
@@ -43,9 +42,3 @@ def right_matrix(b: Tensor) -> Tensor:
     dual quaternions ``a`` and ``b`` (components ``w, x, y, z`` of the real then the dual
     part; batch dims broadcast in the matrix product)."""
     return (b @ _STRUCTURE.to(device=b.device, dtype=b.dtype)).unflatten(-1, (8, 8))
-
-
-def left_matrix(a: Tensor) -> Tensor:
-    r"""``(..., 8, 8)``: the matrix :math:`L(a)` with :math:`a b = L(a)\, b` (as
-    :func:`right_matrix`)."""
-    return (a @ _LEFT.to(device=a.device, dtype=a.dtype)).unflatten(-1, (8, 8))

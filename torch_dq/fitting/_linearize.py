@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .._core import distinct
 from .._curve import span_points
 from . import _robust
 from ._local import sample_jacobians, tangent_step
@@ -449,12 +450,8 @@ def _distinct_times(t: Tensor, first: Tensor, ratio: float,
     None."""
     if t.dim() != 1 or first.dim() != 1:
         return None
-    u, inverse = torch.unique(t, return_inverse=True)
-    if t.numel() < ratio * u.numel():
-        return None
-    pick = torch.zeros_like(u, dtype=torch.int64).scatter_(
-        0, inverse, torch.arange(t.numel(), device=t.device))
-    return u, inverse, pick
+    u, inverse, pick = distinct(t)
+    return None if t.numel() < ratio * u.numel() else (u, inverse, pick)
 
 
 class _Normal:
