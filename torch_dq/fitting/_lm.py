@@ -239,14 +239,15 @@ class LevenbergMarquardt:
         self.converged |= good
         self.active &= ~(good | stop)
 
-    def _trials(self, pending: Tensor) -> tuple[Point, Tensor]:
+    def _trials(self, pending: Tensor) -> tuple[Point, Tensor, Tensor]:
         """Damped steps from the current point until each ``pending`` element accepts one
         that lowers its objective or ``_MAX_REJECTIONS`` rises of its damping; the accepted
-        points (the current one elsewhere) and the elements still pending."""
+        points (the current one elsewhere), the elements still pending and the accepted
+        steps' gain ratios (actual over predicted decrease, ``(Bf,)``)."""
         x, batch, Bf = self.point, self.batch, self.Bf
         gc, gn = self.gradient()
         step = self._step()
-        new = x
+        new, gain = x, torch.zeros_like(self.damping.lam)
         for _ in range(_MAX_REJECTIONS):
             dc, dn, ok = step.step(self.damping.lam, gc, gn)
             ok = ok & torch.isfinite(dc).all(-1).all(-1) & torch.isfinite(dn).all(-1)
@@ -257,11 +258,13 @@ class LevenbergMarquardt:
             acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
                                                                   x.objective.reshape(Bf))
             new = new.where(acc.reshape(batch), Point(tc, tv, to, td))
+            drop = x.objective.reshape(Bf) - to.reshape(Bf)
+            gain = torch.where(acc, drop / step.predicted(gc, gn, dc, dn), gain)
             pending = pending & ~acc
             self.damping.reject(pending)
             if not bool(pending.any()):
                 break
-        return new, pending
+        return new, pending, gain
 
     def _in_time_trust(self, dc: Tensor, dn: Tensor) -> tuple[Tensor, Tensor]:
         """The step ``(dc, dn)`` shortened, its direction kept, where it would move the
@@ -278,21 +281,23 @@ class LevenbergMarquardt:
         return dc * f[:, None, None], dn * f[:, None]
 
     def iteration(self, tol: float) -> None:
-        """One Gauss-Newton system, damped trials until each element accepts or gives up."""
-        new, pending = self._trials(self.active.clone())
+        """One Gauss-Newton system, damped trials until each element accepts or gives up.
+        A cost at float64 roundoff is converged (exact data) when no damped step lowers it
+        or when the quadratic model no longer predicts the decrease (gain at most 1/4)."""
+        new, pending, gain = self._trials(self.active.clone())
         Bf, old = self.Bf, self.point.objective.reshape(self.Bf)
         self.stalled = self.active & ~pending & ((old - new.objective.reshape(Bf))
                                                  <= tol * new.objective.reshape(Bf))
-        exact = pending & (old <= _ROUNDOFF * self.count)
-        for b in pending.nonzero()[:, 0].tolist():
+        exact = self.active & (pending | (gain <= 0.25)) & (old <= _ROUNDOFF * self.count)
+        for b in (pending | exact).nonzero()[:, 0].tolist():
             self.reasons[b] = (f"no damped step lowers the objective while the scaled gradient "
                                f"test fails (g^T H^-1 g = {float(self.decrement[b]):.3g}): a "
                                f"numerical minimum; not converged") if not bool(exact[b]) else (
-                f"no damped step lowers a cost at float64 roundoff (exact data: "
-                f"{float(old[b]):.3g})")
+                f"a cost at float64 roundoff that no damped step lowers as the quadratic model "
+                f"predicts (exact data: {float(old[b]):.3g})")
         self.converged |= exact
-        self.active &= ~pending
-        self.damping.accept(pending)
+        self.active &= ~(pending | exact)
+        self.damping.accept(pending, gain)
         self.point = new
 
     def run(self, steps: int, tol: float, bar) -> History:

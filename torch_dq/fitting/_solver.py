@@ -48,11 +48,23 @@ class SchurSolver:
 
 
 class Marquardt:
-    """Damping policy: ``lam`` per batch element times the diagonal (Marquardt's scaling),
+    r"""Damping policy: ``lam`` per batch element times the diagonal (Marquardt's scaling),
     the control points' floored at ``WEAK`` times the typical information
-    (``torch_dq.fitting._prior.damping_floor``) and both at ``1e-12`` of its mean; ``lam``
-    starts at ``1e-4``, grows tenfold on a rejected step (to ``1e-4`` at least) and falls
-    tenfold (to ``1e-12`` at least) after an accepted one.
+    (``torch_dq.fitting._prior.damping_floor``) and both at ``1e-12`` of its mean.
+
+    ``lam`` starts at ``1e-4``. After an accepted step whose gain ratio :math:`\rho` (actual
+    over predicted decrease of the objective, :meth:`DampedStep.predicted`) exceeds ``1/4`` it
+    falls by the factor :math:`4 |1 - \rho|`, tenfold at least, to ``1e-12`` at least;
+    otherwise it stays (Marquardt's and Nielsen's rules, tied to the model's error: its
+    relative error grows about linearly with the step, and a smaller damping lengthens the
+    steps along weakly determined directions about as much). A rejected step below the last
+    accepted damping goes halfway back to it (geometric mean; tenfold at least); at or above
+    it, tenfold (to ``1e-4`` at least). A rejected trial costs a cost evaluation, an
+    iteration a Gauss-Newton system several times that: tenfold falls from ``1e-4`` took four
+    systems where two reach the same optimum on the 60 s IMU + poses job of
+    ``benchmarks/bench_gtsam.py`` (:math:`\rho = 1 - 5 \cdot 10^{-8}` at its first step);
+    a return to ``1e-4`` after each too long step crept along a weak direction that the
+    model holds only nearby (a rolling-shutter rig's intrinsics: 20 steps instead of 6).
 
     Args:
         Bf: flattened batch size.
@@ -63,6 +75,7 @@ class Marquardt:
 
     def __init__(self, Bf: int, like: Tensor) -> None:
         self.lam = torch.full((Bf,), self.START, dtype=torch.float64, device=like.device)
+        self.good = self.lam.clone()  # the damping of the last accepted step
 
     @staticmethod
     def diagonals(data_band: Tensor, band: Tensor, nn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -75,11 +88,17 @@ class Marquardt:
 
     def reject(self, pending: Tensor) -> None:
         """Raise the damping where a step was rejected (``pending``)."""
-        self.lam = torch.where(pending, (self.lam * self.UP).clamp_min(self.START), self.lam)
+        back = (self.lam * self.good).sqrt().maximum(self.lam * self.UP)
+        up = torch.where(self.lam < self.good, back, (self.lam * self.UP).clamp_min(self.START))
+        self.lam = torch.where(pending, up, self.lam)
 
-    def accept(self, pending: Tensor) -> None:
-        """Lower the damping where the iteration accepted a step (not ``pending``)."""
-        self.lam = torch.where(pending, self.lam, (self.lam / self.DOWN).clamp_min(self.LEAST))
+    def accept(self, pending: Tensor, gain: Tensor) -> None:
+        """Lower the damping where the iteration accepted a step (not ``pending``) by its
+        gain ratio ``gain (Bf,)``."""
+        shrink = torch.where(gain > 0.25, (4.0 * (1.0 - gain).abs()).clamp(max=1 / self.DOWN),
+                             1.0)
+        self.good = torch.where(pending, self.good, self.lam)
+        self.lam = torch.where(pending, self.lam, (self.lam * shrink).clamp_min(self.LEAST))
 
 
 class DampedStep:
@@ -112,6 +131,17 @@ class DampedStep:
         nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
         dc, dn, ok = self.solver.solve(band, self.s.cn, nn, gc, gn)
         return self._project(dc), dn, ok
+
+    def predicted(self, gc: Tensor, gn: Tensor, dc: Tensor, dn: Tensor) -> Tensor:
+        r"""``(Bf,)`` the decrease of the objective that the undamped quadratic model
+        predicts for the step ``(dc, dn)``: :math:`-(2 g^T \delta + \delta^T H \delta)`
+        (``g`` half the gradient, ``H`` half the Hessian: data, pulls, Free priors)."""
+        cn = self.s.cn
+        hc = _prior.band_apply(self.band, dc[..., None])[..., 0]
+        hc = hc + torch.einsum("bnim,bm->bni", cn, dn)
+        hn = torch.einsum("bnim,bni->bm", cn, dc) + (self.nn @ dn[..., None])[..., 0]
+        quad = (dc * hc).sum((-1, -2)) + (dn * hn).sum(-1)
+        return -(2.0 * ((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)) + quad)
 
     def _project(self, dc: Tensor) -> Tensor:
         """``dc`` without the combinations of control points that no sample determines (no
