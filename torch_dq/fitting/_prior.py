@@ -81,6 +81,15 @@ def _windows(band: Tensor, v: int) -> Tensor:
     return torch.cat(rows, -2)
 
 
+def _weak_windows(A: Tensor, threshold: float) -> Tensor:
+    """``(Bf, n)`` bool: the windows ``A (Bf, n, k, k)`` (scaled, symmetric) that may have an
+    eigenvalue below ``threshold``: those where the Cholesky factorisation of ``A - 2
+    threshold I`` fails (a twelfth of an eigen-decomposition's cost; the eigen-decomposition
+    then decides on these alone)."""
+    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device)
+    return torch.linalg.cholesky_ex(A - 2.0 * threshold * eye).info != 0
+
+
 def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     """``(Bf, n, w, 6, 6)`` pull information of the control points, banded (module doc).
 
@@ -106,10 +115,16 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     v = min(w, _WINDOW)
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
-    lam, V = torch.linalg.eigh(_windows(band, v) / outer)
+    A = _windows(band, v) / outer
+    W = torch.zeros_like(A)
+    weak = _weak_windows(A, max(threshold, NULL) if nuisance else threshold)
+    if not bool(weak.any()):
+        return torch.zeros_like(band)
+    lam, V = torch.linalg.eigh(A[weak])
     if nuisance:  # relative to the window's best-determined direction, at most typical
         threshold = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
-    W = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer
+    W[weak] = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer[
+        weak.nonzero()[:, 0], 0]
     pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
     for a in range(v):
         for b in range(a, v):
