@@ -50,6 +50,7 @@ SPARSE = 1e-6  # scaled information of a window direction below which it is pull
 WEAK = 0.1  # least diagonal of the damping, relative to the typical information
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
 _WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
+_WINDOWS = 1 << 12  # windows decomposed at once (memory: 4.6 kB each, a few copies)
 _NULL_RANK = 12  # columns of the subspace iteration for combinations without information
 
 
@@ -63,19 +64,21 @@ def _typical(blocks: Tensor) -> Tensor:
     return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
 
 
-def _windows(band: Tensor, v: int) -> Tensor:
-    """``(Bf, n, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
-    points from each ``k`` (blocks past the last control point: the identity)."""
+def _windows(band: Tensor, v: int, lo: int, hi: int) -> Tensor:
+    """``(Bf, hi - lo, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
+    points from each ``k`` in ``[lo, hi)`` (blocks past the last control point: the
+    identity)."""
     Bf, n, w = band.shape[:3]
-    eye = torch.eye(6, dtype=band.dtype, device=band.device)
-    pad = torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1)
-    pad[:, n:, 0] = eye
+    m = hi - lo
+    pad = band.new_zeros(Bf, m + v, w, 6, 6)
+    pad[:, :min(n, hi + v) - lo] = band[:, lo:hi + v]
+    pad[:, n - lo:, 0] = torch.eye(6, dtype=band.dtype, device=band.device)
     rows = []
     for a in range(v):
         row = []
         for b in range(v):
-            lo, d = min(a, b), abs(a - b)
-            blk = pad[:, lo:lo + n, d] if d < w else band.new_zeros(Bf, n, 6, 6)
+            lo_, d = min(a, b), abs(a - b)
+            blk = pad[:, lo_:lo_ + m, d] if d < w else band.new_zeros(Bf, m, 6, 6)
             row.append(blk.mT if a > b else blk)
         rows.append(torch.cat(row, -1))
     return torch.cat(rows, -2)
@@ -115,20 +118,25 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     v = min(w, _WINDOW)
     s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
-    A = _windows(band, v) / outer
-    W = torch.zeros_like(A)
-    weak = _weak_windows(A, max(threshold, NULL) if nuisance else threshold)
-    if not bool(weak.any()):
-        return torch.zeros_like(band)
-    lam, V = torch.linalg.eigh(A[weak])
-    if nuisance:  # relative to the window's best-determined direction, at most typical
-        threshold = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
-    W[weak] = (V * torch.where(lam < threshold, prior, 0.0)[..., None, :]) @ V.mT * outer[
-        weak.nonzero()[:, 0], 0]
-    pull = torch.zeros_like(torch.cat((band, band.new_zeros(Bf, v, w, 6, 6)), 1))
-    for a in range(v):
-        for b in range(a, v):
-            pull[:, a:a + n, b - a] += W[:, :, 6 * a:6 * a + 6, 6 * b:6 * b + 6]
+    screen = max(threshold, NULL) if nuisance else threshold
+    pull = band.new_zeros(Bf, n + v, w, 6, 6)
+    for lo in range(0, n, _WINDOWS):  # a chunk of windows at a time (memory)
+        hi = min(lo + _WINDOWS, n)
+        A = _windows(band, v, lo, hi) / outer
+        weak = _weak_windows(A, screen)
+        if not bool(weak.any()):
+            continue
+        lam, V = torch.linalg.eigh(A[weak])
+        if nuisance:  # relative to the window's best-determined direction, at most typical
+            cut = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
+        else:
+            cut = torch.full_like(lam[..., -1:], threshold)
+        W = torch.zeros_like(A)
+        W[weak] = (V * torch.where(lam < cut, prior, 0.0)[..., None, :]) @ V.mT * outer[
+            weak.nonzero()[:, 0], 0]
+        for a in range(v):
+            for b in range(a, v):
+                pull[:, lo + a:hi + a, b - a] += W[:, :, 6 * a:6 * a + 6, 6 * b:6 * b + 6]
     return pull[:, :n]
 
 
