@@ -112,3 +112,46 @@ def test_summary_reports_both_ways():
     lines = est.summary().splitlines()
     assert "far above 1" in next(s for s in lines if "Gyro" in s)
     assert "far below 1" in next(s for s in lines if "Poses" in s)
+
+
+def _numpy_chi2_poses(spline, cam, tc, Rm, pm):
+    """The poses' chi2 by scipy: rotation vectors of R_m^T R(t) and p(t) - p_m, whitened."""
+    with torch.no_grad():
+        x = spline(tc)
+    q, p = dq.to_rt(x)
+    R = Rotation.from_quat(q.numpy(), scalar_first=True)
+    rv = (Rm.inv() * R).as_rotvec()
+    return float((rv**2).sum() / ROT**2 + ((p.numpy() - pm) ** 2).sum() / TRANS**2)
+
+
+def test_scaled_is_the_pooled_reference_variance():
+    """``scaled=True`` multiplies every standard deviation by sqrt(sum chi2 / (N - p)), N the
+    residual components of every term and p = 6 n_ctrl + 3 (bias): the poses' chi2 by scipy,
+    the gyro's from its whitened residuals; and sigmas all off by one common factor (3x) give
+    the same scaled standard deviations as the true sigmas."""
+    spline, cam, gyro = _job(11)
+    est = estimate(spline, [cam, gyro], verbose=False)
+    rng = np.random.default_rng(11)  # the job's poses again, for the scipy chi2
+    tc = np.linspace(0, 4, 41)
+    R, p, _ = _truth(tc)
+    Rm = R * Rotation.from_rotvec(ROT * rng.standard_normal((len(tc), 3)))
+    pm = p + TRANS * rng.standard_normal(p.shape)
+    with torch.no_grad():
+        chi_g = float(gyro(spline).square().sum())
+    chi_p = _numpy_chi2_poses(spline, cam, torch.from_numpy(tc), Rm, pm)
+    assert chi_p == pytest.approx(float(est.chi2[cam]), rel=1e-9)
+    n_res, n_par = 6 * 41 + 3 * 191, 6 * spline.n_ctrl + 3
+    factor = math.sqrt((chi_p + chi_g) / (n_res - n_par))
+    s, s_scaled = est.std(gyro, "bias"), est.std(gyro, "bias", scaled=True)
+    np.testing.assert_allclose(s_scaled.numpy(), factor * s.numpy(), rtol=1e-10)
+    t = torch.tensor([0.5, 2.0], dtype=F64)
+    np.testing.assert_allclose(est.pose_std(t, scaled=True).numpy(),
+                               factor * est.pose_std(t).numpy(), rtol=1e-10)
+    np.testing.assert_allclose(est.cov(scaled=True).numpy(), factor**2 * est.cov().numpy(),
+                               rtol=1e-10)
+    spline3, cam3, gyro3 = _job(11, (3.0, 3.0, 3.0))
+    est3 = estimate(spline3, [cam3, gyro3], verbose=False)
+    with pytest.warns(RuntimeWarning, match="far below 1"):
+        s3 = est3.std(gyro3, "bias", scaled=True)
+    np.testing.assert_allclose(s3.numpy(), s_scaled.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(est3.std(gyro3, "bias").numpy(), 3 * s.numpy(), rtol=1e-6)

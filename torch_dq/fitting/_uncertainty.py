@@ -208,7 +208,8 @@ class Estimate:
         return {t: c * (1.0 - params / total.clamp_min(1.0)) for t, c in counts.items()}
 
     def _factor_scale(self) -> Tensor:
-        r"""``(Bf,)`` :math:`\sqrt{\chi^2 / \nu}` over every term (``scaled=True``)."""
+        r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
+        (``scaled=True``; see :meth:`cov`)."""
         chi2 = sum(self.chi2.values())
         dof = sum(self.dof.values())
         return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
@@ -272,7 +273,7 @@ class Estimate:
             warnings.warn(f"fitting.Estimate: chi2/dof far above 1 "
                           f"({', '.join(f'{n} {r}' for n, r, _ in above)}): the sigmas do not "
                           f"describe the residuals, the standard deviations are too small "
-                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof)){hint}",
+                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof) pooled over the terms){hint}",
                           RuntimeWarning, stacklevel=4)
         if below:
             warnings.warn(f"fitting.Estimate: chi2/dof far below 1 "
@@ -363,9 +364,16 @@ class Estimate:
             items: ``(term, name)`` pairs, their rows in that order; none: every estimated
                 parameter, in the order of :attr:`parameters` (``(term, name, size)``,
                 ``size`` rows each).
-            scaled: multiply by :math:`\chi^2 / \nu` over every term (:attr:`chi2`,
-                :attr:`dof`): the covariance as the residuals' own scatter suggests when the
-                sigmas are off by a common factor.
+            scaled: multiply by the pooled :math:`\sum_t \chi^2_t / \sum_t \nu_t` over
+                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p` exactly,
+                ``N`` every residual component, ``p`` the estimated parameters): the
+                a-posteriori reference variance of least squares (``scipy.optimize.
+                curve_fit``'s ``absolute_sigma=False``, MATLAB's ``lscov``), the covariance as
+                the residuals' own scatter suggests when every term's sigmas are off by one
+                common factor (no term's own: the per-term :attr:`dof` is a proportional
+                share, not the term's redundancy, and a per-term factor would inherit its
+                error; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
+                nothing, as ``scaled=False`` does).
 
         Returns:
             ``(..., k, k)``, ``k`` the sum of the sizes.
@@ -390,7 +398,7 @@ class Estimate:
         r"""Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
         lever arm ``(..., 3)``; time offset ``(...)``; gravity ``(..., 3)`` world axes;
         extrinsic ``(..., 6)`` (``e exp(delta)``). ``scaled``: times
-        :math:`\sqrt{\chi^2 / \nu}` over every term (see :meth:`cov`). A time offset that
+        :math:`\sqrt{\chi^2 / \nu}` pooled over every term (see :meth:`cov`). A time offset that
         ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
         says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
         tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
