@@ -414,6 +414,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     result = FitResult(traj, poses, fit_idx, held_idx, spline, pred, rot, 1e3 * trans, grid,
                        evaluate(spline, grid), kin, _in_gap(grid, traj.times, spacing))
     fit = {"steps": history.steps if history else 0,
+           "refined": history is not None, "reason": history.reason if history else None,
            "loss_start": history.loss[0] if history and history.loss else None,
            "loss_final": history.final_loss if history else None, "seconds": seconds,
            "warnings": say_warnings("torch-dq fit", caught), "imu": extra}
@@ -517,6 +518,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, refine)
     fit["seconds"]["read"] = read_s
+    if not fit_steps:  # the least-squares start kept: say why
+        fit["reason"] = ("--steps 0" if not steps else
+                         "refining chases the poses' noise, see the knot spacing")
     fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
     model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
              "knot_spacing_reason": why}
@@ -584,6 +588,23 @@ def _in_seconds(traj: io.Trajectory) -> tuple[io.Trajectory, str | None, str]:
     return traj, None, guess
 
 
+def _steps_line(fit: dict) -> str:
+    """The report's line on the pose-only fit: its refinement steps and what stopped them,
+    or why the least-squares start was kept (never a bare "0 steps"); with an IMU, that
+    its fit (reported below) refines the curve."""
+    seconds = (f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
+               f"{fit['seconds']['least_squares_start']:.2f} s)")
+    n = fit["steps"]
+    if not fit["refined"]:
+        what = f"the least-squares start, not refined ({fit['reason']}), in {seconds}"
+    elif n == 0:
+        what = f"0 steps: the least-squares start already fits ({fit['reason']}), {seconds}"
+    else:
+        what = f"{n} step{'s' * (n != 1)} in {seconds}: {fit['reason']}"
+    imu = "; the IMU fit below refines the curve" if fit["imu"] is not None else ""
+    return f"fit{' (poses alone)' if imu else ''}: {what}{imu}"
+
+
 def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdout: int,
                dtype: torch.dtype, rate_hz: float) -> dict[str, Any]:
     """Print the fit's steps and errors; the summary of ``summary.json`` (but the reload
@@ -591,9 +612,7 @@ def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdo
     fit's where there was one."""
     fit_idx, held_idx = result.fit_idx, result.held_idx
     heldout = _errors(result.pred, result.poses, result.report_idx)
-    say(f"fit: {fit['steps']} step{'s' * (fit['steps'] != 1)} in "
-        f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
-        f"{fit['seconds']['least_squares_start']:.2f} s)")
+    say(_steps_line(fit))
     _print_errors(say, result, heldout)
     if fit["imu"] is not None:  # the IMU fit's knots
         knots = fit["imu"]["knots"]
