@@ -15,15 +15,14 @@ import math
 import sys
 import warnings
 
-import numpy as np
 import torch
 
 sys.path.insert(0, "benchmarks")
-import bench_gtsam as B  # noqa: E402
+import bench_gtsam as B
 
-import torch_dq.dualquat as dq  # noqa: E402
-from torch_dq import fitting, quat  # noqa: E402
-from torch_dq.nn import BSpline  # noqa: E402
+import torch_dq.dualquat as dq
+from torch_dq import fitting, quat
+from torch_dq.nn import BSpline
 
 torch.set_num_threads(1)
 import os  # noqa: E402

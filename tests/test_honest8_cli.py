@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from torch_dq.__main__ import main
 
 sys.path.insert(0, os.path.dirname(__file__))
-import _camera_imu_sim as sim  # noqa: E402
+import _camera_imu_sim as sim
 
 BIAS_G = np.array([0.01, -0.02, 0.015])
 

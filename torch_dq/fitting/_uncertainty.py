@@ -273,7 +273,8 @@ class Estimate:
             warnings.warn(f"fitting.Estimate: chi2/dof far above 1 "
                           f"({', '.join(f'{n} {r}' for n, r, _ in above)}): the sigmas do not "
                           f"describe the residuals, the standard deviations are too small "
-                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof) pooled over the terms){hint}",
+                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof) pooled over "
+                          f"the terms){hint}",
                           RuntimeWarning, stacklevel=4)
         if below:
             warnings.warn(f"fitting.Estimate: chi2/dof far below 1 "
