@@ -230,7 +230,7 @@ class Estimate:
         the quantiles)."""
         counts = self._per_term("count")
         params = float(6 * self._problem.n - self._pulled + self._problem.m)
-        out = {}
+        out: dict = {}
         for term, c in self.chi2.items():
             nu = self.dof[term].clamp_min(1.0)
             fewest = (counts[term] - params).clamp_min(1.0)
