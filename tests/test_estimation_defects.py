@@ -116,10 +116,11 @@ def test_a_zero_quaternion_in_poses_names_the_sample(bad):
 
 # ----------------------------------------------------------------------------- 3. one Free
 
-def test_a_free_shared_by_different_kinds_names_both_and_mutates_nothing():
+def test_a_free_shared_by_different_kinds_names_both_and_mutates_nothing(gen):
     t = grid(0.0, 2.0, 10)
     ti = grid(0.2, 1.8, 50)
     gy, ac = imu_of(ti.numpy())
+    gy = gy + 0.01 * torch.randn(gy.shape, generator=gen, dtype=F64)  # noise as its sigma
     shared = Free()
     gyro = Gyro(ti, gy, sigma=0.01, bias=shared)
     with pytest.raises(ValueError, match=r"fitting\.Accel.*time_offset.*fitting\.Gyro.*bias"):
@@ -137,6 +138,7 @@ def test_a_free_shared_by_different_kinds_names_both_and_mutates_nothing():
     Gyro(ti, gy, sigma=0.01, time_offset=clock)
     Accel(ti, ac, sigma=0.1, time_offset=clock)
     x = poses_of(t)
+    x = dq.mul(x, dq.exp(0.01 * torch.randn(len(t), 6, generator=gen, dtype=F64)))
     est = estimate(spline_on(t, x, 0.2), [Poses(t, x, rot_sigma=0.01, trans_sigma=0.01), gyro],
                    verbose=False)
     assert est.std(gyro, "bias").shape == (3,) and shared.value.shape == (3,)

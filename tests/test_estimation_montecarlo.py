@@ -112,6 +112,7 @@ def _yaw_problem(wobble):
     rate = 1.0 + 2 * wobble * torch.cos(2 * (ti + 0.02))
     gy = rate[:, None] * z + 0.002 * torch.randn(len(ti), 3, generator=gen, dtype=F64)
     gyro = Gyro(ti, gy, sigma=0.002, time_offset=Free(0.0), max_time_offset=0.1)
+    x = dq.mul(x, dq.exp(0.001 * torch.randn(len(tc), 6, generator=gen, dtype=F64)))
     spline = BSpline.from_dualquats(x, tc, n_ctrl=12, form="cumulative")
     est = estimate(spline, [Poses(tc, x, rot_sigma=0.001, trans_sigma=0.001), gyro],
                    verbose=False)

@@ -118,6 +118,7 @@ def _readme_problem():
     ti = 0.1 + torch.arange(761, dtype=F64) / 200
     q = dq.exp((ti + 0.01)[:, None] * torch.cat((omega, v)))[:, :4]
     gen = torch.Generator().manual_seed(0)
+    poses = dq.mul(poses, dq.exp(1e-3 * torch.randn(81, 6, generator=gen, dtype=F64)))
     noise = lambda s: s * torch.randn(len(ti), 3, generator=gen, dtype=F64)  # noqa: E731
     b_g = torch.tensor([0.01, -0.02, 0.005], dtype=F64)
     b_a = torch.tensor([0.1, 0.0, -0.05], dtype=F64)

@@ -304,11 +304,13 @@ def test_toy_term_with_a_time_moving_parameter_runs_through_estimate():
     """A clock drift of 0.02 (its own time rate ``t - t_0``) recovered with the trajectory
     from poses and drifting positions; the domain check widens by what the drift's bounds
     reach."""
+    gen = torch.Generator().manual_seed(3)  # noise as the sigmas say
     tc = torch.linspace(0.0, 4.0, 161, dtype=F64)
-    truth = motion(tc)
+    truth = dq.mul(motion(tc), dq.exp(1e-3 * torch.randn(161, 6, generator=gen, dtype=F64)))
     traj = BSpline.from_dualquats(truth, tc, n_ctrl=40, form="cumulative")
     tp = torch.linspace(0.5, 3.0, 126, dtype=F64)
-    drifting = ClockDrift(tp, dq.to_rt(motion(tp + 0.02 * (tp - 0.5)))[1], sigma=1e-3,
+    drifting = ClockDrift(tp, dq.to_rt(motion(tp + 0.02 * (tp - 0.5)))[1]
+                          + 1e-3 * torch.randn(126, 3, generator=gen, dtype=F64), sigma=1e-3,
                           drift=Free(0.0))
     lo, hi = drifting.time_reach()
     assert float(lo.min()) == pytest.approx(-0.05 * 2.5) and float(hi.max()) == \
@@ -316,9 +318,9 @@ def test_toy_term_with_a_time_moving_parameter_runs_through_estimate():
     est = estimate(traj, [Poses(tc, truth, rot_sigma=1e-3, trans_sigma=1e-3), drifting],
                    verbose=False)
     assert bool(est.converged)
-    assert float(drifting._value("drift")) == pytest.approx(0.02, abs=2e-4)
     assert est.parameters == [(drifting, "drift", 1)]
-    assert float(est.std(drifting, "drift")) < 1e-3
+    std = float(est.std(drifting, "drift"))
+    assert std < 1e-3 and abs(float(drifting._value("drift")) - 0.02) < 4 * std
     inside = torch.linspace(0.5, 1.95, 30, dtype=F64)  # inside [0, 1.975], not with the drift
     with pytest.raises(ValueError, match="ClockDrift times by drift leave"):
         estimate(BSpline.from_dualquats(truth[:80], tc[:80], n_ctrl=20),

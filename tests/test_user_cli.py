@@ -57,8 +57,8 @@ def test_fit_imu_names_a_gyroscope_in_degrees_per_second(tmp_path, capsys):
             str(out), "--no-plots", "--quiet"]
     assert main(argv) == 2
     err = capsys.readouterr().err.splitlines()
-    assert re.match(r"torch-dq fit: error: .*imu\.txt: the gyroscope's angular rates are "
-                    r"5\d\.\d times the poses' .*deg/s", err[-1]), err
+    assert re.match(r"torch-dq fit: error: .*imu\.txt: fitting\.Gyro: the readings look like "
+                    r"deg/s, not rad/s: .* is 5\d\.\d times the trajectory's", err[-1]), err
     assert not (out / "summary.json").exists()
 
 

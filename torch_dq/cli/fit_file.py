@@ -47,6 +47,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -54,6 +55,7 @@ from .. import dualquat, io
 from .. import nn as dqnn
 from .._report import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 from ..fitting import _knots
+from ..io import _units
 from ._errors import OptionError
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "REFINE_TOL", "FitResult",
@@ -412,6 +414,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     result = FitResult(traj, poses, fit_idx, held_idx, spline, pred, rot, 1e3 * trans, grid,
                        evaluate(spline, grid), kin, _in_gap(grid, traj.times, spacing))
     fit = {"steps": history.steps if history else 0,
+           "refined": history is not None, "reason": history.reason if history else None,
            "loss_start": history.loss[0] if history and history.loss else None,
            "loss_final": history.final_loss if history else None, "seconds": seconds,
            "warnings": say_warnings("torch-dq fit", caught), "imu": extra}
@@ -488,12 +491,15 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     path, out = os.fspath(path), os.fspath(out)
     _check_inputs(path, out, times, imu, time_offset, overwrite, plots)
     say = print if verbose else (lambda *a, **k: None)
-    traj, read_warnings, read_s = _read(path, format, times, duplicates)
+    traj, read_warnings, read_s, unit = _read(path, format, times, duplicates)
     fit_idx, held_idx = _split(len(traj), holdout, degree)
     train = traj.select(fit_idx)
     spacing, why, fit_steps = _knot_spacing(train.times, train.poses(), degree, form,
                                             knot_spacing, steps)
-    info = _describe_input(say, path, traj)
+    info = {**_describe_input(say, path, traj), "time_unit": unit or "seconds"}
+    if unit:
+        say(f"note: the file's times are {unit}: converted to seconds (divided by "
+            f"{1 / dict(_units._TIME_UNITS)[unit]:.0e}); every output is in seconds")
     info["gaps_over_2_knot_spacings"], gap_note = _gap_note(traj, spacing)
     if gap_note:
         say(f"note: {gap_note}")
@@ -512,6 +518,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, refine)
     fit["seconds"]["read"] = read_s
+    if not fit_steps:  # the least-squares start kept: say why
+        fit["reason"] = ("--steps 0" if not steps else
+                         "refining chases the poses' noise, see the knot spacing")
     fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
     model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
              "knot_spacing_reason": why}
@@ -539,18 +548,61 @@ def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
 
 
 def _read(path: str, format: str, times, duplicates: str
-          ) -> tuple[io.Trajectory, list[str], float]:
-    """The file's poses (at least 2), the warnings on units the data contradict (printed
-    once) and the seconds it took."""
+          ) -> tuple[io.Trajectory, list[str], float, str | None]:
+    """The file's poses (at least 2) in seconds (:func:`_in_seconds`), the warnings on units
+    the data contradict (printed once), the seconds it took and the unit converted from
+    (``None``: seconds as read)."""
     begin = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
+    traj, unit, guess = _in_seconds(traj)
+    if unit:  # the reader's warning is answered by the conversion, which is printed
+        caught = [w for w in caught if guess not in str(w.message)]
     read_warnings = say_warnings("torch-dq fit", caught)
     read_s = time.perf_counter() - begin
     if len(traj) < 2:
         raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
-    return traj, read_warnings, read_s
+    return traj, read_warnings, read_s, unit
+
+
+def _in_seconds(traj: io.Trajectory) -> tuple[io.Trajectory, str | None, str]:
+    """The poses with their times in seconds, the unit they were converted from and the
+    reader's guess (:func:`torch_dq.io.read_trajectory`'s warning that the times look like
+    nanoseconds, microseconds or milliseconds: integer UNIX nanoseconds in a TUM file).
+
+    The times are divided by the first finer unit in which the reader finds them plausible
+    seconds: every output (``trajectory.csv``'s times, velocities and accelerations, the
+    knot spacing, ``--rate``) is then in seconds, as the command states. Times it finds
+    implausible in every unit are kept, with the reader's warning."""
+    t = traj.times.numpy()
+    q, p = traj.rotations.numpy(), traj.translations.numpy()
+    guess = _units._time_unit_guess(t, q, p)
+    if guess is None:
+        return traj, None, ""
+    step = float(np.median(np.diff(t)))
+    for name, scale in _units._TIME_UNITS:
+        if 2e-4 <= step * scale <= 5.0 and _units._time_unit_guess(t * scale, q, p) is None:
+            seconds = io.Trajectory(traj.times * scale, traj.rotations, traj.translations)
+            return seconds, name, guess
+    return traj, None, guess
+
+
+def _steps_line(fit: dict) -> str:
+    """The report's line on the pose-only fit: its refinement steps and what stopped them,
+    or why the least-squares start was kept (never a bare "0 steps"); with an IMU, that
+    its fit (reported below) refines the curve."""
+    seconds = (f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
+               f"{fit['seconds']['least_squares_start']:.2f} s)")
+    n = fit["steps"]
+    if not fit["refined"]:
+        what = f"the least-squares start, not refined ({fit['reason']}), in {seconds}"
+    elif n == 0:
+        what = f"0 steps: the least-squares start already fits ({fit['reason']}), {seconds}"
+    else:
+        what = f"{n} step{'s' * (n != 1)} in {seconds}: {fit['reason']}"
+    imu = "; the IMU fit below refines the curve" if fit["imu"] is not None else ""
+    return f"fit{' (poses alone)' if imu else ''}: {what}{imu}"
 
 
 def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdout: int,
@@ -560,9 +612,7 @@ def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdo
     fit's where there was one."""
     fit_idx, held_idx = result.fit_idx, result.held_idx
     heldout = _errors(result.pred, result.poses, result.report_idx)
-    say(f"fit: {fit['steps']} step{'s' * (fit['steps'] != 1)} in "
-        f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
-        f"{fit['seconds']['least_squares_start']:.2f} s)")
+    say(_steps_line(fit))
     _print_errors(say, result, heldout)
     if fit["imu"] is not None:  # the IMU fit's knots
         knots = fit["imu"]["knots"]

@@ -39,6 +39,7 @@ import torch
 from torch import Tensor
 
 from .. import dualquat, fitting, io, quat
+from ..fitting._imu import degrees_message
 from ..nn import BSpline
 from ._errors import OptionError
 
@@ -186,24 +187,6 @@ def _misfit(times: Tensor, q: Tensor, t_imu: Tensor, gyro: Tensor) -> float:
     return float((b - a @ R.mT).square().sum() / b.square().sum().clamp_min(1e-300))
 
 
-def _check_gyro_units(path: str, times: Tensor, poses: Tensor, t_imu: Tensor,
-                      gyro: Tensor) -> None:
-    """An :class:`OptionError` where the gyroscope's rates follow the poses' (correlation
-    0.5 or more after :func:`_rate_pairs`' rotation) at 30 to 100 times their size: deg/s
-    (57.3), not rad/s. A fit on them ends far off (held-out rotations 110 deg off)."""
-    if len(times) < 10:
-        return
-    a, b, R = _rate_pairs(times, dualquat.to_rt(poses.double())[0], t_imu, gyro)
-    ar = a @ R.mT
-    fit = float((b * ar).sum())
-    scale = fit / max(float(ar.square().sum()), 1e-300)
-    corr = fit / max(float(ar.norm() * b.norm()), 1e-300)
-    if corr >= 0.5 and 30.0 <= scale <= 100.0:
-        raise OptionError(f"{path}: the gyroscope's angular rates are {scale:.3g} times the "
-                          f"poses' (correlation {corr:.2f}): the readings look like deg/s, "
-                          f"not rad/s; multiply them by pi/180")
-
-
 def _warn_quaternion_order(times: Tensor, poses: Tensor, t_imu: Tensor, gyro: Tensor) -> None:
     """Warn when the gyroscope fits the poses' rotations far better with their quaternion
     columns in another order (the poses alone cannot tell: a permutation of the components
@@ -285,7 +268,6 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
     keep = _reachable(path, spline, t, clock, hint)
     t, gyro, accel, dropped = t[keep], gyro[keep], accel[keep], int((~keep).sum())
     gyro_s, accel_s = _imu_sigma(gyro), _imu_sigma(accel)
-    _check_gyro_units(path, times, poses, t, gyro)
     _warn_quaternion_order(times, poses, t, gyro)
     sig: list = [rot_s, trans_s, gyro_s, accel_s]  # rad, m, (3,) rad/s, (3,) m/s^2
 
@@ -296,6 +278,9 @@ def fit_with_imu(spline, times: Tensor, poses: Tensor, imu: str | os.PathLike[st
                               time_offset=clock)]
 
     terms = terms_at(sig)
+    degrees = degrees_message(terms[1], spline)  # the Gyro term's own check, refused here
+    if degrees:
+        raise OptionError(f"{path}: {degrees}")
     say(f"IMU fit knots: every {knots['spacing_s']:.4g} s, {knots['n_ctrl']} control points "
         f"({knots['reason']})")
     say(f"IMU: {path}: {len(t)} samples ({dropped} outside the poses' time span left out); "

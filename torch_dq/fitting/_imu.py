@@ -22,7 +22,7 @@ from ._charts import Direction, Vector
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma, _vector_data
 
-__all__ = ["Accel", "Gyro"]
+__all__ = ["Accel", "Gyro", "degrees_message"]
 
 
 class _Imu(Term):
@@ -93,11 +93,20 @@ _UNITS_SAMPLES = 1 << 15  # samples the units check reads at most
 
 
 def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
-    """Warn when the mean magnitude of the readings is within a factor 1.5 of
-    ``180 / pi`` times the trajectory's (its angular rates at the samples' times, clamped
-    into its domain; skipped where it barely turns, below 1e-3 rad/s). Long records are
-    read at ``_UNITS_SAMPLES`` evenly strided samples (the check needs the mean magnitudes,
-    not every sample: its memory stays that of a short record)."""
+    """Warn with :func:`degrees_message`'s message, if any."""
+    message = degrees_message(term, trajectory, ctrl)
+    if message:
+        warnings.warn(message, UserWarning, stacklevel=4)
+
+
+def degrees_message(term: Gyro, trajectory, ctrl=None) -> str | None:
+    """The message saying that ``term``'s readings look like deg/s, or None: where their
+    mean magnitude is within a factor 1.5 of ``180 / pi`` times the trajectory's (its
+    angular rates at the samples' times, clamped into its domain; None where it barely
+    turns, below 1e-3 rad/s). The one deg/s check of the library's terms and of ``python
+    -m torch_dq fit --imu``. Long records are read at ``_UNITS_SAMPLES`` evenly strided
+    samples (the check needs the mean magnitudes, not every sample: its memory stays that
+    of a short record)."""
     stride = -(-term.N // _UNITS_SAMPLES)
     t, mask, readings = (term.times[..., ::stride], term.mask[..., ::stride],
                          term.readings[..., ::stride, :])
@@ -112,10 +121,10 @@ def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
     pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
     meas = float((readings.norm(dim=-1) * w).sum() / w.sum())
     if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
-        warnings.warn(f"{term._fn}: the readings look like deg/s, not rad/s: their mean "
-                      f"magnitude {meas:.4g} is {meas / pred:.3g} times the trajectory's "
-                      f"angular rate {pred:.4g} rad/s (180/pi = 57.3); convert them with "
-                      f"torch.deg2rad", UserWarning, stacklevel=4)
+        return (f"{term._fn}: the readings look like deg/s, not rad/s: their mean magnitude "
+                f"{meas:.4g} is {meas / pred:.3g} times the trajectory's angular rate "
+                f"{pred:.4g} rad/s (180/pi = 57.3); convert them with torch.deg2rad")
+    return None
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:

@@ -38,6 +38,7 @@ import copy
 import functools
 import math
 import numbers
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -99,6 +100,49 @@ def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
                          f"{end:.6g} is {float(time_step(t.dtype, end)):.3g} (the times' "
                          f"units), more than {MIN_RESOLUTION:g} of their span ({span:.3g} as "
                          f"rounded); pass times as torch.float64")
+
+
+#: Finer time units than seconds, and the factor to seconds.
+_FINER_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+_LATEST = 1e11  # seconds (3170 years): beyond any clock's seconds (UNIX time is 1.8e9)
+
+
+def _finer_unit(last: float, step: float, imu: bool) -> tuple[str, float] | None:
+    """The finer unit that makes the times plausible: the last one a UNIX time (1e8 to 1e10
+    s), else the median step an IMU's sampling period (0.2 ms to 0.05 s) or a pose
+    sensor's (0.2 ms to 5 s); None where none does."""
+    for name, scale in _FINER_UNITS:
+        if 1e8 <= last * scale <= 1e10:
+            return name, scale
+    for name, scale in _FINER_UNITS:
+        if 2e-4 <= step * scale <= (0.05 if imu else 5.0):
+            return name, scale
+    return None
+
+
+def _check_time_unit(fn: str, name: str, t: Tensor, valid: Tensor, imu: bool) -> None:
+    r"""Times that cannot be seconds. A time beyond ``_LATEST`` (1e11 s: UNIX nanoseconds,
+    microseconds, milliseconds are 1.8e18, 1.8e15, 1.8e12) fails, naming the likely unit
+    (:func:`_finer_unit`); samples a median step of 0.5 s or more apart for an IMU term (IMUs
+    sample at 20 Hz to a few kHz), of 1e4 s or more for the others, warn where a finer unit
+    gives a sensor's rate (relative nanoseconds: the velocities and the IMU's sigmas would
+    be per nanosecond)."""
+    v = t[valid].to(torch.float64)
+    if v.numel() == 0:
+        return
+    last = float(v.abs().max())
+    step = float(v.sort().values.diff().median()) if v.numel() > 2 else 0.0
+    unit = _finer_unit(last, step, imu)
+    what = (f"{name} look like {unit[0]}, not seconds" if unit else
+            f"{name} cannot be seconds")
+    fix = f": pass seconds ({name} * {unit[1]:g})" if unit else ": pass seconds"
+    if last >= _LATEST:
+        _checks.fail(fn, f"{what}: the latest is {last:.6g} s, {last / 3.156e7:.3g} years"
+                         f"{fix}")
+    if unit and step >= (0.5 if imu else 1e4):
+        warnings.warn(f"{fn}: {what}: the samples lie {step:.3g} s apart (median), "
+                      f"{1.0 / (step * unit[1]):.4g} Hz as {unit[0]}{fix}", UserWarning,
+                      stacklevel=5)
 
 
 def _nuisance(name: str, doc: str) -> property:
@@ -247,6 +291,7 @@ class Term(torch.nn.Module):
         mm = m.expand(t.shape)
         _first_bad(fn, f"{name} must be finite", mm & ~torch.isfinite(t))
         _check_resolution(fn, name, t, mm)
+        _check_time_unit(fn, name, t, mm, self.order >= 1)
         first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
         filled = torch.where(m, t, -torch.inf).cummax(-1).values
         filled = torch.where(mm, t, torch.where(torch.isinf(filled), first, filled))

@@ -114,6 +114,19 @@ def _drop_undetermined(band: Tensor, cn: Tensor,
     return band, cn.masked_fill(free[..., None, None], 0.0), free
 
 
+def _band(nu: Tensor, z: float) -> Tensor:
+    r"""The chi-square distribution's quantile at the standard normal's ``z`` for ``nu``
+    degrees of freedom (Wilson and Hilferty's cube-root approximation):
+    :math:`\nu (1 - 2 / (9 \nu) + z \sqrt{2 / (9 \nu)})^3`."""
+    a = 2.0 / (9.0 * nu)
+    return nu * (1.0 - a + z * a.sqrt()).clamp_min(0.0) ** 3
+
+
+def _number(x: Tensor) -> str:
+    """A 0-d tensor's value, or a batch's shape."""
+    return f"{float(x):.6g}" if x.dim() == 0 else f"<{tuple(x.shape)} tensor>"
+
+
 class Estimate:
     """What :func:`~torch_dq.fitting.estimate` found, and its uncertainties.
 
@@ -129,7 +142,8 @@ class Estimate:
             lack of progress, at ``steps`` or without a lowering step is False.
         reason: what stopped it (one string per batch element, joined by ``"; "``).
         chi2, dof, weights: per term (dicts keyed by the term), see the properties; the
-            first uncertainty asked for warns where a term's chi2/dof is far above 1.
+            first uncertainty asked for warns where a term's chi2/dof is far above or below
+            1 (:meth:`summary` lists them).
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
@@ -149,13 +163,10 @@ class Estimate:
         self._factored = False
 
     def __repr__(self) -> str:
-        loss = self.final_loss
-        loss_s = f"{float(loss):.6g}" if loss.dim() == 0 else f"<{tuple(loss.shape)} tensor>"
-        ratios = ", ".join(f"{type(t).__name__}: {float(c.sum()) / max(float(d.sum()), 1):.3g}"
-                           for (t, c), d in zip(self.chi2.items(), self.dof.values(),
-                                                strict=True))
-        return (f"Estimate(steps={self.steps}, reason={self.reason!r}, final_loss={loss_s}, "
-                f"chi2/dof={{{ratios}}})")
+        ratios = ", ".join(f"{type(t).__name__}: {r:.3g}" + (f" (far {far} 1)" if far else "")
+                           for t, (r, far) in self._far().items())
+        return (f"Estimate(steps={self.steps}, reason={self.reason!r}, "
+                f"final_loss={_number(self.final_loss)}, chi2/dof={{{ratios}}})")
 
     @property
     def parameters(self) -> list[tuple]:
@@ -197,32 +208,79 @@ class Estimate:
         return {t: c * (1.0 - params / total.clamp_min(1.0)) for t, c in counts.items()}
 
     def _factor_scale(self) -> Tensor:
-        r"""``(Bf,)`` :math:`\sqrt{\chi^2 / \nu}` over every term (``scaled=True``)."""
+        r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
+        (``scaled=True``; see :meth:`cov`)."""
         chi2 = sum(self.chi2.values())
         dof = sum(self.dof.values())
         return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
-    def _check_chi2(self) -> None:
-        r"""Warn where a term's :math:`\chi^2` exceeds both ``_FAR = 1.5`` times its ``dof``
-        and the upper end of the two-sided 99.9 % band of the chi-square distribution
-        (Wilson and Hilferty's cube-root approximation): its sigmas are too small for its
-        residuals, or (an IMU term) the trajectory's knots too far apart for its readings."""
-        bad = []
+    def _far(self) -> dict:
+        r"""Per term: ``(ratio, "above" | "below" | None)``, ``ratio`` the largest (above)
+        or smallest (below) :math:`\chi^2 / \nu` over the batch.
+
+        Far above 1: :math:`\chi^2` beyond both ``_FAR = 1.5`` times :attr:`dof` and the
+        upper end of the two-sided 99.9 % band of the chi-square distribution with
+        :attr:`dof` degrees of freedom (its sigmas too small for its residuals, or, for an
+        IMU term, the knots too far apart for its readings). Far below 1: :math:`\chi^2`
+        below both :attr:`dof` over ``_FAR`` and the lower end of that band for the fewest
+        degrees of freedom the term can have, :math:`N_t - p` (``p`` every estimated
+        parameter: a term's residuals absorb at most all of them, whatever the share
+        :attr:`dof` gives it), so that a correct model stays silent: its sigmas are too
+        large, its standard deviations too (the Wilson-Hilferty cube-root approximation of
+        the quantiles)."""
+        counts = self._per_term("count")
+        params = float(6 * self._problem.n - self._pulled + self._problem.m)
+        out: dict = {}
         for term, c in self.chi2.items():
             nu = self.dof[term].clamp_min(1.0)
-            upper = nu * (1.0 - 2.0 / (9.0 * nu) + _Z999 * (2.0 / (9.0 * nu)).sqrt()) ** 3
+            fewest = (counts[term] - params).clamp_min(1.0)
             ratio = c / nu
-            if bool(((c > upper) & (ratio > _FAR)).any()):
-                bad.append((type(term).__name__, f"{float(ratio.max()):.3g}", term.order))
-        if bad:
-            imu = [name for name, _, order in bad if order >= 1]
+            if bool(((c > _band(nu, _Z999)) & (ratio > _FAR)).any()):
+                out[term] = (float(ratio.max()), "above")
+            elif bool(((c < _band(fewest, -_Z999)) & (ratio < 1.0 / _FAR)).any()):
+                out[term] = (float(ratio.min()), "below")
+            else:
+                out[term] = (float(ratio.max()), None)
+        return out
+
+    def summary(self) -> str:
+        r"""A few lines: the steps and why they stopped, the final loss, and per term its
+        :math:`\chi^2`, :attr:`dof` and their ratio, marked where far above or below 1
+        (the tests of the warning that the first uncertainty asked for gives)."""
+        loss = self.final_loss
+        lines = [f"estimate: {self.steps} step{'s' * (self.steps != 1)} ({self.reason}), "
+                 f"final loss {_number(loss)}"]
+        note = {"above": "  far above 1: sigmas too small, standard deviations too small",
+                "below": "  far below 1: sigmas too large, standard deviations too large",
+                None: ""}
+        for (term, (ratio, far)), c, d in zip(self._far().items(), self.chi2.values(),
+                                              self.dof.values(), strict=True):
+            lines.append(f"  {type(term).__name__:<14} chi2 {_number(c)}  dof "
+                         f"{_number(d)}  chi2/dof {ratio:.3g}{note[far]}")
+        return "\n".join(lines)
+
+    def _check_chi2(self) -> None:
+        """Warn where a term's chi2/dof is far above or far below 1 (:meth:`_far`)."""
+        far = [(type(t).__name__, f"{r:.3g}", t.order, how)
+               for t, (r, how) in self._far().items() if how]
+        above = [(n, r, o) for n, r, o, how in far if how == "above"]
+        below = [(n, r) for n, r, _, how in far if how == "below"]
+        if above:
+            imu = [name for name, _, order in above if order >= 1]
             hint = (f"; for {', '.join(imu)}: or the trajectory's knots are too far apart for "
                     f"its readings (BSpline.from_poses(..., knot_spacing=...) finer)"
                     if imu else "")
             warnings.warn(f"fitting.Estimate: chi2/dof far above 1 "
-                          f"({', '.join(f'{n} {r}' for n, r, _ in bad)}): the sigmas do not "
+                          f"({', '.join(f'{n} {r}' for n, r, _ in above)}): the sigmas do not "
                           f"describe the residuals, the standard deviations are too small "
-                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof)){hint}",
+                          f"(std(..., scaled=True) scales them by sqrt(chi2/dof) pooled over "
+                          f"the terms){hint}",
+                          RuntimeWarning, stacklevel=4)
+        if below:
+            warnings.warn(f"fitting.Estimate: chi2/dof far below 1 "
+                          f"({', '.join(f'{n} {r}' for n, r in below)}): the sigmas are larger "
+                          f"than the residuals' scatter, the standard deviations too large "
+                          f"(pass the sensors' noise levels, or std(..., scaled=True))",
                           RuntimeWarning, stacklevel=4)
 
     @property
@@ -307,9 +365,16 @@ class Estimate:
             items: ``(term, name)`` pairs, their rows in that order; none: every estimated
                 parameter, in the order of :attr:`parameters` (``(term, name, size)``,
                 ``size`` rows each).
-            scaled: multiply by :math:`\chi^2 / \nu` over every term (:attr:`chi2`,
-                :attr:`dof`): the covariance as the residuals' own scatter suggests when the
-                sigmas are off by a common factor.
+            scaled: multiply by the pooled :math:`\sum_t \chi^2_t / \sum_t \nu_t` over
+                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p` exactly,
+                ``N`` every residual component, ``p`` the estimated parameters): the
+                a-posteriori reference variance of least squares (``scipy.optimize.
+                curve_fit``'s ``absolute_sigma=False``, MATLAB's ``lscov``), the covariance as
+                the residuals' own scatter suggests when every term's sigmas are off by one
+                common factor (no term's own: the per-term :attr:`dof` is a proportional
+                share, not the term's redundancy, and a per-term factor would inherit its
+                error; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
+                nothing, as ``scaled=False`` does).
 
         Returns:
             ``(..., k, k)``, ``k`` the sum of the sizes.
@@ -334,7 +399,7 @@ class Estimate:
         r"""Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
         lever arm ``(..., 3)``; time offset ``(...)``; gravity ``(..., 3)`` world axes;
         extrinsic ``(..., 6)`` (``e exp(delta)``). ``scaled``: times
-        :math:`\sqrt{\chi^2 / \nu}` over every term (see :meth:`cov`). A time offset that
+        :math:`\sqrt{\chi^2 / \nu}` pooled over every term (see :meth:`cov`). A time offset that
         ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
         says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
         tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
