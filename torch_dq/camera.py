@@ -495,6 +495,23 @@ def _normalised_hint(pixels: Tensor, params: Tensor) -> str | None:
             f"intrinsics (u = fu x/z + cu, v = fv y/z + cv, then the distortion)")
 
 
+def _outside(pixels: Tensor, resolution: tuple[int, int],
+             slack: float = 0.0) -> tuple[str, float, str] | None:
+    """Where ``(M, 2)`` measured pixels leave an image of ``resolution`` ``(width, height)``:
+    ``(0, 0)`` is the top-left pixel's centre, so ``u`` in ``[-0.5, width - 0.5]`` and ``v``
+    in ``[-0.5, height - 0.5]``, each widened by ``slack`` times the image's size. None when
+    all lie inside, else the axis (``"u"`` or ``"v"``), the farthest value and the range
+    expected (text)."""
+    if pixels.numel() == 0:
+        return None
+    for axis, name, size in ((0, "u", resolution[0]), (1, "v", resolution[1])):
+        lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
+        low, high = -0.5 - slack * size, size - 0.5 + slack * size
+        if lo < low or hi > high:
+            return name, lo if lo < low else hi, f"{name} in [{low:.6g}, {high:.6g}]"
+    return None
+
+
 def _yaml_number(value):
     """``value``, or the number a string reads as: YAML 1.1 (PyYAML) reads ``2e-4`` (no dot)
     as a string, and a quoted ``'6'`` is one; an integral string reads as an ``int``."""

@@ -39,7 +39,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from ..camera import MODELS, Camera, project
+from ..camera import MODELS, Camera, _outside, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, rho, weight
 from . import _start
@@ -220,16 +220,11 @@ def _inside(i: int, pixels: Tensor, res: tuple[int, int], fn: str = _FN,
     top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``,
     widened by ``slack`` times the image's size (``fn`` and ``where``, the resolution's
     argument with ``{i}``, name the caller's)."""
-    if pixels.numel() == 0:
-        return
-    for axis, name, size in ((0, "u", res[0]), (1, "v", res[1])):
-        lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
-        low, high = -0.5 - slack * size, size - 0.5 + slack * size
-        if lo < low or hi > high:
-            _checks.fail(fn, f"observations[{i}] pixels reach {name} = "
-                             f"{lo if lo < low else hi:.6g}, outside {where.format(i=i)} = "
-                             f"{res} (expected {name} in [{low:.6g}, {high:.6g}]; is the "
-                             f"resolution (width, height) of that camera?)")
+    out = _outside(pixels, res, slack)
+    if out is not None:
+        _checks.fail(fn, f"observations[{i}] pixels reach {out[0]} = {out[1]:.6g}, outside "
+                         f"{where.format(i=i)} = {res} (expected {out[2]}; is the resolution "
+                         f"(width, height) of that camera?)")
 
 
 def _cameras_data(obs, models, res, min_points) -> tuple[list[_Camera], Tensor]:
