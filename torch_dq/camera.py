@@ -409,7 +409,10 @@ def _equidistant_root(k, s):
         hi = torch.where(~rising | (g > 0), theta, hi)
         step = theta - g / torch.where(rising, slope, 1.0)
         inside = rising & (step > lo) & (step < hi)
-        theta = torch.where(g == 0, theta, torch.where(inside, step, 0.5 * (lo + hi)))
+        # converged: a root at rounding level stays (its Newton step, rounded onto the
+        # bracket's end, would not count as inside and would restart a bisection)
+        done = _converged(g.abs(), td)
+        theta = torch.where(done, theta, torch.where(inside, step, 0.5 * (lo + hi)))
     t = theta * theta
     ok = (_converged(abs(theta * _poly(k, t) - td), td) & (theta < half_pi)
           & (_poly_slope(k, t) > 0))
@@ -646,7 +649,7 @@ class Camera:
             _checks.fail(fn, f"expected a mapping (one camera of a camchain), got "
                              f"{type(entry).__name__}", TypeError)
         names = (entry.get("camera_model"), entry.get("distortion_model", "none"))
-        if names not in _FROM_KALIBR:
+        if not all(isinstance(n, str) for n in names) or names not in _FROM_KALIBR:
             _checks.fail(fn, f"unsupported camera_model {names[0]!r} with distortion_model "
                              f"{names[1]!r}: expected pinhole with none, radtan or "
                              f"equidistant, or ds with none")
