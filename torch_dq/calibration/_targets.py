@@ -245,7 +245,10 @@ def read_target(path: str | os.PathLike[str]) -> Target:
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        _checks.fail(fn, f"{os.fspath(path)}: not a valid yaml file ({exc})")
+        mark = getattr(exc, "problem_mark", None)
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        _checks.fail(fn, f"{os.fspath(path)}{at}: not a valid yaml file ({problem})")
     where = f"{os.fspath(path)}: "
     if not isinstance(doc, dict):
         _checks.fail(fn, where + "expected a yaml mapping with target_type and the target's "
