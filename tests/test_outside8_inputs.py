@@ -164,3 +164,18 @@ def test_points_behind_and_nan_are_flagged_not_made_up():
     pix, ok = camera.project("pinhole-radtan", p, pts)
     assert ok.tolist() == [False, False, False]
     assert bool(torch.isfinite(pix[:2]).all()) and bool(torch.isnan(pix[2]).all())
+
+
+def test_read_imu_names_file_and_line_of_a_repeated_time(tmp_path):
+    """An IMU file's repeated time: the file, the line, and the way out (no 'pose')."""
+    from torch_dq import io
+
+    row = "1403715273262142976,-0.099,0.14,0.02,8.1,-0.37,-2.1\n"
+    path = tmp_path / "data.csv"
+    path.write_text("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad "
+                    "s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n" + row + row)
+    with pytest.raises(ValueError, match=r"data\.csv, line 3: duplicate timestamp "
+                                         r"1403715273262142976 ns \(also on line 2\); pass "
+                                         r"duplicates='first' .* the first row of each time"):
+        io.read_imu(path)
+    assert io.read_imu(path, duplicates="first")[0].shape == (1,)
