@@ -228,3 +228,43 @@ def test_detected_corners_of_the_raw_pair_fit_the_published_calibration():
         _, rvec, tvec = cv2.solvePnP(points.numpy(), pixels.numpy(), K, np.array(k[4:]))
         fitted = cv2.projectPoints(points.numpy(), rvec, tvec, K, np.array(k[4:]))[0][:, 0]
         assert np.sqrt(np.mean(np.sum((fitted - pixels.numpy()) ** 2, 1))) < 0.25
+
+
+def test_stereo_standard_deviations_are_honest_on_white_noise():
+    """Corners re-projected by OpenCV's ``projectPoints`` from a calibration of the real
+    frames (its target poses, intrinsics and relative pose as the truth), 0.25 px white noise:
+    over 2 seeds and 22 values (16 intrinsics, the 6 of the relative pose) the RMS of
+    error / std is near 1 (1.11 over 6 seeds); none beyond 4.5."""
+    from scipy.spatial.transform import Rotation
+
+    obs = [_read(0), _read(1)]
+    truth = calibration.cameras(obs, ["pinhole-radtan"] * 2, [RES, RES])
+    frames = dualquat.to_matrix(truth.target_poses).numpy()
+    rel = dualquat.to_matrix(truth.relative_poses[0]).numpy()
+    clean = []
+    for c, (t, p, _) in enumerate(obs):
+        k = truth.cameras[c].params.numpy()
+        K = np.array([[k[0], 0, k[2]], [0, k[1], k[3]], [0, 0, 1]])
+        u = np.zeros((len(t), 2))
+        for f, stamp in enumerate(truth.frame_times.tolist()):
+            m = (t == stamp).numpy()
+            M = frames[f] if c == 0 else np.linalg.inv(rel) @ frames[f]
+            u[m] = cv2.projectPoints(p[m].numpy(), cv2.Rodrigues(M[:3, :3])[0], M[:3, 3], K,
+                                     np.array([*k[4:], 0.0]))[0][:, 0]
+        clean.append(u)
+    z = []
+    for seed in range(2):
+        rng = np.random.default_rng(seed)
+        noisy = [(t, p, torch.tensor(u + rng.normal(0, 0.25, u.shape)))
+                 for (t, p, _), u in zip(obs, clean, strict=True)]
+        r = calibration.cameras(noisy, ["pinhole-radtan"] * 2, [RES, RES])
+        got = dualquat.to_matrix(r.relative_poses[0]).numpy()
+        d_pose = np.r_[Rotation.from_matrix(got[:3, :3].T @ rel[:3, :3]).as_rotvec(),
+                       got[:3, :3].T @ (rel[:3, 3] - got[:3, 3])]
+        err = np.r_[np.concatenate([(a.params - b.params).numpy() for a, b in
+                                    zip(r.cameras, truth.cameras, strict=True)]), d_pose]
+        std = np.r_[r.std["intrinsics"].numpy().ravel(), r.std["relative_poses"][0].numpy()]
+        z.append(err / std)
+    z = np.concatenate(z)
+    assert np.abs(z).max() < 4.5, z.round(2)
+    assert 0.7 < float(np.sqrt(np.mean(z ** 2))) < 1.4, z.round(2)
