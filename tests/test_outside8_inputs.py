@@ -103,7 +103,9 @@ def test_read_target_names_the_file_and_line(tmp_path, text, line, what):
     path = _target(tmp_path, text)
     with pytest.raises(ValueError) as info:
         calibration.read_target(path)
-    assert str(info.value).startswith(f"calibration.read_target: {path}, line {line}: {what}")
+    message = str(info.value)
+    assert message.startswith(f"calibration.read_target: {path}: {what}"), message
+    assert message.endswith(f" (line {line})"), message
 
 
 def test_read_target_yaml_syntax_error_names_the_line(tmp_path):

@@ -255,9 +255,8 @@ def read_target(path: str | os.PathLike[str]) -> Target:
                                  "sizes")
     kind = doc.get("target_type")
     if not isinstance(kind, str) or kind not in _YAML_KEYS:
-        where = f"{os.fspath(path)}{_line(yaml, text, 'target_type')}: "
         _checks.fail(fn, where + f"target_type must be 'aprilgrid' or 'checkerboard', got "
-                                 f"{kind!r}")
+                                 f"{kind!r}{_line(yaml, text, 'target_type')}")
     keys = _YAML_KEYS[kind]
     missing = [k for k in keys if k not in doc]
     if missing:
@@ -270,16 +269,15 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         message = str(exc).removeprefix("calibration.Target: ")
         for ours, theirs in names.items():
             if message.startswith(f"{ours} must"):
-                message = message.replace(ours, theirs, 1)
-                where = f"{os.fspath(path)}{_line(yaml, text, theirs)}: "
+                message = message.replace(ours, theirs, 1) + _line(yaml, text, theirs)
         _checks.fail(fn, where + message)
 
 
 def _line(yaml, text: str, key: str) -> str:
-    """``", line N"``: where the top-level ``key`` of the yaml ``text`` is written (1-based),
-    or ``""`` when it is not found."""
+    """``" (line N)"``: where the top-level ``key`` of the yaml ``text`` is written
+    (1-based), or ``""`` when it is not found."""
     node = yaml.compose(text)
     for k, _ in getattr(node, "value", []):
         if getattr(k, "value", None) == key:
-            return f", line {k.start_mark.line + 1}"
+            return f" (line {k.start_mark.line + 1})"
     return ""
