@@ -6,6 +6,7 @@ expected.
 """
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -181,3 +182,29 @@ def test_read_imu_names_file_and_line_of_a_repeated_time(tmp_path):
                                          r"duplicates='first' .* the first row of each time"):
         io.read_imu(path)
     assert io.read_imu(path, duplicates="first")[0].shape == (1,)
+
+
+def test_unprojection_at_the_once_invalid_pixel_is_exact_and_differentiable():
+    """The pixel of EuRoC's Kalibr cam0 whose converged root the bracket test threw away:
+    valid, projects back to itself, and its rays' derivatives match finite differences
+    (gradcheck and gradgradcheck, float64, w.r.t. the pixel and the parameters)."""
+    pixel = torch.tensor([153.75641025641025, 165.01724137931035], dtype=torch.float64)
+    params = torch.tensor(EQUI, dtype=torch.float64)
+    ray, ok = camera.unproject("pinhole-equidistant", params, pixel)
+    assert bool(ok)
+    back, _ = camera.project("pinhole-equidistant", params, ray)
+    assert float((back - pixel).abs().max()) < 1e-10
+    f = lambda p, x: camera.unproject("pinhole-equidistant", p, x)[0]  # noqa: E731
+    args = (params.clone().requires_grad_(), pixel.clone().requires_grad_())
+    assert torch.autograd.gradcheck(f, args)
+    assert torch.autograd.gradgradcheck(f, args)
+
+
+def test_euroc_corner_file_numbers_corners_as_aprilgrid():
+    """The EuRoC/Kalibr CSV's (tag_id, corner_idx) -> (X, Y, Z) is aprilgrid()'s order."""
+    path = os.path.join(os.path.dirname(__file__), "data", "calibration",
+                        "euroc_cam_april_cam0_corners.csv")
+    _, p, _, extra = calibration.read_corners(path, extra=True)
+    index = np.asarray(extra["tag_id"]) * 4 + np.asarray(extra["corner_idx"])
+    grid = calibration.aprilgrid(6, 6, 0.088, 0.3).numpy()
+    np.testing.assert_allclose(grid[index], p.numpy(), rtol=0, atol=1e-12)
