@@ -409,7 +409,10 @@ def _equidistant_root(k, s):
         hi = torch.where(~rising | (g > 0), theta, hi)
         step = theta - g / torch.where(rising, slope, 1.0)
         inside = rising & (step > lo) & (step < hi)
-        theta = torch.where(g == 0, theta, torch.where(inside, step, 0.5 * (lo + hi)))
+        # converged: a root at rounding level stays (its Newton step, rounded onto the
+        # bracket's end, would not count as inside and would restart a bisection)
+        done = _converged(g.abs(), td)
+        theta = torch.where(done, theta, torch.where(inside, step, 0.5 * (lo + hi)))
     t = theta * theta
     ok = (_converged(abs(theta * _poly(k, t) - td), td) & (theta < half_pi)
           & (_poly_slope(k, t) > 0))
@@ -493,6 +496,23 @@ def _normalised_hint(pixels: Tensor, params: Tensor) -> str | None:
             f"at ({float(params[2]):.6g}, {float(params[3]):.6g}): they look like normalised "
             f"coordinates (x/z, y/z), not pixels; project them with the camera's "
             f"intrinsics (u = fu x/z + cu, v = fv y/z + cv, then the distortion)")
+
+
+def _outside(pixels: Tensor, resolution: tuple[int, int],
+             slack: float = 0.0) -> tuple[str, float, str] | None:
+    """Where ``(M, 2)`` measured pixels leave an image of ``resolution`` ``(width, height)``:
+    ``(0, 0)`` is the top-left pixel's centre, so ``u`` in ``[-0.5, width - 0.5]`` and ``v``
+    in ``[-0.5, height - 0.5]``, each widened by ``slack`` times the image's size. None when
+    all lie inside, else the axis (``"u"`` or ``"v"``), the farthest value and the range
+    expected (text)."""
+    if pixels.numel() == 0:
+        return None
+    for axis, name, size in ((0, "u", resolution[0]), (1, "v", resolution[1])):
+        lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
+        low, high = -0.5 - slack * size, size - 0.5 + slack * size
+        if lo < low or hi > high:
+            return name, lo if lo < low else hi, f"{name} in [{low:.6g}, {high:.6g}]"
+    return None
 
 
 def _yaml_number(value):
@@ -629,7 +649,7 @@ class Camera:
             _checks.fail(fn, f"expected a mapping (one camera of a camchain), got "
                              f"{type(entry).__name__}", TypeError)
         names = (entry.get("camera_model"), entry.get("distortion_model", "none"))
-        if names not in _FROM_KALIBR:
+        if not all(isinstance(n, str) for n in names) or names not in _FROM_KALIBR:
             _checks.fail(fn, f"unsupported camera_model {names[0]!r} with distortion_model "
                              f"{names[1]!r}: expected pinhole with none, radtan or "
                              f"equidistant, or ds with none")

@@ -46,7 +46,7 @@ from ..camera import Camera, _normalised_hint
 from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _start
-from ._cameras import _cameras_data, _inside
+from ._cameras import _cameras_data, _inside, _planar, kalibr_entries
 from ._walk import WalkAccel, WalkGyro, segments
 
 __all__ = ["CameraImuCalibration", "camera_imu"]
@@ -118,14 +118,12 @@ class CameraImuCalibration:
         (``/camN/image_raw`` unless given) and ``timeshift_cam_imu``."""
         e = self.extrinsics.detach().double().cpu()
         T_cam_imu = dualquat.to_matrix(dualquat.inv(e))
-        out = {}
-        for i, cam in enumerate(self.cameras):
+        out = kalibr_entries(self.cameras, rostopics, "calibration.CameraImuCalibration.to_kalibr")
+        for i in range(len(self.cameras)):
             entry: dict = {"T_cam_imu": T_cam_imu[i].tolist()}
             if i > 0:
                 entry["T_cn_cnm1"] = (T_cam_imu[i] @ torch.linalg.inv(T_cam_imu[i - 1])).tolist()
-            entry["cam_overlaps"] = [j for j in range(len(self.cameras)) if j != i]
-            entry.update(cam.to_kalibr())
-            entry["rostopic"] = rostopics[i] if rostopics else f"/cam{i}/image_raw"
+            entry.update(out[f"cam{i}"])
             entry["timeshift_cam_imu"] = float(self.time_offsets[i])
             if float(self.line_delays[i]) > 0:
                 entry["line_delay"] = float(self.line_delays[i])
@@ -175,9 +173,11 @@ def _arguments(cameras, observations, imu):
 def _units(i: int, cam: Camera, times: Tensor, points: Tensor, pixels: Tensor) -> None:
     """Camera ``i``'s observations in seconds, metres and pixels of its image: a
     ``ValueError`` for times in nanoseconds (or us, ms), pixels outside the resolution or
-    that look like normalised coordinates, target points spread over more than 20 m."""
+    that look like normalised coordinates, target points off the plane ``Z = 0`` or spread
+    over more than 20 m."""
     _seconds(f"observations[{i}] times", times.unique(), 10.0)
     _inside(i, pixels, cam.resolution, _FN, "cameras[{i}].resolution", _SLACK)
+    _planar(i, points, _FN)
     hint = _normalised_hint(pixels, cam.params)
     if hint is not None:
         _checks.fail(_FN, f"observations[{i}]: {hint}")
@@ -523,8 +523,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     Raises:
         ValueError: mismatched lists or shapes, non-positive noises, pixels outside a
             camera's resolution (by over 1 % of its size) or that look like normalised
-            coordinates (all within 4 px of ``(0, 0)``), target points spread over more
-            than 20 m (millimetres, not metres), fewer than 10 frames of
+            coordinates (all within 4 px of ``(0, 0)``), target points off the plane
+            ``Z = 0`` or spread over more than 20 m (millimetres, not metres), a
+            ``max_line_delay`` that is not positive, fewer than 10 frames of
             a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
             ``max_time_offset`` (correlation below 0.3: another recording's log).
@@ -540,6 +541,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     pixel_sigma = _positive("pixel_sigma", pixel_sigma)
     knot_spacing = _positive("knot_spacing", knot_spacing)
     max_time_offset = _positive("max_time_offset", max_time_offset)
+    max_line_delay = _positive("max_line_delay", max_line_delay)
     _positive("bias_interval", bias_interval)
     min_points = _checks.integer(_FN, "min_points", min_points, 4)
     for name, value in (("rolling_shutter", rolling_shutter),

@@ -39,12 +39,12 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from ..camera import MODELS, Camera, project
+from ..camera import MODELS, Camera, _outside, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, rho, weight
 from . import _start
 
-__all__ = ["CameraCalibration", "cameras"]
+__all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
 
 _FN = "calibration.cameras"
 _SIZES = {model: len(names) for model, names in MODELS.items()}
@@ -93,6 +93,35 @@ class CameraCalibration:
     converged: bool = False
     cost: float = 0.0
 
+    def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
+        """Kalibr's ``camchain.yaml`` (what ``kalibr_calibrate_cameras`` writes) as a dict of
+        plain lists and floats (``yaml.safe_dump`` writes it): per camera ``camN`` the model
+        and intrinsics (:meth:`torch_dq.camera.Camera.to_kalibr`), ``cam_overlaps``,
+        ``rostopic`` (``/camN/image_raw`` unless given) and, for ``N >= 1``, ``T_cn_cnm1``
+        (4 x 4: ``p_camN = T p_camN-1``, from :attr:`relative_poses`)."""
+        rel = self.relative_poses.detach().cpu().double()
+        poses = torch.cat([dualquat.identity(dtype=torch.float64)[None], rel])
+        out = kalibr_entries(self.cameras, rostopics, "calibration.CameraCalibration.to_kalibr")
+        for i in range(1, len(self.cameras)):
+            step = dualquat.mul(dualquat.inv(poses[i]), poses[i - 1])
+            out[f"cam{i}"] = {"T_cn_cnm1": dualquat.to_matrix(step).tolist(), **out[f"cam{i}"]}
+        return out
+
+
+def kalibr_entries(cams: list, rostopics, fn: str) -> dict:
+    """``{"camN": entry}`` of a Kalibr camchain without the transforms: ``cam_overlaps``
+    (every other camera), the camera (:meth:`torch_dq.camera.Camera.to_kalibr`) and
+    ``rostopic`` (``rostopics[N]``, a list of one str per camera, or ``/camN/image_raw``)."""
+    if rostopics is not None and (not isinstance(rostopics, Sequence)
+                                  or isinstance(rostopics, str) or len(rostopics) != len(cams)
+                                  or not all(isinstance(r, str) for r in rostopics)):
+        _checks.fail(fn, f"expected rostopics to be None or a list of {len(cams)} str (one per "
+                         f"camera), got {rostopics!r}")
+    return {f"cam{i}": {"cam_overlaps": [j for j in range(len(cams)) if j != i],
+                        **cam.to_kalibr(),
+                        "rostopic": rostopics[i] if rostopics else f"/cam{i}/image_raw"}
+            for i, cam in enumerate(cams)}
+
 
 @dataclass
 class _Camera:
@@ -129,9 +158,16 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
     t, p, u = (x.detach().to("cpu", torch.float64) for x in (t, p, u))
     if not bool(torch.isfinite(t).all() & torch.isfinite(p).all() & torch.isfinite(u).all()):
         _checks.fail(_FN, f"observations[{i}] holds non-finite values")
-    if bool((p[:, 2].abs() > 1e-9 * p[:, :2].abs().max().clamp_min(1.0)).any()):
-        _checks.fail(_FN, f"expected a planar target (points with Z = 0) in observations[{i}]")
+    _planar(i, p)
     return t, p, u
+
+
+def _planar(i: int, points: Tensor, fn: str = _FN) -> None:
+    """Check that camera ``i``'s ``(N, 3)`` target points lie on the plane ``Z = 0`` (the
+    closed-form starts are homographies of that plane)."""
+    if points.numel() and bool(
+            (points[:, 2].abs() > 1e-9 * points[:, :2].abs().max().clamp_min(1.0)).any()):
+        _checks.fail(fn, f"expected a planar target (points with Z = 0) in observations[{i}]")
 
 
 def _arguments(observations, models, resolution, robust, robust_k, max_iterations, tol,
@@ -184,16 +220,11 @@ def _inside(i: int, pixels: Tensor, res: tuple[int, int], fn: str = _FN,
     top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``,
     widened by ``slack`` times the image's size (``fn`` and ``where``, the resolution's
     argument with ``{i}``, name the caller's)."""
-    if pixels.numel() == 0:
-        return
-    for axis, name, size in ((0, "u", res[0]), (1, "v", res[1])):
-        lo, hi = float(pixels[:, axis].min()), float(pixels[:, axis].max())
-        low, high = -0.5 - slack * size, size - 0.5 + slack * size
-        if lo < low or hi > high:
-            _checks.fail(fn, f"observations[{i}] pixels reach {name} = "
-                             f"{lo if lo < low else hi:.6g}, outside {where.format(i=i)} = "
-                             f"{res} (expected {name} in [{low:.6g}, {high:.6g}]; is the "
-                             f"resolution (width, height) of that camera?)")
+    out = _outside(pixels, res, slack)
+    if out is not None:
+        _checks.fail(fn, f"observations[{i}] pixels reach {out[0]} = {out[1]:.6g}, outside "
+                         f"{where.format(i=i)} = {res} (expected {out[2]}; is the resolution "
+                         f"(width, height) of that camera?)")
 
 
 def _cameras_data(obs, models, res, min_points) -> tuple[list[_Camera], Tensor]:

@@ -221,7 +221,8 @@ def read_target(path: str | os.PathLike[str]) -> Target:
 
     Raises:
         ValueError: naming the file: not a yaml mapping, an unknown or missing
-            ``target_type`` (``circlegrid`` is not supported), a missing key or a bad value.
+            ``target_type`` (``circlegrid`` is not supported), a missing key or a bad value
+            (and its line).
         ImportError: PyYAML is not installed.
         OSError: the file cannot be opened.
 
@@ -240,18 +241,22 @@ def read_target(path: str | os.PathLike[str]) -> Target:
                          f"{type(path).__name__}", TypeError)
     yaml = yaml_module(fn)
     with open(path, encoding="utf-8") as f:
-        try:
-            doc = yaml.safe_load(f)
-        except yaml.YAMLError as exc:
-            _checks.fail(fn, f"{os.fspath(path)}: not a valid yaml file ({exc})")
+        text = f.read()
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        _checks.fail(fn, f"{os.fspath(path)}{at}: not a valid yaml file ({problem})")
     where = f"{os.fspath(path)}: "
     if not isinstance(doc, dict):
         _checks.fail(fn, where + "expected a yaml mapping with target_type and the target's "
                                  "sizes")
     kind = doc.get("target_type")
-    if kind not in _YAML_KEYS:
+    if not isinstance(kind, str) or kind not in _YAML_KEYS:
         _checks.fail(fn, where + f"target_type must be 'aprilgrid' or 'checkerboard', got "
-                                 f"{kind!r}")
+                                 f"{kind!r}{_line(yaml, text, 'target_type')}")
     keys = _YAML_KEYS[kind]
     missing = [k for k in keys if k not in doc]
     if missing:
@@ -263,5 +268,16 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         names = dict(zip(("rows", "cols", "size", "spacing"), keys, strict=True))
         message = str(exc).removeprefix("calibration.Target: ")
         for ours, theirs in names.items():
-            message = message.replace(f"{ours} must", f"{theirs} must", 1)
+            if message.startswith(f"{ours} must"):
+                message = message.replace(ours, theirs, 1) + _line(yaml, text, theirs)
         _checks.fail(fn, where + message)
+
+
+def _line(yaml, text: str, key: str) -> str:
+    """``" (line N)"``: where the top-level ``key`` of the yaml ``text`` is written
+    (1-based), or ``""`` when it is not found."""
+    node = yaml.compose(text)
+    for k, _ in getattr(node, "value", []):
+        if getattr(k, "value", None) == key:
+            return f" (line {k.start_mark.line + 1})"
+    return ""

@@ -31,12 +31,15 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from ..camera import _normalised_hint
+from ..camera import _normalised_hint, _outside
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma
 
 __all__ = ["Reprojections"]
+
+_SLACK = 0.1  # measured pixels may stray this fraction of the image's size outside it (a
+# simulation that projects without cropping; a refined corner at the border)
 
 
 def _intrinsics(fn: str, cam) -> tuple[str, Tensor]:
@@ -77,6 +80,11 @@ class Reprojections(Term):
     Residual ``(..., N, 2)``: predicted minus measured pixel over ``sigma``; zero for masked
     observations and for points without an image (``term.invalid`` counts them after
     :func:`~torch_dq.fitting.estimate`).
+
+    Raises:
+        ValueError: shapes that do not match, points that are not finite, pixels (not
+            masked) outside ``camera.resolution`` by over 10 % of its size (another camera's
+            or another image size's pixels), a bad ``sigma``, ``line_delay`` or bound.
 
     Warns:
         UserWarning: pixels that look like normalised coordinates (all within 4 of the
@@ -142,6 +150,13 @@ class Reprojections(Term):
         hint = _normalised_hint(pixels[self.mask], params)
         if hint is not None:
             warnings.warn(f"{fn}: {hint}", UserWarning, stacklevel=2)
+        else:
+            out = _outside(pixels[self.mask], camera.resolution, _SLACK)
+            if out is not None:
+                _checks.fail(fn, f"pixels reach {out[0]} = {out[1]:.6g}, outside "
+                                 f"camera.resolution = {camera.resolution} by over "
+                                 f"{_SLACK:.0%} of its size (expected {out[2]}; is that the "
+                                 f"camera's (width, height)?)")
         self._buffer("points", _masked(points, self.mask, 1.0), 1)
         self._buffer("pixels", _masked(pixels, self.mask, 0.0), 1)
         self._buffer("rows", self.pixels[..., 1].to(torch.float64), 0)

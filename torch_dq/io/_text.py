@@ -127,7 +127,7 @@ def check_times(path, lines: list[int], t: np.ndarray, duplicates: str,
     first_bad(path, lines[1:], step == 0,
                lambda i: f"duplicate timestamp {show(i + 1)} {unit} (also on line "
                          f"{lines[i]}){hint}; pass duplicates='first' (fit: --duplicates "
-                         f"first) to keep the first pose of each time")
+                         f"first) to keep the first row of each time")
     return np.arange(t.shape[0])
 
 
