@@ -58,3 +58,13 @@ print("gyro bias err", (gyro.bias.numpy() - B.B_GYRO), "acc bias err", acc.bias.
 print("loss", est.loss.tolist()[:8], "...", est.loss.tolist()[-3:])
 for x in w:
     print("warning:", str(x.message)[:300])
+if os.environ.get("DIAG"):
+    import numpy as np
+    from scipy.spatial.transform import Rotation as Rot
+    with torch.no_grad():
+        x = spline(tc)
+    Rest = Rot.from_quat(x[:, :4].numpy(), scalar_first=True)
+    Rtrue = Rot.from_matrix(B.rotation(tc.numpy()))
+    err = (Rest * Rtrue.inv()).as_rotvec()  # world-frame error
+    print("world rot err deg: mean", np.degrees(err.mean(0)), "std", np.degrees(err.std(0)), "max", np.degrees(np.abs(err).max(0)))
+    print("gravity est", acc.gravity)

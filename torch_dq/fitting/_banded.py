@@ -173,6 +173,8 @@ class BandedCholesky:
             ok &= level.ok
             self.levels.append(level)
             D, E = level.D, level.E
+            if D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
+                del level.D, level.E
         self.ok = ok
 
     def solve(self, rhs: Tensor) -> Tensor:
