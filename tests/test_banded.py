@@ -131,3 +131,22 @@ def test_not_positive_definite_is_flagged_per_element(where):
     ref = _scipy_solve(dense[0].numpy(), rhs[0].reshape(-1, 1).numpy(), 4)
     err = np.abs(chol.solve(rhs)[0].reshape(-1, 1).numpy() - ref).max() / np.abs(ref).max()
     assert err < 1e-9
+
+
+@pytest.mark.parametrize(("n", "w"), [(1, 1), (7, 2), (25, 4), (40, 3)])
+def test_a_diagonal_shift_is_factored_without_copying_the_band(n, w):
+    """``BandedCholesky(band, shift)`` solves with ``A + diag(shift)`` (scipy on the shifted
+    dense matrix, padding rows included), the band left unchanged."""
+    gen = torch.Generator().manual_seed(n * 10 + w)
+    band, dense = _gauss_newton(gen, (2,), n, w)
+    shift = torch.rand(2, n, 6, generator=gen, dtype=F64) * dense.diagonal(
+        dim1=-2, dim2=-1).reshape(2, n, 6)
+    before = band.clone()
+    rhs = torch.randn(2, n, 6, 3, generator=gen, dtype=F64)
+    x = BandedCholesky(band, shift=shift).solve(rhs)
+    torch.testing.assert_close(band, before, rtol=0, atol=0)
+    for b in range(2):
+        shifted = dense[b].numpy() + np.diag(shift[b].reshape(-1).numpy())
+        ref = _scipy_solve(shifted, rhs[b].reshape(n * 6, 3).numpy(), w)
+        np.testing.assert_allclose(x[b].reshape(n * 6, 3).numpy(), ref, rtol=1e-8,
+                                   atol=1e-8 * np.abs(ref).max())

@@ -146,13 +146,15 @@ class BandedCholesky:
 
     Args:
         band: ``(..., n, w, s, s)`` upper band (blocks past the last row are ignored).
+        shift: ``(..., n, s)`` added to the diagonal, or None (a regularised or damped
+            matrix factored without a copy of its band).
 
     Attributes:
         ok: ``(...)`` bool, False where the matrix is not numerically positive definite (the
             results of those batch elements are meaningless; the others are unaffected).
     """
 
-    def __init__(self, band: Tensor) -> None:
+    def __init__(self, band: Tensor, shift: Tensor | None = None) -> None:
         *batch, n, w, s, _ = band.shape
         dev = band.device
         beyond = torch.arange(n, device=dev)[:, None] + torch.arange(w, device=dev) >= n
@@ -166,6 +168,10 @@ class BandedCholesky:
             band = torch.cat((band, eye), dim=-4)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
         D, E = _grouped(band, g)
+        del band  # the masked copy (memory)
+        if shift is not None:
+            shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
+            D.diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
         self.levels: list[_Level] = []
         ok = torch.ones(batch, dtype=torch.bool, device=dev)
         while D.shape[-3]:

@@ -188,8 +188,7 @@ def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: flo
     band = band + pull
     diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1)
     floor = 1e-12 * diag.amax((-1, -2)).clamp_min(1e-300)[:, None, None]
-    band[:, :, 0] += torch.diag_embed(REGULARISE * (diag + floor))
-    chol = BandedCholesky(band)
+    chol = BandedCholesky(band, shift=REGULARISE * (diag + floor))
     S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))
     lam, V, d = scaled_eigh(S)
     null = (lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0)) & chol.ok[:, None]
@@ -232,9 +231,7 @@ def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Te
     A = band + pull
     D = A[:, :, 0].diagonal(dim1=-2, dim2=-1)
     D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
-    reg = A.clone()
-    reg[:, :, 0] += torch.diag_embed(REGULARISE * D)
-    chol = BandedCholesky(reg)
+    chol = BandedCholesky(A, shift=REGULARISE * D)
     gen = torch.Generator(device=band.device).manual_seed(0)
     rank = min(rank, D.shape[1] * 6)
     X = torch.randn(*D.shape, rank, generator=gen, dtype=band.dtype, device=band.device)

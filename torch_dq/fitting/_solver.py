@@ -25,11 +25,12 @@ class SchurSolver:
     """Banded Cholesky of ``A`` and dense Cholesky of the Schur complement on the nuisance."""
 
     def solve(self, band: Tensor, cn: Tensor, nn: Tensor, gc: Tensor, gn: Tensor,
-              ) -> tuple[Tensor, Tensor, Tensor]:
+              shift: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` (both factorisations
-        succeeded) of the system ``band (Bf, n, w, 6, 6)``, ``cn (Bf, n, 6, m)``, ``nn (Bf,
-        m, m)`` with gradients ``gc``, ``gn``."""
-        chol = BandedCholesky(band)
+        succeeded) of the system ``band (Bf, n, w, 6, 6)`` (plus ``shift (Bf, n, 6)`` on its
+        diagonal, or None), ``cn (Bf, n, 6, m)``, ``nn (Bf, m, m)`` with gradients ``gc``,
+        ``gn``."""
+        chol = BandedCholesky(band, shift=shift)
         ok = chol.ok
         m = nn.shape[-1]
         if not m:
@@ -125,11 +126,9 @@ class DampedStep:
 
     def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
-        band = self.band.clone()
-        band[:, :, 0] += torch.diag_embed(lam[:, None, None] * (self.diag
-                                                                + self.floor[:, None, None]))
+        shift = lam[:, None, None] * (self.diag + self.floor[:, None, None])
         nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
-        dc, dn, ok = self.solver.solve(band, self.s.cn, nn, gc, gn)
+        dc, dn, ok = self.solver.solve(self.band, self.s.cn, nn, gc, gn, shift)
         return self._project(dc), dn, ok
 
     def predicted(self, gc: Tensor, gn: Tensor, dc: Tensor, dn: Tensor) -> Tensor:

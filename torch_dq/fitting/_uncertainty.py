@@ -304,9 +304,7 @@ class Estimate:
         diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1) + 1e-12 * scale[:, :, None]
 
         def regularised(eps: float) -> BandedCholesky:
-            b = band.clone()
-            b[:, :, 0] += torch.diag_embed(eps * diag)
-            return BandedCholesky(b)
+            return BandedCholesky(band, shift=eps * diag)
 
         self._chol, self._loose = regularised(REGULARISE), regularised(_LOOSE * REGULARISE)
         ok = self._chol.ok
