@@ -19,6 +19,7 @@ from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
 from ._charts import Direction, Vector
+from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma, _vector_data
 
@@ -40,6 +41,28 @@ class _Imu(Term):
         self._units_checked = False  # the readings' units, checked once (first values())
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
+
+    def _whitened(self, rows: Tensor, event: int) -> Tensor:
+        """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero."""
+        scale = self.mask[..., None].to(rows.dtype) / self.sigma.to(rows.dtype)
+        return rows * scale.reshape(*scale.shape, *[1] * event)
+
+    def _steps(self, names: list[str], p: dict[str, Tensor], toward: dict[str, Tensor],
+               ) -> list[Tensor] | None:
+        """The nuisance Jacobians ``(..., N, 3, dim)`` from the rows ``toward`` each
+        parameter's value ``(..., N, 3, 3)``, times its chart's derivative (a bias's the
+        identity, gravity's :meth:`~torch_dq.fitting._charts.Direction.report`); None where
+        another parameter or chart is read."""
+        out = []
+        for name in names:
+            chart = self._slots[name].chart
+            if name not in toward or not isinstance(chart, (Vector, Direction)):
+                return None
+            rows = toward[name]
+            if isinstance(chart, Direction):
+                rows = rows @ chart.report(p[name])  # p: (..., 1, 3), a sample dim
+            out.append(self._whitened(rows, 1))
+        return out
 
 
 class Gyro(_Imu):
@@ -73,6 +96,17 @@ class Gyro(_Imu):
         x, dx = ev[0][:2]
         w = curves.kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
+
+    def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
+                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+        """Closed form (:func:`~torch_dq.fitting._imu_jacobians.gyro_rows`)."""
+        x, dx = derivs[0][:2]
+        eye = torch.eye(3, dtype=x.dtype, device=x.device)
+        steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3)})
+        if steps is None:
+            return None
+        rows = self._whitened(gyro_rows(x, dx), 2)
+        return self.residuals(derivs, p), [rows, *steps]
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
         """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
@@ -272,6 +306,19 @@ class Accel(_Imu):
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
         a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
+
+    def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
+                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+        """Closed form (:func:`~torch_dq.fitting._imu_jacobians.accel_rows`)."""
+        x, dx, ddx = derivs[0][:3]
+        gravity = p["gravity"].to(x.dtype)
+        rows, toward_g = accel_rows(x, dx, ddx, gravity)
+        eye = torch.eye(3, dtype=x.dtype, device=x.device)
+        steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3),
+                                          "gravity": toward_g})
+        if steps is None:
+            return None
+        return self.residuals(derivs, p), [self._whitened(rows, 2), *steps]
 
 
 _STANDARD_GRAVITY = 9.80665  # m/s^2 per g

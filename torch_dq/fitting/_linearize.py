@@ -253,6 +253,10 @@ class Linearization:
         ``nuisance`` parameters (``sample_jacobians``: one reverse pass over ``k``
         copies)."""
         L = len(derivs)
+        closed = term.residual_jacobians([d.unbind(-2) for d in derivs], term.per_sample(vals),
+                                         nuisance)
+        if closed is not None:
+            return closed
         slots = term.slots()
 
         def residual(lv):

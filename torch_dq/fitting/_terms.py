@@ -394,6 +394,23 @@ class Term(torch.nn.Module):
     def _residual(self, ev: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
         raise NotImplementedError
 
+    def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
+                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+        """Whitened residuals and their Jacobians in closed form, or None (the default: the
+        linearisation differentiates :meth:`residuals` by a reverse pass).
+
+        Args:
+            derivs: as :meth:`residuals` (the derivatives ``0 .. order``, ``(..., N, 8)``).
+            p: per-sample values (:meth:`per_sample`).
+            nuisance: the estimated parameters the residual reads, in order.
+
+        Returns:
+            ``r (..., N, k)`` and the Jacobians with respect to each time argument's
+            derivatives ``(..., N, k, order + 1, 8)``, then to each ``nuisance`` parameter's
+            chart step ``(..., N, k, dim)`` (masked samples' rows zero).
+        """
+        return None
+
     def residuals(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
         """Whitened residuals ``(..., N, k)`` from the trajectory's derivatives at the
         samples' times (one tuple per time argument) and per-sample nuisance values."""
