@@ -1,7 +1,7 @@
-"""Reproducer (honest8 item 5): Positions + Gyro + Accel, the curve started on the positions
+"""A known limitation, reproduced: Positions + Gyro + Accel, the curve started on the positions
 with identity rotations (what a GNSS + IMU user has), 10 s of benchmarks/bench_gtsam.py's job.
 
-    GRAV=free PYTHONPATH=$PWD python tests/honest8_prior0_stall.py 10 0 identity
+    GRAV=free PYTHONPATH=$PWD python benchmarks/positions_imu_identity_start.py 10 0 identity
         gravity's direction estimated (gravity=9.81): 50 steps end at cost 2.15e5 (the
         optimum is 11345.5), converged False; STEPS=300 reaches it after ~240 accepted steps
         with small damping (1e-5..1e-7): a crawl, no local minimum.
@@ -58,13 +58,3 @@ print("gyro bias err", (gyro.bias.numpy() - B.B_GYRO), "acc bias err", acc.bias.
 print("loss", est.loss.tolist()[:8], "...", est.loss.tolist()[-3:])
 for x in w:
     print("warning:", str(x.message)[:300])
-if os.environ.get("DIAG"):
-    import numpy as np
-    from scipy.spatial.transform import Rotation as Rot
-    with torch.no_grad():
-        x = spline(tc)
-    Rest = Rot.from_quat(x[:, :4].numpy(), scalar_first=True)
-    Rtrue = Rot.from_matrix(B.rotation(tc.numpy()))
-    err = (Rest * Rtrue.inv()).as_rotvec()  # world-frame error
-    print("world rot err deg: mean", np.degrees(err.mean(0)), "std", np.degrees(err.std(0)), "max", np.degrees(np.abs(err).max(0)))
-    print("gravity est", acc.gravity)

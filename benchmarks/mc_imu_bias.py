@@ -1,6 +1,6 @@
-"""Monte Carlo of the IMU bias standard deviations (honest8 item 6).
+"""Monte Carlo of the IMU bias standard deviations (issue 34's IMU + poses job).
 
-    PYTHONPATH=$PWD python tests/honest8_mc_bias.py DURATION SEEDS [KNOT]
+    PYTHONPATH=$PWD python benchmarks/mc_imu_bias.py DURATION SEEDS [KNOT]
 
 benchmarks/bench_gtsam.py's job (poses 20 Hz, IMU 200 Hz, knots 0.05 s): per seed the six
 bias errors over their reported standard deviations; the RMS over every seed and axis with
