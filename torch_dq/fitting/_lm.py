@@ -28,9 +28,10 @@ from ._solver import DampedStep, Marquardt, SchurSolver
 
 __all__ = ["History", "LevenbergMarquardt", "Point"]
 
-_MAX_REJECTIONS = 13  # damping increases before a batch element stops: the first to
-# Marquardt.START at least, then x10 each, to 1e8 (8 from 1e-12 ended at 1e-3, short of the
-# damping that lowered TUM fr1_xyz's objective: "no damped step lowers" 46 std off)
+_MAX_REJECTIONS = 13  # damping increases before a batch element stops: back towards the
+# last accepted damping, then x10 each from Marquardt.START at least, to 1e4-1e8 (8 from
+# 1e-12 ended at 1e-3, short of the damping that lowered TUM fr1_xyz's objective: "no damped
+# step lowers" 46 std off)
 _NONFINITE = "non-finite cost at the start"
 _EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
 _ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
