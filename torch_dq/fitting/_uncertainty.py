@@ -30,6 +30,7 @@ poses' uncertainties are inf, with a warning naming the gap), which leaves ``S``
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import cast
 
 import torch
@@ -66,23 +67,26 @@ def _warn_unexcited(term, bound: float, s: Tensor) -> None:
                       f"motion determines it)", RuntimeWarning, stacklevel=3)
 
 
-def _schur(chol: BandedCholesky, loose: BandedCholesky, cn: Tensor,
-           nn: Tensor) -> tuple[Tensor, Tensor]:
-    r"""``Z = A^{-1} C (Bf, n, 6, m)`` and the nuisance information ``S = N - C^T Z (Bf, m,
-    m)`` in the limit of no regularisation, from the band factored with ``eps D`` (``chol``)
-    and ``_LOOSE eps D`` (``loose``): both are linear in ``eps`` while ``eps D`` is small
-    against the information (Richardson's extrapolation to ``eps = 0``). The regularisation
-    alone adds ``eps`` times the diagonal summed over every control point that a nuisance
-    direction moves (an extrinsic's translation moves them all): on a weakly determined
-    direction (a lever arm against an accelerometer bias under a nearly constant rotation
-    rate) that was comparable to the data's information and shrank the standard deviation
-    by 1.25 (measured against a dense pseudo-inverse)."""
-    z1, z2 = chol.solve(cn), loose.solve(cn)
-    k = 1.0 / (_LOOSE - 1.0)
-    z = z1 + k * (z1 - z2)
-    s1 = torch.einsum("bnim,bniq->bmq", cn, z1)
+def _schur(factor: Callable[[float], BandedCholesky], cn: Tensor,
+           nn: Tensor) -> tuple[BandedCholesky, Tensor, Tensor]:
+    r"""The band factored with ``REGULARISE D`` (``factor(eps)``: the band with ``eps D`` on
+    its diagonal), ``Z = A^{-1} C (Bf, n, 6, m)`` and the nuisance information ``S = N - C^T
+    Z (Bf, m, m)`` in the limit of no regularisation, from that factor and a second one with
+    ``_LOOSE REGULARISE D`` (factored first and freed: one factor held at a time): both are
+    linear in ``eps`` while ``eps D`` is small against the information (Richardson's
+    extrapolation to ``eps = 0``). The regularisation alone adds ``eps`` times the diagonal
+    summed over every control point that a nuisance direction moves (an extrinsic's
+    translation moves them all): on a weakly determined direction (a lever arm against an
+    accelerometer bias under a nearly constant rotation rate) that was comparable to the
+    data's information and shrank the standard deviation by 1.25 (measured against a dense
+    pseudo-inverse)."""
+    z2 = factor(_LOOSE * REGULARISE).solve(cn)
     s2 = torch.einsum("bnim,bniq->bmq", cn, z2)
-    return z, nn - (s1 + k * (s1 - s2))
+    chol = factor(REGULARISE)
+    z1 = chol.solve(cn)
+    k = 1.0 / (_LOOSE - 1.0)
+    s1 = torch.einsum("bnim,bniq->bmq", cn, z1)
+    return chol, z1 + k * (z1 - z2), nn - (s1 + k * (s1 - s2))
 
 
 def _drop_undetermined(band: Tensor, cn: Tensor,
@@ -306,18 +310,20 @@ class Estimate:
         def regularised(eps: float) -> BandedCholesky:
             return BandedCholesky(band, shift=eps * diag)
 
-        self._chol, self._loose = regularised(REGULARISE), regularised(_LOOSE * REGULARISE)
-        ok = self._chol.ok
-        self._ok = ok
+        self._regularised = regularised
+        self._loose_factor: BandedCholesky | None = None  # on first use: _loose()
         m = p.m
         if not m:
+            self._chol = regularised(REGULARISE)
+            self._ok = self._chol.ok
             self._Z = system.cn
             self._U = system.nn
             self._r = system.nn.new_ones(Bf, 0)
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         S = system.nn + torch.diag(p.prior_information).to(system.nn)
-        self._Z, S = _schur(self._chol, self._loose, cn, S)
+        self._chol, self._Z, S = _schur(regularised, cn, S)
+        ok = self._ok = self._chol.ok
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
                | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * scale)
@@ -331,6 +337,14 @@ class Estimate:
             warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
                           f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
                           RuntimeWarning, stacklevel=4)
+
+    def _loose(self) -> BandedCholesky:
+        """The band factored with ``_LOOSE REGULARISE D`` (the kinematic uncertainties' test
+        of directions without information), on first use (the factorisation held one factor
+        at a time)."""
+        if self._loose_factor is None:
+            self._loose_factor = self._regularised(_LOOSE * REGULARISE)
+        return self._loose_factor
 
     def _quadratic(self, A: Tensor) -> Tensor:
         """``diag(A Sigma_nn A^T)`` for ``A (Bf, ..., k, m)``, inf-safe (a component along
@@ -459,7 +473,8 @@ class Estimate:
         f = first.expand(*p.batch, T).reshape(Bf, T)
         var = cvar = torch.einsum("btij,btjl,btil->bti", J,
                                   self._chol.window_covariance(f, sup), J)
-        loose = torch.einsum("btij,btjl,btil->bti", J, self._loose.window_covariance(f, sup), J)
+        loose = torch.einsum("btij,btjl,btil->bti", J, self._loose().window_covariance(f, sup),
+                             J)
         idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
         if p.m:
             Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
