@@ -265,6 +265,11 @@ class Curve(torch.nn.Module, abc.ABC):
             if not isinstance(value, bool):
                 _checks.fail(fn, f"{name} must be a bool, got {value!r}", TypeError)
         self.check, self.extrapolate = check, extrapolate
+        bad = ~(torch.isfinite(ctrl).all(-1) & (ctrl[..., :4] != 0).any(-1))
+        if ctrl.device.type != "meta" and bool(bad.any()):
+            i = _checks.first_index(bad)
+            _checks.fail(fn, f"ctrl{list(i)} = {ctrl[i].tolist()} is no pose: control points "
+                             f"must be finite with a non-zero real part")
         self.ctrl = torch.nn.Parameter(ctrl.detach().clone())
         parametrize.register_parametrization(self, "ctrl", UnitDualQuaternion())
 
