@@ -51,9 +51,9 @@ def test_batches_broadcast_like_elementwise_calls(form, cs):
         x = m(t)
         _, dx = m.derivatives(t, 1)
         gyro, _ = m.imu(t)
-        assert x.shape == batch + (T, 8) and dx.shape == x.shape
-        assert gyro.shape == batch + (T, 3)
-        c_all, t_all = ctrl.expand(batch + (n, 8)), t.expand(batch + (T,))
+        assert x.shape == (*batch, T, 8) and dx.shape == x.shape
+        assert gyro.shape == (*batch, T, 3)
+        c_all, t_all = ctrl.expand((*batch, n, 8)), t.expand((*batch, T))
         for idx in itertools.islice(np.ndindex(*batch), 0, None, 3):
             one = tnn.BSpline(c_all[idx], form=form)
             ref = REFERENCE[form](mats_np(c_all[idx]), one.knots.numpy(), 3,
@@ -69,7 +69,7 @@ def test_bezier_batches(cs):
     t = torch.rand((4,) + (1,) * len(cs) + (7,), dtype=F64)
     m = tnn.Bezier(ctrl, domain=(2.0, 3.0))
     x = m(t + 2.0)
-    assert x.shape == (4,) + cs + (7, 8)
+    assert x.shape == (4, *cs, 7, 8)
     assert bool(dq.is_unit(x).all())
 
 

@@ -61,9 +61,9 @@ def mats_np(x):
     w, v = q[..., :1], q[..., 1:]
     dw, dv = d[..., :1], d[..., 1:]
     t = 2.0 * (w * dv - dw * v + np.cross(v, dv))  # t = 2 d q*  (vector part)
-    T = np.zeros(x.shape[:-1] + (4, 4))
+    T = np.zeros((*x.shape[:-1], 4, 4))
     T[..., :3, :3] = Rotation.from_quat(np.concatenate((v, w), -1).reshape(-1, 4)
-                                        ).as_matrix().reshape(x.shape[:-1] + (3, 3))
+                                        ).as_matrix().reshape((*x.shape[:-1], 3, 3))
     T[..., :3, 3] = t
     T[..., 3, 3] = 1.0
     return T
