@@ -194,3 +194,20 @@ def test_no_input_modified_and_non_finite_stay_local(form):
     assert torch.isfinite(y[0]).all() and torch.isnan(y[1]).any()
     y[0].sum().backward()
     assert torch.isfinite(bad.grad[0]).all()
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_unchecked_times_outside_give_nan(form):
+    """With ``check=False`` times beyond the domain give NaN poses and derivatives (never a
+    silent extrapolation); times within the rounding tolerance of a UNIX-time domain are
+    evaluated at its ends, in a float32 module."""
+    m = tnn.BSpline(poses(7), form=form, check=False)
+    t = torch.tensor([-0.5, 0.5, 1.5], dtype=F64)
+    for out in (m(t), *m.derivatives(t, 2)):
+        assert torch.isnan(out[[0, 2]]).all(-1).all() and torch.isfinite(out[1]).all()
+    knots = 1.7e9 + torch.tensor([0.0, 0, 0, 0, 2.5, 5, 7.5, 10, 10, 10, 10], dtype=F64)
+    m32 = tnn.BSpline(poses(7, dtype=torch.float32), knots=knots, form=form)
+    ends = torch.tensor([1.7e9, 1.7e9 + 10], dtype=F64)
+    assert torch.equal(m32(ends + torch.tensor([-1e-7, 1e-7], dtype=F64)), m32(ends))
+    with pytest.raises(ValueError, match="domain"):
+        m32(ends - 1e-3)

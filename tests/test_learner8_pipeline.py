@@ -260,3 +260,21 @@ def test_adam_recovers_an_exposure_trajectory(form, dtype, kind):
             losses.append(float(loss.detach()))
             opt.step()
         assert losses[-1] <= 1e-3 * losses[0], (kind, losses[0], losses[-1])
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("knots", [
+    [0, 0, 0, 0, 0.4, 0.4, 0.7, 1, 1, 1, 1],  # a double interior knot
+    [0, 0, 0, 0, 0.5, 0.5, 0.5, 1, 1, 1, 1],  # a triple one (C^0 for a cubic)
+    [-1, -0.5, 0, 0.2, 0.2, 0.6, 1, 1.3, 1.6, 2, 3]], ids=["double", "triple", "unclamped"])
+def test_repeated_and_unclamped_knots(form, knots):
+    """Repeated interior knots and unclamped non-uniform knots: poses at every knot, both
+    ends and between them match the matrix formula of the form."""
+    c = control_points("generic", 7)
+    k = torch.tensor(knots, dtype=F64)
+    lo, hi = float(k[3]), float(k[7])
+    t = torch.tensor(sorted({lo, hi, *np.linspace(lo, hi, 9).tolist(),
+                             *[v for v in knots if lo <= v <= hi]}), dtype=F64)
+    x = tnn.BSpline(c, knots=k, form=form)(t)
+    ref = REFERENCE[form](mats_np(c), k.numpy(), 3, t.numpy())
+    assert np.abs(mats_np(x) - ref).max() <= 1e-9
