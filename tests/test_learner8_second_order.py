@@ -139,3 +139,28 @@ def test_float32_accuracy(form):
     for k in (1, 2, 3):
         scale = float(d64[k].abs().max())
         assert float((d32[k].double() - d64[k]).abs().max()) <= 3e-6 * scale, k
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("kind", ["generic", "identical", "tiny"])
+def test_imu_against_finite_differences_of_the_matrix_formula(form, kind):
+    """Visual-inertial use: gyro ``R^T w`` and accelerometer ``R^T (a - g)`` against central
+    differences (step 1e-4, 4th order) of the numpy/scipy pose formula, off the knots; a
+    static camera reads zero rotation rate and ``-R^T g``."""
+    c = control_points(kind, 6)
+    m = tnn.BSpline(c, form=form)
+    t = torch.tensor([0.1, 0.45, 0.8], dtype=F64)
+    gyro, accel = m.imu(t)
+    h = 1e-4
+    steps = np.array([-2.0, -1.0, 0.0, 1.0, 2.0])
+    T = np.stack([REFERENCE[form](mats_np(c), m.knots.numpy(), 3, t.numpy() + s * h)
+                  for s in steps])  # (5, T, 4, 4)
+    d1 = np.tensordot(np.array([1, -8, 0, 8, -1]) / (12 * h), T, 1)
+    d2 = np.tensordot(np.array([-1, 16, -30, 16, -1]) / (12 * h * h), T, 1)
+    R = T[2, :, :3, :3]
+    w_body = R.transpose(0, 2, 1) @ d1[:, :3, :3]  # [w_body]x = R^T dR/dt
+    gyro_ref = np.stack((w_body[:, 2, 1], w_body[:, 0, 2], w_body[:, 1, 0]), -1)
+    g = np.array([0.0, 0.0, -9.81])
+    accel_ref = np.einsum("tji,tj->ti", R, d2[:, :3, 3] - g)
+    for got, ref, tol in ((gyro, gyro_ref, 1e-6), (accel, accel_ref, 1e-5)):
+        assert np.abs(got.detach().numpy() - ref).max() <= tol * max(1.0, np.abs(ref).max())
