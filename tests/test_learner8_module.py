@@ -141,7 +141,7 @@ def test_constructor_rejects_bad_arguments(make, kwargs, kind, match):
 def test_constructor_rejects_non_poses(cls, bad):
     """Regression: a NaN/inf control point, or one with a zero real part, was accepted and
     turned the module's poses and every later gradient into NaN; now a ValueError names the
-    control point."""
+    control point, at construction and on assignment to ``control_points``."""
     c = poses(2, 6)
     if bad == "zero":
         c[1, 3, :4] = 0.0
@@ -149,6 +149,9 @@ def test_constructor_rejects_non_poses(cls, bad):
         c[1, 3, 6] = bad
     with pytest.raises(ValueError, match=r"nn\.(BSpline|Bezier): ctrl\[1, 3\]"):
         cls(c)
+    m = cls(poses(2, 6))
+    with pytest.raises(ValueError, match=r"control_points\[1, 3\]"):
+        m.control_points = c
 
 
 @pytest.mark.parametrize("form", FORMS)

@@ -265,11 +265,7 @@ class Curve(torch.nn.Module, abc.ABC):
             if not isinstance(value, bool):
                 _checks.fail(fn, f"{name} must be a bool, got {value!r}", TypeError)
         self.check, self.extrapolate = check, extrapolate
-        bad = ~(torch.isfinite(ctrl).all(-1) & (ctrl[..., :4] != 0).any(-1))
-        if ctrl.device.type != "meta" and bool(bad.any()):
-            i = _checks.first_index(bad)
-            _checks.fail(fn, f"ctrl{list(i)} = {ctrl[i].tolist()} is no pose: control points "
-                             f"must be finite with a non-zero real part")
+        _checks.poses(fn, "ctrl", ctrl)
         self.ctrl = torch.nn.Parameter(ctrl.detach().clone())
         parametrize.register_parametrization(self, "ctrl", UnitDualQuaternion())
 
@@ -295,6 +291,7 @@ class Curve(torch.nn.Module, abc.ABC):
             _checks.fail(self._name, f"expected control_points of shape "
                                      f"{_checks.shape_str(shape)}, got "
                                      f"{_checks.shape_str(value.shape)}")
+        _checks.poses(self._name, "control_points", value)
         self.ctrl = value
 
     def _resolve(self, fn: str, ctrl: Tensor | None) -> Tensor:
