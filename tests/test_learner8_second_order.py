@@ -164,3 +164,21 @@ def test_imu_against_finite_differences_of_the_matrix_formula(form, kind):
     accel_ref = np.einsum("tji,tj->ti", R, d2[:, :3, 3] - g)
     for got, ref, tol in ((gyro, gyro_ref, 1e-6), (accel, accel_ref, 1e-5)):
         assert np.abs(got.detach().numpy() - ref).max() <= tol * max(1.0, np.abs(ref).max())
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("kind", ["generic", "identical"])
+def test_time_gradients(form, kind):
+    """Learning a time offset: poses, ``(x, dx, ddx)`` and IMU readings are twice
+    differentiable w.r.t. ``t`` (finite differences, inside the spans), and the first
+    derivative w.r.t. ``t`` by autograd is the exact velocity ``dx``."""
+    m = tnn.BSpline(control_points(kind, 6), form=form)
+    t = torch.tensor([0.1, 0.45, 0.8], dtype=F64, requires_grad=True)
+    for f in (lambda t: m(t), lambda t: torch.cat(m.derivatives(t, 2), -1),
+              lambda t: torch.cat(m.imu(t), -1)):
+        assert gradcheck(f, (t,), fast_mode=True)
+        assert gradgradcheck(f, (t,), fast_mode=True)
+    x = m(t)
+    J = torch.stack([torch.autograd.grad(x[:, k].sum(), t, retain_graph=True)[0]
+                     for k in range(8)], -1)
+    assert float((J - m.derivatives(t.detach(), 1)[1]).detach().abs().max()) <= 1e-12
