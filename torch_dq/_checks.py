@@ -28,6 +28,7 @@ __all__ = [
     "host_all",
     "integer",
     "pair",
+    "poses",
     "real",
     "rigid_matrix",
     "same_device",
@@ -233,6 +234,16 @@ def rigid_matrix(fn: str, name: str, T: Tensor, atol: float = 1e-3) -> None:
              + (f", bottom row {T[i][3].tolist()}" if T.shape[-1] == 4 else "")
              + f" (a rotation has max |R^T R - I| <= {atol:g} and det R = +1"
              + (", a bottom row (0, 0, 0, 1)" if T.shape[-1] == 4 else "") + ")")
+
+
+def poses(fn: str, name: str, x: Tensor) -> None:
+    """Value check (a device sync; none on meta tensors): every ``(..., 8)`` dual quaternion
+    of ``x`` finite with a non-zero real part, else a ``ValueError`` naming the first bad one."""
+    bad = ~(torch.isfinite(x).all(-1) & (x[..., :4] != 0).any(-1))
+    if x.device.type != "meta" and bool(bad.any()):
+        i = first_index(bad)
+        fail(fn, f"{name}{list(i)} = {x[i].tolist()} is no pose: control points must be "
+                 f"finite with a non-zero real part")
 
 
 def same_device(fn: str, ref: Tensor, ref_name: str, name: str, x: Tensor) -> None:

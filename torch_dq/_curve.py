@@ -265,6 +265,7 @@ class Curve(torch.nn.Module, abc.ABC):
             if not isinstance(value, bool):
                 _checks.fail(fn, f"{name} must be a bool, got {value!r}", TypeError)
         self.check, self.extrapolate = check, extrapolate
+        _checks.poses(fn, "ctrl", ctrl)
         self.ctrl = torch.nn.Parameter(ctrl.detach().clone())
         parametrize.register_parametrization(self, "ctrl", UnitDualQuaternion())
 
@@ -290,6 +291,7 @@ class Curve(torch.nn.Module, abc.ABC):
             _checks.fail(self._name, f"expected control_points of shape "
                                      f"{_checks.shape_str(shape)}, got "
                                      f"{_checks.shape_str(value.shape)}")
+        _checks.poses(self._name, "control_points", value)
         self.ctrl = value
 
     def _resolve(self, fn: str, ctrl: Tensor | None) -> Tensor:

@@ -202,7 +202,7 @@ class Rows(torch.autograd.Function):
     def backward(ctx, *grads):
         table, first, W = ctx.saved_tensors
         if batched(*grads) or torch.is_grad_enabled():
-            grad = torch.stack([torch.zeros_like(W[0].T) if g is None else g for g in grads])
+            grad = torch.stack([table.new_zeros(W.shape[-1], 8) if g is None else g for g in grads])
             return (*_plain_rows_vjp(table, first, W, grad), None)
         width, N = W.shape[1:]
         F = table.shape[0] // width
