@@ -93,16 +93,20 @@ class _Level:
         bad = info != 0
         self.ok = ~bad.any(-1)
         # a failed element continues on the identity: its own results are flagged
-        eye = torch.eye(D.shape[-1], dtype=D.dtype, device=D.device)
-        self.C = torch.where(bad[..., None, None], eye, C)
-        right = _pad(E[..., 1::2, :, :].mT, ne)
-        LR = torch.linalg.solve_triangular(self.C, torch.cat((E[..., 0::2, :, :], right), -1),
-                                           upper=False)
         b = D.shape[-1]
+        if bool(bad.any()):
+            C[bad] = torch.eye(b, dtype=D.dtype, device=D.device)
+        self.C = C
+        rhs = E.new_zeros(*E.shape[:-3], ne, b, 2 * b)  # [E_i | E_{i+1}^T], one array (memory)
+        rhs[..., :b] = E[..., 0::2, :, :]
+        rhs[..., :h, :, b:] = E[..., 1::2, :, :].mT
+        LR = torch.linalg.solve_triangular(C, rhs, upper=False)
+        del rhs
         self.L, self.R = LR[..., :b], LR[..., b:]
-        Lnext = _pad(self.L[..., 1:, :, :], h)[..., :h, :, :]
         Rprev = self.R[..., :h, :, :]
-        self.D = D[..., 1::2, :, :] - Rprev.mT @ Rprev - Lnext.mT @ Lnext
+        self.D = D[..., 1::2, :, :] - Rprev.mT @ Rprev
+        nxt = min(ne - 1, h)  # odd group i has an even neighbour i + 1 below it
+        self.D[..., :nxt, :, :] -= self.L[..., 1:nxt + 1, :, :].mT @ self.L[..., 1:nxt + 1, :, :]
         self.E = -(Rprev.mT @ self.L[..., :h, :, :])
 
     def forward(self, b: Tensor) -> tuple[Tensor, Tensor]:
