@@ -99,7 +99,7 @@ class Gyro(_Imu):
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
                            nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
-        """Closed form (:func:`~torch_dq.fitting._imu_jacobians.gyro_rows`)."""
+        """Closed form (``torch_dq.fitting._imu_jacobians.gyro_rows``)."""
         x, dx = derivs[0][:2]
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
         steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3)})
@@ -309,7 +309,7 @@ class Accel(_Imu):
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
                            nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
-        """Closed form (:func:`~torch_dq.fitting._imu_jacobians.accel_rows`)."""
+        """Closed form (``torch_dq.fitting._imu_jacobians.accel_rows``)."""
         x, dx, ddx = derivs[0][:3]
         gravity = p["gravity"].to(x.dtype)
         rows, toward_g = accel_rows(x, dx, ddx, gravity)
