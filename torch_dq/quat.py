@@ -112,17 +112,6 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     return torch.cat(((0.5 * torch.log(n2) + torch.log(m[..., 0]))[..., None], vec), dim=-1)
 
 
-# to_matrix's entries as base + sign * P[i] + sign * P[j], P the flattened 4 x 4 products
-# (s q_a) q_b, index 4 a + b with (w, x, y, z) = (0, 1, 2, 3): row-major 1 - yy - zz,
-# xy - wz, xz + wy, xy + wz, 1 - xx - zz, yz - wx, xz - wy, yz + wx, 1 - xx - yy.
-_MATRIX_TERMS = (
-    torch.tensor([[10, 6, 7, 6, 5, 11, 7, 11, 5], [15, 3, 2, 3, 15, 1, 2, 1, 10]]),
-    torch.tensor([[-1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, -1.0],
-                  [-1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, 1.0, -1.0]], dtype=torch.float64),
-    torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], dtype=torch.float64),
-)
-
-
 def identity(shape: int | Sequence[int] = (), dtype: torch.dtype | None = None,
              device: torch.device | str | None = None) -> Tensor:
     """Identity quaternions ``(1, 0, 0, 0)`` of batch shape ``shape``.
@@ -465,15 +454,16 @@ def to_matrix(q: Tensor) -> Tensor:
     _checks.tensor("quat.to_matrix", "q", q, 4)
     ql = lift(q)
     ql = ql / _numerics.power_of_two_scale(ql)  # exact; no square over- or underflows
-    n2 = (ql * ql).sum(-1, keepdim=True)
+    w, x, y, z = ql.unbind(-1)
+    n2 = (ql * ql).sum(-1)
     s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
-    # All products (s q_i) q_j at once; entry k of R is base_k + sum_j sign_jk P[pick_jk]
-    # (the same products and the same order of additions as 1 - yy - zz, xy - wz, ...).
-    P = ((s * ql)[..., :, None] * ql[..., None, :]).flatten(-2)
-    pick, sign, base = _MATRIX_TERMS
-    terms = P[..., pick.to(P.device)] * sign.to(P.device, P.dtype)
-    R = base.to(P.device, P.dtype) + terms[..., 0, :] + terms[..., 1, :]
-    return R.unflatten(-1, (3, 3)).to(q.dtype)
+    xx, yy, zz = s * x * x, s * y * y, s * z * z
+    wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
+    return torch.stack((
+        1.0 - yy - zz, xy - wz, xz + wy,
+        xy + wz, 1.0 - xx - zz, yz - wx,
+        xz - wy, yz + wx, 1.0 - xx - yy,
+    ), dim=-1).unflatten(-1, (3, 3)).to(q.dtype)
 
 
 def from_axis_angle(axis: Tensor, angle: Tensor | float) -> Tensor:
