@@ -17,6 +17,7 @@ otherwise; at batch 1e6 it and pypose run on 1e5 items, scaled x10 (linear work)
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 
@@ -42,6 +43,7 @@ def _imports():
         import pytransform3d.rotations as pr
         import pytransform3d.trajectories as ptr
         import pytransform3d.transformations as pt
+
         mods.update(pbr=pbr, pr=pr, ptr=ptr, pt=pt)
     return mods
 
@@ -55,11 +57,20 @@ def _inputs(n, dtype, seed=0):
     q1 = quat.normalize(torch.randn(n, 4, generator=g, dtype=dtype))
     t3 = torch.randn(n, 3, generator=g, dtype=dtype)
     x0, x1 = dq.from_rt(q0, t3), dq.from_rt(q1, torch.randn(n, 3, generator=g, dtype=dtype))
-    return {"q0": q0, "q1": q1, "v": t3, "x0": x0, "x1": x1,
-            "s": torch.rand(n, generator=g, dtype=dtype), "R": quat.to_matrix(q0),
-            "T": dq.to_matrix(x0), "rv": quat.to_rotvec(q0), "xi": dq.log(x0),
-            "w": torch.rand(n, 2, generator=g, dtype=dtype) + 0.1,
-            "xs": torch.stack((x0, x1), -2)}
+    return {
+        "q0": q0,
+        "q1": q1,
+        "v": t3,
+        "x0": x0,
+        "x1": x1,
+        "s": torch.rand(n, generator=g, dtype=dtype),
+        "R": quat.to_matrix(q0),
+        "T": dq.to_matrix(x0),
+        "rv": quat.to_rotvec(q0),
+        "xi": dq.log(x0),
+        "w": torch.rand(n, 2, generator=g, dtype=dtype) + 0.1,
+        "xs": torch.stack((x0, x1), -2),
+    }
 
 
 def _np(x):
@@ -107,97 +118,296 @@ def _ops():
         return _Pick(single, batch)
 
     ops = {
-        "q_mul": (("q0", "q1"), quat.mul, {
-            "roma": (xyzw("q0", "q1"), lambda a, b: r.quat_product(a, b)),
-            "pypose": (lambda d, n: [_pp(d["q0"], "SO3"), _pp(d["q1"], "SO3")], lambda a, b: a * b),
-            "pytransform3d": (numpy("q0", "q1"), one_or_batch(
-                pr and pr.concatenate_quaternions, pbr and pbr.batch_concatenate_quaternions))}),
-        "q_conj": (("q0",), quat.conj, {
-            "roma": (xyzw("q0"), lambda a: r.quat_conjugation(a)),
-            "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.Inv()),
-            "pytransform3d": (numpy("q0"), one_or_batch(pr and pr.q_conj, pbr and pbr.batch_q_conj))}),
-        "q_normalize": (("q0",), quat.normalize, {
-            "roma": (xyzw("q0"), lambda a: r.quat_normalize(a)),
-            "pytransform3d": (numpy("q0"), one_or_batch(pr and pr.norm_vector,
-                                                        pbr and pbr.norm_vectors))}),
-        "q_rotate": (("q0", "v"), quat.rotate, {
-            "roma": (lambda d, n: [*xyzw("q0")(d, n), d["v"]],
-                     lambda a, v: r.quat_action(a, v, is_normalized=True)),
-            "pypose": (lambda d, n: [_pp(d["q0"], "SO3"), d["v"]], lambda a, v: a.Act(v)),
-            "pytransform3d": (numpy("q0", "v"), one_or_batch(pr and pr.q_prod_vector, None))}),
-        "q_to_matrix": (("q0",), quat.to_matrix, {
-            "roma": (xyzw("q0"), lambda a: r.unitquat_to_rotmat(a)),
-            "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.matrix()),
-            "pytransform3d": (numpy("q0"), one_or_batch(pr and pr.matrix_from_quaternion,
-                                                        pbr and pbr.matrices_from_quaternions))}),
-        "q_from_matrix": (("R",), quat.from_matrix, {
-            "roma": (lambda d, n: [d["R"]], lambda a: r.rotmat_to_unitquat(a)),
-            "pypose": (lambda d, n: [d["R"]], lambda a: pp.mat2SO3(a, check=False)),
-            "pytransform3d": (numpy("R"), one_or_batch(pr and pr.quaternion_from_matrix,
-                                                       pbr and pbr.quaternions_from_matrices))}),
-        "q_from_rotvec": (("rv",), quat.from_rotvec, {
-            "roma": (lambda d, n: [d["rv"]], lambda a: r.rotvec_to_unitquat(a)),
-            "pypose": (lambda d, n: [_pp(d["rv"], "so3")], lambda a: a.Exp()),
-            "pytransform3d": (numpy("rv"), one_or_batch(pr and pr.quaternion_from_compact_axis_angle,
-                                                        None))}),
-        "q_to_rotvec": (("q0",), quat.to_rotvec, {
-            "roma": (xyzw("q0"), lambda a: r.unitquat_to_rotvec(a)),
-            "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.Log()),
-            "pytransform3d": (numpy("q0"), one_or_batch(pr and pr.compact_axis_angle_from_quaternion,
-                                                        pbr and pbr.axis_angles_from_quaternions))}),
-        "q_slerp": (("q0", "q1", "s"), quat.slerp, {
-            "roma": (lambda d, n: [*xyzw("q0", "q1")(d, n), d["s"][0].clone()],
-                     lambda a, b, s: r.unitquat_slerp(a, b, s, shortest_arc=True)),
-            "pytransform3d": (lambda d, n: [_np(d["q0"][0]), _np(d["q1"][0]), float(d["s"][0])],
-                              one_or_batch(pr and pr.quaternion_slerp, None))}),
-        "dq_mul": (("x0", "x1"), dq.mul, {
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3"), _pp(d["x1"], "SE3")], lambda a, b: a * b),
-            "pytransform3d": (numpy("x0", "x1"), one_or_batch(
-                pt and pt.concatenate_dual_quaternions, ptr and ptr.batch_concatenate_dual_quaternions))}),
-        "dq_conj": (("x0",), dq.conj, {
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.Inv()),
-            "pytransform3d": (numpy("x0"), one_or_batch(pt and pt.dq_q_conj, ptr and ptr.batch_dq_q_conj))}),
-        "dq_normalize": (("x0",), dq.normalize, {
-            "pytransform3d": (numpy("x0"), one_or_batch(pt and pt.norm_dual_quaternion, None))}),
-        "dq_apply": (("x0", "v"), dq.apply, {
-            "roma": (lambda d, n: [*_roma_rigid(d), d["v"]],
-                     lambda q, t, v: r.RigidUnitQuat(q, t).apply(v)),
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3"), d["v"]], lambda a, v: a.Act(v)),
-            "pytransform3d": (numpy("x0", "v"), one_or_batch(pt and pt.dq_prod_vector,
-                                                             ptr and ptr.batch_dq_prod_vector))}),
-        "dq_to_matrix": (("x0",), dq.to_matrix, {
-            "roma": (lambda d, n: _roma_rigid(d),
-                     lambda q, t: r.RigidUnitQuat(q, t).to_homogeneous()),
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.matrix()),
-            "pytransform3d": (numpy("x0"), one_or_batch(pt and pt.transform_from_dual_quaternion,
-                                                        ptr and ptr.transforms_from_dual_quaternions))}),
-        "dq_from_matrix": (("T",), dq.from_matrix, {
-            "pypose": (lambda d, n: [d["T"]], lambda a: pp.mat2SE3(a, check=False)),
-            "pytransform3d": (numpy("T"), one_or_batch(pt and pt.dual_quaternion_from_transform,
-                                                       ptr and ptr.dual_quaternions_from_transforms))}),
-        "dq_from_rt": (("q0", "v"), dq.from_rt, {
-            "pytransform3d": (lambda d, n: [np.concatenate((_np(d["v"]), _np(d["q0"])), -1)[0 if n == 1 else slice(None)]],
-                              one_or_batch(pt and pt.dual_quaternion_from_pq, ptr and ptr.dual_quaternions_from_pqs))}),
-        "dq_to_rt": (("x0",), dq.to_rt, {
-            "pytransform3d": (numpy("x0"), one_or_batch(pt and pt.pq_from_dual_quaternion,
-                                                        ptr and ptr.pqs_from_dual_quaternions))}),
-        "dq_exp": (("xi",), dq.exp, {
-            "pypose": (lambda d, n: [_pp(d["xi"], "se3")], lambda a: a.Exp()),
-            "pytransform3d": (numpy("xi"), one_or_batch(pt and pt.transform_from_exponential_coordinates,
-                                                        ptr and ptr.transforms_from_exponential_coordinates))}),
-        "dq_log": (("x0",), dq.log, {
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.Log()),
-            "pytransform3d": (numpy("T"), one_or_batch(pt and pt.exponential_coordinates_from_transform,
-                                                       ptr and ptr.exponential_coordinates_from_transforms))}),
-        "dq_to_screw": (("x0",), dq.to_screw, {
-            "pytransform3d": (numpy("x0"), one_or_batch(pt and pt.screw_parameters_from_dual_quaternion,
-                                                        ptr and ptr.screw_parameters_from_dual_quaternions))}),
-        "dq_sclerp": (("x0", "x1", "s"), dq.sclerp, {
-            "pypose": (lambda d, n: [_pp(d["x0"], "SE3"), _pp(d["x1"], "SE3"), d["s"][:, None]],
-                       lambda a, b, s: a * (a.Inv() * b).Log().mul(s).Exp()),
-            "pytransform3d": (lambda d, n: [_np(d["x0"]), _np(d["x1"]), _np(d["s"])] if n > 1 else
-                              [_np(d["x0"][0]), _np(d["x1"][0]), float(d["s"][0])],
-                              one_or_batch(pt and pt.dual_quaternion_sclerp, ptr and ptr.dual_quaternions_sclerp))}),
+        "q_mul": (
+            ("q0", "q1"),
+            quat.mul,
+            {
+                "roma": (xyzw("q0", "q1"), lambda a, b: r.quat_product(a, b)),
+                "pypose": (
+                    lambda d, n: [_pp(d["q0"], "SO3"), _pp(d["q1"], "SO3")],
+                    lambda a, b: a * b,
+                ),
+                "pytransform3d": (
+                    numpy("q0", "q1"),
+                    one_or_batch(
+                        pr and pr.concatenate_quaternions, pbr and pbr.batch_concatenate_quaternions
+                    ),
+                ),
+            },
+        ),
+        "q_conj": (
+            ("q0",),
+            quat.conj,
+            {
+                "roma": (xyzw("q0"), lambda a: r.quat_conjugation(a)),
+                "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.Inv()),
+                "pytransform3d": (
+                    numpy("q0"),
+                    one_or_batch(pr and pr.q_conj, pbr and pbr.batch_q_conj),
+                ),
+            },
+        ),
+        "q_normalize": (
+            ("q0",),
+            quat.normalize,
+            {
+                "roma": (xyzw("q0"), lambda a: r.quat_normalize(a)),
+                "pytransform3d": (
+                    numpy("q0"),
+                    one_or_batch(pr and pr.norm_vector, pbr and pbr.norm_vectors),
+                ),
+            },
+        ),
+        "q_rotate": (
+            ("q0", "v"),
+            quat.rotate,
+            {
+                "roma": (
+                    lambda d, n: [*xyzw("q0")(d, n), d["v"]],
+                    lambda a, v: r.quat_action(a, v, is_normalized=True),
+                ),
+                "pypose": (lambda d, n: [_pp(d["q0"], "SO3"), d["v"]], lambda a, v: a.Act(v)),
+                "pytransform3d": (numpy("q0", "v"), one_or_batch(pr and pr.q_prod_vector, None)),
+            },
+        ),
+        "q_to_matrix": (
+            ("q0",),
+            quat.to_matrix,
+            {
+                "roma": (xyzw("q0"), lambda a: r.unitquat_to_rotmat(a)),
+                "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.matrix()),
+                "pytransform3d": (
+                    numpy("q0"),
+                    one_or_batch(
+                        pr and pr.matrix_from_quaternion, pbr and pbr.matrices_from_quaternions
+                    ),
+                ),
+            },
+        ),
+        "q_from_matrix": (
+            ("R",),
+            quat.from_matrix,
+            {
+                "roma": (lambda d, n: [d["R"]], lambda a: r.rotmat_to_unitquat(a)),
+                "pypose": (lambda d, n: [d["R"]], lambda a: pp.mat2SO3(a, check=False)),
+                "pytransform3d": (
+                    numpy("R"),
+                    one_or_batch(
+                        pr and pr.quaternion_from_matrix, pbr and pbr.quaternions_from_matrices
+                    ),
+                ),
+            },
+        ),
+        "q_from_rotvec": (
+            ("rv",),
+            quat.from_rotvec,
+            {
+                "roma": (lambda d, n: [d["rv"]], lambda a: r.rotvec_to_unitquat(a)),
+                "pypose": (lambda d, n: [_pp(d["rv"], "so3")], lambda a: a.Exp()),
+                "pytransform3d": (
+                    numpy("rv"),
+                    one_or_batch(pr and pr.quaternion_from_compact_axis_angle, None),
+                ),
+            },
+        ),
+        "q_to_rotvec": (
+            ("q0",),
+            quat.to_rotvec,
+            {
+                "roma": (xyzw("q0"), lambda a: r.unitquat_to_rotvec(a)),
+                "pypose": (lambda d, n: [_pp(d["q0"], "SO3")], lambda a: a.Log()),
+                "pytransform3d": (
+                    numpy("q0"),
+                    one_or_batch(
+                        pr and pr.compact_axis_angle_from_quaternion,
+                        pbr and pbr.axis_angles_from_quaternions,
+                    ),
+                ),
+            },
+        ),
+        "q_slerp": (
+            ("q0", "q1", "s"),
+            quat.slerp,
+            {
+                "roma": (
+                    lambda d, n: [*xyzw("q0", "q1")(d, n), d["s"][0].clone()],
+                    lambda a, b, s: r.unitquat_slerp(a, b, s, shortest_arc=True),
+                ),
+                "pytransform3d": (
+                    lambda d, n: [_np(d["q0"][0]), _np(d["q1"][0]), float(d["s"][0])],
+                    one_or_batch(pr and pr.quaternion_slerp, None),
+                ),
+            },
+        ),
+        "dq_mul": (
+            ("x0", "x1"),
+            dq.mul,
+            {
+                "pypose": (
+                    lambda d, n: [_pp(d["x0"], "SE3"), _pp(d["x1"], "SE3")],
+                    lambda a, b: a * b,
+                ),
+                "pytransform3d": (
+                    numpy("x0", "x1"),
+                    one_or_batch(
+                        pt and pt.concatenate_dual_quaternions,
+                        ptr and ptr.batch_concatenate_dual_quaternions,
+                    ),
+                ),
+            },
+        ),
+        "dq_conj": (
+            ("x0",),
+            dq.conj,
+            {
+                "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.Inv()),
+                "pytransform3d": (
+                    numpy("x0"),
+                    one_or_batch(pt and pt.dq_q_conj, ptr and ptr.batch_dq_q_conj),
+                ),
+            },
+        ),
+        "dq_normalize": (
+            ("x0",),
+            dq.normalize,
+            {"pytransform3d": (numpy("x0"), one_or_batch(pt and pt.norm_dual_quaternion, None))},
+        ),
+        "dq_apply": (
+            ("x0", "v"),
+            dq.apply,
+            {
+                "roma": (
+                    lambda d, n: [*_roma_rigid(d), d["v"]],
+                    lambda q, t, v: r.RigidUnitQuat(q, t).apply(v),
+                ),
+                "pypose": (lambda d, n: [_pp(d["x0"], "SE3"), d["v"]], lambda a, v: a.Act(v)),
+                "pytransform3d": (
+                    numpy("x0", "v"),
+                    one_or_batch(pt and pt.dq_prod_vector, ptr and ptr.batch_dq_prod_vector),
+                ),
+            },
+        ),
+        "dq_to_matrix": (
+            ("x0",),
+            dq.to_matrix,
+            {
+                "roma": (
+                    lambda d, n: _roma_rigid(d),
+                    lambda q, t: r.RigidUnitQuat(q, t).to_homogeneous(),
+                ),
+                "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.matrix()),
+                "pytransform3d": (
+                    numpy("x0"),
+                    one_or_batch(
+                        pt and pt.transform_from_dual_quaternion,
+                        ptr and ptr.transforms_from_dual_quaternions,
+                    ),
+                ),
+            },
+        ),
+        "dq_from_matrix": (
+            ("T",),
+            dq.from_matrix,
+            {
+                "pypose": (lambda d, n: [d["T"]], lambda a: pp.mat2SE3(a, check=False)),
+                "pytransform3d": (
+                    numpy("T"),
+                    one_or_batch(
+                        pt and pt.dual_quaternion_from_transform,
+                        ptr and ptr.dual_quaternions_from_transforms,
+                    ),
+                ),
+            },
+        ),
+        "dq_from_rt": (
+            ("q0", "v"),
+            dq.from_rt,
+            {
+                "pytransform3d": (
+                    lambda d, n: [
+                        np.concatenate((_np(d["v"]), _np(d["q0"])), -1)[
+                            0 if n == 1 else slice(None)
+                        ]
+                    ],
+                    one_or_batch(
+                        pt and pt.dual_quaternion_from_pq, ptr and ptr.dual_quaternions_from_pqs
+                    ),
+                )
+            },
+        ),
+        "dq_to_rt": (
+            ("x0",),
+            dq.to_rt,
+            {
+                "pytransform3d": (
+                    numpy("x0"),
+                    one_or_batch(
+                        pt and pt.pq_from_dual_quaternion, ptr and ptr.pqs_from_dual_quaternions
+                    ),
+                )
+            },
+        ),
+        "dq_exp": (
+            ("xi",),
+            dq.exp,
+            {
+                "pypose": (lambda d, n: [_pp(d["xi"], "se3")], lambda a: a.Exp()),
+                "pytransform3d": (
+                    numpy("xi"),
+                    one_or_batch(
+                        pt and pt.transform_from_exponential_coordinates,
+                        ptr and ptr.transforms_from_exponential_coordinates,
+                    ),
+                ),
+            },
+        ),
+        "dq_log": (
+            ("x0",),
+            dq.log,
+            {
+                "pypose": (lambda d, n: [_pp(d["x0"], "SE3")], lambda a: a.Log()),
+                "pytransform3d": (
+                    numpy("T"),
+                    one_or_batch(
+                        pt and pt.exponential_coordinates_from_transform,
+                        ptr and ptr.exponential_coordinates_from_transforms,
+                    ),
+                ),
+            },
+        ),
+        "dq_to_screw": (
+            ("x0",),
+            dq.to_screw,
+            {
+                "pytransform3d": (
+                    numpy("x0"),
+                    one_or_batch(
+                        pt and pt.screw_parameters_from_dual_quaternion,
+                        ptr and ptr.screw_parameters_from_dual_quaternions,
+                    ),
+                )
+            },
+        ),
+        "dq_sclerp": (
+            ("x0", "x1", "s"),
+            dq.sclerp,
+            {
+                "pypose": (
+                    lambda d, n: [_pp(d["x0"], "SE3"), _pp(d["x1"], "SE3"), d["s"][:, None]],
+                    lambda a, b, s: a * (a.Inv() * b).Log().mul(s).Exp(),
+                ),
+                "pytransform3d": (
+                    lambda d, n: (
+                        [_np(d["x0"]), _np(d["x1"]), _np(d["s"])]
+                        if n > 1
+                        else [_np(d["x0"][0]), _np(d["x1"][0]), float(d["s"][0])]
+                    ),
+                    one_or_batch(
+                        pt and pt.dual_quaternion_sclerp, ptr and ptr.dual_quaternions_sclerp
+                    ),
+                ),
+            },
+        ),
         "dq_dlb": (("w", "xs"), dq.dlb, {}),
     }
     return ops
@@ -231,6 +441,7 @@ def _backward(fn, args):
         out = out if isinstance(out, (tuple, list)) else (out,)
         y = sum(o.tensor().sum() if hasattr(o, "tensor") else o.sum() for o in out)
         torch.autograd.grad(y, leaves)
+
     return run
 
 
@@ -262,24 +473,42 @@ def bench_op(name, n, dtype, repeats, min_ms, backward):
             pargs, our_args = _grad_args(pargs), _grad_args(our_args)
             fa, fb = _backward(ours, our_args), _backward(pfn, pargs)
         else:
-            fa, fb = (lambda: ours(*our_args)), (lambda: pfn(*pargs))
+            fa, fb = functools.partial(ours, *our_args), functools.partial(pfn, *pargs)
         _, ka = _cpu_ms(fa, min_ms)
         _, kb = _cpu_ms(fb, min_ms)
         best_a = best_b = float("inf")
         for _ in range(repeats):
             best_a = min(best_a, _timed(fa, ka))
             best_b = min(best_b, _timed(fb, kb) * n / m)
-        rows.append({"op": name + (" bwd" if backward else ""), "n": n,
-                     "dtype": str(dtype).split(".")[-1], "peer": peer, "ours_ms": best_a,
-                     "peer_ms": best_b, "ratio": best_a / best_b, "scaled": m != n})
+        rows.append(
+            {
+                "op": name + (" bwd" if backward else ""),
+                "n": n,
+                "dtype": str(dtype).split(".")[-1],
+                "peer": peer,
+                "ours_ms": best_a,
+                "peer_ms": best_b,
+                "ratio": best_a / best_b,
+                "scaled": m != n,
+            }
+        )
     if not peers:
         our_args = _grad_args([d[k] for k in names]) if backward else [d[k] for k in names]
-        fa = _backward(ours, our_args) if backward else (lambda: ours(*our_args))
+        fa = _backward(ours, our_args) if backward else functools.partial(ours, *our_args)
         _, ka = _cpu_ms(fa, min_ms)
         best = min(_timed(fa, ka) for _ in range(repeats))
-        rows.append({"op": name + (" bwd" if backward else ""), "n": n,
-                     "dtype": str(dtype).split(".")[-1], "peer": "-", "ours_ms": best,
-                     "peer_ms": float("nan"), "ratio": float("nan"), "scaled": False})
+        rows.append(
+            {
+                "op": name + (" bwd" if backward else ""),
+                "n": n,
+                "dtype": str(dtype).split(".")[-1],
+                "peer": "-",
+                "ours_ms": best,
+                "peer_ms": float("nan"),
+                "ratio": float("nan"),
+                "scaled": False,
+            }
+        )
     return rows
 
 
@@ -302,9 +531,14 @@ def main():
     rows = []
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]
-    print(f"# threads {a.threads}, load {' '.join(load)}, torch {torch.__version__}, "
-          f"peers {', '.join(k for k in ('roma', 'pypose', 'pytransform3d') if k in M)}")
-    print(f"{'op':<20}{'n':>9} {'dtype':<8}{'peer':<14}{'ours ms':>11}{'peer ms':>11}{'ours/peer':>10}")
+    print(
+        f"# threads {a.threads}, load {' '.join(load)}, torch {torch.__version__}, "
+        f"peers {', '.join(k for k in ('roma', 'pypose', 'pytransform3d') if k in M)}"
+    )
+    print(
+        f"{'op':<20}{'n':>9} {'dtype':<8}{'peer':<14}{'ours ms':>11}{'peer ms':>11}"
+        f"{'ours/peer':>10}"
+    )
     for name in names:
         for dtype in (getattr(torch, s) for s in a.dtypes.split(",")):
             for n in (int(float(s)) for s in a.sizes.split(",")):
@@ -317,9 +551,12 @@ def main():
                         print(f"{name:<20}{n:>9} {dtype}: error {type(exc).__name__}: {exc}")
                         continue
                     for r in new:
-                        print(f"{r['op']:<20}{r['n']:>9} {r['dtype']:<8}{r['peer']:<14}"
-                              f"{r['ours_ms']:>11.4g}{r['peer_ms']:>11.4g}{r['ratio']:>10.2f}"
-                              + (" (peer scaled)" if r["scaled"] else ""), flush=True)
+                        print(
+                            f"{r['op']:<20}{r['n']:>9} {r['dtype']:<8}{r['peer']:<14}"
+                            f"{r['ours_ms']:>11.4g}{r['peer_ms']:>11.4g}{r['ratio']:>10.2f}"
+                            + (" (peer scaled)" if r["scaled"] else ""),
+                            flush=True,
+                        )
                     rows += new
     if a.json:
         with open(a.json, "w") as f:

@@ -152,7 +152,7 @@ def test_normalize_rows_and_check():
     np.testing.assert_allclose(out[2:].numpy(), [[0.6, 0, 0.8, 0], [2 ** -0.5, 0, 2 ** -0.5, 0]],
                                rtol=1e-6)
     for bad in (q[:1], q[1:2]):
-        with pytest.raises(ValueError, match="quat.normalize"):
+        with pytest.raises(ValueError, match=r"quat\.normalize"):
             quat.normalize(bad, check=True)
     assert torch.equal(quat.normalize(q[2:], check=True), out[2:])
     g = torch.Generator().manual_seed(5)
