@@ -30,18 +30,17 @@ def lift(x: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------- quaternions
 
 def qmul(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ),
-        dim=-1,
-    )
+    r"""Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``.
+
+    In vector form, :math:`(a_w b_w - a_v \cdot b_v,\ a_w b_v + b_w a_v + a_v \times b_v)`:
+    ten tensor ops instead of the 30 of the component-wise expansion (the per-call cost of a
+    small batch), with the same products (rounding may differ in the last bit).
+    """
+    aw, av = a[..., :1], a[..., 1:]
+    bw, bv = b[..., :1], b[..., 1:]
+    w = aw * bw - (av * bv).sum(-1, keepdim=True)
+    av, bv = torch.broadcast_tensors(av, bv)
+    return torch.cat((w, aw * bv + bw * av + torch.linalg.cross(av, bv, dim=-1)), dim=-1)
 
 
 def qconj(q: Tensor) -> Tensor:
@@ -64,13 +63,11 @@ def canonical(q: Tensor) -> Tensor:
     """``q`` or ``-q``, whichever has its first non-zero component (w, x, y, z) positive.
 
     This is scipy's canonical form: ``w >= 0``, ties at ``w = 0`` broken by x, then y, z.
+    The first component that is not zero (``-0.0`` counts as zero; a NaN stops the search
+    and flips nothing) is found with one ``argmax`` over ``q != 0``.
     """
-    flip = torch.zeros_like(q[..., 0], dtype=torch.bool)
-    undecided = torch.ones_like(flip)
-    for c in q.unbind(-1):
-        flip = flip | (undecided & (c < 0))
-        undecided = undecided & (c == 0)
-    return torch.where(flip[..., None], -q, q)
+    first = (q != 0).to(torch.uint8).argmax(-1, keepdim=True)
+    return torch.where(torch.gather(q, -1, first) < 0, -q, q)
 
 
 # ----------------------------------------------------------------------------- dual quaternions

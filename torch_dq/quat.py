@@ -67,14 +67,19 @@ def _exp(q: Tensor) -> Tensor:
 
     ``cos`` and ``sinc`` are evaluated from :math:`|v|^2` (:func:`_numerics.even`), so the
     result is smooth to every order at :math:`v = 0` (a Hessian there is exact)."""
-    v = q[..., 1:]
+    return torch.exp(q[..., :1]) * _exp_pure(q[..., 1:])
+
+
+def _exp_pure(v: Tensor) -> Tensor:
+    r""":math:`e^{(0, v)} = (\cos|v|, \operatorname{sinc}|v| \, v)` of ``v (..., 3)``
+    (:func:`_exp` without the factor :math:`e^0 = 1`, which changes no bit)."""
     v2 = (v * v).sum(-1, keepdim=True)
-    return torch.exp(q[..., :1]) * torch.cat(
-        (_numerics.even("cos", v2), _numerics.even("sinc", v2) * v), dim=-1)
+    return torch.cat((_numerics.even("cos", v2), _numerics.even("sinc", v2) * v), dim=-1)
 
 
-def _log(q: Tensor) -> Tensor:
-    r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`.
+def _log(q: Tensor, real: bool = True) -> Tensor:
+    r"""Unchecked :math:`(\log|q|, \theta v / |v|)` with :math:`\theta = atan2(|v|, w)`
+    (only the vector part, ``(..., 3)``, if not ``real``).
 
     ``q`` is first divided by a power of two near its largest component (exact), so no
     square over- or underflows. For :math:`|v| \le w` the scale
@@ -102,6 +107,8 @@ def _log(q: Tensor) -> Tensor:
     n2 = v2 + w2
     # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
     vec = _numerics.nan_unless(torch.isfinite(n2)[..., None], vec)
+    if not real:
+        return vec
     return torch.cat(((0.5 * torch.log(n2) + torch.log(m[..., 0]))[..., None], vec), dim=-1)
 
 
@@ -203,10 +210,11 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
     dtype, q = q.dtype, lift(q)
     q = q / _numerics.power_of_two_scale(q)  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
-    ok = (n > 0) & torch.isfinite(n)
-    if check and not _checks.host_all("quat.normalize", "check=True", ok):
+    finite = torch.isfinite(n)
+    if check and not _checks.host_all("quat.normalize", "check=True", finite & (n > 0)):
         _checks.fail("quat.normalize", "q contains zero or non-finite quaternions")
-    return (q / _numerics.nan_unless(ok, n)).to(dtype)
+    # n = 0 (q = 0) gives 0 / 0 = NaN in every component by itself.
+    return (q / _numerics.nan_unless(finite, n)).to(dtype)
 
 
 def dot(a: Tensor, b: Tensor) -> Tensor:
@@ -532,7 +540,7 @@ def from_rotvec(rotvec: Tensor) -> Tensor:
     """
     _checks.tensor("quat.from_rotvec", "rotvec", rotvec, 3)
     rv = lift(rotvec)
-    return _exp(torch.cat((torch.zeros_like(rv[..., :1]), rv / 2.0), dim=-1)).to(rotvec.dtype)
+    return _exp_pure(rv / 2.0).to(rotvec.dtype)
 
 
 def to_rotvec(q: Tensor) -> Tensor:
@@ -551,7 +559,7 @@ def to_rotvec(q: Tensor) -> Tensor:
         tensor([0.0000, 3.1416, 0.0000])
     """
     _checks.tensor("quat.to_rotvec", "q", q, 4)
-    return (2.0 * _log(canonical(lift(q)))[..., 1:]).to(q.dtype)
+    return (2.0 * _log(canonical(lift(q)), real=False)).to(q.dtype)
 
 
 def from_xyzw(q: Tensor) -> Tensor:

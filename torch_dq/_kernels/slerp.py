@@ -39,7 +39,7 @@ from torch import Tensor
 
 from .._autograd import reference_vjp
 from .._dispatch import batched
-from .layout import chunks
+from .layout import CHUNK, chunks
 from .weights import slerp_weights
 
 
@@ -151,4 +151,10 @@ def slerp(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     broadcasting against their batch shape, through :class:`_Slerp`."""
     batch = q0.shape[:-1]
     tt = t.reshape(1) if t.numel() == 1 else t.expand(batch).reshape(-1)
-    return _Slerp.apply(q0.reshape(-1, 4), q1.reshape(-1, 4), tt).view(*batch, 4)
+    a, b = q0.reshape(-1, 4), q1.reshape(-1, 4)
+    if a.shape[0] <= CHUNK and not (torch.is_grad_enabled()
+                                    and (q0.requires_grad or q1.requires_grad or t.requires_grad)):
+        # One chunk and nothing to differentiate: the Function's forward, to the bit, without
+        # its per-call cost (which dominates a small batch).
+        return plain(a, b, tt, _host_branch(a)).view(*batch, 4)
+    return _Slerp.apply(a, b, tt).view(*batch, 4)
