@@ -30,17 +30,20 @@ def lift(x: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------- quaternions
 
 def qmul(a: Tensor, b: Tensor) -> Tensor:
-    r"""Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``.
-
-    In vector form, :math:`(a_w b_w - a_v \cdot b_v,\ a_w b_v + b_w a_v + a_v \times b_v)`:
-    ten tensor ops instead of the 30 of the component-wise expansion (the per-call cost of a
-    small batch), with the same products (rounding may differ in the last bit).
-    """
-    aw, av = a[..., :1], a[..., 1:]
-    bw, bv = b[..., :1], b[..., 1:]
-    w = aw * bw - (av * bv).sum(-1, keepdim=True)
-    av, bv = torch.broadcast_tensors(av, bv)
-    return torch.cat((w, aw * bv + bw * av + torch.linalg.cross(av, bv, dim=-1)), dim=-1)
+    r"""Hamilton product of ``(..., 4)`` quaternions ``(w, x, y, z)``. (The vector form,
+    :math:`(a_w b_w - a_v \cdot b_v,\ a_w b_v + b_w a_v + a_v \times b_v)`, has fewer tensor
+    ops but was 1.3-1.9x slower from 5,000 to 36,000 products, the estimation's sizes.)"""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        dim=-1,
+    )
 
 
 def qconj(q: Tensor) -> Tensor:
