@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 __all__ = [
+    "TIME_UNITS",
     "as_float_tensor",
     "broadcast_batch",
     "broadcast_shapes",
@@ -234,6 +235,11 @@ def rigid_matrix(fn: str, name: str, T: Tensor, atol: float = 1e-3) -> None:
              + (f", bottom row {T[i][3].tolist()}" if T.shape[-1] == 4 else "")
              + f" (a rotation has max |R^T R - I| <= {atol:g} and det R = +1"
              + (", a bottom row (0, 0, 0, 1)" if T.shape[-1] == 4 else "") + ")")
+
+
+#: Time units finer than seconds, and the factor to seconds (the readers' and the terms'
+#: unit checks).
+TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
 
 
 def poses(fn: str, name: str, x: Tensor) -> None:

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import dualquat, io
+from .. import _checks, dualquat, io
 from .. import nn as dqnn
 from .._report import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 from ..fitting import _knots
@@ -499,7 +499,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     info = {**_describe_input(say, path, traj), "time_unit": unit or "seconds"}
     if unit:
         say(f"note: the file's times are {unit}: converted to seconds (divided by "
-            f"{1 / dict(_units._TIME_UNITS)[unit]:.0e}); every output is in seconds")
+            f"{1 / dict(_checks.TIME_UNITS)[unit]:.0e}); every output is in seconds")
     info["gaps_over_2_knot_spacings"], gap_note = _gap_note(traj, spacing)
     if gap_note:
         say(f"note: {gap_note}")
@@ -581,7 +581,7 @@ def _in_seconds(traj: io.Trajectory) -> tuple[io.Trajectory, str | None, str]:
     if guess is None:
         return traj, None, ""
     step = float(np.median(np.diff(t)))
-    for name, scale in _units._TIME_UNITS:
+    for name, scale in _checks.TIME_UNITS:
         if 2e-4 <= step * scale <= 5.0 and _units._time_unit_guess(t * scale, q, p) is None:
             seconds = io.Trajectory(traj.times * scale, traj.rotations, traj.translations)
             return seconds, name, guess

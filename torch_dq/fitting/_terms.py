@@ -102,8 +102,6 @@ def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
                          f"rounded); pass times as torch.float64")
 
 
-#: Finer time units than seconds, and the factor to seconds.
-_FINER_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
 _LATEST = 1e11  # seconds (3170 years): beyond any clock's seconds (UNIX time is 1.8e9)
 
 
@@ -111,10 +109,10 @@ def _finer_unit(last: float, step: float, imu: bool) -> tuple[str, float] | None
     """The finer unit that makes the times plausible: the last one a UNIX time (1e8 to 1e10
     s), else the median step an IMU's sampling period (0.2 ms to 0.05 s) or a pose
     sensor's (0.2 ms to 5 s); None where none does."""
-    for name, scale in _FINER_UNITS:
+    for name, scale in _checks.TIME_UNITS:
         if 1e8 <= last * scale <= 1e10:
             return name, scale
-    for name, scale in _FINER_UNITS:
+    for name, scale in _checks.TIME_UNITS:
         if 2e-4 <= step * scale <= (0.05 if imu else 5.0):
             return name, scale
     return None

@@ -17,6 +17,8 @@ import warnings
 
 import numpy as np
 
+from .. import _checks
+
 __all__ = ["gyro_scale", "warn_imu_time_unit", "warn_imu_units", "warn_ns_unit",
            "warn_time_unit"]
 
@@ -24,7 +26,6 @@ __all__ = ["gyro_scale", "warn_imu_time_unit", "warn_imu_units", "warn_ns_unit",
 #: stay below ``_STILL`` where another unit gives plausible motion.
 _FASTEST = 50.0
 _STILL = 0.02
-_TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
 
 
 def _time_unit_guess(t: np.ndarray, q: np.ndarray, p: np.ndarray) -> str | None:
@@ -44,7 +45,7 @@ def _time_unit_guess(t: np.ndarray, q: np.ndarray, p: np.ndarray) -> str | None:
     turn = float(np.median(2.0 * np.arccos(dots) / dt))
     if not (step > 1e4 or (step >= 2.0 and speed < _STILL and turn < _STILL)):
         return None
-    for name, scale in _TIME_UNITS:
+    for name, scale in _checks.TIME_UNITS:
         if 2e-4 <= step * scale <= 5.0 and max(speed, turn) / scale < _FASTEST and (
                 step > 1e4 or max(speed, turn) / scale >= _STILL):
             return (f"the timestamps look like {name}, not seconds: read as seconds, poses "
@@ -69,7 +70,7 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
     step = float(np.median(np.diff(t))) if len(t) > 2 else 0.0
     if step < 0.5:
         return
-    for name, scale in _TIME_UNITS:
+    for name, scale in _checks.TIME_UNITS:
         if 2e-4 <= step * scale <= 0.05:
             warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
                           f"seconds: read as seconds the samples lie {step:.3g} s apart "
