@@ -17,8 +17,8 @@ from ._numerics import compute_dtype, even
 
 __all__ = [
     "Frozen", "align", "align_chain", "canonical", "distinct", "dq_from_rt", "dq_mul",
-    "hemisphere",
-    "join", "lift", "qconj", "qmul", "qrotate", "split", "translation", "twist_translation",
+    "hemisphere", "join", "lift", "qconj", "qmul", "qrotate", "split", "translation",
+    "twist_translation",
 ]
 
 

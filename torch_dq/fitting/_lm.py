@@ -35,7 +35,8 @@ _MAX_REJECTIONS = 13  # damping increases before a batch element stops: back tow
 _NONFINITE = "non-finite cost at the start"
 _EXACT = 1e-20  # per residual component: a cost below this is exact data (the test's floor)
 _ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitened residuals of
-# sigma 1e-3 round to ~1e-13 on unit-scale data): no damped step lowering it is converged
+# sigma 1e-3 round to ~1e-13 on unit-scale data): converged where no damped step lowers it
+# or where its decrease is no longer the quadratic model's (LevenbergMarquardt.iteration)
 _LEFT_OUT = 1e6  # the pulls' stiffening in the scaled gradient test when they are re-anchored
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
@@ -258,9 +259,10 @@ class LevenbergMarquardt:
             td, to = self.objective(tc, tv)
             acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
                                                                   x.objective.reshape(Bf))
-            new = new.where(acc.reshape(batch), Point(tc, tv, to, td))
-            drop = x.objective.reshape(Bf) - to.reshape(Bf)
-            gain = torch.where(acc, drop / step.predicted(gc, gn, dc, dn), gain)
+            if bool(acc.any()):
+                new = new.where(acc.reshape(batch), Point(tc, tv, to, td))
+                drop = x.objective.reshape(Bf) - to.reshape(Bf)
+                gain = torch.where(acc, drop / step.predicted(gc, gn, dc, dn), gain)
             pending = pending & ~acc
             self.damping.reject(pending)
             if not bool(pending.any()):

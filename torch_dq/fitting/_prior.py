@@ -77,8 +77,8 @@ def _windows(band: Tensor, v: int, lo: int, hi: int) -> Tensor:
     for a in range(v):
         row = []
         for b in range(v):
-            lo_, d = min(a, b), abs(a - b)
-            blk = pad[:, lo_:lo_ + m, d] if d < w else band.new_zeros(Bf, m, 6, 6)
+            at, d = min(a, b), abs(a - b)
+            blk = pad[:, at:at + m, d] if d < w else band.new_zeros(Bf, m, 6, 6)
             row.append(blk.mT if a > b else blk)
         rows.append(torch.cat(row, -1))
     return torch.cat(rows, -2)
@@ -127,10 +127,9 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
         if not bool(weak.any()):
             continue
         lam, V = torch.linalg.eigh(A[weak])
-        if nuisance:  # relative to the window's best-determined direction, at most typical
-            cut = (threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL)
-        else:
-            cut = torch.full_like(lam[..., -1:], threshold)
+        # with nuisance: relative to the window's best-determined direction, at most typical
+        cut = ((threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL) if nuisance
+               else threshold)
         W = torch.zeros_like(A)
         W[weak] = (V * torch.where(lam < cut, prior, 0.0)[..., None, :]) @ V.mT * outer[
             weak.nonzero()[:, 0], 0]
