@@ -34,7 +34,7 @@ from .._curve import span_points
 from . import _robust
 from ._local import sample_jacobians, tangent_step
 
-__all__ = ["Linearization", "System", "residuals"]
+__all__ = ["Linearization", "Memo", "System", "residuals"]
 
 PART = 1 << 16  # samples of a term linearised at once (Term.parts: bounds the memory)
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
@@ -56,27 +56,41 @@ class System:
     weights: list[Tensor]
 
 
-def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
+Memo = dict[tuple[int, int], list[tuple[Tensor, ...]]]
+"""The span derivatives of a point, by (term, part): what :func:`residuals` evaluated for a
+trial's cost and :meth:`Linearization.system` reads (and drops) when the trial is accepted,
+instead of evaluating them again."""
+
+
+def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor], memo: Memo | None = None,
+              ) -> Tensor:
     """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
     spans, a part of at most ``PART`` samples at a time (no domain check:
-    :func:`~torch_dq.fitting.estimate` checked the times once)."""
+    :func:`~torch_dq.fitting.estimate` checked the times once); the span derivatives kept in
+    ``memo`` where given."""
     vals = problem.term_values(i, values)
     order = problem.terms[i].order + _rated(problem, i, vals)  # as the linearisation's
-    return torch.cat([_part_residuals(problem.spans, term, ctrl, vals, order)
-                      for term in problem.terms[i].parts(PART)], -2)
+    out = []
+    for k, term in enumerate(problem.terms[i].parts(PART)):
+        derivs = _part_derivatives(problem.spans, term, ctrl, vals, order)
+        if memo is not None:
+            memo[(i, k)] = derivs
+        out.append(term.residuals([d[:term.order + 1] for d in derivs], term.per_sample(vals)))
+    return torch.cat(out, -2)
 
 
-def _part_residuals(spans, term, ctrl: Tensor, vals: dict[str, Tensor], order: int,
-                    ) -> Tensor:
-    p = term.per_sample(vals)
-    shift = term.time_shift(p)
+def _part_derivatives(spans, term, ctrl: Tensor, vals: dict[str, Tensor], order: int,
+                      ) -> list[tuple[Tensor, ...]]:
+    """Span derivatives ``0 .. order`` at each times list of ``term`` (a part)."""
+    shift = term.time_shift(term.per_sample(vals))
     derivs = []
     for t in term.times_list():
         t = t + shift
         first = spans.first(t)
-        derivs.append(_point_derivatives(spans, ctrl, t, first, _distinct_times(t, first, 2),
-                                         order)[:term.order + 1])
-    return term.residuals(derivs, p)
+        with torch.no_grad():
+            derivs.append(_point_derivatives(spans, ctrl, t, first,
+                                             _distinct_times(t, first, 2), order))
+    return derivs
 
 
 def _rated(problem, i: int, vals: dict[str, Tensor]) -> bool:
@@ -114,8 +128,11 @@ class Linearization:
         self.p = problem
         self.spans = problem.spans
 
-    def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there.
+    def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
+               ) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
+        derivatives taken, and dropped, from ``memo`` where :func:`residuals` kept them at
+        this point).
 
         Each term's rows carry only the nuisance columns its samples' windows touch
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
@@ -126,19 +143,20 @@ class Linearization:
         acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
         rs, weights = [], []
         for i in range(len(p.terms)):
-            parts = [self._add_part(acc, i, term, ctrl, values, w)
-                     for term in p.terms[i].parts(PART)]  # memory bounded by a part
+            parts = [self._add_part(acc, i, term, ctrl, values, w,
+                                    None if memo is None else memo.pop((i, k), None))
+                     for k, term in enumerate(p.terms[i].parts(PART))]  # memory: a part
             rs.append(torch.cat([r for r, _ in parts], -2))
             weights.append(torch.cat([wt for _, wt in parts], -1))
         return acc.system(rs, weights)
 
     def _add_part(self, acc: _Normal, i: int, term, ctrl: Tensor, values: list[Tensor],
-                  w: int) -> tuple[Tensor, Tensor]:
+                  w: int, derivs: list[tuple[Tensor, ...]] | None) -> tuple[Tensor, Tensor]:
         """Add the normal equations of ``term`` (term ``i`` or a part of its samples,
-        :meth:`~torch_dq.fitting.Term.parts`) to ``acc``; its residuals and robust
-        weights."""
+        :meth:`~torch_dq.fitting.Term.parts`; its span derivatives ``derivs`` where known)
+        to ``acc``; its residuals and robust weights."""
         G = acc.band.shape[0]
-        r, wt, f0, Jc, Jn = self._term_jacobians(i, term, ctrl, values, w)
+        r, wt, f0, Jc, Jn = self._term_jacobians(i, term, ctrl, values, w, derivs)
         keys = self._windows(f0, w)
         local, gcols, valid = self._columns(i, Jn, keys, G)
         for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
@@ -196,20 +214,22 @@ class Linearization:
         return (f0.expand(*batch, N).reshape(Bf, N)
                 + (torch.arange(Bf, device=f0.device) * (self.spans.n + w))[:, None])
 
-    def _term_jacobians(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int):
+    def _term_jacobians(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
+                        derivs: list[tuple[Tensor, ...]] | None):
         """Whitened residuals, robust weights, window start and Jacobians of ``term`` (term
         ``i`` or a part of it)."""
-        r, f0, Jc, Jn = self._chained(i, term, ctrl, values, w)
+        r, f0, Jc, Jn = self._chained(i, term, ctrl, values, w, derivs)
         wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
         wt = wt * term.mask.to(wt.dtype)
         return r, wt, f0, Jc, Jn
 
-    def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int):
+    def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
+                 known: list[tuple[Tensor, ...]] | None):
         """Per-sample whitened residuals ``(..., N, k)`` of ``term`` (term ``i`` or a part
         of it), its window start and their Jacobians: the span derivatives at the current
-        point, the residuals' Jacobians with respect to them and to the nuisance steps,
-        chained through the spans (``_through_spans``), the times' to the time-moving
-        parameters by their rates."""
+        point (``known``, or evaluated), the residuals' Jacobians with respect to them and to
+        the nuisance steps, chained through the spans (``_through_spans``), the times' to the
+        time-moving parameters by their rates."""
         p = self.p
         vals = p.term_values(i, values)
         rates = term.time_rates()
@@ -226,9 +246,9 @@ class Linearization:
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
         rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
-        with torch.no_grad():  # the span derivatives at the current point (and the next)
-            derivs = [torch.stack(_point_derivatives(self.spans, ctrl, t, f, s, o - 1 + rated), -2)
-                      for t, f, s in zip(times, firsts, shared, strict=True)]
+        if known is None:  # the span derivatives at the current point (and the next)
+            known = _part_derivatives(self.spans, term, ctrl, vals, o - 1 + rated)
+        derivs = [torch.stack(d, -2) for d in known]
         r, J = self._residual_jacobians(i, term, vals, nuisance, [d[..., :o, :] for d in derivs],
                                         gathered.shape[:-2])
         L = len(derivs)

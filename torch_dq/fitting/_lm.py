@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -22,7 +22,7 @@ from torch import Tensor
 from .. import dualquat
 from . import _prior
 from ._charts import Scalar
-from ._linearize import System
+from ._linearize import Memo, System
 from ._problem import Problem
 from ._solver import DampedStep, Marquardt, SchurSolver
 
@@ -44,15 +44,21 @@ _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times R
 @dataclass
 class Point:
     """A point of the iteration: control points ``(..., n, 8)``, nuisance values, the
-    objective and the data cost ``(...)`` there."""
+    objective and the data cost ``(...)`` there, and the span derivatives its cost evaluated
+    (``memo``, for its Gauss-Newton system; empty once that is built)."""
 
     ctrl: Tensor
     values: list[Tensor]
     objective: Tensor
     data: Tensor
+    memo: Memo = field(default_factory=dict, repr=False)
 
     def where(self, sel: Tensor, other: Point) -> Point:
-        """``other`` where ``sel (...)`` holds, this point elsewhere."""
+        """``other`` where ``sel (...)`` holds (``other`` itself, its memo kept, where it
+        holds everywhere), this point elsewhere."""
+        if bool(sel.all()):
+            return other
+
         def pick(a: Tensor, b: Tensor) -> Tensor:
             event = (1,) * (a.dim() - sel.dim())
             return torch.where(sel.reshape(torch.Size((*sel.shape, *event))), a, b)
@@ -94,13 +100,15 @@ class LevenbergMarquardt:
         self.anchor, self.prior = values, prior
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
-        self.system = problem.system(ctrl, values, self.w)
+        memo: Memo = {}
+        data = torch.stack(problem.data_cost(ctrl, values, memo)).sum(0)
+        self.system = problem.system(ctrl, values, self.w, memo)
         self._null_of: System | None = None  # the system the null space was found for
+        self._gradient: tuple = (None, None)  # ((point, system), gradient) at the last call
         self._pulls(prior)
         self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                                   for t in problem.terms]).sum(0).reshape(self.Bf)
-        data, obj = self.objective(ctrl, values)
-        self.point = Point(ctrl, values, obj, data)
+        self.point = Point(ctrl, values, data + self._pull(ctrl, values), data)
         self.damping = Marquardt(self.Bf, ctrl)
         self.timed, self.span = _time_columns(problem)
         like = self.damping.lam
@@ -117,8 +125,9 @@ class LevenbergMarquardt:
         s, p = self.system, self.p
         cpull = _prior.control_pull(s.band, prior, bool(p.params))
         info = torch.diag(p.prior_information().to(s.nn))
-        self.pulls = (cpull, _prior.nuisance_pull(s.band, s.cn, s.nn + info, cpull, prior))
-        self.null, self._null_of = _prior.control_null(s.band, cpull), s
+        reg = _prior.Regularised(s.band, cpull)
+        self.pulls = (cpull, _prior.nuisance_pull(reg, s.cn, s.nn + info, prior))
+        self.null, self._null_of = _prior.control_null(reg), s
         self.pulled = (int(_prior.undetermined(s.band).sum())
                        + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
 
@@ -126,7 +135,9 @@ class LevenbergMarquardt:
         """The data system at the current point (and the pulls re-anchored there, with
         estimated nuisance parameters: :meth:`_reanchor`)."""
         del self.system, self._null_of  # the old system freed before the new is built
-        self.system = self.p.system(self.point.ctrl, self.point.values, self.w)
+        self._gradient = (None, None)
+        x = self.point
+        self.system = self.p.system(x.ctrl, x.values, self.w, x.memo)
         self._null_of = None
         if self.p.params:
             self._reanchor()
@@ -155,14 +166,21 @@ class LevenbergMarquardt:
         return ((d * Pd.reshape(d.shape)).sum((-1, -2))
                 + (u[..., None, :] @ Pn @ u[..., :, None])[..., 0, 0] + self.p.prior_cost(v))
 
-    def objective(self, c: Tensor, v: list[Tensor]) -> tuple[Tensor, Tensor]:
-        """Data cost and objective (data plus the pulls and the Free priors), ``(...)``."""
-        data = torch.stack(self.p.data_cost(c, v)).sum(0)
+    def objective(self, c: Tensor, v: list[Tensor], memo: Memo | None = None,
+                  ) -> tuple[Tensor, Tensor]:
+        """Data cost and objective (data plus the pulls and the Free priors), ``(...)``;
+        the span derivatives kept in ``memo`` where given."""
+        data = torch.stack(self.p.data_cost(c, v, memo)).sum(0)
         return data, data + self._pull(c, v)
 
     def _prior_gradient(self) -> tuple[Tensor, Tensor]:
-        """Half the gradient of the pulls and the Free priors in the step charts."""
+        """Half the gradient of the pulls and the Free priors in the step charts. At the
+        pulls' anchor (the start, or where :meth:`_reanchor` put it) they are a quadratic at
+        its minimum: the Free priors' alone there."""
         x = self.point
+        if x.ctrl is self.start and all(a is b for a, b in zip(x.values, self.anchor,
+                                                               strict=True)):
+            return x.ctrl.new_zeros(self.Bf, self.n, 6), self._free_gradient(x.values)
         with torch.enable_grad():
             dc = x.ctrl.new_zeros(*self.batch, self.n, 6).requires_grad_()
             dn = x.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
@@ -172,10 +190,25 @@ class LevenbergMarquardt:
         gn = torch.zeros_like(dn) if gn is None else gn
         return gc.reshape(self.Bf, self.n, 6), gn.reshape(self.Bf, self.p.m)
 
+    def _free_gradient(self, values: list[Tensor]) -> Tensor:
+        """Half the gradient ``(Bf, m)`` of the Free priors in the nuisance charts."""
+        with torch.enable_grad():
+            dn = self.point.ctrl.new_zeros(*self.batch, self.p.m).requires_grad_()
+            cost = self.p.prior_cost(self.p.moved(values, dn))
+            if not cost.requires_grad:  # no Free prior
+                return dn.detach().reshape(self.Bf, self.p.m)
+            (gn,) = torch.autograd.grad(0.5 * cost.sum(), dn)
+        return gn.reshape(self.Bf, self.p.m)
+
     def gradient(self) -> tuple[Tensor, Tensor]:
-        """Half the gradient of the objective at the current point (system plus pulls)."""
-        pc, pn = self._prior_gradient()
-        return self.system.gc + pc, self.system.gn + pn
+        """Half the gradient of the objective at the current point (system plus pulls),
+        once per point and system."""
+        at, grad = self._gradient
+        if at is None or at[0] is not self.point or at[1] is not self.system:
+            pc, pn = self._prior_gradient()
+            grad = (self.system.gc + pc, self.system.gn + pn)
+            self._gradient = ((self.point, self.system), grad)
+        return grad
 
     def _bounded(self, gn: Tensor) -> Tensor:
         """``gn`` without the components of bounded scalars on their bound whose descent
@@ -202,7 +235,7 @@ class LevenbergMarquardt:
         gc, gn = self.gradient()
         gn = self._bounded(gn)
         if self._null_of is not self.system:  # factored once per system
-            self.null = _prior.control_null(self.system.band, self.pulls[0])
+            self.null = _prior.control_null(_prior.Regularised(self.system.band, self.pulls[0]))
             self._null_of = self.system
         # re-anchored pulls (nuisance estimated) hold their directions where they are: those
         # are left out like the directions without information (a stiffer pull)
@@ -256,11 +289,12 @@ class LevenbergMarquardt:
             dc, dn = self._in_time_trust(dc, dn)
             tc, tv = self.p.retract(x.ctrl, x.values, dc.reshape(*batch, self.n, 6),
                                     dn.reshape(*batch, self.p.m))
-            td, to = self.objective(tc, tv)
+            memo: Memo = {}
+            td, to = self.objective(tc, tv, memo)
             acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
                                                                   x.objective.reshape(Bf))
             if bool(acc.any()):
-                new = new.where(acc.reshape(batch), Point(tc, tv, to, td))
+                new = new.where(acc.reshape(batch), Point(tc, tv, to, td, memo))
                 drop = x.objective.reshape(Bf) - to.reshape(Bf)
                 gain = torch.where(acc, drop / step.predicted(gc, gn, dc, dn), gain)
             pending = pending & ~acc

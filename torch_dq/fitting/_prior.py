@@ -41,7 +41,7 @@ from torch import Tensor
 
 from ._banded import BandedCholesky
 
-__all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "band_apply", "control_null",
+__all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "Regularised", "band_apply", "control_null",
            "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh",
            "undetermined"]
 
@@ -171,23 +171,37 @@ def scaled_eigh(S: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return lam, V, d
 
 
-def nuisance_pull(band: Tensor, cn: Tensor, nn: Tensor, pull: Tensor, prior: float) -> Tensor:
+class Regularised:
+    r"""The factorisation of the data band plus the pulls, ``A = band + pull``, regularised
+    by ``REGULARISE`` times its floored diagonal ``D`` (``(Bf, n, 6)``, plus ``1e-12`` of
+    its largest entry): :math:`(A + \epsilon D)^{-1}` for :func:`nuisance_pull` and
+    :func:`control_null`, factored once for both.
+
+    Args:
+        band: ``(Bf, n, w, 6, 6)`` data band.
+        pull: ``(Bf, n, w, 6, 6)`` the control points' pull information.
+    """
+
+    def __init__(self, band: Tensor, pull: Tensor) -> None:
+        self.A = band + pull
+        D = self.A[:, :, 0].diagonal(dim1=-2, dim2=-1)
+        self.D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
+        self.chol = BandedCholesky(self.A, shift=REGULARISE * self.D)
+
+
+def nuisance_pull(reg: Regularised, cn: Tensor, nn: Tensor, prior: float) -> Tensor:
     """``(Bf, m, m)`` pull information of the nuisance parameters (module doc).
 
     Args:
-        band: ``(Bf, n, w, 6, 6)`` data band at the start.
+        reg: the data band at the start plus the control points' pulls, factored.
         cn: ``(Bf, n, 6, m)`` coupling.
         nn: ``(Bf, m, m)`` nuisance block (with the Free priors' information).
-        pull: ``(Bf, n, 6, 6)`` the control points' pull information.
         prior: the pull's relative weight.
     """
     m = nn.shape[-1]
     if prior == 0 or m == 0:
         return torch.zeros_like(nn)
-    band = band + pull
-    diag = band[:, :, 0].diagonal(dim1=-2, dim2=-1)
-    floor = 1e-12 * diag.amax((-1, -2)).clamp_min(1e-300)[:, None, None]
-    chol = BandedCholesky(band, shift=REGULARISE * (diag + floor))
+    chol = reg.chol
     S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))
     lam, V, d = scaled_eigh(S)
     null = (lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0)) & chol.ok[:, None]
@@ -216,24 +230,27 @@ def band_apply(band: Tensor, x: Tensor) -> Tensor:
     return y
 
 
-def control_null(band: Tensor, pull: Tensor, rank: int = _NULL_RANK) -> tuple[Tensor, Tensor]:
+def control_null(reg: Regularised, rank: int = _NULL_RANK) -> tuple[Tensor, Tensor]:
     r"""``(Bf, n, 6, r)`` combinations of control points that no sample determines (the
-    null space of the data band plus the pulls, when it is not made of whole blocks: knots
-    closer than the samples), ``D``-orthonormal (:math:`U^T D U = I`, ``D`` the band's
-    diagonal): a few steps of inverse subspace iteration on :math:`(A + \epsilon D)^{-1} D`
-    from ``rank`` fixed pseudo-random columns, then the Ritz vectors whose Ritz value is
-    below ``NULL`` (scaled). ``r = 0`` (an empty last axis) where there are none.
+    null space of the data band plus the pulls, ``reg``, when it is not made of whole
+    blocks: knots closer than the samples), ``D``-orthonormal (:math:`U^T D U = I`, ``D``
+    the band's diagonal): a few steps of inverse subspace iteration on :math:`(A +
+    \epsilon D)^{-1} D` from ``rank`` fixed pseudo-random columns, then the Ritz vectors
+    whose Ritz value is below ``NULL`` (scaled). ``r = 0`` (an empty last axis) where there
+    are none, and without the iteration where a factorisation certifies it (:math:`A -
+    \mathrm{NULL}\, D` positive definite: no generalised eigenvalue, so no Ritz value, at
+    or below ``NULL``).
 
     Returns:
         ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
         x`."""
-    A = band + pull
-    D = A[:, :, 0].diagonal(dim1=-2, dim2=-1)
-    D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
-    chol = BandedCholesky(A, shift=REGULARISE * D)
-    gen = torch.Generator(device=band.device).manual_seed(0)
+    A, D, chol = reg.A, reg.D, reg.chol
+    if bool(BandedCholesky(A, shift=-NULL * D).ok.all()):
+        none = A.new_zeros(*D.shape, 0)
+        return none, none
+    gen = torch.Generator(device=A.device).manual_seed(0)
     rank = min(rank, D.shape[1] * 6)
-    X = torch.randn(*D.shape, rank, generator=gen, dtype=band.dtype, device=band.device)
+    X = torch.randn(*D.shape, rank, generator=gen, dtype=A.dtype, device=A.device)
     Bf, n = D.shape[:2]
     for _ in range(3):
         X = chol.solve(D[..., None] * X)

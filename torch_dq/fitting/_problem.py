@@ -19,7 +19,7 @@ from torch import Tensor
 from .. import dualquat
 from . import _linearize, _robust
 from ._charts import Chart, Scalar
-from ._linearize import Linearization, System
+from ._linearize import Linearization, Memo, System
 from ._local import SpanEvaluator
 from ._nuisance import Free
 from ._terms import Term
@@ -124,17 +124,21 @@ class Problem:
     def retract(self, ctrl: Tensor, values: list[Tensor], dc: Tensor, dn: Tensor,
                 ) -> tuple[Tensor, list[Tensor]]:
         """Control points and values moved by ``dc (..., n, 6)`` and ``dn (..., m)``."""
-        new = dualquat.mul(ctrl, dualquat.exp(dc))
-        moved = [p.chart.retract(v, dn[..., p.offset:p.offset + p.dim])
-                 for p, v in zip(self.params, values, strict=True)]
-        return new, moved
+        return dualquat.mul(ctrl, dualquat.exp(dc)), self.moved(values, dn)
+
+    def moved(self, values: list[Tensor], dn: Tensor) -> list[Tensor]:
+        """The nuisance ``values`` moved by ``dn (..., m)`` in their charts."""
+        return [p.chart.retract(v, dn[..., p.offset:p.offset + p.dim])
+                for p, v in zip(self.params, values, strict=True)]
 
     # -- costs
-    def data_cost(self, ctrl: Tensor, values: list[Tensor]) -> list[Tensor]:
-        """Robust cost ``(...)`` of each term (through the spans, as the Jacobians)."""
+    def data_cost(self, ctrl: Tensor, values: list[Tensor], memo: Memo | None = None,
+                  ) -> list[Tensor]:
+        """Robust cost ``(...)`` of each term (through the spans, as the Jacobians; the span
+        derivatives kept in ``memo`` for :meth:`system` where given)."""
         out = []
         for i, term in enumerate(self.terms):
-            r = _linearize.residuals(self, i, ctrl, values)
+            r = _linearize.residuals(self, i, ctrl, values, memo)
             out.append(_robust.rho(term.robust, r.norm(dim=-1), term.robust_k).sum(-1)
                        .expand(self.batch))
         return out
@@ -163,6 +167,8 @@ class Problem:
         """Control points a sample's residual may touch (the band width ``w``)."""
         return _linearize.width(self, values)
 
-    def system(self, ctrl: Tensor, values: list[Tensor], w: int) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there."""
-        return self.linearization.system(ctrl, values, w)
+    def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
+               ) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
+        derivatives from ``memo`` where :meth:`data_cost` kept them at this point)."""
+        return self.linearization.system(ctrl, values, w, memo)
