@@ -308,6 +308,12 @@ class Curve(torch.nn.Module, abc.ABC):
     def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
         """Set the control points from the local least-squares start
         (:func:`torch_dq._start.least_squares_start`) on poses ``x`` at float64 times."""
+        self.control_points = self._fitted(fn, x, t64).to(dtype=x.dtype, device=x.device)
+        return self
+
+    def _fitted(self, fn: str, x: Tensor, t64: Tensor) -> Tensor:
+        """``(..., n, 8)`` float64 control points of the local least-squares start on poses
+        ``x`` at float64 times ``t64``, on this curve's knots (the layer left as it is)."""
         n, N = self.n_ctrl, x.shape[-2]
         if n > N:
             low = self._min_samples
@@ -331,8 +337,7 @@ class Curve(torch.nn.Module, abc.ABC):
             first, values = dom.basis(rel)
             ctrl = _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(),
                                               split)
-        self.control_points = ctrl.to(dtype=x.dtype, device=x.device)
-        return self
+        return ctrl
 
     @classmethod
     def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:

@@ -22,6 +22,7 @@ from torch import Tensor
 from .. import _checks
 from .._progress import reporter
 from . import _structure as structure
+from ._align import imu_aligned
 from ._charts import Scalar
 from ._imu import Accel
 from ._lm import LevenbergMarquardt
@@ -197,6 +198,11 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     convergence test.
     Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
     trajectory's placement) ends where the data put it, whatever its start.
+    Where only an IMU sees the rotations (one trajectory with :class:`~torch_dq.fitting.Positions`,
+    :class:`~torch_dq.fitting.Gyro` and :class:`~torch_dq.fitting.Accel` terms alone), the
+    start's rotations are replaced by the gyroscope's integrated rates aligned on the
+    accelerometer (``torch_dq.fitting._align``) where that lowers the start's cost: a
+    start with identity rotations (positions alone) would crawl along the heading.
     Levenberg-Marquardt in local charts (``c_k exp(delta_k)`` and the nuisance charts of
     :mod:`torch_dq.fitting`), exact Jacobians, steps accepted on the robust cost (module
     docstring). The trajectory's
@@ -265,6 +271,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     _check_domains(fn, trajectory, terms, batch)
     _warn_c1(trajectory, terms)
     _warn_offset_kinks(trajectory, terms)
+    ctrl = imu_aligned(fn, trajectory, terms, ctrl)
     problem = Problem(trajectory, terms, batch)
     values = _starts(fn, problem, ctrl)
     bar = reporter(int(steps), verbose, "torch_dq.estimate")
