@@ -9,6 +9,7 @@ directions that the accelerometer alone determines.
 """
 
 import numpy as np
+import pytest
 import torch
 from scipy.spatial.transform import Rotation
 from test_estimation import imu_of, truth
@@ -76,3 +77,34 @@ def test_a_rejected_step_goes_back_towards_the_last_accepted_damping():
     np.testing.assert_allclose(m.lam.numpy(), [1e-7, 1e-4, 1e-10], rtol=1e-12)
     m.reject(torch.tensor([True, True, False]))
     np.testing.assert_allclose(m.lam.numpy(), [np.sqrt(1e-11), 1e-3, 1e-10], rtol=1e-12)
+
+
+def test_an_accepted_trial_s_derivatives_give_the_same_system():
+    """The system built from the span derivatives that the cost evaluation kept (``Memo``)
+    equals, to the bit, the system that evaluates them again; the memo is spent."""
+    from torch_dq.fitting._problem import Problem
+
+    tc, cam, ti, gyro, accel = _job(1)
+    inner = slice(40, -40)  # 0.2 s from the ends: room for the time offset
+    spline = BSpline.from_dualquats(cam, tc, n_ctrl=201, form="cumulative")
+    terms = [Poses(tc, cam, rot_sigma=1e-3, trans_sigma=1e-3),
+             Gyro(ti[inner], gyro[inner], sigma=2e-3, bias=True, time_offset=True),
+             Accel(ti, accel, sigma=2e-2, bias=True, gravity=9.81)]
+    with pytest.warns(RuntimeWarning, match="steps=1 reached"):  # values set, off the start
+        estimate(spline, terms, verbose=False, steps=1)
+    ctrl = spline.control_points.detach()
+    problem = Problem(spline, terms, torch.Size(()))
+    for i, term in enumerate(terms):
+        for name, slot in term.slots().items():
+            if slot.free is not None:
+                problem.add(i, name, slot.free, slot.chart, slot.free.value.clone())
+    values = [q.start for q in problem.params]
+    memo = {}
+    problem.data_cost(ctrl, values, memo)
+    assert sorted(memo) == [(0, 0), (1, 0), (2, 0)]
+    w = problem.width(values)
+    kept, fresh = problem.system(ctrl, values, w, memo), problem.system(ctrl, values, w)
+    assert not memo
+    for a, b in zip((kept.band, kept.cn, kept.nn, kept.gc, kept.gn),
+                    (fresh.band, fresh.cn, fresh.nn, fresh.gc, fresh.gn), strict=True):
+        assert torch.equal(a, b)
