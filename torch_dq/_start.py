@@ -345,10 +345,10 @@ class _Windows:
         """``(K, U)``: :math:`G^{-1} e_r` of windows ``k``, ``G`` summed from the Grams of
         the spans ``k - h - a .. k + a`` that their samples start in."""
         U, w, spans, like = self.U, self.h + 1, self.spans, self.spans
-        G = like.new_zeros(len(k), U + w, U + w)  # a margin for the loop's last blocks
+        G = like.new_zeros(len(k), U, U)  # the last block ends at U = 2 a + 2 h + 1
         for d in range(2 * self.a + self.h + 1):  # span k - h - a + d, zero outside 0 .. n - h
             G[:, d:d + w, d:d + w] += spans.index_select(0, k + d)
-        G = G[:, :U, :U] + self.weight * torch.eye(U, dtype=like.dtype, device=like.device)
+        G.diagonal(dim1=-2, dim2=-1).add_(self.weight)
         e = like.new_zeros(len(k), U, 1)
         e[:, self.h + self.a] = 1.0
         return torch.cholesky_solve(e, torch.linalg.cholesky(G))[..., 0]
