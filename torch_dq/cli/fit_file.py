@@ -445,8 +445,8 @@ def _kept(gain: tuple[float, float]) -> str:
     """Why the least-squares start was kept (``refine="auto"``)."""
     return (f"one Gauss-Newton step would lower the fitted poses' rotation and translation "
             f"costs by {100 * gain[0]:.2g} % and {100 * gain[1]:.2g} %, at most "
-            f"{100 * REFINE_GAIN:g} % each: the start is already at the optimum to within the "
-            f"noise (--refine always refines it anyway)")
+            f"{100 * REFINE_GAIN:g} % each: the start is the optimum to within the noise; "
+            f"--refine always refines it")
 
 
 def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
