@@ -82,7 +82,7 @@ REFINE_TOL = 1e-7
 #: ``refine="auto"``: the least-squares start is kept (no Levenberg-Marquardt) where one
 #: Gauss-Newton step from it would lower neither the rotation nor the translation part of
 #: the fitted poses' cost by more than this fraction of that part
-#: (:func:`torch_dq.cli._refine.predicted_gain`): the step would move the curve by at most
+#: (``torch_dq.cli._refine.predicted_gain``): the step would move the curve by at most
 #: ~10 % of the residuals (0.4-0.9 % on TUM's 200 Hz motion capture, where the held-out
 #: errors of the start and of the refined curve agree to within 1 % either way).
 REFINE_GAIN = 0.01
