@@ -268,7 +268,7 @@ def _fit(train: io.Trajectory, poses: Tensor, spacing: float, degree: int, form:
          ) -> tuple[Any, Any, dict, tuple[float, float] | None]:
     """The least-squares start, then ``steps`` of :func:`torch_dq.nn.fit`; with ``gate``
     only where one Gauss-Newton step would gain more than :data:`REFINE_GAIN` of a part of
-    the cost (:func:`~torch_dq.cli._refine.predicted_gain`). (spline, history or None,
+    the cost (``torch_dq.cli._refine.predicted_gain``). (spline, history or None,
     timings in seconds, the predicted gains or None where not tested)."""
     n_ctrl = _knots.n_ctrl(float(train.times[-1] - train.times[0]), spacing, degree)
     start = time.perf_counter()
