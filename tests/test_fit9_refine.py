@@ -156,3 +156,20 @@ def test_refine_argument_is_checked(tmp_path):
     with pytest.raises(ValueError, match="refine must be 'auto' or 'always'"):
         fit_file.run_fit(path, out=str(tmp_path / "o"), refine="never", plots=False,
                          verbose=False)
+
+
+def test_command_line_refine_option(tmp_path):
+    """``--refine always`` reaches run_fit: the slow motion, whose start the default keeps,
+    is refined; ``--refine never`` is refused by the parser (exit status 2)."""
+    from torch_dq.cli._main import main
+
+    path = tmp_path / "slow.txt"
+    _tum_file(path, 100.0, 10.0, 0.3, 2e-3, 1e-3)
+    for mode, refined in (("auto", False), ("always", True)):
+        out = tmp_path / mode
+        assert main(["fit", str(path), "--out", str(out), "--no-plots", "--quiet",
+                     "--refine", mode]) == 0
+        assert json.loads((out / "summary.json").read_text())["fit"]["refined"] is refined
+    with pytest.raises(SystemExit) as info:
+        main(["fit", str(path), "--out", str(tmp_path / "x"), "--refine", "never"])
+    assert info.value.code == 2
