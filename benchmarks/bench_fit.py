@@ -8,16 +8,20 @@ apart (``sclerp`` between the neighbouring poses), written as TUM to a temporary
 ground truth, which keeps the motion capture's own noise).
 
 Stages, as the command runs them (``torch_dq.cli.fit_file``; holdout 2, degree 3, De Boor,
-LM up to 50 steps): read, knot search (``choose_knot_spacing`` on the fitted poses), the
-least-squares start (``BSpline.from_poses``), Levenberg-Marquardt (``nn.fit``), held-out
-evaluation; then the whole ``run_fit`` in process and the command in a fresh process.
+LM up to 50 steps, ``refine="auto"``): read, knot search (``choose_knot_spacing`` on the
+fitted poses), the least-squares start (``BSpline.from_poses``), the refinement test
+(``torch_dq.cli._refine.predicted_gain``: does one Gauss-Newton step gain more than
+``fit_file.REFINE_GAIN`` of a part of the cost?), Levenberg-Marquardt (``nn.fit``, timed
+where the test asks for it, or with ``--always-lm``), held-out evaluation; then the whole
+``run_fit`` in process and the command in a fresh process.
 Each stage: process CPU seconds (summed over threads) and wall seconds, best of
 ``--repeats``. Prints the machine, the date, torch's version and the threads.
 
     python benchmarks/bench_fit.py [--poses 10000] [--file PATH] [--threads 1] [--repeats 3]
-        [--stages-only]
+        [--stages-only] [--always-lm]
 
-``--stages-only`` skips the whole ``run_fit`` and the fresh process (for paired A/B runs).
+``--stages-only`` skips the whole ``run_fit`` and the fresh process (for paired A/B runs);
+``--always-lm`` times LM (and its held-out errors) where the test would skip it too.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ import torch
 from torch_dq import dualquat, io
 from torch_dq import nn as dqnn
 from torch_dq._report import evaluate, pose_errors
-from torch_dq.cli import fit_file
+from torch_dq.cli import _refine, fit_file
 from torch_dq.fitting import _knots
 
 SOURCE = os.path.join(os.path.dirname(__file__), "..", "tests", "data", "tum_fr2_desk_sub.txt")
@@ -72,7 +76,7 @@ def timed(fn, repeats: int):
     return cpu, wall, out
 
 
-def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
+def stages(path: str, repeats: int, always_lm: bool = False) -> list[tuple[str, float, float]]:
     """The command's stages on ``path``, each timed: ``(name, cpu, wall)`` rows."""
     rows = []
     cpu, wall, traj = timed(lambda: io.read_trajectory(path, duplicates="first"), repeats)
@@ -91,14 +95,26 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
 
     cpu, wall, spline = timed(start, repeats)
     rows.append(("least-squares start", cpu, wall))
+    gain = None
     if steps:
+        cpu, wall, gain = timed(lambda: _refine.predicted_gain(spline, train.times,
+                                                               poses[fit_idx]), repeats)
+        rows.append(("refinement test", cpu, wall))
+        print(f"predicted gain of one Gauss-Newton step: rotation {100 * gain[0]:.3g} %, "
+              f"translation {100 * gain[1]:.3g} % (LM where either > "
+              f"{100 * fit_file.REFINE_GAIN:g} %)")
+    pays = bool(steps) and max(gain) > fit_file.REFINE_GAIN
+    refined = None
+    if pays or (steps and always_lm):
         def lm():
             s = start()
             return s, dqnn.fit(s, train.times, poses[fit_idx], steps=steps, verbose=False,
-                               tol=getattr(fit_file, "REFINE_TOL", 1e-9))  # as the command
+                               tol=fit_file.REFINE_TOL)  # as the command
 
-        cpu, wall, (spline, history) = timed(lm, repeats)
-        rows.append((f"LM ({history.steps} steps, start included)", cpu, wall))
+        cpu, wall, (refined, history) = timed(lm, repeats)
+        rows.append((f"LM ({history.steps} steps, start incl.)" + ("" if pays else " [x]"),
+                     cpu, wall))
+        spline = refined if pays else spline
 
     def heldout():
         return pose_errors(evaluate(spline, traj.times[held_idx]), poses[held_idx])
@@ -106,10 +122,13 @@ def stages(path: str, repeats: int) -> list[tuple[str, float, float]]:
     cpu, wall, (rot, trans) = timed(heldout, repeats)
     rows.append(("held-out evaluation", cpu, wall))
     print(f"file {path}: {len(traj)} poses, knot spacing {spacing:g} s ({n_ctrl} control "
-          f"points; the search {why.split(' from ')[0]}), held-out {_errors(rot, trans)}")
-    if steps:  # what LM buys on the held-out poses (issue 34: LM only where it pays)
-        rot0, trans0 = pose_errors(evaluate(start(), traj.times[held_idx]), poses[held_idx])
-        print(f"the least-squares start alone (no LM): held-out {_errors(rot0, trans0)}")
+          f"points; the search {why.split(' from ')[0]}; {'LM' if pays else 'no LM'}), "
+          f"held-out {_errors(rot, trans)}")
+    if refined is not None:  # what LM buys on the held-out poses
+        other = start() if pays else refined
+        rot0, trans0 = pose_errors(evaluate(other, traj.times[held_idx]), poses[held_idx])
+        what = "the least-squares start alone (no LM)" if pays else "refined by LM (--always-lm)"
+        print(f"{what}: held-out {_errors(rot0, trans0)}")
     return rows
 
 
@@ -127,6 +146,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--stages-only", action="store_true",
                         help="skip run_fit in process and the command's process")
+    parser.add_argument("--always-lm", action="store_true",
+                        help="time LM where the refinement test skips it too (not in "
+                             "the fitting sum then)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     warnings.simplefilter("ignore")
@@ -139,12 +161,15 @@ def main() -> None:
         path = args.file or os.path.join(tmp, f"tum_{args.poses}.txt")
         if args.file is None:
             resampled(args.poses, path)
-        rows = stages(path, args.repeats)
-        lm = any(r[0].startswith("LM") for r in rows)
-        fit_rows = [r for r in rows[1:] if not (lm and r[0] == "least-squares start")]
+        rows = stages(path, args.repeats, args.always_lm)
+        lm = any(r[0].startswith("LM") and "[x]" not in r[0] for r in rows)
+        fit_rows = [r for r in rows[1:] if not (lm and r[0] == "least-squares start")
+                    and "[x]" not in r[0]]
         print(f"{'stage':<34}{'CPU s':>8}{'wall s':>8}")
         for name, cpu, wall in rows:
             print(f"{name:<34}{cpu:8.3f}{wall:8.3f}")
+        if not lm and any("[x]" in r[0] for r in rows):
+            print("[x]: --always-lm, not in the fitting sum (the command skips it here)")
         print(f"{'fitting (search, start, LM, held-out)':<34}{sum(r[1] for r in fit_rows):8.3f}"
               f"{sum(r[2] for r in fit_rows):8.3f}")
         if args.stages_only:

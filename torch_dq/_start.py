@@ -325,46 +325,46 @@ class _Windows:
         self.first, self.values, self.lo, self.count = first, values, lo, count
         self.a, self.h, self.weight, self.split = a, values.shape[1] - 1, weight, split
         self.n, self.U = rtc[0].shape[-2], 2 * (a + self.h) + 1
-        w = values.shape[1]  # the Gram of the samples of each span (first control point f)
-        self.spans = values.new_zeros(self.n - self.h, w, w)
+        w = values.shape[1]  # the Gram of the samples of each span (first control point f),
+        # after h + a zero blocks (spans before the first) and before as many (after the last)
+        self.spans = values.new_zeros(self.n + 2 * a + self.h, w, w)
         for j in range(w):  # column by column: N x w numbers at a time
-            self.spans[:, :, j].index_add_(0, first, values * values[:, j, None])
+            self.spans[:, :, j].index_add_(0, first + self.h + a, values * values[:, j, None])
 
     def _pairs(self, k: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """The (window, sample) pairs of windows ``k``: their window's position in ``k``,
         the sample and the column of its first basis value in the window."""
         dev = k.device
-        count = self.count[k]
+        count = self.count.index_select(0, k)
         kk = torch.repeat_interleave(torch.arange(len(k), device=dev), count)
-        s = self.lo[k][kk] + torch.arange(kk.shape[0], device=dev) - (
-            torch.cumsum(count, 0) - count)[kk]
-        return kk, s, self.first[s] - (k - self.h - self.a)[kk]
+        s = (self.lo.index_select(0, k) - torch.cumsum(count, 0) + count).index_select(0, kk) \
+            + torch.arange(kk.shape[0], device=dev)
+        return kk, s, self.first.index_select(0, s) - (k - self.h - self.a).index_select(0, kk)
 
     def _z(self, k: Tensor) -> Tensor:
         """``(K, U)``: :math:`G^{-1} e_r` of windows ``k``, ``G`` summed from the Grams of
         the spans ``k - h - a .. k + a`` that their samples start in."""
         U, w, spans, like = self.U, self.h + 1, self.spans, self.spans
-        G = like.new_zeros(len(k), U + w, U + w)  # a margin for the loop's last blocks
-        for d in range(2 * self.a + self.h + 1):
-            f = k - self.h - self.a + d
-            ok = ((f >= 0) & (f < spans.shape[0])).to(like.dtype)[:, None, None]
-            G[:, d:d + w, d:d + w] += spans[f.clamp(0, spans.shape[0] - 1)] * ok
-        G = G[:, :U, :U] + self.weight * torch.eye(U, dtype=like.dtype, device=like.device)
+        G = like.new_zeros(len(k), U, U)  # the last block ends at U = 2 a + 2 h + 1
+        for d in range(2 * self.a + self.h + 1):  # span k - h - a + d, zero outside 0 .. n - h
+            G[:, d:d + w, d:d + w] += spans.index_select(0, k + d)
+        G.diagonal(dim1=-2, dim2=-1).add_(self.weight)
         e = like.new_zeros(len(k), U, 1)
         e[:, self.h + self.a] = 1.0
         return torch.cholesky_solve(e, torch.linalg.cholesky(G))[..., 0]
 
     def coefficients(self, k: Tensor) -> Tensor:
         """``(..., K, 6)`` the chart coordinates of control points ``k`` in their windows."""
-        kk, s, c = self._pairs(k)
-        vs = self.values[s]  # (P, w)
+        kk, s, c = self._pairs(k)  # gathers by index_select: ~3x faster than [..., s, :]
+        vs = self.values.index_select(0, s)  # (P, w)
         cols = c[:, None] + torch.arange(self.h + 1, device=k.device)
         z = self._z(k)
         (rx, px), (rc, pc), (ra, pa) = self.rtx, self.rtc, self.rta
-        rc, pc = rc[..., k, :], pc[..., k, :]
-        xi = _rt_twists(rc[..., kk, :], pc[..., kk, :], rx[..., s, :], px[..., s, :],
-                        self.split)  # (..., P, 6)
-        weighted = (vs * z[kk[:, None], cols]).sum(-1)[:, None] * xi  # (A z)_i xi_i
+        rc, pc = rc.index_select(-2, k), pc.index_select(-2, k)
+        xi = _rt_twists(rc.index_select(-2, kk), pc.index_select(-2, kk), rx.index_select(-2, s),
+                        px.index_select(-2, s), self.split)  # (..., P, 6)
+        zs = torch.gather(z.index_select(0, kk), 1, cols)  # z[kk, cols]
+        weighted = (vs * zs).sum(-1)[:, None] * xi  # (A z)_i xi_i
         out = weighted.new_zeros(*weighted.shape[:-2], len(k), 6).index_add_(-2, kk, weighted)
         # prior: unknown j at its own anchor, seen from the window's chart
         near = (k - self.h - self.a)[:, None] + torch.arange(self.U, device=k.device)

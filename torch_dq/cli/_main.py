@@ -20,7 +20,8 @@ def _fit(parser, args) -> int:
         run_fit(args.file, format=args.format, times=args.times, duplicates=args.duplicates,
                 knot_spacing=args.knot_spacing, degree=args.degree, form=args.form,
                 holdout=args.holdout,
-                steps=args.steps, rate=args.rate, dtype=getattr(torch, args.dtype),
+                steps=args.steps, refine=args.refine, rate=args.rate,
+                dtype=getattr(torch, args.dtype),
                 out=args.out, overwrite=args.overwrite, imu=args.imu,
                 time_offset=args.time_offset, plots=not args.no_plots,
                 verbose=not args.quiet)

@@ -198,6 +198,11 @@ def _add_fit_model(fit: argparse.ArgumentParser, defaults: dict) -> None:
     fit.add_argument("--steps", metavar="N", type=_non_negative_int, default=defaults["steps"],
                      help="maximum refinement steps of torch_dq.nn.fit after the "
                           "least-squares start (0: none)")
+    fit.add_argument("--refine", choices=("auto", "always"), default=defaults["refine"],
+                     help="auto: refine the least-squares start only where one Gauss-Newton "
+                          "step would lower the rotation or the translation part of the "
+                          "fitted poses' cost by more than 1%% of it (elsewhere the start is "
+                          "the optimum to within the noise); always: whenever --steps > 0")
     fit.add_argument("--rate", metavar="HZ", type=_positive_float, default=None,
                      help="resampling rate of trajectory.csv (default: the file's median "
                           "rate, rounded to a round value within 0.1%%, e.g. 100 Hz)")
