@@ -79,9 +79,11 @@ def test_a_rejected_step_goes_back_towards_the_last_accepted_damping():
     np.testing.assert_allclose(m.lam.numpy(), [np.sqrt(1e-11), 1e-3, 1e-10], rtol=1e-12)
 
 
-def test_an_accepted_trial_s_derivatives_give_the_same_system():
+def test_an_accepted_trial_s_derivatives_give_the_same_system(monkeypatch):
     """The system built from the span derivatives that the cost evaluation kept (``Memo``)
     equals, to the bit, the system that evaluates them again; the memo is spent."""
+    from torch_dq.fitting import _linearize
+    from torch_dq.fitting._linearize import Memo
     from torch_dq.fitting._problem import Problem
 
     tc, cam, ti, gyro, accel = _job(1)
@@ -99,12 +101,16 @@ def test_an_accepted_trial_s_derivatives_give_the_same_system():
             if slot.free is not None:
                 problem.add(i, name, slot.free, slot.chart, slot.free.value.clone())
     values = [q.start for q in problem.params]
-    memo = {}
+    memo = Memo()
     problem.data_cost(ctrl, values, memo)
-    assert sorted(memo) == [(0, 0), (1, 0), (2, 0)]
+    assert sorted(memo.entries) == [(0, 0), (1, 0), (2, 0)]
     w = problem.width(values)
     kept, fresh = problem.system(ctrl, values, w, memo), problem.system(ctrl, values, w)
-    assert not memo
+    assert not memo.entries
+    monkeypatch.setattr(_linearize, "MEMO_BYTES", 1 << 10)  # a long record's: none kept
+    memo = Memo()
+    problem.data_cost(ctrl, values, memo)
+    assert not memo.entries
     for a, b in zip((kept.band, kept.cn, kept.nn, kept.gc, kept.gn),
                     (fresh.band, fresh.cn, fresh.nn, fresh.gc, fresh.gn), strict=True):
         assert torch.equal(a, b)

@@ -56,10 +56,30 @@ class System:
     weights: list[Tensor]
 
 
-Memo = dict[tuple[int, int], list[tuple[Tensor, ...]]]
-"""The span derivatives of a point, by (term, part): what :func:`residuals` evaluated for a
-trial's cost and :meth:`Linearization.system` reads (and drops) when the trial is accepted,
-instead of evaluating them again."""
+MEMO_BYTES = 1 << 25  # span derivatives a point keeps for its system (Memo)
+
+
+class Memo:
+    """The span derivatives of a point, by (term, part): what :func:`residuals` evaluated for
+    a trial's cost and :meth:`Linearization.system` takes (and drops) when the trial is
+    accepted, instead of evaluating them again. At most ``MEMO_BYTES`` of them: a long
+    record's would raise the peak memory by as much (235 MB for an hour of 200 Hz IMU), and
+    its parts are evaluated again instead."""
+
+    def __init__(self) -> None:
+        self.entries: dict[tuple[int, int], list[tuple[Tensor, ...]]] = {}
+        self.left = MEMO_BYTES
+
+    def put(self, key: tuple[int, int], derivs: list[tuple[Tensor, ...]]) -> None:
+        """Keep ``derivs`` (term, part ``key``) within the budget."""
+        size = sum(d.numel() * d.element_size() for ds in derivs for d in ds)
+        if size <= self.left:
+            self.entries[key] = derivs
+            self.left -= size
+
+    def take(self, key: tuple[int, int]) -> list[tuple[Tensor, ...]] | None:
+        """The derivatives kept for ``key`` (dropped from the memo), or None."""
+        return self.entries.pop(key, None)
 
 
 def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor], memo: Memo | None = None,
@@ -74,7 +94,7 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor], memo: Memo | 
     for k, term in enumerate(problem.terms[i].parts(PART)):
         derivs = _part_derivatives(problem.spans, term, ctrl, vals, order)
         if memo is not None:
-            memo[(i, k)] = derivs
+            memo.put((i, k), derivs)
         out.append(term.residuals([d[:term.order + 1] for d in derivs], term.per_sample(vals)))
     return torch.cat(out, -2)
 
@@ -144,7 +164,7 @@ class Linearization:
         rs, weights = [], []
         for i in range(len(p.terms)):
             parts = [self._add_part(acc, i, term, ctrl, values, w,
-                                    None if memo is None else memo.pop((i, k), None))
+                                    None if memo is None else memo.take((i, k)))
                      for k, term in enumerate(p.terms[i].parts(PART))]  # memory: a part
             rs.append(torch.cat([r for r, _ in parts], -2))
             weights.append(torch.cat([wt for _, wt in parts], -1))

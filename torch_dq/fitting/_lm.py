@@ -51,7 +51,7 @@ class Point:
     values: list[Tensor]
     objective: Tensor
     data: Tensor
-    memo: Memo = field(default_factory=dict, repr=False)
+    memo: Memo = field(default_factory=Memo, repr=False)
 
     def where(self, sel: Tensor, other: Point) -> Point:
         """``other`` where ``sel (...)`` holds (``other`` itself, its memo kept, where it
@@ -100,7 +100,7 @@ class LevenbergMarquardt:
         self.anchor, self.prior = values, prior
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
         self.w = problem.width(values)
-        memo: Memo = {}
+        memo = Memo()
         data = torch.stack(problem.data_cost(ctrl, values, memo)).sum(0)
         self.system = problem.system(ctrl, values, self.w, memo)
         self._null_of: System | None = None  # the system the null space was found for
@@ -289,7 +289,7 @@ class LevenbergMarquardt:
             dc, dn = self._in_time_trust(dc, dn)
             tc, tv = self.p.retract(x.ctrl, x.values, dc.reshape(*batch, self.n, 6),
                                     dn.reshape(*batch, self.p.m))
-            memo: Memo = {}
+            memo = Memo()
             td, to = self.objective(tc, tv, memo)
             acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
                                                                   x.objective.reshape(Bf))
