@@ -48,9 +48,7 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
-from ._cumulative import _conj_rows
 from ._numerics import even_slope
-from ._taylor import dq_rows, qmul_rows
 
 __all__ = ["vjp"]
 
@@ -61,16 +59,28 @@ __all__ = ["vjp"]
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross(a: Tensor, b: Tensor) -> Tensor:
-    """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
-    return torch.stack((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                        a[0] * b[1] - a[1] * b[0]))
+def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
+    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
+    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting): six fused multiply-adds
+    into ``out`` and no temporaries (``torch.linalg.cross`` over the first dim of broadcast
+    rows is several times slower, a stack of component products allocates each)."""
+    for i in range(3):
+        j, m = (i + 1) % 3, (i + 2) % 3
+        if acc:
+            out[i].addcmul_(a[j], b[m])
+        else:
+            torch.mul(a[j], b[m], out=out[i])
+        out[i].addcmul_(a[m], b[j], value=-1.0)
+    return out
 
 
 def _hat(u: Tensor) -> Tensor:
     """``(3, 3, S)`` cross-product matrices of ``(3, S)``."""
-    o = torch.zeros_like(u[0])
-    return torch.stack((o, -u[2], u[1], u[2], o, -u[0], -u[1], u[0], o)).unflatten(0, (3, 3))
+    out = u.new_zeros(3, 3, *u.shape[1:])
+    for i in range(3):
+        j, m = (i + 1) % 3, (i + 2) % 3
+        out[i, j], out[j, i] = -u[m], u[m]
+    return out
 
 
 def _powers(d: Tensor) -> tuple[Tensor, ...]:
@@ -79,10 +89,13 @@ def _powers(d: Tensor) -> tuple[Tensor, ...]:
     \varepsilon\, WV` (:math:`W_2 = w w^T - |w|^2 I`, :math:`WV = w v^T + v w^T - 2 (w
     \cdot v) I`), and the dual square ``s0, s1 (S,)``."""
     w, v = d[:3], d[3:]
-    eye = torch.eye(3, dtype=d.dtype, device=d.device)[..., None]
     s0, c = (w * w).sum(0), (w * v).sum(0)
-    return (_hat(w), _hat(v), w[:, None] * w[None] - s0 * eye,
-            w[:, None] * v[None] + v[:, None] * w[None] - 2.0 * c * eye, s0, 2.0 * c)
+    W2, WV = w[:, None] * w[None], w[:, None] * v[None]
+    WV += WV.transpose(0, 1).clone()
+    for i in range(3):
+        W2[i, i] -= s0
+        WV[i, i] -= 2.0 * c
+    return _hat(w), _hat(v), W2, WV, s0, 2.0 * c
 
 
 def _scalar(name: str, powers: tuple[Tensor, ...], scale: Tensor | float = 1.0,
@@ -112,53 +125,89 @@ def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
     return torch.cat((w, (B * x[None, :3]).sum(1) + (A * x[None, 3:]).sum(1)))
 
 
-def _rows(a: Tensor, m: tuple[Tensor, Tensor]) -> Tensor:
+def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: bool = False,
+          value: float = 1.0) -> Tensor:
     r"""Rows ``a (6, k, S)`` times the dual matrix ``m``: :math:`(a_\omega A + a_v B,\ a_v
-    A)`, accumulated in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
+    A)`, into ``out`` (fresh if None), or with ``acc`` added to it times ``value``: fused
+    multiply-adds in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
     several times more)."""
     A, B = m
-    out = torch.empty_like(a)
+    out = torch.empty_like(a) if out is None else out
     w, v = out[:3], out[3:]
-    torch.mul(a[0, None], A[0, :, None], out=w)
-    torch.mul(a[3, None], A[0, :, None], out=v)
     for i in range(3):
-        if i:
-            w.addcmul_(a[i, None], A[i, :, None])
-            v.addcmul_(a[3 + i, None], A[i, :, None])
-        w.addcmul_(a[3 + i, None], B[i, :, None])
+        if i or acc:
+            w.addcmul_(a[i, None], A[i, :, None], value=value)
+            v.addcmul_(a[3 + i, None], A[i, :, None], value=value)
+        else:
+            torch.mul(a[0, None], A[0, :, None], out=w)
+            torch.mul(a[3, None], A[0, :, None], out=v)
+        w.addcmul_(a[3 + i, None], B[i, :, None], value=value)
     return out
 
 
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
     r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)``."""
-    return torch.cat((_cross(a[:3], b[:3]), _cross(a[:3], b[3:]) + _cross(a[3:], b[:3])))
+    out = torch.empty_like(a)
+    _cross_into(out[:3], a[:3], b[:3])
+    _cross_into(out[3:], a[:3], b[3:])
+    _cross_into(out[3:], a[3:], b[:3], acc=True)
+    return out
 
 
-def _row_ad(a: Tensor, z: Tensor) -> Tensor:
-    r"""Rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z (6, S)``):
-    :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`."""
+def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
+    r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
+    (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
+    place."""
     z = z[:, None]
-    return torch.cat((_cross(a[:3], z[:3]) + _cross(a[3:], z[3:]), _cross(a[3:], z[:3])))
+    _cross_into(out[:3], a[:3], z[:3], acc=True)
+    _cross_into(out[:3], a[3:], z[3:], acc=True)
+    _cross_into(out[3:], a[3:], z[:3], acc=True)
+    return out
 
 
-def _left_t(x: Tensor, g: Tensor) -> Tensor:
-    r""":math:`L(x)^T g` (``x (8, 1, S)``, rows ``g (8, k, S)``): the cotangent of ``y``
-    through :math:`y \mapsto x y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
-    c = _conj_rows(x)
-    return torch.cat((qmul_rows(c[:4], g[:4]) + qmul_rows(c[4:], g[4:]), qmul_rows(c[:4], g[4:])))
+def _conj_vec(out: Tensor, q: tuple[Tensor | None, Tensor], u: Tensor, left: bool,
+              acc: bool = False) -> Tensor:
+    r"""``out (3, k, S)`` :math:`{} = ` (``acc``: :math:`{} \mathrel{+}=`) the vector part of
+    :math:`q^* u` (``left``) or of :math:`u q^*`, :math:`q_0 u_v - u_0 q_v \pm u_v \times
+    q_v`, of per-sample quaternions ``q = (q_0 (1, S), q_v (3, 1, S))`` (``q_0`` None: a
+    pure one) and rows ``u (4, k, S)``, in place."""
+    q0, qv = q
+    if acc:
+        if q0 is not None:
+            out.addcmul_(u[1:], q0)
+        out.addcmul_(u[0], qv, value=-1.0)
+    elif q0 is None:
+        torch.mul(u[0], qv, out=out).neg_()
+    else:
+        torch.mul(u[1:], q0, out=out).addcmul_(u[0], qv, value=-1.0)
+    return _cross_into(out, u[1:], qv, acc=True) if left else _cross_into(out, qv, u[1:],
+                                                                          acc=True)
 
 
-def _right_t(x: Tensor, u: Tensor) -> Tensor:
-    r""":math:`R(x)^T u`: the cotangent of ``y`` through :math:`y \mapsto y x`,
-    :math:`(u_a r^* + u_b d^*,\ u_b r^*)`."""
-    c = _conj_rows(x)
-    return torch.cat((qmul_rows(u[:4], c[:4]) + qmul_rows(u[4:], c[4:]), qmul_rows(u[4:], c[:4])))
+def _halves(X: Tensor) -> tuple[tuple[Tensor, Tensor], tuple[Tensor, Tensor]]:
+    """The real and dual quaternions of per-sample ``X (8, S)`` as :func:`_conj_vec`'s
+    ``(q_0 (1, S), q_v (3, 1, S))``."""
+    X = X[:, None]
+    return (X[0], X[1:4]), (X[4], X[5:8])
 
 
-def _pure(xi: Tensor) -> Tensor:
-    r""":math:`h(\xi) = (0, \omega/2, 0, v/2)` ``(8, ...)`` of twists ``(6, ...)``."""
-    zero = torch.zeros_like(xi[:1])
-    return torch.cat((zero, 0.5 * xi[:3], zero, 0.5 * xi[3:]))
+def _left_t(X: Tensor, g: Tensor) -> Tensor:
+    r""":math:`L(X)^T g` (``X (8, S)``, rows ``g (8, n, S)``): the cotangent of ``y`` through
+    :math:`y \mapsto X y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
+    r, d = _halves(X)
+    out = torch.empty_like(g)
+    ga, gb = g[:4], g[4:]
+    _conj_vec(out[1:4], r, ga, True)
+    _conj_vec(out[1:4], d, gb, True, acc=True)
+    _conj_vec(out[5:8], r, gb, True)
+    for o, terms in ((0, ((r, ga), (d, gb))), (4, ((r, gb),))):  # q0 u0 + q_v . u_v
+        torch.mul(terms[0][1][0], terms[0][0][0], out=out[o])
+        for i, (q, u) in enumerate(terms):
+            if i:
+                out[o].addcmul_(u[0], q[0])
+            for c in range(3):
+                out[o].addcmul_(u[1 + c], q[1][c])
+    return out
 
 
 def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
@@ -194,55 +243,85 @@ def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
     return out
 
 
-def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> list[Tensor]:
-    r"""Cotangent rows ``(6, k, S)`` of the pose's right step, of :math:`V` and of
-    :math:`\dot V` (the orders there are) from those ``g (O, 8, k, S)`` of :math:`X, \dot X,
+def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> Tensor:
+    r"""Cotangent rows ``(6, O, k, S)`` of the pose's right step, of :math:`V` and of
+    :math:`\dot V` (the orders there are) from those ``g (8, O, k, S)`` of :math:`X, \dot X,
     \ddot X`: :math:`\mathrm d X = X h(\xi)`, :math:`\mathrm d\dot X = X h(\xi) h(V) + X
     h(\mathrm dV)`, :math:`\mathrm d\ddot X = X h(\xi) (h(V)^2 + h(\dot V)) + X (h(\mathrm
     dV) h(V) + h(V) h(\mathrm dV) + h(\mathrm d\dot V))` (:math:`\dot X = X h(V)`,
-    :math:`\ddot X = X (h(V)^2 + h(\dot V))`)."""
-    O = g.shape[0]
-    u = [_left_t(X[:, None], g[o]) for o in range(O)]
-    pose, rates = u[0], []
+    :math:`\ddot X = X (h(V)^2 + h(\dot V))`). With :math:`u_o = L(X)^T g_o` and
+    :math:`P` the vector parts of both halves times 1/2 (the cotangent of :math:`h`): pose
+    :math:`P(u_0 + R(h(V))^T u_1 + R(h(V)^2 + h(\dot V))^T u_2)`, :math:`V`:
+    :math:`P(u_1 + (R + L)(h(V))^T u_2)`, :math:`\dot V`: :math:`P u_2`; the vector parts
+    alone are formed, and :math:`P (R + L)(h)^T u = -\frac12 (u_{a0} \omega + u_{b0} v,\
+    u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel)."""
+    _, O, k, S = g.shape
+    out = g.new_empty(6, O, k, S)
+    r, d = _halves(X)
+    pw, pv = out[:3, 0], out[3:, 0]
+    _conj_vec(pw, r, g[:4, 0], True)
+    _conj_vec(pw, d, g[4:, 0], True, acc=True)
+    _conj_vec(pv, r, g[4:, 0], True)
     if O > 1:
-        hV = _pure(V)[:, None]
-        pose = pose + _right_t(hV, u[1])
-        rate = u[1]
-        if O > 2:
-            H2 = dq_rows(hV, hV) + _pure(Vd)[:, None]
-            pose = pose + _right_t(H2, u[2])
-            rate = rate + _right_t(hV, u[2]) + _left_t(hV, u[2])
-        rates.append(rate)
-        if O > 2:
-            rates.append(u[2])
-    return [0.5 * torch.cat((c[1:4], c[5:8])) for c in [pose, *rates]]
+        u = _left_t(X, g[:, 1:].reshape(8, (O - 1) * k, S)).view(8, O - 1, k, S)
+        out[:3, 1:], out[3:, 1:] = u[1:4], u[5:8]
+        w, v = 0.5 * V[:3, None], 0.5 * V[3:, None]
+        _conj_vec(pw, (None, w), u[:4, 0], False, acc=True)
+        _conj_vec(pw, (None, v), u[4:, 0], False, acc=True)
+        _conj_vec(pv, (None, w), u[4:, 0], False, acc=True)
+    if O > 2:
+        hr = (-(w * w).sum(0), 0.5 * Vd[:3, None])  # h(V)^2 + h(Vd)
+        hd = (-2.0 * (w * v).sum(0), 0.5 * Vd[3:, None])
+        _conj_vec(pw, hr, u[:4, 1], False, acc=True)
+        _conj_vec(pw, hd, u[4:, 1], False, acc=True)
+        _conj_vec(pv, hr, u[4:, 1], False, acc=True)
+        rw, rv = out[:3, 1], out[3:, 1]
+        rw.addcmul_(u[0, 1], V[:3, None], value=-1.0).addcmul_(u[4, 1], V[3:, None], value=-1.0)
+        rv.addcmul_(u[4, 1], V[:3, None], value=-1.0)
+    return out.mul_(0.5)
 
 
-def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], rows: list[Tensor],
+def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
               ) -> tuple[list[Tensor], Tensor]:
-    r"""The recursions run backwards from the cotangent ``rows`` (:func:`_algebra_cotangents`):
-    those ``(6, k, S)`` of every :math:`d_j` and of the first point's step (through the
-    pose alone)."""
-    O, p = len(rows), d.shape[0]
-    a = list(rows)  # pose, V, Vd
+    r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
+    (:func:`_algebra_cotangents`, updated in place): those ``(6, k, S)`` of every
+    :math:`d_j` and of the first point's step (through the pose alone)."""
+    O, p = a.shape[1], d.shape[0]
     out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         if O > 2:
-            a[1] = a[1] - lj[1] * _row_ad(a[2], dj)
-        t = a[0]
+            _row_ad(a[:, 2], -lj[1] * dj, a[:, 1])
+        t = a[:, 0].clone()
         if O > 1:
-            t = t + _row_ad(a[1], fw["z"][j])
+            _row_ad(a[:, 1], fw["z"][j], t)
         if O > 2:
-            t = t + _row_ad(a[2], fw["zd"][j])
+            _row_ad(a[:, 2], fw["zd"][j], t)
         c = _rows(t, fw["Jr"][j])
         if O > 1:
-            c = c + lj[1] * a[1]
+            c.addcmul_(a[:, 1], lj[1])
         if O > 2:
-            c = c + lj[2] * a[2] + lj[1] * _row_ad(a[2], fw["V"][j])
+            _row_ad(a[:, 2], lj[1] * fw["V"][j], c.addcmul_(a[:, 2], lj[2]))
         out.append(c)
-        a = [_rows(r, fw["M"][j]) for r in a]
-    return out[::-1], a[0]
+        a = _rows(a.view(6, -1, a.shape[-1]), fw["M"][j]).view(a.shape)
+    return out[::-1], a[:, 0]
+
+
+def _span_parts(points: Tensor) -> Tensor:
+    r"""``(p, 42, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows) and
+    the dual matrices :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and
+    :math:`J_l^{-1}(d_j) = J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi
+    + \gamma \Phi^2` (``(2, 2, 3, 3)`` flat: matrix, real and dual part), from the span's
+    control points ``(U, p + 1, 8)``: what is constant on a span, once per span."""
+    rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
+    d = dualquat.log(rel).permute(1, 2, 0)
+    parts = []
+    for dj in d:
+        pw = _powers(dj)
+        c3, half = _scalar("se3_c3", pw), torch.full_like(pw[4], 0.5)
+        mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
+        parts.append(torch.cat((dj, torch.stack(mats).flatten(0, -2))))
+    return torch.stack(parts)
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -260,24 +339,21 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
 
     Returns:
         ``(S, k, p + 1, 6)``: :math:`\sum_o \mathrm{cot}_o \cdot \partial X^{(o)} /
-        \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`.
+        \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
+        permuted view of a component-major array.
     """
     p = points.shape[-2] - 1
-    rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
-    d = dualquat.log(rel).permute(1, 2, 0).index_select(-1, inverse)  # (p, 6, S)
-    powers = [_powers(dj) for dj in d]
+    span = _span_parts(points).index_select(-1, inverse)  # (p, 42, S)
+    d, fin = span[:, :6], span[:, 6:].unflatten(1, (2, 2, 3, 3))
     lam = [w.T.contiguous() for w in weights]
-    fw = _forward(d, powers, lam)
+    fw = _forward(d, [_powers(dj) for dj in d], lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(2, 3, 1, 0).contiguous())
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(3, 2, 1, 0).contiguous())
     cd, first = _backward(fw, d, lam, rows)
-    steps = [first] + [torch.zeros_like(first)] * p
-    for j, c in enumerate(cd):  # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad delta_{j-1})
-        pw = powers[j]
-        half = torch.full_like(pw[4], 0.5)
-        sig, alp = _scalar("sinc", pw), _scalar("se3_c1", pw)
-        y = _rows(c, _polynomial(pw, 1.0, (half, torch.zeros_like(half)),
-                                 _scalar("se3_c3", pw)))
-        steps[j + 1] = steps[j + 1] + y
-        steps[j] = steps[j] - _rows(y, _polynomial(pw, 1.0, (-sig[0], -sig[1]), alp))
-    return torch.stack(steps).permute(3, 2, 0, 1)
+    # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
+    steps = first.new_empty(p + 1, *first.shape)
+    steps[0] = first
+    for j, c in enumerate(cd):
+        _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
+        _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
+    return steps.permute(3, 2, 0, 1)
