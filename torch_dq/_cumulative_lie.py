@@ -308,11 +308,12 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
 
 
 def _span_parts(points: Tensor) -> Tensor:
-    r"""``(p, 42, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows) and
-    the dual matrices :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and
-    :math:`J_l^{-1}(d_j) = J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi
-    + \gamma \Phi^2` (``(2, 2, 3, 3)`` flat: matrix, real and dual part), from the span's
-    control points ``(U, p + 1, 8)``: what is constant on a span, once per span."""
+    r"""``(p, 80, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows), its
+    :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
+    :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
+    J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi + \gamma \Phi^2`
+    (36 rows: ``(2, 2, 3, 3)`` flat, matrix, real and dual part), from the span's control
+    points ``(U, p + 1, 8)``: what is constant on a span, once per span (:func:`_unpack`)."""
     rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
     d = dualquat.log(rel).permute(1, 2, 0)
     parts = []
@@ -320,8 +321,17 @@ def _span_parts(points: Tensor) -> Tensor:
         pw = _powers(dj)
         c3, half = _scalar("se3_c3", pw), torch.full_like(pw[4], 0.5)
         mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
-        parts.append(torch.cat((dj, torch.stack(mats).flatten(0, -2))))
+        parts.append(torch.cat((dj, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
+                                torch.stack(mats).flatten(0, -2))))
     return torch.stack(parts)
+
+
+def _unpack(span: Tensor) -> tuple[Tensor, list[tuple[Tensor, ...]], Tensor]:
+    """:func:`_span_parts`' rows (gathered per sample, ``(p, 80, S)``): the twists ``(p, 6,
+    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)``."""
+    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(span[:, 6:42], span[:, 42:44],
+                                                                strict=True)]
+    return span[:, :6], powers, span[:, 44:].unflatten(1, (2, 2, 3, 3))
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -343,10 +353,9 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         permuted view of a component-major array.
     """
     p = points.shape[-2] - 1
-    span = _span_parts(points).index_select(-1, inverse)  # (p, 42, S)
-    d, fin = span[:, :6], span[:, 6:].unflatten(1, (2, 2, 3, 3))
+    d, powers, fin = _unpack(_span_parts(points).index_select(-1, inverse))
     lam = [w.T.contiguous() for w in weights]
-    fw = _forward(d, [_powers(dj) for dj in d], lam)
+    fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
     rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(3, 2, 1, 0).contiguous())
     cd, first = _backward(fw, d, lam, rows)
