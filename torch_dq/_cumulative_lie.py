@@ -48,7 +48,7 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
-from ._numerics import even_slope
+from ._numerics import even_slopes
 
 __all__ = ["vjp"]
 
@@ -98,12 +98,13 @@ def _powers(d: Tensor) -> tuple[Tensor, ...]:
     return _hat(w), _hat(v), W2, WV, s0, 2.0 * c
 
 
-def _scalar(name: str, powers: tuple[Tensor, ...], scale: Tensor | float = 1.0,
-            ) -> tuple[Tensor, Tensor]:
-    """The even function ``name`` at the dual square of ``scale`` times the twists of
-    ``powers``: real and dual parts."""
-    f, slope = even_slope(name, scale * scale * powers[4])
-    return f, slope * (scale * scale * powers[5])
+def _scalars(names: tuple[str, ...], powers: tuple[Tensor, ...], scale: Tensor | float = 1.0,
+             ) -> list[tuple[Tensor, Tensor]]:
+    """The even functions ``names`` at the dual square of ``scale`` times the twists of
+    ``powers``: real and dual parts (one :func:`~torch_dq._numerics.even_slopes` pass)."""
+    square = scale * scale
+    return [(f, slope * (square * powers[5]))
+            for f, slope in even_slopes(names, square * powers[4])]
 
 
 def _polynomial(powers: tuple[Tensor, ...], c0: Tensor | float, c1: tuple[Tensor, Tensor],
@@ -226,8 +227,7 @@ def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
     for j, dj in enumerate(d):
         pw, l1 = powers[j], lam[0][j]
         l2 = l1 * l1
-        sig, alp = _scalar("sinc", pw, l1), _scalar("se3_c1", pw, l1)
-        bet = _scalar("se3_c2", pw, l1)
+        sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), pw, l1)
         out["M"].append(_polynomial(pw, 1.0, (-l1 * sig[0], -l1 * sig[1]),
                                     (l2 * alp[0], l2 * alp[1])))
         out["Jr"].append(_polynomial(pw, l1, (-l2 * alp[0], -l2 * alp[1]),
@@ -315,11 +315,11 @@ def _span_parts(points: Tensor) -> Tensor:
     (36 rows: ``(2, 2, 3, 3)`` flat, matrix, real and dual part), from the span's control
     points ``(U, p + 1, 8)``: what is constant on a span, once per span (:func:`_unpack`)."""
     rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
-    d = dualquat.log(rel).permute(1, 2, 0)
+    d = dualquat.log(rel).permute(1, 2, 0).contiguous()
     parts = []
     for dj in d:
         pw = _powers(dj)
-        c3, half = _scalar("se3_c3", pw), torch.full_like(pw[4], 0.5)
+        (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
         mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
         parts.append(torch.cat((dj, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
                                 torch.stack(mats).flatten(0, -2))))
@@ -353,7 +353,9 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         permuted view of a component-major array.
     """
     p = points.shape[-2] - 1
-    d, powers, fin = _unpack(_span_parts(points).index_select(-1, inverse))
+    span = _span_parts(points)  # gathered by sample (faster than index_select on the last dim)
+    d, powers, fin = _unpack(span.flatten(0, 1).gather(1, inverse.expand(span.shape[0] * 80, -1))
+                             .view(*span.shape[:2], -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
