@@ -53,7 +53,7 @@ import math
 import torch
 from torch import Tensor
 
-from . import _taylor
+from . import _cumulative_lie, _taylor
 from ._dispatch import per_time_jets
 from ._kernels import cumulative as _poses_kernel
 from ._kernels import cumulative_jets as _derivatives_kernel
@@ -186,6 +186,8 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     """
     p, N = weights[0].shape
     order = len(weights) - 1
+    if N and _cumulative_lie.applies(ctrl, weights):
+        return _cumulative_lie.derivatives(ctrl, first, weights)
     if order == 0:
         return [poses(ctrl, first, weights[0])]
     if N == 0:

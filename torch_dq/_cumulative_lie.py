@@ -48,9 +48,9 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
-from ._numerics import even_slopes
+from ._numerics import even, even_slopes
 
-__all__ = ["vjp"]
+__all__ = ["applies", "derivatives", "vjp"]
 
 # Component-major layout: every per-sample quantity is ``(components..., S)`` (``S`` the
 # samples), so each operation below is one elementwise pass over contiguous rows (batched
@@ -72,6 +72,12 @@ def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
             torch.mul(a[j], b[m], out=out[i])
         out[i].addcmul_(a[m], b[j], value=-1.0)
     return out
+
+
+def _shape(a: Tensor, b: Tensor) -> tuple[int, ...]:
+    """The broadcast shape of ``a`` and ``b`` of one rank (``torch.broadcast_shapes`` is a
+    Python loop several times slower)."""
+    return tuple(max(x, y) for x, y in zip(a.shape, b.shape, strict=True))
 
 
 def _hat(u: Tensor) -> Tensor:
@@ -147,8 +153,8 @@ def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: b
 
 
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
-    r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)``."""
-    out = torch.empty_like(a)
+    r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)`` (broadcasting)."""
+    out = a.new_empty(_shape(a, b))
     _cross_into(out[:3], a[:3], b[:3])
     _cross_into(out[3:], a[:3], b[3:])
     _cross_into(out[3:], a[3:], b[:3], acc=True)
@@ -368,3 +374,154 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
         _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
     return steps.permute(3, 2, 0, 1)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+def applies(ctrl: Tensor, weights: list[Tensor]) -> bool:
+    """Whether :func:`derivatives` evaluates: float64, orders 0 to 2, nothing differentiated
+    (no autograd graph is recorded: reverse mode goes through the span tables), eagerly."""
+    grad = torch.is_grad_enabled() and any(x.requires_grad for x in (ctrl, *weights))
+    return (ctrl.dtype == torch.float64 and len(weights) <= 3 and not grad
+            and not torch.compiler.is_compiling())
+
+
+def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
+    r"""``(6, p, N)``: the twists :math:`d_j = \mathrm{Log}(c_{f+j}^{-1} c_{f+j+1})` of each
+    time's span (``first`` ``f``), from every neighbouring pair of ``ctrl (M, 8)`` once
+    where the times read most of them, else per time."""
+    steps = torch.arange(p + 1, device=first.device)
+    if ctrl.shape[0] - 1 <= p * first.shape[0]:
+        rel = dq_mul(dualquat.conj(ctrl[:-1]), ctrl[1:])
+        idx = (first + steps[:-1, None]).flatten()
+        return dualquat.log(rel).index_select(0, idx).T.contiguous().view(6, p, -1)
+    pts = ctrl[first[:, None] + steps]
+    rel = dq_mul(dualquat.conj(pts[:, :-1]), pts[:, 1:])
+    return dualquat.log(rel).permute(2, 1, 0).contiguous()
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
+    return _cross_into(a.new_empty(_shape(a, b)), a, b)
+
+
+#: The Hamilton product's terms per output component: ``(i, j, sign)`` of :math:`a_i b_j`.
+_HAMILTON = (((0, 0, 1.0), (1, 1, -1.0), (2, 2, -1.0), (3, 3, -1.0)),
+             ((0, 1, 1.0), (1, 0, 1.0), (2, 3, 1.0), (3, 2, -1.0)),
+             ((0, 2, 1.0), (1, 3, -1.0), (2, 0, 1.0), (3, 1, 1.0)),
+             ((0, 3, 1.0), (1, 2, 1.0), (2, 1, -1.0), (3, 0, 1.0)))
+
+
+def _dq_rows(a: Tensor, b: Tensor) -> Tensor:
+    r"""Dual-quaternion products :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
+    ``(8, N)``: :func:`torch_dq._taylor.dq_rows` as fused multiply-adds into one fresh
+    array (no per-term temporaries, no stack)."""
+    out = torch.empty_like(a)
+    for half, pairs in ((out[:4], ((a[:4], b[:4]),)), (out[4:], ((a[:4], b[4:]),
+                                                                 (a[4:], b[:4])))):
+        for o, terms in enumerate(_HAMILTON):
+            for n, (x, y) in enumerate(pairs):
+                for m, (i, j, sign) in enumerate(terms):
+                    if n == m == 0:
+                        torch.mul(x[i], y[j], out=half[o])
+                    else:
+                        half[o].addcmul_(x[i], y[j], value=sign)
+    return out
+
+
+def _exp_rows(xi: Tensor, x2: Tensor, c1: Tensor, c2: Tensor) -> Tensor:
+    r""":math:`\mathrm{Exp}(\xi)` ``(8, ...)`` of twists ``xi (6, ...)`` as
+    :func:`torch_dq.dualquat.exp`: :math:`r = (\cos\frac\theta2, \mathrm{sinc}\frac\theta2\,
+    \frac\omega2)`, :math:`t = v + c_1 \omega \times v + c_2 \omega \times (\omega \times v)`,
+    dual part :math:`\frac12 (0, t)\, r`; ``x2`` :math:`= \theta^2`, ``c1, c2`` ``se3_c1,
+    se3_c2`` there."""
+    w, v = xi[:3], xi[3:]
+    out = xi.new_empty(8, *xi.shape[1:])
+    out[0] = even("cos", 0.25 * x2)
+    torch.mul(w, 0.5 * even("sinc", 0.25 * x2), out=out[1:4])
+    wxv = _cross(w, v)
+    t = (v + c1 * wxv).addcmul_(_cross(w, wxv), c2)
+    out[4] = -0.5 * (t * out[1:4]).sum(0)
+    _cross_into(out[5:], t, out[1:4])
+    out[5:].addcmul_(t, out[0]).mul_(0.5)
+    return out
+
+
+def _adjoint(d: Tensor, c1: tuple[Tensor, Tensor], c2: tuple[Tensor, Tensor], y: Tensor,
+             ) -> Tensor:
+    r""":math:`M y = y + c_1 [d, y] + c_2 [d, [d, y]]` (:func:`_forward`'s :math:`M_j` without
+    its matrices) for twists ``d (6, 1, N)``, ``y (6, n, N)`` and dual scalars ``c1, c2``
+    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`)."""
+    out = y.clone()
+    b = _bracket(d, y)
+    for (a, e), z in ((c1, b), (c2, _bracket(d, b))):
+        out.addcmul_(z, a)
+        out[3:].addcmul_(z[:3], e)
+    return out
+
+
+def _pure_rows(xi: Tensor) -> Tensor:
+    r""":math:`h(\xi) = (0, \omega/2, 0, v/2)` ``(8, N)`` of twists ``(6, N)``."""
+    out = xi.new_zeros(8, xi.shape[1])
+    torch.mul(xi[:3], 0.5, out=out[1:4])
+    torch.mul(xi[3:], 0.5, out=out[5:])
+    return out
+
+
+def _rates(d: Tensor, weights: list[Tensor], sig: tuple[Tensor, Tensor],
+           alp: tuple[Tensor, Tensor]) -> Tensor:
+    r""":math:`V` and :math:`\dot V` ``(6, 2, N)`` (:math:`\dot V` zero at order 1) by the
+    recursions of the module docstring with :math:`M_j y = y - \lambda \sigma [d_j, y] +
+    \lambda^2 \alpha [d_j, [d_j, y]]` (:func:`_adjoint`; ``sig, alp`` at the dual squares
+    :math:`\lambda^2 s`, ``(p, N)`` each); :math:`V_0 = \dot\lambda_0 d_0`, :math:`\dot
+    V_0 = \ddot\lambda_0 d_0` (:math:`[V_0, d_0] = 0`)."""
+    w, v = d[:3], d[3:]
+    dual = 2.0 * weights[0] * weights[0] * (w * v).sum(0)
+    c1 = (-weights[0] * sig[0], -weights[0] * sig[1] * dual)
+    c2 = (weights[0] * weights[0] * alp[0], weights[0] * weights[0] * alp[1] * dual)
+    lam = [weights[1], weights[2] if len(weights) > 2 else torch.zeros_like(weights[1])]
+    R = torch.stack([d[:, 0] * x[0] for x in lam], 1)
+    for j in range(1, d.shape[1]):
+        dj = d[:, j, None]
+        R = _adjoint(dj, tuple(x[j] for x in c1), tuple(x[j] for x in c2), R)
+        R.addcmul_(dj, torch.stack([x[j] for x in lam])[None])
+        if len(weights) > 2:
+            R[:, 1].addcmul_(_bracket(R[:, 0], d[:, j]), lam[0][j])
+    return R
+
+
+def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tensor]:
+    r"""The cumulative form and its time derivatives to order 2 by the recursions of the
+    module docstring, without the span tables (:func:`applies`; the values of
+    :func:`torch_dq._cumulative.derivatives` to rounding): :math:`X = c_f \prod_j
+    \mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X = X h(V)`, :math:`\ddot X = X (h(V)^2 +
+    h(\dot V))`, every :math:`d_j` from one logarithm per neighbouring pair, the weights'
+    functions of all steps at once.
+
+    Args:
+        ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).
+        first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`.
+        weights: ``order + 1 <= 3`` tensors ``(p, N)``: the cumulative basis and its time
+            derivatives, float64.
+
+    Returns:
+        ``order + 1`` tensors ``(N, 8)``.
+    """
+    d = _pair_twists(ctrl, first, weights[0].shape[0])  # (6, p, N)
+    x2 = weights[0] * weights[0] * (d[:3] * d[:3]).sum(0)
+    sig, alp, bet = even_slopes(("sinc", "se3_c1", "se3_c2"), x2)
+    E = _exp_rows(d * weights[0], x2, alp[0], bet[0])
+    X = ctrl.index_select(0, first).T.contiguous()
+    for j in range(E.shape[1]):
+        X = _dq_rows(X, E[:, j])
+    out = [X]
+    if len(weights) > 1:
+        R = _rates(d, weights, sig, alp)
+        hV = _pure_rows(R[:, 0])
+        out.append(_dq_rows(X, hV))
+        if len(weights) > 2:
+            H = _pure_rows(R[:, 1])  # h(V)^2 + h(Vd): (-|w|^2, h_w; -2 w.v, h_v), w = V_w / 2
+            H[0] = -(hV[1:4] * hV[1:4]).sum(0)
+            H[4] = -2.0 * (hV[1:4] * hV[5:]).sum(0)
+            out.append(_dq_rows(X, H))
+    return [x.T.contiguous() for x in out]
