@@ -48,7 +48,7 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
-from ._numerics import even, even_slopes
+from ._numerics import even_slopes, evens
 
 __all__ = ["applies", "derivatives", "vjp"]
 
@@ -378,12 +378,21 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
 
 # ----------------------------------------------------------------------------- evaluation
 
+#: How far from unit (:func:`torch_dq.dualquat.is_unit`'s measure) the control points of
+#: :func:`derivatives` may be: its logarithms and exponentials read unit dual quaternions,
+#: where the span tables multiply the points as they are (the two differ by about the
+#: defect times the translation over the knot spacing squared in an acceleration).
+UNIT_ATOL = 64 * torch.finfo(torch.float64).eps
+
+
 def applies(ctrl: Tensor, weights: list[Tensor]) -> bool:
-    """Whether :func:`derivatives` evaluates: float64, orders 0 to 2, nothing differentiated
-    (no autograd graph is recorded: reverse mode goes through the span tables), eagerly."""
+    """Whether :func:`derivatives` evaluates: float64 on the CPU, orders 0 to 2, nothing
+    differentiated (no autograd graph is recorded: reverse mode goes through the span
+    tables), eagerly, and unit control points to :data:`UNIT_ATOL` (one read of a flag)."""
     grad = torch.is_grad_enabled() and any(x.requires_grad for x in (ctrl, *weights))
-    return (ctrl.dtype == torch.float64 and len(weights) <= 3 and not grad
-            and not torch.compiler.is_compiling())
+    return (ctrl.dtype == torch.float64 and ctrl.device.type == "cpu" and len(weights) <= 3
+            and not grad and not torch.compiler.is_compiling()
+            and bool(dualquat.is_unit(ctrl, UNIT_ATOL).all()))
 
 
 def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
@@ -437,8 +446,8 @@ def _exp_rows(xi: Tensor, x2: Tensor, c1: Tensor, c2: Tensor) -> Tensor:
     se3_c2`` there."""
     w, v = xi[:3], xi[3:]
     out = xi.new_empty(8, *xi.shape[1:])
-    out[0] = even("cos", 0.25 * x2)
-    torch.mul(w, 0.5 * even("sinc", 0.25 * x2), out=out[1:4])
+    out[0], sinc = evens(("cos", "sinc"), 0.25 * x2)
+    torch.mul(w, 0.5 * sinc, out=out[1:4])
     wxv = _cross(w, v)
     t = (v + c1 * wxv).addcmul_(_cross(w, wxv), c2)
     out[4] = -0.5 * (t * out[1:4]).sum(0)

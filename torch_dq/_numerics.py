@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import cast
 
 import torch
 from torch import Tensor
 
 __all__ = [
     "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
-    "nan_unless",
+    "evens", "nan_unless",
     "piecewise", "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms",
     "select", "series_mask", "threshold",
 ]
@@ -321,6 +322,19 @@ def even_slopes(names: tuple[str, ...], x2: Tensor) -> list[tuple[Tensor, Tensor
     decides whether they are evaluated at all: near the identity, the common case, they are
     not; other devices evaluate them always, without a host sync). Not for ``torch.func``
     transforms (the flag), which the span kernels that use it do not run under."""
+    series, slope = _even_rows(names, x2, True)
+    return list(zip(series.unbind(0), cast(Tensor, slope).unbind(0), strict=True))
+
+
+def evens(names: tuple[str, ...], x2: Tensor) -> list[Tensor]:
+    """:func:`even` of several functions at the same ``x2``, the same numbers, as
+    :func:`even_slopes` evaluates them (values alone: ``"cos"`` too)."""
+    return list(_even_rows(names, x2, False)[0].unbind(0))
+
+
+def _even_rows(names: tuple[str, ...], x2: Tensor, slopes: bool,
+               ) -> tuple[Tensor, Tensor | None]:
+    """:func:`even_slopes`' values and (``slopes``) slopes, ``(len(names), ...)`` each."""
     rows = (len(names),) + (1,) * x2.dim()
     dtype = compute_dtype(x2.dtype)
     coeffs = [_EVEN[n][0] for n in names]
@@ -328,18 +342,19 @@ def even_slopes(names: tuple[str, ...], x2: Tensor) -> list[tuple[Tensor, Tensor
     # columns (len(names), 1, ...) of the coefficients and of the slope's, i c_i
     cs = x2.new_tensor([[c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
     ds = x2.new_tensor([[i * c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
-    series, slope = cs[-1], ds[-1]
+    series, slope = cs[-1], ds[-1] if slopes else None
     for i in reversed(range(_EVEN_TERMS - 1)):
         series = series * x2 + cs[i]
-        if i:
+        if i and slope is not None:
             slope = slope * x2 + ds[i]
     if x2.device.type != "cpu" or not bool(small.all()):
         th = torch.sqrt(torch.where(small, 1.0, x2))
         series = torch.where(small, series, torch.stack(
             [_EVEN[n][1](t) for n, t in zip(names, th, strict=True)]))
-        slope = torch.where(small, slope, torch.stack(
-            [_EVEN_SLOPES[n](t) for n, t in zip(names, th, strict=True)]))
-    return list(zip(series.unbind(0), slope.unbind(0), strict=True))
+        if slope is not None:
+            slope = torch.where(small, slope, torch.stack(
+                [_EVEN_SLOPES[n](t) for n, t in zip(names, th, strict=True)]))
+    return series, slope
 
 
 def power_of_two_scale(x: Tensor) -> Tensor:
