@@ -225,8 +225,8 @@ def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
     \sigma \Phi + \lambda^2 \alpha \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I
     - \lambda^2 \alpha \Phi + \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the
     coefficients at :math:`\lambda^2 s`), :math:`z_j = M_j V_{j-1}`, :math:`\dot z_j = M_j
-    \dot V_{j-1}`, :math:`V_j`; the last :math:`V, \dot V` (those the weights' orders
-    reach)."""
+    \dot V_{j-1}` (None at ``j = 0``, where they vanish), :math:`V_j`; the last :math:`V, \dot
+    V` (those the weights' orders reach)."""
     O = len(lam)
     out: dict[str, list] = {"M": [], "Jr": [], "z": [], "zd": [], "V": []}
     V = Vd = d.new_zeros(d.shape[1:])
@@ -238,13 +238,14 @@ def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
                                     (l2 * alp[0], l2 * alp[1])))
         out["Jr"].append(_polynomial(pw, l1, (-l2 * alp[0], -l2 * alp[1]),
                                      (l2 * l1 * bet[0], l2 * l1 * bet[1])))
-        if O > 1:
-            out["z"].append(_apply(out["M"][j], V))
-            V = out["z"][j] + lam[1][j] * dj
+        if O > 1:  # from V_0 = lam'_0 d_0, Vd_0 = lam''_0 d_0: z_0 = zd_0 = 0 (None)
+            out["z"].append(_apply(out["M"][j], V) if j else None)
+            V = out["z"][j] + lam[1][j] * dj if j else lam[1][j] * dj
             out["V"].append(V)
         if O > 2:
-            out["zd"].append(_apply(out["M"][j], Vd))
-            Vd = out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj)
+            out["zd"].append(_apply(out["M"][j], Vd) if j else None)
+            Vd = (out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj) if j
+                  else lam[2][j] * dj)
     out["last"] = [V, Vd]
     return out
 
@@ -299,9 +300,9 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
         if O > 2:
             _row_ad(a[:, 2], -lj[1] * dj, a[:, 1])
         t = a[:, 0].clone()
-        if O > 1:
+        if O > 1 and j:
             _row_ad(a[:, 1], fw["z"][j], t)
-        if O > 2:
+        if O > 2 and j:
             _row_ad(a[:, 2], fw["zd"][j], t)
         c = _rows(t, fw["Jr"][j])
         if O > 1:
@@ -309,7 +310,9 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
         if O > 2:
             _row_ad(a[:, 2], lj[1] * fw["V"][j], c.addcmul_(a[:, 2], lj[2]))
         out.append(c)
-        a = _rows(a.view(6, -1, a.shape[-1]), fw["M"][j]).view(a.shape)
+        # at the first step only the pose's rows go on (to the first point's step)
+        a = (_rows(a.view(6, -1, a.shape[-1]), fw["M"][j]).view(a.shape) if j
+             else _rows(a[:, 0], fw["M"][j])[:, None])
     return out[::-1], a[:, 0]
 
 
