@@ -406,7 +406,8 @@ def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
     if ctrl.shape[0] - 1 <= p * first.shape[0]:
         rel = dq_mul(dualquat.conj(ctrl[:-1]), ctrl[1:])
         idx = (first + steps[:-1, None]).flatten()
-        return dualquat.log(rel).index_select(0, idx).T.contiguous().view(6, p, -1)
+        twists = dualquat.log(rel).T.contiguous()
+        return twists.gather(1, idx.expand(6, -1)).view(6, p, -1)
     pts = ctrl[first[:, None] + steps]
     rel = dq_mul(dualquat.conj(pts[:, :-1]), pts[:, 1:])
     return dualquat.log(rel).permute(2, 1, 0).contiguous()
