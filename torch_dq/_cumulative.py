@@ -180,7 +180,11 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         differentiable twice (reverse mode) with respect to ``ctrl`` and ``weights``; per
         time (:func:`jets`) where the tables do not pay
         (:func:`torch_dq._dispatch.per_time_jets`), else
-        :func:`torch_dq._kernels.cumulative_jets.derivatives`. Under ``torch.func``
+        :func:`torch_dq._kernels.cumulative_jets.derivatives`; where nothing is
+        differentiated (float64, unit control points, orders <= 2:
+        :func:`torch_dq._cumulative_lie.applies`) by the Lie-algebra recursions,
+        :func:`torch_dq._cumulative_lie.derivatives`, the same values to rounding and about
+        twice as fast. Under ``torch.func``
         transforms and forward AD (:func:`torch_dq._dispatch.fused_path` false) use
         :func:`jets`.
     """

@@ -33,8 +33,18 @@ The SE(3) matrices are SO(3)'s formulas over dual numbers: :math:`\mathrm{ad}_\x
 :math:`J_r^{-1} = I + \frac12 \Phi + \gamma \Phi^2` with the even functions ``sinc``,
 ``se3_c1``, ``se3_c2``, ``se3_c3`` of ``torch_dq._numerics`` at the dual number :math:`s`
 (:math:`f(s_0) + \varepsilon f'(s_0) s_1`, ``even_slope``): exact at :math:`\omega = 0`.
-The span's twists are taken once per distinct span; the rest is per sample, in a
-component-major layout (below).
+What is constant on a span (its twists, their powers, :math:`J_r^{-1}` and :math:`J_l^{-1} =
+J_r^{-1} \mathrm{Ad}_{\mathrm{Exp}(-d)}`) is taken once per distinct span and gathered per
+sample (:func:`_span_parts`); the rest is per sample, in a component-major layout (below),
+as fused multiply-adds into preallocated arrays (at the estimator's ~10^4 samples a torch op
+costs as much in dispatch and fresh allocations as in arithmetic).
+
+:func:`derivatives` evaluates the form itself by the same recursions (:math:`X = c_0 \prod_j
+\mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X`, :math:`\ddot X` from :math:`V, \dot V`) where
+nothing is differentiated, in float64 on unit control points (:func:`applies`): about twice
+as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), which reverse mode
+keeps differentiating; both agree to rounding (``tests/test_perf9_cumulative_lie.py``, with
+an mpmath reference).
 
 The readable reference is reverse mode through the span's evaluation
 (:meth:`torch_dq.nn.Curve.evaluate_span`, ``fitting._linearize``); the tests compare both
