@@ -493,7 +493,7 @@ def _pure_rows(xi: Tensor) -> Tensor:
 
 def _rates(d: Tensor, weights: list[Tensor], sig: tuple[Tensor, Tensor],
            alp: tuple[Tensor, Tensor]) -> Tensor:
-    r""":math:`V` and :math:`\dot V` ``(6, 2, N)`` (:math:`\dot V` zero at order 1) by the
+    r""":math:`V` and (order 2) :math:`\dot V`, ``(6, order, N)``, by the
     recursions of the module docstring with :math:`M_j y = y - \lambda \sigma [d_j, y] +
     \lambda^2 \alpha [d_j, [d_j, y]]` (:func:`_adjoint`; ``sig, alp`` at the dual squares
     :math:`\lambda^2 s`, ``(p, N)`` each); :math:`V_0 = \dot\lambda_0 d_0`, :math:`\dot
@@ -502,14 +502,14 @@ def _rates(d: Tensor, weights: list[Tensor], sig: tuple[Tensor, Tensor],
     dual = 2.0 * weights[0] * weights[0] * (w * v).sum(0)
     c1 = (-weights[0] * sig[0], -weights[0] * sig[1] * dual)
     c2 = (weights[0] * weights[0] * alp[0], weights[0] * weights[0] * alp[1] * dual)
-    lam = [weights[1], weights[2] if len(weights) > 2 else torch.zeros_like(weights[1])]
-    R = torch.stack([d[:, 0] * x[0] for x in lam], 1)
+    lam = torch.stack(weights[1:])  # (order, p, N)
+    R = d[:, None, 0] * lam[None, :, 0]
     for j in range(1, d.shape[1]):
         dj = d[:, j, None]
-        R = _adjoint(dj, tuple(x[j] for x in c1), tuple(x[j] for x in c2), R)
-        R.addcmul_(dj, torch.stack([x[j] for x in lam])[None])
+        R = _adjoint(dj, (c1[0][j], c1[1][j]), (c2[0][j], c2[1][j]), R)
+        R.addcmul_(dj, lam[None, :, j])
         if len(weights) > 2:
-            R[:, 1].addcmul_(_bracket(R[:, 0], d[:, j]), lam[0][j])
+            R[:, 1].addcmul_(_bracket(R[:, 0], d[:, j]), lam[0, j])
     return R
 
 
