@@ -1,4 +1,5 @@
-r"""Vector-Jacobian products of the cumulative B-spline form in its Lie algebra (private).
+r"""The cumulative B-spline form in its Lie algebra: its vector-Jacobian products and, where
+nothing is differentiated, its evaluation (private).
 
 On one span (:mod:`torch_dq._cumulative`) the cumulative form is
 
@@ -41,8 +42,8 @@ costs as much in dispatch and fresh allocations as in arithmetic).
 
 :func:`derivatives` evaluates the form itself by the same recursions (:math:`X = c_0 \prod_j
 \mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X`, :math:`\ddot X` from :math:`V, \dot V`) where
-nothing is differentiated, in float64 on unit control points (:func:`applies`): about twice
-as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), which reverse mode
+nothing is differentiated, in float64 on unit control points (:func:`applies`): 1.5 to 2
+times as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), which reverse mode
 keeps differentiating; both agree to rounding (``tests/test_perf9_cumulative_lie.py``, with
 an mpmath reference).
 
