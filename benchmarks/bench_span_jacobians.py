@@ -2,8 +2,11 @@
 (``BSpline.span_vjp``, ``torch_dq._cumulative_lie``) against the ``k`` reverse passes through
 per-sample copies of its spans that it replaces (``Curve.evaluate_span`` on
 ``tangent_step`` copies, what ``fitting._linearize`` runs for the other forms), for the
-orders a pose, a gyroscope and an accelerometer term read; process CPU, best of
-``--repeats``, and the largest difference between the two.
+orders a pose, a gyroscope and an accelerometer term read; then the span derivatives
+themselves (``BSpline.span_derivatives``) without a graph (float64: the Lie-algebra
+recursions of ``torch_dq._cumulative_lie.derivatives``) against the span tables (what reverse
+mode differentiates, forced here by a control-point tensor that requires grad); process CPU,
+best of ``--repeats``, and the largest differences.
 
     python benchmarks/bench_span_jacobians.py [--samples 12000] [--spans 1200] [--threads 1]
 """
@@ -72,6 +75,17 @@ def main() -> None:
         err = float((closed - ref).abs().max() / ref.abs().max())
         print(f"  order {order} ({term:13s}): closed form {tc * 1e3:7.1f} ms, reverse passes "
               f"{tr * 1e3:7.1f} ms ({tr / tc:.2f}x), max relative difference {err:.1e}")
+    graph = ctrl.clone().requires_grad_()
+    for order in range(3):
+        with torch.no_grad():
+            tl, lie = _best(lambda o=order: curve.span_derivatives(ctrl, local, first, o),
+                            args.repeats)
+        tt, tab = _best(lambda o=order: curve.span_derivatives(graph, local, first, o),
+                        args.repeats)
+        err = max(float((a - b.detach()).abs().max() / b.detach().abs().max())
+                  for a, b in zip(lie, tab, strict=True))
+        print(f"  derivatives to order {order}: recursions {tl * 1e3:7.1f} ms, span tables "
+              f"(with a graph) {tt * 1e3:7.1f} ms, max relative difference {err:.1e}")
 
 
 def _chain(steps: torch.Tensor):

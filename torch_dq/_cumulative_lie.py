@@ -1,4 +1,5 @@
-r"""Vector-Jacobian products of the cumulative B-spline form in its Lie algebra (private).
+r"""The cumulative B-spline form in its Lie algebra: its vector-Jacobian products and, where
+nothing is differentiated, its evaluation (private).
 
 On one span (:mod:`torch_dq._cumulative`) the cumulative form is
 
@@ -33,8 +34,18 @@ The SE(3) matrices are SO(3)'s formulas over dual numbers: :math:`\mathrm{ad}_\x
 :math:`J_r^{-1} = I + \frac12 \Phi + \gamma \Phi^2` with the even functions ``sinc``,
 ``se3_c1``, ``se3_c2``, ``se3_c3`` of ``torch_dq._numerics`` at the dual number :math:`s`
 (:math:`f(s_0) + \varepsilon f'(s_0) s_1`, ``even_slope``): exact at :math:`\omega = 0`.
-The span's twists are taken once per distinct span; the rest is per sample, in a
-component-major layout (below).
+What is constant on a span (its twists, their powers, :math:`J_r^{-1}` and :math:`J_l^{-1} =
+J_r^{-1} \mathrm{Ad}_{\mathrm{Exp}(-d)}`) is taken once per distinct span and gathered per
+sample (:func:`_span_parts`); the rest is per sample, in a component-major layout (below),
+as fused multiply-adds into preallocated arrays (at the estimator's ~10^4 samples a torch op
+costs as much in dispatch and fresh allocations as in arithmetic).
+
+:func:`derivatives` evaluates the form itself by the same recursions (:math:`X = c_0 \prod_j
+\mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X`, :math:`\ddot X` from :math:`V, \dot V`) where
+nothing is differentiated, in float64 on unit control points (:func:`applies`): 1.5 to 2
+times as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), which reverse mode
+keeps differentiating; both agree to rounding (``tests/test_perf9_cumulative_lie.py``, with
+an mpmath reference).
 
 The readable reference is reverse mode through the span's evaluation
 (:meth:`torch_dq.nn.Curve.evaluate_span`, ``fitting._linearize``); the tests compare both
@@ -48,11 +59,9 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
-from ._cumulative import _conj_rows
-from ._numerics import even_slope
-from ._taylor import dq_rows, qmul_rows
+from ._numerics import even_slopes, evens
 
-__all__ = ["vjp"]
+__all__ = ["applies", "derivatives", "vjp"]
 
 # Component-major layout: every per-sample quantity is ``(components..., S)`` (``S`` the
 # samples), so each operation below is one elementwise pass over contiguous rows (batched
@@ -61,16 +70,34 @@ __all__ = ["vjp"]
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross(a: Tensor, b: Tensor) -> Tensor:
-    """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
-    return torch.stack((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                        a[0] * b[1] - a[1] * b[0]))
+def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
+    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
+    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting): six fused multiply-adds
+    into ``out`` and no temporaries (``torch.linalg.cross`` over the first dim of broadcast
+    rows is several times slower, a stack of component products allocates each)."""
+    for i in range(3):
+        j, m = (i + 1) % 3, (i + 2) % 3
+        if acc:
+            out[i].addcmul_(a[j], b[m])
+        else:
+            torch.mul(a[j], b[m], out=out[i])
+        out[i].addcmul_(a[m], b[j], value=-1.0)
+    return out
+
+
+def _shape(a: Tensor, b: Tensor) -> tuple[int, ...]:
+    """The broadcast shape of ``a`` and ``b`` of one rank (``torch.broadcast_shapes`` is a
+    Python loop several times slower)."""
+    return tuple(max(x, y) for x, y in zip(a.shape, b.shape, strict=True))
 
 
 def _hat(u: Tensor) -> Tensor:
     """``(3, 3, S)`` cross-product matrices of ``(3, S)``."""
-    o = torch.zeros_like(u[0])
-    return torch.stack((o, -u[2], u[1], u[2], o, -u[0], -u[1], u[0], o)).unflatten(0, (3, 3))
+    out = u.new_zeros(3, 3, *u.shape[1:])
+    for i in range(3):
+        j, m = (i + 1) % 3, (i + 2) % 3
+        out[i, j], out[j, i] = -u[m], u[m]
+    return out
 
 
 def _powers(d: Tensor) -> tuple[Tensor, ...]:
@@ -79,18 +106,22 @@ def _powers(d: Tensor) -> tuple[Tensor, ...]:
     \varepsilon\, WV` (:math:`W_2 = w w^T - |w|^2 I`, :math:`WV = w v^T + v w^T - 2 (w
     \cdot v) I`), and the dual square ``s0, s1 (S,)``."""
     w, v = d[:3], d[3:]
-    eye = torch.eye(3, dtype=d.dtype, device=d.device)[..., None]
     s0, c = (w * w).sum(0), (w * v).sum(0)
-    return (_hat(w), _hat(v), w[:, None] * w[None] - s0 * eye,
-            w[:, None] * v[None] + v[:, None] * w[None] - 2.0 * c * eye, s0, 2.0 * c)
+    W2, WV = w[:, None] * w[None], w[:, None] * v[None]
+    WV += WV.transpose(0, 1).clone()
+    for i in range(3):
+        W2[i, i] -= s0
+        WV[i, i] -= 2.0 * c
+    return _hat(w), _hat(v), W2, WV, s0, 2.0 * c
 
 
-def _scalar(name: str, powers: tuple[Tensor, ...], scale: Tensor | float = 1.0,
-            ) -> tuple[Tensor, Tensor]:
-    """The even function ``name`` at the dual square of ``scale`` times the twists of
-    ``powers``: real and dual parts."""
-    f, slope = even_slope(name, scale * scale * powers[4])
-    return f, slope * (scale * scale * powers[5])
+def _scalars(names: tuple[str, ...], powers: tuple[Tensor, ...], scale: Tensor | float = 1.0,
+             ) -> list[tuple[Tensor, Tensor]]:
+    """The even functions ``names`` at the dual square of ``scale`` times the twists of
+    ``powers``: real and dual parts (one :func:`~torch_dq._numerics.even_slopes` pass)."""
+    square = scale * scale
+    return [(f, slope * (square * powers[5]))
+            for f, slope in even_slopes(names, square * powers[4])]
 
 
 def _polynomial(powers: tuple[Tensor, ...], c0: Tensor | float, c1: tuple[Tensor, Tensor],
@@ -112,53 +143,89 @@ def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
     return torch.cat((w, (B * x[None, :3]).sum(1) + (A * x[None, 3:]).sum(1)))
 
 
-def _rows(a: Tensor, m: tuple[Tensor, Tensor]) -> Tensor:
+def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: bool = False,
+          value: float = 1.0) -> Tensor:
     r"""Rows ``a (6, k, S)`` times the dual matrix ``m``: :math:`(a_\omega A + a_v B,\ a_v
-    A)`, accumulated in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
+    A)`, into ``out`` (fresh if None), or with ``acc`` added to it times ``value``: fused
+    multiply-adds in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
     several times more)."""
     A, B = m
-    out = torch.empty_like(a)
+    out = torch.empty_like(a) if out is None else out
     w, v = out[:3], out[3:]
-    torch.mul(a[0, None], A[0, :, None], out=w)
-    torch.mul(a[3, None], A[0, :, None], out=v)
     for i in range(3):
-        if i:
-            w.addcmul_(a[i, None], A[i, :, None])
-            v.addcmul_(a[3 + i, None], A[i, :, None])
-        w.addcmul_(a[3 + i, None], B[i, :, None])
+        if i or acc:
+            w.addcmul_(a[i, None], A[i, :, None], value=value)
+            v.addcmul_(a[3 + i, None], A[i, :, None], value=value)
+        else:
+            torch.mul(a[0, None], A[0, :, None], out=w)
+            torch.mul(a[3, None], A[0, :, None], out=v)
+        w.addcmul_(a[3 + i, None], B[i, :, None], value=value)
     return out
 
 
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
-    r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)``."""
-    return torch.cat((_cross(a[:3], b[:3]), _cross(a[:3], b[3:]) + _cross(a[3:], b[:3])))
+    r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)`` (broadcasting)."""
+    out = a.new_empty(_shape(a, b))
+    _cross_into(out[:3], a[:3], b[:3])
+    _cross_into(out[3:], a[:3], b[3:])
+    _cross_into(out[3:], a[3:], b[:3], acc=True)
+    return out
 
 
-def _row_ad(a: Tensor, z: Tensor) -> Tensor:
-    r"""Rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z (6, S)``):
-    :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`."""
+def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
+    r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
+    (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
+    place."""
     z = z[:, None]
-    return torch.cat((_cross(a[:3], z[:3]) + _cross(a[3:], z[3:]), _cross(a[3:], z[:3])))
+    _cross_into(out[:3], a[:3], z[:3], acc=True)
+    _cross_into(out[:3], a[3:], z[3:], acc=True)
+    _cross_into(out[3:], a[3:], z[:3], acc=True)
+    return out
 
 
-def _left_t(x: Tensor, g: Tensor) -> Tensor:
-    r""":math:`L(x)^T g` (``x (8, 1, S)``, rows ``g (8, k, S)``): the cotangent of ``y``
-    through :math:`y \mapsto x y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
-    c = _conj_rows(x)
-    return torch.cat((qmul_rows(c[:4], g[:4]) + qmul_rows(c[4:], g[4:]), qmul_rows(c[:4], g[4:])))
+def _conj_vec(out: Tensor, q: tuple[Tensor | None, Tensor], u: Tensor, left: bool,
+              acc: bool = False) -> Tensor:
+    r"""``out (3, k, S)`` :math:`{} = ` (``acc``: :math:`{} \mathrel{+}=`) the vector part of
+    :math:`q^* u` (``left``) or of :math:`u q^*`, :math:`q_0 u_v - u_0 q_v \pm u_v \times
+    q_v`, of per-sample quaternions ``q = (q_0 (1, S), q_v (3, 1, S))`` (``q_0`` None: a
+    pure one) and rows ``u (4, k, S)``, in place."""
+    q0, qv = q
+    if acc:
+        if q0 is not None:
+            out.addcmul_(u[1:], q0)
+        out.addcmul_(u[0], qv, value=-1.0)
+    elif q0 is None:
+        torch.mul(u[0], qv, out=out).neg_()
+    else:
+        torch.mul(u[1:], q0, out=out).addcmul_(u[0], qv, value=-1.0)
+    return _cross_into(out, u[1:], qv, acc=True) if left else _cross_into(out, qv, u[1:],
+                                                                          acc=True)
 
 
-def _right_t(x: Tensor, u: Tensor) -> Tensor:
-    r""":math:`R(x)^T u`: the cotangent of ``y`` through :math:`y \mapsto y x`,
-    :math:`(u_a r^* + u_b d^*,\ u_b r^*)`."""
-    c = _conj_rows(x)
-    return torch.cat((qmul_rows(u[:4], c[:4]) + qmul_rows(u[4:], c[4:]), qmul_rows(u[4:], c[:4])))
+def _halves(X: Tensor) -> tuple[tuple[Tensor, Tensor], tuple[Tensor, Tensor]]:
+    """The real and dual quaternions of per-sample ``X (8, S)`` as :func:`_conj_vec`'s
+    ``(q_0 (1, S), q_v (3, 1, S))``."""
+    X = X[:, None]
+    return (X[0], X[1:4]), (X[4], X[5:8])
 
 
-def _pure(xi: Tensor) -> Tensor:
-    r""":math:`h(\xi) = (0, \omega/2, 0, v/2)` ``(8, ...)`` of twists ``(6, ...)``."""
-    zero = torch.zeros_like(xi[:1])
-    return torch.cat((zero, 0.5 * xi[:3], zero, 0.5 * xi[3:]))
+def _left_t(X: Tensor, g: Tensor) -> Tensor:
+    r""":math:`L(X)^T g` (``X (8, S)``, rows ``g (8, n, S)``): the cotangent of ``y`` through
+    :math:`y \mapsto X y`, :math:`(r^* g_a + d^* g_b,\ r^* g_b)`."""
+    r, d = _halves(X)
+    out = torch.empty_like(g)
+    ga, gb = g[:4], g[4:]
+    _conj_vec(out[1:4], r, ga, True)
+    _conj_vec(out[1:4], d, gb, True, acc=True)
+    _conj_vec(out[5:8], r, gb, True)
+    for o, terms in ((0, ((r, ga), (d, gb))), (4, ((r, gb),))):  # q0 u0 + q_v . u_v
+        torch.mul(terms[0][1][0], terms[0][0][0], out=out[o])
+        for i, (q, u) in enumerate(terms):
+            if i:
+                out[o].addcmul_(u[0], q[0])
+            for c in range(3):
+                out[o].addcmul_(u[1 + c], q[1][c])
+    return out
 
 
 def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
@@ -169,80 +236,122 @@ def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
     \sigma \Phi + \lambda^2 \alpha \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I
     - \lambda^2 \alpha \Phi + \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the
     coefficients at :math:`\lambda^2 s`), :math:`z_j = M_j V_{j-1}`, :math:`\dot z_j = M_j
-    \dot V_{j-1}`, :math:`V_j`; the last :math:`V, \dot V` (those the weights' orders
-    reach)."""
+    \dot V_{j-1}` (None at ``j = 0``, where they vanish), :math:`V_j`; the last :math:`V, \dot
+    V` (those the weights' orders reach)."""
     O = len(lam)
     out: dict[str, list] = {"M": [], "Jr": [], "z": [], "zd": [], "V": []}
     V = Vd = d.new_zeros(d.shape[1:])
     for j, dj in enumerate(d):
         pw, l1 = powers[j], lam[0][j]
         l2 = l1 * l1
-        sig, alp = _scalar("sinc", pw, l1), _scalar("se3_c1", pw, l1)
-        bet = _scalar("se3_c2", pw, l1)
+        sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), pw, l1)
         out["M"].append(_polynomial(pw, 1.0, (-l1 * sig[0], -l1 * sig[1]),
                                     (l2 * alp[0], l2 * alp[1])))
         out["Jr"].append(_polynomial(pw, l1, (-l2 * alp[0], -l2 * alp[1]),
                                      (l2 * l1 * bet[0], l2 * l1 * bet[1])))
-        if O > 1:
-            out["z"].append(_apply(out["M"][j], V))
-            V = out["z"][j] + lam[1][j] * dj
+        if O > 1:  # from V_0 = lam'_0 d_0, Vd_0 = lam''_0 d_0: z_0 = zd_0 = 0 (None)
+            out["z"].append(_apply(out["M"][j], V) if j else None)
+            V = out["z"][j] + lam[1][j] * dj if j else lam[1][j] * dj
             out["V"].append(V)
         if O > 2:
-            out["zd"].append(_apply(out["M"][j], Vd))
-            Vd = out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj)
+            out["zd"].append(_apply(out["M"][j], Vd) if j else None)
+            Vd = (out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj) if j
+                  else lam[2][j] * dj)
     out["last"] = [V, Vd]
     return out
 
 
-def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> list[Tensor]:
-    r"""Cotangent rows ``(6, k, S)`` of the pose's right step, of :math:`V` and of
-    :math:`\dot V` (the orders there are) from those ``g (O, 8, k, S)`` of :math:`X, \dot X,
+def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> Tensor:
+    r"""Cotangent rows ``(6, O, k, S)`` of the pose's right step, of :math:`V` and of
+    :math:`\dot V` (the orders there are) from those ``g (8, O, k, S)`` of :math:`X, \dot X,
     \ddot X`: :math:`\mathrm d X = X h(\xi)`, :math:`\mathrm d\dot X = X h(\xi) h(V) + X
     h(\mathrm dV)`, :math:`\mathrm d\ddot X = X h(\xi) (h(V)^2 + h(\dot V)) + X (h(\mathrm
     dV) h(V) + h(V) h(\mathrm dV) + h(\mathrm d\dot V))` (:math:`\dot X = X h(V)`,
-    :math:`\ddot X = X (h(V)^2 + h(\dot V))`)."""
-    O = g.shape[0]
-    u = [_left_t(X[:, None], g[o]) for o in range(O)]
-    pose, rates = u[0], []
+    :math:`\ddot X = X (h(V)^2 + h(\dot V))`). With :math:`u_o = L(X)^T g_o` and
+    :math:`P` the vector parts of both halves times 1/2 (the cotangent of :math:`h`): pose
+    :math:`P(u_0 + R(h(V))^T u_1 + R(h(V)^2 + h(\dot V))^T u_2)`, :math:`V`:
+    :math:`P(u_1 + (R + L)(h(V))^T u_2)`, :math:`\dot V`: :math:`P u_2`; the vector parts
+    alone are formed, and :math:`P (R + L)(h)^T u = -\frac12 (u_{a0} \omega + u_{b0} v,\
+    u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel)."""
+    _, O, k, S = g.shape
+    out = g.new_empty(6, O, k, S)
+    r, d = _halves(X)
+    pw, pv = out[:3, 0], out[3:, 0]
+    _conj_vec(pw, r, g[:4, 0], True)
+    _conj_vec(pw, d, g[4:, 0], True, acc=True)
+    _conj_vec(pv, r, g[4:, 0], True)
     if O > 1:
-        hV = _pure(V)[:, None]
-        pose = pose + _right_t(hV, u[1])
-        rate = u[1]
-        if O > 2:
-            H2 = dq_rows(hV, hV) + _pure(Vd)[:, None]
-            pose = pose + _right_t(H2, u[2])
-            rate = rate + _right_t(hV, u[2]) + _left_t(hV, u[2])
-        rates.append(rate)
-        if O > 2:
-            rates.append(u[2])
-    return [0.5 * torch.cat((c[1:4], c[5:8])) for c in [pose, *rates]]
+        u = _left_t(X, g[:, 1:].reshape(8, (O - 1) * k, S)).view(8, O - 1, k, S)
+        out[:3, 1:], out[3:, 1:] = u[1:4], u[5:8]
+        w, v = 0.5 * V[:3, None], 0.5 * V[3:, None]
+        _conj_vec(pw, (None, w), u[:4, 0], False, acc=True)
+        _conj_vec(pw, (None, v), u[4:, 0], False, acc=True)
+        _conj_vec(pv, (None, w), u[4:, 0], False, acc=True)
+    if O > 2:
+        hr = (-(w * w).sum(0), 0.5 * Vd[:3, None])  # h(V)^2 + h(Vd)
+        hd = (-2.0 * (w * v).sum(0), 0.5 * Vd[3:, None])
+        _conj_vec(pw, hr, u[:4, 1], False, acc=True)
+        _conj_vec(pw, hd, u[4:, 1], False, acc=True)
+        _conj_vec(pv, hr, u[4:, 1], False, acc=True)
+        rw, rv = out[:3, 1], out[3:, 1]
+        rw.addcmul_(u[0, 1], V[:3, None], value=-1.0).addcmul_(u[4, 1], V[3:, None], value=-1.0)
+        rv.addcmul_(u[4, 1], V[:3, None], value=-1.0)
+    return out.mul_(0.5)
 
 
-def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], rows: list[Tensor],
+def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
               ) -> tuple[list[Tensor], Tensor]:
-    r"""The recursions run backwards from the cotangent ``rows`` (:func:`_algebra_cotangents`):
-    those ``(6, k, S)`` of every :math:`d_j` and of the first point's step (through the
-    pose alone)."""
-    O, p = len(rows), d.shape[0]
-    a = list(rows)  # pose, V, Vd
+    r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
+    (:func:`_algebra_cotangents`, updated in place): those ``(6, k, S)`` of every
+    :math:`d_j` and of the first point's step (through the pose alone)."""
+    O, p = a.shape[1], d.shape[0]
     out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         if O > 2:
-            a[1] = a[1] - lj[1] * _row_ad(a[2], dj)
-        t = a[0]
-        if O > 1:
-            t = t + _row_ad(a[1], fw["z"][j])
-        if O > 2:
-            t = t + _row_ad(a[2], fw["zd"][j])
+            _row_ad(a[:, 2], -lj[1] * dj, a[:, 1])
+        t = a[:, 0].clone()
+        if O > 1 and j:
+            _row_ad(a[:, 1], fw["z"][j], t)
+        if O > 2 and j:
+            _row_ad(a[:, 2], fw["zd"][j], t)
         c = _rows(t, fw["Jr"][j])
         if O > 1:
-            c = c + lj[1] * a[1]
+            c.addcmul_(a[:, 1], lj[1])
         if O > 2:
-            c = c + lj[2] * a[2] + lj[1] * _row_ad(a[2], fw["V"][j])
+            _row_ad(a[:, 2], lj[1] * fw["V"][j], c.addcmul_(a[:, 2], lj[2]))
         out.append(c)
-        a = [_rows(r, fw["M"][j]) for r in a]
-    return out[::-1], a[0]
+        # at the first step only the pose's rows go on (to the first point's step)
+        a = (_rows(a.view(6, -1, a.shape[-1]), fw["M"][j]).view(a.shape) if j
+             else _rows(a[:, 0], fw["M"][j])[:, None])
+    return out[::-1], a[:, 0]
+
+
+def _span_parts(points: Tensor) -> Tensor:
+    r"""``(p, 80, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows), its
+    :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
+    :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
+    J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi + \gamma \Phi^2`
+    (36 rows: ``(2, 2, 3, 3)`` flat, matrix, real and dual part), from the span's control
+    points ``(U, p + 1, 8)``: what is constant on a span, once per span (:func:`_unpack`)."""
+    rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
+    d = dualquat.log(rel).permute(1, 2, 0).contiguous()
+    parts = []
+    for dj in d:
+        pw = _powers(dj)
+        (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
+        mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
+        parts.append(torch.cat((dj, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
+                                torch.stack(mats).flatten(0, -2))))
+    return torch.stack(parts)
+
+
+def _unpack(span: Tensor) -> tuple[Tensor, list[tuple[Tensor, ...]], Tensor]:
+    """:func:`_span_parts`' rows (gathered per sample, ``(p, 80, S)``): the twists ``(p, 6,
+    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)``."""
+    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(span[:, 6:42], span[:, 42:44],
+                                                                strict=True)]
+    return span[:, :6], powers, span[:, 44:].unflatten(1, (2, 2, 3, 3))
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -260,24 +369,183 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
 
     Returns:
         ``(S, k, p + 1, 6)``: :math:`\sum_o \mathrm{cot}_o \cdot \partial X^{(o)} /
-        \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`.
+        \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
+        permuted view of a component-major array.
     """
     p = points.shape[-2] - 1
-    rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
-    d = dualquat.log(rel).permute(1, 2, 0).index_select(-1, inverse)  # (p, 6, S)
-    powers = [_powers(dj) for dj in d]
+    span = _span_parts(points)  # gathered by sample (faster than index_select on the last dim)
+    d, powers, fin = _unpack(span.flatten(0, 1).gather(1, inverse.expand(span.shape[0] * 80, -1))
+                             .view(*span.shape[:2], -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(2, 3, 1, 0).contiguous())
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(3, 2, 1, 0).contiguous())
     cd, first = _backward(fw, d, lam, rows)
-    steps = [first] + [torch.zeros_like(first)] * p
-    for j, c in enumerate(cd):  # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad delta_{j-1})
-        pw = powers[j]
-        half = torch.full_like(pw[4], 0.5)
-        sig, alp = _scalar("sinc", pw), _scalar("se3_c1", pw)
-        y = _rows(c, _polynomial(pw, 1.0, (half, torch.zeros_like(half)),
-                                 _scalar("se3_c3", pw)))
-        steps[j + 1] = steps[j + 1] + y
-        steps[j] = steps[j] - _rows(y, _polynomial(pw, 1.0, (-sig[0], -sig[1]), alp))
-    return torch.stack(steps).permute(3, 2, 0, 1)
+    # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
+    steps = first.new_empty(p + 1, *first.shape)
+    steps[0] = first
+    for j, c in enumerate(cd):
+        _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
+        _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
+    return steps.permute(3, 2, 0, 1)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+#: How far from unit (:func:`torch_dq.dualquat.is_unit`'s measure) the control points of
+#: :func:`derivatives` may be: its logarithms and exponentials read unit dual quaternions,
+#: where the span tables multiply the points as they are (the two differ by about the
+#: defect times the translation over the knot spacing squared in an acceleration).
+UNIT_ATOL = 64 * torch.finfo(torch.float64).eps
+
+
+def applies(ctrl: Tensor, weights: list[Tensor]) -> bool:
+    """Whether :func:`derivatives` evaluates: float64 on the CPU, orders 0 to 2, nothing
+    differentiated (no autograd graph is recorded: reverse mode goes through the span
+    tables), eagerly, and unit control points to :data:`UNIT_ATOL` (one read of a flag)."""
+    grad = torch.is_grad_enabled() and any(x.requires_grad for x in (ctrl, *weights))
+    return (ctrl.dtype == torch.float64 and ctrl.device.type == "cpu" and len(weights) <= 3
+            and not grad and not torch.compiler.is_compiling()
+            and bool(dualquat.is_unit(ctrl, UNIT_ATOL).all()))
+
+
+def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
+    r"""``(6, p, N)``: the twists :math:`d_j = \mathrm{Log}(c_{f+j}^{-1} c_{f+j+1})` of each
+    time's span (``first`` ``f``), from every neighbouring pair of ``ctrl (M, 8)`` once
+    where the times read most of them, else per time."""
+    steps = torch.arange(p + 1, device=first.device)
+    if ctrl.shape[0] - 1 <= p * first.shape[0]:
+        rel = dq_mul(dualquat.conj(ctrl[:-1]), ctrl[1:])
+        idx = (first + steps[:-1, None]).flatten()
+        twists = dualquat.log(rel).T.contiguous()
+        return twists.gather(1, idx.expand(6, -1)).view(6, p, -1)
+    pts = ctrl[first[:, None] + steps]
+    rel = dq_mul(dualquat.conj(pts[:, :-1]), pts[:, 1:])
+    return dualquat.log(rel).permute(2, 1, 0).contiguous()
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
+    return _cross_into(a.new_empty(_shape(a, b)), a, b)
+
+
+#: The Hamilton product's terms per output component: ``(i, j, sign)`` of :math:`a_i b_j`.
+_HAMILTON = (((0, 0, 1.0), (1, 1, -1.0), (2, 2, -1.0), (3, 3, -1.0)),
+             ((0, 1, 1.0), (1, 0, 1.0), (2, 3, 1.0), (3, 2, -1.0)),
+             ((0, 2, 1.0), (1, 3, -1.0), (2, 0, 1.0), (3, 1, 1.0)),
+             ((0, 3, 1.0), (1, 2, 1.0), (2, 1, -1.0), (3, 0, 1.0)))
+
+
+def _dq_rows(a: Tensor, b: Tensor) -> Tensor:
+    r"""Dual-quaternion products :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
+    ``(8, N)``: :func:`torch_dq._taylor.dq_rows` as fused multiply-adds into one fresh
+    array (no per-term temporaries, no stack)."""
+    out = torch.empty_like(a)
+    for half, pairs in ((out[:4], ((a[:4], b[:4]),)), (out[4:], ((a[:4], b[4:]),
+                                                                 (a[4:], b[:4])))):
+        for o, terms in enumerate(_HAMILTON):
+            for n, (x, y) in enumerate(pairs):
+                for m, (i, j, sign) in enumerate(terms):
+                    if n == m == 0:
+                        torch.mul(x[i], y[j], out=half[o])
+                    else:
+                        half[o].addcmul_(x[i], y[j], value=sign)
+    return out
+
+
+def _exp_rows(xi: Tensor, x2: Tensor, c1: Tensor, c2: Tensor) -> Tensor:
+    r""":math:`\mathrm{Exp}(\xi)` ``(8, ...)`` of twists ``xi (6, ...)`` as
+    :func:`torch_dq.dualquat.exp`: :math:`r = (\cos\frac\theta2, \mathrm{sinc}\frac\theta2\,
+    \frac\omega2)`, :math:`t = v + c_1 \omega \times v + c_2 \omega \times (\omega \times v)`,
+    dual part :math:`\frac12 (0, t)\, r`; ``x2`` :math:`= \theta^2`, ``c1, c2`` ``se3_c1,
+    se3_c2`` there."""
+    w, v = xi[:3], xi[3:]
+    out = xi.new_empty(8, *xi.shape[1:])
+    out[0], sinc = evens(("cos", "sinc"), 0.25 * x2)
+    torch.mul(w, 0.5 * sinc, out=out[1:4])
+    wxv = _cross(w, v)
+    t = (v + c1 * wxv).addcmul_(_cross(w, wxv), c2)
+    out[4] = -0.5 * (t * out[1:4]).sum(0)
+    _cross_into(out[5:], t, out[1:4])
+    out[5:].addcmul_(t, out[0]).mul_(0.5)
+    return out
+
+
+def _adjoint(d: Tensor, c1: tuple[Tensor, Tensor], c2: tuple[Tensor, Tensor], y: Tensor,
+             ) -> Tensor:
+    r""":math:`M y = y + c_1 [d, y] + c_2 [d, [d, y]]` (:func:`_forward`'s :math:`M_j` without
+    its matrices) for twists ``d (6, 1, N)``, ``y (6, n, N)`` and dual scalars ``c1, c2``
+    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`)."""
+    out = y.clone()
+    b = _bracket(d, y)
+    for (a, e), z in ((c1, b), (c2, _bracket(d, b))):
+        out.addcmul_(z, a)
+        out[3:].addcmul_(z[:3], e)
+    return out
+
+
+def _pure_rows(xi: Tensor) -> Tensor:
+    r""":math:`h(\xi) = (0, \omega/2, 0, v/2)` ``(8, N)`` of twists ``(6, N)``."""
+    out = xi.new_zeros(8, xi.shape[1])
+    torch.mul(xi[:3], 0.5, out=out[1:4])
+    torch.mul(xi[3:], 0.5, out=out[5:])
+    return out
+
+
+def _rates(d: Tensor, weights: list[Tensor], sig: tuple[Tensor, Tensor],
+           alp: tuple[Tensor, Tensor]) -> Tensor:
+    r""":math:`V` and (order 2) :math:`\dot V`, ``(6, order, N)``, by the
+    recursions of the module docstring with :math:`M_j y = y - \lambda \sigma [d_j, y] +
+    \lambda^2 \alpha [d_j, [d_j, y]]` (:func:`_adjoint`; ``sig, alp`` at the dual squares
+    :math:`\lambda^2 s`, ``(p, N)`` each); :math:`V_0 = \dot\lambda_0 d_0`, :math:`\dot
+    V_0 = \ddot\lambda_0 d_0` (:math:`[V_0, d_0] = 0`)."""
+    w, v = d[:3], d[3:]
+    dual = 2.0 * weights[0] * weights[0] * (w * v).sum(0)
+    c1 = (-weights[0] * sig[0], -weights[0] * sig[1] * dual)
+    c2 = (weights[0] * weights[0] * alp[0], weights[0] * weights[0] * alp[1] * dual)
+    lam = torch.stack(weights[1:])  # (order, p, N)
+    R = d[:, None, 0] * lam[None, :, 0]
+    for j in range(1, d.shape[1]):
+        dj = d[:, j, None]
+        R = _adjoint(dj, (c1[0][j], c1[1][j]), (c2[0][j], c2[1][j]), R)
+        R.addcmul_(dj, lam[None, :, j])
+        if len(weights) > 2:
+            R[:, 1].addcmul_(_bracket(R[:, 0], d[:, j]), lam[0, j])
+    return R
+
+
+def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tensor]:
+    r"""The cumulative form and its time derivatives to order 2 by the recursions of the
+    module docstring, without the span tables (:func:`applies`; the values of
+    :func:`torch_dq._cumulative.derivatives` to rounding): :math:`X = c_f \prod_j
+    \mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X = X h(V)`, :math:`\ddot X = X (h(V)^2 +
+    h(\dot V))`, every :math:`d_j` from one logarithm per neighbouring pair, the weights'
+    functions of all steps at once.
+
+    Args:
+        ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).
+        first: ``(N,)`` int64 index into ``ctrl`` of each time's :math:`c_{r-p}`.
+        weights: ``order + 1 <= 3`` tensors ``(p, N)``: the cumulative basis and its time
+            derivatives, float64.
+
+    Returns:
+        ``order + 1`` tensors ``(N, 8)``.
+    """
+    d = _pair_twists(ctrl, first, weights[0].shape[0])  # (6, p, N)
+    x2 = weights[0] * weights[0] * (d[:3] * d[:3]).sum(0)
+    sig, alp, bet = even_slopes(("sinc", "se3_c1", "se3_c2"), x2)
+    E = _exp_rows(d * weights[0], x2, alp[0], bet[0])
+    X = ctrl.index_select(0, first).T.contiguous()
+    for j in range(E.shape[1]):
+        X = _dq_rows(X, E[:, j])
+    out = [X]
+    if len(weights) > 1:
+        R = _rates(d, weights, sig, alp)
+        hV = _pure_rows(R[:, 0])
+        out.append(_dq_rows(X, hV))
+        if len(weights) > 2:
+            H = _pure_rows(R[:, 1])  # h(V)^2 + h(Vd): (-|w|^2, h_w; -2 w.v, h_v), w = V_w / 2
+            H[0] = -(hV[1:4] * hV[1:4]).sum(0)
+            H[4] = -2.0 * (hV[1:4] * hV[5:]).sum(0)
+            out.append(_dq_rows(X, H))
+    return [x.T.contiguous() for x in out]

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import cast
 
 import torch
 from torch import Tensor
 
 __all__ = [
-    "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "nan_unless",
+    "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
+    "evens", "nan_unless",
     "piecewise", "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms",
     "select", "series_mask", "threshold",
 ]
@@ -308,18 +310,51 @@ def even_slope(name: str, x2: Tensor) -> tuple[Tensor, Tensor]:
     switch point (its first neglected term, times the number of terms, stays far below an ulp
     there), the closed forms of :data:`_EVEN_SLOPES` above it (their cancellation, about
     :math:`\epsilon / x_2`, is small at the switch). For dual numbers:
-    :math:`f(x_2 + \varepsilon y) = f(x_2) + \varepsilon f'(x_2) y`."""
-    coeffs, exact = _EVEN[name]
-    small = x2 < threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
-    series: Tensor | float = coeffs[_EVEN_TERMS - 1]
-    slope: Tensor | float = (_EVEN_TERMS - 1) * coeffs[_EVEN_TERMS - 1]
+    :math:`f(x_2 + \varepsilon y) = f(x_2) + \varepsilon f'(x_2) y`. (:func:`even_slopes`
+    of one function.)"""
+    return even_slopes((name,), x2)[0]
+
+
+def even_slopes(names: tuple[str, ...], x2: Tensor) -> list[tuple[Tensor, Tensor]]:
+    r""":func:`even_slope` of several functions at the same ``x2``, the same numbers: the
+    series of all of them in one Horner pass over ``(len(names), ...)`` rows, and the closed
+    forms only where some element is above its switch point (on the CPU a read of one flag
+    decides whether they are evaluated at all: near the identity, the common case, they are
+    not; other devices evaluate them always, without a host sync). Not for ``torch.func``
+    transforms (the flag), which the span kernels that use it do not run under."""
+    series, slope = _even_rows(names, x2, True)
+    return list(zip(series.unbind(0), cast(Tensor, slope).unbind(0), strict=True))
+
+
+def evens(names: tuple[str, ...], x2: Tensor) -> list[Tensor]:
+    """:func:`even` of several functions at the same ``x2``, the same numbers, as
+    :func:`even_slopes` evaluates them (values alone: ``"cos"`` too)."""
+    return list(_even_rows(names, x2, False)[0].unbind(0))
+
+
+def _even_rows(names: tuple[str, ...], x2: Tensor, slopes: bool,
+               ) -> tuple[Tensor, Tensor | None]:
+    """:func:`even_slopes`' values and (``slopes``) slopes, ``(len(names), ...)`` each."""
+    rows = (len(names),) + (1,) * x2.dim()
+    dtype = compute_dtype(x2.dtype)
+    coeffs = [_EVEN[n][0] for n in names]
+    small = x2 < x2.new_tensor([threshold("even_series", dtype, c[-1]) for c in coeffs]).view(rows)
+    # columns (len(names), 1, ...) of the coefficients and of the slope's, i c_i
+    cs = x2.new_tensor([[c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
+    ds = x2.new_tensor([[i * c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
+    series, slope = cs[-1], ds[-1] if slopes else None
     for i in reversed(range(_EVEN_TERMS - 1)):
-        series = series * x2 + coeffs[i]
-        if i:
-            slope = slope * x2 + i * coeffs[i]
-    th = torch.sqrt(torch.where(small, 1.0, x2))
-    return (torch.where(small, series, exact(th)),
-            torch.where(small, slope, _EVEN_SLOPES[name](th)))
+        series = series * x2 + cs[i]
+        if i and slope is not None:
+            slope = slope * x2 + ds[i]
+    if x2.device.type != "cpu" or not bool(small.all()):
+        th = torch.sqrt(torch.where(small, 1.0, x2))
+        series = torch.where(small, series, torch.stack(
+            [_EVEN[n][1](t) for n, t in zip(names, th, strict=True)]))
+        if slope is not None:
+            slope = torch.where(small, slope, torch.stack(
+                [_EVEN_SLOPES[n](t) for n, t in zip(names, th, strict=True)]))
+    return series, slope
 
 
 def power_of_two_scale(x: Tensor) -> Tensor:
