@@ -54,16 +54,16 @@ def gen():
 
 
 # The files whose tests take ~10 s or more each (compilation, notebooks, mypy, the solves),
-# longest first. They run first, so that `pytest -n 2` deals them to both workers at the start
-# (xdist hands out tests in collection order) instead of one of them running alone at the end.
+# longest first (whole-file times, one process, 2026-11-29). They run first, so that
+# `pytest -n 2` deals them to both workers at the start (xdist hands out tests in collection
+# order) instead of one of them running alone at the end.
 # Not test_docs.py: its build renders the notebooks that test_notebooks.py executed and
 # cached, so it comes well after them (alphabetically, among the rest).
 SLOW_FILES_FIRST = (
-    "test_compile.py", "test_notebooks.py", "test_typing.py",
-    "test_reprojections.py", "test_nn.py", "test_estimation_montecarlo.py",
-    "test_estimation_prior.py", "test_estimation_defects.py", "test_cumulative.py",
-    "test_modes.py", "test_kernels.py", "test_calibration_cameras.py", "test_camera_imu.py",
-    "test_span_jacobians.py",
+    "test_modes.py", "test_cumulative.py", "test_span_jacobians.py", "test_notebooks.py",
+    "test_calibration_cameras.py", "test_compile.py", "test_camera_imu.py", "test_kernels.py",
+    "test_estimation_prior.py", "test_estimation_defects.py", "test_estimation_montecarlo.py",
+    "test_typing.py", "test_nn.py", "test_reprojections.py",
 )
 
 

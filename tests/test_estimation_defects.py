@@ -242,11 +242,13 @@ def test_positions_with_an_imu_determine_bias_and_gravity_direction(gen):
     """Positions + Gyro + Accel with the accelerometer bias and gravity's direction both
     estimated: refused before as undetermined, determined under varied motion (the
     positions' world accelerations against the specific forces): the estimate recovers
-    the bias, the gravity direction and the rotation."""
+    the bias, the gravity direction and the rotation. 12 steps (the solve stops at 22 on
+    no progress): the values checked agree with the stopped solve's within 0.01 of their
+    std, the cost within 1e-4 relatively (measured)."""
     ba = np.array([0.08, -0.05, 0.12])
     g_true = 9.81 * np.array([0.02, -0.03, -1.0]) / np.linalg.norm([0.02, -0.03, -1.0])
     t, R, spline, terms = _positions_imu(gen, ba, g_true)
-    est = estimate(spline, terms, prior=0.0, verbose=False)
+    est = estimate(spline, terms, prior=0.0, steps=12, verbose=False)
     accel = terms[2]
     std_b, std_g = est.std(accel, "bias"), est.std(accel, "gravity")
     assert bool(torch.isfinite(std_b).all()) and bool(torch.isfinite(std_g).all())

@@ -134,7 +134,9 @@ def _readme_problem():
 def _dense_decrement(spline, terms):
     """g^T H^+ g of the data cost at the current point, from a dense central-difference
     Jacobian of the whitened residuals over the control points' charts and the nuisance
-    charts, and numpy's pseudo-inverse."""
+    charts, and numpy's pseudo-inverse. The terms evaluate the 2 (6 n + m) perturbed points
+    as batches of 64 trajectories (3x faster than one by one; the batch's unperturbed
+    member equals the unbatched evaluation)."""
     from torch_dq.fitting._estimate import _starts
     from torch_dq.fitting._problem import Problem
     ctrl = spline.control_points.detach().to(F64)
@@ -145,20 +147,24 @@ def _dense_decrement(spline, terms):
                 slot.free.start = slot.free.value
     values = _starts("test", problem, ctrl)
 
-    def residuals(dc, dn):
-        c, vals = problem.retract(ctrl, values, dc, dn)
-        return torch.cat([t.evaluate(spline, c, problem.term_values(i, vals)).reshape(-1)
-                          for i, t in enumerate(terms)])
-
     n, m = ctrl.shape[0], problem.m
-    x0 = torch.zeros(6 * n + m, dtype=F64)
-    split = lambda x: (x[:6 * n].reshape(n, 6), x[6 * n:])  # noqa: E731
+
+    def residuals(x):  # x (..., 6 n + m): rows (..., residuals)
+        c, vals = problem.retract(ctrl, values, x[..., :6 * n].unflatten(-1, (n, 6)),
+                                  x[..., 6 * n:])
+        return torch.cat([t.evaluate(spline, c, problem.term_values(i, vals))
+                          .reshape(*x.shape[:-1], -1) for i, t in enumerate(terms)], -1)
+
     h = 1e-6
+    steps = h * torch.eye(6 * n + m, dtype=F64)
     with torch.no_grad():
-        cols = [(residuals(*split(x0 + h * e)) - residuals(*split(x0 - h * e))) / (2 * h)
-                for e in torch.eye(6 * n + m, dtype=F64)]
-        r = residuals(*split(x0)).numpy()
-    J = torch.stack(cols, -1).numpy()
+        r = residuals(torch.zeros(6 * n + m, dtype=F64))
+        batched = torch.cat([residuals(x) for x in torch.cat((steps, -steps, 0 * steps[:1]))
+                             .split(64)])
+        assert torch.allclose(batched[-1], r, rtol=0, atol=1e-11)
+        plus, minus = batched[:-1].chunk(2)
+    J = ((plus - minus) / (2 * h)).T.numpy()
+    r = r.numpy()
     g = J.T @ r
     return float(g @ np.linalg.pinv(J.T @ J, rcond=1e-12) @ g), float(r @ r)
 
@@ -350,7 +356,9 @@ def test_accel_with_a_cumulative_quadratic_warns():
 @pytest.mark.filterwarnings("ignore:fitting.Estimate. chi2/dof far above 1:RuntimeWarning")
 def test_time_offset_on_its_bound_warns_and_has_no_std():  # the clipped offset: chi2/dof 1.7
     """A gyroscope 60 ms late with max_time_offset=0.02: the offset ends on the bound; the
-    estimate warns and std gives inf with a warning (not a finite curvature value)."""
+    estimate warns and std gives inf with a warning (not a finite curvature value). The
+    offset is on the bound from the first steps and the solve never converges (the data pull
+    it past the bound): 12 steps, not the default 50, end on the bound alike (measured)."""
     gen = torch.Generator().manual_seed(2)
     tc, ti = grid(0.0, 2.0, 20), grid(0.2, 1.8, 100)
     x = noisy_poses(poses_of(tc), gen, 0.002, 0.002)
@@ -359,7 +367,7 @@ def test_time_offset_on_its_bound_warns_and_has_no_std():  # the clipped offset:
     spline = BSpline.from_dualquats(x, tc, n_ctrl=23, form="cumulative")
     with pytest.warns(RuntimeWarning, match="ended on its bound max_time_offset=0.02"):
         est = estimate(spline, [Poses(tc, x, rot_sigma=0.002, trans_sigma=0.002), gyro],
-                       verbose=False)
+                       steps=12, verbose=False)
     assert float(gyro.time_offset) == pytest.approx(0.02)
     with pytest.warns(RuntimeWarning, match="Gyro.time_offset ended on its bound"):
         assert math.isinf(float(est.std(gyro, "time_offset")))

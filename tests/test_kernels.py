@@ -544,7 +544,8 @@ def test_weight_jets_backward_is_the_plain_vjp(gen):
     """``jet_sclerp.weights`` on jets of ``c`` (its backward written out through the jets of
     ``G`` and ``H = dG/dy``) against autograd through the Taylor recurrences, over both
     branches and the switch between them, orders 1-3; gradcheck (finite differences) and
-    gradgradcheck (the plain VJP) on a few elements."""
+    gradgradcheck (the plain VJP) on one element of each branch (a second one of the same
+    branch took the same path at twice the finite-difference cost)."""
     n = 4000
     y = torch.cat((10 ** torch.empty(n // 2, dtype=torch.float64).uniform_(-12, -0.2,
                                                                             generator=gen),
@@ -564,8 +565,8 @@ def test_weight_jets_backward_is_the_plain_vjp(gen):
         plain = torch.autograd.grad(F2 + G2, cs, w)
         for x, r in zip(fused, plain, strict=True):
             assert rel(x, r) < 1e-11
-        # the two smallest y (the series) and two of the second half (the closed forms)
-        pick = torch.cat((torch.topk(y, 2, largest=False).indices, torch.tensor([2000, 3000])))
+        # the smallest y (the series; alpha < 0 there) and one of the second half (closed)
+        pick = torch.cat((torch.topk(y, 1, largest=False).indices, torch.tensor([2000])))
         few = [x[pick].detach().clone().requires_grad_() for x in c]
         s_few = [None if x is None else x[:, pick] for x in s]
 
