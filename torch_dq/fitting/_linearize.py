@@ -514,23 +514,29 @@ class _Normal:
         self.nn = like.new_zeros(Bf * m * m)
         self.gn = like.new_zeros(Bf * m)
         self.rows = torch.arange(6, device=like.device)
+        self.offsets = torch.arange(w, device=like.device)
+        self.pairs = [(a, d) for a in range(w) for d in range(w - a)]  # the band's blocks
+        self.pair_a = torch.tensor([a for a, _ in self.pairs], device=like.device)
+        self.pair_d = torch.tensor([d for _, d in self.pairs], device=like.device)
 
     def add(self, windows: Tensor, block: Tensor, gcols: Tensor) -> None:
         """Add the blocks ``(U, q, q)`` of the ``windows (U,)``, columns ``[J_c (6 w) | J_n
         (M) | r]`` (window ``u``'s nuisance column ``j`` is the problem's ``gcols[u, j]``;
-        padding columns are zero)."""
-        w, m, M = self.w, self.m, gcols.shape[-1]
+        padding columns are zero): one scatter per destination (rows ``a`` of window ``f``
+        belong to control point ``f + a``, its block ``(a, a + d)`` to the band at ``(f +
+        a, d)``)."""
+        w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
         nuis = slice(6 * w, 6 * w + M)
-        for a in range(w):  # rows a of window f belong to control point f + a
-            rows, at = slice(6 * a, 6 * a + 6), windows + a
-            self.gc.index_add_(0, at, block[:, rows, -1])
-            for d in range(w - a):
-                self.band[:, d].index_add_(0, at, block[:, rows, 6 * (a + d):6 * (a + d) + 6])
-            if M:
-                cols = (at[:, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, :]
-                self.cn.index_add_(0, cols.reshape(-1), block[:, rows, nuis].reshape(-1))
+        at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
+        src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
+                           for a, d in self.pairs], 1)  # (U, P, 6, 6)
+        band_at = at[:, self.pair_a] * w + self.pair_d  # (U, P) in the band's (G w) blocks
+        self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1), src.reshape(-1, 6, 6))
+        self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
         if not M:
             return
+        cols = (at[:, :, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, None, :]
+        self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
         row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
         self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
                            block[:, nuis, nuis].reshape(-1))
