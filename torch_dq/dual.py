@@ -557,7 +557,8 @@ def acos(x: Dual) -> Dual:
     The real part is in :math:`[0, \pi]`. At :math:`a = \pm 1` the derivative is
     :math:`-\infty`: the dual part is exactly 0 if :math:`b = 0` (with finite gradients)
     and :math:`-\operatorname{sign}(b)\,\infty` otherwise. For :math:`|a| > 1` both parts
-    are NaN, like ``torch.acos``.
+    are NaN, like ``torch.acos``. :math:`1 - a^2` is formed as :math:`(1 - a)(1 + a)`, exact
+    to rounding near :math:`|a| = 1` (``1 - a * a`` loses ``eps / (1 - |a|)`` relatively).
 
     Args:
         x: ``Dual`` cosine, real part in :math:`[-1, 1]`.
@@ -569,7 +570,7 @@ def acos(x: Dual) -> Dual:
     a, b = _dual("dual.acos", x)
     singular = a.abs() == 1
     a_safe = torch.where(singular, torch.zeros_like(a), a)
-    regular = b * -torch.rsqrt(1.0 - a_safe * a_safe)
+    regular = b * -torch.rsqrt((1.0 - a_safe) * (1.0 + a_safe))  # exact near |a| = 1
     return Dual._make(torch.acos(a), _guard(regular, singular, _blow_up(b, -_INF)))
 
 
