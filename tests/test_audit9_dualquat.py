@@ -41,7 +41,7 @@ def test_norm_of_scaled_dual_quaternion_matches_mpmath(dtype, c):
     with mpmath.workdps(50):
         v = [mpmath.mpf(float(e)) for e in x.double()]
         real = mpmath.sqrt(sum(e * e for e in v[:4]))
-        dual = sum(a * b for a, b in zip(v[:4], v[4:])) / real
+        dual = sum(a * b for a, b in zip(v[:4], v[4:], strict=True)) / real
         ref_real, ref_dual = float(real), float(dual)
     got = dq.norm(x)
     tol = 1e-15 if dtype == F64 else 1e-6

@@ -44,9 +44,9 @@ import torch.utils._pytree as _pytree
 from torch import Tensor
 
 from . import _checks, _dispatch
-from ._numerics import power_of_two_scale
 from ._core import Frozen
 from ._kernels.sincos import SinCos
+from ._numerics import power_of_two_scale
 
 __all__ = [
     "Dual",
