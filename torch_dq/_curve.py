@@ -439,6 +439,9 @@ class Curve(torch.nn.Module, abc.ABC):
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
+        knots = self.time_model.knots  # (..., K): a row per trajectory when batched
+        _checks.broadcast_batch(fn, ctrl=(like, 2), t=(t, 1),
+                                **({"knots": (knots, 1)} if knots.dim() > 1 else {}))
         if t.device != like.device:
             _checks.fail(fn, f"t is on {t.device} but the control points are on {like.device}",
                          TypeError)
