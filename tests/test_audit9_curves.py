@@ -4,6 +4,7 @@ values are checked against pytransform3d's sclerp (De Casteljau written in the t
 gradient of a loss over the finite samples against the same loss with the bad sample absent:
 evaluating the NaN time sent ``0 * NaN`` into the gradients of the shared control points."""
 
+import itertools
 import math
 
 import numpy as np
@@ -29,7 +30,7 @@ def _ref_bezier(ctrl, s):
     pts = list(ctrl.numpy())
     while len(pts) > 1:
         pts = [pt.dual_quaternion_sclerp(a, b if a[:4] @ b[:4] >= 0 else -b, s)
-               for a, b in zip(pts[:-1], pts[1:], strict=True)]
+               for a, b in itertools.pairwise(pts)]
     return pts[0]
 
 
