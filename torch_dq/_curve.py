@@ -306,14 +306,14 @@ class Curve(torch.nn.Module, abc.ABC):
 
     # -- construction and saving
     def _fill(self, fn: str, x: Tensor, t64: Tensor) -> Self:
-        """Set the control points from the local least-squares start
-        (:func:`torch_dq._start.least_squares_start`) on poses ``x`` at float64 times."""
+        """Set the control points to :meth:`_fitted`'s (in ``x``'s dtype and device)."""
         self.control_points = self._fitted(fn, x, t64).to(dtype=x.dtype, device=x.device)
         return self
 
     def _fitted(self, fn: str, x: Tensor, t64: Tensor) -> Tensor:
-        """``(..., n, 8)`` float64 control points of the local least-squares start on poses
-        ``x`` at float64 times ``t64``, on this curve's knots (the layer left as it is)."""
+        """``(..., n, 8)`` float64 control points of the local least-squares start
+        (:func:`torch_dq._start.least_squares_start`) on poses ``x`` at float64 times ``t64``,
+        on this curve's knots (the layer left as it is)."""
         n, N = self.n_ctrl, x.shape[-2]
         if n > N:
             low = self._min_samples
@@ -329,15 +329,11 @@ class Curve(torch.nn.Module, abc.ABC):
         dom = self.time_model
         origin = dom.origin.cpu() if isinstance(dom.origin, Tensor) else dom.origin
         dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, origin)
-        rel = dom.relative(t64, torch.float64)
-        split = self._split_charts
+        rel, split = dom.relative(t64, torch.float64), self._split_charts
         if dom.knots.dim() > 1:
-            ctrl = _start_rows(fn, x64, rel, dom, n, split)
-        else:
-            first, values = dom.basis(rel)
-            ctrl = _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(),
-                                              split)
-        return ctrl
+            return _start_rows(fn, x64, rel, dom, n, split)
+        first, values = dom.basis(rel)
+        return _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(), split)
 
     @classmethod
     def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:
@@ -444,6 +440,9 @@ class Curve(torch.nn.Module, abc.ABC):
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
+        knots = self.time_model.knots  # (..., K): a row per trajectory when batched
+        _checks.broadcast_batch(fn, ctrl=(like, 2), t=(t, 1),
+                                **({"knots": (knots, 1)} if knots.dim() > 1 else {}))
         if t.device != like.device:
             _checks.fail(fn, f"t is on {t.device} but the control points are on {like.device}",
                          TypeError)

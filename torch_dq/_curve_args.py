@@ -11,7 +11,8 @@ from torch import Tensor
 
 from . import _checks, dualquat, quat
 
-__all__ = ["check_int", "extra_float", "extra_origins", "poses_to_dq"]
+__all__ = ["check_int", "extra_float", "extra_origins", "nan_safe", "nan_where",
+           "poses_to_dq"]
 
 
 def check_int(fn: str, name: str, value, low: int, what: str) -> int:
@@ -65,3 +66,18 @@ def poses_to_dq(fn: str, rotations, translations) -> Tensor:
                          f"translations {_checks.shape_str(translations.shape)}")
     _checks.broadcast_batch(fn, rotations=(q, 2), translations=(translations, 2))
     return dualquat.from_rt(q, translations)
+
+
+def nan_safe(dom, rel: Tensor) -> tuple[Tensor, Tensor]:
+    """Safe where for the times a curve cannot evaluate: the NaN relative times (a NaN ``t``,
+    or one beyond the domain under the domain rules, :meth:`KnotDomain.admit`) replaced by
+    the domain's start, and the mask of them for :func:`nan_where`. Evaluating NaN times
+    would send ``0 * NaN`` into the gradients of the control points that the other samples
+    share; now those samples' outputs are NaN and their gradient contributions 0."""
+    bad = torch.isnan(rel)
+    return torch.where(bad, dom.ends(rel.dtype)[0].detach()[..., None], rel), bad
+
+
+def nan_where(bad: Tensor, x: Tensor) -> Tensor:
+    """``x (..., T, k)`` with NaN at the samples :func:`nan_safe` replaced."""
+    return torch.where(bad[..., None], torch.nan, x)

@@ -85,6 +85,7 @@ from torch import Tensor
 
 from . import _checks, _cumulative, _dispatch, dualquat, quat
 from ._core import align_chain, qmul, translation
+from ._curve_args import nan_safe, nan_where
 from ._fused_curves import (
     fused_bezier,
     fused_bspline,
@@ -281,9 +282,9 @@ def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extra
     rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate,
                       knots="domain" if tensor_ends else None,
                       fix="evaluate inside it, pass a domain=(t0, t1) that covers it")
-    dtype = compute_dtype(ctrl.dtype)
-    _, s, slope = dom.locate(rel, dtype)
-    return batch, ctrl.to(dtype), s, slope
+    rel, bad = nan_safe(dom, rel)
+    _, s, slope = dom.locate(rel, compute_dtype(ctrl.dtype))
+    return batch, ctrl.to(compute_dtype(ctrl.dtype)), s, slope, bad
 
 
 def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = (0.0, 1.0),
@@ -334,10 +335,10 @@ def bezier(ctrl: Tensor, t: Tensor, domain: Sequence[float | Tensor] | Tensor = 
         tensor([0.0000, 0.7500])
     """
     fn = "curves.bezier"
-    batch, ctrl_c, s, _ = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
-    if _dispatch.fused_path(ctrl_c, s):
-        return fused_bezier(ctrl_c, s, batch).to(ctrl.dtype)
-    return _de_casteljau(ctrl_c, s).to(ctrl.dtype)
+    batch, ctrl_c, s, _, bad = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
+    fused = _dispatch.fused_path(ctrl_c, s)
+    x = fused_bezier(ctrl_c, s, batch) if fused else _de_casteljau(ctrl_c, s)
+    return nan_where(bad, x).to(ctrl.dtype)
 
 
 def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
@@ -381,11 +382,11 @@ def bezier_derivatives(ctrl: Tensor, t: Tensor, order: int = 2,
     """
     fn = "curves.bezier_derivatives"
     order = _checks.integer(fn, "order", order, 0, _MAX_ORDER)
-    batch, ctrl_c, s, slope = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
+    batch, ctrl_c, s, slope, bad = _prepare_bezier(fn, ctrl, t, domain, check, extrapolate)
     T, m = s.shape[-1], ctrl_c.shape[-2]
     points = ctrl_c[..., None, :, :].expand(*batch, T, m, 8)
     levels = [(s[..., None], slope[..., None])] * (m - 1)  # the same parameter at every level
-    return tuple(x.to(ctrl.dtype) for x in jet_scheme(points, levels, order, batch))
+    return tuple(nan_where(bad, x).to(ctrl.dtype) for x in jet_scheme(points, levels, order, batch))
 
 
 def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: bool,
@@ -417,8 +418,7 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
         tdtype = _time_dtype(ctrl, t, knots)
         validate = "knots"
     dom = KnotDomain(knots.to(tdtype), degree)
-    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate,
-                      fix=fix)
+    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate, fix=fix)
     return batch, dom, rel, form
 
 
@@ -625,9 +625,9 @@ def bspline(ctrl: Tensor, t: Tensor, degree: int = 3, knots: Tensor | None = Non
                 [0.0000, 1.0000, 0.0000]])
     """
     fn = "curves.bspline"
-    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate,
-                                             form)
-    return _bspline_pose(ctrl, dom, rel, form, batch)
+    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate, form)
+    rel, bad = nan_safe(dom, rel)
+    return nan_where(bad, _bspline_pose(ctrl, dom, rel, form, batch))
 
 
 def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3,
@@ -694,6 +694,6 @@ def bspline_derivatives(ctrl: Tensor, t: Tensor, order: int = 2, degree: int = 3
     """
     fn = "curves.bspline_derivatives"
     order = _checks.integer(fn, "order", order, 0, _MAX_ORDER)
-    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate,
-                                             form)
-    return _bspline_jets(ctrl, dom, rel, form, order, batch)
+    batch, dom, rel, form = _prepare_bspline(fn, ctrl, t, degree, knots, check, extrapolate, form)
+    rel, bad = nan_safe(dom, rel)
+    return tuple(nan_where(bad, x) for x in _bspline_jets(ctrl, dom, rel, form, order, batch))

@@ -46,6 +46,7 @@ from torch import Tensor
 from . import _checks, _dispatch
 from ._core import Frozen
 from ._kernels.sincos import SinCos
+from ._numerics import power_of_two_scale
 
 __all__ = [
     "Dual",
@@ -428,7 +429,8 @@ def inv(x: Dual) -> Dual:
     real = torch.reciprocal(a)
     singular = a == 0
     r_safe = torch.reciprocal(torch.where(singular, torch.ones_like(a), a))
-    return Dual._make(real, _guard(-b * (r_safe * r_safe), singular, _blow_up(b, -_INF)))
+    # (b / a) / a: no square of a tiny (1e-200) a overflows, none of a huge one underflows
+    return Dual._make(real, _guard(-(b * r_safe) * r_safe, singular, _blow_up(b, -_INF)))
 
 
 def conj(x: Dual) -> Dual:
@@ -557,7 +559,8 @@ def acos(x: Dual) -> Dual:
     The real part is in :math:`[0, \pi]`. At :math:`a = \pm 1` the derivative is
     :math:`-\infty`: the dual part is exactly 0 if :math:`b = 0` (with finite gradients)
     and :math:`-\operatorname{sign}(b)\,\infty` otherwise. For :math:`|a| > 1` both parts
-    are NaN, like ``torch.acos``.
+    are NaN, like ``torch.acos``. :math:`1 - a^2` is formed as :math:`(1 - a)(1 + a)`, exact
+    to rounding near :math:`|a| = 1` (``1 - a * a`` loses ``eps / (1 - |a|)`` relatively).
 
     Args:
         x: ``Dual`` cosine, real part in :math:`[-1, 1]`.
@@ -569,7 +572,7 @@ def acos(x: Dual) -> Dual:
     a, b = _dual("dual.acos", x)
     singular = a.abs() == 1
     a_safe = torch.where(singular, torch.zeros_like(a), a)
-    regular = b * -torch.rsqrt(1.0 - a_safe * a_safe)
+    regular = b * -torch.rsqrt((1.0 - a_safe) * (1.0 + a_safe))  # exact near |a| = 1
     return Dual._make(torch.acos(a), _guard(regular, singular, _blow_up(b, -_INF)))
 
 
@@ -602,16 +605,19 @@ def atan2(y: Dual | Tensor | float, x: Dual | Tensor | float) -> Dual:
     ya, yd, xa, xd = _parts("dual.atan2", ("y", "x"), y, x)
     real = torch.atan2(ya, xa)
     singular = (xa == 0) & (ya == 0)
-    r2_safe = torch.where(singular, torch.ones_like(real), xa * xa + ya * ya)
+    # Scaled by a power of two (exact): x^2 + y^2 neither overflows (1e200) nor underflows.
+    s = power_of_two_scale(torch.stack(torch.broadcast_tensors(xa, ya), -1))[..., 0]
+    xs, ys = xa / s, ya / s
+    r2_safe = torch.where(singular, torch.ones_like(real), xs * xs + ys * ys)
     num = None
     if yd is not None:
-        num = xa * yd
+        num = xs * yd
     if xd is not None:
-        num = -(ya * xd) if num is None else num - ya * xd
+        num = -(ys * xd) if num is None else num - ys * xd
     if num is None:
         return _new(real, None)
     # At the origin num is 0 (both real parts vanish): the regular branch is finite there.
-    regular = num / r2_safe
+    regular = num / r2_safe / s
     zero = torch.zeros_like(real)
     phi = torch.atan2(zero if yd is None else yd.detach(), zero if xd is None else xd.detach())
     jump = torch.where(phi == 0, zero, phi * _INF)

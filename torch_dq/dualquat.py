@@ -174,7 +174,9 @@ def inv(x: Tensor) -> Tensor:
 
     Valid for any dual quaternion with a non-zero real part (zero real part: non-finite
     values in that element, a non-finite real part: NaN); for a unit dual quaternion it
-    equals :func:`conj` (non-unit input is inverted exactly, not normalised).
+    equals :func:`conj` (non-unit input is inverted exactly, not normalised). The real part
+    is scaled by a power of two first (as :func:`torch_dq.quat.inv`), so no square of a huge
+    or tiny ``r`` (1e200 in float64, 1e20 in float32) overflows or underflows.
 
     Args:
         x: ``(..., 8)`` dual quaternions (any norm).
@@ -182,8 +184,10 @@ def inv(x: Tensor) -> Tensor:
     _dq("dualquat.inv", "x", x)
     dtype = x.dtype
     r, d = split(lift(x))
-    n2 = (r * r).sum(-1, keepdim=True)
-    r_inv = qconj(r) / nan_unless(torch.isfinite(n2), n2)
+    m = power_of_two_scale(r)
+    p = r / m  # exact
+    n2 = (p * p).sum(-1, keepdim=True)
+    r_inv = qconj(p) / (nan_unless(torch.isfinite(n2), n2) * m)
     return join(r_inv, -qmul(qmul(r_inv, d), r_inv)).to(dtype)
 
 
@@ -194,12 +198,17 @@ def norm(x: Tensor) -> Dual:
         x: ``(..., 8)`` dual quaternions (any norm).
 
     Returns:
-        ``Dual`` of batch shape ``(...)``; ``1 + eps 0`` for a unit dual quaternion.
+        ``Dual`` of batch shape ``(...)``; ``1 + eps 0`` for a unit dual quaternion. ``r`` is
+        scaled by a power of two first and the dual part formed as :math:`(r / |r|) \cdot d`,
+        so huge or tiny inputs (1e200 in float64, 1e20 in float32) neither overflow nor
+        underflow; a zero real part gives a NaN dual part.
     """
     _dq("dualquat.norm", "x", x)
     r, d = split(lift(x))
-    n = torch.linalg.vector_norm(r, dim=-1)
-    return Dual(n.to(x.dtype), ((r * d).sum(-1) / n).to(x.dtype))
+    m = power_of_two_scale(r)
+    n = torch.linalg.vector_norm(r / m, dim=-1, keepdim=True)
+    u = r / m / n
+    return Dual((m * n)[..., 0].to(x.dtype), (u * d).sum(-1).to(x.dtype))
 
 
 def dot(a: Tensor, b: Tensor) -> Dual:
