@@ -53,7 +53,7 @@ import math
 import torch
 from torch import Tensor
 
-from . import _cumulative_lie, _taylor
+from . import _taylor
 from ._dispatch import per_time_jets
 from ._kernels import cumulative as _poses_kernel
 from ._kernels import cumulative_jets as _derivatives_kernel
@@ -180,18 +180,14 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         differentiable twice (reverse mode) with respect to ``ctrl`` and ``weights``; per
         time (:func:`jets`) where the tables do not pay
         (:func:`torch_dq._dispatch.per_time_jets`), else
-        :func:`torch_dq._kernels.cumulative_jets.derivatives`; where nothing is
-        differentiated (float64, unit control points, orders <= 2:
-        :func:`torch_dq._cumulative_lie.applies`) by the Lie-algebra recursions,
-        :func:`torch_dq._cumulative_lie.derivatives`, the same values to rounding and 1.5 to
-        2 times as fast. Under ``torch.func``
+        :func:`torch_dq._kernels.cumulative_jets.derivatives` (the estimation's evaluations,
+        where nothing is differentiated, take :func:`torch_dq._cumulative_lie.derivatives`
+        instead: :meth:`torch_dq.nn.BSpline.span_derivatives`). Under ``torch.func``
         transforms and forward AD (:func:`torch_dq._dispatch.fused_path` false) use
         :func:`jets`.
     """
     p, N = weights[0].shape
     order = len(weights) - 1
-    if N and _cumulative_lie.applies(ctrl, weights):
-        return _cumulative_lie.derivatives(ctrl, first, weights)
     if order == 0:
         return [poses(ctrl, first, weights[0])]
     if N == 0:

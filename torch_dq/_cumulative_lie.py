@@ -402,11 +402,14 @@ UNIT_ATOL = 64 * torch.finfo(torch.float64).eps
 def applies(ctrl: Tensor, weights: list[Tensor]) -> bool:
     """Whether :func:`derivatives` evaluates: float64 on the CPU, orders 0 to 2, nothing
     differentiated (no autograd graph is recorded: reverse mode goes through the span
-    tables), eagerly, and unit control points to :data:`UNIT_ATOL` (one read of a flag)."""
+    tables), eagerly, and unit control points to :data:`UNIT_ATOL` (one read of a flag;
+    non-finite ones aside: they give NaN in their own spans either way, and the other
+    elements of a batch keep this path's bits)."""
     grad = torch.is_grad_enabled() and any(x.requires_grad for x in (ctrl, *weights))
     return (ctrl.dtype == torch.float64 and ctrl.device.type == "cpu" and len(weights) <= 3
             and not grad and not torch.compiler.is_compiling()
-            and bool(dualquat.is_unit(ctrl, UNIT_ATOL).all()))
+            and bool((dualquat.is_unit(ctrl, UNIT_ATOL)
+                      | ~torch.isfinite(ctrl).all(-1)).all()))
 
 
 def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:

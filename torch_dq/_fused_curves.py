@@ -61,17 +61,18 @@ def fused_bspline(ctrl: Tensor, r: Tensor, alphas: list[Tensor], degree: int,
 
 
 def fused_cumulative(ctrl: Tensor, r: Tensor, weights: list[Tensor], degree: int,
-                      batch: torch.Size) -> list[Tensor]:
+                      batch: torch.Size, kernel=_cumulative.derivatives) -> list[Tensor]:
     """The cumulative form and its time derivatives to ``len(weights) - 1`` through its fused
-    ops (:func:`torch_dq._cumulative.derivatives`, :func:`~torch_dq._cumulative.poses`),
-    which read the ``degree + 1`` points from ``c_{r-p}`` on and each pair's relative motion
-    once; ``weights``: the basis and its derivatives, ``(..., T, p)`` each."""
+    ops (``kernel``: :func:`torch_dq._cumulative.derivatives`, or
+    :func:`torch_dq._cumulative_lie.derivatives` where it applies), which read the ``degree +
+    1`` points from ``c_{r-p}`` on and each pair's relative motion once; ``weights``: the
+    basis and its derivatives, ``(..., T, p)`` each."""
     n, T, B = ctrl.shape[-2], r.shape[-1], batch.numel()
     flat = ctrl.expand(*batch, n, 8).reshape(B * n, 8)
     offsets = (torch.arange(B, device=r.device) * n).reshape(*batch, 1)
     first = (r - degree + offsets).expand(*batch, T).reshape(B * T)
     w = [x.expand(*batch, T, degree).reshape(B * T, degree).T for x in weights]
-    return [x.view(*batch, T, 8) for x in _cumulative.derivatives(flat, first, w)]
+    return [x.view(*batch, T, 8) for x in kernel(flat, first, w)]
 
 
 JET_CHUNK = 16384  # times per eager chunk of the jet scheme (its temporaries stay in cache)

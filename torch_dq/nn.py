@@ -81,9 +81,10 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _cumulative_lie, _start, curves, dualquat
-from ._core import distinct
+from ._core import align_chain, distinct
 from ._curve import Curve, UnitDualQuaternion
 from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
+from ._fused_curves import fused_cumulative
 from ._time import KnotDomain, time_pair
 from .fitting import FitHistory, fit
 from .fitting._knots import choose_knot_spacing
@@ -464,11 +465,20 @@ class BSpline(Curve):
         # the form's own evaluation at the given spans: the cumulative form's span tables
         # are built once per span, not once per sample
         lo, _ = self._span_bounds(first)
-        rel = lo + local
+        rel, r = lo + local, first + self.degree
         batch = _checks.broadcast_shapes(ctrl.shape[:-2], rel.shape[:-1],
                                          self._knots.shape[:-1])
-        return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch,
-                                    r=first + self.degree)
+        if self.form == "cumulative" and ctrl.dtype == torch.float64:
+            # the estimation's evaluations, nothing differentiated: by the Lie recursions
+            # (torch_dq._cumulative_lie) where they apply; the public curve functions keep the
+            # span tables whatever a batch holds (a non-unit element would switch the path,
+            # and the rounding, of its neighbours)
+            weights = self.time_model.bases(rel, r, order, cumulative=True)
+            aligned = align_chain(ctrl)
+            if _cumulative_lie.applies(aligned, weights):
+                return tuple(fused_cumulative(aligned, r, weights, self.degree, batch,
+                                              _cumulative_lie.derivatives))
+        return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch, r=r)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
                  pose: Tensor) -> Tensor | None:

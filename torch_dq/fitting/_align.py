@@ -27,6 +27,7 @@ odometry or cameras see the rotations themselves), a lever arm's effect on the a
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import torch
 from torch import Tensor
@@ -34,6 +35,7 @@ from torch.nn.utils.parametrize import type_before_parametrizations
 
 from .. import dualquat, quat
 from .._core import qmul
+from .._curve import Curve
 from ._imu import Accel, Gyro
 from ._terms import Positions, Term
 
@@ -43,8 +45,9 @@ __all__ = ["imu_aligned"]
 def imu_aligned(fn: str, trajectory, terms: list[Term], ctrl: Tensor) -> Tensor:
     """``ctrl (n, 8)``, or the IMU-aligned start (module docstring) where it applies (one
     trajectory, Positions, Gyro and Accel terms only, on shared times) and costs less."""
-    kinds = {type(t) for t in terms}
-    if ctrl.dim() != 2 or not {Positions, Gyro, Accel} <= kinds <= {Positions, Gyro, Accel} \
+    kinds: set[type] = {type(t) for t in terms}
+    ours: set[type] = {Positions, Gyro, Accel}
+    if ctrl.dim() != 2 or kinds != ours \
             or any(t.times.dim() != 1 or t.mask.dim() != 1 for t in terms):
         return ctrl
     pos = next(t for t in terms if isinstance(t, Positions))
@@ -144,7 +147,7 @@ def _translation_curve(trajectory, pos: Positions):
     m = pos.mask
     p = pos.positions[m].to(torch.float64)
     x = dualquat.from_rt(quat.identity(dtype=torch.float64).expand(p.shape[0], 4), p)
-    cls = type_before_parametrizations(trajectory)
+    cls = cast("type[Curve]", type_before_parametrizations(trajectory))
     return cls.from_dualquats(x, pos.times[m].to(torch.float64),
                               n_ctrl=min(trajectory.n_ctrl, p.shape[0] // 2))
 

@@ -244,7 +244,7 @@ class Linearization:
         return r, wt, f0, Jc, Jn
 
     def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
-                 known: list[tuple[Tensor, ...]] | None):
+                 known: list[tuple[Tensor, ...]] | None = None):
         """Per-sample whitened residuals ``(..., N, k)`` of ``term`` (term ``i`` or a part
         of it), its window start and their Jacobians: the span derivatives at the current
         point (``known``, or evaluated), the residuals' Jacobians with respect to them and to
