@@ -96,9 +96,10 @@ def _aligned(fn: str, trajectory, pos: Positions, gyro: Gyro, acc: Accel, ctrl: 
 
 
 def _start(term: Term, name: str) -> Tensor:
-    """``(3,)`` float64: a bias's or lever arm's value or start (zero without one)."""
+    """``(3,)`` float64: a bias's value or start (zero without one)."""
     v = term._value(name)
-    return torch.zeros(3, dtype=torch.float64) if v is None else v.to(torch.float64)
+    like = term.sigma.device
+    return torch.zeros(3, dtype=torch.float64, device=like) if v is None else v.to(torch.float64)
 
 
 def _integrate(t: Tensor, rates: Tensor) -> Tensor:
