@@ -55,7 +55,6 @@ def imu_aligned(fn: str, trajectory, terms: list[Term], ctrl: Tensor) -> Tensor:
     acc = next(t for t in terms if isinstance(t, Accel))
     if int(pos.mask.sum()) < 8 or min(int(t.mask.sum()) for t in (gyro, acc)) < 3:
         return ctrl
-    theirs = _cost(trajectory, terms, ctrl)  # first: the terms' one-time checks see it
     with warnings.catch_warnings():  # an attempt: its fits' warnings are not the caller's
         warnings.simplefilter("ignore")
         try:
@@ -64,6 +63,7 @@ def imu_aligned(fn: str, trajectory, terms: list[Term], ctrl: Tensor) -> Tensor:
             return ctrl
     if aligned is None:
         return ctrl
+    theirs = _cost(trajectory, terms, ctrl)  # first: the terms' one-time checks see it
     return aligned if bool(_cost(trajectory, terms, aligned) < theirs) else ctrl
 
 

@@ -92,17 +92,18 @@ def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor], memo: Memo | 
     order = problem.terms[i].order + _rated(problem, i, vals)  # as the linearisation's
     out = []
     for k, term in enumerate(problem.terms[i].parts(PART)):
-        derivs = _part_derivatives(problem.spans, term, ctrl, vals, order)
+        p = term.per_sample(vals)
+        derivs = _part_derivatives(problem.spans, term, ctrl, term.time_shift(p), order)
         if memo is not None:
             memo.put((i, k), derivs)
-        out.append(term.residuals([d[:term.order + 1] for d in derivs], term.per_sample(vals)))
+        out.append(term.residuals([d[:term.order + 1] for d in derivs], p))
     return torch.cat(out, -2)
 
 
-def _part_derivatives(spans, term, ctrl: Tensor, vals: dict[str, Tensor], order: int,
+def _part_derivatives(spans, term, ctrl: Tensor, shift: Tensor, order: int,
                       ) -> list[tuple[Tensor, ...]]:
-    """Span derivatives ``0 .. order`` at each times list of ``term`` (a part)."""
-    shift = term.time_shift(term.per_sample(vals))
+    """Span derivatives ``0 .. order`` at each times list of ``term`` (a part), its times
+    moved by ``shift``."""
     derivs = []
     for t in term.times_list():
         t = t + shift
@@ -267,7 +268,9 @@ class Linearization:
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
         rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
         if known is None:  # the span derivatives at the current point (and the next)
-            known = _part_derivatives(self.spans, term, ctrl, vals, o - 1 + rated)
+            with torch.no_grad():
+                known = [_point_derivatives(self.spans, ctrl, t, f, s, o - 1 + rated)
+                         for t, f, s in zip(times, firsts, shared, strict=True)]
         derivs = [torch.stack(d, -2) for d in known]
         r, J = self._residual_jacobians(i, term, vals, nuisance, [d[..., :o, :] for d in derivs],
                                         gathered.shape[:-2])
