@@ -228,15 +228,22 @@ class LevenbergMarquardt:
 
     def _decrement(self) -> tuple[Tensor, Tensor]:
         r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
-        whether its solves succeeded: on directions without information it is no distance,
-        so it is the limit of :math:`g^T (H + \epsilon D)^{-1} g` as :math:`\epsilon \to
-        0` without its :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from
-        ``epsilon = REGULARISE`` and ``100 REGULARISE``."""
+        whether its solves succeeded. Where every direction carries information (the
+        factorisation of :math:`A - \mathrm{NULL}\, D` certified no control-point
+        combination without it, ``torch_dq.fitting._prior.control_null``, and nothing is
+        pulled), one undamped solve where it succeeds. Else, on directions without
+        information it is no distance, so it is the limit of :math:`g^T (H + \epsilon
+        D)^{-1} g` as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part (``D``
+        the diagonal), extrapolated from ``epsilon = REGULARISE`` and ``100 REGULARISE``."""
         gc, gn = self.gradient()
         gn = self._bounded(gn)
         if self._null_of is not self.system:  # factored once per system
             self.null = _prior.control_null(_prior.Regularised(self.system.band, self.pulls[0]))
             self._null_of = self.system
+        if self.informed:
+            dc, dn, ok = self._step().step(torch.zeros_like(self.damping.lam), gc, gn)
+            if bool(ok.all()):
+                return -((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)), ok
         # re-anchored pulls (nuisance estimated) hold their directions where they are: those
         # are left out like the directions without information (a stiffer pull)
         step = self._step(_LEFT_OUT if self.p.params else 1.0)
@@ -247,6 +254,14 @@ class LevenbergMarquardt:
             ok &= good
         # g^T (H + eps D)^-1 g = d + c / eps: d extrapolated
         return (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0), ok
+
+    @property
+    def informed(self) -> bool:
+        """Whether the current system has information on every direction: no control-point
+        combination without it (:attr:`null` empty) and no pull. (Where its undamped
+        factorisation fails nonetheless, :meth:`_decrement` extrapolates.)"""
+        return (not self.null[0].shape[-1] and not bool(self.pulls[0].any())
+                and not bool(self.pulls[1].any()))
 
     def check(self, tol: float, final: bool = False) -> None:
         r"""The scaled gradient test at the current point (its system built): an element
