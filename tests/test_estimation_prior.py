@@ -131,12 +131,12 @@ def _readme_problem():
     return tc, poses, terms
 
 
-def _dense_decrement(spline, terms):
-    """g^T H^+ g of the data cost at the current point, from a dense central-difference
-    Jacobian of the whitened residuals over the control points' charts and the nuisance
-    charts, and numpy's pseudo-inverse. The terms evaluate the 2 (6 n + m) perturbed points
-    as batches of 64 trajectories (3x faster than one by one; the batch's unperturbed
-    member equals the unbatched evaluation)."""
+def _dense_jacobian(spline, terms):
+    """Dense central-difference Jacobian ``J`` of the whitened residuals ``r`` over the
+    control points' charts and the nuisance charts at the current point, and the problem
+    (its nuisance columns' offsets). The terms evaluate the 2 (6 n + m) perturbed points as
+    batches of 64 trajectories (3x faster than one by one; the batch's unperturbed member
+    equals the unbatched evaluation)."""
     from torch_dq.fitting._estimate import _starts
     from torch_dq.fitting._problem import Problem
     ctrl = spline.control_points.detach().to(F64)
@@ -163,8 +163,13 @@ def _dense_decrement(spline, terms):
                              .split(64)])
         assert torch.allclose(batched[-1], r, rtol=0, atol=1e-11)
         plus, minus = batched[:-1].chunk(2)
-    J = ((plus - minus) / (2 * h)).T.numpy()
-    r = r.numpy()
+    return ((plus - minus) / (2 * h)).T.numpy(), r.numpy(), problem
+
+
+def _dense_decrement(spline, terms):
+    """g^T H^+ g of the data cost at the current point (``_dense_jacobian``, numpy's
+    pseudo-inverse) and the cost."""
+    J, r, _ = _dense_jacobian(spline, terms)
     g = J.T @ r
     return float(g @ np.linalg.pinv(J.T @ J, rcond=1e-12) @ g), float(r @ r)
 
@@ -393,3 +398,24 @@ def test_decrement_where_every_direction_is_informed_is_the_dense_one():
     assert lm.informed and bool(ok.all())
     ref, _ = _dense_decrement(spline, terms)
     assert float(dec) == pytest.approx(ref, rel=1e-6)
+
+
+@pytest.mark.filterwarnings("ignore:fitting.estimate. Accel.time_offset is estimated on a")
+def test_uncertainty_where_every_direction_is_informed_is_the_dense_inverse():
+    """Where the iteration certified every direction informed, the uncertainty factors the
+    band once, unregularised: the biases' and the clock offset's standard deviations equal
+    the square roots of the diagonal of the dense central-difference (J^T J)^-1 at the
+    estimate to 1e-6 relatively."""
+    tc, poses, terms = _readme_problem()
+    spline = BSpline.from_dualquats(poses, tc, n_ctrl=20, form="cumulative")
+    est = estimate(spline, terms, verbose=False)
+    stds = [est.std(terms[1], "bias"), est.std(terms[2], "bias"),
+            est.std(terms[1], "time_offset").reshape(1)]
+    assert est._exact  # the unregularised path was taken
+    J, _, problem = _dense_jacobian(spline, terms)
+    cov = np.linalg.inv(J.T @ J)
+    base = 6 * problem.spans.n
+    for (i, name), s in zip([(1, "bias"), (2, "bias"), (1, "time_offset")], stds, strict=True):
+        q = problem.index[(i, name)]
+        ref = np.sqrt(np.diag(cov)[base + q.offset:base + q.offset + q.dim])
+        np.testing.assert_allclose(s.numpy(), ref, rtol=1e-6)

@@ -72,7 +72,9 @@ class Point:
 class History:
     """What the loop did: ``loss`` and ``objective`` ``(steps + 1, ...)``, ``steps`` run,
     ``reason`` (joined per batch element), ``converged (...)``, the data ``system`` at the
-    last point, its band ``width`` and the control-point directions ``pulled``."""
+    last point, its band ``width``, the control-point directions ``pulled`` and whether
+    every direction of that system carries information (``informed``: its band plus the
+    pulls certified positive definite with room, nothing pulled)."""
 
     loss: Tensor
     objective: Tensor
@@ -82,6 +84,7 @@ class History:
     system: System
     width: int
     pulled: int
+    informed: bool
 
 
 class LevenbergMarquardt:
@@ -127,7 +130,7 @@ class LevenbergMarquardt:
         info = torch.diag(p.prior_information().to(s.nn))
         reg = _prior.Regularised(s.band, cpull)
         self.pulls = (cpull, _prior.nuisance_pull(reg, s.cn, s.nn + info, prior))
-        self.null, self._null_of = _prior.control_null(reg), s
+        self._control_null(reg)
         self.pulled = (int(_prior.undetermined(s.band).sum())
                        + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
 
@@ -230,16 +233,16 @@ class LevenbergMarquardt:
         r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
         whether its solves succeeded. Where every direction carries information (the
         factorisation of :math:`A - \mathrm{NULL}\, D` certified no control-point
-        combination without it, ``torch_dq.fitting._prior.control_null``, and nothing is
-        pulled), one undamped solve where it succeeds. Else, on directions without
-        information it is no distance, so it is the limit of :math:`g^T (H + \epsilon
-        D)^{-1} g` as :math:`\epsilon \to 0` without its :math:`1/\epsilon` part (``D``
-        the diagonal), extrapolated from ``epsilon = REGULARISE`` and ``100 REGULARISE``."""
+        combination without it, ``torch_dq.fitting._prior.Regularised.certified``, and
+        nothing is pulled: ``informed``), one undamped solve where it succeeds. Else, on
+        directions without information it is no distance, so it is the limit of
+        :math:`g^T (H + \epsilon D)^{-1} g` as :math:`\epsilon \to 0` without its
+        :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from ``epsilon =
+        REGULARISE`` and ``100 REGULARISE``."""
         gc, gn = self.gradient()
         gn = self._bounded(gn)
         if self._null_of is not self.system:  # factored once per system
-            self.null = _prior.control_null(_prior.Regularised(self.system.band, self.pulls[0]))
-            self._null_of = self.system
+            self._control_null(_prior.Regularised(self.system.band, self.pulls[0]))
         if self.informed:
             dc, dn, ok = self._step().step(torch.zeros_like(self.damping.lam), gc, gn)
             if bool(ok.all()):
@@ -255,13 +258,12 @@ class LevenbergMarquardt:
         # g^T (H + eps D)^-1 g = d + c / eps: d extrapolated
         return (decs[1] * _LOOSE - decs[0]) / (_LOOSE - 1.0), ok
 
-    @property
-    def informed(self) -> bool:
-        """Whether the current system has information on every direction: no control-point
-        combination without it (:attr:`null` empty) and no pull. (Where its undamped
-        factorisation fails nonetheless, :meth:`_decrement` extrapolates.)"""
-        return (not self.null[0].shape[-1] and not bool(self.pulls[0].any())
-                and not bool(self.pulls[1].any()))
+    def _control_null(self, reg: _prior.Regularised) -> None:
+        """The combinations of control points without information of the current system
+        (``reg``: its band plus the pulls, factored) and whether it is :attr:`informed`."""
+        self.null, self._null_of = _prior.control_null(reg), self.system
+        self.informed = (reg.certified and not bool(self.pulls[0].any())
+                         and not bool(self.pulls[1].any()))
 
     def check(self, tol: float, final: bool = False) -> None:
         r"""The scaled gradient test at the current point (its system built): an element
@@ -376,7 +378,8 @@ class LevenbergMarquardt:
                 self._relinearize()
             self.check(tol, final=True)
         return History(torch.stack(losses), torch.stack(objectives), done, self._reason(steps),
-                       self.converged.reshape(p.batch), self.system, self.w, self.pulled)
+                       self.converged.reshape(p.batch), self.system, self.w, self.pulled,
+                       self._null_of is self.system and self.informed)
 
     def _reason(self, steps: int) -> str:
         """The stop reasons joined (with a warning when ``steps`` ran out)."""

@@ -187,6 +187,16 @@ class Regularised:
         D = self.A[:, :, 0].diagonal(dim1=-2, dim2=-1)
         self.D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
         self.chol = BandedCholesky(self.A, shift=REGULARISE * self.D)
+        self._certified: bool | None = None
+
+    @property
+    def certified(self) -> bool:
+        r"""Whether a factorisation of :math:`A - \mathrm{NULL}\, D` succeeds (every batch
+        element): no generalised eigenvalue at or below ``NULL``, every combination of
+        control points informed (factored on first use)."""
+        if self._certified is None:
+            self._certified = bool(BandedCholesky(self.A, shift=-NULL * self.D).ok.all())
+        return self._certified
 
 
 def nuisance_pull(reg: Regularised, cn: Tensor, nn: Tensor, prior: float) -> Tensor:
@@ -245,7 +255,7 @@ def control_null(reg: Regularised, rank: int = _NULL_RANK) -> tuple[Tensor, Tens
         ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
         x`."""
     A, D, chol = reg.A, reg.D, reg.chol
-    if bool(BandedCholesky(A, shift=-NULL * D).ok.all()):
+    if reg.certified:
         none = A.new_zeros(*D.shape, 0)
         return none, none
     gen = torch.Generator(device=A.device).manual_seed(0)

@@ -67,6 +67,18 @@ def _warn_unexcited(term, bound: float, s: Tensor) -> None:
                       f"motion determines it)", RuntimeWarning, stacklevel=3)
 
 
+def _exact_schur(band: Tensor, cn: Tensor, nn: Tensor,
+                 ) -> tuple[BandedCholesky, Tensor, Tensor] | None:
+    """:func:`_schur` where every direction carries information (the iteration certified
+    the band positive definite with room, nothing pulled: the loop's ``History.informed``):
+    the band factored as it is, once; None where that factorisation fails."""
+    chol = BandedCholesky(band)
+    if not bool(chol.ok.all()):
+        return None
+    z = chol.solve(cn)
+    return chol, z, nn - torch.einsum("bnim,bniq->bmq", cn, z)
+
+
 def _schur(factor: Callable[[float], BandedCholesky], cn: Tensor,
            nn: Tensor) -> tuple[BandedCholesky, Tensor, Tensor]:
     r"""The band factored with ``REGULARISE D`` (``factor(eps)``: the band with ``eps D`` on
@@ -164,6 +176,7 @@ class Estimate:
         self.reason: str = history.reason
         self._system = summary.system
         self._pulled = summary.pulled
+        self._informed = history.informed
         self._factored = False
 
     def __repr__(self) -> str:
@@ -312,9 +325,12 @@ class Estimate:
 
         self._regularised = regularised
         self._loose_factor: BandedCholesky | None = None  # on first use: _loose()
+        self._exact = False
         m = p.m
         if not m:
-            self._chol = regularised(REGULARISE)
+            chol = BandedCholesky(band) if self._informed else None
+            self._exact = chol is not None and bool(chol.ok.all())
+            self._chol = chol if chol is not None and self._exact else regularised(REGULARISE)
             self._ok = self._chol.ok
             self._Z = system.cn
             self._U = system.nn
@@ -322,7 +338,9 @@ class Estimate:
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         S = system.nn + torch.diag(p.prior_information).to(system.nn)
-        self._chol, self._Z, S = _schur(regularised, cn, S)
+        exact = _exact_schur(band, cn, S) if self._informed else None
+        self._exact = exact is not None  # no direction without information: no loose test
+        self._chol, self._Z, S = exact if exact is not None else _schur(regularised, cn, S)
         ok = self._ok = self._chol.ok
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
@@ -337,6 +355,17 @@ class Estimate:
             warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
                           f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
                           RuntimeWarning, stacklevel=4)
+
+    def _undetermined(self, J: Tensor, f: Tensor, sup: int, cvar: Tensor) -> Tensor:
+        """``(Bf, T, k)`` bool: the kinematic outputs whose control-point variance ``cvar``
+        halves with ``_LOOSE`` times the regularisation (a combination of control points
+        that no sample resolves); none where the band was factored exactly (every direction
+        informed)."""
+        if self._exact:
+            return torch.zeros_like(cvar, dtype=torch.bool)
+        loose = torch.einsum("btij,btjl,btil->bti", J, self._loose().window_covariance(f, sup),
+                             J)
+        return cvar > 2.0 * loose.clamp_min(0.0)
 
     def _loose(self) -> BandedCholesky:
         """The band factored with ``_LOOSE REGULARISE D`` (the kinematic uncertainties' test
@@ -473,8 +502,6 @@ class Estimate:
         f = first.expand(*p.batch, T).reshape(Bf, T)
         var = cvar = torch.einsum("btij,btjl,btil->bti", J,
                                   self._chol.window_covariance(f, sup), J)
-        loose = torch.einsum("btij,btjl,btil->bti", J, self._loose().window_covariance(f, sup),
-                             J)
         idx = (f[..., None] + torch.arange(sup, device=f.device)).clamp(max=n - 1)
         if p.m:
             Zw = self._Z.gather(1, idx.reshape(Bf, T * sup, 1, 1).expand(
@@ -482,7 +509,7 @@ class Estimate:
             var = var + self._quadratic(J @ Zw)
         std = var.clamp_min(0.0).sqrt()
         gap = self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(Bf, T, sup).any(-1)
-        null = (cvar > 2.0 * loose.clamp_min(0.0)) & ~gap[..., None]
+        null = self._undetermined(J, f, sup, cvar) & ~gap[..., None]
         std = torch.where(self._ok[:, None, None] & ~gap[..., None] & ~null, std, torch.inf)
         if bool(gap.any()) or bool(null.any()) or not bool(self._ok.all()):
             why = ("a time gap or an end without samples" if bool(gap.any()) else
