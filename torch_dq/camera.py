@@ -152,7 +152,10 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
         where the point has no image: ``z <= 0`` for the pinhole models (and points within
         ``eps`` radians of the plane ``z = 0``, ``max(|x|, |y|) >= z / eps``, whose pixels
         or derivatives would overflow); for the double sphere where the paper's condition
-        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid); where the parameters
+        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid) or, for
+        :math:`\xi < 0` where eq. 43 is not exact, the point lies beyond the part of the
+        second sphere that the projection sees, :math:`w \le -w_1 d_2` (its pixel would
+        pass through infinity to the other side of the image); where the parameters
         lie outside the model's domain (``fu <= 0`` or ``fv <= 0``; for the double sphere
         ``xi <= -1`` or ``alpha`` outside ``[0, 1]``): every element of that camera is
         invalid, a mask and not an error (no host read); and where an input is not finite
@@ -246,21 +249,34 @@ def _project_equidistant(p, x, y, z):
     return (*_pinhole(p, scale * a, scale * b), valid)
 
 
-def _ds_w2(xi: Tensor, alpha: Tensor) -> Tensor:
-    r""":math:`w_2` of the double sphere's projection domain (eq. 43), safe where at
-    :math:`\alpha = 0` and 1 (each branch sees only its own half of the alpha range)."""
+def _ds_w1(alpha: Tensor) -> Tensor:
+    r""":math:`w_1` of eq. 43, safe where at :math:`\alpha = 0` and 1 (each branch sees only
+    its own half of the alpha range)."""
     low = alpha <= 0.5
-    a_lo = torch.where(low, alpha, 0.5)
-    a_hi = torch.where(low, 0.5, alpha)
-    w1 = torch.where(low, a_lo / (1.0 - a_lo), (1.0 - a_hi) / a_hi)
+    a_lo, a_hi = torch.where(low, alpha, 0.5), torch.where(low, 0.5, alpha)
+    return torch.where(low, a_lo / (1.0 - a_lo), (1.0 - a_hi) / a_hi)
+
+
+def _ds_w2(xi: Tensor, alpha: Tensor) -> Tensor:
+    r""":math:`w_2` of the double sphere's projection domain (eq. 43)."""
+    w1 = _ds_w1(alpha)
     return (w1 + xi) / torch.sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+
+
+def _ds_sees(xi: Tensor, alpha: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
+    r"""The double sphere's projection domain (no gradient): eq. 43 and :math:`w > -w_1
+    d_2` (:math:`w = \xi d_1 + z`), the second sphere's part that eq. 40 sees one-to-one,
+    which eq. 43 implies only for :math:`\xi \ge 0` (``xi = -0.5, alpha = 0.1``: 3 % of
+    the directions beyond it, their pixels through infinity on the image's other side)."""
+    d1 = torch.sqrt(x * x + y * y + z * z)
+    w = xi * d1 + z
+    return (z > -_ds_w2(xi, alpha) * d1) & (w > -_ds_w1(alpha) * torch.sqrt(x * x + y * y + w * w))
 
 
 def _project_ds(p, x, y, z):
     xi, alpha = p[4], p[5]
     with torch.no_grad():
-        bound = -_ds_w2(xi, alpha) * torch.sqrt(x * x + y * y + z * z)
-        valid = z > bound  # eq. 43
+        valid = _ds_sees(xi, alpha, x, y, z)  # eq. 43 (and eq. 40's denominator)
     x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
     w = xi * d1 + z
@@ -306,8 +322,11 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
         - double sphere (eqs. 47-50): closed form; invalid outside the paper's unprojection
           domain, :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
           :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real point of the first sphere, possible
-          for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
-          boundary of eq. 50 maps slightly outside the projection's domain).
+          for :math:`\xi > 1`), where the ray fails :func:`project`'s domain (for
+          :math:`\xi \ne 0` the boundary of eq. 50 maps slightly outside it) and, for
+          :math:`\xi > 1`, where it is not on the first sphere's near side,
+          :math:`1 + \xi z \le 0` (eq. 50's root is then a negative distance: the ray would
+          point away from the pixel's point).
 
     The iterations' accuracy: ``project(unproject(px)) == px`` to 1e-10 px in float64 over
     the whole image of EuRoC's cam0 (radtan) and of a 190-degree fisheye (tested).
@@ -454,9 +473,10 @@ def _unproject_ds(p, a, b):
             + 1.0 - alpha)
         keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
     x, y, z = _ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
-    # eq. 43 on the ray: for xi != 0 that domain's boundary maps slightly outside the
-    # projection's domain (the ray is finite there, its gradients too)
-    return x, y, z, keep & (z.detach() > -_ds_w2(xi, alpha).detach())
+    # project's domain on the ray (eq. 50's boundary maps slightly outside it for xi != 0)
+    # and, for xi > 1, the first sphere's near side (else eq. 50's root is negative)
+    with torch.no_grad():
+        return x, y, z, keep & _ds_sees(xi, alpha, x, y, z) & (1.0 + xi * z > 0)
 
 
 _UNPROJECT: dict[str, Callable] = {
