@@ -103,3 +103,46 @@ def test_double_sphere_fix_keeps_the_paper_where_eq43_is_exact():
         w2 = (w1 + xi) / np.sqrt(2 * w1 * xi + xi * xi + 1)
         _, valid = camera.project("double-sphere", torch.tensor(p, dtype=F64), torch.tensor(d))
         assert (valid.numpy() == (d[:, 2] > -w2)).all()
+
+
+# ------------------------------------------------------------- Camera from numpy arrays
+
+EUROC = [458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359,
+         1.76187114e-05]
+
+
+def test_camera_takes_numpy_params_and_resolution():
+    """What OpenCV's calibrateCamera gives (K, dist as numpy arrays) builds a Camera; its
+    pixels are cv2.projectPoints'."""
+    import cv2
+
+    K = np.array([[EUROC[0], 0, EUROC[2]], [0, EUROC[1], EUROC[3]], [0, 0, 1.0]])
+    dist = np.array(EUROC[4:] + [0.0])
+    params = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist[:4]]
+    cam = camera.Camera("pinhole-radtan", params, np.array([752, 480]))
+    assert cam.params.dtype == F64 and cam.params.tolist() == params.tolist()
+    assert cam.resolution == (752, 480) and isinstance(cam.resolution[0], int)
+    pts = np.array([[0.1, -0.2, 1.0], [-0.4, 0.3, 1.5]])
+    ref = cv2.projectPoints(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)[0][:, 0]
+    assert np.abs(cam.project(torch.tensor(pts))[0].numpy() - ref).max() < 1e-6
+    # float32 arrays, and a Kalibr entry built by hand with arrays
+    assert camera.Camera("pinhole", np.float32([1, 2, 3, 4]), (8, 6)).params.tolist() == \
+        [1.0, 2.0, 3.0, 4.0]
+    entry = {"camera_model": "pinhole", "distortion_model": "radtan",
+             "intrinsics": np.array(EUROC[:4]), "distortion_coeffs": np.array(EUROC[4:]),
+             "resolution": np.array([752, 480])}
+    assert camera.Camera.from_kalibr(entry) == camera.Camera("pinhole-radtan", EUROC,
+                                                             (752, 480))
+    with pytest.raises(ValueError, match="params"):
+        camera.Camera("pinhole", np.ones((2, 2)), (8, 6))  # 2-D: not a parameter vector
+    with pytest.raises(ValueError, match="resolution"):
+        camera.Camera("pinhole", [1.0, 1.0, 0.0, 0.0], np.array([8.5, 6.0]))
+
+
+def test_kalibr_none_distortion_with_coefficients_says_so():
+    entry = {"camera_model": "pinhole", "distortion_model": "none",
+             "intrinsics": EUROC[:4], "distortion_coeffs": EUROC[4:], "resolution": [752, 480]}
+    with pytest.raises(ValueError, match=r"distortion_coeffs to be empty \(or zeros\)"):
+        camera.Camera.from_kalibr(entry)
+    entry["distortion_coeffs"] = [0.0, 0, 0, 0]
+    assert camera.Camera.from_kalibr(entry).model == "pinhole"

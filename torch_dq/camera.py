@@ -53,6 +53,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
@@ -75,16 +76,15 @@ MODELS: dict[str, tuple[str, ...]] = {
 }
 
 # Newton iterations of the detached root search (radtan: 2-D on the normalised point;
-# equidistant: 1-D on the angle). Measured over whole images (tests/test_camera.py), the
-# residual reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger
-# radtan lens (k1 = -0.35, f = 300 px on 752 x 480) and 3-4 on fisheyes: 8 leave a margin.
-# The two differentiable steps that follow square the error twice more.
+# equidistant: 1-D on the angle). Over whole images (tests/test_camera.py) the residual
+# reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger radtan lens
+# (k1 = -0.35, f = 300 px on 752 x 480), 3-4 on fisheyes: 8 leave a margin (the two
+# differentiable steps that follow square the error twice more).
 _ITERATIONS = 8
-# The equidistant root's safeguarded iteration: Newton where it stays in the bracket,
-# bisection where it leaves it (near the fold). 12 steps invert every pixel that OpenCV
-# inverts on a 101 x 101 grid of a strong fisheye's image (k1 = 0.6, tests/test_rigs_cameras.py;
-# on a 301 x 301 grid 24 steps add 10 of 90,601 pixels within a hair of the fold) and cost
-# 1.3-1.5 times the 8 plain Newton steps they replace (1e6 pixels, one loaded thread).
+# The equidistant root's safeguarded iteration: Newton inside the bracket, bisection where
+# it leaves it (near the fold). 12 steps invert every pixel that OpenCV inverts on a 101 x
+# 101 grid of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py; on 301 x 301, 24 add
+# 10 of 90,601 pixels a hair from the fold) at 1.3-1.5 times 8 plain Newton steps' cost.
 _ITERATIONS_BRACKETED = 12
 
 
@@ -491,12 +491,14 @@ _FROM_KALIBR = {names: model for model, names in _KALIBR.items()}
 
 
 def _numbers(fn: str, name: str, value, count: int) -> list[float]:
-    """A list of ``count`` finite real numbers read from a Kalibr entry."""
+    """A list of ``count`` finite real numbers (a list, tuple, 1-D array or tensor)."""
+    value = _checks.listed(value)
     ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == count
     ok = ok and all(isinstance(v, numbers.Real) and not isinstance(v, bool)
                     and math.isfinite(v) for v in value)
     if not ok:
-        _checks.fail(fn, f"expected {name} to be a list of {count} finite numbers, got {value!r}")
+        want = f"a list of {count} finite numbers" if count else "empty (or zeros): no distortion"
+        _checks.fail(fn, f"expected {name} to be {want}, got {value!r}")
     return [float(v) for v in value]
 
 
@@ -538,12 +540,9 @@ def _outside(pixels: Tensor, resolution: tuple[int, int],
 def _yaml_number(value):
     """``value``, or the number a string reads as: YAML 1.1 (PyYAML) reads ``2e-4`` (no dot)
     as a string, and a quoted ``'6'`` is one; an integral string reads as an ``int``."""
-    if isinstance(value, str):
-        for kind in (int, float):
-            try:
-                return kind(value)
-            except ValueError:
-                pass
+    for kind in (int, float) if isinstance(value, str) else ():
+        with contextlib.suppress(ValueError):
+            return kind(value)
     return value
 
 
@@ -556,6 +555,7 @@ def _kalibr_list(value) -> list | object:
 
 def _resolution(fn: str, res) -> tuple[int, int]:
     """``(width, height)``: two positive ints."""
+    res = _checks.listed(res)
     if (not isinstance(res, Sequence) or isinstance(res, str) or len(res) != 2
             or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool)
                        and int(n) > 0 for n in res)):
