@@ -5,6 +5,7 @@ strings. Each is one error line naming the file (exit status 2), never a traceba
 message without the file."""
 
 import re
+import warnings
 
 import pytest
 
@@ -59,3 +60,31 @@ def test_calibrate_bad_yaml_is_one_line_naming_the_file(tmp_path, capsys, kwargs
     assert len(err) == 1 and err[0].startswith("torch-dq calibrate: error: ")
     assert re.search(match, err[0]), err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_camera_imu_takes_numpy_scalars_for_noises_and_sigmas():
+    """np.float32 densities (a numpy config, ``np.float32(cfg["gyro"])``) are numbers: the
+    call goes past them exactly as with Python floats (to the static IMU's error here)."""
+    import numpy as np
+    import torch
+
+    from torch_dq import camera
+
+    t = torch.arange(0.0, 3.0, 0.05, dtype=torch.float64) + 100.0
+    grid = calibration.aprilgrid(2, 2, 0.1, 0.3)
+    obs = (t.repeat_interleave(len(grid)), grid.repeat(len(t), 1),
+           torch.tensor([300.0, 200.0], dtype=torch.float64) + 100 * grid[:, :2].repeat(len(t), 1))
+    ti = torch.arange(99.0, 104.0, 0.005, dtype=torch.float64)
+    imu = (ti, torch.zeros(len(ti), 3, dtype=torch.float64),
+           torch.tensor([0.0, 0.0, 9.81], dtype=torch.float64).expand(len(ti), 3).clone())
+    cam = camera.Camera("pinhole", [400.0, 400.0, 320.0, 240.0], (640, 480))
+    messages = []
+    for cast in (float, np.float32, np.float64):
+        with pytest.raises(ValueError) as info, warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # no rotation: said, then the error
+            calibration.camera_imu([cam], [obs], imu, gyro_noise=cast(1.7e-4),
+                                   accel_noise=cast(2e-3), pixel_sigma=cast(0.5),
+                                   verbose=False)
+        messages.append(str(info.value))
+    assert "noise" not in messages[0] and "pixel_sigma" not in messages[0]
+    assert messages[1] == messages[0] == messages[2]

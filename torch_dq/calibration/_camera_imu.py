@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -134,7 +135,7 @@ class CameraImuCalibration:
 def _sigma(name: str, density, times: Tensor) -> float:
     """Per-sample sigma of a noise density: ``density * sqrt(rate)``, the rate from the
     median sample spacing."""
-    if isinstance(density, bool) or not isinstance(density, (int, float)) or not (
+    if isinstance(density, bool) or not isinstance(density, numbers.Real) or not (
             math.isfinite(density) and density > 0):
         _checks.fail(_FN, f"expected {name} to be a positive finite noise density, got "
                           f"{density!r}")
@@ -405,7 +406,7 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
 
 
 def _positive(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (
             math.isfinite(value) and value > 0):
         _checks.fail(_FN, f"expected {name} to be a positive finite number, got {value!r}")
     return float(value)
