@@ -146,3 +146,10 @@ def test_kalibr_none_distortion_with_coefficients_says_so():
         camera.Camera.from_kalibr(entry)
     entry["distortion_coeffs"] = [0.0, 0, 0, 0]
     assert camera.Camera.from_kalibr(entry).model == "pinhole"
+
+
+def test_kalibr_none_distortion_written_as_a_numpy_array_of_zeros():
+    entry = {"camera_model": "pinhole", "distortion_model": "none",
+             "intrinsics": np.array(EUROC[:4]), "distortion_coeffs": np.zeros(4),
+             "resolution": [752, 480]}
+    assert camera.Camera.from_kalibr(entry) == camera.Camera("pinhole", EUROC[:4], (752, 480))

@@ -547,8 +547,8 @@ def _yaml_number(value):
 
 
 def _kalibr_list(value) -> list | object:
-    """A Kalibr list with :func:`_yaml_number` applied (other values as they are)."""
-    if isinstance(value, Sequence) and not isinstance(value, str):
+    """A Kalibr list (or 1-D array) with :func:`_yaml_number` applied (others as they are)."""
+    if isinstance(value := _checks.listed(value), Sequence) and not isinstance(value, str):
         return [_yaml_number(v) for v in value]
     return value
 
