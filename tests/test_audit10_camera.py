@@ -117,7 +117,7 @@ def test_camera_takes_numpy_params_and_resolution():
     import cv2
 
     K = np.array([[EUROC[0], 0, EUROC[2]], [0, EUROC[1], EUROC[3]], [0, 0, 1.0]])
-    dist = np.array(EUROC[4:] + [0.0])
+    dist = np.array([*EUROC[4:], 0.0])
     params = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist[:4]]
     cam = camera.Camera("pinhole-radtan", params, np.array([752, 480]))
     assert cam.params.dtype == F64 and cam.params.tolist() == params.tolist()
