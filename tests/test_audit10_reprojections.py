@@ -67,11 +67,13 @@ def test_estimated_double_sphere_alpha_stays_in_its_domain():
     assert 0.8 < float(est.chi2[term]) / n < 1.2
 
 
-def test_fixed_intrinsics_outside_the_domain_raise():
+def test_intrinsics_given_or_started_outside_the_domain_raise():
     *_, t_obs, points, pixels = _scene(frames=3)
     cam = camera.Camera("double-sphere", torch.tensor(TRUE, dtype=F64), (2000, 2000))
     for bad in ([300.0, 300.0, 320.0, 240.0, 0.0, 1.2], [0.0, 300.0, 320.0, 240.0, 0.0, 0.5],
                 [300.0, 300.0, 320.0, 240.0, -1.0, 0.5]):
-        with pytest.raises(ValueError, match="intrinsics outside the 'double-sphere'"):
-            fitting.Reprojections(t_obs, points, pixels, camera=cam, sigma=0.5,
-                                  intrinsics=torch.tensor(bad, dtype=F64))
+        for given in (torch.tensor(bad, dtype=F64), fitting.Free(start=torch.tensor(bad))):
+            # a Free started there stayed there: no Jacobian, "converged" at alpha = 1.2
+            with pytest.raises(ValueError, match="intrinsics outside the 'double-sphere'"):
+                fitting.Reprojections(t_obs, points, pixels, camera=cam, sigma=0.5,
+                                      intrinsics=given)

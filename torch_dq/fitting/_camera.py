@@ -88,7 +88,7 @@ class Reprojections(Term):
         ValueError: shapes that do not match, points that are not finite, pixels (not
             masked) outside ``camera.resolution`` by over 10 % of its size (another camera's
             or another image size's pixels), a bad ``sigma``, ``line_delay`` or bound,
-            fixed ``intrinsics`` outside the model's domain.
+            ``intrinsics`` (fixed, or a ``Free``'s start) outside the model's domain.
 
     Warns:
         UserWarning: pixels that look like normalised coordinates (all within 4 of the
@@ -173,7 +173,9 @@ class Reprojections(Term):
         self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics)
         self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
                                          line_delay)
-        known = self._slots["intrinsics"].fixed
+        slot = self._slots["intrinsics"]  # fixed, or an estimate's start (a Free's)
+        known = slot.fixed if slot.free is None else slot.free.start
+        known = None if known is None else torch.as_tensor(known, dtype=torch.float64)
         if known is not None and not bool(_in_domain(self.model, list(known.unbind(-1))).all()):
             _checks.fail(fn, f"intrinsics outside the {self.model!r} model's domain (fu, fv > 0; "
                              f"the double sphere's xi > -1, alpha in [0, 1]): {known.tolist()}")
