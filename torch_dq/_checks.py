@@ -205,6 +205,12 @@ def real(fn: str, name: str, value, rule: str, ok: Callable[[float], bool] = lam
     return float(value)
 
 
+def listed(value):
+    """A 1-D array (numpy's, a tensor) as a list of Python numbers, for checks written for
+    lists; any other value as it is."""
+    return value.tolist() if getattr(value, "ndim", None) == 1 else value
+
+
 def first_index(mask: Tensor) -> tuple[int, ...]:
     """The index of the first ``True`` of a bool tensor (row-major order), read on the host
     (a device sync, for error messages); ``mask`` must hold one."""

@@ -53,6 +53,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
@@ -75,16 +76,15 @@ MODELS: dict[str, tuple[str, ...]] = {
 }
 
 # Newton iterations of the detached root search (radtan: 2-D on the normalised point;
-# equidistant: 1-D on the angle). Measured over whole images (tests/test_camera.py), the
-# residual reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger
-# radtan lens (k1 = -0.35, f = 300 px on 752 x 480) and 3-4 on fisheyes: 8 leave a margin.
-# The two differentiable steps that follow square the error twice more.
+# equidistant: 1-D on the angle). Over whole images (tests/test_camera.py) the residual
+# reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger radtan lens
+# (k1 = -0.35, f = 300 px on 752 x 480), 3-4 on fisheyes: 8 leave a margin (the two
+# differentiable steps that follow square the error twice more).
 _ITERATIONS = 8
-# The equidistant root's safeguarded iteration: Newton where it stays in the bracket,
-# bisection where it leaves it (near the fold). 12 steps invert every pixel that OpenCV
-# inverts on a 101 x 101 grid of a strong fisheye's image (k1 = 0.6, tests/test_rigs_cameras.py;
-# on a 301 x 301 grid 24 steps add 10 of 90,601 pixels within a hair of the fold) and cost
-# 1.3-1.5 times the 8 plain Newton steps they replace (1e6 pixels, one loaded thread).
+# The equidistant root's safeguarded iteration: Newton inside the bracket, bisection where
+# it leaves it (near the fold). 12 steps invert every pixel that OpenCV inverts on a 101 x
+# 101 grid of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py; on 301 x 301, 24 add
+# 10 of 90,601 pixels a hair from the fold) at 1.3-1.5 times 8 plain Newton steps' cost.
 _ITERATIONS_BRACKETED = 12
 
 
@@ -152,7 +152,10 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
         where the point has no image: ``z <= 0`` for the pinhole models (and points within
         ``eps`` radians of the plane ``z = 0``, ``max(|x|, |y|) >= z / eps``, whose pixels
         or derivatives would overflow); for the double sphere where the paper's condition
-        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid); where the parameters
+        :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid) or, for
+        :math:`\xi < 0` where eq. 43 is not exact, the point lies beyond the part of the
+        second sphere that the projection sees, :math:`w \le -w_1 d_2` (its pixel would
+        pass through infinity to the other side of the image); where the parameters
         lie outside the model's domain (``fu <= 0`` or ``fv <= 0``; for the double sphere
         ``xi <= -1`` or ``alpha`` outside ``[0, 1]``): every element of that camera is
         invalid, a mask and not an error (no host read); and where an input is not finite
@@ -246,21 +249,34 @@ def _project_equidistant(p, x, y, z):
     return (*_pinhole(p, scale * a, scale * b), valid)
 
 
-def _ds_w2(xi: Tensor, alpha: Tensor) -> Tensor:
-    r""":math:`w_2` of the double sphere's projection domain (eq. 43), safe where at
-    :math:`\alpha = 0` and 1 (each branch sees only its own half of the alpha range)."""
+def _ds_w1(alpha: Tensor) -> Tensor:
+    r""":math:`w_1` of eq. 43, safe where at :math:`\alpha = 0` and 1 (each branch sees only
+    its own half of the alpha range)."""
     low = alpha <= 0.5
-    a_lo = torch.where(low, alpha, 0.5)
-    a_hi = torch.where(low, 0.5, alpha)
-    w1 = torch.where(low, a_lo / (1.0 - a_lo), (1.0 - a_hi) / a_hi)
+    a_lo, a_hi = torch.where(low, alpha, 0.5), torch.where(low, 0.5, alpha)
+    return torch.where(low, a_lo / (1.0 - a_lo), (1.0 - a_hi) / a_hi)
+
+
+def _ds_w2(xi: Tensor, alpha: Tensor) -> Tensor:
+    r""":math:`w_2` of the double sphere's projection domain (eq. 43)."""
+    w1 = _ds_w1(alpha)
     return (w1 + xi) / torch.sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+
+
+def _ds_sees(xi: Tensor, alpha: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
+    r"""The double sphere's projection domain (no gradient): eq. 43 and :math:`w > -w_1
+    d_2` (:math:`w = \xi d_1 + z`), the second sphere's part that eq. 40 sees one-to-one,
+    which eq. 43 implies only for :math:`\xi \ge 0` (``xi = -0.5, alpha = 0.1``: 3 % of
+    the directions beyond it, their pixels through infinity on the image's other side)."""
+    d1 = torch.sqrt(x * x + y * y + z * z)
+    w = xi * d1 + z
+    return (z > -_ds_w2(xi, alpha) * d1) & (w > -_ds_w1(alpha) * torch.sqrt(x * x + y * y + w * w))
 
 
 def _project_ds(p, x, y, z):
     xi, alpha = p[4], p[5]
     with torch.no_grad():
-        bound = -_ds_w2(xi, alpha) * torch.sqrt(x * x + y * y + z * z)
-        valid = z > bound  # eq. 43
+        valid = _ds_sees(xi, alpha, x, y, z)  # eq. 43 (and eq. 40's denominator)
     x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
     w = xi * d1 + z
@@ -306,8 +322,11 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
         - double sphere (eqs. 47-50): closed form; invalid outside the paper's unprojection
           domain, :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
           :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real point of the first sphere, possible
-          for :math:`\xi > 1`) and where the ray fails eq. 43 (for :math:`\xi \ne 0` the
-          boundary of eq. 50 maps slightly outside the projection's domain).
+          for :math:`\xi > 1`), where the ray fails :func:`project`'s domain (for
+          :math:`\xi \ne 0` the boundary of eq. 50 maps slightly outside it) and, for
+          :math:`\xi > 1`, where it is not on the first sphere's near side,
+          :math:`1 + \xi z \le 0` (eq. 50's root is then a negative distance: the ray would
+          point away from the pixel's point).
 
     The iterations' accuracy: ``project(unproject(px)) == px`` to 1e-10 px in float64 over
     the whole image of EuRoC's cam0 (radtan) and of a 190-degree fisheye (tested).
@@ -454,9 +473,10 @@ def _unproject_ds(p, a, b):
             + 1.0 - alpha)
         keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
     x, y, z = _ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
-    # eq. 43 on the ray: for xi != 0 that domain's boundary maps slightly outside the
-    # projection's domain (the ray is finite there, its gradients too)
-    return x, y, z, keep & (z.detach() > -_ds_w2(xi, alpha).detach())
+    # project's domain on the ray (eq. 50's boundary maps slightly outside it for xi != 0)
+    # and, for xi > 1, the first sphere's near side (else eq. 50's root is negative)
+    with torch.no_grad():
+        return x, y, z, keep & _ds_sees(xi, alpha, x, y, z) & (1.0 + xi * z > 0)
 
 
 _UNPROJECT: dict[str, Callable] = {
@@ -471,12 +491,14 @@ _FROM_KALIBR = {names: model for model, names in _KALIBR.items()}
 
 
 def _numbers(fn: str, name: str, value, count: int) -> list[float]:
-    """A list of ``count`` finite real numbers read from a Kalibr entry."""
+    """A list of ``count`` finite real numbers (a list, tuple, 1-D array or tensor)."""
+    value = _checks.listed(value)
     ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == count
     ok = ok and all(isinstance(v, numbers.Real) and not isinstance(v, bool)
                     and math.isfinite(v) for v in value)
     if not ok:
-        _checks.fail(fn, f"expected {name} to be a list of {count} finite numbers, got {value!r}")
+        want = f"a list of {count} finite numbers" if count else "empty (or zeros): no distortion"
+        _checks.fail(fn, f"expected {name} to be {want}, got {value!r}")
     return [float(v) for v in value]
 
 
@@ -518,24 +540,22 @@ def _outside(pixels: Tensor, resolution: tuple[int, int],
 def _yaml_number(value):
     """``value``, or the number a string reads as: YAML 1.1 (PyYAML) reads ``2e-4`` (no dot)
     as a string, and a quoted ``'6'`` is one; an integral string reads as an ``int``."""
-    if isinstance(value, str):
-        for kind in (int, float):
-            try:
-                return kind(value)
-            except ValueError:
-                pass
+    for kind in (int, float) if isinstance(value, str) else ():
+        with contextlib.suppress(ValueError):
+            return kind(value)
     return value
 
 
 def _kalibr_list(value) -> list | object:
-    """A Kalibr list with :func:`_yaml_number` applied (other values as they are)."""
-    if isinstance(value, Sequence) and not isinstance(value, str):
+    """A Kalibr list (or 1-D array) with :func:`_yaml_number` applied (others as they are)."""
+    if isinstance(value := _checks.listed(value), Sequence) and not isinstance(value, str):
         return [_yaml_number(v) for v in value]
     return value
 
 
 def _resolution(fn: str, res) -> tuple[int, int]:
     """``(width, height)``: two positive ints."""
+    res = _checks.listed(res)
     if (not isinstance(res, Sequence) or isinstance(res, str) or len(res) != 2
             or not all(isinstance(n, numbers.Integral) and not isinstance(n, bool)
                        and int(n) > 0 for n in res)):

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -134,8 +135,8 @@ class CameraImuCalibration:
 def _sigma(name: str, density, times: Tensor) -> float:
     """Per-sample sigma of a noise density: ``density * sqrt(rate)``, the rate from the
     median sample spacing."""
-    if isinstance(density, bool) or not isinstance(density, (int, float)) or not (
-            math.isfinite(density) and density > 0):
+    if isinstance(density, bool) or not isinstance(density, numbers.Real) or not (
+            math.isfinite(density) and float(density) > 0):
         _checks.fail(_FN, f"expected {name} to be a positive finite noise density, got "
                           f"{density!r}")
     step = float(times.diff().median())
@@ -405,8 +406,8 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
 
 
 def _positive(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-            math.isfinite(value) and value > 0):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (
+            math.isfinite(value) and float(value) > 0):
         _checks.fail(_FN, f"expected {name} to be a positive finite number, got {value!r}")
     return float(value)
 

@@ -220,7 +220,7 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         A :class:`Target`.
 
     Raises:
-        ValueError: naming the file: not a yaml mapping, an unknown or missing
+        ValueError: naming the file: not UTF-8 text, not a yaml mapping, an unknown or missing
             ``target_type`` (``circlegrid`` is not supported), a missing key or a bad value
             (and its line).
         ImportError: PyYAML is not installed.
@@ -240,8 +240,12 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         _checks.fail(fn, f"expected a path (str or os.PathLike) for path, got "
                          f"{type(path).__name__}", TypeError)
     yaml = yaml_module(fn)
-    with open(path, encoding="utf-8") as f:
-        text = f.read()
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except UnicodeDecodeError as exc:
+        _checks.fail(fn, f"{os.fspath(path)}: not a UTF-8 text file ({exc.reason} at byte "
+                         f"{exc.start})")
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -65,6 +65,9 @@ def _yaml(path: str) -> dict:
             data = yaml.safe_load(f)
     except OSError as exc:
         raise UserError(f"cannot read {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})"
+                        ) from None
     except yaml.YAMLError as exc:
         raise UserError(f"{path} is not valid yaml: {' '.join(str(exc).split())}") from None
     if not isinstance(data, dict):
@@ -118,10 +121,14 @@ def _bias_options(args) -> tuple[bool, float]:
 
 def _camchain(path: str) -> list[dict]:
     data = _yaml(path)
-    names = sorted((k for k in data if k.startswith("cam") and k[3:].isdigit()),
-                   key=lambda k: int(k[3:]))
+    names = sorted((k for k in data if isinstance(k, str) and k.startswith("cam")
+                    and k[3:].isdigit()), key=lambda k: int(k[3:]))
     if not names or names != [f"cam{i}" for i in range(len(names))]:
-        raise UserError(f"{path}: expected cameras cam0, cam1, ... got {sorted(data)}")
+        raise UserError(f"{path}: expected cameras cam0, cam1, ... got {sorted(map(str, data))}")
+    for k in names:
+        if not isinstance(data[k], dict):
+            raise UserError(f"{path}: {k} must be a mapping (camera_model, intrinsics, ...), "
+                            f"got {data[k]!r}")
     return [data[k] for k in names]
 
 

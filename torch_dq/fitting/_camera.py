@@ -14,10 +14,13 @@ measured pixel ``(u, v)`` is predicted as
 ``v`` the measured row). Both move the sample along the curve: the solver chains them through
 the curve's time derivative (:meth:`Term.time_rates`), ``dt'_i / d\ell = v_i``.
 
-Observations whose point has no image (behind the camera, outside the model's domain) are
-excluded: their residual and Jacobian rows are zero (no NaN reaches the normal equations),
-and :func:`~torch_dq.fitting.estimate` counts them at the solution (``term.invalid``) with a
-warning naming the term.
+Observations whose point has no image (behind the camera, outside the double sphere's
+field) are excluded: their residual and Jacobian rows are zero (no NaN reaches the normal
+equations), and :func:`~torch_dq.fitting.estimate` counts them at the solution
+(``term.invalid``) with a warning naming the term. Intrinsics outside the model's domain (a
+camera that sees nothing: ``fu <= 0``, the double sphere's ``alpha`` outside ``[0, 1]``)
+give every observation an error of the image's width plus height on both axes, so that a
+step of estimated intrinsics out of the domain never passes for a better fit.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from ..camera import _normalised_hint, _outside
+from ..camera import _in_domain, _normalised_hint, _outside
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma
@@ -84,7 +87,8 @@ class Reprojections(Term):
     Raises:
         ValueError: shapes that do not match, points that are not finite, pixels (not
             masked) outside ``camera.resolution`` by over 10 % of its size (another camera's
-            or another image size's pixels), a bad ``sigma``, ``line_delay`` or bound.
+            or another image size's pixels), a bad ``sigma``, ``line_delay`` or bound,
+            ``intrinsics`` (fixed, or a ``Free``'s start) outside the model's domain.
 
     Warns:
         UserWarning: pixels that look like normalised coordinates (all within 4 of the
@@ -124,6 +128,7 @@ class Reprojections(Term):
                  mask: Tensor | None = None) -> None:
         fn = self._fn
         self.model, params = _intrinsics(fn, camera)
+        self.resolution = camera.resolution
         _checks.tensor(fn, "pixels", pixels, 2)
         _checks.tensor(fn, "points", points, 3)
         if pixels.dim() < 2 or points.dim() < 2:
@@ -168,6 +173,12 @@ class Reprojections(Term):
         self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics)
         self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
                                          line_delay)
+        slot = self._slots["intrinsics"]  # fixed, or an estimate's start (a Free's)
+        known = slot.fixed if slot.free is None else slot.free.start
+        known = None if known is None else torch.as_tensor(known, dtype=torch.float64)
+        if known is not None and not bool(_in_domain(self.model, list(known.unbind(-1))).all()):
+            _checks.fail(fn, f"intrinsics outside the {self.model!r} model's domain (fu, fv > 0; "
+                             f"the double sphere's xi > -1, alpha in [0, 1]): {known.tolist()}")
         fixed = self._slots["line_delay"].fixed
         if fixed is not None and not bool((fixed >= 0).all()):
             _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
@@ -201,9 +212,14 @@ class Reprojections(Term):
         return camera.project(self.model, p["intrinsics"].to(x.dtype), cam)
 
     def _residual(self, ev, p):
+        """Pixel errors ``(..., N, 2)``: zero where a point has no image, the image's width
+        plus height where the intrinsics leave the model's domain (module docstring: else a
+        step out of the domain would empty the term and be taken for a better fit)."""
         pix, valid = self._project(ev[0][0], p)
         r = pix - self.pixels.to(pix.dtype)
-        return torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
+        r = torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
+        seen = _in_domain(self.model, list(p["intrinsics"].unbind(-1)))[..., None]
+        return torch.where(seen, r, torch.full((), float(sum(self.resolution)), dtype=r.dtype))
 
     def _predict(self, trajectory, shift: float = 0.0) -> tuple[Tensor, Tensor]:
         """Predicted pixels and ``valid`` at the current values, the times moved by
