@@ -114,12 +114,12 @@ class Problem:
 
     def groups(self, values: list[Tensor]) -> list[tuple[int, ...]]:
         """The terms by their span evaluation, in order of their first term: terms read at
-        identical times (equal times tensors, equal time shifts) that no estimated parameter
-        moves (:meth:`~torch_dq.fitting.Term.time_rates`) and that are cut into parts alike
-        share one evaluation of the spans' derivatives and one chain through them
-        (:mod:`torch_dq.fitting._linearize`); any other term is a group of its own. Decided
-        at the first call, once the estimated parameters are registered (the shifts of such
-        terms do not depend on ``values``)."""
+        identical times (equal moved times ``t + shift``, ``_timing``) that no estimated
+        parameter moves (:meth:`~torch_dq.fitting.Term.time_rates`) and that are cut into
+        parts alike share one evaluation of the spans' derivatives and one chain through
+        them (:mod:`torch_dq.fitting._linearize`); any other term is a group of its own.
+        Decided at the first call, once the estimated parameters are registered (the shifts
+        of such terms do not depend on ``values``)."""
         if self._groups is None:
             out: list[tuple[list[int], tuple[list[Tensor], bool] | None]] = []
             for i in range(len(self.terms)):
