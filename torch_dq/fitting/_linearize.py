@@ -6,8 +6,8 @@ shift`` (the term's :meth:`~torch_dq.fitting.Term.time_shift`) selects its span
 (``spans.first``), the curve evaluates every sample's span from the shared control points
 (:meth:`~torch_dq.fitting._local.SpanEvaluator.shared`, the layer's own evaluation: a
 B-spline's span tables once per span), the term maps the derivatives to residuals
-(:meth:`~torch_dq.fitting.Term.residuals`). :func:`residuals` stops there (trial costs);
-:class:`Linearization` also differentiates, on per-sample copies of the spans' points
+(:meth:`~torch_dq.fitting.Term.residuals`). :func:`group_residuals` stops there (trial
+costs); :class:`Linearization` also differentiates, on per-sample copies of the spans' points
 (``torch_dq._curve.span_points``: the same sign-aligned chain, so the signs agree): the
 residuals with respect to the span derivatives and the nuisance steps (one reverse pass over
 ``k`` copies), chained through the spans to the control points' steps (the layer's closed
@@ -15,7 +15,12 @@ form, :meth:`~torch_dq.nn.Curve.span_vjp`, where it has one: a cumulative B-spli
 ``k`` reverse passes over per-sample span copies; the whole Jacobian once per distinct time
 where samples share their times) and the samples' times (the next time derivative of the span:
 no time in that graph), the times to the time-moving parameters by their declared rates
-(:meth:`~torch_dq.fitting.Term.time_rates`).
+(:meth:`~torch_dq.fitting.Term.time_rates`). Terms read at identical times that no estimated
+parameter moves (``Problem.groups``: an IMU's gyroscope and accelerometer) share the
+evaluation and the chain: the spans' derivatives evaluated once, to the highest order a term
+reads, each term's residual Jacobians stacked and chained through the spans together (one
+closed-form product), then split back per term (each keeps its rows, weights and nuisance
+columns).
 
 The Gauss-Newton system has three blocks: the control-point band ``A_cc (..., n, w, 6, 6)``
 (a sample touches ``w`` consecutive control points), the coupling ``A_cn (..., n, 6, m)``
@@ -34,7 +39,7 @@ from .._curve import span_points
 from . import _robust
 from ._local import sample_jacobians, tangent_step
 
-__all__ = ["Linearization", "Memo", "System", "residuals"]
+__all__ = ["Linearization", "Memo", "System", "group_residuals", "residuals"]
 
 PART = 1 << 16  # samples of a term linearised at once (Term.parts: bounds the memory)
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
@@ -60,18 +65,19 @@ MEMO_BYTES = 1 << 25  # span derivatives a point keeps for its system (Memo)
 
 
 class Memo:
-    """The span derivatives of a point, by (term, part): what :func:`residuals` evaluated for
-    a trial's cost and :meth:`Linearization.system` takes (and drops) when the trial is
-    accepted, instead of evaluating them again. At most ``MEMO_BYTES`` of them: a long
-    record's would raise the peak memory by as much (235 MB for an hour of 200 Hz IMU), and
-    its parts are evaluated again instead."""
+    """The span derivatives of a point, by (group, part): what :func:`group_residuals`
+    evaluated for a trial's cost and :meth:`Linearization.system` takes (and drops) when the
+    trial is accepted, instead of evaluating them again (a group, ``Problem.groups``, by its
+    first term: its members' derivatives are kept once). At most ``MEMO_BYTES`` of them: a
+    long record's would raise the peak memory by as much (235 MB for an hour of 200 Hz IMU),
+    and its parts are evaluated again instead."""
 
     def __init__(self) -> None:
         self.entries: dict[tuple[int, int], list[tuple[Tensor, ...]]] = {}
         self.left = MEMO_BYTES
 
     def put(self, key: tuple[int, int], derivs: list[tuple[Tensor, ...]]) -> None:
-        """Keep ``derivs`` (term, part ``key``) within the budget."""
+        """Keep ``derivs`` (group, part ``key``) within the budget."""
         size = sum(d.numel() * d.element_size() for ds in derivs for d in ds)
         if size <= self.left:
             self.entries[key] = derivs
@@ -82,22 +88,45 @@ class Memo:
         return self.entries.pop(key, None)
 
 
-def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor], memo: Memo | None = None,
-              ) -> Tensor:
-    """Whitened residuals ``(..., N, k)`` of term ``i`` at ``(ctrl, values)`` through the
-    spans, a part of at most ``PART`` samples at a time (no domain check:
-    :func:`~torch_dq.fitting.estimate` checked the times once); the span derivatives kept in
-    ``memo`` where given."""
-    vals = problem.term_values(i, values)
-    order = problem.terms[i].order + _rated(problem, i, vals)  # as the linearisation's
-    out = []
-    for k, term in enumerate(problem.terms[i].parts(PART)):
-        p = term.per_sample(vals)
-        derivs = _part_derivatives(problem.spans, term, ctrl, term.time_shift(p), order)
+def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
+    """Whitened residuals ``(..., N, k)`` of term ``i`` alone (a group of its own:
+    :func:`group_residuals`)."""
+    return group_residuals(problem, (i,), ctrl, values)[0]
+
+
+def group_residuals(problem, group: tuple[int, ...], ctrl: Tensor, values: list[Tensor],
+                    memo: Memo | None = None) -> list[Tensor]:
+    """Whitened residuals ``(..., N, k)`` of each term of ``group`` (``Problem.groups``:
+    terms read at the same times) at ``(ctrl, values)`` through the spans, a part of at most
+    ``PART`` samples at a time, the span derivatives evaluated once per part to the highest
+    order a member reads (no domain check: :func:`~torch_dq.fitting.estimate` checked the
+    times once); kept in ``memo`` where given."""
+    vals = [problem.term_values(i, values) for i in group]
+    order = _order(problem, group, vals)  # as the linearisation's
+    out: list[list[Tensor]] = [[] for _ in group]
+    for k, parts in enumerate(_group_parts(problem, group)):
+        ps = [term.per_sample(v) for term, v in zip(parts, vals, strict=True)]
+        derivs = _part_derivatives(problem.spans, parts[0], ctrl, parts[0].time_shift(ps[0]),
+                                   order)
         if memo is not None:
-            memo.put((i, k), derivs)
-        out.append(term.residuals([d[:term.order + 1] for d in derivs], p))
-    return torch.cat(out, -2)
+            memo.put((group[0], k), derivs)
+        for rows, term, p in zip(out, parts, ps, strict=True):
+            rows.append(term.residuals([d[:term.order + 1] for d in derivs], p))
+    return [torch.cat(rows, -2) for rows in out]
+
+
+def _group_parts(problem, group: tuple[int, ...]) -> list[tuple]:
+    """The parts of at most ``PART`` samples (:meth:`~torch_dq.fitting.Term.parts`) of the
+    terms of ``group``, one tuple of its members' per part (a group's members are cut
+    alike)."""
+    return list(zip(*(problem.terms[i].parts(PART) for i in group), strict=True))
+
+
+def _order(problem, group: tuple[int, ...], vals: list[dict[str, Tensor]]) -> int:
+    """The highest span derivative the terms of ``group`` read (with their values ``vals``),
+    :func:`_rated`'s next one included."""
+    return max(problem.terms[i].order + _rated(problem, i, v)
+               for i, v in zip(group, vals, strict=True))
 
 
 def _part_derivatives(spans, term, ctrl: Tensor, shift: Tensor, order: int,
@@ -152,8 +181,9 @@ class Linearization:
     def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
                ) -> System:
         """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
-        derivatives taken, and dropped, from ``memo`` where :func:`residuals` kept them at
-        this point).
+        derivatives taken, and dropped, from ``memo`` where :func:`group_residuals` kept
+        them at this point), a group of terms read at the same times (``Problem.groups``)
+        and a part of its samples at a time.
 
         Each term's rows carry only the nuisance columns its samples' windows touch
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
@@ -162,30 +192,38 @@ class Linearization:
         p = self.p
         Bf = max(p.batch.numel(), 1)
         acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
-        rs, weights = [], []
-        for i in range(len(p.terms)):
-            parts = [self._add_part(acc, i, term, ctrl, values, w,
-                                    None if memo is None else memo.take((i, k)))
-                     for k, term in enumerate(p.terms[i].parts(PART))]  # memory: a part
-            rs.append(torch.cat([r for r, _ in parts], -2))
-            weights.append(torch.cat([wt for _, wt in parts], -1))
-        return acc.system(rs, weights)
+        rs: list[list[Tensor]] = [[] for _ in p.terms]
+        weights: list[list[Tensor]] = [[] for _ in p.terms]
+        for group in p.groups(values):
+            for k, parts in enumerate(_group_parts(p, group)):  # memory: a part
+                added = self._add_part(acc, group, parts, ctrl, values, w,
+                                       None if memo is None else memo.take((group[0], k)))
+                for i, (r, wt) in zip(group, added, strict=True):
+                    rs[i].append(r)
+                    weights[i].append(wt)
+        return acc.system([torch.cat(r, -2) for r in rs], [torch.cat(x, -1) for x in weights])
 
-    def _add_part(self, acc: _Normal, i: int, term, ctrl: Tensor, values: list[Tensor],
-                  w: int, derivs: list[tuple[Tensor, ...]] | None) -> tuple[Tensor, Tensor]:
-        """Add the normal equations of ``term`` (term ``i`` or a part of its samples,
-        :meth:`~torch_dq.fitting.Term.parts`; its span derivatives ``derivs`` where known)
-        to ``acc``; its residuals and robust weights."""
+    def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
+                  values: list[Tensor], w: int, derivs: list[tuple[Tensor, ...]] | None,
+                  ) -> list[tuple[Tensor, Tensor]]:
+        """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
+        samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives ``derivs``
+        where known) to ``acc``, a term after the other; their residuals and robust
+        weights."""
         G = acc.band.shape[0]
-        r, wt, f0, Jc, Jn = self._term_jacobians(i, term, ctrl, values, w, derivs)
-        keys = self._windows(f0, w)
-        local, gcols, valid = self._columns(i, Jn, keys, G)
-        for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
-            k = keys[:, a:a + _ROWS]
-            Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w, local[k], valid[k])
-            win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
-            acc.add(win, block, gcols[win])
-        return r, wt
+        out = []
+        for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
+                group, terms, ctrl, values, w, derivs), strict=True):
+            wt = _weights(term, r)
+            keys = self._windows(f0, w)
+            local, gcols, valid = self._columns(i, Jn, keys, G)
+            for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
+                k = keys[:, a:a + _ROWS]
+                Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w, local[k], valid[k])
+                win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
+                acc.add(win, block, gcols[win])
+            out.append((r, wt))
+        return out
 
     def _columns(self, i: int, Jn: dict[str, Tensor], keys: Tensor, G: int,
                  ) -> tuple[Tensor, Tensor, Tensor]:
@@ -238,55 +276,78 @@ class Linearization:
     def _term_jacobians(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
                         derivs: list[tuple[Tensor, ...]] | None):
         """Whitened residuals, robust weights, window start and Jacobians of ``term`` (term
-        ``i`` or a part of it)."""
+        ``i`` or a part of it) alone."""
         r, f0, Jc, Jn = self._chained(i, term, ctrl, values, w, derivs)
-        wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
-        wt = wt * term.mask.to(wt.dtype)
-        return r, wt, f0, Jc, Jn
+        return r, _weights(term, r), f0, Jc, Jn
 
     def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
                  known: list[tuple[Tensor, ...]] | None = None):
-        """Per-sample whitened residuals ``(..., N, k)`` of ``term`` (term ``i`` or a part
-        of it), its window start and their Jacobians: the span derivatives at the current
-        point (``known``, or evaluated), the residuals' Jacobians with respect to them and to
-        the nuisance steps, chained through the spans (``_through_spans``), the times' to the
-        time-moving parameters by their rates."""
-        p = self.p
-        vals = p.term_values(i, values)
-        rates = term.time_rates()
-        shift = term.time_shift(term.per_sample(vals))
-        times = [t + shift for t in term.times_list()]
+        """:meth:`_group_chained` of ``term`` (term ``i`` or a part of it) alone."""
+        return self._group_chained((i,), (term,), ctrl, values, w, known)[0]
+
+    def _group_chained(self, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
+                       values: list[Tensor], w: int,
+                       known: list[tuple[Tensor, ...]] | None = None) -> list[tuple]:
+        """Per term of ``terms`` (the terms ``group``, or a part of each, read at the same
+        times): per-sample whitened residuals ``(..., N, k)``, the window start and their
+        Jacobians. The span derivatives at the current point (``known``, or evaluated once
+        to the highest order a term reads), each term's residual Jacobians with respect to
+        them and to its nuisance steps, chained through the spans together
+        (``_through_spans``: the terms' rows stacked, a lower order's padded with zeros), the
+        times' to the time-moving parameters by their rates (a term of its own: a group's
+        times move with no estimated parameter)."""
+        p, lead = self.p, terms[0]
+        vals = [p.term_values(i, values) for i in group]
+        times = [t + lead.time_shift(lead.per_sample(vals[0])) for t in lead.times_list()]
         firsts = [self.spans.first(t) for t in times]
+        f0, gathered, offs = self._window(ctrl, firsts, w)
+        shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
+        top = max(term.order for term in terms)
+        rated = _order(p, group, vals) > top  # time columns: the next derivative
+        if known is None:  # the span derivatives at the current point (and the next)
+            with torch.no_grad():
+                known = [_point_derivatives(self.spans, ctrl, t, f, s, top + rated)
+                         for t, f, s in zip(times, firsts, shared, strict=True)]
+        derivs = [torch.stack(d, -2) for d in known]
+        ests = [[name for name in v if (i, name) in p.index] for i, v in zip(group, vals,
+                                                                            strict=True)]
+        rates = [term.time_rates() for term in terms]
+        timed = [[name for name in est if name in rt] for est, rt in zip(ests, rates,
+                                                                         strict=True)]
+        jac = [self._residual_jacobians(i, term, v, [x for x in est if x not in tm],
+                                        [d[..., :term.order + 1, :] for d in derivs],
+                                        gathered.shape[:-2])
+               for i, term, v, est, tm in zip(group, terms, vals, ests, timed, strict=True)]
+        L = len(derivs)
+        Jd = [_stacked([J[l] for _, J in jac], top + 1) for l in range(L)]
+        Jc, Jt = self._through_spans(gathered, offs, times, firsts, Jd, top,
+                                     bool(timed[0]) and not rated, shared,
+                                     [d[..., 0, :] for d in derivs])
+        if rated:
+            Jt = self._time_columns(times, firsts, Jd, [d[..., 1:, :] for d in derivs])
+        N = times[0].shape[-1]
+        f0 = f0.expand(*gathered.shape[:-3], N)
+        out = []
+        for (r, J), est, tm, Jcol, rt in zip(jac, ests, timed, Jc.split(
+                [r.shape[-1] for r, _ in jac], -3), rates, strict=True):
+            Jn = dict(zip([x for x in est if x not in tm], J[L:], strict=True))
+            if Jt is not None:
+                for name in tm:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
+                    rate = torch.as_tensor(rt[name], dtype=Jt.dtype, device=Jt.device)
+                    Jn[name] = (Jt * rate.expand(Jt.shape[:-1])[..., None])[..., None]
+            out.append((r, f0, Jcol, Jn))
+        return out
+
+    def _window(self, ctrl: Tensor, firsts: list[Tensor], w: int,
+                ) -> tuple[Tensor, Tensor, list[Tensor]]:
+        """The samples' window start ``f0 (..., N)`` (the first of their spans ``firsts``,
+        within the curve), the window's points ``(..., N, w, 8)`` (``span_points``) and each
+        span's offsets in it ``(..., N, support)``."""
         n, sup = self.spans.n, self.spans.support
         f0 = torch.stack(firsts).amin(0)
         f0 = torch.minimum(f0, torch.full_like(f0, n - w))
-        gathered = span_points(ctrl, f0, w)
-        est = [name for name in vals if (i, name) in p.index]
-        timed = [name for name in est if name in rates]  # move the times
-        nuisance = [name for name in est if name not in timed]  # read by the residual
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
-        shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]
-        rated, o = _rated(p, i, vals), term.order + 1  # time columns: the next derivative
-        if known is None:  # the span derivatives at the current point (and the next)
-            with torch.no_grad():
-                known = [_point_derivatives(self.spans, ctrl, t, f, s, o - 1 + rated)
-                         for t, f, s in zip(times, firsts, shared, strict=True)]
-        derivs = [torch.stack(d, -2) for d in known]
-        r, J = self._residual_jacobians(i, term, vals, nuisance, [d[..., :o, :] for d in derivs],
-                                        gathered.shape[:-2])
-        L = len(derivs)
-        Jn = dict(zip(nuisance, J[L:], strict=True))
-        Jc, Jt = self._through_spans(gathered, offs, times, firsts, J[:L], term.order,
-                                     bool(timed) and not rated, shared,
-                                     [d[..., 0, :] for d in derivs])
-        if rated:
-            Jt = self._time_columns(times, firsts, J[:L], [d[..., 1:, :] for d in derivs])
-        if Jt is not None:
-            for name in timed:  # dr/dt dt/dtheta (a Scalar chart: dtheta/ddelta = 1)
-                rate = torch.as_tensor(rates[name], dtype=Jt.dtype, device=Jt.device)
-                Jn[name] = (Jt * rate.expand(Jt.shape[:-1])[..., None])[..., None]
-        N = times[0].shape[-1]
-        return r, f0.expand(*gathered.shape[:-3], N), Jc, Jn
+        return f0, span_points(ctrl, f0, w), offs
 
     def _residual_jacobians(self, i: int, term, vals: dict[str, Tensor], nuisance: list[str],
                             derivs: list[Tensor], shape: torch.Size,
@@ -474,6 +535,27 @@ class Linearization:
                     if timed:
                         Dt[..., a:a + size, o] = grads[1]
         return Dc, Dt
+
+
+def _weights(term, r: Tensor) -> Tensor:
+    """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)``, masked samples'
+    zero."""
+    wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
+    return wt * term.mask.to(wt.dtype)
+
+
+def _stacked(Js: list[Tensor], O: int) -> Tensor:
+    """The rows ``Js`` (each ``(..., N, k_j, o_j, 8)``, ``o_j <= O``) of a group's terms as one
+    ``(..., N, sum k_j, O, 8)``, the orders a term does not read zero."""
+    if len(Js) == 1 and Js[0].shape[-2] == O:
+        return Js[0]
+    lead = torch.broadcast_shapes(*(J.shape[:-3] for J in Js))
+    out = Js[0].new_zeros(*lead, sum(J.shape[-3] for J in Js), O, 8)
+    a = 0
+    for J in Js:
+        out[..., a:a + J.shape[-3], :J.shape[-2], :] = J
+        a += J.shape[-3]
+    return out
 
 
 def _point_derivatives(spans, ctrl: Tensor, t: Tensor, first: Tensor, shared, order: int,

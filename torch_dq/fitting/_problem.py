@@ -5,8 +5,9 @@ Unknowns: a body-frame step ``delta_k`` (6) per control point, ``c_k <- c_k exp(
 and the chart steps of the ``m`` estimated nuisance parameters (their charts:
 :mod:`torch_dq.fitting._charts`). The costs and the Gauss-Newton system
 (:mod:`torch_dq.fitting._linearize`) evaluate the terms by one path, through the curve's
-spans. :class:`Summary` is what an :class:`~torch_dq.fitting.Estimate` reads of a solved
-problem.
+spans, once per group of terms read at the same times (:meth:`Problem.groups`: an IMU's
+gyroscope and accelerometer). :class:`Summary` is what an
+:class:`~torch_dq.fitting.Estimate` reads of a solved problem.
 """
 
 from __future__ import annotations
@@ -88,6 +89,7 @@ class Problem:
         self.params: list[Param] = []
         self.index: dict[tuple[int, str], Param] = {}
         self.m = 0
+        self._groups: list[tuple[int, ...]] | None = None
 
     def add(self, term_i: int, name: str, free: Free, chart: Chart, start: Tensor) -> None:
         """Register the estimated parameter ``name`` of term ``term_i`` (shared frees once,
@@ -109,6 +111,37 @@ class Problem:
         """The solved problem for :class:`~torch_dq.fitting.Estimate`."""
         return Summary(self.terms, self.batch, self.spans.n, self.m, list(self.params),
                        self.prior_information(), self.spans, self.trajectory, system, pulled)
+
+    def groups(self, values: list[Tensor]) -> list[tuple[int, ...]]:
+        """The terms by their span evaluation, in order of their first term: terms read at
+        identical times (equal moved times ``t + shift``, ``_timing``) that no estimated
+        parameter moves (:meth:`~torch_dq.fitting.Term.time_rates`) and that are cut into
+        parts alike share one evaluation of the spans' derivatives and one chain through
+        them (:mod:`torch_dq.fitting._linearize`); any other term is a group of its own.
+        Decided at the first call, once the estimated parameters are registered (the shifts
+        of such terms do not depend on ``values``)."""
+        if self._groups is None:
+            out: list[tuple[list[int], tuple[list[Tensor], bool] | None]] = []
+            for i in range(len(self.terms)):
+                key = self._timing(i, values)
+                g = next((g for g, k in out if key is not None and k is not None
+                          and _same_timing(k, key)), None)
+                if g is None:
+                    out.append(([i], key))
+                else:
+                    g.append(i)
+            self._groups = [tuple(g) for g, _ in out]
+        return self._groups
+
+    def _timing(self, i: int, values: list[Tensor]) -> tuple[list[Tensor], bool] | None:
+        """Term ``i``'s moved times and whether it can be cut into parts, or None where an
+        estimated parameter moves its times (its span evaluation is its own)."""
+        term = self.terms[i]
+        if any((i, name) in self.index for name in term.time_rates()):
+            return None
+        shift = term.time_shift(term.per_sample(self.term_values(i, values)))
+        return [t + shift for t in term.times_list()], term.N < 2 or len(
+            term.parts(term.N - 1)) > 1
 
     # -- values
     def term_values(self, i: int, values: list[Tensor]) -> dict[str, Tensor]:
@@ -134,13 +167,16 @@ class Problem:
     # -- costs
     def data_cost(self, ctrl: Tensor, values: list[Tensor], memo: Memo | None = None,
                   ) -> list[Tensor]:
-        """Robust cost ``(...)`` of each term (through the spans, as the Jacobians; the span
-        derivatives kept in ``memo`` for :meth:`system` where given)."""
-        out = []
-        for i, term in enumerate(self.terms):
-            r = _linearize.residuals(self, i, ctrl, values, memo)
-            out.append(_robust.rho(term.robust, r.norm(dim=-1), term.robust_k).sum(-1)
-                       .expand(self.batch))
+        """Robust cost ``(...)`` of each term (through the spans, as the Jacobians: a group's
+        span derivatives once, :meth:`groups`; kept in ``memo`` for :meth:`system` where
+        given)."""
+        out: list[Tensor] = [torch.empty(0)] * len(self.terms)
+        for group in self.groups(values):
+            for i, r in zip(group, _linearize.group_residuals(self, group, ctrl, values, memo),
+                            strict=True):
+                term = self.terms[i]
+                out[i] = _robust.rho(term.robust, r.norm(dim=-1), term.robust_k).sum(-1).expand(
+                    self.batch)
         return out
 
     def prior_cost(self, values: list[Tensor]) -> Tensor:
@@ -172,3 +208,11 @@ class Problem:
         """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
         derivatives from ``memo`` where :meth:`data_cost` kept them at this point)."""
         return self.linearization.system(ctrl, values, w, memo)
+
+
+def _same_timing(a: tuple[list[Tensor], bool], b: tuple[list[Tensor], bool]) -> bool:
+    """Whether two terms' ``Problem._timing`` are identical: as many moved times lists, each
+    of equal shape, dtype, device and values, and the same splitting."""
+    return a[1] == b[1] and len(a[0]) == len(b[0]) and all(
+        x.shape == y.shape and x.dtype == y.dtype and x.device == y.device and torch.equal(x, y)
+        for x, y in zip(a[0], b[0], strict=True))
