@@ -15,12 +15,13 @@ from typing import cast
 
 import torch
 from torch import Tensor
+from torch._C._functorch import is_functorch_wrapped_tensor
 
 __all__ = [
     "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
-    "evens", "nan_unless",
-    "piecewise", "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms",
-    "select", "series_mask", "threshold",
+    "evens", "nan_unless", "piecewise", "plain_range", "power_of_two_scale", "prescale",
+    "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask", "threshold",
+    "unscaled",
 ]
 
 
@@ -368,6 +369,66 @@ def power_of_two_scale(x: Tensor) -> Tensor:
     m = x.detach().abs().amax(-1, keepdim=True)
     ok = (m > 0) & torch.isfinite(m)
     return torch.where(ok, torch.exp2(torch.floor(torch.log2(torch.where(ok, m, 1.0)))), 1.0)
+
+
+def plain_range(dtype: torch.dtype, power: int = 2) -> tuple[float, float]:
+    r"""``(low, high)``: the squared norms :math:`|x|^2` of rows (of at most 4) within which
+    plain arithmetic, and its first and second derivatives, have the bits of the same
+    arithmetic on the rows divided by :func:`power_of_two_scale` (``power``: the bounds of
+    :math:`|x|^{power}` instead).
+
+    ``low = (tiny / eps)^{1/4}`` (:math:`2^{-242.5}` in float64, :math:`2^{-25.75}` in
+    float32), ``high = 1 / low``: the second derivatives' :math:`|x|^{-6}` stays within
+    :math:`(eps / tiny)^{3/4}` of 1, so no square, product or quotient of the largest
+    components over- or underflows, and one that is subnormal in either form is far below
+    the terms it is summed with. Where the division by a power of two changes nothing else,
+    it commutes with every rounding; the exception is a result in the subnormal range, or a
+    product of components many orders apart (``1e-300`` next to ``1e2``), where one form
+    rounds a subnormal intermediate: the results differ there by at most a subnormal unit
+    times the row's scale, far below an ulp of its largest entries.
+    """
+    key = (dtype, power)
+    if key not in _PLAIN_RANGE:
+        info = torch.finfo(dtype)
+        low = (info.tiny / info.eps) ** (power / 8)
+        _PLAIN_RANGE[key] = (low, 1.0 / low)
+    return _PLAIN_RANGE[key]
+
+
+_PLAIN_RANGE: dict[tuple[torch.dtype, int], tuple[float, float]] = {}
+
+
+def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
+    r"""The divisor of rows ``x (..., k)`` that keeps their squares in range, given their
+    plain norms to the ``power``, ``size (..., 1)`` (``power`` 1: :math:`|x|`, 2:
+    :math:`|x|^2`); ``None`` where no row needs one.
+
+    Rows whose :math:`|x|^2` lies within :func:`plain_range` are divided by 1 (their plain
+    arithmetic has the prescaled bits), the others (huge, tiny, zero, non-finite) by
+    :func:`power_of_two_scale`. Eager on the CPU one read of the extremes of ``size2``
+    returns ``None`` when every row is within (the common case: no division at all); other
+    devices, ``torch.compile`` and ``torch.func`` transforms always get the divisor (no host
+    sync), the same bits. Detached.
+    """
+    low, high = plain_range(x.dtype, power)
+    size = size.detach()
+    if x.is_cpu and not torch.compiler.is_compiling() and not is_functorch_wrapped_tensor(size):
+        count = size.numel()
+        if count <= 1:  # one read
+            least = most = size.item() if count else 1.0
+        else:
+            least, most = (float(v) for v in torch.aminmax(size))
+        if low <= least and most <= high:  # False for a NaN
+            return None
+    return torch.where((size >= low) & (size <= high), 1.0, power_of_two_scale(x))
+
+
+def unscaled(x: Tensor) -> Tensor:
+    """``x`` itself, through an identity node of autograd where it records (a view): stands
+    for :func:`prescale`'s division where none is needed, so that the double backward
+    sums its terms in the same order as with the division, and a row's second derivatives
+    keep their bits whichever form its batch takes."""
+    return x.view_as(x) if x.requires_grad and torch.is_grad_enabled() else x
 
 
 def safe_norm(x: Tensor) -> Tensor:

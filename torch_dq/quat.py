@@ -207,8 +207,12 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
     """
     _checks.tensor("quat.normalize", "q", q, 4)
     check = _checks.flag("quat.normalize", "check", check)
-    dtype, q = q.dtype, lift(q)
-    q = q / _numerics.power_of_two_scale(q)  # exact; no square over- or underflows
+    dtype, q = q.dtype, _numerics.unscaled(lift(q))
+    n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+    m = _numerics.prescale(q, n, power=1)
+    if m is None:  # every norm finite and far from under- or overflow
+        return (q / _numerics.unscaled(n)).to(dtype)
+    q = q / m  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     finite = torch.isfinite(n)
     if check and not _checks.host_all("quat.normalize", "check=True", finite & (n > 0)):
@@ -452,14 +456,21 @@ def to_matrix(q: Tensor) -> Tensor:
                 [ 0.,  0.,  1.]])
     """
     _checks.tensor("quat.to_matrix", "q", q, 4)
-    ql = lift(q)
-    ql = ql / _numerics.power_of_two_scale(ql)  # exact; no square over- or underflows
-    w, x, y, z = ql.unbind(-1)
-    n2 = (ql * ql).sum(-1)
-    s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
+    ql = _numerics.unscaled(lift(q))
+    w, x, y, z = ql.split(1, -1)  # (before n2: autograd's order of sums as with the prescale)
+    n2 = (ql * ql).sum(-1, keepdim=True)
+    m = _numerics.prescale(ql, n2)
+    if m is None:  # every |q|^2 finite and far from under- or overflow
+        n2 = _numerics.unscaled(n2)
+    else:
+        ql = ql / m  # exact; no square over- or underflows
+        w, x, y, z = ql.split(1, -1)
+        n2 = (ql * ql).sum(-1, keepdim=True)
+        n2 = _numerics.nan_unless(torch.isfinite(n2), n2)
+    s = 2.0 / n2
     xx, yy, zz = s * x * x, s * y * y, s * z * z
     wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
-    return torch.stack((
+    return torch.cat((
         1.0 - yy - zz, xy - wz, xz + wy,
         xy + wz, 1.0 - xx - zz, yz - wx,
         xz - wy, yz + wx, 1.0 - xx - yy,
