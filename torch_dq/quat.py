@@ -82,13 +82,18 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     (only the vector part, ``(..., 3)``, if not ``real``).
 
     ``q`` is first divided by a power of two near its largest component (exact), so no
-    square over- or underflows. For :math:`|v| \le w` the scale
+    square over- or underflows (for the vector part alone only the rows that need it, as
+    ``_numerics.prescale`` finds them: the same bits). For :math:`|v| \le w` the scale
     :math:`\theta / |v| = \operatorname{atanc}(|v|^2 / w^2) / w` is a smooth function of
     :math:`|v|^2` (every derivative exact at the identity); elsewhere
     :math:`\operatorname{atan2}(|v|, w) / |v|` with :math:`|v| \ge |w|` or :math:`w < 0`.
     """
-    m = _numerics.power_of_two_scale(q)
-    p = q / m
+    if real:
+        m: Tensor | None = _numerics.power_of_two_scale(q)
+    else:  # only where some row needs it (the scale itself is not read)
+        q = _numerics.unscaled(q)
+        m = _numerics.prescale(q, torch.linalg.vector_norm(q, dim=-1, keepdim=True), power=1)
+    p = q if m is None else q / m
     w, v = p[..., 0], p[..., 1:]
     v2, w2 = (v * v).sum(-1), w * w
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
@@ -104,6 +109,8 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
     vec = torch.where(axis_line[..., None], theta[..., None] * p.new_tensor([1.0, 0.0, 0.0]),
                       v * scale[..., None])
+    if m is None:  # every row finite
+        return vec
     n2 = v2 + w2
     # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
     vec = _numerics.nan_unless(torch.isfinite(n2)[..., None], vec)
