@@ -274,13 +274,22 @@ def even(name: str, x2: Tensor) -> Tensor:
     form never meets the cancellation of its derivatives near 0; at most 1, where the
     alternating series would start to cancel). Above it, the closed form is
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
-    where), so no branch ever produces a NaN or an infinite derivative.
+    where), so no branch ever produces a NaN or an infinite derivative. Eager on the CPU,
+    where every element is below the switch (or every one above it and finite), only that
+    branch is evaluated: the same values and derivatives (the other branch's share of them
+    is zero).
     """
     coeffs, exact = _EVEN[name]
-    small = x2 < threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
+    switch = threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
+    least, most = _extremes(x2)  # eager CPU: where every element takes one branch, only it
+    if switch <= least and most < math.inf:
+        return exact(torch.sqrt(x2))
     series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
+    if most < switch:
+        return cast(Tensor, series)
+    small = x2 < switch
     return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
 
 
@@ -411,16 +420,24 @@ def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
     sync), the same bits. Detached.
     """
     low, high = plain_range(x.dtype, power)
+    least, most = _extremes(size)
+    if low <= least and most <= high:
+        return None
     size = size.detach()
-    if x.is_cpu and not torch.compiler.is_compiling() and not is_functorch_wrapped_tensor(size):
-        count = size.numel()
-        if count <= 1:  # one read
-            least = most = size.item() if count else 1.0
-        else:
-            least, most = (float(v) for v in torch.aminmax(size))
-        if low <= least and most <= high:  # False for a NaN
-            return None
     return torch.where((size >= low) & (size <= high), 1.0, power_of_two_scale(x))
+
+
+def _extremes(x: Tensor) -> tuple[float, float]:
+    """``(min, max)`` of ``x`` read on the host, eager on the CPU (``(1, 1)`` if empty);
+    ``(nan, nan)`` where ``x`` holds a NaN, and elsewhere (other devices, ``torch.compile``,
+    ``torch.func`` transforms: no host read), so that every comparison with them fails."""
+    if not x.is_cpu or torch.compiler.is_compiling() or is_functorch_wrapped_tensor(x):
+        return math.nan, math.nan
+    if x.numel() <= 1:  # one read
+        v = x.item() if x.numel() else 1.0
+        return v, v
+    least, most = torch.aminmax(x.detach())
+    return float(least), float(most)
 
 
 def unscaled(x: Tensor) -> Tensor:
