@@ -10,11 +10,12 @@ Non-unit input, per function: ``mul``, ``conj``, ``inv``, ``norm``, ``normalize`
 ``exp``, ``log`` are plain quaternion algebra (any norm); ``to_matrix``, ``to_axis_angle``,
 ``to_rotvec``, ``to_euler`` normalise implicitly (any non-zero ``q``: these and ``norm``,
 ``normalize``, ``inv``, ``log`` divide by a power of two near ``max |q_i|`` first, exactly,
-so no square under- or overflows, e.g. from 1e-30 to 1e30 in float32); ``rotate`` and
-``slerp`` assume unit input (not checked); ``normalize(q, check=True)`` raises on zero or
-non-finite rows. Non-finite components give NaN (or inf) in their own row only, never a
-finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is 0, as
-``torch.exp``).
+so no square under- or overflows, e.g. from 1e-30 to 1e30 in float32; ``normalize``,
+``to_matrix`` and ``to_rotvec`` only where some row of the batch needs it, the same bits);
+``rotate`` and ``slerp`` assume unit input (not checked); ``normalize(q, check=True)``
+raises on zero or non-finite rows. Non-finite components give NaN (or inf) in their own
+row only, never a finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is
+0, as ``torch.exp``).
 
 Second order: removable singularities (``sin|v| / |v|`` in ``exp``, ``atan2(|v|, w) / |v|``
 in ``log``, the slerp weights at ``q0 == q1``) are even functions evaluated from the
