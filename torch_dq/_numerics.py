@@ -414,7 +414,7 @@ def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
 
     Rows whose :math:`|x|^2` lies within :func:`plain_range` are divided by 1 (their plain
     arithmetic has the prescaled bits), the others (huge, tiny, zero, non-finite) by
-    :func:`power_of_two_scale`. Eager on the CPU one read of the extremes of ``size2``
+    :func:`power_of_two_scale`. Eager on the CPU one read of the extremes of ``size``
     returns ``None`` when every row is within (the common case: no division at all); other
     devices, ``torch.compile`` and ``torch.func`` transforms always get the divisor (no host
     sync), the same bits. Detached.
