@@ -68,8 +68,11 @@ def tensor(fn: str, name: str, x, last: int | tuple[int, ...] | None = None) -> 
     if not x.is_floating_point():
         fail(fn, f"expected a floating-point tensor for {name}, got dtype {x.dtype}", TypeError)
     if last is not None:
+        shape = x.shape
+        if isinstance(last, int) and shape and shape[-1] == last:  # the common case, at once
+            return x
         event = (last,) if isinstance(last, int) else tuple(last)
-        if x.dim() < len(event) or tuple(x.shape[x.dim() - len(event):]) != event:
+        if len(shape) < len(event) or tuple(shape[len(shape) - len(event):]) != event:
             expected = "(..., " + ", ".join(str(d) for d in event) + ")"
             fail(fn, f"expected a {expected} tensor for {name}, got shape {shape_str(x.shape)}")
     return x
@@ -125,6 +128,9 @@ def broadcast_batch(fn: str, **named: tuple[Tensor, int]) -> torch.Size:
         The broadcast batch shape.
     """
     shapes = {name: x.shape[: x.dim() - nd] for name, (x, nd) in named.items()}
+    first, *rest = shapes.values()
+    if all(s == first for s in rest):  # the common case: one batch shape
+        return first
     try:
         return broadcast_shapes(*shapes.values())
     except RuntimeError:

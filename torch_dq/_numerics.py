@@ -15,12 +15,13 @@ from typing import cast
 
 import torch
 from torch import Tensor
+from torch._C._functorch import is_functorch_wrapped_tensor
 
 __all__ = [
     "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
-    "evens", "nan_unless",
-    "piecewise", "power_of_two_scale", "safe_denominator", "safe_norm", "screw_series_terms",
-    "select", "series_mask", "threshold",
+    "evens", "nan_unless", "piecewise", "plain_range", "power_of_two_scale", "prescale",
+    "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask", "threshold",
+    "unscaled",
 ]
 
 
@@ -273,13 +274,22 @@ def even(name: str, x2: Tensor) -> Tensor:
     form never meets the cancellation of its derivatives near 0; at most 1, where the
     alternating series would start to cancel). Above it, the closed form is
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
-    where), so no branch ever produces a NaN or an infinite derivative.
+    where), so no branch ever produces a NaN or an infinite derivative. Eager on the CPU,
+    where every element is below the switch (or every one above it and finite), only that
+    branch is evaluated: the same values and derivatives (the other branch's share of them
+    is zero).
     """
     coeffs, exact = _EVEN[name]
-    small = x2 < threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
+    switch = threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
+    least, most = _extremes(x2)  # eager CPU: where every element takes one branch, only it
+    if switch <= least and most < math.inf:
+        return exact(torch.sqrt(x2))
     series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
+    if most < switch:
+        return cast(Tensor, series)
+    small = x2 < switch
     return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
 
 
@@ -368,6 +378,74 @@ def power_of_two_scale(x: Tensor) -> Tensor:
     m = x.detach().abs().amax(-1, keepdim=True)
     ok = (m > 0) & torch.isfinite(m)
     return torch.where(ok, torch.exp2(torch.floor(torch.log2(torch.where(ok, m, 1.0)))), 1.0)
+
+
+def plain_range(dtype: torch.dtype, power: int = 2) -> tuple[float, float]:
+    r"""``(low, high)``: the squared norms :math:`|x|^2` of rows (of at most 4) within which
+    plain arithmetic, and its first and second derivatives, have the bits of the same
+    arithmetic on the rows divided by :func:`power_of_two_scale` (``power``: the bounds of
+    :math:`|x|^{power}` instead).
+
+    ``low = (tiny / eps)^{1/4}`` (:math:`2^{-242.5}` in float64, :math:`2^{-25.75}` in
+    float32), ``high = 1 / low``: the second derivatives' :math:`|x|^{-6}` stays within
+    :math:`(eps / tiny)^{3/4}` of 1, so no square, product or quotient of the largest
+    components over- or underflows, and one that is subnormal in either form is far below
+    the terms it is summed with. Where the division by a power of two changes nothing else,
+    it commutes with every rounding; the exception is a result in the subnormal range, or a
+    product of components many orders apart (``1e-300`` next to ``1e2``), where one form
+    rounds a subnormal intermediate: the results differ there by at most a subnormal unit
+    times the row's scale, far below an ulp of its largest entries.
+    """
+    key = (dtype, power)
+    if key not in _PLAIN_RANGE:
+        info = torch.finfo(dtype)
+        low = (info.tiny / info.eps) ** (power / 8)
+        _PLAIN_RANGE[key] = (low, 1.0 / low)
+    return _PLAIN_RANGE[key]
+
+
+_PLAIN_RANGE: dict[tuple[torch.dtype, int], tuple[float, float]] = {}
+
+
+def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
+    r"""The divisor of rows ``x (..., k)`` that keeps their squares in range, given their
+    plain norms to the ``power``, ``size (..., 1)`` (``power`` 1: :math:`|x|`, 2:
+    :math:`|x|^2`); ``None`` where no row needs one.
+
+    Rows whose :math:`|x|^2` lies within :func:`plain_range` are divided by 1 (their plain
+    arithmetic has the prescaled bits), the others (huge, tiny, zero, non-finite) by
+    :func:`power_of_two_scale`. Eager on the CPU one read of the extremes of ``size``
+    returns ``None`` when every row is within (the common case: no division at all); other
+    devices, ``torch.compile`` and ``torch.func`` transforms always get the divisor (no host
+    sync), the same bits. Detached.
+    """
+    low, high = plain_range(x.dtype, power)
+    least, most = _extremes(size)
+    if low <= least and most <= high:
+        return None
+    size = size.detach()
+    return torch.where((size >= low) & (size <= high), 1.0, power_of_two_scale(x))
+
+
+def _extremes(x: Tensor) -> tuple[float, float]:
+    """``(min, max)`` of ``x`` read on the host, eager on the CPU (``(1, 1)`` if empty);
+    ``(nan, nan)`` where ``x`` holds a NaN, and elsewhere (other devices, ``torch.compile``,
+    ``torch.func`` transforms: no host read), so that every comparison with them fails."""
+    if not x.is_cpu or torch.compiler.is_compiling() or is_functorch_wrapped_tensor(x):
+        return math.nan, math.nan
+    if x.numel() <= 1:  # one read
+        v = x.item() if x.numel() else 1.0
+        return v, v
+    least, most = torch.aminmax(x.detach())
+    return float(least), float(most)
+
+
+def unscaled(x: Tensor) -> Tensor:
+    """``x`` itself, through an identity node of autograd where it records (a view): stands
+    for :func:`prescale`'s division where none is needed, so that the double backward
+    sums its terms in the same order as with the division, and a row's second derivatives
+    keep their bits whichever form its batch takes."""
+    return x.view_as(x) if x.requires_grad and torch.is_grad_enabled() else x
 
 
 def safe_norm(x: Tensor) -> Tensor:

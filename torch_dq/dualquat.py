@@ -54,9 +54,11 @@ from ._numerics import (
     even,
     nan_unless,
     power_of_two_scale,
+    prescale,
     safe_denominator,
     safe_norm,
     threshold,
+    unscaled,
 )
 from .dual import Dual
 
@@ -100,10 +102,17 @@ def _dq(fn: str, name: str, x: Tensor) -> Tensor:
 
 def _normalize(x: Tensor) -> Tensor:
     """Unchecked projection onto unit dual quaternions (see :func:`normalize`)."""
-    x = x / power_of_two_scale(x[..., :4])  # exact; no square of r over- or underflows
+    x = unscaled(x)
     r, d = split(x)
     n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
-    n = nan_unless((n > 0) & torch.isfinite(n), n)
+    m = prescale(r, n, power=1)
+    if m is None:  # every |r| finite and far from under- or overflow
+        n = unscaled(n)
+    else:
+        x = x / m  # exact; no square of r over- or underflows
+        r, d = split(x)
+        n = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
+        n = nan_unless((n > 0) & torch.isfinite(n), n)
     r = r / n
     d = d / n
     return join(r, d - r * (r * d).sum(-1, keepdim=True))

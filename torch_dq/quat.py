@@ -10,11 +10,12 @@ Non-unit input, per function: ``mul``, ``conj``, ``inv``, ``norm``, ``normalize`
 ``exp``, ``log`` are plain quaternion algebra (any norm); ``to_matrix``, ``to_axis_angle``,
 ``to_rotvec``, ``to_euler`` normalise implicitly (any non-zero ``q``: these and ``norm``,
 ``normalize``, ``inv``, ``log`` divide by a power of two near ``max |q_i|`` first, exactly,
-so no square under- or overflows, e.g. from 1e-30 to 1e30 in float32); ``rotate`` and
-``slerp`` assume unit input (not checked); ``normalize(q, check=True)`` raises on zero or
-non-finite rows. Non-finite components give NaN (or inf) in their own row only, never a
-finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is 0, as
-``torch.exp``).
+so no square under- or overflows, e.g. from 1e-30 to 1e30 in float32; ``normalize``,
+``to_matrix`` and ``to_rotvec`` only where some row of the batch needs it, the same bits);
+``rotate`` and ``slerp`` assume unit input (not checked); ``normalize(q, check=True)``
+raises on zero or non-finite rows. Non-finite components give NaN (or inf) in their own
+row only, never a finite value (the one IEEE limit kept: ``exp`` of a real part ``-inf`` is
+0, as ``torch.exp``).
 
 Second order: removable singularities (``sin|v| / |v|`` in ``exp``, ``atan2(|v|, w) / |v|``
 in ``log``, the slerp weights at ``q0 == q1``) are even functions evaluated from the
@@ -82,13 +83,18 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     (only the vector part, ``(..., 3)``, if not ``real``).
 
     ``q`` is first divided by a power of two near its largest component (exact), so no
-    square over- or underflows. For :math:`|v| \le w` the scale
+    square over- or underflows (for the vector part alone only the rows that need it, as
+    ``_numerics.prescale`` finds them: the same bits). For :math:`|v| \le w` the scale
     :math:`\theta / |v| = \operatorname{atanc}(|v|^2 / w^2) / w` is a smooth function of
     :math:`|v|^2` (every derivative exact at the identity); elsewhere
     :math:`\operatorname{atan2}(|v|, w) / |v|` with :math:`|v| \ge |w|` or :math:`w < 0`.
     """
-    m = _numerics.power_of_two_scale(q)
-    p = q / m
+    if real:
+        m: Tensor | None = _numerics.power_of_two_scale(q)
+    else:  # only where some row needs it (the scale itself is not read)
+        q = _numerics.unscaled(q)
+        m = _numerics.prescale(q, torch.linalg.vector_norm(q, dim=-1, keepdim=True), power=1)
+    p = q if m is None else q / m
     w, v = p[..., 0], p[..., 1:]
     v2, w2 = (v * v).sum(-1), w * w
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
@@ -104,6 +110,8 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
     vec = torch.where(axis_line[..., None], theta[..., None] * p.new_tensor([1.0, 0.0, 0.0]),
                       v * scale[..., None])
+    if m is None:  # every row finite
+        return vec
     n2 = v2 + w2
     # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
     vec = _numerics.nan_unless(torch.isfinite(n2)[..., None], vec)
@@ -207,8 +215,12 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
     """
     _checks.tensor("quat.normalize", "q", q, 4)
     check = _checks.flag("quat.normalize", "check", check)
-    dtype, q = q.dtype, lift(q)
-    q = q / _numerics.power_of_two_scale(q)  # exact; no square over- or underflows
+    dtype, q = q.dtype, _numerics.unscaled(lift(q))
+    n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+    m = _numerics.prescale(q, n, power=1)
+    if m is None:  # every norm finite and far from under- or overflow
+        return (q / _numerics.unscaled(n)).to(dtype)
+    q = q / m  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     finite = torch.isfinite(n)
     if check and not _checks.host_all("quat.normalize", "check=True", finite & (n > 0)):
@@ -452,14 +464,21 @@ def to_matrix(q: Tensor) -> Tensor:
                 [ 0.,  0.,  1.]])
     """
     _checks.tensor("quat.to_matrix", "q", q, 4)
-    ql = lift(q)
-    ql = ql / _numerics.power_of_two_scale(ql)  # exact; no square over- or underflows
-    w, x, y, z = ql.unbind(-1)
-    n2 = (ql * ql).sum(-1)
-    s = 2.0 / _numerics.nan_unless(torch.isfinite(n2), n2)
+    ql = _numerics.unscaled(lift(q))
+    w, x, y, z = ql.split(1, -1)  # (before n2: autograd's order of sums as with the prescale)
+    n2 = (ql * ql).sum(-1, keepdim=True)
+    m = _numerics.prescale(ql, n2)
+    if m is None:  # every |q|^2 finite and far from under- or overflow
+        n2 = _numerics.unscaled(n2)
+    else:
+        ql = ql / m  # exact; no square over- or underflows
+        w, x, y, z = ql.split(1, -1)
+        n2 = (ql * ql).sum(-1, keepdim=True)
+        n2 = _numerics.nan_unless(torch.isfinite(n2), n2)
+    s = 2.0 / n2
     xx, yy, zz = s * x * x, s * y * y, s * z * z
     wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
-    return torch.stack((
+    return torch.cat((
         1.0 - yy - zz, xy - wz, xz + wy,
         xy + wz, 1.0 - xx - zz, yz - wx,
         xz - wy, yz + wx, 1.0 - xx - yy,
