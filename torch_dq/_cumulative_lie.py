@@ -328,30 +328,28 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
 
 
 def _span_parts(points: Tensor) -> Tensor:
-    r"""``(p, 80, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows), its
+    r"""``(80, p, U)`` per step ``j`` and distinct span: the twist :math:`d_j` (6 rows), its
     :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
     :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
     J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi + \gamma \Phi^2`
     (36 rows: ``(2, 2, 3, 3)`` flat, matrix, real and dual part), from the span's control
-    points ``(U, p + 1, 8)``: what is constant on a span, once per span (:func:`_unpack`)."""
+    points ``(U, p + 1, 8)``: what is constant on a span, once per span and for all steps
+    at once (:func:`_unpack`)."""
     rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
-    d = dualquat.log(rel).permute(1, 2, 0).contiguous()
-    parts = []
-    for dj in d:
-        pw = _powers(dj)
-        (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
-        mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
-        parts.append(torch.cat((dj, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
-                                torch.stack(mats).flatten(0, -2))))
-    return torch.stack(parts)
+    d = dualquat.log(rel).permute(2, 1, 0).reshape(6, -1)  # (6, p U)
+    pw = _powers(d)
+    (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
+    mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
+    return torch.cat((d, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
+                      torch.stack(mats).flatten(0, -2))).view(80, *rel.shape[1::-1])
 
 
 def _unpack(span: Tensor) -> tuple[Tensor, list[tuple[Tensor, ...]], Tensor]:
-    """:func:`_span_parts`' rows (gathered per sample, ``(p, 80, S)``): the twists ``(p, 6,
-    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)``."""
-    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(span[:, 6:42], span[:, 42:44],
-                                                                strict=True)]
-    return span[:, :6], powers, span[:, 44:].unflatten(1, (2, 2, 3, 3))
+    """:func:`_span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
+    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)`` (views)."""
+    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(
+        span[6:42].unbind(1), span[42:44].unbind(1), strict=True)]
+    return span[:6].transpose(0, 1), powers, span[44:].movedim(1, 0).unflatten(1, (2, 2, 3, 3))
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -373,9 +371,11 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         permuted view of a component-major array.
     """
     p = points.shape[-2] - 1
-    span = _span_parts(points)  # gathered by sample (faster than index_select on the last dim)
-    d, powers, fin = _unpack(span.flatten(0, 1).gather(1, inverse.expand(span.shape[0] * 80, -1))
-                             .view(*span.shape[:2], -1))
+    span = _span_parts(points).view(80, -1)  # (80, p U): gathered by sample (faster than
+    # index_select on the last dim), column j U + u of step j, span u
+    at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
+    d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
+                             .view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
