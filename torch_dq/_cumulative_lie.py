@@ -228,27 +228,28 @@ def _left_t(X: Tensor, g: Tensor) -> Tensor:
     return out
 
 
-def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
-             ) -> dict[str, list]:
+def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[str, list]:
     r"""The recursions of the module docstring on the samples' span twists ``d (p, 6, S)``
-    (their :func:`_powers`) and cumulative weights ``lam`` (``O`` tensors ``(p, S)``:
-    :math:`\lambda` and its time derivatives): per step ``j`` :math:`M_j = I - \lambda
-    \sigma \Phi + \lambda^2 \alpha \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I
-    - \lambda^2 \alpha \Phi + \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the
-    coefficients at :math:`\lambda^2 s`), :math:`z_j = M_j V_{j-1}`, :math:`\dot z_j = M_j
-    \dot V_{j-1}` (None at ``j = 0``, where they vanish), :math:`V_j`; the last :math:`V, \dot
-    V` (those the weights' orders reach)."""
+    (their :func:`_powers`, all steps at once: ``(3, 3, p, S)`` and ``(p, S)``) and
+    cumulative weights ``lam`` (``O`` tensors ``(p, S)``: :math:`\lambda` and its time
+    derivatives): per step ``j`` :math:`M_j = I - \lambda \sigma \Phi + \lambda^2 \alpha
+    \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I - \lambda^2 \alpha \Phi +
+    \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the coefficients at
+    :math:`\lambda^2 s`; the matrices of all steps in one pass, views per step), :math:`z_j
+    = M_j V_{j-1}`, :math:`\dot z_j = M_j \dot V_{j-1}` (None at ``j = 0``, where they
+    vanish), :math:`V_j`; the last :math:`V, \dot V` (those the weights' orders reach)."""
     O = len(lam)
-    out: dict[str, list] = {"M": [], "Jr": [], "z": [], "zd": [], "V": []}
+    l1 = lam[0]
+    l2 = l1 * l1
+    l3 = l2 * l1
+    sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), powers, l1)
+    M = _polynomial(powers, 1.0, (-l1 * sig[0], -l1 * sig[1]), (l2 * alp[0], l2 * alp[1]))
+    Jr = _polynomial(powers, l1, (-l2 * alp[0], -l2 * alp[1]), (l3 * bet[0], l3 * bet[1]))
+    out: dict[str, list] = {"M": [(M[0][:, :, j], M[1][:, :, j]) for j in range(d.shape[0])],
+                            "Jr": [(Jr[0][:, :, j], Jr[1][:, :, j]) for j in range(d.shape[0])],
+                            "z": [], "zd": [], "V": []}
     V = Vd = d.new_zeros(d.shape[1:])
     for j, dj in enumerate(d):
-        pw, l1 = powers[j], lam[0][j]
-        l2 = l1 * l1
-        sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), pw, l1)
-        out["M"].append(_polynomial(pw, 1.0, (-l1 * sig[0], -l1 * sig[1]),
-                                    (l2 * alp[0], l2 * alp[1])))
-        out["Jr"].append(_polynomial(pw, l1, (-l2 * alp[0], -l2 * alp[1]),
-                                     (l2 * l1 * bet[0], l2 * l1 * bet[1])))
         if O > 1:  # from V_0 = lam'_0 d_0, Vd_0 = lam''_0 d_0: z_0 = zd_0 = 0 (None)
             out["z"].append(_apply(out["M"][j], V) if j else None)
             V = out["z"][j] + lam[1][j] * dj if j else lam[1][j] * dj
@@ -344,11 +345,11 @@ def _span_parts(points: Tensor) -> Tensor:
                       torch.stack(mats).flatten(0, -2))).view(80, *rel.shape[1::-1])
 
 
-def _unpack(span: Tensor) -> tuple[Tensor, list[tuple[Tensor, ...]], Tensor]:
+def _unpack(span: Tensor) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
     """:func:`_span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
-    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)`` (views)."""
-    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(
-        span[6:42].unbind(1), span[42:44].unbind(1), strict=True)]
+    S)``, the steps' :func:`_powers` (``(3, 3, p, S)`` and ``(p, S)``) and the matrices
+    ``(p, 2, 2, 3, 3, S)`` (views)."""
+    powers = (*span[6:42].unflatten(0, (4, 3, 3)), *span[42:44])
     return span[:6].transpose(0, 1), powers, span[44:].movedim(1, 0).unflatten(1, (2, 2, 3, 3))
 
 
