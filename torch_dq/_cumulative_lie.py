@@ -371,10 +371,27 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
         permuted view of a component-major array.
     """
-    p = points.shape[-2] - 1
-    span = _span_parts(points).view(80, -1)  # (80, p U): gathered by sample (faster than
-    # index_select on the last dim), column j U + u of step j, span u
+    p, (S, k) = points.shape[-2] - 1, cot.shape[:2]
+    span = _span_parts(points).view(80, -1)  # (80, p U): column j U + u of step j, span u
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
+    steps = cot.new_empty(p + 1, 6, k, S)
+    for a in range(0, S, VJP_CHUNK):
+        c = slice(a, a + VJP_CHUNK)
+        _vjp_part(span, at, inverse[c], [w[c] for w in weights], cot[c], pose[c],
+                  steps[..., c])
+    return steps.permute(3, 2, 0, 1)
+
+
+#: Samples per part of :func:`vjp`: its per-sample arrays stay in the cache.
+VJP_CHUNK = 4096
+
+
+def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
+              pose: Tensor, steps: Tensor) -> None:
+    """:func:`vjp` on some samples, into their ``steps (p + 1, 6, k, S)``: the span parts
+    ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the columns
+    ``at + inverse`` (``at``: each step's first)."""
+    p = at.shape[0]
     d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
                              .view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
@@ -383,12 +400,10 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
     rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(3, 2, 1, 0).contiguous())
     cd, first = _backward(fw, d, lam, rows)
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
-    steps = first.new_empty(p + 1, *first.shape)
     steps[0] = first
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
         _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
-    return steps.permute(3, 2, 0, 1)
 
 
 # ----------------------------------------------------------------------------- evaluation
