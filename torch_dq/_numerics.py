@@ -343,10 +343,10 @@ def _even_rows(names: tuple[str, ...], x2: Tensor, slopes: bool,
     cs = x2.new_tensor([[c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
     ds = x2.new_tensor([[i * c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
     series, slope = cs[-1], ds[-1] if slopes else None
-    for i in reversed(range(_EVEN_TERMS - 1)):  # Horner steps, one fused op each
-        series = torch.addcmul(cs[i], series, x2)
+    for i in reversed(range(_EVEN_TERMS - 1)):
+        series = series * x2 + cs[i]
         if i and slope is not None:
-            slope = torch.addcmul(ds[i], slope, x2)
+            slope = slope * x2 + ds[i]
     if x2.device.type != "cpu" or not bool(small.all()):
         th = torch.sqrt(torch.where(small, 1.0, x2))
         series = torch.where(small, series, torch.stack(
