@@ -375,16 +375,15 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
     span = _span_parts(points).view(80, -1)  # (80, p U): column j U + u of step j, span u
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
     steps = cot.new_empty(p + 1, 6, k, S)
-    for a in range(0, S, CHUNK):
-        c = slice(a, a + CHUNK)
+    for a in range(0, S, VJP_CHUNK):
+        c = slice(a, a + VJP_CHUNK)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights], cot[c], pose[c],
                   steps[..., c])
     return steps.permute(3, 2, 0, 1)
 
 
-#: Samples per part of :func:`vjp` and :func:`derivatives`: their per-sample arrays stay in
-#: the cache (-10 to -25 % at 12,000 samples).
-CHUNK = 4096
+#: Samples per part of :func:`vjp`: its per-sample arrays stay in the cache.
+VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
@@ -429,23 +428,16 @@ def applies(ctrl: Tensor, weights: list[Tensor]) -> bool:
                       | ~torch.isfinite(ctrl).all(-1)).all()))
 
 
-def _pair_table(ctrl: Tensor, first: Tensor, p: int) -> Tensor | None:
-    r"""``(6, M - 1)``: the twists :math:`\mathrm{Log}(c_i^{-1} c_{i+1})` of every
-    neighbouring pair of ``ctrl (M, 8)``, where the times (spans ``first``) read most of
-    them; else None (:func:`_pair_twists` takes them per time)."""
-    if ctrl.shape[0] - 1 > p * first.shape[0]:
-        return None
-    return dualquat.log(dq_mul(dualquat.conj(ctrl[:-1]), ctrl[1:])).T.contiguous()
-
-
-def _pair_twists(ctrl: Tensor, first: Tensor, p: int, table: Tensor | None) -> Tensor:
+def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
     r"""``(6, p, N)``: the twists :math:`d_j = \mathrm{Log}(c_{f+j}^{-1} c_{f+j+1})` of each
-    time's span (``first`` ``f``), gathered from the pairs' ``table`` (:func:`_pair_table`)
-    or, without one, per time."""
+    time's span (``first`` ``f``), from every neighbouring pair of ``ctrl (M, 8)`` once
+    where the times read most of them, else per time."""
     steps = torch.arange(p + 1, device=first.device)
-    if table is not None:
+    if ctrl.shape[0] - 1 <= p * first.shape[0]:
+        rel = dq_mul(dualquat.conj(ctrl[:-1]), ctrl[1:])
         idx = (first + steps[:-1, None]).flatten()
-        return table.gather(1, idx.expand(6, -1)).view(6, p, -1)
+        twists = dualquat.log(rel).T.contiguous()
+        return twists.gather(1, idx.expand(6, -1)).view(6, p, -1)
     pts = ctrl[first[:, None] + steps]
     rel = dq_mul(dualquat.conj(pts[:, :-1]), pts[:, 1:])
     return dualquat.log(rel).permute(2, 1, 0).contiguous()
@@ -547,8 +539,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     :func:`torch_dq._cumulative.derivatives` to rounding): :math:`X = c_f \prod_j
     \mathrm{Exp}(\lambda_j d_j)`, :math:`\dot X = X h(V)`, :math:`\ddot X = X (h(V)^2 +
     h(\dot V))`, every :math:`d_j` from one logarithm per neighbouring pair, the weights'
-    functions of all steps at once, in parts of :data:`CHUNK` times (their arrays stay
-    in the cache).
+    functions of all steps at once.
 
     Args:
         ctrl: ``(M, 8)`` sign-aligned control points (several curves may be flattened).
@@ -559,21 +550,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     Returns:
         ``order + 1`` tensors ``(N, 8)``.
     """
-    table = _pair_table(ctrl, first, weights[0].shape[0])
-    N = first.shape[0]
-    out = [ctrl.new_empty(N, 8) for _ in weights]
-    for a in range(0, N, CHUNK):
-        c = slice(a, a + CHUNK)
-        for o, x in zip(out, _derivatives_part(ctrl, first[c], [w[:, c] for w in weights],
-                                               table), strict=True):
-            o[c] = x.T
-    return out
-
-
-def _derivatives_part(ctrl: Tensor, first: Tensor, weights: list[Tensor],
-                      table: Tensor | None) -> list[Tensor]:
-    """:func:`derivatives` at some times, component-major ``(8, N)`` each."""
-    d = _pair_twists(ctrl, first, weights[0].shape[0], table)  # (6, p, N)
+    d = _pair_twists(ctrl, first, weights[0].shape[0])  # (6, p, N)
     x2 = weights[0] * weights[0] * (d[:3] * d[:3]).sum(0)
     sig, alp, bet = even_slopes(("sinc", "se3_c1", "se3_c2"), x2)
     E = _exp_rows(d * weights[0], x2, alp[0], bet[0])
@@ -590,4 +567,4 @@ def _derivatives_part(ctrl: Tensor, first: Tensor, weights: list[Tensor],
             H[0] = -(hV[1:4] * hV[1:4]).sum(0)
             H[4] = -2.0 * (hV[1:4] * hV[5:]).sum(0)
             out.append(_dq_rows(X, H))
-    return out
+    return [x.T.contiguous() for x in out]
