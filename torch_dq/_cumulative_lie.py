@@ -382,7 +382,8 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
     return steps.permute(3, 2, 0, 1)
 
 
-#: Samples per part of :func:`vjp`: its per-sample arrays stay in the cache.
+#: Samples per part of :func:`vjp`: its per-sample arrays stay in the cache (-10 to -25 %
+#: a call at 12,000 samples; :func:`derivatives` measured no better in parts).
 VJP_CHUNK = 4096
 
 
