@@ -137,10 +137,19 @@ def _polynomial(powers: tuple[Tensor, ...], c0: Tensor | float, c1: tuple[Tensor
 
 
 def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
-    """The dual matrix ``m`` times twists ``x (6, S)``."""
+    """The dual matrix ``m`` times twists ``x (6, S)``: fused multiply-adds into one fresh
+    array (products and sums over ``(3, 3, S)`` arrays cost several times more)."""
     A, B = m
-    w = (A * x[None, :3]).sum(1)
-    return torch.cat((w, (B * x[None, :3]).sum(1) + (A * x[None, 3:]).sum(1)))
+    out = torch.empty_like(x)
+    w, v = out[:3], out[3:]
+    for i in range(3):
+        if i:
+            w.addcmul_(A[:, i], x[i])
+            v.addcmul_(A[:, i], x[3 + i]).addcmul_(B[:, i], x[i])
+        else:
+            torch.mul(A[:, 0], x[0], out=w)
+            torch.mul(A[:, 0], x[3], out=v).addcmul_(B[:, 0], x[0])
+    return out
 
 
 def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: bool = False,
