@@ -75,13 +75,14 @@ def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
     component-major ``(3, ...)`` vectors ``a, b`` (broadcasting): six fused multiply-adds
     into ``out`` and no temporaries (``torch.linalg.cross`` over the first dim of broadcast
     rows is several times slower, a stack of component products allocates each)."""
+    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)  # one view call each
     for i in range(3):
         j, m = (i + 1) % 3, (i + 2) % 3
         if acc:
-            out[i].addcmul_(a[j], b[m])
+            o[i].addcmul_(x[j], y[m])
         else:
-            torch.mul(a[j], b[m], out=out[i])
-        out[i].addcmul_(a[m], b[j], value=-1.0)
+            torch.mul(x[j], y[m], out=o[i])
+        o[i].addcmul_(x[m], y[j], value=-1.0)
     return out
 
 
@@ -158,17 +159,18 @@ def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: b
     A)`, into ``out`` (fresh if None), or with ``acc`` added to it times ``value``: fused
     multiply-adds in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
     several times more)."""
-    A, B = m
+    A, B = (x.unsqueeze(2).unbind(0) for x in m)  # rows (3, 1, S)
     out = torch.empty_like(a) if out is None else out
     w, v = out[:3], out[3:]
+    r = a.unsqueeze(1).unbind(0)  # (1, k, S) each
     for i in range(3):
         if i or acc:
-            w.addcmul_(a[i, None], A[i, :, None], value=value)
-            v.addcmul_(a[3 + i, None], A[i, :, None], value=value)
+            w.addcmul_(r[i], A[i], value=value)
+            v.addcmul_(r[3 + i], A[i], value=value)
         else:
-            torch.mul(a[0, None], A[0, :, None], out=w)
-            torch.mul(a[3, None], A[0, :, None], out=v)
-        w.addcmul_(a[3 + i, None], B[i, :, None], value=value)
+            torch.mul(r[0], A[0], out=w)
+            torch.mul(r[3], A[0], out=v)
+        w.addcmul_(r[3 + i], B[i], value=value)
     return out
 
 
