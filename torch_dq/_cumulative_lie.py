@@ -63,6 +63,8 @@ from ._numerics import even_slopes, evens
 
 __all__ = ["applies", "derivatives", "vjp"]
 
+Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``unbind(0)``)
+
 # Component-major layout: every per-sample quantity is ``(components..., S)`` (``S`` the
 # samples), so each operation below is one elementwise pass over contiguous rows (batched
 # 6 x 6 products of tiny matrices are several times slower). A dual 3 x 3 matrix
@@ -70,12 +72,14 @@ __all__ = ["applies", "derivatives", "vjp"]
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
+def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False) -> Rows:
     r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
-    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting): six fused multiply-adds
-    into ``out`` and no temporaries (``torch.linalg.cross`` over the first dim of broadcast
-    rows is several times slower, a stack of component products allocates each)."""
-    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)  # one view call each
+    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting), each a tensor or its rows
+    (``unbind(0)``, which callers reading the rows of one tensor several times take once):
+    six fused multiply-adds into ``out`` and no temporaries (``torch.linalg.cross`` over the
+    first dim of broadcast rows is several times slower, a stack of component products
+    allocates each)."""
+    o, x, y = (t.unbind(0) if isinstance(t, Tensor) else t for t in (out, a, b))
     for i in range(3):
         j, m = (i + 1) % 3, (i + 2) % 3
         if acc:
@@ -177,9 +181,10 @@ def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: b
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
     r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)`` (broadcasting)."""
     out = a.new_empty(_shape(a, b))
-    _cross_into(out[:3], a[:3], b[:3])
-    _cross_into(out[3:], a[:3], b[3:])
-    _cross_into(out[3:], a[3:], b[:3], acc=True)
+    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)
+    _cross_into(o[:3], x[:3], y[:3])
+    _cross_into(o[3:], x[:3], y[3:])
+    _cross_into(o[3:], x[3:], y[:3], acc=True)
     return out
 
 
@@ -187,10 +192,10 @@ def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
     r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
     (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
     place."""
-    z = z[:, None]
-    _cross_into(out[:3], a[:3], z[:3], acc=True)
-    _cross_into(out[:3], a[3:], z[3:], acc=True)
-    _cross_into(out[3:], a[3:], z[:3], acc=True)
+    o, x, y = out.unbind(0), a.unbind(0), z.unsqueeze(1).unbind(0)
+    _cross_into(o[:3], x[:3], y[:3], acc=True)
+    _cross_into(o[:3], x[3:], y[3:], acc=True)
+    _cross_into(o[3:], x[3:], y[:3], acc=True)
     return out
 
 
@@ -209,8 +214,11 @@ def _conj_vec(out: Tensor, q: tuple[Tensor | None, Tensor], u: Tensor, left: boo
         torch.mul(u[0], qv, out=out).neg_()
     else:
         torch.mul(u[1:], q0, out=out).addcmul_(u[0], qv, value=-1.0)
-    return _cross_into(out, u[1:], qv, acc=True) if left else _cross_into(out, qv, u[1:],
-                                                                          acc=True)
+    if left:
+        _cross_into(out, u[1:], qv, acc=True)
+    else:
+        _cross_into(out, qv, u[1:], acc=True)
+    return out
 
 
 def _halves(X: Tensor) -> tuple[tuple[Tensor, Tensor], tuple[Tensor, Tensor]]:
@@ -460,7 +468,9 @@ def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
 
 def _cross(a: Tensor, b: Tensor) -> Tensor:
     """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
-    return _cross_into(a.new_empty(_shape(a, b)), a, b)
+    out = a.new_empty(_shape(a, b))
+    _cross_into(out, a, b)
+    return out
 
 
 #: The Hamilton product's terms per output component: ``(i, j, sign)`` of :math:`a_i b_j`.
