@@ -480,20 +480,28 @@ _HAMILTON = (((0, 0, 1.0), (1, 1, -1.0), (2, 2, -1.0), (3, 3, -1.0)),
              ((0, 3, 1.0), (1, 2, 1.0), (2, 1, -1.0), (3, 0, 1.0)))
 
 
-def _dq_rows(a: Tensor, b: Tensor) -> Tensor:
+def _dq_rows(a: Tensor, b: Tensor, pure: bool = False) -> Tensor:
     r"""Dual-quaternion products :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
     ``(8, N)``: :func:`torch_dq._taylor.dq_rows` as fused multiply-adds into one fresh
-    array (no per-term temporaries, no stack)."""
+    array (no per-term temporaries, no stack); ``pure``: ``b``'s scalar parts are zero and
+    their terms skipped (the same sums: a zero first term adds nothing)."""
     out = torch.empty_like(a)
-    for half, pairs in ((out[:4], ((a[:4], b[:4]),)), (out[4:], ((a[:4], b[4:]),
-                                                                 (a[4:], b[:4])))):
-        for o, terms in enumerate(_HAMILTON):
-            for n, (x, y) in enumerate(pairs):
-                for m, (i, j, sign) in enumerate(terms):
-                    if n == m == 0:
-                        torch.mul(x[i], y[j], out=half[o])
+    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)
+    for half, pairs in ((o[:4], ((x[:4], y[:4]),)), (o[4:], ((x[:4], y[4:]),
+                                                             (x[4:], y[:4])))):
+        for c, terms in enumerate(_HAMILTON):
+            first = True
+            for u, w in pairs:
+                for i, j, sign in terms:
+                    if pure and j == 0:
+                        continue
+                    if first:
+                        torch.mul(u[i], w[j], out=half[c])
+                        if sign < 0:
+                            half[c].neg_()
+                        first = False
                     else:
-                        half[o].addcmul_(x[i], y[j], value=sign)
+                        half[c].addcmul_(u[i], w[j], value=sign)
     return out
 
 
@@ -586,7 +594,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     if len(weights) > 1:
         R = _rates(d, weights, sig, alp)
         hV = _pure_rows(R[:, 0])
-        out.append(_dq_rows(X, hV))
+        out.append(_dq_rows(X, hV, pure=True))
         if len(weights) > 2:
             H = _pure_rows(R[:, 1])  # h(V)^2 + h(Vd): (-|w|^2, h_w; -2 w.v, h_v), w = V_w / 2
             H[0] = -(hV[1:4] * hV[1:4]).sum(0)
