@@ -395,16 +395,18 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
-    for a in range(0, S, VJP_CHUNK):
-        c = slice(a, a + VJP_CHUNK)
+    size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
+    for a in range(0, S, size):
+        c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
                   rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
                   steps[..., c])
     return steps.permute(3, 2, 0, 1)
 
 
-#: Samples per part of :func:`vjp`: its per-sample arrays stay in the cache (-10 to -25 %
-#: a call at 12,000 samples; :func:`derivatives` measured no better in parts).
+#: Samples per part of :func:`vjp` on the CPU: its per-sample arrays stay in the cache (-10
+#: to -25 % a call at 12,000 samples; :func:`derivatives` measured no better in parts).
+#: Other devices take all samples in one part (no more launches).
 VJP_CHUNK = 4096
 
 
