@@ -63,6 +63,8 @@ from ._numerics import even_slopes, evens
 
 __all__ = ["applies", "derivatives", "vjp"]
 
+Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``unbind(0)``)
+
 # Component-major layout: every per-sample quantity is ``(components..., S)`` (``S`` the
 # samples), so each operation below is one elementwise pass over contiguous rows (batched
 # 6 x 6 products of tiny matrices are several times slower). A dual 3 x 3 matrix
@@ -70,18 +72,21 @@ __all__ = ["applies", "derivatives", "vjp"]
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross_into(out: Tensor, a: Tensor, b: Tensor, acc: bool = False) -> Tensor:
+def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False) -> Rows:
     r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
-    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting): six fused multiply-adds
-    into ``out`` and no temporaries (``torch.linalg.cross`` over the first dim of broadcast
-    rows is several times slower, a stack of component products allocates each)."""
+    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting), each a tensor or its rows
+    (``unbind(0)``, which callers reading the rows of one tensor several times take once):
+    six fused multiply-adds into ``out`` and no temporaries (``torch.linalg.cross`` over the
+    first dim of broadcast rows is several times slower, a stack of component products
+    allocates each)."""
+    o, x, y = (t.unbind(0) if isinstance(t, Tensor) else t for t in (out, a, b))
     for i in range(3):
         j, m = (i + 1) % 3, (i + 2) % 3
         if acc:
-            out[i].addcmul_(a[j], b[m])
+            o[i].addcmul_(x[j], y[m])
         else:
-            torch.mul(a[j], b[m], out=out[i])
-        out[i].addcmul_(a[m], b[j], value=-1.0)
+            torch.mul(x[j], y[m], out=o[i])
+        o[i].addcmul_(x[m], y[j], value=-1.0)
     return out
 
 
@@ -137,10 +142,19 @@ def _polynomial(powers: tuple[Tensor, ...], c0: Tensor | float, c1: tuple[Tensor
 
 
 def _apply(m: tuple[Tensor, Tensor], x: Tensor) -> Tensor:
-    """The dual matrix ``m`` times twists ``x (6, S)``."""
+    """The dual matrix ``m`` times twists ``x (6, S)``: fused multiply-adds into one fresh
+    array (products and sums over ``(3, 3, S)`` arrays cost several times more)."""
     A, B = m
-    w = (A * x[None, :3]).sum(1)
-    return torch.cat((w, (B * x[None, :3]).sum(1) + (A * x[None, 3:]).sum(1)))
+    out = torch.empty_like(x)
+    w, v = out[:3], out[3:]
+    for i in range(3):
+        if i:
+            w.addcmul_(A[:, i], x[i])
+            v.addcmul_(A[:, i], x[3 + i]).addcmul_(B[:, i], x[i])
+        else:
+            torch.mul(A[:, 0], x[0], out=w)
+            torch.mul(A[:, 0], x[3], out=v).addcmul_(B[:, 0], x[0])
+    return out
 
 
 def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: bool = False,
@@ -149,26 +163,28 @@ def _rows(a: Tensor, m: tuple[Tensor, Tensor], out: Tensor | None = None, acc: b
     A)`, into ``out`` (fresh if None), or with ``acc`` added to it times ``value``: fused
     multiply-adds in place (broadcast products into fresh ``(3, 3, k, S)`` arrays cost
     several times more)."""
-    A, B = m
+    A, B = (x.unsqueeze(2).unbind(0) for x in m)  # rows (3, 1, S)
     out = torch.empty_like(a) if out is None else out
     w, v = out[:3], out[3:]
+    r = a.unsqueeze(1).unbind(0)  # (1, k, S) each
     for i in range(3):
         if i or acc:
-            w.addcmul_(a[i, None], A[i, :, None], value=value)
-            v.addcmul_(a[3 + i, None], A[i, :, None], value=value)
+            w.addcmul_(r[i], A[i], value=value)
+            v.addcmul_(r[3 + i], A[i], value=value)
         else:
-            torch.mul(a[0, None], A[0, :, None], out=w)
-            torch.mul(a[3, None], A[0, :, None], out=v)
-        w.addcmul_(a[3 + i, None], B[i, :, None], value=value)
+            torch.mul(r[0], A[0], out=w)
+            torch.mul(r[3], A[0], out=v)
+        w.addcmul_(r[3 + i], B[i], value=value)
     return out
 
 
 def _bracket(a: Tensor, b: Tensor) -> Tensor:
     r""":math:`[a, b] = \mathrm{ad}_a b` of twists ``(6, ...)`` (broadcasting)."""
     out = a.new_empty(_shape(a, b))
-    _cross_into(out[:3], a[:3], b[:3])
-    _cross_into(out[3:], a[:3], b[3:])
-    _cross_into(out[3:], a[3:], b[:3], acc=True)
+    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)
+    _cross_into(o[:3], x[:3], y[:3])
+    _cross_into(o[3:], x[:3], y[3:])
+    _cross_into(o[3:], x[3:], y[:3], acc=True)
     return out
 
 
@@ -176,10 +192,10 @@ def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
     r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
     (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
     place."""
-    z = z[:, None]
-    _cross_into(out[:3], a[:3], z[:3], acc=True)
-    _cross_into(out[:3], a[3:], z[3:], acc=True)
-    _cross_into(out[3:], a[3:], z[:3], acc=True)
+    o, x, y = out.unbind(0), a.unbind(0), z.unsqueeze(1).unbind(0)
+    _cross_into(o[:3], x[:3], y[:3], acc=True)
+    _cross_into(o[:3], x[3:], y[3:], acc=True)
+    _cross_into(o[3:], x[3:], y[:3], acc=True)
     return out
 
 
@@ -198,8 +214,11 @@ def _conj_vec(out: Tensor, q: tuple[Tensor | None, Tensor], u: Tensor, left: boo
         torch.mul(u[0], qv, out=out).neg_()
     else:
         torch.mul(u[1:], q0, out=out).addcmul_(u[0], qv, value=-1.0)
-    return _cross_into(out, u[1:], qv, acc=True) if left else _cross_into(out, qv, u[1:],
-                                                                          acc=True)
+    if left:
+        _cross_into(out, u[1:], qv, acc=True)
+    else:
+        _cross_into(out, qv, u[1:], acc=True)
+    return out
 
 
 def _halves(X: Tensor) -> tuple[tuple[Tensor, Tensor], tuple[Tensor, Tensor]]:
@@ -228,27 +247,28 @@ def _left_t(X: Tensor, g: Tensor) -> Tensor:
     return out
 
 
-def _forward(d: Tensor, powers: list[tuple[Tensor, ...]], lam: list[Tensor],
-             ) -> dict[str, list]:
+def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[str, list]:
     r"""The recursions of the module docstring on the samples' span twists ``d (p, 6, S)``
-    (their :func:`_powers`) and cumulative weights ``lam`` (``O`` tensors ``(p, S)``:
-    :math:`\lambda` and its time derivatives): per step ``j`` :math:`M_j = I - \lambda
-    \sigma \Phi + \lambda^2 \alpha \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I
-    - \lambda^2 \alpha \Phi + \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the
-    coefficients at :math:`\lambda^2 s`), :math:`z_j = M_j V_{j-1}`, :math:`\dot z_j = M_j
-    \dot V_{j-1}` (None at ``j = 0``, where they vanish), :math:`V_j`; the last :math:`V, \dot
-    V` (those the weights' orders reach)."""
+    (their :func:`_powers`, all steps at once: ``(3, 3, p, S)`` and ``(p, S)``) and
+    cumulative weights ``lam`` (``O`` tensors ``(p, S)``: :math:`\lambda` and its time
+    derivatives): per step ``j`` :math:`M_j = I - \lambda \sigma \Phi + \lambda^2 \alpha
+    \Phi^2`, :math:`\lambda_j J_r(\lambda_j d_j) = \lambda I - \lambda^2 \alpha \Phi +
+    \lambda^3 \beta \Phi^2` (:math:`\Phi = \mathrm{ad}_{d_j}`, the coefficients at
+    :math:`\lambda^2 s`; the matrices of all steps in one pass, views per step), :math:`z_j
+    = M_j V_{j-1}`, :math:`\dot z_j = M_j \dot V_{j-1}` (None at ``j = 0``, where they
+    vanish), :math:`V_j`; the last :math:`V, \dot V` (those the weights' orders reach)."""
     O = len(lam)
-    out: dict[str, list] = {"M": [], "Jr": [], "z": [], "zd": [], "V": []}
+    l1 = lam[0]
+    l2 = l1 * l1
+    l3 = l2 * l1
+    sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), powers, l1)
+    M = _polynomial(powers, 1.0, (-l1 * sig[0], -l1 * sig[1]), (l2 * alp[0], l2 * alp[1]))
+    Jr = _polynomial(powers, l1, (-l2 * alp[0], -l2 * alp[1]), (l3 * bet[0], l3 * bet[1]))
+    out: dict[str, list] = {"M": [(M[0][:, :, j], M[1][:, :, j]) for j in range(d.shape[0])],
+                            "Jr": [(Jr[0][:, :, j], Jr[1][:, :, j]) for j in range(d.shape[0])],
+                            "z": [], "zd": [], "V": []}
     V = Vd = d.new_zeros(d.shape[1:])
     for j, dj in enumerate(d):
-        pw, l1 = powers[j], lam[0][j]
-        l2 = l1 * l1
-        sig, alp, bet = _scalars(("sinc", "se3_c1", "se3_c2"), pw, l1)
-        out["M"].append(_polynomial(pw, 1.0, (-l1 * sig[0], -l1 * sig[1]),
-                                    (l2 * alp[0], l2 * alp[1])))
-        out["Jr"].append(_polynomial(pw, l1, (-l2 * alp[0], -l2 * alp[1]),
-                                     (l2 * l1 * bet[0], l2 * l1 * bet[1])))
         if O > 1:  # from V_0 = lam'_0 d_0, Vd_0 = lam''_0 d_0: z_0 = zd_0 = 0 (None)
             out["z"].append(_apply(out["M"][j], V) if j else None)
             V = out["z"][j] + lam[1][j] * dj if j else lam[1][j] * dj
@@ -328,30 +348,28 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
 
 
 def _span_parts(points: Tensor) -> Tensor:
-    r"""``(p, 80, U)`` per distinct span and step ``j``: the twist :math:`d_j` (6 rows), its
+    r"""``(80, p, U)`` per step ``j`` and distinct span: the twist :math:`d_j` (6 rows), its
     :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
     :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
     J_r^{-1}(d_j)\, \mathrm{Ad}_{\mathrm{Exp}(-d_j)} = I - \frac12 \Phi + \gamma \Phi^2`
     (36 rows: ``(2, 2, 3, 3)`` flat, matrix, real and dual part), from the span's control
-    points ``(U, p + 1, 8)``: what is constant on a span, once per span (:func:`_unpack`)."""
+    points ``(U, p + 1, 8)``: what is constant on a span, once per span and for all steps
+    at once (:func:`_unpack`)."""
     rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
-    d = dualquat.log(rel).permute(1, 2, 0).contiguous()
-    parts = []
-    for dj in d:
-        pw = _powers(dj)
-        (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
-        mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
-        parts.append(torch.cat((dj, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
-                                torch.stack(mats).flatten(0, -2))))
-    return torch.stack(parts)
+    d = dualquat.log(rel).permute(2, 1, 0).reshape(6, -1)  # (6, p U)
+    pw = _powers(d)
+    (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
+    mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
+    return torch.cat((d, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
+                      torch.stack(mats).flatten(0, -2))).view(80, *rel.shape[1::-1])
 
 
-def _unpack(span: Tensor) -> tuple[Tensor, list[tuple[Tensor, ...]], Tensor]:
-    """:func:`_span_parts`' rows (gathered per sample, ``(p, 80, S)``): the twists ``(p, 6,
-    S)``, each step's :func:`_powers` and the matrices ``(p, 2, 2, 3, 3, S)``."""
-    powers = [(*m.unflatten(0, (4, 3, 3)), *s) for m, s in zip(span[:, 6:42], span[:, 42:44],
-                                                                strict=True)]
-    return span[:, :6], powers, span[:, 44:].unflatten(1, (2, 2, 3, 3))
+def _unpack(span: Tensor) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
+    """:func:`_span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
+    S)``, the steps' :func:`_powers` (``(3, 3, p, S)`` and ``(p, S)``) and the matrices
+    ``(p, 2, 2, 3, 3, S)`` (views)."""
+    powers = (*span[6:42].unflatten(0, (4, 3, 3)), *span[42:44])
+    return span[:6].transpose(0, 1), powers, span[44:].movedim(1, 0).unflatten(1, (2, 2, 3, 3))
 
 
 def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
@@ -372,22 +390,45 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
         permuted view of a component-major array.
     """
-    p = points.shape[-2] - 1
-    span = _span_parts(points)  # gathered by sample (faster than index_select on the last dim)
-    d, powers, fin = _unpack(span.flatten(0, 1).gather(1, inverse.expand(span.shape[0] * 80, -1))
-                             .view(*span.shape[:2], -1))
+    p, (S, k) = points.shape[-2] - 1, cot.shape[:2]
+    span = _span_parts(points).view(80, -1)  # (80, p U): column j U + u of step j, span u
+    at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
+    steps = cot.new_empty(p + 1, 6, k, S)
+    rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
+    size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
+    for a in range(0, S, size):
+        c = slice(a, a + size)
+        _vjp_part(span, at, inverse[c], [w[c] for w in weights],
+                  rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
+                  steps[..., c])
+    return steps.permute(3, 2, 0, 1)
+
+
+#: Samples per part of :func:`vjp` on the CPU: its per-sample arrays stay in the cache (-10
+#: to -25 % a call at 12,000 samples; :func:`derivatives` measured no better in parts).
+#: Other devices take all samples in one part (no more launches).
+VJP_CHUNK = 4096
+
+
+def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
+              pose: Tensor, steps: Tensor) -> None:
+    """:func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)``, into
+    their ``steps (p + 1, 6, k, S)``: the span parts ``(80, p U)`` gathered (faster than
+    ``index_select`` on the last dim) at the columns ``at + inverse`` (``at``: each step's
+    first)."""
+    p = at.shape[0]
+    d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
+                             .view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot.permute(3, 2, 1, 0).contiguous())
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot)
     cd, first = _backward(fw, d, lam, rows)
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
-    steps = first.new_empty(p + 1, *first.shape)
     steps[0] = first
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
         _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
-    return steps.permute(3, 2, 0, 1)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -429,7 +470,9 @@ def _pair_twists(ctrl: Tensor, first: Tensor, p: int) -> Tensor:
 
 def _cross(a: Tensor, b: Tensor) -> Tensor:
     """Cross products of component-major ``(3, ...)`` vectors (broadcasting)."""
-    return _cross_into(a.new_empty(_shape(a, b)), a, b)
+    out = a.new_empty(_shape(a, b))
+    _cross_into(out, a, b)
+    return out
 
 
 #: The Hamilton product's terms per output component: ``(i, j, sign)`` of :math:`a_i b_j`.
@@ -439,20 +482,28 @@ _HAMILTON = (((0, 0, 1.0), (1, 1, -1.0), (2, 2, -1.0), (3, 3, -1.0)),
              ((0, 3, 1.0), (1, 2, 1.0), (2, 1, -1.0), (3, 0, 1.0)))
 
 
-def _dq_rows(a: Tensor, b: Tensor) -> Tensor:
+def _dq_rows(a: Tensor, b: Tensor, pure: bool = False) -> Tensor:
     r"""Dual-quaternion products :math:`(r_a r_b, r_a d_b + d_a r_b)` of component rows
     ``(8, N)``: :func:`torch_dq._taylor.dq_rows` as fused multiply-adds into one fresh
-    array (no per-term temporaries, no stack)."""
+    array (no per-term temporaries, no stack); ``pure``: ``b``'s scalar parts are zero and
+    their terms skipped (the same sums: a zero first term adds nothing)."""
     out = torch.empty_like(a)
-    for half, pairs in ((out[:4], ((a[:4], b[:4]),)), (out[4:], ((a[:4], b[4:]),
-                                                                 (a[4:], b[:4])))):
-        for o, terms in enumerate(_HAMILTON):
-            for n, (x, y) in enumerate(pairs):
-                for m, (i, j, sign) in enumerate(terms):
-                    if n == m == 0:
-                        torch.mul(x[i], y[j], out=half[o])
+    o, x, y = out.unbind(0), a.unbind(0), b.unbind(0)
+    for half, pairs in ((o[:4], ((x[:4], y[:4]),)), (o[4:], ((x[:4], y[4:]),
+                                                             (x[4:], y[:4])))):
+        for c, terms in enumerate(_HAMILTON):
+            first = True
+            for u, w in pairs:
+                for i, j, sign in terms:
+                    if pure and j == 0:
+                        continue
+                    if first:
+                        torch.mul(u[i], w[j], out=half[c])
+                        if sign < 0:
+                            half[c].neg_()
+                        first = False
                     else:
-                        half[o].addcmul_(x[i], y[j], value=sign)
+                        half[c].addcmul_(u[i], w[j], value=sign)
     return out
 
 
@@ -545,7 +596,7 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     if len(weights) > 1:
         R = _rates(d, weights, sig, alp)
         hV = _pure_rows(R[:, 0])
-        out.append(_dq_rows(X, hV))
+        out.append(_dq_rows(X, hV, pure=True))
         if len(weights) > 2:
             H = _pure_rows(R[:, 1])  # h(V)^2 + h(Vd): (-|w|^2, h_w; -2 w.v, h_v), w = V_w / 2
             H[0] = -(hV[1:4] * hV[1:4]).sum(0)

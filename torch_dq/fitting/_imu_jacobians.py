@@ -32,42 +32,82 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .._core import qconj, qmul
-
 __all__ = ["accel_rows", "gyro_rows"]
 
+# q e_j for the pure unit quaternions e_j: component c of row j is SIGN[j, c] q[INDEX[j, c]]
+_INDEX = ((1, 0, 3, 2), (2, 3, 0, 1), (3, 2, 1, 0))
+_SIGN = ((-1.0, 1.0, 1.0, -1.0), (-1.0, -1.0, 1.0, 1.0), (-1.0, 1.0, -1.0, 1.0))
 
-def _units(like: Tensor) -> Tensor:
-    """``(3, 4)``: the pure unit quaternions :math:`e_j`."""
-    return torch.eye(4, dtype=like.dtype, device=like.device)[1:]
+
+def _times_units(q: Tensor, scale: Tensor | float) -> Tensor:
+    """``(..., 3, 4)``: :math:`q e_j` of quaternions ``q (..., 4)``, times ``scale``
+    (broadcast against the rows ``(3, 4)``): a signed permutation of the components."""
+    index = torch.tensor(_INDEX, device=q.device)
+    return q[..., index] * (scale * q.new_tensor(_SIGN))
 
 
 def gyro_rows(x: Tensor, dx: Tensor) -> Tensor:
-    """``(..., N, 3, 2, 8)``: the body rate's rows with respect to ``x`` and ``dx`` ``(...,
-    N, 8)`` (module doc; the dual parts and the sigmas left to the caller: zero, 1)."""
-    E = _units(x)
-    r, rd = x[..., None, :4], dx[..., None, :4]
-    zero = torch.zeros_like(E.expand(*x.shape[:-1], 3, 4))
-    d_r = 2.0 * qconj(qmul(E, qconj(rd)))
-    d_rd = 2.0 * qmul(r, E)
-    return torch.stack((torch.cat((d_r, zero), -1), torch.cat((d_rd, zero), -1)), -2)
+    r"""``(..., N, 3, 2, 8)``: the body rate's rows with respect to ``x`` and ``dx`` ``(...,
+    N, 8)`` (module doc: :math:`\partial_{\dot r} = 2 r e_j`, :math:`\partial_r = 2 C(e_j
+    \dot r^*) = -2 \dot r e_j`; the dual parts and the sigmas left to the caller: zero,
+    1)."""
+    out = x.new_zeros(*x.shape[:-1], 3, 2, 8)
+    q = torch.stack((dx[..., :4], x[..., :4]), -2)  # (..., N, 2, 4)
+    scale = x.new_tensor([-2.0, 2.0])[:, None, None]
+    out[..., :4] = _times_units(q, scale).transpose(-3, -2)
+    return out
+
+
+def _rotation(r: Tensor) -> Tensor:
+    r"""``(3, 3, N)``: :math:`2 G_j = 2\,\mathrm{vec}(r e_j r^*)` as columns ``j`` (twice
+    the rotation matrix of a unit ``r (4, N)``, component-major)."""
+    P = r[:, None] * r[None]  # (4, 4, N) products r_a r_b
+    h = torch.empty(3, 3, r.shape[-1], dtype=r.dtype, device=r.device)
+    half = P[0, 0] - P[1, 1] - P[2, 2] - P[3, 3]
+    for i in range(3):
+        torch.add(half, P[i + 1, i + 1], alpha=2.0, out=h[i, i]).mul_(2.0)
+        j, m = (i + 1) % 3, (i + 2) % 3  # R_ij = 2 (r_i r_j - w r_m), R_ji = 2 (r_i r_j + w r_m)
+        torch.sub(P[i + 1, j + 1], P[0, m + 1], out=h[i, j]).mul_(4.0)
+        torch.add(P[i + 1, j + 1], P[0, m + 1], out=h[j, i]).mul_(4.0)
+    return h
+
+
+def _vec_conj(a: Tensor, b: Tensor) -> Tensor:
+    r"""``(3, N)``: the vector part of :math:`a b^*`, :math:`b_0 a_v - a_0 b_v - a_v \times
+    b_v`, of quaternions ``(4, N)``."""
+    return torch.linalg.cross(b[1:], a[1:], dim=0).addcmul_(a[1:], b[0]).addcmul_(
+        b[1:], a[0], value=-1.0)
 
 
 def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Tensor, Tensor]:
-    """``(..., N, 3, 3, 8)``: the specific force's rows with respect to ``x``, ``dx``,
+    r"""``(..., N, 3, 3, 8)``: the specific force's rows with respect to ``x``, ``dx``,
     ``ddx`` ``(..., N, 8)``, and ``(..., N, 3, 3)``: with respect to gravity ``(..., N, 3)``
-    (world axes; module doc; the sigmas left to the caller)."""
-    E = _units(x)
-    r, d = x[..., None, :4], x[..., None, 4:]
-    rd, dd = dx[..., None, :4], dx[..., None, 4:]
-    rdd, ddd = ddx[..., None, :4], ddx[..., None, 4:]
-    S = qmul(ddd, qconj(r)) + 2.0 * qmul(dd, qconj(rd)) + qmul(d, qconj(rdd))
-    U = torch.cat((torch.zeros_like(S[..., :1]), 2.0 * S[..., 1:] - gravity[..., None, :]), -1)
-    G = qmul(qmul(r, E), qconj(r))  # (0, R e_j)
-    H = 2.0 * G
-    d_r = (qconj(qmul(qconj(ddd), H)) - qconj(qmul(qmul(E, qconj(r)), U))
-           - qmul(qmul(U, r), E))
-    rows = torch.stack((torch.cat((d_r, qmul(H, rdd)), -1),
-                        torch.cat((2.0 * qconj(qmul(qconj(dd), H)), 2.0 * qmul(H, rd)), -1),
-                        torch.cat((qconj(qmul(qconj(d), H)), qmul(H, r)), -1)), -2)
-    return rows, -G[..., 1:]
+    (world axes; module doc; the sigmas left to the caller). With :math:`H = (0, h)` pure
+    (:math:`C(a^* H) = -H a`, :math:`C(e_j r^* U) = U r e_j`) every row is :math:`H` times
+    one of ``Q`` below, :math:`(-h \cdot q_v,\ q_0 h + h \times q_v)`, in component-major
+    rows (``(3, 6, 4, N)``, one transpose to the caller's layout), and :math:`\partial_r`
+    adds :math:`-2 U r e_j`."""
+    lead = x.shape[:-1]
+    X = torch.cat((x, dx, ddx), -1).reshape(-1, 24).T.contiguous()
+    r, d, rd, dd, rdd, ddd = X.view(6, 4, -1)
+    h = _rotation(r)  # (3 i, 3 j, N): h_j = 2 R e_j
+    # (4, 6, N): the blocks (x, dx, ddx) x (real, dual) of the rows
+    Q = torch.stack((-ddd, rdd, -2.0 * dd, 2.0 * rd, -d, r), 1)
+    rows = X.new_empty(3, 6, 4, X.shape[-1])
+    out = rows.permute(2, 0, 1, 3)  # (4, 3, 6, N)
+    hi, Qv = h[:, :, None], Q[1:, None]
+    torch.mul(hi[0], Qv[0], out=out[0]).addcmul_(hi[1], Qv[1]).addcmul_(hi[2], Qv[2]).neg_()
+    for c in range(3):
+        j, m = (c + 1) % 3, (c + 2) % 3
+        torch.mul(Q[0, None], hi[c], out=out[1 + c]).addcmul_(hi[j], Qv[m]).addcmul_(
+            hi[m], Qv[j], value=-1.0)
+    g = gravity.expand(*lead, 3).reshape(-1, 3).T
+    u = (_vec_conj(ddd, r).add_(_vec_conj(dd, rd), alpha=2.0).add_(_vec_conj(d, rdd))
+         ).mul_(2.0).sub_(g)
+    p = X.new_empty(4, X.shape[-1])  # U r
+    torch.mul(u, r[1:], out=p[1:])
+    torch.sum(p[1:], 0, out=p[0]).neg_()
+    torch.linalg.cross(u, r[1:], dim=0, out=p[1:]).addcmul_(u, r[0])
+    out[:, :, 0] += _times_units(p.T, -2.0).permute(2, 1, 0)
+    return (rows.view(72, -1).T.contiguous().view(*lead, 3, 3, 8),
+            (-0.5 * h).permute(2, 1, 0).reshape(*lead, 3, 3))
