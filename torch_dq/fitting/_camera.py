@@ -45,6 +45,16 @@ _SLACK = 0.1  # measured pixels may stray this fraction of the image's size outs
 # simulation that projects without cropping; a refined corner at the border)
 
 
+def _check_domain(fn: str, model: str, slot: Slot) -> None:
+    """Raise where the fixed intrinsics, or an estimate's start (a ``Free``'s), lie outside
+    the ``model``'s domain."""
+    known = slot.fixed if slot.free is None else slot.free.start
+    known = None if known is None else torch.as_tensor(known, dtype=torch.float64)
+    if known is not None and not bool(_in_domain(model, list(known.unbind(-1))).all()):
+        _checks.fail(fn, f"intrinsics outside the {model!r} model's domain (fu, fv > 0; the "
+                         f"double sphere's xi > -1, alpha in [0, 1]): {known.tolist()}")
+
+
 def _intrinsics(fn: str, cam) -> tuple[str, Tensor]:
     """The model name and ``(P,)`` float64 parameters of a :class:`torch_dq.camera.Camera`."""
     if not isinstance(cam, camera.Camera):
@@ -173,12 +183,7 @@ class Reprojections(Term):
         self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics)
         self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
                                          line_delay)
-        slot = self._slots["intrinsics"]  # fixed, or an estimate's start (a Free's)
-        known = slot.fixed if slot.free is None else slot.free.start
-        known = None if known is None else torch.as_tensor(known, dtype=torch.float64)
-        if known is not None and not bool(_in_domain(self.model, list(known.unbind(-1))).all()):
-            _checks.fail(fn, f"intrinsics outside the {self.model!r} model's domain (fu, fv > 0; "
-                             f"the double sphere's xi > -1, alpha in [0, 1]): {known.tolist()}")
+        _check_domain(fn, self.model, self._slots["intrinsics"])
         fixed = self._slots["line_delay"].fixed
         if fixed is not None and not bool((fixed >= 0).all()):
             _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
