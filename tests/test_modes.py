@@ -208,7 +208,8 @@ def test_jacrev_and_jacfwd_match_eager_jacobian(o, gen):
 def test_vectorized_jacobian_and_hessian(o, gen):
     """``torch.autograd.functional.jacobian`` / ``hessian`` with ``vectorize=True`` (the
     backward under ``vmap``, after the forward took the fused path) equal the loops of
-    ``vectorize=False``."""
+    ``vectorize=False``. The Hessian on one batch element: its loop runs a double backward
+    per input entry (the rows' independence is the Jacobian's, on two)."""
     f = flat(o)
     args = tuple(_registry_args(o, gen, n=2))
     for vec, loop in zip(torch.autograd.functional.jacobian(f, args, vectorize=True),
@@ -219,6 +220,7 @@ def test_vectorized_jacobian_and_hessian(o, gen):
     def scalar(*xs):
         return sum((torch.sin(y) ** 2).sum() for y in f(*xs))
 
+    args = tuple(_registry_args(o, gen, n=1))
     vec = torch.autograd.functional.hessian(scalar, args, vectorize=True)
     loop = torch.autograd.functional.hessian(scalar, args)
     for v_row, e_row in zip(vec, loop, strict=True):
