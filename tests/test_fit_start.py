@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
+import pytransform3d.transformations as pt
 import torch
 
 from torch_dq import dualquat, io
@@ -88,21 +89,10 @@ def test_start_is_the_refined_curve_within_a_tenth_of_the_noise(fits):
 
 
 def _se3_log(T):
-    """(6,) rotation vector and linear part of the twist of a 4x4 rigid transform: scipy's
-    rotation vector ``phi`` (angle under pi) and ``V(phi)^-1 t``, where ``V = I + (1 - cos a)
-    / a^2 [phi]x + (a - sin a) / a^3 [phi]x^2`` (``a = |phi|``) is the closed form of the
-    matrix logarithm's linear part (scipy's ``logm`` gives the same to 1e-13, at 60 ms a
-    call: 500 of them made this file's cost)."""
-    from scipy.spatial.transform import Rotation
-
-    phi = Rotation.from_matrix(T[:3, :3]).as_rotvec()
-    a = float(np.linalg.norm(phi))
-    P = np.array([[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]])
-    if a < 1e-4:  # the series of both coefficients
-        b, c = 0.5 - a * a / 24, 1 / 6 - a * a / 120
-    else:
-        b, c = (1 - np.cos(a)) / a**2, (a - np.sin(a)) / a**3
-    return np.concatenate((phi, np.linalg.solve(np.eye(3) + b * P + c * P @ P, T[:3, 3])))
+    """(6,) rotation vector and linear part of the twist of a 4x4 rigid transform (the
+    principal matrix logarithm): pytransform3d's exponential coordinates (scipy's ``logm``
+    gives the same to 1e-14, at 60 ms a call, 300 times theirs)."""
+    return pt.exponential_coordinates_from_transform(T)
 
 
 def _window_reference(x, times, first, values, n, anchors, a, split):
@@ -165,8 +155,9 @@ def _window_reference(x, times, first, values, n, anchors, a, split):
 def test_windowed_start_is_each_windows_least_squares(reach, split):
     """The start keeps only each window's own control point, from one solve G z = e_r per
     window and the (window, sample) pairs' twists weighted by A z: the same control points
-    as solving each window's padded least squares for all its unknowns (numpy, scipy's
-    rotation vectors), at irregular times with a gap, for a batch of two trajectories.
+    as solving each window's padded least squares for all its unknowns (numpy,
+    pytransform3d's SE(3) logarithm), at irregular times with a gap, for a batch of two
+    trajectories.
     (``_start._windowed`` before solved every window for all its unknowns: equal to 1e-14.)"""
     from torch_dq import _start
     from torch_dq._core import align_chain
