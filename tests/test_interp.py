@@ -439,7 +439,8 @@ def screw_base(gen, theta, d):
 def test_sclerp_second_order_against_matrix_power(gen, theta, t0):
     """Second derivatives of ``<W, [R | t](sclerp(a, b, t))>`` over ``(a, b, t)`` (15
     coordinates) in every mode, along random direction pairs, against central differences
-    of ``T_a expm(t logm(T_a^-1 T_b))`` (scipy). Sclerp is analytic in its inputs at equal
+    of ``T_a expm(t log(T_a^-1 T_b))`` (scipy's ``expm``, pytransform3d's closed-form log:
+    scipy's ``logm``, equal to 1e-14, took 60 ms a call). Sclerp is analytic in its inputs at equal
     rotations (theta = 0, pure translations), so they exist there too. Measured agreement
     ~1e-8 (the differences' own error)."""
     base = screw_base(gen, theta, 1.5)
@@ -452,7 +453,7 @@ def test_sclerp_second_order_against_matrix_power(gen, theta, t0):
     def ref(z):
         (qa, ta), (qb, tb) = chart_numpy(base, z)
         Ta, Tb = np_transform(qa, ta), np_transform(qb, tb)
-        T = Ta @ expm((t0 + z[14]) * logm(np.linalg.solve(Ta, Tb)).real)
+        T = Ta @ expm((t0 + z[14]) * pt.transform_log_from_transform(np.linalg.solve(Ta, Tb)))
         return float((W.numpy() * T[:3]).sum())
 
     pairs = directions(gen, 15)
