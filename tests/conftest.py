@@ -53,17 +53,22 @@ def gen():
     return torch.Generator().manual_seed(20261121)
 
 
-# The files whose tests take ~10 s or more each (compilation, notebooks, mypy, the solves),
-# longest first (whole-file times, one process, 2026-11-29). They run first, so that
-# `pytest -n 2` deals them to both workers at the start (xdist hands out tests in collection
-# order) instead of one of them running alone at the end.
+# The files whose tests take ~12 s or more together (compilation, notebooks, mypy, the
+# solves, the registry's second-order checks), longest first (whole-file process CPU times,
+# one process, 2026-11-29; test_compile ~80 s down to test_split ~12 s). They run first, so
+# that `pytest -n 2` deals them to both workers at the start (xdist hands out tests in
+# collection order) instead of one of them running alone at the end.
 # Not test_docs.py: its build renders the notebooks that test_notebooks.py executed and
 # cached, so it comes well after them (alphabetically, among the rest).
 SLOW_FILES_FIRST = (
-    "test_modes.py", "test_cumulative.py", "test_span_jacobians.py", "test_notebooks.py",
-    "test_calibration_cameras.py", "test_compile.py", "test_camera_imu.py", "test_kernels.py",
-    "test_estimation_prior.py", "test_estimation_defects.py", "test_estimation_montecarlo.py",
-    "test_typing.py", "test_nn.py", "test_reprojections.py",
+    "test_compile.py", "test_notebooks.py", "test_reliability.py", "test_modes.py",
+    "test_second_order.py", "test_cumulative.py", "test_typing.py", "test_interp.py",
+    "test_learner8_module.py", "test_fitting.py", "test_term_jacobians.py",
+    "test_learner8_pipeline.py", "test_calibration_cameras.py", "test_learner8_second_order.py",
+    "test_float32.py", "test_outside8_stereo.py", "test_estimation_prior.py", "test_fit_cli.py",
+    "test_camera_imu.py", "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
+    "test_span_jacobians.py", "test_kernels.py", "test_nn.py", "test_reprojections.py",
+    "test_continuous_time.py", "test_split.py", "test_estimation.py",
 )
 
 

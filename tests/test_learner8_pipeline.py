@@ -15,8 +15,9 @@ import math
 
 import numpy as np
 import pytest
+import pytransform3d.transformations as pt
 import torch
-from scipy.linalg import expm, logm
+from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
@@ -70,8 +71,10 @@ def mats_np(x):
 
 
 def log_np(T):
-    """Principal se(3) logarithm (rotation angle < pi: the shortest path)."""
-    return np.real(logm(T))
+    """Principal se(3) logarithm (rotation angle < pi: the shortest path), pytransform3d's
+    closed form (scipy's ``logm`` gives the same to 1e-14, at 60 ms a call, 300 times
+    theirs: the references call it per sample and level)."""
+    return pt.transform_log_from_transform(T)
 
 
 def cumulative_np(C, knots, p, t):

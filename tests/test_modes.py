@@ -6,7 +6,8 @@ Status (each line is asserted below):
 - ``torch.compile(fullgraph=True)``: sclerp, angle and a ``torch_dq.nn`` layer compile
   without graph breaks, forward and backward, and match eager (backend ``aot_eager`` here to
   stay fast; one inductor test); sclerp (two sizes, both grad modes) and bezier/bspline
-  with ``check=False`` in ``tests/test_compile.py``. The plain
+  with ``check=False`` in ``tests/test_compile.py``, angle (both branches, both grad modes)
+  in ``tests/test_interp.py``. The plain
   algebra (``mul``, ``exp``, ``log``, ...) has no custom op and no branch on values.
   The value checks that need the host are skipped under compile (times outside the
   domain give NaN), so the default arguments compile with ``fullgraph=True`` too.
@@ -50,12 +51,6 @@ def _data(gen):
     return a, b, t, ctrl, times
 
 
-# Compiled functions, kept small (compilation time grows with the unrolled levels).
-COMPILED = {
-    "angle": (lambda a, b: torch.stack(tuple(dq.angle(a, b)), -1), lambda d: (d[0], d[1])),
-}  # sclerp and the curves: tests/test_compile.py (two sizes, both grad modes)
-
-
 def _curve_args(gen):
     """Two control polygons of 5 poses and 6 times in [0, 1]."""
     _, _, _, ctrl, times = _data(gen)
@@ -79,19 +74,6 @@ def _grads(f, args):
 
 
 # ----------------------------------------------------------------------------- torch.compile
-
-@pytest.mark.parametrize("name", COMPILED)
-def test_compile_fullgraph_forward_backward(name, gen):
-    f, pick = COMPILED[name]
-    args = pick(_data(gen))
-    torch._dynamo.reset()
-    compiled = torch.compile(f, backend="aot_eager", fullgraph=True)
-    out, grads = _grads(compiled, args)
-    ref, ref_grads = _grads(f, args)
-    assert (out - ref).abs().max() <= 1e-14
-    for g, r in zip(grads, ref_grads, strict=True):
-        assert (g - r).abs().max() <= 1e-12
-
 
 def test_compile_derivatives_kinematics_imu(gen):
     """Time derivatives, world/body kinematics and IMU readings in one compiled graph,
@@ -226,7 +208,8 @@ def test_jacrev_and_jacfwd_match_eager_jacobian(o, gen):
 def test_vectorized_jacobian_and_hessian(o, gen):
     """``torch.autograd.functional.jacobian`` / ``hessian`` with ``vectorize=True`` (the
     backward under ``vmap``, after the forward took the fused path) equal the loops of
-    ``vectorize=False``."""
+    ``vectorize=False``. The Hessian on one batch element: its loop runs a double backward
+    per input entry (the rows' independence is the Jacobian's, on two)."""
     f = flat(o)
     args = tuple(_registry_args(o, gen, n=2))
     for vec, loop in zip(torch.autograd.functional.jacobian(f, args, vectorize=True),
@@ -237,6 +220,7 @@ def test_vectorized_jacobian_and_hessian(o, gen):
     def scalar(*xs):
         return sum((torch.sin(y) ** 2).sum() for y in f(*xs))
 
+    args = tuple(_registry_args(o, gen, n=1))
     vec = torch.autograd.functional.hessian(scalar, args, vectorize=True)
     loop = torch.autograd.functional.hessian(scalar, args)
     for v_row, e_row in zip(vec, loop, strict=True):

@@ -57,8 +57,9 @@ def _reference(curve, t: torch.Tensor, first: torch.Tensor, order: int):
             d = curve.derivatives(t[i:i + 1] + dt, order, ctrl=moved)
             return torch.stack(d, -2)[..., 0, :, :].flatten(-2)
 
+        # vectorize: the rows' reverse passes as one backward under vmap (the same VJPs)
         Jc, Jt = torch.autograd.functional.jacobian(
-            fn, (ctrl.new_zeros(w, 6), ctrl.new_zeros(())))
+            fn, (ctrl.new_zeros(w, 6), ctrl.new_zeros(())), vectorize=True)
         # Jc (..., O, w, 6) of the batch's rows together: each row moved by the same delta,
         # row b's outputs depend on row b's points only
         rows_c.append(Jc)
