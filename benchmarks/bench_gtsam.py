@@ -14,6 +14,11 @@ the rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` with sine Euler angles), poses at 20
   pose, a weak bias prior, started from the poses (velocities by finite differences, zero
   biases), ``LevenbergMarquardtOptimizer``, then ``Marginals`` for the middle key's bias.
 
+``torch_dq+reuse``: the same with ``torch_dq.reuse_memory()`` called first (freed temporaries
+kept in the heap, as the ``python -m torch_dq`` commands do; glibc only): the library's
+default leaves glibc's, which returns each system's temporaries to the operating system and
+faults them in again at the next.
+
 Each side runs in a child process of its own (``--threads`` torch / OpenMP threads), warm
 (an untimed 10 s job first), best of ``--repeats``; peak memory is the child's peak resident
 set (``resource.getrusage``) and its increase over the resident set before the first run.
@@ -223,7 +228,10 @@ def child(side: str, duration: float, repeats: int, threads: int) -> dict:
     import torch
     torch.set_num_threads(threads)
     job = make_job(duration)
-    run = torch_dq_run if side == "torch_dq" else gtsam_run
+    if side == "torch_dq+reuse":  # freed temporaries kept in the heap (torch_dq.reuse_memory)
+        import torch_dq
+        torch_dq.reuse_memory()
+    run = gtsam_run if side == "gtsam" else torch_dq_run
     run(make_job(10.0))  # warm-up on a 10 s job (imports, first calls)
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     runs = [run(job) for _ in range(repeats)]
@@ -248,7 +256,7 @@ def spawn(side: str, duration: float, repeats: int, threads: int) -> dict | None
 
 
 def _row(r: dict) -> str:
-    return (f"{r['side']:8s} {r['threads']}t {r['duration']:6.0f} s: setup {r['setup']:7.3f} s, "
+    return (f"{r['side']:14s} {r['threads']}t {r['duration']:6.0f} s: setup {r['setup']:7.3f} s, "
             f"solve {r['solve']:7.3f} s ({r['steps']} steps), uncertainty {r['unc']:6.3f} s, "
             f"total {r['solve'] + r['unc']:7.3f} s; peak RSS {r['peak_mb']:6.0f} MB (+"
             f"{r['grew_mb']:.0f}); bias errors gyro {r['gyro_sigmas']:.2f} sd "
@@ -265,10 +273,12 @@ def side_by_side(duration: float, repeats: int, threads: list[int], sides: list[
         for r in rows.values():
             if r is not None:
                 print("  " + _row(r), flush=True)
-        a, b = rows.get("torch_dq"), rows.get("gtsam")
-        if a and b:
-            print(f"  {th} thread(s): torch_dq estimate + std / GTSAM solve + marginals = "
-                  f"{(a['solve'] + a['unc']) / (b['solve'] + b['unc']):.2f}x")
+        b = rows.get("gtsam")
+        for name in ("torch_dq", "torch_dq+reuse"):
+            a = rows.get(name)
+            if a and b:
+                print(f"  {th} thread(s): {name} estimate + std / GTSAM solve + marginals = "
+                      f"{(a['solve'] + a['unc']) / (b['solve'] + b['unc']):.2f}x")
 
 
 def scaling(durations: list[float], threads: int, sides: list[str]) -> None:
@@ -387,11 +397,12 @@ def main() -> None:
     ap.add_argument("--scaling", action="store_true")
     ap.add_argument("--long", action="store_true", help="add 3600 s to the scaling series")
     ap.add_argument("--durations", help="comma list of the scaling series' durations (s)")
-    ap.add_argument("--only", choices=["torch_dq", "gtsam"])
+    ap.add_argument("--only", choices=["torch_dq", "torch_dq+reuse", "gtsam"])
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--cpu", action="store_true",
                     help="report process CPU seconds instead of wall-clock (loaded machines)")
-    ap.add_argument("--child", choices=["torch_dq", "gtsam"], help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=["torch_dq", "torch_dq+reuse", "gtsam"],
+                    help=argparse.SUPPRESS)
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
     global CLOCK
@@ -404,7 +415,8 @@ def main() -> None:
         return
     import torch
     have = importlib.util.find_spec("gtsam") is not None
-    sides = ["torch_dq"] + (["gtsam"] if have else [])
+    glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
+    sides = ["torch_dq"] + (["torch_dq+reuse"] if glibc else []) + (["gtsam"] if have else [])
     if args.only:
         sides = [s for s in sides if s == args.only]
     if not have:

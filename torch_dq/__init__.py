@@ -12,6 +12,7 @@ Modules: :mod:`torch_dq.dual` (dual numbers), :mod:`torch_dq.quat` (quaternions)
 """
 
 from . import calibration, camera, curves, dual, dualquat, fitting, io, losses, nn, quat
+from ._memory import reuse_memory
 from ._version import __version__ as __version__
 from .dual import Dual
 from .dualquat import angle as dual_angle
@@ -20,5 +21,5 @@ from .object import DualQuaternion
 
 __all__ = [
     "Dual", "DualQuaternion", "calibration", "camera", "curves", "dual", "dual_angle", "dualquat",
-    "fitting", "io", "losses", "nn", "quat", "sclerp",
+    "fitting", "io", "losses", "nn", "quat", "reuse_memory", "sclerp",
 ]
