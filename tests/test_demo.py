@@ -159,8 +159,9 @@ def test_console_script_entry_point():
     eps = [ep for ep in entry_points(group="console_scripts") if ep.name == "torch-dq"]
     if not eps:
         pytest.skip("torch_dq is not installed with its entry points (pip install -e .)")
-    assert eps[0].value == "torch_dq.__main__:main"
-    assert eps[0].load() is main
+    assert eps[0].value == "torch_dq.__main__:run"  # reuse_memory, then main
+    from torch_dq.__main__ import run
+    assert eps[0].load() is run
 
 
 def test_missing_matplotlib_prints_install_hint(tmp_path):

@@ -38,12 +38,13 @@ def _faults(mode: str) -> tuple[str, int]:
 @pytest.mark.skipif(not GLIBC, reason="glibc's mallopt only")
 def test_reuse_memory_keeps_freed_temporaries_in_the_heap():
     """Without it the second round faults in its 80 MiB again (20,480 pages of 4 KiB, the
-    heap top trimmed after the first); with it, almost nothing."""
+    heap top trimmed after the first); with it, at most one of its five tensors (0 pages
+    here, 4,096 in a CI run: where the heap's free blocks lie depends on the process)."""
     applied, kept = _faults("reuse")
     _, default = _faults("default")
     assert applied == "True"
-    assert default > 10_000, default
-    assert kept < 0.05 * default, (kept, default)
+    assert default > 15_000, default
+    assert kept <= 0.25 * default, (kept, default)
 
 
 def test_reuse_memory_is_exported_and_reports_where_it_cannot_apply(monkeypatch):
