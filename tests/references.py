@@ -43,3 +43,14 @@ def deboor_np(points, knots, p, s, interp):
             a = (s - knots[i]) / (knots[i + p + 1 - j] - knots[i])
             d[i] = interp(d[i - 1], d[i], a)
     return d[r]
+
+
+def double_sphere_np(p, pts: np.ndarray) -> np.ndarray:
+    """Usenko et al.'s double sphere projection, eqs. 40-42, ``p = (fx, fy, cx, cy, xi,
+    alpha)``, ``pts (N, 3)``: pixels ``(N, 2)`` (no domain test)."""
+    fx, fy, cx, cy, xi, alpha = p
+    x, y, z = pts.T
+    d1 = np.sqrt(x * x + y * y + z * z)
+    w = xi * d1 + z
+    den = alpha * np.sqrt(x * x + y * y + w * w) + (1 - alpha) * w
+    return np.stack([fx * x / den + cx, fy * y / den + cy], -1)

@@ -11,6 +11,7 @@ eq. 40) onto its pixel.
 import numpy as np
 import pytest
 import torch
+from references import double_sphere_np
 
 from torch_dq import camera
 
@@ -20,16 +21,6 @@ F64 = torch.float64
 def _directions(n: int, seed: int = 0) -> np.ndarray:
     d = np.random.default_rng(seed).normal(size=(n, 3))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-def _ds_project(p, pts: np.ndarray) -> np.ndarray:
-    """Eqs. 40-42 (no domain test)."""
-    fx, fy, cx, cy, xi, alpha = p
-    x, y, z = pts.T
-    d1 = np.sqrt(x * x + y * y + z * z)
-    w = xi * d1 + z
-    den = alpha * np.sqrt(x * x + y * y + w * w) + (1 - alpha) * w
-    return np.stack([fx * x / den + cx, fy * y / den + cy], -1)
 
 
 def _ds_unproject(p, px: np.ndarray) -> np.ndarray:
@@ -56,7 +47,7 @@ def test_double_sphere_valid_pixels_are_on_the_points_side_and_invert(xi, alpha)
     px, valid = camera.project("double-sphere", torch.tensor(p, dtype=F64), torch.tensor(d))
     v = valid.numpy()
     assert v.sum() > 1000
-    ref = _ds_project(p, d)[v]
+    ref = double_sphere_np(p, d)[v]
     assert np.abs(px.numpy()[v] - ref).max() < 1e-6 * max(1.0, np.abs(ref).max())
     # the pixel of a valid point lies on its side of the principal point
     off = px.numpy()[v] - [320.0, 240.0]
@@ -89,7 +80,7 @@ def test_double_sphere_unproject_valid_rays_project_onto_their_pixels(xi, alpha)
                                    torch.tensor(px))
     ok = valid.numpy()
     assert ok.sum() > 50
-    assert np.abs(_ds_project(p, rays.numpy()[ok]) - px[ok]).max() < 1e-6
+    assert np.abs(double_sphere_np(p, rays.numpy()[ok]) - px[ok]).max() < 1e-6
     assert np.abs(np.linalg.norm(rays.numpy(), axis=1) - 1).max() < 1e-12
     assert torch.isfinite(rays).all()
 

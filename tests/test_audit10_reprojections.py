@@ -14,21 +14,13 @@ import warnings
 import numpy as np
 import pytest
 import torch
+from references import double_sphere_np
 
 import torch_dq.dualquat as dq
 from torch_dq import camera, fitting, nn, quat
 
 F64 = torch.float64
 TRUE = [300.0, 300.0, 320.0, 240.0, 0.0, 0.9995]
-
-
-def _ds_project(p, pts: np.ndarray) -> np.ndarray:
-    fx, fy, cx, cy, xi, alpha = p
-    x, y, z = pts.T
-    d1 = np.sqrt(x * x + y * y + z * z)
-    w = xi * d1 + z
-    den = alpha * np.sqrt(x * x + y * y + w * w) + (1 - alpha) * w
-    return np.stack([fx * x / den + cx, fy * y / den + cy], -1)
 
 
 def _scene(frames=30, seed=0):
@@ -42,7 +34,7 @@ def _scene(frames=30, seed=0):
     pts = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.8)], -1)
     R, t = quat.to_matrix(q).numpy(), p.numpy()
     cam = np.einsum("fji,fpj->fpi", R, pts[None] - t[:, None])  # R^T (p - t) per frame
-    pixels = _ds_project(TRUE, cam.reshape(-1, 3)) + 0.5 * rng.normal(size=(cam.size // 3, 2))
+    pixels = double_sphere_np(TRUE, cam.reshape(-1, 3)) + 0.5 * rng.normal(size=(cam.size // 3, 2))
     n = len(pts)
     return (times, q, p, times.repeat_interleave(n), torch.tensor(np.tile(pts, (frames, 1))),
             torch.tensor(pixels))
