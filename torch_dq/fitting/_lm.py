@@ -141,7 +141,7 @@ class LevenbergMarquardt:
         self._gradient = (None, None)
         x = self.point
         self.system = self.p.system(x.ctrl, x.values, self.w, x.memo)
-        self._null_of = None
+        self._null_of, self.informed = None, False  # until the new system's null is found
         if self.p.params:
             self._reanchor()
 
@@ -379,7 +379,7 @@ class LevenbergMarquardt:
             self.check(tol, final=True)
         return History(torch.stack(losses), torch.stack(objectives), done, self._reason(steps),
                        self.converged.reshape(p.batch), self.system, self.w, self.pulled,
-                       self._null_of is self.system and self.informed)
+                       self.informed)
 
     def _reason(self, steps: int) -> str:
         """The stop reasons joined (with a warning when ``steps`` ran out)."""

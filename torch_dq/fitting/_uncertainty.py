@@ -67,16 +67,14 @@ def _warn_unexcited(term, bound: float, s: Tensor) -> None:
                       f"motion determines it)", RuntimeWarning, stacklevel=3)
 
 
-def _exact_schur(band: Tensor, cn: Tensor, nn: Tensor,
-                 ) -> tuple[BandedCholesky, Tensor, Tensor] | None:
-    """:func:`_schur` where every direction carries information (the iteration certified
-    the band positive definite with room, nothing pulled: the loop's ``History.informed``):
-    the band factored as it is, once; None where that factorisation fails."""
-    chol = BandedCholesky(band)
-    if not bool(chol.ok.all()):
+def _unregularised(band: Tensor, informed: bool) -> BandedCholesky | None:
+    """The band factored as it is where every direction carries information (``informed``:
+    the iteration certified it positive definite with room, nothing pulled, the loop's
+    ``History.informed``); None elsewhere or where that factorisation fails."""
+    if not informed:
         return None
-    z = chol.solve(cn)
-    return chol, z, nn - torch.einsum("bnim,bniq->bmq", cn, z)
+    chol = BandedCholesky(band)
+    return chol if bool(chol.ok.all()) else None
 
 
 def _schur(factor: Callable[[float], BandedCholesky], cn: Tensor,
@@ -325,12 +323,11 @@ class Estimate:
 
         self._regularised = regularised
         self._loose_factor: BandedCholesky | None = None  # on first use: _loose()
-        self._exact = False
+        exact = _unregularised(band, self._informed)
+        self._exact = exact is not None  # no direction without information: no loose test
         m = p.m
         if not m:
-            chol = BandedCholesky(band) if self._informed else None
-            self._exact = chol is not None and bool(chol.ok.all())
-            self._chol = chol if chol is not None and self._exact else regularised(REGULARISE)
+            self._chol = exact if exact is not None else regularised(REGULARISE)
             self._ok = self._chol.ok
             self._Z = system.cn
             self._U = system.nn
@@ -338,9 +335,11 @@ class Estimate:
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         S = system.nn + torch.diag(p.prior_information).to(system.nn)
-        exact = _exact_schur(band, cn, S) if self._informed else None
-        self._exact = exact is not None  # no direction without information: no loose test
-        self._chol, self._Z, S = exact if exact is not None else _schur(regularised, cn, S)
+        if exact is not None:  # S exactly, from the one factor
+            self._chol, self._Z = exact, exact.solve(cn)
+            S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
+        else:
+            self._chol, self._Z, S = _schur(regularised, cn, S)
         ok = self._ok = self._chol.ok
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
