@@ -18,7 +18,7 @@ and their pixels. Peers:
 
 The solver's cost per observation (float64 only, the solve's dtype): the per-sample
 residuals and Jacobians that ``fitting.estimate`` computes at every step (the internal
-``Linearization._term_jacobians``, exact Jacobians chained through the spans), and the whole
+``Linearization._chained``, exact Jacobians chained through the spans), and the whole
 Gauss-Newton system accumulation (``Problem.system``) of one term, for a ``Reprojections``
 term (radtan camera, 2 rows per observation) against a ``Poses`` term (6 rows), both with an
 estimated extrinsic, the same spline and the same number of samples.
@@ -250,7 +250,7 @@ def _solver_costs(spline, term):
     problem = Problem(spline, [term], ctrl.shape[:-2])
     values = _starts("bench", problem, ctrl)
     w = problem.width(values)
-    return (lambda: problem.linearization._term_jacobians(0, problem.terms[0], ctrl, values, w),
+    return (lambda: problem.linearization._chained(0, problem.terms[0], ctrl, values, w),
             lambda: problem.system(ctrl, values, w))
 
 

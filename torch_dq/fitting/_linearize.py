@@ -273,13 +273,6 @@ class Linearization:
         return (f0.expand(*batch, N).reshape(Bf, N)
                 + (torch.arange(Bf, device=f0.device) * (self.spans.n + w))[:, None])
 
-    def _term_jacobians(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
-                        derivs: list[tuple[Tensor, ...]] | None):
-        """Whitened residuals, robust weights, window start and Jacobians of ``term`` (term
-        ``i`` or a part of it) alone."""
-        r, f0, Jc, Jn = self._chained(i, term, ctrl, values, w, derivs)
-        return r, _weights(term, r), f0, Jc, Jn
-
     def _chained(self, i: int, term, ctrl: Tensor, values: list[Tensor], w: int,
                  known: list[tuple[Tensor, ...]] | None = None):
         """:meth:`_group_chained` of ``term`` (term ``i`` or a part of it) alone."""
