@@ -17,7 +17,10 @@ the curve's time derivative (:meth:`Term.time_rates`), ``dt'_i / d\ell = v_i``.
 Observations whose point has no image (behind the camera, outside the double sphere's
 field) are excluded: their residual and Jacobian rows are zero (no NaN reaches the normal
 equations), and :func:`~torch_dq.fitting.estimate` counts them at the solution
-(``term.invalid``) with a warning naming the term. Intrinsics outside the model's domain (a
+(``term.invalid``) with a warning naming the term. A zero residual would make hiding an
+observation pay, so Levenberg-Marquardt rejects every step that loses one predicted at the
+current point (:meth:`Term.seen`; one that gains one is fine): from a far start it turned the
+camera away from the whole target and reported a zero loss. Intrinsics outside the model's domain (a
 camera that sees nothing: ``fu <= 0``, the double sphere's ``alpha`` outside ``[0, 1]``)
 give every observation an error of the image's width plus height on both axes, so that a
 step of estimated intrinsics out of the domain never passes for a better fit.
@@ -225,6 +228,9 @@ class Reprojections(Term):
         r = torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
         seen = _in_domain(self.model, list(p["intrinsics"].unbind(-1)))[..., None]
         return torch.where(seen, r, torch.full((), float(sum(self.resolution)), dtype=r.dtype))
+
+    def seen(self, derivs, p):
+        return self._project(derivs[0][0], p)[1] & self.mask
 
     def _predict(self, trajectory, shift: float = 0.0) -> tuple[Tensor, Tensor]:
         """Predicted pixels and ``valid`` at the current values, the times moved by

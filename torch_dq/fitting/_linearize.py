@@ -75,6 +75,10 @@ class Memo:
     def __init__(self) -> None:
         self.entries: dict[tuple[int, int], list[tuple[Tensor, ...]]] = {}
         self.left = MEMO_BYTES
+        #: ``(..., N)`` bool by term index: the observations with a prediction at the point,
+        #: for the terms that can lose some (:meth:`~torch_dq.fitting.Term.seen`), kept
+        #: whatever the budget
+        self.seen: dict[int, Tensor] = {}
 
     def put(self, key: tuple[int, int], derivs: list[tuple[Tensor, ...]]) -> None:
         """Keep ``derivs`` (group, part ``key``) within the budget."""
@@ -100,18 +104,25 @@ def group_residuals(problem, group: tuple[int, ...], ctrl: Tensor, values: list[
     terms read at the same times) at ``(ctrl, values)`` through the spans, a part of at most
     ``PART`` samples at a time, the span derivatives evaluated once per part to the highest
     order a member reads (no domain check: :func:`~torch_dq.fitting.estimate` checked the
-    times once); kept in ``memo`` where given."""
+    times once); kept in ``memo`` where given, with the observations each term predicts
+    (``Memo.seen``)."""
     vals = [problem.term_values(i, values) for i in group]
     order = _order(problem, group, vals)  # as the linearisation's
     out: list[list[Tensor]] = [[] for _ in group]
+    seen: list[list[Tensor]] = [[] for _ in group]
     for k, parts in enumerate(_group_parts(problem, group)):
         ps = [term.per_sample(v) for term, v in zip(parts, vals, strict=True)]
         derivs = _part_derivatives(problem.spans, parts[0], ctrl, parts[0].time_shift(ps[0]),
                                    order)
         if memo is not None:
             memo.put((group[0], k), derivs)
-        for rows, term, p in zip(out, parts, ps, strict=True):
-            rows.append(term.residuals([d[:term.order + 1] for d in derivs], p))
+        for rows, sees, term, p in zip(out, seen, parts, ps, strict=True):
+            ev = [d[:term.order + 1] for d in derivs]
+            rows.append(term.residuals(ev, p))
+            if memo is not None and (s := term.seen(ev, p)) is not None:
+                sees.append(s)
+    if memo is not None:
+        memo.seen.update({i: torch.cat(s, -1) for i, s in zip(group, seen, strict=True) if s})
     return [torch.cat(rows, -2) for rows in out]
 
 

@@ -45,7 +45,8 @@ _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times R
 class Point:
     """A point of the iteration: control points ``(..., n, 8)``, nuisance values, the
     objective and the data cost ``(...)`` there, and the span derivatives its cost evaluated
-    (``memo``, for its Gauss-Newton system; empty once that is built)."""
+    (``memo``, for its Gauss-Newton system; empty once that is built) with the observations
+    predicted there (``memo.seen``, kept)."""
 
     ctrl: Tensor
     values: list[Tensor]
@@ -63,9 +64,20 @@ class Point:
             event = (1,) * (a.dim() - sel.dim())
             return torch.where(sel.reshape(torch.Size((*sel.shape, *event))), a, b)
 
+        memo = Memo()
+        memo.seen = {i: pick(s, self.memo.seen[i]) for i, s in other.memo.seen.items()}
         return Point(pick(other.ctrl, self.ctrl),
                      [pick(a, b) for a, b in zip(other.values, self.values, strict=True)],
-                     pick(other.objective, self.objective), pick(other.data, self.data))
+                     pick(other.objective, self.objective), pick(other.data, self.data), memo)
+
+    def keeps(self, other: Point, batch: torch.Size) -> Tensor:
+        """``(Bf,)`` bool: whether every observation predicted here is predicted at
+        ``other`` (``Memo.seen``): a step that hid some (a reprojection turned behind the
+        camera has a zero residual) would lower the cost by the residuals it hid."""
+        kept = torch.ones(batch, dtype=torch.bool, device=self.objective.device)
+        for i, s in self.memo.seen.items():
+            kept = kept & ~(s & ~other.memo.seen[i]).any(-1)
+        return kept.reshape(-1)
 
 
 @dataclass
@@ -111,7 +123,7 @@ class LevenbergMarquardt:
         self._pulls(prior)
         self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                                   for t in problem.terms]).sum(0).reshape(self.Bf)
-        self.point = Point(ctrl, values, data + self._pull(ctrl, values), data)
+        self.point = Point(ctrl, values, data + self._pull(ctrl, values), data, memo)
         self.damping = Marquardt(self.Bf, ctrl)
         self.timed, self.span = _time_columns(problem)
         like = self.damping.lam
@@ -157,7 +169,8 @@ class LevenbergMarquardt:
         del self.pulls, self.null  # the old ones freed before the new are made (memory)
         self._pulls(self.prior)
         x = self.point
-        self.point = Point(x.ctrl, x.values, x.data + self._pull(x.ctrl, x.values), x.data)
+        self.point = Point(x.ctrl, x.values, x.data + self._pull(x.ctrl, x.values), x.data,
+                           x.memo)
 
     def _pull(self, c: Tensor, v: list[Tensor]) -> Tensor:
         """The pulls (``torch_dq.fitting._prior``, from the anchor) and the Free priors
@@ -308,10 +321,11 @@ class LevenbergMarquardt:
                                     dn.reshape(*batch, self.p.m))
             memo = Memo()
             td, to = self.objective(tc, tv, memo)
-            acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (to.reshape(Bf) <
-                                                                  x.objective.reshape(Bf))
+            trial = Point(tc, tv, to, td, memo)
+            acc = pending & ok & torch.isfinite(to.reshape(Bf)) & (
+                to.reshape(Bf) < x.objective.reshape(Bf)) & x.keeps(trial, batch)
             if bool(acc.any()):
-                new = new.where(acc.reshape(batch), Point(tc, tv, to, td, memo))
+                new = new.where(acc.reshape(batch), trial)
                 drop = x.objective.reshape(Bf) - to.reshape(Bf)
                 gain = torch.where(acc, drop / step.predicted(gc, gn, dc, dn), gain)
             pending = pending & ~acc

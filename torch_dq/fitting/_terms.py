@@ -392,6 +392,13 @@ class Term(torch.nn.Module):
     def _residual(self, ev: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:
         raise NotImplementedError
 
+    def seen(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor | None:
+        """``(..., N)`` bool: the unmasked samples with a prediction at these derivatives
+        and values (as :meth:`residuals`), for a term whose residual is zero where there is
+        none; None (the default): every sample has one. Levenberg-Marquardt rejects a step
+        that loses one (it would lower the cost by the residual it hides)."""
+        return None
+
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
                            nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
         """Whitened residuals and their Jacobians in closed form, or None (the default: the
