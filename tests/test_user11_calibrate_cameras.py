@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from torch_dq import calibration, dualquat
 from torch_dq.cli import main
 
 yaml = pytest.importorskip("yaml")
@@ -53,7 +54,7 @@ def _grid():
 
 
 # cam1's pose seen from cam0 inverted: p_cam1 = R10 p_cam0 + t10 (Kalibr's T_cn_cnm1)
-R10, T10 = _rot([0.002, -0.014, 0.0015]), np.array([-0.110, 0.0005, -0.0006])
+R10, T10_T = _rot([0.002, -0.014, 0.0015]), np.array([-0.110, 0.0005, -0.0006])
 
 
 def _write_corners(tmp_path):
@@ -65,7 +66,7 @@ def _write_corners(tmp_path):
         R = _rot(rng.uniform(-0.45, 0.45, 3)) @ _rot([np.pi, 0, 0])  # board faces the cameras
         t = np.array([rng.uniform(-0.25, 0.25), rng.uniform(-0.15, 0.15), rng.uniform(0.9, 1.5)])
         X0 = (P - centre) @ R.T + t
-        for cam, (X, k) in enumerate(((X0, K0), (X0 @ R10.T + T10, K1))):
+        for cam, (X, k) in enumerate(((X0, K0), (X0 @ R10.T + T10_T, K1))):
             uv = _radtan(k, X)
             inside = (uv[:, 0] > 0) & (uv[:, 0] < RES[0] - 1) & (uv[:, 1] > 0) \
                 & (uv[:, 1] < RES[1] - 1) & (X[:, 2] > 0)
@@ -104,7 +105,12 @@ def test_calibrate_without_imu_calibrates_the_cameras(tmp_path):
         np.testing.assert_allclose(cam["distortion_coeffs"], k[4:], rtol=1e-4, atol=1e-8)
     T = np.array(chain["cam1"]["T_cn_cnm1"])
     np.testing.assert_allclose(T[:3, :3], R10, atol=1e-7)
-    np.testing.assert_allclose(T[:3, 3], T10, atol=1e-7)
+    np.testing.assert_allclose(T[:3, 3], T10_T, atol=1e-7)
+    back = calibration.read_camchain(tmp_path / "out" / "camchain.yaml")  # cam1 in cam0
+    T10 = np.eye(4)
+    T10[:3, :3], T10[:3, 3] = R10, T10_T
+    np.testing.assert_allclose(dualquat.to_matrix(back.relative_poses[0]).numpy(),
+                               np.linalg.inv(T10), atol=1e-7)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [c["model"] for c in summary["cameras"]] == ["pinhole-radtan"] * 2
     assert max(c["reprojection_rms_px"] for c in summary["cameras"]) < 1e-5
