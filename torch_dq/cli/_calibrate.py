@@ -372,7 +372,9 @@ def _run_cameras(args, say) -> int:
     with _printed_warnings() as caught:
         say(f"reading the corners of {len(entries)} camera(s)")
         obs = _observations(args, target, len(entries))
-        say(f"calibrating {len(entries)} camera(s) from the target alone (no --imu)")
+        say(f"calibrating {len(entries)} camera(s) from the target alone (no --imu)"
+            + "; the camchain's intrinsics are not used" * any("intrinsics" in e
+                                                              for e in entries))
         res = cameras(obs, [m for m, _ in models], [r for _, r in models])
     elapsed = time.perf_counter() - start
     try:
