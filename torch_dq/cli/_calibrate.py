@@ -356,8 +356,6 @@ def _printed_warnings():
 def _run_cameras(args, say) -> int:
     """The cameras alone (no ``--imu``): :func:`~torch_dq.calibration.cameras` on the
     camchain's models and resolutions; writes ``camchain.yaml`` and ``summary.json``."""
-    import yaml
-
     from .. import dualquat
     from ..calibration import cameras, read_target
 
@@ -381,11 +379,7 @@ def _run_cameras(args, say) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
-    topics = [str(e.get("rostopic", f"/cam{i}/image_raw")) for i, e in enumerate(entries)]
-    with open(out / "camchain.yaml", "w", encoding="utf-8") as f:
-        yaml.safe_dump(res.to_kalibr(topics), f, default_flow_style=None, sort_keys=True)
-    with open(out / "summary.json", "w", encoding="utf-8") as f:
-        json.dump(_cameras_summary(res, caught, elapsed), f, indent=2, allow_nan=True)
+    _write(out, res, entries, _cameras_summary(res, caught, elapsed), "camchain.yaml")
     for i, cam in enumerate(res.cameras):
         say(f"cam{i}: {cam.model} {', '.join(f'{v:.6g}' for v in _val(cam.params))}; "
             f"reprojection RMS {float(res.reprojection_rms[i]):.3f} px")
@@ -415,11 +409,14 @@ def _cameras_summary(res, caught: list[str], elapsed: float) -> dict:
                       "the chart T exp(delta), rotation (rad) then translation (m)"]}
 
 
-def _write(out: Path, res, entries, summary: dict) -> None:
+def _write(out: Path, res, entries, summary: dict, chain: str = "camchain-imucam.yaml"
+           ) -> None:
+    """The result's camchain (``res.to_kalibr``, the input camchain's rostopics) as
+    ``chain`` and ``summary`` as ``summary.json`` in ``out``."""
     import yaml
 
     topics = [str(e.get("rostopic", f"/cam{i}/image_raw")) for i, e in enumerate(entries)]
-    with open(out / "camchain-imucam.yaml", "w", encoding="utf-8") as f:
+    with open(out / chain, "w", encoding="utf-8") as f:
         yaml.safe_dump(res.to_kalibr(topics), f, default_flow_style=None, sort_keys=True)
     with open(out / "summary.json", "w", encoding="utf-8") as f:
         json.dump(summary, f, indent=2, allow_nan=True)
