@@ -237,8 +237,10 @@ def _cameras_data(obs, models, res, min_points) -> tuple[list[_Camera], Tensor]:
         ids = ids[counts >= min_points]
         keep = torch.isin(frame, ids)
         if ids.numel() < 3:
-            _checks.fail(_FN, f"camera {i} has {ids.numel()} views with >= {min_points} "
-                              f"points (min_points); at least 3 are needed")
+            n = ids.numel()
+            _checks.fail(_FN, f"camera {i} has {n} view{'s' * (n != 1)} with >= {min_points} "
+                              f"points (min_points); at least 3 are needed (frames of the "
+                              f"target at distinct timestamps, in different poses)")
         frame, p, u = frame[keep], p[keep], u[keep]
         order = torch.argsort(frame, stable=True)
         frame, p, u = frame[order], p[order], u[order]

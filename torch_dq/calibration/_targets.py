@@ -199,6 +199,32 @@ def yaml_module(fn: str):
     return yaml
 
 
+def load_yaml(fn: str, path, what: str) -> tuple:
+    """``(yaml, text, mapping)`` of a Kalibr yaml file, or a ValueError naming ``fn``, the
+    file and (for bad yaml) the line: not UTF-8 text, not valid yaml, not a mapping
+    (``what`` says what it should hold); a TypeError for a ``path`` that is no path."""
+    if not isinstance(path, (str, os.PathLike)):
+        _checks.fail(fn, f"expected a path (str or os.PathLike) for path, got "
+                         f"{type(path).__name__}", TypeError)
+    yaml = yaml_module(fn)
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except UnicodeDecodeError as exc:
+        _checks.fail(fn, f"{os.fspath(path)}: not a UTF-8 text file ({exc.reason} at byte "
+                         f"{exc.start})")
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        _checks.fail(fn, f"{os.fspath(path)}{at}: not a valid yaml file ({problem})")
+    if not isinstance(doc, dict):
+        _checks.fail(fn, f"{os.fspath(path)}: expected a yaml mapping {what}")
+    return yaml, text, doc
+
+
 def read_target(path: str | os.PathLike[str]) -> Target:
     r"""Read Kalibr's target yaml (``april_6x6.yaml``, ``checkerboard.yaml``).
 
@@ -236,27 +262,8 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         Target(kind='aprilgrid', rows=6, cols=6, size=0.088, spacing=0.3)
     """
     fn = "calibration.read_target"
-    if not isinstance(path, (str, os.PathLike)):
-        _checks.fail(fn, f"expected a path (str or os.PathLike) for path, got "
-                         f"{type(path).__name__}", TypeError)
-    yaml = yaml_module(fn)
-    try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
-    except UnicodeDecodeError as exc:
-        _checks.fail(fn, f"{os.fspath(path)}: not a UTF-8 text file ({exc.reason} at byte "
-                         f"{exc.start})")
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
-        _checks.fail(fn, f"{os.fspath(path)}{at}: not a valid yaml file ({problem})")
+    yaml, text, doc = load_yaml(fn, path, "with target_type and the target's sizes")
     where = f"{os.fspath(path)}: "
-    if not isinstance(doc, dict):
-        _checks.fail(fn, where + "expected a yaml mapping with target_type and the target's "
-                                 "sizes")
     kind = doc.get("target_type")
     if not isinstance(kind, str) or kind not in _YAML_KEYS:
         _checks.fail(fn, where + f"target_type must be 'aprilgrid' or 'checkerboard', got "

@@ -1,5 +1,5 @@
-r"""``python -m torch_dq calibrate``: camera-IMU calibration from Kalibr's files (private;
-the options are in :mod:`._parsers`).
+r"""``python -m torch_dq calibrate``: camera-IMU calibration from Kalibr's files, or the
+cameras' alone without ``--imu`` (private; the options are in :mod:`._parsers`).
 
 Reads Kalibr's target yaml (:func:`~torch_dq.calibration.read_target`), the IMU file
 (:func:`torch_dq.io.read_imu`), Kalibr's ``imu.yaml`` (``gyroscope_noise_density``,
@@ -26,12 +26,20 @@ by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
   the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases: random-walk
   ones as steps over time with their standard deviation bands).
 
+Without ``--imu`` and ``--imu-noise`` it calibrates the cameras alone (Kalibr's
+``calibrate_cameras``): :func:`~torch_dq.calibration.cameras` on every camera of the camchain
+(its models and resolutions; intrinsics there are ignored), writing ``camchain.yaml``
+(:meth:`~torch_dq.calibration.CameraCalibration.to_kalibr`: intrinsics and ``T_cn_cnm1``)
+and ``summary.json`` (intrinsics and relative poses with their formal standard deviations,
+reprojection RMS, the warnings).
+
 User errors (unreadable or malformed files, options the data cannot satisfy, an output
 that would overwrite an input) end in one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -48,7 +56,8 @@ if TYPE_CHECKING:
 
 __all__ = ["run"]
 
-_OUTPUTS = ("camchain-imucam.yaml", "summary.json", "reprojection.png", "imu.png")
+_OUTPUTS = ("camchain-imucam.yaml", "camchain.yaml", "summary.json", "reprojection.png",
+            "imu.png")
 
 
 class UserError(ValueError):
@@ -166,13 +175,10 @@ def _observations(args, target, n: int):
     return [tuple(detect_folder(p, target)[:3]) for p in args.images]
 
 
-def _cameras(entries, obs, path: str, say):
-    from ..calibration import cameras
+def _models(entries, path: str) -> list[tuple[str, tuple]]:
+    """Each camchain entry's model name and resolution (its intrinsics not needed)."""
     from ..camera import Camera
 
-    known = ["intrinsics" in e for e in entries]
-    if all(known):
-        return [Camera.from_kalibr(e) for e in entries]
     models = []
     for i, e in enumerate(entries):
         probe = dict(e)
@@ -185,6 +191,16 @@ def _cameras(entries, obs, path: str, say):
         except (KeyError, TypeError) as exc:
             raise UserError(f"{path}: cam{i} needs camera_model, distortion_model and "
                             f"resolution ({exc})") from None
+    return models
+
+
+def _cameras(entries, obs, path: str, say):
+    from ..calibration import cameras
+    from ..camera import Camera
+
+    if all("intrinsics" in e for e in entries):
+        return [Camera.from_kalibr(e) for e in entries]
+    models = _models(entries, path)
     say("calibrating the cameras' intrinsics first (the camchain has none)")
     calib = cameras(obs, [m for m, _ in models], [r for _, r in models])
     return calib.cameras
@@ -192,8 +208,8 @@ def _cameras(entries, obs, path: str, say):
 
 def _check_outputs(args) -> Path:
     out = Path(args.out)
-    inputs = [args.target, args.imu, args.imu_noise, args.cameras, *args.corners,
-              *args.images]
+    inputs = [p for p in (args.target, args.imu, args.imu_noise, args.cameras, *args.corners,
+                          *args.images) if p is not None]
     resolved = {Path(p).resolve() for p in inputs}
     for name in _OUTPUTS:
         if (out / name).resolve() in resolved:
@@ -269,6 +285,11 @@ def _run(args) -> int:
 
     if not args.pixel_sigma > 0:
         raise UserError(f"--pixel-sigma must be > 0, got {args.pixel_sigma}")
+    if (args.imu is None) != (args.imu_noise is None):
+        raise UserError("--imu and --imu-noise go together: both for a camera-IMU "
+                        "calibration, neither to calibrate the cameras alone")
+    if args.imu is None:
+        return _run_cameras(args, say)
     walk, interval = _bias_options(args)
     out = _check_outputs(args)
     start = time.perf_counter()
@@ -301,35 +322,101 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
     from .. import io
     from ..calibration import camera_imu
 
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        try:
-            imu = io.read_imu(args.imu)
-            say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
-                f"camera(s)")
-            obs = _observations(args, target, len(entries))
-            cams = _cameras(entries, obs, args.cameras, say)
-            say("estimating (start from the gyroscope and the target poses, then one joint "
-                "fit)")
-            res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
-                             accel_noise=noise["accelerometer_noise_density"],
-                             pixel_sigma=args.pixel_sigma,
-                             rolling_shutter=args.rolling_shutter,
-                             shared_time_offset=args.shared_time_offset,
-                             bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
-                             bias_interval=interval, verbose=not args.quiet)
-        finally:
-            caught = [" ".join(str(w.message).split()) for w in record]
-            for text in caught:
-                print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+    with _printed_warnings() as caught:
+        imu = io.read_imu(args.imu)
+        say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
+            f"camera(s)")
+        obs = _observations(args, target, len(entries))
+        cams = _cameras(entries, obs, args.cameras, say)
+        say("estimating (start from the gyroscope and the target poses, then one joint fit)")
+        res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
+                         accel_noise=noise["accelerometer_noise_density"],
+                         pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
+                         shared_time_offset=args.shared_time_offset,
+                         bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
+                         bias_interval=interval, verbose=not args.quiet)
     return cams, res, caught
 
 
-def _write(out: Path, res, entries, summary: dict) -> None:
+@contextlib.contextmanager
+def _printed_warnings():
+    """Record the warnings raised inside (the readers' included) into the list it yields,
+    each printed as one ``warning:`` line on stderr, also when an error ends the run."""
+    caught: list[str] = []
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        try:
+            yield caught
+        finally:
+            caught.extend(" ".join(str(w.message).split()) for w in record)
+            for text in caught:
+                print(f"torch-dq calibrate: warning: {text}", file=sys.stderr)
+
+
+def _run_cameras(args, say) -> int:
+    """The cameras alone (no ``--imu``): :func:`~torch_dq.calibration.cameras` on the
+    camchain's models and resolutions; writes ``camchain.yaml`` and ``summary.json``."""
+    from .. import dualquat
+    from ..calibration import cameras, read_target
+
+    if args.rolling_shutter or args.shared_time_offset:
+        raise UserError("--rolling-shutter and --shared-time-offset need --imu and "
+                        "--imu-noise (they are camera-IMU options)")
+    out = _check_outputs(args)
+    start = time.perf_counter()
+    target = read_target(args.target)
+    entries = _camchain(args.cameras)
+    models = _models(entries, args.cameras)
+    with _printed_warnings() as caught:
+        say(f"reading the corners of {len(entries)} camera(s)")
+        obs = _observations(args, target, len(entries))
+        say(f"calibrating {len(entries)} camera(s) from the target alone (no --imu)"
+            + "; the camchain's intrinsics are not used" * any("intrinsics" in e
+                                                              for e in entries))
+        res = cameras(obs, [m for m, _ in models], [r for _, r in models])
+    elapsed = time.perf_counter() - start
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create --out {args.out}: {exc.strerror}") from None
+    _write(out, res, entries, _cameras_summary(res, caught, elapsed), "camchain.yaml")
+    for i, cam in enumerate(res.cameras):
+        say(f"cam{i}: {cam.model} {', '.join(f'{v:.6g}' for v in _val(cam.params))}; "
+            f"reprojection RMS {float(res.reprojection_rms[i]):.3f} px")
+    for i, pose in enumerate(res.relative_poses, 1):
+        say(f"cam{i} in cam0's frame: translation "
+            f"{', '.join(f'{v:+.5f}' for v in _val(dualquat.to_rt(pose)[1]))} m")
+    say(f"wrote {out} in {elapsed:.1f} s")
+    return 0
+
+
+def _cameras_summary(res, caught: list[str], elapsed: float) -> dict:
+    std = res.std["intrinsics"]
+    return {"cameras": [{"model": c.model, "params": _val(c.params),
+                         "std": _val(std[i, :c.params.numel()]),
+                         "resolution": list(c.resolution),
+                         "reprojection_rms_px": float(res.reprojection_rms[i]),
+                         "used": int(res.used[i]), "excluded": int(res.excluded[i])}
+                        for i, c in enumerate(res.cameras)],
+            "relative_poses": {"value": _val(res.relative_poses),
+                               "std": _val(res.std["relative_poses"])},
+            "sigma_px": float(res.sigma), "iterations": int(res.iterations),
+            "converged": bool(res.converged), "seconds": elapsed, "warnings": caught,
+            "notes": ["relative_poses: camera i's pose in camera 0's frame (p_cam0 = T "
+                      "p_cami) as unit dual quaternions; camchain.yaml's T_cn_cnm1 is "
+                      "p_camN = T p_camN-1", "std: formal standard deviations (white noise "
+                      "on every corner), lower bounds for real corners; relative poses' in "
+                      "the chart T exp(delta), rotation (rad) then translation (m)"]}
+
+
+def _write(out: Path, res, entries, summary: dict, chain: str = "camchain-imucam.yaml"
+           ) -> None:
+    """The result's camchain (``res.to_kalibr``, the input camchain's rostopics) as
+    ``chain`` and ``summary`` as ``summary.json`` in ``out``."""
     import yaml
 
     topics = [str(e.get("rostopic", f"/cam{i}/image_raw")) for i, e in enumerate(entries)]
-    with open(out / "camchain-imucam.yaml", "w", encoding="utf-8") as f:
+    with open(out / chain, "w", encoding="utf-8") as f:
         yaml.safe_dump(res.to_kalibr(topics), f, default_flow_style=None, sort_keys=True)
     with open(out / "summary.json", "w", encoding="utf-8") as f:
         json.dump(summary, f, indent=2, allow_nan=True)

@@ -34,8 +34,11 @@ def _calibrate(parser, args) -> int:
     """``python -m torch_dq calibrate``: a missing optional dependency (PyYAML for Kalibr's
     yamls, OpenCV for ``--images``) ends, like a user error, in one line naming what to
     install and exit status 2."""
+    import torch
+
     from ._calibrate import run
 
+    torch.set_num_threads(args.threads)
     try:
         return run(args)
     except ImportError as exc:

@@ -582,6 +582,8 @@ def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
         raise OptionError("--time-offset estimate needs an IMU file: pass --imu IMU_FILE")
     inputs = [path] + [os.fspath(f) for f in (times, imu) if isinstance(f, (str, os.PathLike))]
     for source in inputs:  # a missing input first: before what --out holds
+        if os.path.isdir(source):
+            raise IsADirectoryError(errno.EISDIR, "a folder, not a file", source)
         if not os.path.isfile(source):
             raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), source)
     _check_out(out, inputs, overwrite, plots)

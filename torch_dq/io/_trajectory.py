@@ -220,16 +220,38 @@ def _read_kitti(fn: str, path, lines, texts, times, atol: float, duplicates: str
     return t[keep], q[keep], v[keep][:, [3, 7, 11]]
 
 
+_CORNER_NAMES = {"tag_id", "corner_idx", "u_px", "v_px"}
+
+
+def _not_poses(path, names: list[str], text: str) -> None:
+    """A header naming the columns of a corners file (``tag_id``, ``u_px``, ...) or of
+    EuRoC's IMU file (``w_RS_S_x [rad s^-1]``, ...) is an error naming the right reader:
+    read as poses, such rows raised errors that pointed elsewhere (repeated timestamps, a
+    quaternion's norm)."""
+    if _CORNER_NAMES & set(names):
+        raise TrajectoryFileError(path, None, "holds target corners (its header: "
+                                              f"{text!r}), not poses: read it with "
+                                              "torch_dq.calibration.read_corners (python -m "
+                                              "torch_dq calibrate --corners)")
+    if any(n.startswith(("w_rs_s", "a_rs_s")) for n in names):
+        raise TrajectoryFileError(path, None, "holds IMU readings (its header: "
+                                              f"{text!r}), not poses: read it with "
+                                              "torch_dq.io.read_imu (python -m torch_dq fit "
+                                              "POSES_FILE --imu IMU_FILE)")
+
+
 def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
     """Guess the format from the header comment and the first data line.
 
     A header naming TUM's columns (``timestamp tx ty tz qx qy qz qw``, spaces or commas)
-    means TUM. Commas (in the first row or a ``timestamp,...`` header) mean EuRoC, unless
-    the row has TUM's 8 fields with a time in decimal seconds and no ``[ns]`` header.
+    means TUM; one naming a corners file's or EuRoC's IMU columns is an error
+    (``_not_poses``). Commas (in the first row or a ``timestamp,...`` header) mean EuRoC,
+    unless the row has TUM's 8 fields with a time in decimal seconds and no ``[ns]`` header.
     """
     names = header[-1].lower().replace(",", " ").split() if header else []
     if tuple(names[:8]) == TUM_COLUMNS:
         return "tum"
+    _not_poses(path, names, header[-1] if header else "")
     if "," in texts[0] or any(h.lower().startswith("timestamp") and "," in h for h in header):
         first = [f.strip() for f in texts[0].split(",")]
         seconds = len(first) == 8 and not INTEGER.fullmatch(first[0]) \
@@ -238,10 +260,12 @@ def _detect(path, lines: list[int], texts: list[str], header: list[str]) -> str:
     width = len(texts[0].split())
     if width in (8, 12):
         return "tum" if width == 8 else "kitti"
+    imu = (" (7 columns are an IMU file's, t gx gy gz ax ay az: read it with "
+           "torch_dq.io.read_imu; fit: POSES_FILE --imu IMU_FILE)") * (width == 7)
     raise TrajectoryFileError(path, lines[0], f"cannot tell the format: {width} "
                                               f"whitespace-separated columns, where TUM has 8 "
                                               f"and KITTI 12 (EuRoC is comma-separated); pass "
-                                              f"format= (fit: --format)")
+                                              f"format= (fit: --format){imu}")
 
 
 def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
