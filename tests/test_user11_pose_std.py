@@ -13,6 +13,7 @@ seconds since the first sample) is the independent reference.
 import warnings
 
 import numpy as np
+import pytest
 import torch
 from scipy.interpolate import BSpline as ScipyBSpline
 
@@ -42,3 +43,21 @@ def test_pose_std_is_linear_least_squares_on_the_split_form():
     ref = np.sqrt(np.einsum("ij,jk,ik->i", b, np.linalg.inv(B.T @ B), b))
     np.testing.assert_allclose(std[:, 3:], 1e-3 * ref[:, None].repeat(3, 1), rtol=1e-5)
     np.testing.assert_allclose(std[:, :3], 2e-3 * ref[:, None].repeat(3, 1), rtol=1e-5)
+
+
+def test_std_along_time_errors_name_the_method():
+    """Bad times name ``Estimate.pose_std`` / ``kinematics_std`` (they named the layer's
+    ``derivatives``, which the user never called)."""
+    s = torch.linspace(0.0, 1.0, 40, dtype=F64)
+    x = dq.exp(torch.stack((s, 0 * s, 0 * s, s, s * s, 0 * s), -1))
+    spline = nn.BSpline.from_poses(*dq.to_rt(x), s, n_ctrl=8)
+    est = fitting.estimate(spline, [fitting.Poses(s, x, rot_sigma=1e-3, trans_sigma=1e-3)],
+                           verbose=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for name in ("pose_std", "kinematics_std"):
+            with pytest.raises(ValueError, match=rf"^fitting\.Estimate\.{name}: t must lie in "
+                                                 r"the module's time domain \[0, 1\]"):
+                getattr(est, name)(torch.tensor([2.0], dtype=F64))
+            with pytest.raises(TypeError, match=rf"^fitting\.Estimate\.{name}: .*floating"):
+                getattr(est, name)(torch.tensor([0, 1]))

@@ -466,22 +466,20 @@ class Estimate:
         return s.reshape(*b, s.shape[-1])
 
     # -- trajectory uncertainties
-    def _along(self, t: Tensor, k: int, output, scaled: bool) -> Tensor:
-        """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t``."""
+    def _along(self, fn: str, t: Tensor, k: int, output, scaled: bool) -> Tensor:
+        """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t`` (errors
+        named by ``fn``)."""
         self._ensure()
         p = self._problem
         spans, ctrl = p.spans, self._ctrl
         sup, n = spans.support, spans.n
-        _checks.tensor("fitting.Estimate", "t", t)
-        if t.dim() < 1:
-            _checks.fail("fitting.Estimate", "expected (T,) or (..., T) times for t")
-        p.trajectory.derivatives(t, 0, ctrl=ctrl)  # the layer's domain check
+        p.trajectory._times(fn, t, ctrl, False)  # the layer's checks: type, shape, domain
         lead = t.shape[:-1]
         if not p.batch:  # one trajectory: any leading shape of times, flattened
             t = t.reshape(-1)
         elif torch.broadcast_shapes(p.batch, lead) != p.batch:
-            _checks.fail("fitting.Estimate", f"times {_checks.shape_str(t.shape)} do not "
-                                             f"broadcast to the batch {_checks.shape_str(p.batch)}")
+            _checks.fail(fn, f"times {_checks.shape_str(t.shape)} do not broadcast to the "
+                             f"batch {_checks.shape_str(p.batch)}")
         shape = p.batch
         T = t.shape[-1]
         t = t.to(torch.float64).expand(*shape, T)
@@ -534,7 +532,7 @@ class Estimate:
             q0, p0 = dualquat.to_rt(ref[0])
             return torch.cat((quat.to_rotvec(quat.mul(quat.conj(q0), q)), pos - p0), -1)
 
-        return self._along(t, 6, output, scaled)
+        return self._along("fitting.Estimate.pose_std", t, 6, output, scaled)
 
     def kinematics_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 12)``: standard deviations of the angular velocity, linear velocity,
@@ -546,4 +544,4 @@ class Estimate:
                      k.linear_acceleration]
             return torch.cat([cast(Tensor, v) for v in parts], -1)
 
-        return self._along(t, 12, output, scaled)
+        return self._along("fitting.Estimate.kinematics_std", t, 12, output, scaled)
