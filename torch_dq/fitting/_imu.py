@@ -98,7 +98,8 @@ class Gyro(_Imu):
         return w + p["bias"] - self.readings.to(w.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
-                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+                           nuisance: list[str], r: Tensor | None = None,
+                           ) -> tuple[Tensor, list[Tensor]] | None:
         """Closed form (``torch_dq.fitting._imu_jacobians.gyro_rows``)."""
         x, dx = derivs[0][:2]
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
@@ -106,7 +107,7 @@ class Gyro(_Imu):
         if steps is None:
             return None
         rows = self._whitened(gyro_rows(x, dx), 2)
-        return self.residuals(derivs, p), [rows, *steps]
+        return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
         """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
@@ -308,7 +309,8 @@ class Accel(_Imu):
         return a - g + p["bias"] - self.readings.to(g.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
-                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+                           nuisance: list[str], r: Tensor | None = None,
+                           ) -> tuple[Tensor, list[Tensor]] | None:
         """Closed form (``torch_dq.fitting._imu_jacobians.accel_rows``)."""
         x, dx, ddx = derivs[0][:3]
         gravity = p["gravity"].to(x.dtype)
@@ -318,7 +320,7 @@ class Accel(_Imu):
                                           "gravity": toward_g})
         if steps is None:
             return None
-        return self.residuals(derivs, p), [self._whitened(rows, 2), *steps]
+        return self.residuals(derivs, p) if r is None else r, [self._whitened(rows, 2), *steps]
 
 
 _STANDARD_GRAVITY = 9.80665  # m/s^2 per g
