@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
-from typing import cast
 
 import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
+from .._kinematics import body_field
 from ._charts import Direction, Vector
 from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
@@ -94,7 +94,7 @@ class Gyro(_Imu):
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
-        w = curves.kinematics(x, dx, frame="body").angular_velocity
+        w = body_field(x, dx, None, 0)  # kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
@@ -302,10 +302,9 @@ class Accel(_Imu):
 
     def _residual(self, ev, p):
         x, dx, ddx = ev[0][:3]
-        k = curves.kinematics(x, dx, ddx, frame="body")
-        q = dualquat.to_rt(x)[0]
+        a = body_field(x, dx, ddx, 3)  # kinematics(..., frame="body").linear_acceleration
+        q = x[..., :4]  # the rotation (dualquat.to_rt's, without its translation)
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
-        a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
