@@ -59,19 +59,47 @@ def _check_motion(fn: str, x, dx, ddx, ddx_required: bool) -> None:
     _checks.broadcast_batch(fn, **{name: (v, 1) for name, v in named.items()})
 
 
-def _world(x: Tensor, dx: Tensor, ddx: Tensor | None):
-    """World-axes angular and linear velocity (and accelerations), module docstring."""
+_ALL = (True, True, True, True)
+
+
+def _world(x: Tensor, dx: Tensor, ddx: Tensor | None, fields: tuple[bool, ...] = _ALL):
+    """World-axes angular and linear velocity (and accelerations), module docstring; those
+    not in ``fields`` (flags in :class:`Kinematics`' order) None, their products skipped."""
     r, d = split(x)
     rd, dd = split(dx)
     rc, rdc = qconj(r), qconj(rd)
-    omega = _vec2(qmul(rd, rc))
-    v = _vec2(qmul(dd, rc) + qmul(d, rdc))
+    omega = _vec2(qmul(rd, rc)) if fields[0] else None
+    v = _vec2(qmul(dd, rc) + qmul(d, rdc)) if fields[1] else None
     if ddx is None:
         return omega, v, None, None
     rdd, ddd = split(ddx)
-    alpha = _vec2(qmul(rdd, rc))
-    a = _vec2(qmul(ddd, rc) + 2.0 * qmul(dd, rdc) + qmul(d, qconj(rdd)))
+    alpha = _vec2(qmul(rdd, rc)) if fields[2] else None
+    a = _vec2(qmul(ddd, rc) + 2.0 * qmul(dd, rdc) + qmul(d, qconj(rdd))) if fields[3] else None
     return omega, v, alpha, a
+
+
+def _evaluate(x: Tensor, dx: Tensor, ddx: Tensor | None, frame: str,
+              fields: tuple[bool, ...] = _ALL) -> tuple[Tensor | None, ...]:
+    """:func:`kinematics`' fields (those in ``fields``; the others None), arguments not
+    checked."""
+    dtype = x.dtype
+    x, dx = lift(x), lift(dx)
+    ddx = None if ddx is None else lift(ddx)
+    out = _world(x, dx, ddx, fields)
+    if frame == "body":
+        rc = qconj(x[..., :4])
+        out = tuple(None if v is None else qrotate(rc, v) for v in out)
+    batch = _checks.broadcast_shapes(*(v.shape[:-1] for v in (x, dx, ddx) if v is not None))
+    return tuple(None if u is None else u.expand(*batch, 3).to(dtype) for u in out)
+
+
+def body_field(x: Tensor, dx: Tensor, ddx: Tensor | None, field: int) -> Tensor:
+    """Field ``field`` (:class:`Kinematics`' order) of ``kinematics(x, dx, ddx,
+    frame="body")`` alone: the same numbers without the other fields' products (the IMU
+    terms' residuals read one each); arguments not checked."""
+    out = _evaluate(x, dx, ddx, "body", tuple(i == field for i in range(4)))[field]
+    assert out is not None  # the field asked for is computed
+    return out
 
 
 def kinematics(x: Tensor, dx: Tensor, ddx: Tensor | None = None,
@@ -121,15 +149,7 @@ def kinematics(x: Tensor, dx: Tensor, ddx: Tensor | None = None,
     _check_motion(fn, x, dx, ddx, False)
     if not isinstance(frame, str) or frame not in _FRAMES:
         _checks.fail(fn, f"frame must be 'world' or 'body', got {frame!r}")
-    dtype = x.dtype
-    x, dx = lift(x), lift(dx)
-    ddx = None if ddx is None else lift(ddx)
-    out = _world(x, dx, ddx)
-    if frame == "body":
-        rc = qconj(x[..., :4])
-        out = tuple(None if v is None else qrotate(rc, v) for v in out)
-    batch = _checks.broadcast_shapes(*(v.shape[:-1] for v in (x, dx, ddx) if v is not None))
-    omega, v, alpha, a = (None if u is None else u.expand(*batch, 3).to(dtype) for u in out)
+    omega, v, alpha, a = _evaluate(x, dx, ddx, frame)
     assert omega is not None and v is not None  # velocities are always computed
     return Kinematics(omega, v, alpha, a)
 

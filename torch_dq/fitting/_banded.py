@@ -36,25 +36,29 @@ __all__ = ["BandedCholesky"]
 
 
 def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
-    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero)."""
+    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero), ``n``
+    a multiple of ``g``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
+    matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
+    (no per-element index)."""
     *batch, n, w, s, _ = band.shape
     G = n // g
-    a = torch.arange(g, device=band.device)
-    j = torch.arange(G, device=band.device)[:, None, None]
-    rows = j * g + a[:, None]  # (G, g, 1)
-    cols = j * g + a[None, :]  # (G, 1, g)
-    lo, d = torch.broadcast_tensors(torch.minimum(rows, cols), (rows - cols).abs())
-    D = band[..., lo, d.clamp(max=w - 1), :, :] * (d < w)[..., None, None]
-    D = torch.where((rows > cols)[..., None, None], D.mT, D)
-    # E[j][a, b] = block (j g + a, (j - 1) g + b) = band[(j - 1) g + b, g + a - b]^T
-    prev = ((j - 1) * g + a[None, :]).clamp(min=0)  # (G, 1, g)
-    dist = g + a[:, None] - a[None, :]  # (g, g)
-    inside = (dist <= w - 1) & (j > 0)
-    prev, dist = torch.broadcast_tensors(prev, dist.clamp(max=w - 1).expand(G, g, g))
-    E = band[..., prev, dist, :, :].mT * inside[..., None, None]
+    rows = band.reshape(*batch, G, g, w, s, s)  # group j's block rows
+    zero = band.new_zeros(*batch, G, s, s)
+    D, E = [], []
+    for a in range(g):
+        for c in range(g):
+            d = abs(a - c)  # D_j (a, c): band[j g + min(a, c), d], transposed below the diagonal
+            blk = rows[..., min(a, c), d, :, :] if d < w else zero
+            D.append(blk.mT if a > c else blk)
+            # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band
+            dist = g + a - c
+            E.append(torch.cat((zero[..., :1, :, :], rows[..., :-1, c, dist, :, :].mT), -3)
+                     if dist < w else zero)
+    shape = (*batch, G, g, g, s, s)
     order = (*range(len(batch)), -5, -4, -2, -3, -1)  # (..., G, g, s, g, s)
-    return (D.permute(order).reshape(*batch, G, g * s, g * s),
-            E.permute(order).reshape(*batch, G, g * s, g * s))
+    Dm, Em = (torch.stack(x, -3).reshape(shape).permute(order).reshape(*batch, G, g * s, g * s)
+              for x in (D, E))
+    return Dm, Em
 
 
 def _pad(x: Tensor, count: int, front: bool = False) -> Tensor:

@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
-from typing import cast
 
 import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
+from .._kinematics import body_field
 from ._charts import Direction, Vector
 from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
@@ -94,11 +94,12 @@ class Gyro(_Imu):
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
-        w = curves.kinematics(x, dx, frame="body").angular_velocity
+        w = body_field(x, dx, None, 0)  # kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
-                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+                           nuisance: list[str], r: Tensor | None = None,
+                           ) -> tuple[Tensor, list[Tensor]] | None:
         """Closed form (``torch_dq.fitting._imu_jacobians.gyro_rows``)."""
         x, dx = derivs[0][:2]
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
@@ -106,7 +107,7 @@ class Gyro(_Imu):
         if steps is None:
             return None
         rows = self._whitened(gyro_rows(x, dx), 2)
-        return self.residuals(derivs, p), [rows, *steps]
+        return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
         """As :meth:`Term.values`; the first call (``estimate`` makes it at its start) also
@@ -123,7 +124,7 @@ class Gyro(_Imu):
 
 
 _DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad/s
-_UNITS_SAMPLES = 1 << 15  # samples the units check reads at most
+_UNITS_SAMPLES = 1 << 12  # samples the units check reads at most (a mean: 4096 do)
 
 
 def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
@@ -301,14 +302,14 @@ class Accel(_Imu):
 
     def _residual(self, ev, p):
         x, dx, ddx = ev[0][:3]
-        k = curves.kinematics(x, dx, ddx, frame="body")
-        q = dualquat.to_rt(x)[0]
+        a = body_field(x, dx, ddx, 3)  # kinematics(..., frame="body").linear_acceleration
+        q = x[..., :4]  # the rotation (dualquat.to_rt's, without its translation)
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
-        a = cast(Tensor, k.linear_acceleration)  # not None: ddx given
         return a - g + p["bias"] - self.readings.to(g.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
-                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+                           nuisance: list[str], r: Tensor | None = None,
+                           ) -> tuple[Tensor, list[Tensor]] | None:
         """Closed form (``torch_dq.fitting._imu_jacobians.accel_rows``)."""
         x, dx, ddx = derivs[0][:3]
         gravity = p["gravity"].to(x.dtype)
@@ -318,7 +319,7 @@ class Accel(_Imu):
                                           "gravity": toward_g})
         if steps is None:
             return None
-        return self.residuals(derivs, p), [self._whitened(rows, 2), *steps]
+        return self.residuals(derivs, p) if r is None else r, [self._whitened(rows, 2), *steps]
 
 
 _STANDARD_GRAVITY = 9.80665  # m/s^2 per g

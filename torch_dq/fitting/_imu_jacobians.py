@@ -50,8 +50,8 @@ def gyro_rows(x: Tensor, dx: Tensor) -> Tensor:
     r"""``(..., N, 3, 2, 8)``: the body rate's rows with respect to ``x`` and ``dx`` ``(...,
     N, 8)`` (module doc: :math:`\partial_{\dot r} = 2 r e_j`, :math:`\partial_r = 2 C(e_j
     \dot r^*) = -2 \dot r e_j`; the dual parts and the sigmas left to the caller: zero,
-    1)."""
-    out = x.new_zeros(*x.shape[:-1], 3, 2, 8)
+    1); component-major in memory (``(3, 2, 8, ...)`` permuted, as :func:`accel_rows`)."""
+    out = x.new_zeros(3, 2, 8, *x.shape[:-1]).movedim((0, 1, 2), (-3, -2, -1))
     q = torch.stack((dx[..., :4], x[..., :4]), -2)  # (..., N, 2, 4)
     scale = x.new_tensor([-2.0, 2.0])[:, None, None]
     out[..., :4] = _times_units(q, scale).transpose(-3, -2)
@@ -85,8 +85,8 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     (world axes; module doc; the sigmas left to the caller). With :math:`H = (0, h)` pure
     (:math:`C(a^* H) = -H a`, :math:`C(e_j r^* U) = U r e_j`) every row is :math:`H` times
     one of ``Q`` below, :math:`(-h \cdot q_v,\ q_0 h + h \times q_v)`, in component-major
-    rows (``(3, 6, 4, N)``, one transpose to the caller's layout), and :math:`\partial_r`
-    adds :math:`-2 U r e_j`."""
+    rows (``(3, 6, 4, N)``, returned as a permuted view: the span's vector-Jacobian
+    products read them component-major), and :math:`\partial_r` adds :math:`-2 U r e_j`."""
     lead = x.shape[:-1]
     X = torch.cat((x, dx, ddx), -1).reshape(-1, 24).T.contiguous()
     r, d, rd, dd, rdd, ddd = X.view(6, 4, -1)
@@ -109,5 +109,5 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     torch.sum(p[1:], 0, out=p[0]).neg_()
     torch.linalg.cross(u, r[1:], dim=0, out=p[1:]).addcmul_(u, r[0])
     out[:, :, 0] += _times_units(p.T, -2.0).permute(2, 1, 0)
-    return (rows.view(72, -1).T.contiguous().view(*lead, 3, 3, 8),
+    return (rows.view(72, -1).T.view(*lead, 3, 3, 8),
             (-0.5 * h).permute(2, 1, 0).reshape(*lead, 3, 3))

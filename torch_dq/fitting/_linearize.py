@@ -65,31 +65,40 @@ MEMO_BYTES = 1 << 25  # span derivatives a point keeps for its system (Memo)
 
 
 class Memo:
-    """The span derivatives of a point, by (group, part): what :func:`group_residuals`
-    evaluated for a trial's cost and :meth:`Linearization.system` takes (and drops) when the
-    trial is accepted, instead of evaluating them again (a group, ``Problem.groups``, by its
-    first term: its members' derivatives are kept once). At most ``MEMO_BYTES`` of them: a
-    long record's would raise the peak memory by as much (235 MB for an hour of 200 Hz IMU),
-    and its parts are evaluated again instead."""
+    """The span derivatives of a point, by (group, part), and the group's members' whitened
+    residuals there: what :func:`group_residuals` evaluated for a trial's cost and
+    :meth:`Linearization.system` takes (and drops) when the trial is accepted, instead of
+    evaluating them again (a group, ``Problem.groups``, by its first term: its members'
+    derivatives are kept once). At most ``MEMO_BYTES`` of them: a long record's would raise
+    the peak memory by as much (235 MB for an hour of 200 Hz IMU), and its parts are
+    evaluated again instead."""
 
     def __init__(self) -> None:
         self.entries: dict[tuple[int, int], list[tuple[Tensor, ...]]] = {}
+        self.residuals: dict[tuple[int, int], list[Tensor]] = {}
         self.left = MEMO_BYTES
         #: ``(..., N)`` bool by term index: the observations with a prediction at the point,
         #: for the terms that can lose some (:meth:`~torch_dq.fitting.Term.seen`), kept
         #: whatever the budget
         self.seen: dict[int, Tensor] = {}
 
-    def put(self, key: tuple[int, int], derivs: list[tuple[Tensor, ...]]) -> None:
-        """Keep ``derivs`` (group, part ``key``) within the budget."""
-        size = sum(d.numel() * d.element_size() for ds in derivs for d in ds)
+    def put(self, key: tuple[int, int], derivs: list[tuple[Tensor, ...]],
+            residuals: list[Tensor]) -> None:
+        """Keep ``derivs`` and the members' ``residuals`` (group, part ``key``) within the
+        budget."""
+        size = sum(d.numel() * d.element_size() for d in (*(d for ds in derivs for d in ds),
+                                                          *residuals))
         if size <= self.left:
-            self.entries[key] = derivs
+            self.entries[key], self.residuals[key] = derivs, residuals
             self.left -= size
 
-    def take(self, key: tuple[int, int]) -> list[tuple[Tensor, ...]] | None:
-        """The derivatives kept for ``key`` (dropped from the memo), or None."""
-        return self.entries.pop(key, None)
+    def take(self, key: tuple[int, int],
+             ) -> tuple[list[tuple[Tensor, ...]], list[Tensor]] | None:
+        """The derivatives and residuals kept for ``key`` (dropped from the memo), or
+        None."""
+        if key not in self.entries:
+            return None
+        return self.entries.pop(key), self.residuals.pop(key)
 
 
 def residuals(problem, i: int, ctrl: Tensor, values: list[Tensor]) -> Tensor:
@@ -114,12 +123,14 @@ def group_residuals(problem, group: tuple[int, ...], ctrl: Tensor, values: list[
         ps = [term.per_sample(v) for term, v in zip(parts, vals, strict=True)]
         derivs = _part_derivatives(problem.spans, parts[0], ctrl, parts[0].time_shift(ps[0]),
                                    order)
+        part = [term.residuals([d[:term.order + 1] for d in derivs], p)
+                for term, p in zip(parts, ps, strict=True)]
         if memo is not None:
-            memo.put((group[0], k), derivs)
-        for rows, sees, term, p in zip(out, seen, parts, ps, strict=True):
-            ev = [d[:term.order + 1] for d in derivs]
-            rows.append(term.residuals(ev, p))
-            if memo is not None and (s := term.seen(ev, p)) is not None:
+            memo.put((group[0], k), derivs, part)
+        for rows, sees, r, term, p in zip(out, seen, part, parts, ps, strict=True):
+            rows.append(r)
+            if memo is not None and (s := term.seen([d[:term.order + 1] for d in derivs],
+                                                    p)) is not None:
                 sees.append(s)
     if memo is not None:
         memo.seen.update({i: torch.cat(s, -1) for i, s in zip(group, seen, strict=True) if s})
@@ -192,9 +203,9 @@ class Linearization:
     def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
                ) -> System:
         """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
-        derivatives taken, and dropped, from ``memo`` where :func:`group_residuals` kept
-        them at this point), a group of terms read at the same times (``Problem.groups``)
-        and a part of its samples at a time.
+        derivatives and the residuals taken, and dropped, from ``memo`` where
+        :func:`group_residuals` kept them at this point), a group of terms read at the same
+        times (``Problem.groups``) and a part of its samples at a time.
 
         Each term's rows carry only the nuisance columns its samples' windows touch
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
@@ -215,22 +226,27 @@ class Linearization:
         return acc.system([torch.cat(r, -2) for r in rs], [torch.cat(x, -1) for x in weights])
 
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
-                  values: list[Tensor], w: int, derivs: list[tuple[Tensor, ...]] | None,
+                  values: list[Tensor], w: int,
+                  known: tuple[list[tuple[Tensor, ...]], list[Tensor]] | None,
                   ) -> list[tuple[Tensor, Tensor]]:
         """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
-        samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives ``derivs``
-        where known) to ``acc``, a term after the other; their residuals and robust
-        weights."""
+        samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives and residuals
+        ``known`` where known, :class:`Memo`) to ``acc``, a term after the other; their
+        residuals and robust weights."""
         G = acc.band.shape[0]
         out = []
         for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
-                group, terms, ctrl, values, w, derivs), strict=True):
+                group, terms, ctrl, values, w, *(known or (None,))), strict=True):
             wt = _weights(term, r)
             keys = self._windows(f0, w)
             local, gcols, valid = self._columns(i, Jn, keys, G)
+            # every sample's window takes all the term's columns, in order: none selected
+            plain = (local.shape[-1] == sum(J.shape[-1] for J in Jn.values())
+                     and bool(valid[keys].all()))
             for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
                 k = keys[:, a:a + _ROWS]
-                Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w, local[k], valid[k])
+                Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w,
+                               None if plain else (local[k], valid[k]))
                 win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
                 acc.add(win, block, gcols[win])
             out.append((r, wt))
@@ -258,24 +274,32 @@ class Linearization:
         return local, torch.cat(glob)[local], touched.gather(-1, local)
 
     def _rows(self, c: slice, r: Tensor, wt: Tensor, Jc: Tensor,
-              Jn: dict[str, Tensor], w: int, local: Tensor, valid: Tensor) -> Tensor:
+              Jn: dict[str, Tensor], w: int, cols: tuple[Tensor, Tensor] | None) -> Tensor:
         """``(Bf, S, k, 6 w + M + 1)``: the whitened rows ``[J_c | J_n | r]`` of the term's
         samples ``c`` weighted by the square roots of their robust weights ``wt``,
-        ``J_n`` in their windows' columns ``local (Bf, S, M)`` (zero where not ``valid``)."""
+        ``J_n`` in their windows' columns ``cols = (local, valid)``: ``local (Bf, S, M)``,
+        zero where not ``valid`` (None: all the term's columns, in order)."""
         p = self.p
         Bf, k = max(p.batch.numel(), 1), r.shape[-1]
         r, wt, Jc = r[..., c, :], wt[..., c], Jc[..., c, :, :, :]
-        S = r.shape[-2]
+        own = [J[..., c, :, :].expand(*p.batch, r.shape[-2], k, J.shape[-1]).reshape(
+            Bf, -1, k, J.shape[-1]) for J in Jn.values()]
+        S, M = r.shape[-2], sum(J.shape[-1] for J in own) if cols is None else cols[0].shape[-1]
         sw = wt.expand(*p.batch, S).reshape(Bf, S, 1, 1).sqrt()
-        cols = [Jc.expand(*p.batch, S, k, w, 6).reshape(Bf, S, k, 6 * w)]
-        if local.shape[-1]:
-            own = torch.cat([J[..., c, :, :].expand(*p.batch, S, k, J.shape[-1]).reshape(
-                Bf, S, k, J.shape[-1]) for J in Jn.values()], -1)
-            M = local.shape[-1]
-            cols.append(own.gather(-1, local[:, :, None, :].expand(Bf, S, k, M))
-                        * valid[:, :, None, :])
-        cols.append(r.expand(*p.batch, S, k).reshape(Bf, S, k, 1))
-        return torch.cat(cols, dim=-1) * sw
+        out = r.new_empty(Bf, S, k, 6 * w + M + 1)  # each block weighted into its columns
+        torch.mul(Jc.expand(*p.batch, S, k, w, 6).reshape(Bf, S, k, w, 6), sw[..., None],
+                  out=out[..., :6 * w].unflatten(-1, (w, 6)))
+        if cols is None:
+            a = 6 * w
+            for J in own:
+                torch.mul(J, sw, out=out[..., a:a + J.shape[-1]])
+                a += J.shape[-1]
+        elif M:
+            local, valid = cols
+            torch.mul(torch.cat(own, -1).gather(-1, local[:, :, None, :].expand(Bf, S, k, M)),
+                      valid[:, :, None, :], out=out[..., 6 * w:-1]).mul_(sw)
+        torch.mul(r.expand(*p.batch, S, k).reshape(Bf, S, k), sw[..., 0], out=out[..., -1])
+        return out
 
     def _windows(self, f0: Tensor, w: int) -> Tensor:
         """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""
@@ -291,11 +315,13 @@ class Linearization:
 
     def _group_chained(self, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                        values: list[Tensor], w: int,
-                       known: list[tuple[Tensor, ...]] | None = None) -> list[tuple]:
+                       known: list[tuple[Tensor, ...]] | None = None,
+                       residuals: list[Tensor] | None = None) -> list[tuple]:
         """Per term of ``terms`` (the terms ``group``, or a part of each, read at the same
-        times): per-sample whitened residuals ``(..., N, k)``, the window start and their
-        Jacobians. The span derivatives at the current point (``known``, or evaluated once
-        to the highest order a term reads), each term's residual Jacobians with respect to
+        times): per-sample whitened residuals ``(..., N, k)`` (``residuals`` where known:
+        the trial cost's at this point), the window start and their Jacobians. The span
+        derivatives at the current point (``known``, or evaluated once to the highest order
+        a term reads), each term's residual Jacobians with respect to
         them and to its nuisance steps, chained through the spans together
         (``_through_spans``: the terms' rows stacked, a lower order's padded with zeros), the
         times' to the time-moving parameters by their rates (a term of its own: a group's
@@ -320,8 +346,9 @@ class Linearization:
                                                                          strict=True)]
         jac = [self._residual_jacobians(i, term, v, [x for x in est if x not in tm],
                                         [d[..., :term.order + 1, :] for d in derivs],
-                                        gathered.shape[:-2])
-               for i, term, v, est, tm in zip(group, terms, vals, ests, timed, strict=True)]
+                                        gathered.shape[:-2], r)
+               for i, term, v, est, tm, r in zip(group, terms, vals, ests, timed,
+                                                 _or_none(residuals, len(terms)), strict=True)]
         L = len(derivs)
         Jd = [_stacked([J[l] for _, J in jac], top + 1) for l in range(L)]
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, Jd, top,
@@ -354,15 +381,15 @@ class Linearization:
         return f0, span_points(ctrl, f0, w), offs
 
     def _residual_jacobians(self, i: int, term, vals: dict[str, Tensor], nuisance: list[str],
-                            derivs: list[Tensor], shape: torch.Size,
+                            derivs: list[Tensor], shape: torch.Size, r: Tensor | None = None,
                             ) -> tuple[Tensor, list[Tensor]]:
         """Residuals of ``term`` (term ``i`` or a part) and their Jacobians with respect to
         the span derivatives ``derivs (..., N, order + 1, 8)`` and to the chart steps of its
-        ``nuisance`` parameters (``sample_jacobians``: one reverse pass over ``k``
-        copies)."""
+        ``nuisance`` parameters (the term's closed form, which takes the residuals ``r``
+        where known; else ``sample_jacobians``: one reverse pass over ``k`` copies)."""
         L = len(derivs)
         closed = term.residual_jacobians([d.unbind(-2) for d in derivs], term.per_sample(vals),
-                                         nuisance)
+                                         nuisance, r)
         if closed is not None:
             return closed
         slots = term.slots()
@@ -462,6 +489,9 @@ class Linearization:
         *shape, N, w, _ = gathered.shape
         k, sup = Jd[0].shape[-3], self.spans.support
         whole = w == sup and len(times) == 1  # the window is the span (offsets 0 .. w - 1)
+        if whole and N <= _CHUNK:  # one chunk: the layer's rows as they are (no copy)
+            G = self.spans.vjp(gathered, times[0], firsts[0], Jd[0], poses[0])
+            return None if G is None else G.expand(*shape, N, k, w, 6)
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         for a in range(0, N, _CHUNK):
             c = slice(a, a + _CHUNK)
@@ -541,6 +571,11 @@ class Linearization:
         return Dc, Dt
 
 
+def _or_none(xs: list[Tensor] | None, n: int) -> list[Tensor | None]:
+    """``xs``, or ``n`` times None."""
+    return [None] * n if xs is None else list(xs)
+
+
 def _weights(term, r: Tensor) -> Tensor:
     """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)``, masked samples'
     zero."""
@@ -550,14 +585,18 @@ def _weights(term, r: Tensor) -> Tensor:
 
 def _stacked(Js: list[Tensor], O: int) -> Tensor:
     """The rows ``Js`` (each ``(..., N, k_j, o_j, 8)``, ``o_j <= O``) of a group's terms as one
-    ``(..., N, sum k_j, O, 8)``, the orders a term does not read zero."""
+    ``(..., N, sum k_j, O, 8)``, the orders a term does not read zero; component-major in
+    memory (``(sum k_j, O, 8, ..., N)`` permuted: the layout the span's vector-Jacobian
+    products read, and the closed-form rows' own, so each copy here is a row copy)."""
     if len(Js) == 1 and Js[0].shape[-2] == O:
         return Js[0]
     lead = torch.broadcast_shapes(*(J.shape[:-3] for J in Js))
-    out = Js[0].new_zeros(*lead, sum(J.shape[-3] for J in Js), O, 8)
+    out = Js[0].new_empty(sum(J.shape[-3] for J in Js), O, 8, *lead).movedim(
+        (0, 1, 2), (-3, -2, -1))
     a = 0
     for J in Js:
         out[..., a:a + J.shape[-3], :J.shape[-2], :] = J
+        out[..., a:a + J.shape[-3], J.shape[-2]:, :] = 0.0
         a += J.shape[-3]
     return out
 
@@ -646,7 +685,8 @@ def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
 
     The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
     per used window: at most about twice as many pages as used windows, the padding at
-    most ``S``), one product per page, the pages summed into their windows.
+    most ``S``), one product per page, the pages summed into their windows: each sample's
+    rows copied once to their slot, the padding slots alone zeroed.
     """
     S, k, q = Y.shape
     windows, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
@@ -654,13 +694,15 @@ def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
     if S == 0:
         return windows, Y.new_zeros(0, q, q)
     order = torch.argsort(inverse, stable=True)
-    inverse = inverse[order]
     P = -(-S // U)
-    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[inverse]
+    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[inverse[order]]
     pages = -(-counts // P)
     first_page = torch.cumsum(pages, 0) - pages
-    X = Y.new_zeros(int(pages.sum()) * P, k, q)
-    X[first_page[inverse] * P + pos] = Y[order]  # page first_page + pos // P, slot pos % P
+    # sample order[i] goes to page first_page + pos[i] // P, slot pos[i] % P
+    slot = torch.empty_like(order).index_put_((order,), first_page[inverse[order]] * P + pos)
+    X = Y.new_empty(int(pages.sum()) * P, k, q).index_copy_(0, slot, Y)
+    pad = torch.ones(X.shape[0], dtype=torch.bool, device=keys.device).index_fill_(0, slot, False)
+    X[pad] = 0.0
     X = X.reshape(-1, P * k, q)
     owner = torch.repeat_interleave(torch.arange(U, device=keys.device), pages)
     return windows, Y.new_zeros(U, q, q).index_add_(0, owner, X.mT @ X)

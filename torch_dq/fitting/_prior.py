@@ -130,12 +130,12 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
         # with nuisance: relative to the window's best-determined direction, at most typical
         cut = ((threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL) if nuisance
                else threshold)
-        W = torch.zeros_like(A)
-        W[weak] = (V * torch.where(lam < cut, prior, 0.0)[..., None, :]) @ V.mT * outer[
-            weak.nonzero()[:, 0], 0]
-        for a in range(v):
+        bi, ki = weak.nonzero().unbind(-1)
+        W = (V * torch.where(lam < cut, prior, 0.0)[..., None, :]) @ V.mT * outer[bi, 0]
+        for a in range(v):  # the weak windows' blocks alone (the others add nothing)
             for b in range(a, v):
-                pull[:, lo + a:hi + a, b - a] += W[:, :, 6 * a:6 * a + 6, 6 * b:6 * b + 6]
+                pull.index_put_((bi, lo + a + ki, torch.full_like(ki, b - a)),
+                                W[:, 6 * a:6 * a + 6, 6 * b:6 * b + 6], accumulate=True)
     return pull[:, :n]
 
 

@@ -400,7 +400,8 @@ class Term(torch.nn.Module):
         return None
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
-                           nuisance: list[str]) -> tuple[Tensor, list[Tensor]] | None:
+                           nuisance: list[str], r: Tensor | None = None,
+                           ) -> tuple[Tensor, list[Tensor]] | None:
         """Whitened residuals and their Jacobians in closed form, or None (the default: the
         linearisation differentiates :meth:`residuals` by a reverse pass).
 
@@ -408,6 +409,8 @@ class Term(torch.nn.Module):
             derivs: as :meth:`residuals` (the derivatives ``0 .. order``, ``(..., N, 8)``).
             p: per-sample values (:meth:`per_sample`).
             nuisance: the estimated parameters the residual reads, in order.
+            r: the whitened residuals at ``(derivs, p)`` where known (a trial's cost
+                evaluated them at this point), returned as they are; None: evaluated.
 
         Returns:
             ``r (..., N, k)`` and the Jacobians with respect to each time argument's
