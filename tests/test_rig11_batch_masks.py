@@ -58,7 +58,7 @@ def _start(tc, q, pc):
 
 def _pad(rows, fill):
     n = max(len(r) for r in rows)
-    out = np.stack([np.concatenate([r, np.full((n - len(r),) + r.shape[1:], fill)])
+    out = np.stack([np.concatenate([r, np.full((n - len(r), *r.shape[1:]), fill)])
                     for r in rows])
     mask = np.stack([np.arange(n) < len(r) for r in rows])
     return _t(out), torch.from_numpy(mask)
