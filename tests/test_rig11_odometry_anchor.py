@@ -85,3 +85,26 @@ def test_a_time_past_the_last_sample_is_inf_with_a_warning(solved):
     with pytest.warns(RuntimeWarning, match="an end without samples"):
         std = est.pose_std(torch.tensor([1.0, 3.05], dtype=torch.float64))
     assert bool(torch.isfinite(std[0]).all()) and bool(torch.isinf(std[1]).all()), std
+
+
+def test_the_edges_of_a_time_gap_on_knots_are_finite_inside_inf():
+    """Poses every 50 ms with a masked gap (1.5, 2.5), knots every 0.1 s: the poses at the
+    gap's edges (measured, on knots) have finite standard deviations, equal by the time
+    reversal symmetry of the design (1.4 and 2.6 likewise); only inside the gap inf. Before,
+    1.5 was inf: the point whose support starts at 1.5 has no data and a zero weight there."""
+    tc = np.arange(0.0, 4.0 + 1e-9, 0.05)
+    keep = torch.from_numpy((tc <= 1.5 + 1e-9) | (tc >= 2.5 - 1e-9))
+    rng = np.random.default_rng(1)
+    cam = _dq(rotation(tc) * Rotation.from_rotvec(S * rng.standard_normal((len(tc), 3))),
+              position(tc) + S * rng.standard_normal((len(tc), 3)))
+    spline = BSpline.from_dualquats(cam, torch.from_numpy(tc), form="cumulative", degree=4,
+                                    n_ctrl=44)  # knots every 0.1 s
+    est = estimate(spline, [Poses(torch.from_numpy(tc), cam, rot_sigma=S, trans_sigma=S,
+                                  mask=keep)], verbose=False)
+    with pytest.warns(RuntimeWarning, match="a time gap"):
+        std = est.pose_std(torch.tensor([1.4, 1.5, 1.5005, 2.0, 2.4995, 2.5, 2.6],
+                                        dtype=torch.float64)).numpy()
+    assert np.all(np.isinf(std[2:5])), std
+    edges = std[[0, 1, 5, 6]]
+    assert np.all(np.isfinite(edges)) and np.all(edges < 1.1 * S), edges
+    np.testing.assert_allclose(std[[0, 1]], std[[6, 5]], rtol=1e-3)
