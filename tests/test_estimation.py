@@ -542,7 +542,7 @@ def test_terms_validate_their_arguments():
     lambda t, y: Accel(t, y, sigma=1.0),
     lambda t, y: Positions(t, y, sigma=1.0),
     lambda t, y: Poses(t, dq.identity((t.shape[0],), dtype=F64), rot_sigma=1, trans_sigma=1),
-    lambda t, y: RelativePoses(t, t, dq.identity((t.shape[0],), dtype=F64), rot_sigma=1,
+    lambda t, y: RelativePoses(t, t + 1e-3, dq.identity((t.shape[0],), dtype=F64), rot_sigma=1,
                                trans_sigma=1),
 ])
 def test_float32_unix_times_are_refused(make):

@@ -31,6 +31,7 @@ import torch
 from torch import Tensor
 
 from ..fitting import Accel, Free, Gyro
+from ..fitting._imu import check_repeated
 
 __all__ = ["WalkAccel", "WalkGyro", "segments"]
 
@@ -42,9 +43,11 @@ def segments(lo: float, hi: float, interval: float) -> Tensor:
     return torch.linspace(lo, hi, k + 1, dtype=torch.float64)
 
 
-def _samples(times: Tensor, readings: Tensor, edges: Tensor):
+def _samples(fn: str, times: Tensor, readings: Tensor, edges: Tensor):
     """Times and readings with a zero pseudo-sample at each inner edge (sorted, stable),
-    each sample's segment ``(N + K - 1,)`` and the pseudo-samples' mask."""
+    each sample's segment ``(N + K - 1,)`` and the pseudo-samples' mask. The readings'
+    times are checked for repeats here: a pseudo-sample may share a reading's time."""
+    check_repeated(fn, times, torch.ones_like(times, dtype=torch.bool))
     inner = edges[1:-1]
     t = torch.cat((times, inner))
     order = torch.argsort(t, stable=True)
@@ -60,6 +63,7 @@ class _Walk:
     """Mixin of :class:`WalkGyro` and :class:`WalkAccel`: per-segment biases and ties."""
 
     sigma: Tensor
+    _unique_times = False  # the pseudo-samples may share a reading's time (_samples checks)
     segment: Tensor  # (N,) each sample's segment (a tie's: the first of the two)
     link: Tensor  # (N,) bool: the sample is a tie
     _slots: dict
@@ -108,7 +112,7 @@ class WalkGyro(_Walk, Gyro):
 
     def __init__(self, times: Tensor, readings: Tensor, *, sigma: float, edges: Tensor,
                  walk: float, starts: Tensor) -> None:
-        t, r, seg, link = _samples(times, readings, edges)
+        t, r, seg, link = _samples(self._fn, times, readings, edges)
         super().__init__(t, r, sigma=sigma, bias=Free(start=starts[0]))
         self._walk(self._fn, seg, link, walk, edges, starts)
 
@@ -124,7 +128,7 @@ class WalkAccel(_Walk, Accel):
 
     def __init__(self, times: Tensor, readings: Tensor, *, sigma: float, edges: Tensor,
                  walk: float, starts: Tensor, gravity) -> None:
-        t, r, seg, link = _samples(times, readings, edges)
+        t, r, seg, link = _samples(self._fn, times, readings, edges)
         super().__init__(t, r, sigma=sigma, bias=Free(start=starts[0]), gravity=gravity)
         self._walk(self._fn, seg, link, walk, edges, starts)
 

@@ -21,21 +21,37 @@ from .._kinematics import body_field
 from ._charts import Direction, Vector
 from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
-from ._terms import Options, Term, _masked, _nuisance, _sigma, _vector_data
+from ._terms import Options, Term, _first_bad, _masked, _nuisance, _sigma, _vector_data
 
-__all__ = ["Accel", "Gyro", "degrees_message"]
+__all__ = ["Accel", "Gyro", "check_repeated", "degrees_message"]
+
+
+def check_repeated(fn: str, times: Tensor, mask: Tensor) -> None:
+    """Fail where a valid sample repeats the time of the valid one before it (``times`` as
+    filled by the term: masked ones carry the largest valid time before them): an inertial
+    sensor samples each instant once, and a logger's repeated stamp would count a reading
+    twice or put two at one instant, silently."""
+    m = (mask if times.dim() == mask.dim() else mask.any(0)).expand(times.shape)
+    before = (m.cumsum(-1) - m.long()) > 0  # a valid sample earlier in the row
+    bad = m[..., 1:] & before[..., 1:] & (times[..., 1:] == times[..., :-1])
+    _first_bad(fn, "times must be strictly increasing (an IMU samples each instant once)",
+               torch.cat((torch.zeros_like(bad[..., :1]), bad), -1),
+               " (its time repeats the sample before: drop the repeated samples, or mask them)")
 
 
 class _Imu(Term):
     """Shared construction of the inertial terms: readings ``(..., N, 3)``, bias."""
 
     dim = 3
+    _unique_times = True  # False where a subclass adds samples of its own (checked before)
 
     def __init__(self, times, readings, sigma, bias, options: Options) -> None:
         fn = self._fn
         readings = _vector_data(fn, "readings", readings)
         super().__init__([times], ["times"], readings, 1, _sigma(fn, "sigma", sigma, 3),
                          options)
+        if self._unique_times:
+            check_repeated(fn, self.times, self.mask)
         self._buffer("readings", _masked(readings, options.mask, 0.0), 1)
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
         self._units_checked = False  # the readings' units, checked once (first values())
@@ -69,7 +85,8 @@ class Gyro(_Imu):
     r"""Gyroscope readings :math:`R^T \omega + b_g` (body axes, rad/s).
 
     Args:
-        times: ``(N,)`` or ``(B, N)`` times.
+        times: ``(N,)`` or ``(B, N)`` times, strictly increasing over the valid samples (a
+            repeated stamp is a ValueError).
         readings: ``(..., N, 3)`` angular rates (rad/s, body axes).
         sigma: noise (rad/s), a float or 3.
         bias: ``(3,)`` bias, fixed or estimated (start zero).
@@ -230,7 +247,8 @@ class Accel(_Imu):
     r"""Accelerometer readings (specific force) :math:`R^T (a - g) + b_a` (body axes).
 
     Args:
-        times: ``(N,)`` or ``(B, N)`` times.
+        times: ``(N,)`` or ``(B, N)`` times, strictly increasing over the valid samples (a
+            repeated stamp is a ValueError).
         readings: ``(..., N, 3)`` specific forces (body axes, e.g. m/s²).
         sigma: noise, a float or 3.
         bias: ``(3,)`` bias, fixed or estimated (start zero).

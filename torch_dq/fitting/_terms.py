@@ -621,7 +621,8 @@ class RelativePoses(_PoseTerm):
     r"""Relative poses (odometry) :math:`x(t_{from})^{-1} x(t_{to})`.
 
     Args:
-        times_from, times_to: ``(N,)`` or ``(B, N)`` times of each pair.
+        times_from, times_to: ``(N,)`` or ``(B, N)`` times of each pair (in any order;
+            the two times of a valid pair differ).
         poses: ``(..., N, 8)`` or ``(..., N, 4, 4)`` measured relative poses (to-frame in
             from-frame); normalized on construction.
         rot_sigma: rotation noise (radians; to-frame axes); trans_sigma: translation noise
@@ -641,6 +642,11 @@ class RelativePoses(_PoseTerm):
         self._store_poses([times_from, times_to], ["times_from", "times_to"], poses, rot_sigma,
                           trans_sigma, Options(time_offset, max_time_offset, robust, robust_k,
                                                mask))
+        a, b = self.times_list()
+        valid = (self.mask if a.dim() == self.mask.dim() else self.mask.any(0)).expand(a.shape)
+        _first_bad(self._fn, "times_from and times_to must differ (a pair at one instant "
+                             "predicts the identity whatever the trajectory)", valid & (a == b),
+                   " (mask it, or check the time columns)")
 
     def _residual(self, ev, p):
         return self._pose_residual(dualquat.mul(dualquat.conj(ev[0][0]), ev[1][0]))

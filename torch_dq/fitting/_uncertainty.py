@@ -355,6 +355,16 @@ class Estimate:
                           f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
                           RuntimeWarning, stacklevel=4)
 
+    def _loads_free(self, J: Tensor, idx: Tensor) -> Tensor:
+        """``(Bf, T, k)`` bool: the outputs with a component on a control point without data
+        information (``J (Bf, T, k, sup 6)`` on the window ``idx (Bf, T, sup)``) above
+        roundoff of the row's largest: a knot at a query time leaves the point whose support
+        starts there with an exactly zero weight, and the pose there does not depend on it."""
+        Bf, T, sup = idx.shape
+        free = self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(Bf, T, 1, sup, 1)
+        a = J.reshape(Bf, T, J.shape[2], sup, 6).abs()
+        return (a * free).amax((-1, -2)) > 1e-12 * a.amax((-1, -2))
+
     def _undetermined(self, J: Tensor, f: Tensor, sup: int, cvar: Tensor) -> Tensor:
         """``(Bf, T, k)`` bool: the kinematic outputs whose control-point variance ``cvar``
         halves with ``_LOOSE`` times the regularisation (a combination of control points
@@ -505,9 +515,9 @@ class Estimate:
                 Bf, T * sup, 6, p.m)).reshape(Bf, T, sup * 6, p.m)
             var = var + self._quadratic(J @ Zw)
         std = var.clamp_min(0.0).sqrt()
-        gap = self._free.gather(1, idx.reshape(Bf, T * sup)).reshape(Bf, T, sup).any(-1)
-        null = self._undetermined(J, f, sup, cvar) & ~gap[..., None]
-        std = torch.where(self._ok[:, None, None] & ~gap[..., None] & ~null, std, torch.inf)
+        gap = self._loads_free(J, idx)
+        null = self._undetermined(J, f, sup, cvar) & ~gap
+        std = torch.where(self._ok[:, None, None] & ~gap & ~null, std, torch.inf)
         if bool(gap.any()) or bool(null.any()) or not bool(self._ok.all()):
             why = ("a time gap or an end without samples" if bool(gap.any()) else
                    "combinations of control points that no sample resolves: more control "
