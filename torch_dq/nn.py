@@ -545,7 +545,7 @@ class BSpline(Curve):
         else:
             t0, t1 = float(t64[0]) - margin, float(t64[-1]) + margin
         if knot_spacing is not None:  # the longest row's span at most knot_spacing apart
-            span = float(torch.as_tensor(t1 - t0).max())
+            span = float(torch.as_tensor(t1 - t0, dtype=torch.float64).max())
             n_ctrl = max(math.ceil(span / knot_spacing - 1e-9), 1) + degree
         elif n_ctrl is None:  # chosen from the data
             n_ctrl = _chosen_n_ctrl(fn, x, t64, degree, form)
