@@ -214,13 +214,16 @@ class Estimate:
         r"""Per term ``(...)`` float: the term's residual components (unmasked samples)
         less its share of the estimated parameters. The parameters are ``6 n`` (control
         points) less the directions kept by ``estimate``'s ``prior`` (no data information),
-        plus the ``m`` nuisance chart coordinates; they are shared among the terms in
-        proportion to their residual counts: :math:`\nu_t = N_t (1 - p / \sum_u N_u)`."""
+        plus the ``m`` nuisance chart coordinates, and at most the residual components (the
+        data determine no more combinations than they have components: knots finer than the
+        samples give zero, not a negative count); they are shared among the terms in
+        proportion to their residual counts: :math:`\nu_t = N_t (1 - \min(p / \sum_u N_u,
+        1))`."""
         counts = self._per_term("count")
         total = sum(counts.values())
         p = self._problem
-        params = 6 * p.n - self._pulled + p.m
-        return {t: c * (1.0 - params / total.clamp_min(1.0)) for t, c in counts.items()}
+        share = ((6 * p.n - self._pulled + p.m) / total.clamp_min(1.0)).clamp(max=1.0)
+        return {t: c * (1.0 - share) for t, c in counts.items()}
 
     def _factor_scale(self) -> Tensor:
         r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
