@@ -219,13 +219,15 @@ class Curve(torch.nn.Module, abc.ABC):
                                   order)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
-                 pose: Tensor) -> Tensor | None:
+                 pose: Tensor, second: slice | None = None) -> Tensor | None:
         r"""Closed-form vector-Jacobian products of :meth:`evaluate_span` (``points``,
         ``local``, ``first`` as there; the samples of one span share their points) with
         respect to right steps :math:`c_j \exp(\delta_j)` of the points: ``(..., k, w, 6)``
         from ``cotangents (..., k, O, 8)`` of the pose and its time derivatives ``0 .. O -
-        1`` (``O <= 3``), ``pose (..., 8)`` the pose there. None where the layer has none
-        (the base class): the estimation then runs reverse passes."""
+        1`` (``O <= 3``), ``pose (..., 8)`` the pose there; ``second``: the rows ``k`` whose
+        second-order cotangents may be nonzero (None: all; the others' zero, which a layer
+        may skip). None where the layer has none (the base class): the estimation then runs
+        reverse passes."""
         return None
 
     @property

@@ -481,7 +481,7 @@ class BSpline(Curve):
         return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch, r=r)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
-                 pose: Tensor) -> Tensor | None:
+                 pose: Tensor, second: slice | None = None) -> Tensor | None:
         # the cumulative form's in its Lie algebra (torch_dq._cumulative_lie), the span
         # quantities once per distinct span; the other forms' by reverse passes
         if self.form != "cumulative" or cotangents.shape[-2] > 3:
@@ -500,7 +500,7 @@ class BSpline(Curve):
         G = _cumulative_lie.vjp(points.expand(*lead, p + 1, 8).reshape(-1, p + 1, 8)[pick],
                                 inverse, [w.to(points.dtype).reshape(-1, p) for w in weights],
                                 cotangents.expand(*lead, k, O, 8).reshape(-1, k, O, 8),
-                                pose.expand(*lead, 8).reshape(-1, 8))
+                                pose.expand(*lead, 8).reshape(-1, 8), second)
         return G.reshape(*lead, k, p + 1, 6)
 
     def acceleration_jumps(self) -> str | None:
