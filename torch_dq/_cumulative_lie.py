@@ -36,7 +36,7 @@ The SE(3) matrices are SO(3)'s formulas over dual numbers: :math:`\mathrm{ad}_\x
 (:math:`f(s_0) + \varepsilon f'(s_0) s_1`, ``even_slope``): exact at :math:`\omega = 0`.
 What is constant on a span (its twists, their powers, :math:`J_r^{-1}` and :math:`J_l^{-1} =
 J_r^{-1} \mathrm{Ad}_{\mathrm{Exp}(-d)}`) is taken once per distinct span and gathered per
-sample (:func:`_span_parts`); the rest is per sample, in a component-major layout (below),
+sample (:func:`span_parts`); the rest is per sample, in a component-major layout (below),
 as fused multiply-adds into preallocated arrays (at the estimator's ~10^4 samples a torch op
 costs as much in dispatch and fresh allocations as in arithmetic).
 
@@ -61,7 +61,7 @@ from . import dualquat
 from ._core import dq_mul
 from ._numerics import even_slopes, evens
 
-__all__ = ["applies", "derivatives", "vjp"]
+__all__ = ["applies", "derivatives", "span_parts", "vjp"]
 
 Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``unbind(0)``)
 
@@ -362,7 +362,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
     return out[::-1], a[:, 0]
 
 
-def _span_parts(points: Tensor) -> Tensor:
+def span_parts(points: Tensor) -> Tensor:
     r"""``(80, p, U)`` per step ``j`` and distinct span: the twist :math:`d_j` (6 rows), its
     :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
     :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
@@ -380,20 +380,21 @@ def _span_parts(points: Tensor) -> Tensor:
 
 
 def _unpack(span: Tensor) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
-    """:func:`_span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
+    """:func:`span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
     S)``, the steps' :func:`_powers` (``(3, 3, p, S)`` and ``(p, S)``) and the matrices
     ``(p, 2, 2, 3, 3, S)`` (views)."""
     powers = (*span[6:42].unflatten(0, (4, 3, 3)), *span[42:44])
     return span[:6].transpose(0, 1), powers, span[44:].movedim(1, 0).unflatten(1, (2, 2, 3, 3))
 
 
-def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
+def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
         second: slice | None = None) -> Tensor:
     r"""Cotangents of the span's control-point steps from those of the span's derivatives.
 
     Args:
-        points: ``(U, p + 1, 8)`` the distinct spans' sign-aligned control points
-            (:func:`torch_dq._curve.span_points`).
+        span: ``(80, p, U)`` :func:`span_parts` of the spans' sign-aligned control points
+            (:func:`torch_dq._curve.span_points`; the spans the samples read, or all of a
+            curve's, once for several calls).
         inverse: ``(S,)`` int64: sample ``i`` is in span ``inverse[i]``.
         weights: ``O`` tensors ``(S, p)``: the cumulative weights at the samples' times and
             their time derivatives (:meth:`torch_dq._time.KnotDomain.bases`), ``O <= 3``.
@@ -408,8 +409,8 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
         permuted view of a component-major array.
     """
-    p, (S, k) = points.shape[-2] - 1, cot.shape[:2]
-    span = _span_parts(points).view(80, -1)  # (80, p U): column j U + u of step j, span u
+    p, (S, k) = span.shape[1], cot.shape[:2]
+    span = span.view(80, -1)  # (80, p U): column j U + u of step j, span u
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest

@@ -194,16 +194,23 @@ class Linearization:
         Each term's rows carry only the nuisance columns its samples' windows touch
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
         random walk its own), so a window's normal matrix stays small however many
-        nuisance parameters the problem has; :class:`_Normal` scatters them into place."""
+        nuisance parameters the problem has; :class:`_Normal` scatters them into place.
+        Where every group is one part, the closed-form span products of all groups read
+        one table of the spans (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a
+        longer record's parts compute their own spans', whose memory is a part's)."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
         acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
-        for group in p.groups(values):
-            for k, parts in enumerate(_group_parts(p, group)):  # memory: a part
+        groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
+        tables = (self.spans.tables(ctrl) if all(len(x) == 1 for _, x in groups)
+                  else None)
+        for group, cut in groups:
+            for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
-                                       None if memo is None else memo.take((group[0], k)))
+                                       None if memo is None else memo.take((group[0], k)),
+                                       tables)
                 for i, (r, wt) in zip(group, added, strict=True):
                     rs[i].append(r)
                     weights[i].append(wt)
@@ -212,15 +219,16 @@ class Linearization:
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                   values: list[Tensor], w: int,
                   known: tuple[list[tuple[Tensor, ...]], list[Tensor]] | None,
-                  ) -> list[tuple[Tensor, Tensor]]:
+                  tables: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
         """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
         samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives and residuals
-        ``known`` where known, :class:`Memo`) to ``acc``, a term after the other; their
-        residuals and robust weights."""
+        ``known`` where known, :class:`Memo`; the spans' ``tables`` where shared) to
+        ``acc``, a term after the other; their residuals and robust weights."""
         G = acc.band.shape[0]
+        derivs, rs = known or (None, None)
         out = []
         for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
-                group, terms, ctrl, values, w, *(known or (None,))), strict=True):
+                group, terms, ctrl, values, w, derivs, rs, tables), strict=True):
             wt = _weights(term, r)
             keys = self._windows(f0, w)
             local, gcols, valid = self._columns(i, Jn, keys, G)
@@ -300,7 +308,8 @@ class Linearization:
     def _group_chained(self, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                        values: list[Tensor], w: int,
                        known: list[tuple[Tensor, ...]] | None = None,
-                       residuals: list[Tensor] | None = None) -> list[tuple]:
+                       residuals: list[Tensor] | None = None, tables: Tensor | None = None,
+                       ) -> list[tuple]:
         """Per term of ``terms`` (the terms ``group``, or a part of each, read at the same
         times): per-sample whitened residuals ``(..., N, k)`` (``residuals`` where known:
         the trial cost's at this point), the window start and their Jacobians. The span
@@ -338,7 +347,7 @@ class Linearization:
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, Jd, top,
                                      bool(timed[0]) and not rated, shared,
                                      [d[..., 0, :] for d in derivs],
-                                     _second([J[0] for _, J in jac]))
+                                     _second([J[0] for _, J in jac]), tables)
         if rated:
             Jt = self._time_columns(times, firsts, Jd, [d[..., 1:, :] for d in derivs])
         N = times[0].shape[-1]
@@ -415,14 +424,15 @@ class Linearization:
     def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                        firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
                        shared: list, poses: list[Tensor], second: slice | None = None,
-                       ) -> tuple[Tensor, Tensor | None]:
+                       tables: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
         r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
         the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
         with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
         to the times (None otherwise: times without gradient take the cheaper path; the
         time columns of orders 0 to 2 come from :meth:`_time_columns`). ``shared``: each
         list's :func:`_distinct_times`; ``poses``: each list's poses ``(..., N, 8)``;
-        ``second``: the rows whose second order may be nonzero (:func:`_second`).
+        ``second``: the rows whose second order may be nonzero (:func:`_second`);
+        ``tables``: the spans' tables of the closed form, where shared.
 
         Without the times: the layer's closed form where it has one (:meth:`_closed_form`).
         Else by reverse passes:
@@ -439,7 +449,8 @@ class Linearization:
             return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
                                           poses[0], *one)
         if not timed:
-            closed = self._closed_form(gathered, offs, times, firsts, Jd, poses, second)
+            closed = self._closed_form(gathered, offs, times, firsts, Jd, poses, second,
+                                       tables)
             if closed is not None:
                 return closed, None
         *shape, N, w, _ = gathered.shape
@@ -467,7 +478,8 @@ class Linearization:
 
     def _closed_form(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                      firsts: list[Tensor], Jd: list[Tensor], poses: list[Tensor],
-                     second: slice | None = None) -> Tensor | None:
+                     second: slice | None = None, tables: Tensor | None = None,
+                     ) -> Tensor | None:
         """:meth:`_through_spans` by the layer's closed-form vector-Jacobian products
         (:meth:`~torch_dq.fitting._local.SpanEvaluator.vjp`), ``_CHUNK`` samples at a time,
         each times list's span columns added at its offsets in the window; None where the
@@ -476,7 +488,8 @@ class Linearization:
         k, sup = Jd[0].shape[-3], self.spans.support
         whole = w == sup and len(times) == 1  # the window is the span (offsets 0 .. w - 1)
         if whole and N <= _CHUNK:  # one chunk: the layer's rows as they are (no copy)
-            G = self.spans.vjp(gathered, times[0], firsts[0], Jd[0], poses[0], second)
+            G = self.spans.vjp(gathered, times[0], firsts[0], Jd[0], poses[0], second,
+                               tables)
             return None if G is None else G.expand(*shape, N, k, w, 6)
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         for a in range(0, N, _CHUNK):
@@ -485,7 +498,7 @@ class Linearization:
                 o = off[..., c, :]
                 pts = gathered[..., c, :, :] if whole else self._select(gathered[..., c, :, :], o)
                 G = self.spans.vjp(pts, t[..., c], f[..., c], J[..., c, :, :, :],
-                                   x[..., c, :], second)
+                                   x[..., c, :], second, tables)
                 if G is None:
                     return None
                 if whole:
