@@ -11,7 +11,7 @@ import pytest
 import torch
 
 import torch_dq.dualquat as dq
-from torch_dq.fitting import Accel, Gyro, Poses
+from torch_dq.fitting import Accel, Gyro, Poses, _linearize
 from torch_dq.fitting._estimate import _starts
 from torch_dq.fitting._linearize import _second
 from torch_dq.fitting._problem import Problem
@@ -117,11 +117,17 @@ def test_second_rows_of_stacked_terms():
     assert _second(rows((3, 2), (3, 1))) is None
 
 
-def test_grouped_imu_system_equals_the_reverse_passes(monkeypatch):
+@pytest.mark.parametrize("cut", ["whole", "chunks", "parts"])
+def test_grouped_imu_system_equals_the_reverse_passes(cut, monkeypatch):
     """Poses, and a gyroscope and an accelerometer read at the same times (one group, the
     gyroscope's rows first): the system through the closed form (one table of the spans for
-    both groups, the gyroscope's second order skipped) equals the one by reverse passes
-    through the spans (no closed form)."""
+    both groups, the gyroscope's second order skipped; also in chunks of 16 samples, and in
+    parts of 25, which compute their own spans') equals the one by reverse passes through
+    the spans (no closed form)."""
+    if cut == "chunks":
+        monkeypatch.setattr(_linearize, "_CHUNK", 16)
+    elif cut == "parts":
+        monkeypatch.setattr(_linearize, "PART", 25)
     spline = _spline(n=12, seed=7)
     lo, hi = (float(x) for x in spline.domain)
     ti = torch.linspace(lo + 1e-3, hi - 1e-3, 60, dtype=F64)
