@@ -195,17 +195,18 @@ class Linearization:
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
         random walk its own), so a window's normal matrix stays small however many
         nuisance parameters the problem has; :class:`_Normal` scatters them into place.
-        Where every group is one part, the closed-form span products of all groups read
-        one table of the spans (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a
-        longer record's parts compute their own spans', whose memory is a part's)."""
+        Where there are several groups, each one part, the closed-form span products of
+        all groups read one table of the spans
+        (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a longer record's parts
+        compute their own spans', whose memory is a part's)."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
         acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
         groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
-        tables = (self.spans.tables(ctrl) if all(len(x) == 1 for _, x in groups)
-                  else None)
+        tables = (self.spans.tables(ctrl) if len(groups) > 1
+                  and all(len(x) == 1 for _, x in groups) else None)
         for group, cut in groups:
             for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
