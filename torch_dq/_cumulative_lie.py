@@ -36,7 +36,7 @@ The SE(3) matrices are SO(3)'s formulas over dual numbers: :math:`\mathrm{ad}_\x
 (:math:`f(s_0) + \varepsilon f'(s_0) s_1`, ``even_slope``): exact at :math:`\omega = 0`.
 What is constant on a span (its twists, their powers, :math:`J_r^{-1}` and :math:`J_l^{-1} =
 J_r^{-1} \mathrm{Ad}_{\mathrm{Exp}(-d)}`) is taken once per distinct span and gathered per
-sample (:func:`_span_parts`); the rest is per sample, in a component-major layout (below),
+sample (:func:`span_parts`); the rest is per sample, in a component-major layout (below),
 as fused multiply-adds into preallocated arrays (at the estimator's ~10^4 samples a torch op
 costs as much in dispatch and fresh allocations as in arithmetic).
 
@@ -61,7 +61,7 @@ from . import dualquat
 from ._core import dq_mul
 from ._numerics import even_slopes, evens
 
-__all__ = ["applies", "derivatives", "vjp"]
+__all__ = ["applies", "derivatives", "span_parts", "vjp"]
 
 Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``unbind(0)``)
 
@@ -281,7 +281,8 @@ def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[s
     return out
 
 
-def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> Tensor:
+def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: slice,
+                        ) -> Tensor:
     r"""Cotangent rows ``(6, O, k, S)`` of the pose's right step, of :math:`V` and of
     :math:`\dot V` (the orders there are) from those ``g (8, O, k, S)`` of :math:`X, \dot X,
     \ddot X`: :math:`\mathrm d X = X h(\xi)`, :math:`\mathrm d\dot X = X h(\xi) h(V) + X
@@ -292,7 +293,9 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> Tensor:
     :math:`P(u_0 + R(h(V))^T u_1 + R(h(V)^2 + h(\dot V))^T u_2)`, :math:`V`:
     :math:`P(u_1 + (R + L)(h(V))^T u_2)`, :math:`\dot V`: :math:`P u_2`; the vector parts
     alone are formed, and :math:`P (R + L)(h)^T u = -\frac12 (u_{a0} \omega + u_{b0} v,\
-    u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel)."""
+    u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel). The
+    second order's terms are taken for the rows ``second`` alone (the others' cotangents
+    there are zero, :func:`vjp`), whose rows of :math:`\dot V` alone are set."""
     _, O, k, S = g.shape
     out = g.new_empty(6, O, k, S)
     r, d = _halves(X)
@@ -301,53 +304,65 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor) -> Tensor:
     _conj_vec(pw, d, g[4:, 0], True, acc=True)
     _conj_vec(pv, r, g[4:, 0], True)
     if O > 1:
-        u = _left_t(X, g[:, 1:].reshape(8, (O - 1) * k, S)).view(8, O - 1, k, S)
-        out[:3, 1:], out[3:, 1:] = u[1:4], u[5:8]
+        u = _left_t(X, g[:, 1])
+        out[:3, 1], out[3:, 1] = u[1:4], u[5:8]
         w, v = 0.5 * V[:3, None], 0.5 * V[3:, None]
-        _conj_vec(pw, (None, w), u[:4, 0], False, acc=True)
-        _conj_vec(pw, (None, v), u[4:, 0], False, acc=True)
-        _conj_vec(pv, (None, w), u[4:, 0], False, acc=True)
+        _conj_vec(pw, (None, w), u[:4], False, acc=True)
+        _conj_vec(pw, (None, v), u[4:], False, acc=True)
+        _conj_vec(pv, (None, w), u[4:], False, acc=True)
     if O > 2:
+        u = _left_t(X, g[:, 2, second])
+        out[:3, 2, second], out[3:, 2, second] = u[1:4], u[5:8]
+        pw, pv = pw[:, second], pv[:, second]
         hr = (-(w * w).sum(0), 0.5 * Vd[:3, None])  # h(V)^2 + h(Vd)
         hd = (-2.0 * (w * v).sum(0), 0.5 * Vd[3:, None])
-        _conj_vec(pw, hr, u[:4, 1], False, acc=True)
-        _conj_vec(pw, hd, u[4:, 1], False, acc=True)
-        _conj_vec(pv, hr, u[4:, 1], False, acc=True)
-        rw, rv = out[:3, 1], out[3:, 1]
-        rw.addcmul_(u[0, 1], V[:3, None], value=-1.0).addcmul_(u[4, 1], V[3:, None], value=-1.0)
-        rv.addcmul_(u[4, 1], V[:3, None], value=-1.0)
+        _conj_vec(pw, hr, u[:4], False, acc=True)
+        _conj_vec(pw, hd, u[4:], False, acc=True)
+        _conj_vec(pv, hr, u[4:], False, acc=True)
+        rw, rv = out[:3, 1, second], out[3:, 1, second]
+        rw.addcmul_(u[0], V[:3, None], value=-1.0).addcmul_(u[4], V[3:, None], value=-1.0)
+        rv.addcmul_(u[4], V[:3, None], value=-1.0)
     return out.mul_(0.5)
 
 
-def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor,
+def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, second: slice,
               ) -> tuple[list[Tensor], Tensor]:
     r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
-    (:func:`_algebra_cotangents`, updated in place): those ``(6, k, S)`` of every
-    :math:`d_j` and of the first point's step (through the pose alone)."""
+    (:func:`_algebra_cotangents`, updated in place; of :math:`\dot V` the rows ``second``
+    alone are read): those ``(6, k, S)`` of every :math:`d_j` and of the first point's step
+    (through the pose alone)."""
     O, p = a.shape[1], d.shape[0]
     out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
+        a2 = a[:, 2, second] if O > 2 else a
         if O > 2:
-            _row_ad(a[:, 2], -lj[1] * dj, a[:, 1])
+            _row_ad(a2, -lj[1] * dj, a[:, 1, second])
         t = a[:, 0].clone()
         if O > 1 and j:
             _row_ad(a[:, 1], fw["z"][j], t)
         if O > 2 and j:
-            _row_ad(a[:, 2], fw["zd"][j], t)
+            _row_ad(a2, fw["zd"][j], t[:, second])
         c = _rows(t, fw["Jr"][j])
         if O > 1:
             c.addcmul_(a[:, 1], lj[1])
         if O > 2:
-            _row_ad(a[:, 2], lj[1] * fw["V"][j], c.addcmul_(a[:, 2], lj[2]))
+            _row_ad(a2, lj[1] * fw["V"][j], c[:, second].addcmul_(a2, lj[2]))
         out.append(c)
         # at the first step only the pose's rows go on (to the first point's step)
-        a = (_rows(a.view(6, -1, a.shape[-1]), fw["M"][j]).view(a.shape) if j
-             else _rows(a[:, 0], fw["M"][j])[:, None])
+        if not j:
+            a = _rows(a[:, 0], fw["M"][j])[:, None]
+            continue
+        b = torch.empty_like(a)
+        S = a.shape[-1]
+        _rows(a[:, :2].view(6, -1, S), fw["M"][j], b[:, :2].view(6, -1, S))
+        if O > 2:
+            _rows(a2, fw["M"][j], b[:, 2, second])
+        a = b
     return out[::-1], a[:, 0]
 
 
-def _span_parts(points: Tensor) -> Tensor:
+def span_parts(points: Tensor) -> Tensor:
     r"""``(80, p, U)`` per step ``j`` and distinct span: the twist :math:`d_j` (6 rows), its
     :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
     :math:`J_r^{-1}(d_j) = I + \frac12 \Phi + \gamma \Phi^2` and :math:`J_l^{-1}(d_j) =
@@ -365,33 +380,37 @@ def _span_parts(points: Tensor) -> Tensor:
 
 
 def _unpack(span: Tensor) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
-    """:func:`_span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
+    """:func:`span_parts`' rows (gathered per sample, ``(80, p, S)``): the twists ``(p, 6,
     S)``, the steps' :func:`_powers` (``(3, 3, p, S)`` and ``(p, S)``) and the matrices
     ``(p, 2, 2, 3, 3, S)`` (views)."""
     powers = (*span[6:42].unflatten(0, (4, 3, 3)), *span[42:44])
     return span[:6].transpose(0, 1), powers, span[44:].movedim(1, 0).unflatten(1, (2, 2, 3, 3))
 
 
-def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
-        ) -> Tensor:
+def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
+        second: slice | None = None) -> Tensor:
     r"""Cotangents of the span's control-point steps from those of the span's derivatives.
 
     Args:
-        points: ``(U, p + 1, 8)`` the distinct spans' sign-aligned control points
-            (:func:`torch_dq._curve.span_points`).
+        span: ``(80, p, U)`` :func:`span_parts` of the spans' sign-aligned control points
+            (:func:`torch_dq._curve.span_points`; the spans the samples read, or all of a
+            curve's, once for several calls).
         inverse: ``(S,)`` int64: sample ``i`` is in span ``inverse[i]``.
         weights: ``O`` tensors ``(S, p)``: the cumulative weights at the samples' times and
             their time derivatives (:meth:`torch_dq._time.KnotDomain.bases`), ``O <= 3``.
         cot: ``(S, k, O, 8)`` cotangents of :math:`X, \dot X, \ddot X` (``k`` rows).
         pose: ``(S, 8)`` the curve :math:`X` at the samples.
+        second: the rows whose cotangents of :math:`\ddot X` may be nonzero (None: all);
+            the others' are zero (a group's lower-order term) and neither read nor carried
+            through the recursions.
 
     Returns:
         ``(S, k, p + 1, 6)``: :math:`\sum_o \mathrm{cot}_o \cdot \partial X^{(o)} /
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
         permuted view of a component-major array.
     """
-    p, (S, k) = points.shape[-2] - 1, cot.shape[:2]
-    span = _span_parts(points).view(80, -1)  # (80, p U): column j U + u of step j, span u
+    p, (S, k) = span.shape[1], cot.shape[:2]
+    span = span.view(80, -1)  # (80, p U): column j U + u of step j, span u
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
@@ -400,7 +419,7 @@ def vjp(points: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pos
         c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
                   rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
-                  steps[..., c])
+                  steps[..., c], slice(None) if second is None else second)
     return steps.permute(3, 2, 0, 1)
 
 
@@ -411,19 +430,19 @@ VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
-              pose: Tensor, steps: Tensor) -> None:
-    """:func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)``, into
-    their ``steps (p + 1, 6, k, S)``: the span parts ``(80, p U)`` gathered (faster than
-    ``index_select`` on the last dim) at the columns ``at + inverse`` (``at``: each step's
-    first)."""
+              pose: Tensor, steps: Tensor, second: slice) -> None:
+    r""":func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)`` (of
+    :math:`\ddot X` the rows ``second``), into their ``steps (p + 1, 6, k, S)``: the span
+    parts ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the
+    columns ``at + inverse`` (``at``: each step's first)."""
     p = at.shape[0]
     d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
                              .view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot)
-    cd, first = _backward(fw, d, lam, rows)
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second)
+    cd, first = _backward(fw, d, lam, rows, second)
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
     steps[0] = first
     for j, c in enumerate(cd):

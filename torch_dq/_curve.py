@@ -76,7 +76,6 @@ class UnitDualQuaternion(torch.nn.Module):
         return dualquat.normalize(X)
 
 
-
 # ----------------------------------------------------------------------------- helpers
 
 def _start_rows(fn: str, x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split: bool,
@@ -219,14 +218,18 @@ class Curve(torch.nn.Module, abc.ABC):
                                   order)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
-                 pose: Tensor) -> Tensor | None:
-        r"""Closed-form vector-Jacobian products of :meth:`evaluate_span` (``points``,
-        ``local``, ``first`` as there; the samples of one span share their points) with
-        respect to right steps :math:`c_j \exp(\delta_j)` of the points: ``(..., k, w, 6)``
-        from ``cotangents (..., k, O, 8)`` of the pose and its time derivatives ``0 .. O -
-        1`` (``O <= 3``), ``pose (..., 8)`` the pose there. None where the layer has none
-        (the base class): the estimation then runs reverse passes."""
+                 pose: Tensor, second: slice | None = None, tables: Tensor | None = None,
+                 ) -> Tensor | None:
+        r"""Closed-form vector-Jacobian products of :meth:`evaluate_span` (arguments as
+        there; a span's samples share its points), ``(..., k, w, 6)`` for right steps
+        :math:`c_j \exp(\delta_j)` of the points, from ``cotangents (..., k, O, 8)`` of the
+        pose ``pose (..., 8)`` and its time derivatives ``0 .. O - 1 <= 2`` (of order 2 the
+        rows ``second`` alone nonzero, None: all); ``tables``: :meth:`span_vjp_tables` of
+        the points' curve, or None. None where the layer has none: reverse passes then."""
         return None
+
+    def span_vjp_tables(self, ctrl: Tensor) -> Tensor | None:
+        """:meth:`span_vjp`'s per-span work for every span of ``ctrl (..., n, 8)``, or None."""
 
     @property
     def _min_samples(self) -> int:
@@ -424,7 +427,6 @@ class Curve(torch.nn.Module, abc.ABC):
                     "training": self.training}
         return _rebuild, (parametrize.type_before_parametrizations(self),
                           dict(self.state_dict()), settings)
-
 
     # -- time
     @property

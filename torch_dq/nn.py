@@ -481,9 +481,11 @@ class BSpline(Curve):
         return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch, r=r)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
-                 pose: Tensor) -> Tensor | None:
+                 pose: Tensor, second: slice | None = None, tables: Tensor | None = None,
+                 ) -> Tensor | None:
         # the cumulative form's in its Lie algebra (torch_dq._cumulative_lie), the span
-        # quantities once per distinct span; the other forms' by reverse passes
+        # quantities once per distinct span (or the curve's, tables); the other forms' by
+        # reverse passes
         if self.form != "cumulative" or cotangents.shape[-2] > 3:
             return None
         p, (k, O) = self.degree, cotangents.shape[-3:-1]
@@ -493,15 +495,28 @@ class BSpline(Curve):
         lo, _ = self._span_bounds(first)
         rel, r = (lo + local).expand(lead), (first + p).expand(lead)
         weights = self.time_model.bases(rel, r, O - 1, cumulative=True)
-        N = lead[-1] if lead else 1
-        key = first.expand(lead).reshape(-1) + self.n_ctrl * torch.arange(
+        N, n = (lead[-1] if lead else 1), self.n_ctrl - p  # spans
+        key = first.expand(lead).reshape(-1) + n * torch.arange(
             math.prod(lead), device=first.device).div(N, rounding_mode="floor")
-        _, inverse, pick = distinct(key)
-        G = _cumulative_lie.vjp(points.expand(*lead, p + 1, 8).reshape(-1, p + 1, 8)[pick],
-                                inverse, [w.to(points.dtype).reshape(-1, p) for w in weights],
+        if tables is None or tables.shape[2:] != (*lead[:-1], n):
+            _, key, pick = distinct(key)  # the samples' spans, from their points
+            tables = _cumulative_lie.span_parts(
+                points.expand(*lead, p + 1, 8).reshape(-1, p + 1, 8)[pick])
+        G = _cumulative_lie.vjp(tables, key,
+                                [w.to(points.dtype).reshape(-1, p) for w in weights],
                                 cotangents.expand(*lead, k, O, 8).reshape(-1, k, O, 8),
-                                pose.expand(*lead, 8).reshape(-1, 8))
+                                pose.expand(*lead, 8).reshape(-1, 8), second)
         return G.reshape(*lead, k, p + 1, 6)
+
+    def span_vjp_tables(self, ctrl: Tensor) -> Tensor | None:
+        # (80, p, ..., n - p): every span of the sign-aligned chain (span_points'
+        # representatives)
+        if self.form != "cumulative":
+            return None
+        p = self.degree
+        spans = align_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)  # (..., n - p, p + 1, 8)
+        return _cumulative_lie.span_parts(spans.reshape(-1, p + 1, 8)).unflatten(
+            -1, spans.shape[:-2])
 
     def acceleration_jumps(self) -> str | None:
         p, form = self.degree, self.form

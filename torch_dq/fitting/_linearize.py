@@ -29,8 +29,6 @@ and ``A_nn (..., m, m)``; the gradient ``g = J^T W r`` (``W`` the robust weights
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor
 
@@ -38,27 +36,13 @@ from .._core import distinct
 from .._curve import span_points
 from . import _robust
 from ._local import sample_jacobians, tangent_step
+from ._normal import System, _Normal, _window_normal
 
 __all__ = ["Linearization", "Memo", "System", "group_residuals", "residuals"]
 
 PART = 1 << 16  # samples of a term linearised at once (Term.parts: bounds the memory)
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
 _ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their copies)
-
-
-@dataclass
-class System:
-    """Gauss-Newton system (flattened batch ``Bf``): ``band (Bf, n, w, 6, 6)``, ``cn (Bf,
-    n, 6, m)``, ``nn (Bf, m, m)``, gradients ``gc (Bf, n, 6)``, ``gn (Bf, m)``; per term
-    whitened residuals and robust weights."""
-
-    band: Tensor
-    cn: Tensor
-    nn: Tensor
-    gc: Tensor
-    gn: Tensor
-    residuals: list[Tensor]
-    weights: list[Tensor]
 
 
 MEMO_BYTES = 1 << 25  # span derivatives a point keeps for its system (Memo)
@@ -210,16 +194,24 @@ class Linearization:
         Each term's rows carry only the nuisance columns its samples' windows touch
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
         random walk its own), so a window's normal matrix stays small however many
-        nuisance parameters the problem has; :class:`_Normal` scatters them into place."""
+        nuisance parameters the problem has; :class:`_Normal` scatters them into place.
+        Where there are several groups, each one part, the closed-form span products of
+        all groups read one table of the spans
+        (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a longer record's parts
+        compute their own spans', whose memory is a part's)."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
         acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
-        for group in p.groups(values):
-            for k, parts in enumerate(_group_parts(p, group)):  # memory: a part
+        groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
+        tables = (self.spans.tables(ctrl) if len(groups) > 1
+                  and all(len(x) == 1 for _, x in groups) else None)
+        for group, cut in groups:
+            for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
-                                       None if memo is None else memo.take((group[0], k)))
+                                       None if memo is None else memo.take((group[0], k)),
+                                       tables)
                 for i, (r, wt) in zip(group, added, strict=True):
                     rs[i].append(r)
                     weights[i].append(wt)
@@ -228,15 +220,16 @@ class Linearization:
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                   values: list[Tensor], w: int,
                   known: tuple[list[tuple[Tensor, ...]], list[Tensor]] | None,
-                  ) -> list[tuple[Tensor, Tensor]]:
+                  tables: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
         """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
         samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives and residuals
-        ``known`` where known, :class:`Memo`) to ``acc``, a term after the other; their
-        residuals and robust weights."""
+        ``known`` where known, :class:`Memo`; the spans' ``tables`` where shared) to
+        ``acc``, a term after the other; their residuals and robust weights."""
         G = acc.band.shape[0]
+        derivs, rs = known or (None, None)
         out = []
         for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
-                group, terms, ctrl, values, w, *(known or (None,))), strict=True):
+                group, terms, ctrl, values, w, derivs, rs, tables), strict=True):
             wt = _weights(term, r)
             keys = self._windows(f0, w)
             local, gcols, valid = self._columns(i, Jn, keys, G)
@@ -316,7 +309,8 @@ class Linearization:
     def _group_chained(self, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                        values: list[Tensor], w: int,
                        known: list[tuple[Tensor, ...]] | None = None,
-                       residuals: list[Tensor] | None = None) -> list[tuple]:
+                       residuals: list[Tensor] | None = None, tables: Tensor | None = None,
+                       ) -> list[tuple]:
         """Per term of ``terms`` (the terms ``group``, or a part of each, read at the same
         times): per-sample whitened residuals ``(..., N, k)`` (``residuals`` where known:
         the trial cost's at this point), the window start and their Jacobians. The span
@@ -353,7 +347,8 @@ class Linearization:
         Jd = [_stacked([J[l] for _, J in jac], top + 1) for l in range(L)]
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, Jd, top,
                                      bool(timed[0]) and not rated, shared,
-                                     [d[..., 0, :] for d in derivs])
+                                     [d[..., 0, :] for d in derivs],
+                                     _second([J[0] for _, J in jac]), tables)
         if rated:
             Jt = self._time_columns(times, firsts, Jd, [d[..., 1:, :] for d in derivs])
         N = times[0].shape[-1]
@@ -429,14 +424,16 @@ class Linearization:
 
     def _through_spans(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                        firsts: list[Tensor], Jd: list[Tensor], order: int, timed: bool,
-                       shared: list, poses: list[Tensor],
-                       ) -> tuple[Tensor, Tensor | None]:
+                       shared: list, poses: list[Tensor], second: slice | None = None,
+                       tables: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
         r"""Chain the residuals' Jacobians ``Jd (..., N, k, order + 1, 8)`` with respect to
         the span derivatives (one per times list) through the spans: ``(..., N, k, w, 6)``
         with respect to the window's steps and, when ``timed``, ``(..., N, k)`` with respect
         to the times (None otherwise: times without gradient take the cheaper path; the
         time columns of orders 0 to 2 come from :meth:`_time_columns`). ``shared``: each
-        list's :func:`_distinct_times`; ``poses``: each list's poses ``(..., N, 8)``.
+        list's :func:`_distinct_times`; ``poses``: each list's poses ``(..., N, 8)``;
+        ``second``: the rows whose second order may be nonzero (:func:`_second`);
+        ``tables``: the spans' tables of the closed form, where shared.
 
         Without the times: the layer's closed form where it has one (:meth:`_closed_form`).
         Else by reverse passes:
@@ -453,7 +450,8 @@ class Linearization:
             return self._through_distinct(gathered, offs[0], firsts[0], Jd[0], order, timed,
                                           poses[0], *one)
         if not timed:
-            closed = self._closed_form(gathered, offs, times, firsts, Jd, poses)
+            closed = self._closed_form(gathered, offs, times, firsts, Jd, poses, second,
+                                       tables)
             if closed is not None:
                 return closed, None
         *shape, N, w, _ = gathered.shape
@@ -481,6 +479,7 @@ class Linearization:
 
     def _closed_form(self, gathered: Tensor, offs: list[Tensor], times: list[Tensor],
                      firsts: list[Tensor], Jd: list[Tensor], poses: list[Tensor],
+                     second: slice | None = None, tables: Tensor | None = None,
                      ) -> Tensor | None:
         """:meth:`_through_spans` by the layer's closed-form vector-Jacobian products
         (:meth:`~torch_dq.fitting._local.SpanEvaluator.vjp`), ``_CHUNK`` samples at a time,
@@ -490,7 +489,8 @@ class Linearization:
         k, sup = Jd[0].shape[-3], self.spans.support
         whole = w == sup and len(times) == 1  # the window is the span (offsets 0 .. w - 1)
         if whole and N <= _CHUNK:  # one chunk: the layer's rows as they are (no copy)
-            G = self.spans.vjp(gathered, times[0], firsts[0], Jd[0], poses[0])
+            G = self.spans.vjp(gathered, times[0], firsts[0], Jd[0], poses[0], second,
+                               tables)
             return None if G is None else G.expand(*shape, N, k, w, 6)
         Jc = gathered.new_zeros(*shape, N, k, w, 6)
         for a in range(0, N, _CHUNK):
@@ -499,7 +499,7 @@ class Linearization:
                 o = off[..., c, :]
                 pts = gathered[..., c, :, :] if whole else self._select(gathered[..., c, :, :], o)
                 G = self.spans.vjp(pts, t[..., c], f[..., c], J[..., c, :, :, :],
-                                   x[..., c, :])
+                                   x[..., c, :], second, tables)
                 if G is None:
                     return None
                 if whole:
@@ -601,6 +601,16 @@ def _stacked(Js: list[Tensor], O: int) -> Tensor:
     return out
 
 
+def _second(Js: list[Tensor]) -> slice | None:
+    """The rows of :func:`_stacked` ``Js`` whose second order may be nonzero: those of the
+    terms that read it (``o_j > 2``), when consecutive (else None: all)."""
+    reads = [J.shape[-2] > 2 for J in Js for _ in range(J.shape[-3])]
+    if True not in reads:
+        return None
+    a, b = reads.index(True), len(reads) - reads[::-1].index(True)
+    return slice(a, b) if all(reads[a:b]) else None
+
+
 def _point_derivatives(spans, ctrl: Tensor, t: Tensor, first: Tensor, shared, order: int,
                        ) -> tuple[Tensor, ...]:
     """Span derivatives ``order + 1`` x ``(..., N, 8)`` at the samples' times ``t``, spans
@@ -624,85 +634,3 @@ def _distinct_times(t: Tensor, first: Tensor, ratio: float,
         return None
     u, inverse, pick = distinct(t)
     return None if t.numel() < ratio * u.numel() else (u, inverse, pick)
-
-
-class _Normal:
-    """The normal equations summed from the blocks of the windows a chunk of samples uses,
-    ``(U, 6 w + M + 1, ...)`` (``[J_c | J_n | r]``, the nuisance columns given per window):
-    window ``f``'s block ``(a, a + d)`` added to the band at ``(f + a, d)`` and its rows
-    ``a`` to control point ``f + a`` (``g_c``, the coupling), ``A_nn`` and ``g_n``
-    scattered to their columns. Memory: the band and the coupling, whatever the samples."""
-
-    def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int) -> None:
-        self.Bf, self.n, self.w, self.m = Bf, n, w, m
-        G = Bf * (n + w)  # window f of batch row b is b (n + w) + f
-        self.band = like.new_zeros(G, w, 6, 6)
-        self.gc = like.new_zeros(G, 6)
-        self.cn = like.new_zeros(G * 6 * m)
-        self.nn = like.new_zeros(Bf * m * m)
-        self.gn = like.new_zeros(Bf * m)
-        self.rows = torch.arange(6, device=like.device)
-        self.offsets = torch.arange(w, device=like.device)
-        self.pairs = [(a, d) for a in range(w) for d in range(w - a)]  # the band's blocks
-        self.pair_a = torch.tensor([a for a, _ in self.pairs], device=like.device)
-        self.pair_d = torch.tensor([d for _, d in self.pairs], device=like.device)
-
-    def add(self, windows: Tensor, block: Tensor, gcols: Tensor) -> None:
-        """Add the blocks ``(U, q, q)`` of the ``windows (U,)``, columns ``[J_c (6 w) | J_n
-        (M) | r]`` (window ``u``'s nuisance column ``j`` is the problem's ``gcols[u, j]``;
-        padding columns are zero): one scatter per destination (rows ``a`` of window ``f``
-        belong to control point ``f + a``, its block ``(a, a + d)`` to the band at ``(f +
-        a, d)``)."""
-        w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
-        nuis = slice(6 * w, 6 * w + M)
-        at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
-        src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
-                           for a, d in self.pairs], 1)  # (U, P, 6, 6)
-        band_at = at[:, self.pair_a] * w + self.pair_d  # (U, P) in the band's (G w) blocks
-        self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1), src.reshape(-1, 6, 6))
-        self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
-        if not M:
-            return
-        cols = (at[:, :, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, None, :]
-        self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
-        row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
-        self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
-                           block[:, nuis, nuis].reshape(-1))
-        self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
-
-    def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
-        Bf, n, w, m = self.Bf, self.n, self.w, self.m
-        band = self.band.reshape(Bf, n + w, w, 6, 6)[:, :n]
-        gc = self.gc.reshape(Bf, n + w, 6)[:, :n]
-        cn = self.cn.reshape(Bf, n + w, 6, m)[:, :n]
-        return System(band, cn, self.nn.reshape(Bf, m, m), gc, self.gn.reshape(Bf, m), rs,
-                      weights)
-
-
-def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
-    r"""The windows ``(U,)`` that samples' rows ``Y (S, k, q)`` with window ``keys (S,)``
-    use, and per window :math:`\sum_i Y_i^T Y_i` ``(U, q, q)``, by batched matrix products.
-
-    The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
-    per used window: at most about twice as many pages as used windows, the padding at
-    most ``S``), one product per page, the pages summed into their windows: each sample's
-    rows copied once to their slot, the padding slots alone zeroed.
-    """
-    S, k, q = Y.shape
-    windows, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
-    U = windows.numel()
-    if S == 0:
-        return windows, Y.new_zeros(0, q, q)
-    order = torch.argsort(inverse, stable=True)
-    P = -(-S // U)
-    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[inverse[order]]
-    pages = -(-counts // P)
-    first_page = torch.cumsum(pages, 0) - pages
-    # sample order[i] goes to page first_page + pos[i] // P, slot pos[i] % P
-    slot = torch.empty_like(order).index_put_((order,), first_page[inverse[order]] * P + pos)
-    X = Y.new_empty(int(pages.sum()) * P, k, q).index_copy_(0, slot, Y)
-    pad = torch.ones(X.shape[0], dtype=torch.bool, device=keys.device).index_fill_(0, slot, False)
-    X[pad] = 0.0
-    X = X.reshape(-1, P * k, q)
-    owner = torch.repeat_interleave(torch.arange(U, device=keys.device), pages)
-    return windows, Y.new_zeros(U, q, q).index_add_(0, owner, X.mT @ X)

@@ -59,13 +59,21 @@ class SpanEvaluator:
         return self.trajectory.evaluate_span(points, local, first, order)
 
     def vjp(self, points: Tensor, t: Tensor, first: Tensor, cotangents: Tensor, pose: Tensor,
-            ) -> Tensor | None:
+            second: slice | None = None, tables: Tensor | None = None) -> Tensor | None:
         """The layer's closed-form :meth:`~torch_dq.nn.Curve.span_vjp` at ``t`` of the spans
         ``first`` with points ``points (..., support, 8)`` and poses ``pose (..., 8)``:
-        ``(..., k, support, 6)`` from ``cotangents (..., k, O, 8)``, or None (no closed
-        form: reverse passes)."""
+        ``(..., k, support, 6)`` from ``cotangents (..., k, O, 8)`` (of the second order
+        the rows ``second`` may be nonzero, None: all; ``tables``: :meth:`tables` of the
+        control points the spans are of, None: from ``points``), or None (no closed form:
+        reverse passes)."""
         local = self.trajectory.local_times(t, first)
-        return self.trajectory.span_vjp(points, local, first, cotangents, pose)
+        return self.trajectory.span_vjp(points, local, first, cotangents, pose, second, tables)
+
+    def tables(self, ctrl: Tensor) -> Tensor | None:
+        """The layer's :meth:`~torch_dq.nn.Curve.span_vjp_tables` of the control points
+        ``ctrl (..., n, 8)``: what :meth:`vjp` computes per span, once for every call at
+        these points (None where the layer has none)."""
+        return self.trajectory.span_vjp_tables(ctrl)
 
     def shared(self, ctrl: Tensor, t: Tensor, first: Tensor, order: int,
                ) -> tuple[Tensor, ...]:

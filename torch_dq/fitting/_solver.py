@@ -109,7 +109,7 @@ class DampedStep:
     points that no sample determines.
 
     Args:
-        system: the data :class:`~torch_dq.fitting._linearize.System`.
+        system: the data :class:`~torch_dq.fitting._normal.System`.
         pulls: ``(Bf, n, w, 6, 6)`` and ``(Bf, m, m)`` pull information.
         null: ``U`` and ``D U`` (``torch_dq.fitting._prior.control_null``).
         prior_information: ``(m,)`` the Free priors' diagonal information.

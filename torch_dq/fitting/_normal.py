@@ -1,0 +1,111 @@
+r"""The normal equations of :class:`~torch_dq.fitting._linearize.Linearization`, summed
+window by window (private): each window's blocks :math:`\sum_i Y_i^T Y_i` of its samples'
+whitened rows ``Y = [J_c | J_n | r]`` by batched matrix products (:func:`_window_normal`),
+scattered into the control-point band, the coupling and the nuisance blocks
+(:class:`_Normal`), the :class:`System` they make."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+__all__ = ["System"]
+
+
+@dataclass
+class System:
+    """Gauss-Newton system (flattened batch ``Bf``): ``band (Bf, n, w, 6, 6)``, ``cn (Bf,
+    n, 6, m)``, ``nn (Bf, m, m)``, gradients ``gc (Bf, n, 6)``, ``gn (Bf, m)``; per term
+    whitened residuals and robust weights."""
+
+    band: Tensor
+    cn: Tensor
+    nn: Tensor
+    gc: Tensor
+    gn: Tensor
+    residuals: list[Tensor]
+    weights: list[Tensor]
+
+
+class _Normal:
+    """The normal equations summed from the blocks of the windows a chunk of samples uses,
+    ``(U, 6 w + M + 1, ...)`` (``[J_c | J_n | r]``, the nuisance columns given per window):
+    window ``f``'s block ``(a, a + d)`` added to the band at ``(f + a, d)`` and its rows
+    ``a`` to control point ``f + a`` (``g_c``, the coupling), ``A_nn`` and ``g_n``
+    scattered to their columns. Memory: the band and the coupling, whatever the samples."""
+
+    def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int) -> None:
+        self.Bf, self.n, self.w, self.m = Bf, n, w, m
+        G = Bf * (n + w)  # window f of batch row b is b (n + w) + f
+        self.band = like.new_zeros(G, w, 6, 6)
+        self.gc = like.new_zeros(G, 6)
+        self.cn = like.new_zeros(G * 6 * m)
+        self.nn = like.new_zeros(Bf * m * m)
+        self.gn = like.new_zeros(Bf * m)
+        self.rows = torch.arange(6, device=like.device)
+        self.offsets = torch.arange(w, device=like.device)
+        self.pairs = [(a, d) for a in range(w) for d in range(w - a)]  # the band's blocks
+        self.pair_a = torch.tensor([a for a, _ in self.pairs], device=like.device)
+        self.pair_d = torch.tensor([d for _, d in self.pairs], device=like.device)
+
+    def add(self, windows: Tensor, block: Tensor, gcols: Tensor) -> None:
+        """Add the blocks ``(U, q, q)`` of the ``windows (U,)``, columns ``[J_c (6 w) | J_n
+        (M) | r]`` (window ``u``'s nuisance column ``j`` is the problem's ``gcols[u, j]``;
+        padding columns are zero): one scatter per destination (rows ``a`` of window ``f``
+        belong to control point ``f + a``, its block ``(a, a + d)`` to the band at ``(f +
+        a, d)``)."""
+        w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
+        nuis = slice(6 * w, 6 * w + M)
+        at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
+        src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
+                           for a, d in self.pairs], 1)  # (U, P, 6, 6)
+        band_at = at[:, self.pair_a] * w + self.pair_d  # (U, P) in the band's (G w) blocks
+        self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1), src.reshape(-1, 6, 6))
+        self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
+        if not M:
+            return
+        cols = (at[:, :, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, None, :]
+        self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
+        row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
+        self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
+                           block[:, nuis, nuis].reshape(-1))
+        self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
+
+    def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
+        Bf, n, w, m = self.Bf, self.n, self.w, self.m
+        band = self.band.reshape(Bf, n + w, w, 6, 6)[:, :n]
+        gc = self.gc.reshape(Bf, n + w, 6)[:, :n]
+        cn = self.cn.reshape(Bf, n + w, 6, m)[:, :n]
+        return System(band, cn, self.nn.reshape(Bf, m, m), gc, self.gn.reshape(Bf, m), rs,
+                      weights)
+
+
+def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
+    r"""The windows ``(U,)`` that samples' rows ``Y (S, k, q)`` with window ``keys (S,)``
+    use, and per window :math:`\sum_i Y_i^T Y_i` ``(U, q, q)``, by batched matrix products.
+
+    The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
+    per used window: at most about twice as many pages as used windows, the padding at
+    most ``S``), one product per page, the pages summed into their windows: each sample's
+    rows copied once to their slot, the padding slots alone zeroed.
+    """
+    S, k, q = Y.shape
+    windows, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
+    U = windows.numel()
+    if S == 0:
+        return windows, Y.new_zeros(0, q, q)
+    order = torch.argsort(inverse, stable=True)
+    P = -(-S // U)
+    pos = torch.arange(S, device=keys.device) - (torch.cumsum(counts, 0) - counts)[inverse[order]]
+    pages = -(-counts // P)
+    first_page = torch.cumsum(pages, 0) - pages
+    # sample order[i] goes to page first_page + pos[i] // P, slot pos[i] % P
+    slot = torch.empty_like(order).index_put_((order,), first_page[inverse[order]] * P + pos)
+    X = Y.new_empty(int(pages.sum()) * P, k, q).index_copy_(0, slot, Y)
+    pad = torch.ones(X.shape[0], dtype=torch.bool, device=keys.device).index_fill_(0, slot, False)
+    X[pad] = 0.0
+    X = X.reshape(-1, P * k, q)
+    owner = torch.repeat_interleave(torch.arange(U, device=keys.device), pages)
+    return windows, Y.new_zeros(U, q, q).index_add_(0, owner, X.mT @ X)
