@@ -394,7 +394,7 @@ class Term(torch.nn.Module):
 
     def seen(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor | None:
         """``(..., N)`` bool: the unmasked samples with a prediction at these derivatives
-        and values (as :meth:`residuals`), for a term whose residual is zero where there is
+        and values (as ``residuals``), for a term whose residual is zero where there is
         none; None (the default): every sample has one. Levenberg-Marquardt rejects a step
         that loses one (it would lower the cost by the residual it hides)."""
         return None
