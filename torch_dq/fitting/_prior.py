@@ -65,24 +65,24 @@ def _typical(blocks: Tensor) -> Tensor:
     return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
 
 
-def _windows(band: Tensor, v: int, lo: int, hi: int) -> Tensor:
+def _windows(hat: Tensor, v: int, lo: int, hi: int) -> Tensor:
     """``(Bf, hi - lo, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
-    points from each ``k`` in ``[lo, hi)`` (blocks past the last control point: the
-    identity)."""
-    Bf, n, w = band.shape[:3]
+    points from each ``k`` in ``[lo, hi)`` of the padded band ``hat (Bf, >= hi + v - 1, w, 6,
+    6)`` (each block written once into the windows' array)."""
+    Bf, _, w = hat.shape[:3]
     m = hi - lo
-    pad = band.new_zeros(Bf, m + v, w, 6, 6)
-    pad[:, :min(n, hi + v) - lo] = band[:, lo:hi + v]
-    pad[:, n - lo:, 0] = torch.eye(6, dtype=band.dtype, device=band.device)
-    rows = []
+    out = hat.new_empty(Bf, m, v, 6, v, 6)
     for a in range(v):
-        row = []
-        for b in range(v):
-            at, d = min(a, b), abs(a - b)
-            blk = pad[:, at:at + m, d] if d < w else band.new_zeros(Bf, m, 6, 6)
-            row.append(blk.mT if a > b else blk)
-        rows.append(torch.cat(row, -1))
-    return torch.cat(rows, -2)
+        for b in range(a, v):
+            if b - a >= w:
+                out[:, :, a, :, b].zero_()
+                out[:, :, b, :, a].zero_()
+                continue
+            blk = hat[:, lo + a:hi + a, b - a]
+            out[:, :, a, :, b] = blk
+            if b > a:
+                out[:, :, b, :, a] = blk.mT
+    return out.reshape(Bf, m, 6 * v, 6 * v)
 
 
 def _weak_windows(A: Tensor, threshold: float) -> Tensor:
@@ -117,13 +117,19 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
         return torch.zeros_like(band)
     Bf, n, w = band.shape[:3]
     v = min(w, _WINDOW)
-    s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
+    t = _typical(band[:, :, 0]).sqrt()
+    s = t.repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
+    # the band scaled, past the last control point the identity (scaled): blocks of the windows
+    scale = (t[:, :, None] * t[:, None, :])[:, None, None]
+    hat = band.new_zeros(Bf, n + v, w, 6, 6)
+    hat[:, :n] = band / scale
+    hat[:, n:, 0] = torch.eye(6, dtype=band.dtype, device=band.device) / scale[:, 0]
     screen = max(threshold, NULL) if nuisance else threshold
     pull = band.new_zeros(Bf, n + v, w, 6, 6)
     for lo in range(0, n, _WINDOWS):  # a chunk of windows at a time (memory)
         hi = min(lo + _WINDOWS, n)
-        A = _windows(band, v, lo, hi) / outer
+        A = _windows(hat, v, lo, hi)
         weak = _weak_windows(A, screen)
         if not bool(weak.any()):
             continue
