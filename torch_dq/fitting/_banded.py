@@ -39,26 +39,25 @@ def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
     """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero), ``n``
     a multiple of ``g``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
     matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
-    (no per-element index)."""
+    written once into its place (no per-element index, no concatenation)."""
     *batch, n, w, s, _ = band.shape
     G = n // g
     rows = band.reshape(*batch, G, g, w, s, s)  # group j's block rows
-    zero = band.new_zeros(*batch, G, s, s)
-    D, E = [], []
+    D = band.new_empty(*batch, G, g, s, g, s)
+    E = band.new_zeros(*batch, G, g, s, g, s)
     for a in range(g):
         for c in range(g):
             d = abs(a - c)  # D_j (a, c): band[j g + min(a, c), d], transposed below the diagonal
-            blk = rows[..., min(a, c), d, :, :] if d < w else zero
-            D.append(blk.mT if a > c else blk)
+            if d < w:
+                blk = rows[..., min(a, c), d, :, :]
+                D[..., a, :, c, :] = blk.mT if a > c else blk
+            else:
+                D[..., a, :, c, :] = 0.0
             # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band
             dist = g + a - c
-            E.append(torch.cat((zero[..., :1, :, :], rows[..., :-1, c, dist, :, :].mT), -3)
-                     if dist < w else zero)
-    shape = (*batch, G, g, g, s, s)
-    order = (*range(len(batch)), -5, -4, -2, -3, -1)  # (..., G, g, s, g, s)
-    Dm, Em = (torch.stack(x, -3).reshape(shape).permute(order).reshape(*batch, G, g * s, g * s)
-              for x in (D, E))
-    return Dm, Em
+            if dist < w:
+                E[..., 1:, a, :, c, :] = rows[..., :-1, c, dist, :, :].mT
+    return D.reshape(*batch, G, g * s, g * s), E.reshape(*batch, G, g * s, g * s)
 
 
 def _pad(x: Tensor, count: int, front: bool = False) -> Tensor:

@@ -51,6 +51,7 @@ WEAK = 0.1  # least diagonal of the damping, relative to the typical information
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
 _WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
 _WINDOWS = 1 << 12  # windows decomposed at once (memory: 4.6 kB each, a few copies)
+_SCREENED = 1e4  # largest scaled trace of a block whose eigenvalues a factorisation screens
 _NULL_RANK = 12  # columns of the subspace iteration for combinations without information
 
 
@@ -64,24 +65,24 @@ def _typical(blocks: Tensor) -> Tensor:
     return med.nan_to_num(0.0).clamp_min(0.0).maximum(floor)
 
 
-def _windows(band: Tensor, v: int, lo: int, hi: int) -> Tensor:
+def _windows(hat: Tensor, v: int, lo: int, hi: int) -> Tensor:
     """``(Bf, hi - lo, 6 v, 6 v)``: the principal submatrices of the ``v`` consecutive control
-    points from each ``k`` in ``[lo, hi)`` (blocks past the last control point: the
-    identity)."""
-    Bf, n, w = band.shape[:3]
+    points from each ``k`` in ``[lo, hi)`` of the padded band ``hat (Bf, >= hi + v - 1, w, 6,
+    6)`` (each block written once into the windows' array)."""
+    Bf, _, w = hat.shape[:3]
     m = hi - lo
-    pad = band.new_zeros(Bf, m + v, w, 6, 6)
-    pad[:, :min(n, hi + v) - lo] = band[:, lo:hi + v]
-    pad[:, n - lo:, 0] = torch.eye(6, dtype=band.dtype, device=band.device)
-    rows = []
+    out = hat.new_empty(Bf, m, v, 6, v, 6)
     for a in range(v):
-        row = []
-        for b in range(v):
-            at, d = min(a, b), abs(a - b)
-            blk = pad[:, at:at + m, d] if d < w else band.new_zeros(Bf, m, 6, 6)
-            row.append(blk.mT if a > b else blk)
-        rows.append(torch.cat(row, -1))
-    return torch.cat(rows, -2)
+        for b in range(a, v):
+            if b - a >= w:
+                out[:, :, a, :, b].zero_()
+                out[:, :, b, :, a].zero_()
+                continue
+            blk = hat[:, lo + a:hi + a, b - a]
+            out[:, :, a, :, b] = blk
+            if b > a:
+                out[:, :, b, :, a] = blk.mT
+    return out.reshape(Bf, m, 6 * v, 6 * v)
 
 
 def _weak_windows(A: Tensor, threshold: float) -> Tensor:
@@ -116,13 +117,19 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
         return torch.zeros_like(band)
     Bf, n, w = band.shape[:3]
     v = min(w, _WINDOW)
-    s = _typical(band[:, :, 0]).sqrt().repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
+    t = _typical(band[:, :, 0]).sqrt()
+    s = t.repeat(1, v)[:, None, :]  # (Bf, 1, 6 v)
     outer = s[..., :, None] * s[..., None, :]
+    # the band scaled, past the last control point the identity (scaled): blocks of the windows
+    scale = (t[:, :, None] * t[:, None, :])[:, None, None]
+    hat = band.new_zeros(Bf, n + v, w, 6, 6)
+    hat[:, :n] = band / scale
+    hat[:, n:, 0] = torch.eye(6, dtype=band.dtype, device=band.device) / scale[:, 0]
     screen = max(threshold, NULL) if nuisance else threshold
     pull = band.new_zeros(Bf, n + v, w, 6, 6)
     for lo in range(0, n, _WINDOWS):  # a chunk of windows at a time (memory)
         hi = min(lo + _WINDOWS, n)
-        A = _windows(band, v, lo, hi) / outer
+        A = _windows(hat, v, lo, hi)
         weak = _weak_windows(A, screen)
         if not bool(weak.any()):
             continue
@@ -141,11 +148,20 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
 
 def undetermined(band: Tensor) -> Tensor:
     """``(Bf,)`` the control-point directions without any information (scaled eigenvalue
-    of their diagonal block below ``NULL``: time gaps, ends without samples)."""
+    of their diagonal block at most ``NULL``: time gaps, ends without samples). The
+    eigenvalues of the blocks that a Cholesky factorisation certifies (``A - 2 NULL I``
+    factors and the trace is at most ``_SCREENED``) are not computed: the factorisation's
+    backward error and the eigenvalues' (a few ``1e-16`` times the trace each) leave them
+    above ``NULL``, so they would count none (the same count, a twelfth of the cost)."""
     blocks = band[:, :, 0]
     s = _typical(blocks).sqrt()[:, None, :]
-    lam = torch.linalg.eigvalsh(blocks / (s[..., :, None] * s[..., None, :]))
-    return (lam <= NULL).sum((-1, -2))
+    scaled = blocks / (s[..., :, None] * s[..., None, :])
+    rest = _weak_windows(scaled, NULL) | (scaled.diagonal(dim1=-2, dim2=-1).sum(-1) > _SCREENED)
+    count = torch.zeros(band.shape[0], dtype=torch.long, device=band.device)
+    if bool(rest.any()):
+        lam = torch.linalg.eigvalsh(scaled[rest])
+        count.index_add_(0, rest.nonzero()[:, 0], (lam <= NULL).sum(-1))
+    return count
 
 
 def damping_floor(band: Tensor) -> Tensor:
