@@ -95,8 +95,11 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
         q = _numerics.unscaled(q)
         m = _numerics.prescale(q, torch.linalg.vector_norm(q, dim=-1, keepdim=True), power=1)
     p = q if m is None else q / m
-    w, v = p[..., 0], p[..., 1:]
-    v2, w2 = (v * v).sum(-1), w * w
+    # Scalars per row keep a trailing dim of 1: a 0-dim float32 tensor times a Python float
+    # gets a float64 tangent under forward mode (pytorch#90065), which broke torch.func.jvp
+    # and hessian of an unbatched float32 ``dualquat.log``.
+    w, v = p[..., :1], p[..., 1:]
+    v2, w2 = (v * v).sum(-1, keepdim=True), w * w
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
     w_in = torch.where(inner, w, 1.0)
     z2 = torch.where(inner, v2, 0.0) / (w_in * w_in)
@@ -108,16 +111,15 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
     # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
     theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
-    vec = torch.where(axis_line[..., None], theta[..., None] * p.new_tensor([1.0, 0.0, 0.0]),
-                      v * scale[..., None])
+    vec = torch.where(axis_line, theta * p.new_tensor([1.0, 0.0, 0.0]), v * scale)
     if m is None:  # every row finite
         return vec
     n2 = v2 + w2
     # A non-finite q has no direction: NaN, not the finite limit theta -> 0 or pi.
-    vec = _numerics.nan_unless(torch.isfinite(n2)[..., None], vec)
+    vec = _numerics.nan_unless(torch.isfinite(n2), vec)
     if not real:
         return vec
-    return torch.cat(((0.5 * torch.log(n2) + torch.log(m[..., 0]))[..., None], vec), dim=-1)
+    return torch.cat((0.5 * torch.log(n2) + torch.log(m[..., :1]), vec), dim=-1)
 
 
 def identity(shape: int | Sequence[int] = (), dtype: torch.dtype | None = None,
