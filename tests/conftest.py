@@ -61,7 +61,8 @@ def gen():
 # Not test_docs.py: its build renders the notebooks that test_notebooks.py executed and
 # cached, so it comes well after them (alphabetically, among the rest).
 SLOW_FILES_FIRST = (
-    "test_compile.py", "test_notebooks.py", "test_reliability.py", "test_modes.py",
+    "test_compile.py", "test_compile_float32_pyramid.py", "test_notebooks.py",
+    "test_reliability.py", "test_modes.py",
     "test_second_order.py", "test_cumulative.py", "test_typing.py", "test_interp.py",
     "test_learner8_module.py", "test_fitting.py", "test_term_jacobians.py",
     "test_learner8_pipeline.py", "test_calibration_cameras.py", "test_learner8_second_order.py",

@@ -77,6 +77,9 @@ class _Pyramid(InputsSaved):
     chunk by chunk, so nothing but the (small) inputs is saved: memory O(output) instead
     of O(m^2 output).
 
+    Under ``torch.compile`` float32 runs in float64 (:func:`pyramid`): inductor's CPU code
+    for the float32 backward gave gradients a quarter off (torch 2.13; float64, eager and
+    ``aot_eager`` exact; ``tests/test_compile_float32_pyramid.py``).
     Under ``torch.compile`` the batch is one graph and AOTAutograd's partitioner chooses
     what the backward keeps: the points of levels ``0 .. m - 2`` and a few scalars per time
     (cubic, float32: 424 bytes per time, 13x the output's 32), recomputing the weights.
@@ -152,4 +155,7 @@ def pyramid(ctrl: Tensor, idx: Tensor, alphas: list[Tensor] | Tensor) -> Tensor:
     """
     m = idx.shape[0]
     stacked = alphas if isinstance(alphas, Tensor) else torch.cat(alphas)
+    if torch.compiler.is_compiling() and ctrl.dtype == torch.float32:
+        wide = _Pyramid.apply(ctrl.double(), idx[0], stacked.double(), m)
+        return wide.to(torch.float32)
     return _Pyramid.apply(ctrl, idx[0], stacked, m)
