@@ -242,7 +242,7 @@ class LevenbergMarquardt:
         :math:`J^T P J` (``(Bf, n, w, 6, 6)``): the pulls' cost is :math:`d^T P d` with
         :math:`d = \mathrm{Log}(s^{-1} c)` from the anchor ``s``, and a step ``c
         \mathrm{Exp}(\delta)`` moves ``d`` by :math:`J_r^{-1}(d)\, \delta`
-        (:func:`_log_jacobians`), a third off the identity at a third of a radian. Taken as
+        (``_log_jacobians``), off the identity by about half the angle. Taken as
         ``P`` (the anchor's chart), a far start's pull was misjudged along the weakly
         determined directions it holds, where it weighs as much as the data: a camera's
         trajectory from a 0.35 rad start crept at a rate of 0.46 per step and stopped
