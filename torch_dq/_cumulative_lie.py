@@ -61,7 +61,7 @@ from . import dualquat
 from ._core import dq_mul
 from ._numerics import even_slopes, evens
 
-__all__ = ["applies", "derivatives", "span_parts", "vjp"]
+__all__ = ["applies", "derivatives", "right_jacobian_inverse", "span_parts", "vjp"]
 
 Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``unbind(0)``)
 
@@ -362,6 +362,25 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
     return out[::-1], a[:, 0]
 
 
+def _inverse_jacobians(powers: tuple[Tensor, ...], signs: tuple[int, ...],
+                       ) -> list[tuple[Tensor, Tensor]]:
+    r"""The dual matrices :math:`I \pm \frac12 \Phi + \gamma \Phi^2` (``+``:
+    :math:`J_r^{-1}`, ``-``: :math:`J_l^{-1}`), one per sign, of the twists of ``powers``
+    (:func:`_powers`)."""
+    (c3,), half = _scalars(("se3_c3",), powers), torch.full_like(powers[4], 0.5)
+    return [_polynomial(powers, 1.0, (s * half, 0.0 * half), c3) for s in signs]
+
+
+def right_jacobian_inverse(d: Tensor) -> Tensor:
+    r"""``(..., 6, 6)``: :math:`J_r^{-1}(d)`, the derivative of :math:`\mathrm{Log}(
+    \mathrm{Exp}(d)\, \mathrm{Exp}(\delta))` at :math:`\delta = 0`, for twists ``d (...,
+    6)`` :math:`(\omega, v)` (exact at :math:`\omega = 0`)."""
+    ((A, B),) = _inverse_jacobians(_powers(d.reshape(-1, 6).T.contiguous()), (1,))
+    J = d.new_zeros(A.shape[-1], 6, 6)
+    J[:, :3, :3], J[:, 3:, 3:], J[:, 3:, :3] = (m.permute(2, 0, 1) for m in (A, A, B))
+    return J.reshape(*d.shape, 6)
+
+
 def span_parts(points: Tensor) -> Tensor:
     r"""``(80, p, U)`` per step ``j`` and distinct span: the twist :math:`d_j` (6 rows), its
     :func:`_powers` (38 rows: ``W, V, W2, WV`` flat, ``s0, s1``) and the dual matrices
@@ -373,8 +392,7 @@ def span_parts(points: Tensor) -> Tensor:
     rel = dq_mul(dualquat.conj(points[:, :-1]), points[:, 1:])
     d = dualquat.log(rel).permute(2, 1, 0).reshape(6, -1)  # (6, p U)
     pw = _powers(d)
-    (c3,), half = _scalars(("se3_c3",), pw), torch.full_like(pw[4], 0.5)
-    mats = [torch.stack(_polynomial(pw, 1.0, (s * half, 0.0 * half), c3)) for s in (1, -1)]
+    mats = [torch.stack(m) for m in _inverse_jacobians(pw, (1, -1))]
     return torch.cat((d, torch.stack(pw[:4]).flatten(0, -2), torch.stack(pw[4:]),
                       torch.stack(mats).flatten(0, -2))).view(80, *rel.shape[1::-1])
 

@@ -433,20 +433,11 @@ class LevenbergMarquardt:
 
 
 def _log_jacobians(start: Tensor, ctrl: Tensor) -> Tensor:
-    r"""``(..., n, 6, 6)``: the derivatives :math:`J_r^{-1}(d) = I + \frac12 \Phi + \gamma
-    \Phi^2` of :math:`d = \mathrm{Log}(s^{-1} c\, \mathrm{Exp}(\delta))` at :math:`\delta
-    = 0` (twists :math:`(\omega, v)`, :math:`\Phi = \mathrm{ad}_d`, ``torch_dq._cumulative_lie``'s
-    dual-matrix form, exact at :math:`\omega = 0`) for control points ``ctrl`` and anchors
-    ``start`` ``(..., n, 8)``."""
-    d = dualquat.log(dualquat.mul(dualquat.conj(start), ctrl))
-    pw = _cumulative_lie._powers(d.reshape(-1, 6).T.contiguous())
-    (c3,) = _cumulative_lie._scalars(("se3_c3",), pw)
-    half = torch.full_like(pw[4], 0.5)
-    A, B = (m.permute(2, 0, 1) for m in _cumulative_lie._polynomial(pw, 1.0, (half, 0 * half),
-                                                                      c3))
-    J = d.new_zeros(A.shape[0], 6, 6)
-    J[:, :3, :3], J[:, 3:, 3:], J[:, 3:, :3] = A, A, B
-    return J.reshape(*d.shape, 6)
+    r"""``(..., n, 6, 6)``: the derivatives :math:`J_r^{-1}(d)` of :math:`d =
+    \mathrm{Log}(s^{-1} c\, \mathrm{Exp}(\delta))` at :math:`\delta = 0` for control points
+    ``ctrl`` and anchors ``start`` ``(..., n, 8)``."""
+    return _cumulative_lie.right_jacobian_inverse(
+        dualquat.log(dualquat.mul(dualquat.conj(start), ctrl)))
 
 
 def _time_columns(problem: Problem) -> tuple[tuple[Tensor, Tensor] | None, float]:
