@@ -107,15 +107,15 @@ def group_residuals(problem, group: tuple[int, ...], ctrl: Tensor, values: list[
         ps = [term.per_sample(v) for term, v in zip(parts, vals, strict=True)]
         derivs = _part_derivatives(problem.spans, parts[0], ctrl, parts[0].time_shift(ps[0]),
                                    order)
-        part = [term.residuals([d[:term.order + 1] for d in derivs], p)
-                for term, p in zip(parts, ps, strict=True)]
+        evs = [[d[:term.order + 1] for d in derivs] for term in parts]
+        part = [term.residuals(ev, p) for term, ev, p in zip(parts, evs, ps, strict=True)]
+        for rows, r in zip(out, part, strict=True):
+            rows.append(r)
         if memo is not None:
             memo.put((group[0], k), derivs, part)
-        for rows, sees, r, term, p in zip(out, seen, part, parts, ps, strict=True):
-            rows.append(r)
-            if memo is not None and (s := term.seen([d[:term.order + 1] for d in derivs],
-                                                    p)) is not None:
-                sees.append(s)
+            for sees, term, ev, p in zip(seen, parts, evs, ps, strict=True):
+                if (s := term.seen(ev, p)) is not None:
+                    sees.append(s)
     if memo is not None:
         memo.seen.update({i: torch.cat(s, -1) for i, s in zip(group, seen, strict=True) if s})
     return [torch.cat(rows, -2) for rows in out]
