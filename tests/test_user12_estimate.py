@@ -143,3 +143,26 @@ def test_pose_std_describes_the_spread_of_a_monte_carlo_batch():
     # average to 1 within 0.1 (a std off by 2x, or by sqrt(2), fails)
     assert 0.6 < ratio.min() and ratio.max() < 1.4, ratio
     assert abs(ratio.mean() - 1.0) < 0.1, ratio.mean()
+
+
+def test_kinematics_std_describes_the_spread_of_a_monte_carlo_batch():
+    """As above for the world-frame velocities and accelerations: the screw's are
+    ``R omega``, ``R v``, 0 and ``R (omega x v)`` (numpy, from scipy's expm)."""
+    B, rot_sigma, trans_sigma = 48, 0.01, 0.02
+    gen = np.random.default_rng(11)
+    noise = np.concatenate((rot_sigma * gen.standard_normal((B, len(TC), 3)),
+                            trans_sigma * gen.standard_normal((B, len(TC), 3))), -1)
+    meas = dq.mul(_as_dq(*_truth(TC)), dq.exp(torch.tensor(noise)))
+    spline = _start("identity", batch=(B,))
+    est = estimate(spline, [Poses(torch.tensor(TC), meas, rot_sigma=rot_sigma,
+                                  trans_sigma=trans_sigma)], verbose=False)
+    tq = np.array([0.3, 1.5, 2.5, 3.7])
+    R, _ = _truth(tq)
+    truth = np.concatenate((R @ OMEGA, R @ V, np.zeros((4, 3)), R @ np.cross(OMEGA, V)), -1)
+    with torch.no_grad():
+        k = spline.kinematics(torch.tensor(tq))
+    got = torch.cat((k.angular_velocity, k.linear_velocity, k.angular_acceleration,
+                     k.linear_acceleration), -1).numpy()
+    ratio = np.sqrt(((got - truth) ** 2).mean(0)) / est.kinematics_std(torch.tensor(tq))[0].numpy()
+    assert 0.6 < ratio.min() and ratio.max() < 1.4, ratio
+    assert abs(ratio.mean() - 1.0) < 0.1, ratio.mean()
