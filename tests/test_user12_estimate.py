@@ -166,3 +166,24 @@ def test_kinematics_std_describes_the_spread_of_a_monte_carlo_batch():
     ratio = np.sqrt(((got - truth) ** 2).mean(0)) / est.kinematics_std(torch.tensor(tq))[0].numpy()
     assert 0.6 < ratio.min() and ratio.max() < 1.4, ratio
     assert abs(ratio.mean() - 1.0) < 0.1, ratio.mean()
+
+
+def test_imu_bias_std_describes_the_spread_of_a_monte_carlo_batch():
+    """Poses at 10 Hz with a gyroscope and an accelerometer at 50 Hz, both biased, 32 noisy
+    copies from the identity as one batch: the biases' spread matches ``std``."""
+    B, n_imu = 32, 190
+    gen = np.random.default_rng(5)
+    b_g, b_a = np.array([0.01, -0.02, 0.005]), np.array([0.1, 0.0, -0.05])
+    ti, gyro, accel = _imu(np.linspace(0.1, T - 0.1, n_imu))
+    gyro = gyro + torch.tensor(b_g + 1e-3 * gen.standard_normal((B, n_imu, 3)))
+    accel = accel + torch.tensor(b_a + 1e-2 * gen.standard_normal((B, n_imu, 3)))
+    noise = 1e-3 * gen.standard_normal((B, len(TC), 6))
+    meas = dq.mul(_as_dq(*_truth(TC)), dq.exp(torch.tensor(noise)))
+    terms = [Poses(torch.tensor(TC), meas, rot_sigma=1e-3, trans_sigma=1e-3),
+             Gyro(ti, gyro, sigma=1e-3, bias=True), Accel(ti, accel, sigma=1e-2, bias=True)]
+    est = estimate(_start("identity", form="cumulative", batch=(B,)), terms, verbose=False)
+    for term, truth in ((terms[1], b_g), (terms[2], b_a)):
+        bias = term.bias.detach().numpy()
+        assert bias.shape == (B, 3)
+        ratio = np.sqrt(((bias - truth) ** 2).mean(0)) / est.std(term, "bias")[0].numpy()
+        assert 0.55 < ratio.min() and ratio.max() < 1.45, ratio  # 32 samples: 1-sigma ~0.13
