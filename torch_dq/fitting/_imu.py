@@ -139,8 +139,8 @@ class Gyro(_Imu):
     def check_units_against(self, terms: list[Term]) -> None:
         """Where the start barely turned (an identity or constant start tells nothing of the
         readings' units), the deg/s check of :meth:`values` against the rotation rates of
-        the measured poses instead (``_poses_rate``; the first :class:`Poses` term of
-        ``terms`` that has them), if any."""
+        the measured poses instead (``_poses_rate``; the first
+        :class:`~torch_dq.fitting.Poses` term of ``terms`` that has them), if any."""
         if not self._units_pending:
             return
         self._units_pending = False
