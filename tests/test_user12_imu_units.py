@@ -74,3 +74,22 @@ def test_milli_g_accelerometer_warns():
 def test_g_accelerometer_still_warns():
     with pytest.warns(UserWarning, match=r"look like g, not m/s.*multiply them by 9\.80665"):
         _run(accel_scale=1.0 / 9.80665)
+
+
+def test_read_imu_names_a_milli_g_accelerometer(tmp_path):
+    """A plain ``t gx gy gz ax ay az`` file at 200 Hz at rest, the accelerometer in milli-g
+    (1000 / 9.80665 per m/s^2) warns and names the factor; in m/s^2 it does not."""
+    from torch_dq import io
+    t = np.arange(400) / 200.0
+    rows = np.column_stack((t, np.zeros((400, 3)), np.tile([0.0, 0.0, 9.81], (400, 1))))
+    rows[:, 4:] += 0.01 * np.random.default_rng(0).standard_normal((400, 3))
+    path = tmp_path / "imu.txt"
+    np.savetxt(path, rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        io.read_imu(path)
+    rows[:, 4:] *= 1000.0 / 9.80665
+    np.savetxt(path, rows)
+    with pytest.warns(UserWarning, match=r"look like milli-g.*multiply them by 0\.00980665"):
+        _, _, accel = io.read_imu(path)
+    assert abs(float(accel[:, 2].mean()) - 1000.0 * 9.81 / 9.80665) < 1.0  # read as written
