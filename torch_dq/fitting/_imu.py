@@ -55,7 +55,7 @@ class _Imu(Term):
         self._buffer("readings", _masked(readings, options.mask, 0.0), 1)
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
         self._units_checked = False  # the readings' units, checked once (first values())
-        self._units_pending = False  # a Gyro's check left to the solution (start at rest)
+        self._units_pending = False  # a Gyro's check left to the poses (start at rest)
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
@@ -98,8 +98,10 @@ class Gyro(_Imu):
     Warns:
         UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
             trajectory's angular rates (deg/s for rad/s), once, when
-            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`), or, where
-            the start barely turns (an identity or constant start), at the solution.
+            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`); where
+            the start barely turns (an identity or constant start), against the rotation
+            rates of the measured poses of a :class:`~torch_dq.fitting.Poses` term
+            (:meth:`check_units_against`).
     """
 
     order = 1
