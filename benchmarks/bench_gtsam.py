@@ -26,9 +26,14 @@ Bias errors are reported in standard deviations of the estimate (``|estimate - t
 std`` per axis, the largest of the three). ``--cpu`` reports process CPU seconds
 (steadier on a shared machine). ``--scaling`` times one warm run per duration (10, 60, 300,
 1200 s; ``--long`` adds 3600 s) and fits the time per LM step against the samples.
+``--real`` replaces the synthetic motion by a real one (:func:`make_real_job`: a hand-held
+camera's motion capture, the repository's TUM freiburg1_xyz subsample by default); ``--knot``
+sets torch_dq's knot spacing (at most one control point per pose).
 
     python benchmarks/bench_gtsam.py                       # 60 s, 1 and 2 threads
     python benchmarks/bench_gtsam.py --scaling --threads 1 # the scaling series
+    python benchmarks/bench_gtsam.py --real                # real motion: TUM fr1_xyz poses,
+                                                           # IMU from scipy's smoothing spline
     python benchmarks/bench_gtsam.py --profile --threads 1 # CPU time per solver phase,
                                                            # cProfile, torch.profiler
 
@@ -116,6 +121,53 @@ def make_job(duration: float, seed: int = 0) -> dict:
     meas_R = np.einsum("nij,njk->nik", Rc, _expm(drot))
     meas_p = position(tc) + SIGMA_POS * rng.standard_normal((len(tc), 3))
     return dict(tc=tc, ti=ti, R=meas_R, p=meas_p, gyro=gyro, acc=acc)
+
+
+REAL_FILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "tests", "data",
+                         "tum_fr1_xyz_sub.txt")
+REAL: str | None = None  # --real: the job of make_real_job(REAL) instead of make_job
+
+
+def make_real_job(path: str, seed: int = 0) -> dict:
+    """The real-motion job (``--real``): TUM motion-capture poses of a hand-held camera
+    (``path``, TUM format, UNIX seconds), every second line as a pose measurement, as they
+    are (the capture's own noise), and a 200 Hz IMU on the same clock with the synthetic
+    job's biases, noise and gravity. TUM has no IMU: its motion is scipy's smoothing spline
+    of the capture (``make_smoothing_spline``, its own generalised cross-validation, per
+    position axis and per component of the rotation vector ``phi`` of ``R_0^T R(t)``; an
+    interpolant would turn the capture's millimetre noise into accelerations of metres per
+    second squared that no rigid body has), gyro ``J_r(phi) dphi/dt``, accelerometer
+    ``R^T (a - g)``: a model independent of both solvers."""
+    from scipy.interpolate import make_smoothing_spline
+    from scipy.spatial.transform import Rotation
+    a = np.loadtxt(path, comments="#")
+    t, rot = a[:, 0], Rotation.from_quat(a[:, 4:8])  # (qx, qy, qz, qw)
+    phi = (rot[0].inv() * rot).as_rotvec()  # small on a hand-held sequence: no wrap
+    fits = [make_smoothing_spline(t - t[0], x) for x in (*a[:, 1:4].T, *phi.T)]
+    tc = t[::2]
+    ti = tc[0] + np.arange(int((tc[-1] - tc[0]) * IMU_HZ) + 1) / IMU_HZ  # within the poses
+    val = [np.stack([f(ti - t[0], nu) for f in fits], -1) for nu in (0, 1, 2)]
+    ph, dph = val[0][:, 3:], val[1][:, 3:]
+    th = np.linalg.norm(ph, axis=-1)[:, None, None]
+    hat = np.zeros((len(ti), 3, 3))
+    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -ph[:, 2], ph[:, 1], -ph[:, 0]
+    hat = hat - hat.transpose(0, 2, 1)
+    A = np.where(th > 1e-8, (1 - np.cos(th)) / np.maximum(th, 1e-300) ** 2, 0.5)
+    B = np.where(th > 1e-8, (th - np.sin(th)) / np.maximum(th, 1e-300) ** 3, 1 / 6)
+    Jr = np.eye(3) - A * hat + B * hat @ hat  # the right Jacobian of SO(3)
+    Ri = rot[0].as_matrix() @ _expm(ph)
+    rng = np.random.default_rng(seed)
+    g = np.array([0.0, 0.0, -G])
+    gyro = (np.einsum("nij,nj->ni", Jr, dph) + B_GYRO
+            + SIGMA_GYRO * rng.standard_normal((len(ti), 3)))
+    acc = (np.einsum("nji,nj->ni", Ri, val[2][:, :3] - g) + B_ACC
+           + SIGMA_ACC * rng.standard_normal((len(ti), 3)))
+    return dict(tc=tc, ti=ti, R=rot[::2].as_matrix(), p=a[::2, 1:4], gyro=gyro, acc=acc)
+
+
+def _job(duration: float) -> dict:
+    """The job the run times: the real-motion one where ``--real`` is given."""
+    return make_real_job(REAL) if REAL else make_job(duration)
 
 
 def _expm(w: np.ndarray) -> np.ndarray:
@@ -227,7 +279,7 @@ def child(side: str, duration: float, repeats: int, threads: int) -> dict:
     """Runs in a fresh process: warm-up, then the best of ``repeats``."""
     import torch
     torch.set_num_threads(threads)
-    job = make_job(duration)
+    job = _job(duration)
     if side == "torch_dq+reuse":  # freed temporaries kept in the heap (torch_dq.reuse_memory)
         import torch_dq
         torch_dq.reuse_memory()
@@ -237,7 +289,8 @@ def child(side: str, duration: float, repeats: int, threads: int) -> dict:
     runs = [run(job) for _ in range(repeats)]
     best = min(runs, key=lambda r: r[1][CLOCK] + r[2][CLOCK])
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return dict(side=side, duration=duration, threads=threads, setup=best[0][CLOCK],
+    span = float(job["tc"][-1] - job["tc"][0])
+    return dict(side=side, duration=span, threads=threads, setup=best[0][CLOCK],
                 solve=best[1][CLOCK], unc=best[2][CLOCK], steps=best[3], peak_mb=peak / 1024,
                 grew_mb=(peak - base) / 1024, imu=len(job["ti"]), poses=len(job["tc"]),
                 wall=[float(r[1][0] + r[2][0]) for r in runs],
@@ -247,7 +300,8 @@ def child(side: str, duration: float, repeats: int, threads: int) -> dict:
 def spawn(side: str, duration: float, repeats: int, threads: int) -> dict | None:
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
     cmd = [sys.executable, __file__, "--child", side, "--duration", str(duration),
-           "--repeats", str(repeats), "--threads", str(threads)] + (["--cpu"] if CLOCK else [])
+           "--repeats", str(repeats), "--threads", str(threads), "--knot", str(KNOT)]
+    cmd += (["--cpu"] if CLOCK else []) + (["--real", REAL] if REAL else [])
     out = subprocess.run(cmd, env=env, capture_output=True, text=True)
     if out.returncode:
         print(f"  {side} failed:\n{out.stderr[-2000:]}", file=sys.stderr)
@@ -265,8 +319,10 @@ def _row(r: dict) -> str:
 
 
 def side_by_side(duration: float, repeats: int, threads: list[int], sides: list[str]) -> None:
-    print(f"{duration:g} s job: {int(duration * IMU_HZ) + 1} IMU samples, "
-          f"{int(duration * POSE_HZ) + 1} poses; warm, best of {repeats} "
+    job = _job(duration)
+    what = f"real motion ({os.path.basename(REAL)})" if REAL else f"{duration:g} s"
+    print(f"{what} job: {len(job['ti'])} IMU samples, {len(job['tc'])} poses over "
+          f"{job['tc'][-1] - job['tc'][0]:.1f} s; warm, best of {repeats} "
           f"({'process CPU' if CLOCK else 'wall-clock'} seconds)")
     for th in threads:
         rows = {s: spawn(s, duration, repeats, th) for s in sides}
@@ -348,7 +404,7 @@ def profile(duration: float, threads: int) -> None:
 
     import torch
     torch.set_num_threads(threads)
-    job = make_job(duration)
+    job = _job(duration)
     torch_dq_run(make_job(10.0))
     totals: dict = {}
     counts: dict = {}
@@ -390,6 +446,7 @@ def profile(duration: float, threads: int) -> None:
 
 
 def main() -> None:
+    global CLOCK, REAL, KNOT
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=3)
@@ -399,14 +456,18 @@ def main() -> None:
     ap.add_argument("--durations", help="comma list of the scaling series' durations (s)")
     ap.add_argument("--only", choices=["torch_dq", "torch_dq+reuse", "gtsam"])
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--knot", type=float, default=KNOT,
+                    help="torch_dq's knot spacing in seconds (default %(default)s)")
+    ap.add_argument("--real", nargs="?", const=REAL_FILE, metavar="TUM_FILE",
+                    help="the real-motion job (make_real_job) on a TUM trajectory file "
+                         "(default: the repository's tests/data/tum_fr1_xyz_sub.txt)")
     ap.add_argument("--cpu", action="store_true",
                     help="report process CPU seconds instead of wall-clock (loaded machines)")
     ap.add_argument("--child", choices=["torch_dq", "torch_dq+reuse", "gtsam"],
                     help=argparse.SUPPRESS)
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
-    global CLOCK
-    CLOCK = 1 if args.cpu else 0
+    CLOCK, REAL, KNOT = (1 if args.cpu else 0), args.real, args.knot
     if args.child:
         print(json.dumps(child(args.child, args.duration, args.repeats, threads[0])))
         return

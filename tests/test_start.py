@@ -71,7 +71,8 @@ def test_sample_times_per_trajectory():
     bad = rows.clone()
     bad[1, 3] = bad[1, 2]
     with pytest.raises(ValueError, match=r"^f: times must be strictly increasing in each row, "
-                                         r"not so in row \(1,\)$"):
+                                         r"not so in row 1 \(sort the samples, and drop or "
+                                         r"merge repeated times\)$"):
         check_sample_times("f", bad, batched=True)
     bad = rows[None].repeat(2, 1, 1)
     bad[1, 0, 4] = math.inf

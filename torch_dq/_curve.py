@@ -23,7 +23,7 @@ from . import _checks, _compat01, _start, curves, dualquat
 from ._core import align_chain
 from ._curve_args import check_int, extra_float, extra_origins
 from ._fused_curves import span_points as gather_span_points
-from ._time import KnotDomain
+from ._time import EXTRAPOLATE_HINT, KnotDomain
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -436,9 +436,11 @@ class Curve(torch.nn.Module, abc.ABC):
         the knots' batch shape (row ``b``: trajectory ``b``'s domain)."""
         return self.time_model.domain()
 
-    def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None) -> Tensor:
+    def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None,
+               fix: str = f"or {EXTRAPOLATE_HINT}") -> Tensor:
         """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, admitted by the time
-        model (checked when ``self.check``)."""
+        model (checked when ``self.check``; ``fix``: the message's last advice on times
+        outside the domain)."""
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
@@ -453,7 +455,8 @@ class Curve(torch.nn.Module, abc.ABC):
         return self.time_model.prepare(
             fn, t, like.dtype, check=self.check, extrapolate=extrapolate, knots=None,
             what="the module's time domain", fix="evaluate inside it (the caller's units; "
-                                                "from_poses places it over [times[0], times[-1]])")
+                                                "from_poses places it over [times[0], times[-1]]"
+                                                f"), {fix}")
 
     # -- evaluation
     def forward(self, t: Tensor, ctrl: Tensor | None = None,

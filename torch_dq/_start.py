@@ -74,25 +74,30 @@ def check_sample_times(fn: str, times: Tensor, n: int | None = None,
     finite, increasing = ~torch.isfinite(tt), tt[..., 1:] <= tt[..., :-1]
     bad = torch.stack((finite.any(), increasing.any())).tolist()
     if bad[0]:
-        _checks.fail(fn, "times must be finite" + _row(finite))
+        _checks.fail(fn, "times must be finite" + _row(finite, tt, 0))
     if bad[1]:
-        hint = ""
+        hint = " (sort the samples, and drop or merge repeated times)"
         if times.dtype != torch.float64:  # absolute timestamps collapse in float32
             ulp = float(time_step(times.dtype, tt.abs().max().cpu()))  # at the largest time
             hint = (f" ({times.dtype} rounds these times to steps of {ulp:.3g} (the times' "
                     f"units); pass absolute "
                     f"timestamps such as UNIX seconds as float64)")
-        _checks.fail(fn, "times must be strictly increasing" + _row(increasing) + hint)
+        _checks.fail(fn, "times must be strictly increasing" + _row(increasing, tt, 1) + hint)
     return times
 
 
-def _row(bad: Tensor) -> str:
-    """For batched times, the message's tail naming the first row with a ``True`` in
-    ``bad``."""
-    if bad.dim() < 2:
-        return ""
-    row = _checks.first_index(bad.any(-1))
-    return f" in each row, not so in row {row}"
+def _row(bad: Tensor, times: Tensor, pair: int) -> str:
+    """The message's tail naming where ``bad`` first holds: for batched times its row, for
+    ``(N,)`` times the sample (``pair``: 1 where ``bad[i]`` compares ``times[i + 1]`` with
+    ``times[i]``, 0 where it is about ``times[i]``), with the values."""
+    if bad.dim() >= 2:
+        row = _checks.first_index(bad.any(-1))
+        return f" in each row, not so in row {row[0] if len(row) == 1 else row}"
+    (i,) = _checks.first_index(bad)
+    if not pair:
+        return f": times[{i}] = {float(times[i])!r}"
+    later, earlier = float(times[i + 1]), float(times[i])
+    return f": times[{i + 1}] = {later!r} is not after times[{i}] = {earlier!r}"
 
 
 def check_determined(fn: str, first: Tensor, values: Tensor, n: int,

@@ -62,7 +62,7 @@ _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_c
 #: timestamps): float32 UNIX seconds (steps of 128 s) do not pass. The one resolution rule
 #: (:func:`unresolved`).
 MIN_RESOLUTION = 1e-4
-EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"
+EXTRAPOLATE_HINT = "pass extrapolate=True to continue the end spans"  # ends a ``fix``
 
 
 def time_step(dtype: torch.dtype, at: float | Tensor) -> Tensor:
@@ -398,8 +398,7 @@ class KnotDomain:
                 got += f" and t contains NaN/inf ({n_bad} values)"
         else:
             got = f"but t contains NaN/inf only ({n_bad} values)"
-        _checks.fail(fn, f"t must lie in {what} {ends}, {got}; {fix}, or "
-                         f"{EXTRAPOLATE_HINT}")
+        _checks.fail(fn, f"t must lie in {what} {ends}, {got}; {fix}")
 
     # -- spans and local parameters
     def span(self, rel: Tensor) -> Tensor:

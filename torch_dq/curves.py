@@ -96,7 +96,7 @@ from ._fused_curves import (
 from ._kinematics import Kinematics, imu, kinematics, screw_axis, twists, velocity
 from ._numerics import compute_dtype
 from ._split import poses as split_poses
-from ._time import KnotDomain, time_pair
+from ._time import EXTRAPOLATE_HINT, KnotDomain, time_pair
 
 __all__ = [
     "bezier",
@@ -281,7 +281,8 @@ def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extra
     tensor_ends = any(isinstance(e, Tensor) for e in (t0, t1))
     rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate,
                       knots="domain" if tensor_ends else None,
-                      fix="evaluate inside it, pass a domain=(t0, t1) that covers it")
+                      fix="evaluate inside it, pass a domain=(t0, t1) that covers it, or "
+                          + EXTRAPOLATE_HINT)
     rel, bad = nan_safe(dom, rel)
     _, s, slope = dom.locate(rel, compute_dtype(ctrl.dtype))
     return batch, ctrl.to(compute_dtype(ctrl.dtype)), s, slope, bad
@@ -418,7 +419,8 @@ def _prepare_bspline(fn: str, ctrl: Tensor, t: Tensor, degree, knots, check: boo
         tdtype = _time_dtype(ctrl, t, knots)
         validate = "knots"
     dom = KnotDomain(knots.to(tdtype), degree)
-    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate, fix=fix)
+    rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate, knots=validate,
+                      fix=f"{fix}, or {EXTRAPOLATE_HINT}")
     return batch, dom, rel, form
 
 

@@ -482,9 +482,12 @@ class BSpline(Curve):
             # span tables whatever a batch holds (a non-unit element would switch the path,
             # and the rounding, of its neighbours)
             weights = self.time_model.bases(rel, r, order, cumulative=True)
-            aligned = align_chain(ctrl)
+            aligned, at = align_chain(ctrl), r
+            if not batch and r.numel():  # one curve: the points its times read (a part of a
+                a, b = torch.stack(torch.aminmax(r)).tolist()  # long record reads a stretch)
+                aligned, at = aligned[a - self.degree:b + 1], r - (a - self.degree)
             if _cumulative_lie.applies(aligned, weights):
-                return tuple(fused_cumulative(aligned, r, weights, self.degree, batch,
+                return tuple(fused_cumulative(aligned, at, weights, self.degree, batch,
                                               _cumulative_lie.derivatives))
         return curves._bspline_jets(ctrl, self.time_model, rel, self.form, order, batch, r=r)
 

@@ -486,7 +486,8 @@ class Estimate:
         p = self._problem
         spans, ctrl = p.spans, self._ctrl
         sup, n = spans.support, spans.n
-        p.trajectory._times(fn, t, ctrl, False)  # the layer's checks: type, shape, domain
+        # the layer's checks: type, shape, domain (no extrapolation of the uncertainty)
+        p.trajectory._times(fn, t, ctrl, False, "as the standard deviations are not extrapolated")
         lead = t.shape[:-1]
         if not p.batch:  # one trajectory: any leading shape of times, flattened
             t = t.reshape(-1)
