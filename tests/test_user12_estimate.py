@@ -187,3 +187,31 @@ def test_imu_bias_std_describes_the_spread_of_a_monte_carlo_batch():
         assert bias.shape == (B, 3)
         ratio = np.sqrt(((bias - truth) ** 2).mean(0)) / est.std(term, "bias")[0].numpy()
         assert 0.55 < ratio.min() and ratio.max() < 1.45, ratio  # 32 samples: 1-sigma ~0.13
+
+
+def test_extrinsic_along_a_constant_rotation_axis_is_reported_undetermined():
+    """On a screw about a fixed axis an IMU and a sensor's poses cannot tell the sensor's
+    offset along the axis (``x g`` with ``g`` a shift along ``omega`` changes no reading):
+    the solve from the identity fits every datum exactly, the extrinsic's rotation is the
+    truth's (numpy) with a finite std, its translation's std is inf, with a warning."""
+    import warnings
+    rot_e = Rotation.from_rotvec([0.3, -0.5, 1.0])
+    e_true = _as_dq(rot_e.as_matrix()[None], np.array([[0.1, 0.2, -0.3]]))[0]
+    ti, gyro, accel = _imu(np.linspace(0.1, T - 0.1, 190))
+    cam = Poses(torch.tensor(TC), dq.mul(_as_dq(*_truth(TC)), e_true), rot_sigma=1e-3,
+                trans_sigma=1e-3, extrinsic=True)
+    terms = [cam, Gyro(ti, gyro, sigma=1e-3), Accel(ti, accel, sigma=1e-2)]
+    spline = _start("identity", form="cumulative")
+    est = estimate(spline, terms, verbose=False)
+    with torch.no_grad():
+        assert all(float(term(spline).abs().max()) < 1e-6 for term in terms)
+    q = cam.extrinsic[:4].numpy()
+    got = Rotation.from_quat(np.concatenate((q[1:], q[:1])))
+    assert (got * rot_e.inv()).magnitude() < 1e-6
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        std = est.std(cam, "extrinsic").numpy()
+    assert np.isfinite(std[:3]).all() and std[:3].max() < 1e-2
+    assert np.isinf(std[3:]).all()
+    assert any("no information on a direction of Poses.extrinsic" in str(w.message)
+               for w in caught)
