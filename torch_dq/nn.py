@@ -103,6 +103,14 @@ def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> i
         batch = _checks.broadcast_shapes(x.shape[:-2], t64.shape[:-1])
         _checks.fail(fn, f"n_ctrl=None chooses the knots from one trajectory's poses; pass "
                          f"n_ctrl for a batch of shape {_checks.shape_str(batch)}")
+    n, least = x.shape[-2], 2 * (degree + 2)
+    if n < least:
+        fix = (f"pass n_ctrl (degree < n_ctrl <= N), e.g. n_ctrl={n}" if n > degree else
+               f"with {n} poses, lower the degree below {n} and pass n_ctrl, e.g. "
+               f"degree={n - 1}, n_ctrl={n}")
+        _checks.fail(fn, f"n_ctrl=None chooses the knot spacing from the poses "
+                         f"(fitting.choose_knot_spacing), which needs at least {least} of them "
+                         f"for degree {degree}, got N = {n}; {fix}")
     h = choose_knot_spacing(t64, x.detach().to(torch.float64).cpu(), degree, form=form)
     return min(math.ceil((float(t64[-1]) - float(t64[0])) / h) + degree, x.shape[-2])
 

@@ -87,6 +87,12 @@ REFINE_TOL = 1e-7
 #: errors of the start and of the refined curve agree to within 1 % either way).
 REFINE_GAIN = 0.01
 
+#: The gap note adds that gaps limit the knot spacing where they take more than this
+#: fraction of the span (uniform knots put control points there too, and ``n_ctrl`` is at
+#: most the fitted poses' count: 10 s of gap in 16 s of 50 Hz poses coarsen the spacing
+#: from 0.081 s to 0.108 s, held-out errors 23 % higher than without the gap).
+GAP_SHARE = 0.25
+
 
 @dataclass
 class FitResult:
@@ -348,11 +354,16 @@ def _gap_note(traj: io.Trajectory, spacing: float) -> tuple[int, str | None]:
     if not count:
         return 0, None
     worst = int(steps.argmax())
+    share = float(steps[steps > 2 * spacing].sum() / (traj.times[-1] - traj.times[0]))
+    costly = (f"; {'they take' if count != 1 else 'it takes'} {100 * share:.0f} % of the "
+              f"span and, with uniform knots, of the control points, whose number the fitted "
+              f"poses bound: this limits the knot spacing; for finer knots, fit the parts "
+              f"between the gaps separately" if share > GAP_SHARE else "")
     return count, (f"{count} gap{'s' * (count != 1)} between poses longer than 2 knot "
                    f"spacings ({2 * spacing:.4g} s; the longest {float(steps[worst]):.3f} s, "
                    f"{float(traj.times[worst] - traj.times[0]):.3f} s after the first pose): "
                    f"the curve bridges {'them' if count != 1 else 'it'} smoothly, without "
-                   f"data (trajectory.csv marks such rows in_gap = 1)")
+                   f"data (trajectory.csv marks such rows in_gap = 1){costly}")
 
 
 def _in_gap(grid: Tensor, times: Tensor, spacing: float) -> Tensor:

@@ -24,7 +24,7 @@ from .._progress import reporter
 from . import _structure as structure
 from ._align import imu_aligned
 from ._charts import Scalar
-from ._imu import Accel
+from ._imu import Accel, Gyro
 from ._lm import LevenbergMarquardt
 from ._problem import Problem
 from ._terms import Term
@@ -274,6 +274,9 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     ctrl = imu_aligned(fn, trajectory, terms, ctrl)
     problem = Problem(trajectory, terms, batch)
     values = _starts(fn, problem, ctrl)
+    for term in terms:  # a start at rest tells nothing of a gyroscope's units: the poses do
+        if isinstance(term, Gyro):
+            term.check_units_against(terms)
     bar = reporter(int(steps), verbose, "torch_dq.estimate")
     try:
         lm = LevenbergMarquardt(problem, ctrl, values, float(prior))

@@ -21,7 +21,7 @@ from .._kinematics import body_field
 from ._charts import Direction, Vector
 from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
-from ._terms import Options, Term, _first_bad, _masked, _nuisance, _sigma, _vector_data
+from ._terms import Options, Poses, Term, _first_bad, _masked, _nuisance, _sigma, _vector_data
 
 __all__ = ["Accel", "Gyro", "check_repeated", "degrees_message"]
 
@@ -55,6 +55,7 @@ class _Imu(Term):
         self._buffer("readings", _masked(readings, options.mask, 0.0), 1)
         self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
         self._units_checked = False  # the readings' units, checked once (first values())
+        self._units_pending = False  # a Gyro's check left to the poses (start at rest)
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
@@ -97,7 +98,10 @@ class Gyro(_Imu):
     Warns:
         UserWarning: readings whose mean magnitude is about ``180 / pi`` times the
             trajectory's angular rates (deg/s for rad/s), once, when
-            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`).
+            :func:`~torch_dq.fitting.estimate` starts (the first :meth:`values`); where
+            the start barely turns (an identity or constant start), against the rotation
+            rates of the measured poses of a :class:`~torch_dq.fitting.Poses` term
+            (:meth:`check_units_against`).
     """
 
     order = 1
@@ -131,8 +135,23 @@ class Gyro(_Imu):
         warns when the readings look like deg/s (``_warn_degrees``)."""
         if not self._units_checked:
             self._units_checked = True
-            _warn_degrees(self, trajectory, ctrl)
+            self._units_pending = not _warn_degrees(self, trajectory, ctrl)
         return super().values(trajectory, ctrl)
+
+    def check_units_against(self, terms: list[Term]) -> None:
+        """Where the start barely turned (an identity or constant start tells nothing of the
+        readings' units), the deg/s check of :meth:`values` against the rotation rates of
+        the measured poses instead (``_poses_rate``; the first
+        :class:`~torch_dq.fitting.Poses` term of ``terms`` that has them), if any."""
+        if not self._units_pending:
+            return
+        self._units_pending = False
+        rates = [r for r in (_poses_rate(t) for t in terms if isinstance(t, Poses)) if r]
+        if rates:
+            message = degrees_message(self, None, rates=(rates[0], _mean_reading(self)),
+                                      source="the measured poses'")
+            if message:
+                warnings.warn(message, UserWarning, stacklevel=3)
 
     def default_start(self, name, trajectory, ctrl, values):
         if name != "time_offset":
@@ -144,24 +163,57 @@ _DEGREES = 180.0 / math.pi  # readings in deg/s are this many times those in rad
 _UNITS_SAMPLES = 1 << 12  # samples the units check reads at most (a mean: 4096 do)
 
 
-def _warn_degrees(term: Gyro, trajectory, ctrl) -> None:
-    """Warn with :func:`degrees_message`'s message, if any."""
-    message = degrees_message(term, trajectory, ctrl)
+def _warn_degrees(term: Gyro, trajectory, ctrl) -> bool:
+    """Warn with :func:`degrees_message`'s message, if any; False where the trajectory
+    barely turns (the check could not tell)."""
+    rates = (_trajectory_rate(term, trajectory, ctrl), _mean_reading(term))
+    message = degrees_message(term, trajectory, ctrl, rates)
     if message:
         warnings.warn(message, UserWarning, stacklevel=4)
+    return rates[0] > _TURNING
 
 
-def degrees_message(term: Gyro, trajectory, ctrl=None) -> str | None:
+_TURNING = 1e-3  # rad/s: a trajectory turning slower than this tells nothing of deg/s
+
+
+def degrees_message(term: Gyro, trajectory, ctrl=None, rates: tuple[float, float] | None = None,
+                    source: str = "the trajectory's") -> str | None:
     """The message saying that ``term``'s readings look like deg/s, or None: where their
     mean magnitude is within a factor 1.5 of ``180 / pi`` times the trajectory's (its
     angular rates at the samples' times, clamped into its domain; None where it barely
     turns, below 1e-3 rad/s). The one deg/s check of the library's terms and of ``python
-    -m torch_dq fit --imu``. Long records are read at ``_UNITS_SAMPLES`` evenly strided
-    samples (the check needs the mean magnitudes, not every sample: its memory stays that
-    of a short record)."""
+    -m torch_dq fit --imu``. ``rates``: the reference and the readings' mean magnitudes
+    where already known (``source`` names the reference), else computed."""
+    if rates is None:
+        rates = (_trajectory_rate(term, trajectory, ctrl), _mean_reading(term))
+    pred, meas = rates
+    if pred > _TURNING and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
+        return (f"{term._fn}: the readings look like deg/s, not rad/s: their mean magnitude "
+                f"{meas:.4g} is {meas / pred:.3g} times {source} angular rate "
+                f"{pred:.4g} rad/s (180/pi = 57.3); convert them with torch.deg2rad")
+    return None
+
+
+def _strided(term: Gyro) -> tuple[Tensor, Tensor, Tensor]:
+    """Times, mask and readings at ``_UNITS_SAMPLES`` evenly strided samples at most: the
+    units checks need mean magnitudes, not every sample (their memory stays that of a short
+    record)."""
     stride = -(-term.N // _UNITS_SAMPLES)
-    t, mask, readings = (term.times[..., ::stride], term.mask[..., ::stride],
-                         term.readings[..., ::stride, :])
+    return (term.times[..., ::stride], term.mask[..., ::stride],
+            term.readings[..., ::stride, :])
+
+
+def _mean_reading(term: Gyro) -> float:
+    """The readings' mean magnitude over the unmasked (strided) samples."""
+    _, mask, readings = _strided(term)
+    w = mask.to(torch.float64)
+    return float((readings.norm(dim=-1).to(torch.float64) * w).sum() / w.sum())
+
+
+def _trajectory_rate(term: Gyro, trajectory, ctrl) -> float:
+    """The mean magnitude of the trajectory's angular rate at the term's (strided,
+    unmasked) samples' times, clamped into its domain."""
+    t, mask, _ = _strided(term)
     lo, hi = (torch.as_tensor(e, dtype=torch.float64, device=t.device)
               for e in trajectory.domain)
     t = torch.minimum(torch.maximum(t, lo[..., None] if lo.dim() else lo),
@@ -170,13 +222,22 @@ def degrees_message(term: Gyro, trajectory, ctrl=None) -> str | None:
         x, dx = trajectory.derivatives(t, 1, ctrl=None if ctrl is None else ctrl.detach())
         rate = curves.kinematics(x, dx, frame="body").angular_velocity.to(torch.float64)
     w = mask.to(torch.float64)
-    pred = float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
-    meas = float((readings.norm(dim=-1) * w).sum() / w.sum())
-    if pred > 1e-3 and _DEGREES / 1.5 < meas / pred < 1.5 * _DEGREES:
-        return (f"{term._fn}: the readings look like deg/s, not rad/s: their mean magnitude "
-                f"{meas:.4g} is {meas / pred:.3g} times the trajectory's angular rate "
-                f"{pred:.4g} rad/s (180/pi = 57.3); convert them with torch.deg2rad")
-    return None
+    return float((rate.norm(dim=-1) * w).sum() / w.expand(rate.shape[:-1]).sum())
+
+
+def _poses_rate(term: Poses) -> float | None:
+    """The mean angular rate (rad/s) of ``term``'s measured rotations between consecutive
+    unmasked samples at distinct times (``|Log(R_i^T R_(i+1))| / (t_(i+1) - t_i)``; a
+    sensor mount does not change it), or None where there are no such pairs."""
+    keep = term.mask.reshape(-1, term.N)[0] if term.times.dim() == 1 else term.mask[0]
+    t = (term.times if term.times.dim() == 1 else term.times[0])[keep].to(torch.float64)
+    q = term.rotations.reshape(-1, term.N, 4)[0][keep].to(torch.float64)
+    dt = t[1:] - t[:-1]
+    ok = dt > 0
+    if not bool(ok.any()):
+        return None
+    angle = quat.to_rotvec(quat.mul(quat.conj(q[:-1]), q[1:])).norm(dim=-1)
+    return float((angle[ok] / dt[ok]).mean())
 
 
 def _correlate_offset(term: Gyro, trajectory, ctrl) -> Tensor:
@@ -263,7 +324,8 @@ class Accel(_Imu):
 
     Warns:
         UserWarning: readings whose mean magnitude is about ``|gravity| / 9.80665`` (g for
-            m/s²), once, when :func:`~torch_dq.fitting.estimate` starts.
+            m/s²) or ``1000 |gravity| / 9.80665`` (milli-g), once, when
+            :func:`~torch_dq.fitting.estimate` starts.
     """
 
     order = 2
@@ -344,16 +406,19 @@ _STANDARD_GRAVITY = 9.80665  # m/s^2 per g
 
 
 def _warn_g_units(term: Accel, gravity: Tensor) -> None:
-    """Warn when the readings look like g, not m/s^2: their mean magnitude within a
-    factor 1.5 of ``|gravity| / 9.80665`` (a body at rest reads ``|gravity|`` in m/s^2)."""
+    """Warn when the readings look like g or milli-g, not m/s^2: their mean magnitude
+    within a factor 1.5 of ``|gravity| / 9.80665`` (g) or of ``1000 |gravity| / 9.80665``
+    (milli-g; a body at rest reads ``|gravity|`` in m/s^2)."""
     w = term.mask.to(torch.float64)
     meas = float((term.readings.norm(dim=-1).to(torch.float64) * w).sum() / w.sum())
     g = float(gravity.detach().to(torch.float64).norm(dim=-1).mean())
     ratio = g / meas if meas > 0 else math.inf
-    if _STANDARD_GRAVITY / 1.5 < ratio < 1.5 * _STANDARD_GRAVITY:
-        warnings.warn(f"{term._fn}: the readings look like g, not m/s^2: their mean "
-                      f"magnitude {meas:.4g} is {ratio:.3g} times smaller than gravity's "
-                      f"{g:.4g} m/s^2; multiply them by 9.80665", UserWarning, stacklevel=4)
+    for unit, per_g in (("g", 1.0), ("milli-g", 1e3)):
+        factor = _STANDARD_GRAVITY / per_g  # m/s^2 per unit
+        if factor / 1.5 < ratio < 1.5 * factor:
+            warnings.warn(f"{term._fn}: the readings look like {unit}, not m/s^2: their mean "
+                          f"magnitude {meas:.4g} is {1 / ratio:.4g} times gravity's {g:.4g} "
+                          f"m/s^2; multiply them by {factor:.6g}", UserWarning, stacklevel=4)
 
 
 def _better_gravity(term: Accel, trajectory, ctrl, values: dict[str, Tensor]) -> Tensor:

@@ -77,6 +77,12 @@ def check(fn: str, terms: list[Term]) -> None:
             _checks.fail(fn, "the lever_arm is undetermined by positions alone (R(t) l "
                              "trades against the body's rotation); add Poses or an IMU")
     absolute = bool(poses) or _rotation_from_positions(positions)
+    if not absolute and not accel and not relative and gyro:
+        _checks.fail(fn, "the trajectory's rotation is undetermined by Positions and Gyro: "
+                         "the gyroscope measures only its rate and a point's track does not "
+                         "fix the body's rotation; add an Accel (the IMU's accelerometer), "
+                         "Poses, odometry, or Positions of three non-collinear fixed lever "
+                         "arms")
     if not absolute and not accel and not relative:
         _checks.fail(fn, "the trajectory's rotation is undetermined by positions alone "
                          "(a point's track does not fix the body's rotation); add Poses, an "

@@ -99,9 +99,10 @@ def read_imu(path: str | os.PathLike[str], *, time_unit: str = "auto",
             (20 Hz to 5 kHz); times read as nanoseconds less than 10 us apart while
             seconds (or ms, us) give such a rate (decimal seconds under a ``[ns]``
             header); accelerometer readings in g (their mean about 1 long, not gravity's
-            9.81 m/s²); gyroscope readings averaging gravity's magnitude while the
-            accelerometer's are small (the two sets of columns swapped); gyroscope readings
-            57 times what the accelerometer's turning says (deg/s, not rad/s).
+            9.81 m/s²) or in milli-g (about 1000 long); gyroscope readings averaging
+            gravity's magnitude while the accelerometer's are small (the two sets of
+            columns swapped); gyroscope readings 57 times what the accelerometer's
+            turning says (deg/s, not rad/s).
 
     Example:
         >>> times, gyro, accel = read_imu("mav0/imu0/data.csv")  # doctest: +SKIP

@@ -133,6 +133,10 @@ def _imu_units_guess(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str 
         return (f"the accelerometer readings look like g (standard gravity), not m/s^2: "
                 f"they average {mean_a:.3g} long where gravity reads 9.81 m/s^2; multiply "
                 f"them by 9.80665")
+    if 700.0 <= mean_a <= 1400.0 and 700.0 <= size_a <= 1400.0:
+        return (f"the accelerometer readings look like milli-g, not m/s^2: they average "
+                f"{mean_a:.4g} long where gravity reads 9.81 m/s^2; multiply them by "
+                f"0.00980665")
     scale, corr = gyro_scale(t, gyro, accel)
     if corr >= 0.2 and 1.0 / 100.0 <= scale <= 1.0 / 30.0:
         return (f"the gyroscope readings look like deg/s, not rad/s: the accelerometer's "
@@ -143,10 +147,11 @@ def _imu_units_guess(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str 
 
 def warn_imu_units(fn: str, path, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> None:
     """Warn when the mean accelerometer reading is about 1 long (and its median magnitude
-    too: g, not m/s²), when the gyroscope's is about gravity's (7 to 14) while the
-    accelerometer's readings are small (median magnitude below 5: the columns swapped), or
-    when the accelerometer's readings turn about 57 times slower than the gyroscope's say
-    (:func:`gyro_scale`, with a correlation of 0.2 at least: deg/s, not rad/s)."""
+    too: g, not m/s²) or about 1000 (milli-g), when the gyroscope's is about gravity's (7
+    to 14) while the accelerometer's readings are small (median magnitude below 5: the
+    columns swapped), or when the accelerometer's readings turn about 57 times slower than
+    the gyroscope's say (:func:`gyro_scale`, with a correlation of 0.2 at least: deg/s, not
+    rad/s)."""
     if len(accel) < 3:
         return
     what = _imu_units_guess(t, gyro, accel)
