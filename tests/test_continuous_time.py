@@ -452,7 +452,7 @@ def _bad_cases():
          r"^curves\.bezier: expected a floating-point tensor for domain"),
         ("t outside domain", lambda: bezier(c, t + 5, domain=(0.0, 2.0)), ValueError,
          r"^curves\.bezier: t must lie in the domain \[0, 2\], got values in \[5, 6\]; "
-         r"evaluate inside it, pass a domain=\(t0, t1\) that covers it, or pass "
+         r"evaluate inside it, cover it by domain=\(t0, t1\), or pass "
          r"extrapolate=True to continue the end spans$"),
         ("t all inf", lambda: bezier(c, t * math.inf + 1), ValueError,
          r"^curves\.bezier: t must lie in the domain \[0, 1\], but t contains NaN/inf only "

@@ -98,9 +98,8 @@ def _start_rows(fn: str, x: Tensor, rel: Tensor, dom: KnotDomain, n: int, split:
 def span_points(ctrl: Tensor, first: Tensor, count: int) -> Tensor:
     """``(..., N, count, 8)``: the control points ``first .. first + count - 1`` (at most the
     last) of each sample (``first (..., N)``, broadcasting against ``ctrl``'s batch) of the
-    sign-aligned chain of ``ctrl (..., n, 8)`` (:func:`torch_dq._core.align_chain`): the
-    representatives every evaluation of the curve reads, so per-sample copies and the
-    shared points give one sign."""
+    sign-aligned chain of ``ctrl (..., n, 8)`` (:func:`torch_dq._core.align_chain`): what
+    every evaluation reads, so per-sample copies and the shared points give one sign."""
     batch = torch.Size(_checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1]))
     return gather_span_points(align_chain(ctrl), first + count - 1, count - 1, batch)
 
@@ -439,8 +438,7 @@ class Curve(torch.nn.Module, abc.ABC):
     def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None,
                fix: str = f"or {EXTRAPOLATE_HINT}") -> Tensor:
         """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, admitted by the time
-        model (checked when ``self.check``; ``fix``: the message's last advice on times
-        outside the domain)."""
+        model (checked when ``self.check``; ``fix``: the last advice on other times)."""
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
@@ -455,8 +453,7 @@ class Curve(torch.nn.Module, abc.ABC):
         return self.time_model.prepare(
             fn, t, like.dtype, check=self.check, extrapolate=extrapolate, knots=None,
             what="the module's time domain", fix="evaluate inside it (the caller's units; "
-                                                "from_poses places it over [times[0], times[-1]]"
-                                                f"), {fix}")
+            f"from_poses places it over [times[0], times[-1]]), {fix}")
 
     # -- evaluation
     def forward(self, t: Tensor, ctrl: Tensor | None = None,

@@ -281,8 +281,7 @@ def _prepare_bezier(fn: str, ctrl: Tensor, t: Tensor, domain, check: bool, extra
     tensor_ends = any(isinstance(e, Tensor) for e in (t0, t1))
     rel = dom.prepare(fn, t, tdtype, check=check, extrapolate=extrapolate,
                       knots="domain" if tensor_ends else None,
-                      fix="evaluate inside it, pass a domain=(t0, t1) that covers it, or "
-                          + EXTRAPOLATE_HINT)
+                      fix=f"evaluate inside it, cover it by domain=(t0, t1), or {EXTRAPOLATE_HINT}")
     rel, bad = nan_safe(dom, rel)
     _, s, slope = dom.locate(rel, compute_dtype(ctrl.dtype))
     return batch, ctrl.to(compute_dtype(ctrl.dtype)), s, slope, bad
