@@ -75,16 +75,14 @@ MODELS: dict[str, tuple[str, ...]] = {
     "double-sphere": ("fu", "fv", "cu", "cv", "xi", "alpha"),
 }
 
-# Newton iterations of the detached root search (radtan: 2-D on the normalised point;
-# equidistant: 1-D on the angle). Over whole images (tests/test_camera.py) the residual
-# reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger radtan lens
-# (k1 = -0.35, f = 300 px on 752 x 480), 3-4 on fisheyes: 8 leave a margin (the two
+# Newton iterations of the detached radtan root search (2-D on the normalised point). Over
+# whole images (tests/test_camera.py) the residual reaches rounding (2e-16) after 4 on EuRoC's
+# cam0, 6 on a stronger lens (k1 = -0.35, f = 300 px on 752 x 480): 8 leave a margin (the two
 # differentiable steps that follow square the error twice more).
 _ITERATIONS = 8
-# The equidistant root's safeguarded iteration: Newton inside the bracket, bisection where
-# it leaves it (near the fold). 12 steps invert every pixel that OpenCV inverts on a 101 x
-# 101 grid of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py; on 301 x 301, 24 add
-# 10 of 90,601 pixels a hair from the fold) at 1.3-1.5 times 8 plain Newton steps' cost.
+# The equidistant root's safeguarded iteration (Newton in a bracket, bisection near the fold):
+# 12 steps invert every pixel that OpenCV inverts on a 101 x 101 grid of a strong fisheye (k1 =
+# 0.6, tests/test_rigs_cameras.py; 24 add 10 of 301 x 301 a hair from the fold), 1.3-1.5 x 8.
 _ITERATIONS_BRACKETED = 12
 
 
@@ -274,14 +272,16 @@ def _ds_sees(xi: Tensor, alpha: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tens
 
 
 def _project_ds(p, x, y, z):
-    xi, alpha = p[4], p[5]
+    # eq. 40 has degree 0: a constant scale to max |x, y, z| = 1 (no d1 = inf at 1e160, 0/0)
+    s = torch.maximum(torch.maximum(abs(x), abs(y)), abs(z)).detach()
+    x, y, z = (c / torch.where(s > 0, s, 1.0) for c in (x, y, z))
     with torch.no_grad():
-        valid = _ds_sees(xi, alpha, x, y, z)  # eq. 43 (and eq. 40's denominator)
+        valid = _ds_sees(p[4], p[5], x, y, z)  # eq. 43 (and eq. 40's denominator)
     x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
-    w = xi * d1 + z
+    w = p[4] * d1 + z
     d2 = torch.sqrt(x * x + y * y + w * w)  # eq. 42
-    den = alpha * d2 + (1.0 - alpha) * w  # eq. 40
+    den = p[5] * d2 + (1.0 - p[5]) * w  # eq. 40
     return (*_pinhole(p, x / den, y / den), valid)
 
 
