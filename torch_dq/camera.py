@@ -106,18 +106,14 @@ _SAFE["double-sphere"] = (1.0, 1.0, 0.0, 0.0, 0.0, 0.5)
 def _in_domain(model: str, p: list[Tensor]) -> Tensor:
     """The ``(...)`` mask of parameters (``p`` unbound) inside the model's domain."""
     ok = (p[0] > 0) & (p[1] > 0)
-    if model == "double-sphere":
-        ok = ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1)
-    return ok
+    return ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1) if model == "double-sphere" else ok
 
 
 def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """The parameters and coordinates as lists of tensors in the compute dtype, and the
-    ``(...)`` mask of parameters inside the model's domain: ``fu, fv > 0`` and for the double
-    sphere ``xi > -1`` and ``0 <= alpha <= 1`` (Usenko, Demmel, Cremers 2018; for
-    ``xi <= -1`` no point has ``xi d1 + z > 0``: the formulas divide by zero). Outside it
-    every parameter is replaced by :data:`_SAFE`'s before the formulas (safe where: finite
-    outputs and gradients, no host read)."""
+    ``(...)`` mask of parameters in the model's domain (``fu, fv > 0``; the double sphere's
+    ``alpha`` in ``[0, 1]``, ``xi > -1``: else no point has ``xi d1 + z > 0``); outside it the
+    parameters are ``_SAFE``'s (safe where: finite outputs and gradients, no host read)."""
     cd = compute_dtype(x.dtype)
     p = list(params.to(cd).unbind(-1))
     ok = _in_domain(model, p)
@@ -306,7 +302,7 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
         error: no host read). Invalid rays are finite with finite gradients (out-of-domain
         parameters are replaced before the formulas); mask them:
 
-        - pinhole: closed form, valid wherever the inputs are finite (and in the domain).
+        - pinhole: closed form, valid within :func:`project`'s ``1 / eps`` of the axis.
         - radtan: 2-D Newton on the distortion map from the distorted point (a fixed
           number of iterations, then two differentiable steps, see the module's notes).
           Invalid beyond the fold-over: where the root's radius reaches the first zero of
@@ -351,7 +347,10 @@ def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _unproject_pinhole(p, a, b):
-    return (*_unit(a, b, torch.ones_like(a)), torch.ones_like(a, dtype=torch.bool))
+    far = threshold("camera_off_axis", a.dtype)  # project's limit (|a|^2 would overflow)
+    valid = (abs(a) < far) & (abs(b) < far)
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)
+    return (*_unit(a, b, torch.ones_like(a)), valid)
 
 
 def _converged(residual: Tensor, scale: Tensor) -> Tensor:
