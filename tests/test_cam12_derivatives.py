@@ -224,3 +224,48 @@ def test_invalid_points_second_derivatives_finite(model):
         hes = torch.autograd.functional.hessian(
             lambda q, x=x: camera.project(model, q, x)[0].sum(), p)
         assert bool(torch.isfinite(hes).all())
+
+
+PARAMS = {"pinhole": [400.0, 400.0, 320.0, 240.0],
+          "pinhole-radtan": [400.0, 400.0, 320.0, 240.0, -0.28, 0.07, 2e-4, 2e-5],
+          "pinhole-equidistant": [400.0, 400.0, 320.0, 240.0, *FISH],
+          "double-sphere": [400.0, 400.0, 320.0, 240.0, -0.2, 0.6]}
+
+
+@pytest.mark.parametrize("model", list(camera.MODELS))
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+@pytest.mark.parametrize("where", ["params", "x", "cu"])
+@pytest.mark.parametrize("fn", ["project", "unproject"])
+def test_nonfinite_element_does_not_touch_other_gradients(model, bad, where, fn):
+    """NaN / inf in one element's input: the other elements' gradients w.r.t. shared
+    arguments stay finite and equal to those without the bad element (0 * NaN in the
+    backward of a formula evaluated on the bad value must not leak)."""
+    func = getattr(camera, fn)
+    n = 3 if fn == "project" else 2
+    good = torch.tensor([[0.1, 0.2, 1.0], [0.3, -0.1, 1.0], [-0.2, 0.1, 0.8]], dtype=F64)
+    if fn == "unproject":
+        good = torch.tensor([[300.0, 200.0], [500.0, 100.0], [100.0, 400.0]], dtype=F64)
+    shared_params = where != "params" and where != "cu"
+    p = torch.tensor(PARAMS[model], dtype=F64)
+    if not shared_params:
+        p = p.repeat(3, 1)
+        p[1, 0 if where == "params" else 2] = bad
+        x = good[0].clone().requires_grad_()  # shared point / pixel, per-element params
+        p.requires_grad_()
+    else:
+        x = good.clone()
+        x[1, n - 1] = bad
+        x.requires_grad_()
+        p.requires_grad_()
+    out, ok = func(model, p, x)
+    assert not bool(ok[1]) and not bool(torch.isfinite(out[1]).any())
+    gp, gx = torch.autograd.grad(out[[0, 2]].sum(), (p, x))
+    others = gx[[0, 2]] if shared_params else gp[[0, 2]]  # the bad element's own: any
+    shared = gp if shared_params else gx
+    assert bool(torch.isfinite(others).all()) and bool(torch.isfinite(shared).all()), (gp, gx)
+    # and the same as without the bad element
+    p2 = (p.detach() if shared_params else p.detach()[[0, 2]]).requires_grad_()
+    x2 = (x.detach()[[0, 2]] if shared_params else x.detach()).requires_grad_()
+    g2p, g2x = torch.autograd.grad(func(model, p2, x2)[0].sum(), (p2, x2))
+    torch.testing.assert_close(gp if shared_params else gp[[0, 2]], g2p, rtol=1e-13, atol=0)
+    torch.testing.assert_close(gx[[0, 2]] if shared_params else gx, g2x, rtol=1e-13, atol=0)

@@ -111,14 +111,15 @@ def _in_domain(model: str, p: list[Tensor]) -> Tensor:
 
 def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """The parameters and coordinates as lists of tensors in the compute dtype, and the
-    ``(...)`` mask of parameters in the model's domain (``fu, fv > 0``; the double sphere's
-    ``alpha`` in ``[0, 1]``, ``xi > -1``: else no point has ``xi d1 + z > 0``); outside it the
-    parameters are ``_SAFE``'s (safe where: finite outputs and gradients, no host read)."""
+    ``(...)`` mask of finite parameters in the model's domain (``fu, fv > 0``; the double
+    sphere's ``alpha`` in ``[0, 1]``, ``xi > -1``: else no point has ``xi d1 + z > 0``).
+    Outside it the parameters are ``_SAFE``'s, and non-finite coordinates are 0 (safe where:
+    finite outputs, and gradients without 0 * NaN reaching shared arguments; no host read)."""
     cd = compute_dtype(x.dtype)
     p = list(params.to(cd).unbind(-1))
-    ok = _in_domain(model, p)
+    ok = _in_domain(model, p) & torch.isfinite(params).all(-1)
     p = [torch.where(ok, c, s) for c, s in zip(p, _SAFE[model], strict=True)]
-    return p, list(x.to(cd).unbind(-1)), ok
+    return p, list(torch.where(torch.isfinite(x), x, 0.0).to(cd).unbind(-1)), ok
 
 
 def _outputs(batch: torch.Size, parts: tuple[Tensor, ...], valid: Tensor, params: Tensor,
