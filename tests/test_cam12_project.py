@@ -267,3 +267,16 @@ def test_scale_invariance_extreme_points(model):
         g = torch.autograd.functional.jacobian(
             lambda x: camera.project(model, p, x)[0], base[0] * s)
         torch.testing.assert_close(g * s, g_ref, rtol=1e-13, atol=0.0)
+
+
+@pytest.mark.parametrize("model", ["pinhole", "pinhole-radtan", "pinhole-equidistant"])
+def test_grazing_points(model):
+    """``z`` tiny and positive: valid while the point is within ``1 / eps`` of the axis
+    (``|x| / z < 4.5e15``), with the reference's pixel; invalid beyond (documented: the
+    pixels or their derivatives would overflow), finite either way."""
+    p = PARAMS[model]
+    pts = np.array([[0.3, -0.2, 1e-14], [0.3, -0.2, 1e-20], [0.3, -0.2, 5e-324]])
+    px, ok = camera.project(model, torch.tensor(p, dtype=F64), torch.tensor(pts))
+    assert ok.tolist() == [True, False, False]
+    assert bool(torch.isfinite(px).all())
+    np.testing.assert_allclose(px[0].numpy(), ref_project(model, p, pts[:1])[0], rtol=1e-12)

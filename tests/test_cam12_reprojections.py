@@ -226,3 +226,25 @@ def test_estimate_recovers_line_delay():
         std = float(est.std(term, "line_delay"))
     assert 0 < std < 1e-5
     assert abs(float(term.line_delay) - ld) < 0.02 * std
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_nonfinite_data_raise_unless_masked(bad):
+    spline = _spline()
+    times, pts = _data(10, seed=9)
+    meas = torch.tensor(ref_pixels(spline, times, pts))
+    meas[3, 1] = bad  # a row: it would also move the rolling shutter's time
+    with pytest.raises(ValueError, match="finite"):
+        fitting.Reprojections(torch.tensor(times), torch.tensor(pts), meas, camera=CAM,
+                              sigma=1.0, extrinsic=E, target=T)
+    mask = torch.ones(10, dtype=torch.bool)
+    mask[3] = False
+    term = fitting.Reprojections(torch.tensor(times), torch.tensor(pts), meas, camera=CAM,
+                                 sigma=1.0, extrinsic=E, target=T, mask=mask,
+                                 line_delay=1e-5)
+    r = term(spline).detach()
+    assert bool(torch.isfinite(r).all()) and r[3].tolist() == [0.0, 0.0]
+    t = torch.tensor(times)
+    t[2] = bad
+    with pytest.raises(ValueError, match="times"):
+        fitting.Reprojections(t, torch.tensor(pts), meas, camera=CAM, sigma=1.0, mask=mask)
