@@ -80,9 +80,8 @@ MODELS: dict[str, tuple[str, ...]] = {
 # cam0, 6 on a stronger lens (k1 = -0.35, f = 300 px on 752 x 480): 8 leave a margin (the two
 # differentiable steps that follow square the error twice more).
 _ITERATIONS = 8
-# The equidistant root's safeguarded iteration (Newton in a bracket, bisection near the fold):
-# 12 steps invert every pixel that OpenCV inverts on a 101 x 101 grid of a strong fisheye (k1 =
-# 0.6, tests/test_rigs_cameras.py; 24 add 10 of 301 x 301 a hair from the fold), 1.3-1.5 x 8.
+# The equidistant root's safeguarded iteration (rtsafe): 12 steps invert every pixel inside
+# the fold of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py: 401 x 401 on 800 x 600).
 _ITERATIONS_BRACKETED = 12
 
 
@@ -409,17 +408,17 @@ def _unproject_radtan(p, a, b):
 
 
 def _equidistant_root(k, s):
-    r"""Detached safeguarded Newton iterations on :math:`\theta_d(\theta) = \sqrt s`: a
-    bracket ``[lo, hi]`` of the first root starts at :math:`[0, \pi/2]`, a Newton step that
-    leaves it (or a slope that is not positive: beyond the fold) is replaced by bisection
-    (Press et al., Numerical Recipes, 3rd ed., sec. 9.4, ``rtsafe``); a plain Newton
-    iteration started beyond the fold stays there (a strong fisheye, ``k1 = 0.6``, at 69
-    degrees). Returns :math:`\rho = \theta / \theta_d` (1 at the centre) and whether the
-    root is valid."""
+    r"""Detached safeguarded Newton iterations on :math:`\theta_d(\theta) = \sqrt s` in a
+    bracket ``[lo, hi]`` of the first root from :math:`[0, \pi/2]`: bisection where a Newton
+    step leaves it, does not halve the step before last, or the slope is not positive
+    (beyond the fold, where plain Newton stays; Press et al., Numerical Recipes, 3rd ed.,
+    sec. 9.4, ``rtsafe``). Returns :math:`\rho = \theta / \theta_d` (1 at the centre)
+    and whether the root is valid."""
     half_pi = 0.5 * math.pi
     td = torch.sqrt(s)
     lo, hi = torch.zeros_like(td), torch.full_like(td, half_pi)
     theta = torch.clamp(td, max=half_pi)
+    dx = dx_old = hi  # the last two steps' lengths
     for _ in range(_ITERATIONS_BRACKETED):
         t = theta * theta
         g, slope = theta * _poly(k, t) - td, _poly_slope(k, t)
@@ -427,11 +426,12 @@ def _equidistant_root(k, s):
         lo = torch.where(rising & (g < 0), theta, lo)
         hi = torch.where(~rising | (g > 0), theta, hi)
         step = theta - g / torch.where(rising, slope, 1.0)
-        inside = rising & (step > lo) & (step < hi)
-        # converged: a root at rounding level stays (its Newton step, rounded onto the
-        # bracket's end, would not count as inside and would restart a bisection)
-        done = _converged(g.abs(), td)
-        theta = torch.where(done, theta, torch.where(inside, step, 0.5 * (lo + hi)))
+        # Newton inside the bracket and at most half the step before last (rtsafe: else it
+        # bounces between the ends, 0.008 and 1.54 rad with k1 = 0.6); a root at rounding level
+        # stays (its Newton step, rounded onto the bracket's end, would restart a bisection)
+        newton = rising & (step > lo) & (step < hi) & (2.0 * abs(step - theta) <= dx_old)
+        new = torch.where(newton, step, 0.5 * (lo + hi))
+        theta, dx_old, dx = torch.where(_converged(g.abs(), td), theta, new), dx, abs(new - theta)
     t = theta * theta
     ok = (_converged(abs(theta * _poly(k, t) - td), td) & (theta < half_pi)
           & (_poly_slope(k, t) > 0))
