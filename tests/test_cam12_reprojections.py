@@ -248,3 +248,24 @@ def test_nonfinite_data_raise_unless_masked(bad):
     t[2] = bad
     with pytest.raises(ValueError, match="times"):
         fitting.Reprojections(t, torch.tensor(pts), meas, camera=CAM, sigma=1.0, mask=mask)
+
+
+def test_estimate_excludes_points_without_image_and_reports_shapes():
+    """A point behind the camera at the solution: excluded, counted in ``term.invalid``
+    and named in a warning; the truth (noise-free) is kept; std shapes as documented."""
+    spline = _spline()
+    times, pts = _data(120, seed=11)
+    meas = ref_pixels(spline, times, pts)
+    pts[7] = [0.0, 0.0, -3.0]  # target z = -3: about 2 m behind the camera
+    meas[7] = [300.0, 200.0]
+    term = fitting.Reprojections(torch.tensor(times), torch.tensor(pts), torch.tensor(meas),
+                                 camera=CAM, sigma=0.5, extrinsic=E, target=T,
+                                 intrinsics=True, line_delay=True)
+    start = BSpline(spline.control_points.detach().clone())
+    with pytest.warns(RuntimeWarning, match="Reprojections"):
+        est = fitting.estimate(start, [term], verbose=False)
+    assert int(term.invalid) == 1
+    assert float(est.final_loss) < 1e-12
+    with pytest.warns(RuntimeWarning):
+        assert est.std(term, "intrinsics").shape == (8,)
+        assert est.std(term, "line_delay").shape == ()
