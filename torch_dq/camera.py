@@ -75,16 +75,13 @@ MODELS: dict[str, tuple[str, ...]] = {
     "double-sphere": ("fu", "fv", "cu", "cv", "xi", "alpha"),
 }
 
-# Newton iterations of the detached root search (radtan: 2-D on the normalised point;
-# equidistant: 1-D on the angle). Over whole images (tests/test_camera.py) the residual
-# reaches rounding (2e-16) after 4 iterations on EuRoC's cam0, 6 on a stronger radtan lens
-# (k1 = -0.35, f = 300 px on 752 x 480), 3-4 on fisheyes: 8 leave a margin (the two
+# Newton iterations of the detached radtan root search (2-D on the normalised point). Over
+# whole images (tests/test_camera.py) the residual reaches rounding (2e-16) after 4 on EuRoC's
+# cam0, 6 on a stronger lens (k1 = -0.35, f = 300 px on 752 x 480): 8 leave a margin (the two
 # differentiable steps that follow square the error twice more).
 _ITERATIONS = 8
-# The equidistant root's safeguarded iteration: Newton inside the bracket, bisection where
-# it leaves it (near the fold). 12 steps invert every pixel that OpenCV inverts on a 101 x
-# 101 grid of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py; on 301 x 301, 24 add
-# 10 of 90,601 pixels a hair from the fold) at 1.3-1.5 times 8 plain Newton steps' cost.
+# The equidistant root's safeguarded iteration (rtsafe): 12 steps invert every pixel inside
+# the fold of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py: 401 x 401 on 800 x 600).
 _ITERATIONS_BRACKETED = 12
 
 
@@ -108,23 +105,20 @@ _SAFE["double-sphere"] = (1.0, 1.0, 0.0, 0.0, 0.0, 0.5)
 def _in_domain(model: str, p: list[Tensor]) -> Tensor:
     """The ``(...)`` mask of parameters (``p`` unbound) inside the model's domain."""
     ok = (p[0] > 0) & (p[1] > 0)
-    if model == "double-sphere":
-        ok = ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1)
-    return ok
+    return ok & (p[4] > -1) & (p[5] >= 0) & (p[5] <= 1) if model == "double-sphere" else ok
 
 
 def _parts(model: str, params: Tensor, x: Tensor) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """The parameters and coordinates as lists of tensors in the compute dtype, and the
-    ``(...)`` mask of parameters inside the model's domain: ``fu, fv > 0`` and for the double
-    sphere ``xi > -1`` and ``0 <= alpha <= 1`` (Usenko, Demmel, Cremers 2018; for
-    ``xi <= -1`` no point has ``xi d1 + z > 0``: the formulas divide by zero). Outside it
-    every parameter is replaced by :data:`_SAFE`'s before the formulas (safe where: finite
-    outputs and gradients, no host read)."""
+    ``(...)`` mask of finite parameters in the model's domain (``fu, fv > 0``; the double
+    sphere's ``alpha`` in ``[0, 1]``, ``xi > -1``: else no point has ``xi d1 + z > 0``).
+    Outside it the parameters are ``_SAFE``'s, and non-finite coordinates are 0 (safe where:
+    finite outputs, and gradients without 0 * NaN reaching shared arguments; no host read)."""
     cd = compute_dtype(x.dtype)
     p = list(params.to(cd).unbind(-1))
-    ok = _in_domain(model, p)
+    ok = _in_domain(model, p) & torch.isfinite(params).all(-1)
     p = [torch.where(ok, c, s) for c, s in zip(p, _SAFE[model], strict=True)]
-    return p, list(x.to(cd).unbind(-1)), ok
+    return p, list(torch.where(torch.isfinite(x), x, 0.0).to(cd).unbind(-1)), ok
 
 
 def _outputs(batch: torch.Size, parts: tuple[Tensor, ...], valid: Tensor, params: Tensor,
@@ -274,14 +268,16 @@ def _ds_sees(xi: Tensor, alpha: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tens
 
 
 def _project_ds(p, x, y, z):
-    xi, alpha = p[4], p[5]
+    # eq. 40 has degree 0: a constant scale to max |x, y, z| = 1 (no d1 = inf at 1e160, 0/0)
+    s = torch.maximum(torch.maximum(abs(x), abs(y)), abs(z)).detach()
+    x, y, z = (c / torch.where(s > 0, s, 1.0) for c in (x, y, z))
     with torch.no_grad():
-        valid = _ds_sees(xi, alpha, x, y, z)  # eq. 43 (and eq. 40's denominator)
+        valid = _ds_sees(p[4], p[5], x, y, z)  # eq. 43 (and eq. 40's denominator)
     x, y, z = torch.where(valid, x, 0.0), torch.where(valid, y, 0.0), torch.where(valid, z, 1.0)
     d1 = torch.sqrt(x * x + y * y + z * z)  # eq. 41
-    w = xi * d1 + z
+    w = p[4] * d1 + z
     d2 = torch.sqrt(x * x + y * y + w * w)  # eq. 42
-    den = alpha * d2 + (1.0 - alpha) * w  # eq. 40
+    den = p[5] * d2 + (1.0 - p[5]) * w  # eq. 40
     return (*_pinhole(p, x / den, y / den), valid)
 
 
@@ -306,7 +302,7 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
         error: no host read). Invalid rays are finite with finite gradients (out-of-domain
         parameters are replaced before the formulas); mask them:
 
-        - pinhole: closed form, valid wherever the inputs are finite (and in the domain).
+        - pinhole: closed form, valid within :func:`project`'s ``1 / eps`` of the axis.
         - radtan: 2-D Newton on the distortion map from the distorted point (a fixed
           number of iterations, then two differentiable steps, see the module's notes).
           Invalid beyond the fold-over: where the root's radius reaches the first zero of
@@ -351,7 +347,10 @@ def _unit(x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _unproject_pinhole(p, a, b):
-    return (*_unit(a, b, torch.ones_like(a)), torch.ones_like(a, dtype=torch.bool))
+    far = threshold("camera_off_axis", a.dtype)  # project's limit (|a|^2 would overflow)
+    valid = (abs(a) < far) & (abs(b) < far)
+    a, b = torch.where(valid, a, 0.0), torch.where(valid, b, 0.0)
+    return (*_unit(a, b, torch.ones_like(a)), valid)
 
 
 def _converged(residual: Tensor, scale: Tensor) -> Tensor:
@@ -409,17 +408,17 @@ def _unproject_radtan(p, a, b):
 
 
 def _equidistant_root(k, s):
-    r"""Detached safeguarded Newton iterations on :math:`\theta_d(\theta) = \sqrt s`: a
-    bracket ``[lo, hi]`` of the first root starts at :math:`[0, \pi/2]`, a Newton step that
-    leaves it (or a slope that is not positive: beyond the fold) is replaced by bisection
-    (Press et al., Numerical Recipes, 3rd ed., sec. 9.4, ``rtsafe``); a plain Newton
-    iteration started beyond the fold stays there (a strong fisheye, ``k1 = 0.6``, at 69
-    degrees). Returns :math:`\rho = \theta / \theta_d` (1 at the centre) and whether the
-    root is valid."""
+    r"""Detached safeguarded Newton iterations on :math:`\theta_d(\theta) = \sqrt s` in a
+    bracket ``[lo, hi]`` of the first root from :math:`[0, \pi/2]`: bisection where a Newton
+    step leaves it, does not halve the step before last, or the slope is not positive
+    (beyond the fold, where plain Newton stays; Press et al., Numerical Recipes, 3rd ed.,
+    sec. 9.4, ``rtsafe``). Returns :math:`\rho = \theta / \theta_d` (1 at the centre)
+    and whether the root is valid."""
     half_pi = 0.5 * math.pi
     td = torch.sqrt(s)
     lo, hi = torch.zeros_like(td), torch.full_like(td, half_pi)
     theta = torch.clamp(td, max=half_pi)
+    dx = dx_old = hi  # the last two steps' lengths
     for _ in range(_ITERATIONS_BRACKETED):
         t = theta * theta
         g, slope = theta * _poly(k, t) - td, _poly_slope(k, t)
@@ -427,11 +426,12 @@ def _equidistant_root(k, s):
         lo = torch.where(rising & (g < 0), theta, lo)
         hi = torch.where(~rising | (g > 0), theta, hi)
         step = theta - g / torch.where(rising, slope, 1.0)
-        inside = rising & (step > lo) & (step < hi)
-        # converged: a root at rounding level stays (its Newton step, rounded onto the
-        # bracket's end, would not count as inside and would restart a bisection)
-        done = _converged(g.abs(), td)
-        theta = torch.where(done, theta, torch.where(inside, step, 0.5 * (lo + hi)))
+        # Newton inside the bracket and at most half the step before last (rtsafe: else it
+        # bounces between the ends, 0.008 and 1.54 rad with k1 = 0.6); a root at rounding level
+        # stays (its Newton step, rounded onto the bracket's end, would restart a bisection)
+        newton = rising & (step > lo) & (step < hi) & (2.0 * abs(step - theta) <= dx_old)
+        new = torch.where(newton, step, 0.5 * (lo + hi))
+        theta, dx_old, dx = torch.where(_converged(g.abs(), td), theta, new), dx, abs(new - theta)
     t = theta * theta
     ok = (_converged(abs(theta * _poly(k, t) - td), td) & (theta < half_pi)
           & (_poly_slope(k, t) > 0))
