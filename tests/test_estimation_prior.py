@@ -99,6 +99,8 @@ def test_camera_clock_offset_is_the_datas():
         with warnings.catch_warnings():  # prior=0: the ends' weak control points crawl
             if prior == 0.0:  # ("no progress" or steps reached: measured)
                 warnings.filterwarnings("ignore", "fitting.estimate: steps=", RuntimeWarning)
+                warnings.filterwarnings("ignore", "fitting.estimate: stopped before",
+                                        RuntimeWarning)
             est, (cam, *_), _ = _solve(data, dq.exp(E_TRUE), prior=prior, offset=Free(start))
         assert bool(est.converged) or prior == 0.0, est.reason
         found.append((float(cam.time_offset), float(est.std(cam, "time_offset"))))
@@ -229,7 +231,9 @@ def test_lack_of_progress_is_no_convergence(monkeypatch):
                                     form="cumulative")
     terms = [Poses(tc, cam, rot_sigma=0.002, trans_sigma=0.002, extrinsic=Free(off)),
              Gyro(ti, gy, sigma=0.005, bias=True), Accel(ti, ac, sigma=0.08, bias=True)]
-    est = estimate(spline, terms, tol=1e-4, verbose=False)
+    with pytest.warns(RuntimeWarning, match=r"stopped before the scaled gradient test passed "
+                                            r"\(no progress"):
+        est = estimate(spline, terms, tol=1e-4, verbose=False)
     assert not bool(est.converged)
     assert est.reason.startswith("no progress") and "not converged" in est.reason
 

@@ -354,7 +354,7 @@ def test_messages_say_how_to_fix_the_input():
         BSpline.from_dualquats(x, s, n_ctrl=4)
     unix = torch.tensor([1305031098.6659, 1305031098.6758, 1305031098.69, 1305031098.7])
     q, p = quat.identity((4,)), torch.zeros(4, 3)
-    with pytest.raises(ValueError, match=r"strictly increasing \(torch.float32 rounds.*float64"):
+    with pytest.raises(ValueError, match=r"strictly increasing: times\[1\] = .* \(torch.float32 rounds.*float64"):
         BSpline.from_poses(q, p, unix, n_ctrl=4)
     t64 = unix.double() + torch.arange(4, dtype=F64)
     spline = BSpline.from_poses(q.double(), p.double(), t64, n_ctrl=4)

@@ -144,8 +144,11 @@ class Scalar(Chart):
         return pinned
 
     def outward(self, value: Tensor, gradient: Tensor) -> Tensor:
-        """Bool: pinned with a descent direction ``-gradient`` pointing out of the range."""
-        return self.pinned(value) & (value * gradient < 0)
+        """Bool: on a bound (to ``1e-9`` relatively; a bound of zero exactly) with the
+        descent direction ``-gradient`` pointing out of the range (the step holds it)."""
+        def on(bound: float) -> Tensor:
+            return (value - bound).abs() <= 1e-9 * abs(bound)
+        return (on(self.low) & (gradient > 0)) | (on(self.high) & (gradient < 0))
 
 
 @register

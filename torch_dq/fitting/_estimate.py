@@ -224,8 +224,8 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             residual components): the step left is below :math:`\sqrt{tol\,\chi^2}`
             standard deviations of any quantity. An accepted step that lowers the objective
             by at most ``tol`` relatively while that test fails stops the iteration as not
-            converged (``reason`` starts with "no progress"); so does ``steps`` (with a
-            ``RuntimeWarning``) or no damped step lowering the objective.
+            converged (``reason`` starts with "no progress"; a ``RuntimeWarning``); so does
+            ``steps`` (warned too) or no damped step lowering the objective.
         prior: relative weight and threshold of the pull on what the data do not
             determine (see above), ``>= 0``.
         verbose: progress on stderr: a tqdm bar when stderr is a terminal and tqdm is

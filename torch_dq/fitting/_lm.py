@@ -227,15 +227,19 @@ class LevenbergMarquardt:
             self._gradient = ((self.point, self.system), grad)
         return grad
 
-    def _bounded(self, gn: Tensor) -> Tensor:
-        """``gn`` without the components of bounded scalars on their bound whose descent
-        points outwards (a constrained optimum there: the projected gradient)."""
-        gn = gn.clone()
+    def _held(self) -> Tensor | None:
+        """``(Bf, m)`` bool: the bounded scalars on their bound whose descent points outwards
+        at the current point (a line delay at 0, a clock offset at its limit), which the
+        steps hold there and the convergence test leaves out (the projected gradient); None
+        where there are none. A step that moved them would be clamped back: the step of the
+        others, computed as if they moved, stalled (a line delay at 0 on global-shutter
+        pixels: 50 steps, unconverged)."""
+        gn = self.gradient()[1]
+        held = torch.zeros_like(gn, dtype=torch.bool)
         for q, v in zip(self.p.params, self.point.values, strict=True):
             if isinstance(q.chart, Scalar):
-                out = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
-                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
-        return gn
+                held[:, q.offset] = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
+        return held if bool(held.any()) else None
 
     def _step_pull(self) -> Tensor:
         r"""The control points' pull information in the current point's step charts,
@@ -266,7 +270,7 @@ class LevenbergMarquardt:
         pulls = (cpull, self.pulls[1]) if stiff == 1.0 else (stiff * cpull,
                                                                stiff * self.pulls[1])
         return DampedStep(self.system, pulls, self.null, self.p.prior_information(),
-                          self.solver)
+                          self.solver, self._held())
 
     def _decrement(self) -> tuple[Tensor, Tensor]:
         r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
@@ -279,7 +283,6 @@ class LevenbergMarquardt:
         :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from ``epsilon =
         REGULARISE`` and ``100 REGULARISE``."""
         gc, gn = self.gradient()
-        gn = self._bounded(gn)
         if self._null_of is not self.system:  # factored once per system
             self._control_null(_prior.Regularised(self.system.band, self._step_pull()))
         if self.informed:
@@ -422,12 +425,19 @@ class LevenbergMarquardt:
                        self.informed)
 
     def _reason(self, steps: int) -> str:
-        """The stop reasons joined (with a warning when ``steps`` ran out)."""
+        """The stop reasons joined (with a warning when ``steps`` ran out or the steps
+        stalled before the test passed)."""
         reasons = self.reasons
         if steps and any(r.startswith("steps reached") for r in reasons):
             warnings.warn(f"fitting.estimate: steps={steps} reached before the scaled gradient "
                           f"test passed; raise steps (the estimate may be far from the "
                           f"optimum)", RuntimeWarning, stacklevel=4)
+        stalled = [r for r in reasons if r.startswith("no progress")]
+        if stalled:
+            warnings.warn(f"fitting.estimate: stopped before the scaled gradient test passed "
+                          f"({stalled[0]}); the estimate may be off the optimum: check the "
+                          f"sensors' units and sigmas, the start, or loosen tol",
+                          RuntimeWarning, stacklevel=4)
         return reasons[0] if len(reasons) == 1 else "; ".join(
             f"{r} ({reasons.count(r)}x)" for r in dict.fromkeys(reasons))
 

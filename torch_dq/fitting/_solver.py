@@ -114,28 +114,40 @@ class DampedStep:
         null: ``U`` and ``D U`` (``torch_dq.fitting._prior.control_null``).
         prior_information: ``(m,)`` the Free priors' diagonal information.
         solver: the linear solver (:class:`SchurSolver` by default).
+        held: ``(Bf, m)`` bool, nuisance components the step leaves where they are (a
+            bounded scalar on its bound, descent outwards), or None: the system without
+            their rows and columns (the others' step with those fixed; their own zero).
     """
 
     def __init__(self, system, pulls: tuple[Tensor, Tensor], null: tuple[Tensor, Tensor],
-                 prior_information: Tensor, solver: SchurSolver | None = None) -> None:
-        self.s, self.null = system, null
+                 prior_information: Tensor, solver: SchurSolver | None = None,
+                 held: Tensor | None = None) -> None:
+        self.s, self.null, self.cn = system, null, system.cn
         self.solver = SchurSolver() if solver is None else solver
         self.band = system.band + pulls[0]
         self.nn = system.nn + torch.diag(prior_information.to(system.band)) + pulls[1]
+        self.keep = None
+        if held is not None:
+            self.keep = (~held).to(self.nn.dtype)
+            self.cn = self.cn * self.keep[:, None, None, :]
+            self.nn = (self.nn * self.keep[:, :, None] * self.keep[:, None, :]
+                       + torch.diag_embed(held.to(self.nn.dtype)))
         self.diag, self.ndiag, self.floor = Marquardt.diagonals(system.band, self.band, self.nn)
 
     def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
         shift = lam[:, None, None] * (self.diag + self.floor[:, None, None])
         nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
-        dc, dn, ok = self.solver.solve(self.band, self.s.cn, nn, gc, gn, shift)
+        gn = gn if self.keep is None else gn * self.keep
+        dc, dn, ok = self.solver.solve(self.band, self.cn, nn, gc, gn, shift)
         return self._project(dc), dn, ok
 
     def predicted(self, gc: Tensor, gn: Tensor, dc: Tensor, dn: Tensor) -> Tensor:
         r"""``(Bf,)`` the decrease of the objective that the undamped quadratic model
         predicts for the step ``(dc, dn)``: :math:`-(2 g^T \delta + \delta^T H \delta)`
         (``g`` half the gradient, ``H`` half the Hessian: data, pulls, Free priors)."""
-        cn = self.s.cn
+        cn = self.cn
+        gn = gn if self.keep is None else gn * self.keep
         hc = _prior.band_apply(self.band, dc[..., None])[..., 0]
         hc = hc + torch.einsum("bnim,bm->bni", cn, dn)
         hn = torch.einsum("bnim,bni->bm", cn, dc) + (self.nn @ dn[..., None])[..., 0]
