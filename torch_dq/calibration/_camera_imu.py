@@ -229,7 +229,8 @@ def _seconds(name: str, t: Tensor, longest: float) -> None:
     step = float(t.diff().median()) if t.numel() > 2 else 0.0
     if step <= longest:
         return
-    for unit, scale in (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3)):
+    # the coarsest unit that gives a sensor's spacing: milliseconds before nanoseconds
+    for unit, scale in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9)):
         if step * scale <= longest:
             _checks.fail(_FN, f"{name} look like {unit}, not seconds: read as seconds they "
                               f"lie {step:.4g} s apart (median), as {unit} {step * scale:.4g}"

@@ -1,0 +1,146 @@
+"""``python -m torch_dq calibrate`` end to end on a synthetic rig written as Kalibr's files
+(target, imu, camchain yamls, EuRoC imu0/data.csv, corner CSVs), its camchain-imucam.yaml
+parsed with PyYAML and compared with the truth; bad inputs end in one line and exit 2."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _calib12_rig import RADTAN, WIDTH, Cam, grid, make_rig, rot
+from scipy.spatial.transform import Rotation
+
+yaml = pytest.importorskip("yaml")
+pytest.importorskip("cv2")
+
+ROOT = Path(__file__).resolve().parents[1]
+T0_NS = 1403709395_000000000  # a EuRoC-like UNIX time in nanoseconds
+CAM = Cam("pinhole-radtan", RADTAN, rot("x", 90), np.array([0.1, 0.0, 0.02]), 0.012)
+
+
+def _ns(t: np.ndarray) -> np.ndarray:
+    return T0_NS + np.round(t * 1e9).astype(np.int64)
+
+
+def write_rig(d: Path, rig, *, gyro_scale=1.0, corner_seconds=False) -> dict:
+    """Kalibr's files of ``rig`` in ``d``; the rig's times are seconds from T0_NS."""
+    (d / "imu0").mkdir(parents=True, exist_ok=True)
+    (d / "target.yaml").write_text("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\n"
+                                   "tagSize: 0.088\ntagSpacing: 0.3\n")
+    (d / "imu.yaml").write_text(
+        f"rostopic: /imu0\nupdate_rate: 200.0\ngyroscope_noise_density: {rig.gyro_noise}\n"
+        f"accelerometer_noise_density: {rig.accel_noise}\ngyroscope_random_walk: 1.9e-05\n"
+        f"accelerometer_random_walk: 3.0e-03\n")
+    t, g, a = rig.imu
+    with open(d / "imu0" / "data.csv", "w") as f:
+        f.write("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+                "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n")
+        for ti, gi, ai in zip(_ns(t), g * gyro_scale, a, strict=True):
+            f.write(f"{ti},{','.join(f'{x:.9f}' for x in (*gi, *ai))}\n")
+    chain = {f"cam{i}": {**c.kalibr(), "rostopic": f"/cam{i}/image_raw"}
+             for i, c in enumerate(rig.cams)}
+    (d / "camchain.yaml").write_text(yaml.safe_dump(chain))
+    P = grid()
+    corners = []
+    for i, (tc, pts, uv) in enumerate(rig.observations):
+        path = d / f"cam{i}_corners.csv"
+        ids = np.array([np.flatnonzero((P == p).all(1))[0] for p in pts])
+        stamps = [f"{T0_NS * 1e-9 + s:.6f}" for s in tc] if corner_seconds else _ns(tc)
+        with open(path, "w") as f:
+            f.write("t_ns,tag_id,corner_idx,u_px,v_px,X_m,Y_m,Z_m\n")
+            for s, k, u, p in zip(stamps, ids, uv, pts, strict=True):
+                f.write(f"{s},{k // 4},{k % 4},{u[0]:.4f},{u[1]:.4f},"
+                        f"{p[0]:.6f},{p[1]:.6f},{p[2]:.6f}\n")
+        corners.append(str(path))
+    return {"--target": str(d / "target.yaml"), "--imu": str(d / "imu0" / "data.csv"),
+            "--imu-noise": str(d / "imu.yaml"), "--cameras": str(d / "camchain.yaml"),
+            "corners": corners}
+
+
+def calibrate(files: dict, out, *extra) -> subprocess.CompletedProcess:
+    args = [sys.executable, "-m", "torch_dq", "calibrate", "--no-plots", "--quiet"]
+    for k, v in files.items():
+        args += [x for c in v for x in ("--corners", c)] if k == "corners" else [k, v]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([*args, "--out", str(out), *extra], capture_output=True, text=True,
+                          env=env, timeout=300, cwd=ROOT)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return make_rig([CAM], seed=3, t0=0.0)
+
+
+def test_cli_end_to_end_against_the_truth(rig, tmp_path):
+    files = write_rig(tmp_path / "in", rig)
+    before = {p: p.read_bytes() for p in (tmp_path / "in").rglob("*") if p.is_file()}
+    done = calibrate(files, tmp_path / "out", "--pixel-sigma", "0.3")
+    assert done.returncode == 0, done.stderr
+    assert all(p.read_bytes() == b for p, b in before.items())  # inputs untouched
+    chain = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())
+    cam0 = chain["cam0"]
+    T = np.array(cam0["T_cam_imu"])
+    # Kalibr's T_cam_imu maps IMU points into the camera: p_cam = R_bc^T (p_imu - t_bc)
+    assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
+    angle = Rotation.from_matrix(T[:3, :3] @ CAM.R_bc).magnitude()
+    assert np.degrees(angle) < 0.1
+    np.testing.assert_allclose(T[:3, 3], -CAM.R_bc.T @ CAM.t_bc, atol=3e-3)
+    # Kalibr: t_imu = t_cam + timeshift_cam_imu; the camera stamps are the IMU time - dt
+    assert abs(cam0["timeshift_cam_imu"] - CAM.dt) < 5e-4
+    assert cam0["camera_model"] == "pinhole" and cam0["distortion_model"] == "radtan"
+    np.testing.assert_allclose(cam0["intrinsics"], RADTAN[:4])
+    np.testing.assert_allclose(cam0["resolution"], [WIDTH, 480])
+    import json
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "std" in str(summary)
+
+
+def _one_line_exit_2(done: subprocess.CompletedProcess, *words: str) -> None:
+    lines = [x for x in done.stderr.splitlines() if x.strip() and "warning" not in x.lower()]
+    assert done.returncode == 2, (done.returncode, done.stderr[-2000:])
+    assert len(lines) == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    for w in words:
+        assert w.lower() in lines[0].lower(), lines[0]
+
+
+def test_cli_missing_file(rig, tmp_path):
+    files = write_rig(tmp_path / "in", rig)
+    files["--imu"] = str(tmp_path / "nope.csv")
+    _one_line_exit_2(calibrate(files, tmp_path / "out"), "nope.csv")
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_wrong_yaml(rig, tmp_path):
+    files = write_rig(tmp_path / "in", rig)
+    files["--target"], files["--cameras"] = files["--cameras"], files["--target"]
+    _one_line_exit_2(calibrate(files, tmp_path / "out"))
+    files = write_rig(tmp_path / "in2", rig)
+    Path(files["--imu-noise"]).write_text("gyroscope_noise_density: [1, 2\n")
+    _one_line_exit_2(calibrate(files, tmp_path / "out"), "imu.yaml")
+
+
+def test_cli_never_writes_over_an_input(rig, tmp_path):
+    files = write_rig(tmp_path / "in", rig)
+    chain = Path(files["--cameras"])
+    renamed = chain.with_name("camchain-imucam.yaml")  # a previous output used as input
+    chain.rename(renamed)
+    files["--cameras"] = str(renamed)
+    text = renamed.read_text()
+    _one_line_exit_2(calibrate(files, tmp_path / "in"), "overwrite")
+    assert renamed.read_text() == text
+
+
+def test_cli_seconds_under_t_ns(rig, tmp_path):
+    """Corner times written in seconds under a ``t_ns`` header: an error naming the file."""
+    files = write_rig(tmp_path / "in", rig, corner_seconds=True)
+    _one_line_exit_2(calibrate(files, tmp_path / "out"), "cam0_corners.csv")
+
+
+def test_cli_gyro_in_degrees(rig, tmp_path):
+    """A gyroscope logged in deg/s under a rad/s header: the rates do not match the
+    cameras' (57 times larger), an error, not a calibration."""
+    files = write_rig(tmp_path / "in", rig, gyro_scale=180 / np.pi)
+    _one_line_exit_2(calibrate(files, tmp_path / "out"), "deg")
