@@ -130,6 +130,7 @@ class Rig:
     accel_bias: np.ndarray
     gyro_noise: float  # densities
     accel_noise: float
+    gravity: np.ndarray = field(default_factory=lambda: GRAVITY)
     imu: tuple = ()
     observations: list = field(default_factory=list)
 
@@ -144,18 +145,18 @@ def mount(R_bc: np.ndarray, t_bc: np.ndarray, distance=0.9) -> tuple[np.ndarray,
 
 def make_rig(cams: list, *, seed=0, duration=8.0, rate_imu=200.0, rate_cam=20.0,
              pixel_sigma=0.3, gyro_noise=1.7e-4, accel_noise=2.0e-3, motion=None,
-             t0=1000.0) -> Rig:
+             t0=1000.0, gravity=GRAVITY) -> Rig:
     """Observations per camera ``(t_cam, points, pixels)`` and IMU ``(t, gyro, accel)``,
     all float64 numpy; camera stamps on the camera's clock (IMU time minus its dt)."""
     rng = np.random.default_rng(seed)
     if motion is None:
         motion = Motion(*mount(cams[0].R_bc, cams[0].t_bc))
     rig = Rig(motion, cams, duration, np.array([0.004, -0.006, 0.005]),
-              np.array([0.08, -0.05, 0.06]), gyro_noise, accel_noise)
+              np.array([0.08, -0.05, 0.06]), gyro_noise, accel_noise, np.asarray(gravity))
     t = np.arange(0, duration, 1 / rate_imu)
     R = motion.rotation(t)
     gyro = motion.omega_body(t) + rig.gyro_bias
-    accel = np.einsum("nji,nj->ni", R, motion.position(t, 2) - GRAVITY) + rig.accel_bias
+    accel = np.einsum("nji,nj->ni", R, motion.position(t, 2) - rig.gravity) + rig.accel_bias
     gyro += rng.normal(0, gyro_noise * np.sqrt(rate_imu), gyro.shape)
     accel += rng.normal(0, accel_noise * np.sqrt(rate_imu), accel.shape)
     rig.imu = (t + t0, gyro, accel)

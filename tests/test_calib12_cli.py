@@ -2,6 +2,7 @@
 (target, imu, camchain yamls, EuRoC imu0/data.csv, corner CSVs), its camchain-imucam.yaml
 parsed with PyYAML and compared with the truth; bad inputs end in one line and exit 2."""
 
+import json
 import os
 import subprocess
 import sys
@@ -70,13 +71,13 @@ def calibrate(files: dict, out, *extra) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def rig():
-    return make_rig([CAM], seed=3, t0=0.0)
+    return make_rig([CAM], seed=3, t0=0.0, gravity=np.array([0.0, -9.80665, 0.0]))
 
 
 def test_cli_end_to_end_against_the_truth(rig, tmp_path):
     files = write_rig(tmp_path / "in", rig)
     before = {p: p.read_bytes() for p in (tmp_path / "in").rglob("*") if p.is_file()}
-    done = calibrate(files, tmp_path / "out", "--pixel-sigma", "0.3")
+    done = calibrate(files, tmp_path / "out", "--pixel-sigma", "0.3", "--gravity", "9.80665")
     assert done.returncode == 0, done.stderr
     assert all(p.read_bytes() == b for p, b in before.items())  # inputs untouched
     chain = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())
@@ -92,9 +93,16 @@ def test_cli_end_to_end_against_the_truth(rig, tmp_path):
     assert cam0["camera_model"] == "pinhole" and cam0["distortion_model"] == "radtan"
     np.testing.assert_allclose(cam0["intrinsics"], RADTAN[:4])
     np.testing.assert_allclose(cam0["resolution"], [WIDTH, 480])
-    import json
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert "std" in str(summary)
+    values = json.loads((tmp_path / "out" / "summary.json").read_text())["values"]
+    g = np.array(values["gravity"]["value"])
+    assert abs(np.linalg.norm(g) - 9.80665) < 1e-9 and g[1] < -9.8  # board upright: -Y
+    # random-walk biases by default (one row per ~1 s segment) around the constant truth
+    for key, truth in (("gyro_bias", rig.gyro_bias), ("accel_bias", rig.accel_bias)):
+        b, s = np.array(values[key]["value"]), np.array(values[key]["std"])
+        assert b.ndim == 2 and b.shape[1] == 3
+        assert np.all(np.abs(b - truth) < 4 * s), (key, (b - truth) / s)
+    s = values["time_offsets"]["std"][0]
+    assert 0 < s < 1e-3 and abs(values["time_offsets"]["value"][0] - CAM.dt) < 4 * s
 
 
 def _one_line_exit_2(done: subprocess.CompletedProcess, *words: str) -> None:

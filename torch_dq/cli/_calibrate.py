@@ -261,7 +261,8 @@ def _summary(res, noise: dict, caught: list[str], elapsed: float, interval: floa
             "converged": bool(est.converged.all()), "reason": est.reason,
             "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
-                      "(m) in camera axes; gravity in the target frame; "
+                      "(m) in camera axes; gravity in the target frame, its magnitude fixed "
+                      f"(--gravity {float(res.gravity.norm()):.6g} m/s^2); "
                       + ("biases (K, 3): one row per segment between bias.edges_s (IMU "
                          "clock, s), tied by imu.yaml's random walks; the IMU terms' chi2 "
                          "counts the K - 1 ties" if walk else "biases constant (--bias "
@@ -334,7 +335,8 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
-                         bias_interval=interval, verbose=not args.quiet)
+                         bias_interval=interval, gravity_magnitude=args.gravity,
+                         verbose=not args.quiet)
     return cams, res, caught
 
 
