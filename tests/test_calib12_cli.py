@@ -152,3 +152,15 @@ def test_cli_gyro_in_degrees(rig, tmp_path):
     cameras' (57 times larger), an error, not a calibration."""
     files = write_rig(tmp_path / "in", rig, gyro_scale=180 / np.pi)
     _one_line_exit_2(calibrate(files, tmp_path / "out"), "deg")
+
+
+def test_cli_target_in_millimetres(rig, tmp_path):
+    """Corner files with the target points in millimetres: the error says so (it said the
+    corners came from another target)."""
+    files = write_rig(tmp_path / "in", rig)
+    path = Path(files["corners"][0])
+    lines = path.read_text().splitlines()
+    rows = [v.split(",") for v in lines[1:]]
+    path.write_text("\n".join([lines[0]] + [",".join(v[:5] + [f"{1e3 * float(x):.3f}"
+                                                              for x in v[5:8]]) for v in rows]))
+    _one_line_exit_2(calibrate(files, tmp_path / "out"), "millimetres", "1000")

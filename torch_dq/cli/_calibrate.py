@@ -152,10 +152,13 @@ def _on_target(path, points, target, target_path) -> None:
     bad = (gap > tol).nonzero()
     if len(bad):
         i = int(bad[0])
+        why = next((f"the points are in {unit}, not metres: divide X_m, Y_m, Z_m by {k}"
+                    for unit, k in (("millimetres", 1000), ("centimetres", 100))
+                    if bool((torch.cdist(points / k, ref).amin(-1) <= tol).all())),
+                   "the corners were measured on another target, or --target is not it")
         raise UserError(f"{path}: the point {points[i].tolist()} (row {i + 1}) is not a "
                         f"corner of the target in {target_path} (nearest {float(gap[i]):.3g} "
-                        f"m away; {len(bad)} of {len(points)} rows are off): the "
-                        f"corners were measured on another target, or --target is not it")
+                        f"m away; {len(bad)} of {len(points)} rows are off): {why}")
 
 
 def _observations(args, target, n: int):
