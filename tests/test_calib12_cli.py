@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _calib12_rig import RADTAN, WIDTH, Cam, grid, make_rig, rot
+from _calib12_rig import DS, RADTAN, Cam, grid, make_rig, rot
 from scipy.spatial.transform import Rotation
 
 yaml = pytest.importorskip("yaml")
@@ -19,6 +19,8 @@ pytest.importorskip("cv2")
 ROOT = Path(__file__).resolve().parents[1]
 T0_NS = 1403709395_000000000  # a EuRoC-like UNIX time in nanoseconds
 CAM = Cam("pinhole-radtan", RADTAN, rot("x", 90), np.array([0.1, 0.0, 0.02]), 0.012)
+CAM_DS = Cam("double-sphere", DS, rot("x", 90) @ rot("y", 5), np.array([0.21, 0.0, 0.02]),
+             -0.006)
 
 
 def _ns(t: np.ndarray) -> np.ndarray:
@@ -71,7 +73,7 @@ def calibrate(files: dict, out, *extra) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def rig():
-    return make_rig([CAM], seed=3, t0=0.0, gravity=np.array([0.0, -9.80665, 0.0]))
+    return make_rig([CAM, CAM_DS], seed=3, t0=0.0, gravity=np.array([0.0, -9.80665, 0.0]))
 
 
 def test_cli_end_to_end_against_the_truth(rig, tmp_path):
@@ -81,18 +83,27 @@ def test_cli_end_to_end_against_the_truth(rig, tmp_path):
     assert done.returncode == 0, done.stderr
     assert all(p.read_bytes() == b for p, b in before.items())  # inputs untouched
     chain = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())
-    cam0 = chain["cam0"]
-    T = np.array(cam0["T_cam_imu"])
-    # Kalibr's T_cam_imu maps IMU points into the camera: p_cam = R_bc^T (p_imu - t_bc)
-    assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
-    angle = Rotation.from_matrix(T[:3, :3] @ CAM.R_bc).magnitude()
-    assert np.degrees(angle) < 0.1
-    np.testing.assert_allclose(T[:3, 3], -CAM.R_bc.T @ CAM.t_bc, atol=3e-3)
-    # Kalibr: t_imu = t_cam + timeshift_cam_imu; the camera stamps are the IMU time - dt
-    assert abs(cam0["timeshift_cam_imu"] - CAM.dt) < 5e-4
-    assert cam0["camera_model"] == "pinhole" and cam0["distortion_model"] == "radtan"
-    np.testing.assert_allclose(cam0["intrinsics"], RADTAN[:4])
-    np.testing.assert_allclose(cam0["resolution"], [WIDTH, 480])
+    assert sorted(chain) == ["cam0", "cam1"]
+    for i, cam in enumerate((CAM, CAM_DS)):
+        entry = chain[f"cam{i}"]
+        T = np.array(entry["T_cam_imu"])
+        # Kalibr's T_cam_imu maps IMU points into the camera: p_cam = R_bc^T (p_imu - t_bc)
+        assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
+        angle = Rotation.from_matrix(T[:3, :3] @ cam.R_bc).magnitude()
+        assert np.degrees(angle) < 0.1
+        np.testing.assert_allclose(T[:3, 3], -cam.R_bc.T @ cam.t_bc, atol=3e-3)
+        # Kalibr: t_imu = t_cam + timeshift_cam_imu; the camera stamps are IMU time - dt
+        assert abs(entry["timeshift_cam_imu"] - cam.dt) < 5e-4
+        for key, value in cam.kalibr().items():  # the models as given, in Kalibr's order
+            if isinstance(value, str):
+                assert entry[key] == value, (key, entry[key])
+            else:
+                np.testing.assert_allclose(entry.get(key, []), value)
+    # T_cn_cnm1: p_cam1 = T p_cam0 = R_bc1^T (R_bc0 p_cam0 + t_bc0 - t_bc1)
+    T10 = np.array(chain["cam1"]["T_cn_cnm1"])
+    R10 = CAM_DS.R_bc.T @ CAM.R_bc
+    assert np.degrees(Rotation.from_matrix(T10[:3, :3] @ R10.T).magnitude()) < 0.1
+    np.testing.assert_allclose(T10[:3, 3], CAM_DS.R_bc.T @ (CAM.t_bc - CAM_DS.t_bc), atol=3e-3)
     values = json.loads((tmp_path / "out" / "summary.json").read_text())["values"]
     g = np.array(values["gravity"]["value"])
     assert abs(np.linalg.norm(g) - 9.80665) < 1e-9 and g[1] < -9.8  # board upright: -Y
