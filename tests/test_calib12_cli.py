@@ -13,6 +13,9 @@ import pytest
 from _calib12_rig import DS, RADTAN, Cam, grid, make_rig, rot
 from scipy.spatial.transform import Rotation
 
+from torch_dq import dualquat
+from torch_dq.calibration import read_camchain
+
 yaml = pytest.importorskip("yaml")
 pytest.importorskip("cv2")
 
@@ -104,6 +107,15 @@ def test_cli_end_to_end_against_the_truth(rig, tmp_path):
     R10 = CAM_DS.R_bc.T @ CAM.R_bc
     assert np.degrees(Rotation.from_matrix(T10[:3, :3] @ R10.T).magnitude()) < 0.1
     np.testing.assert_allclose(T10[:3, 3], CAM_DS.R_bc.T @ (CAM.t_bc - CAM_DS.t_bc), atol=3e-3)
+    # read back by read_camchain: the extrinsics p_imu = e p_cam, the models
+    back = read_camchain(tmp_path / "out" / "camchain-imucam.yaml")
+    for i, cam in enumerate((CAM, CAM_DS)):
+        M = dualquat.to_matrix(back.extrinsics[i]).numpy()
+        assert np.degrees(Rotation.from_matrix(cam.R_bc.T @ M[:3, :3]).magnitude()) < 0.1
+        np.testing.assert_allclose(M[:3, 3], cam.t_bc, atol=3e-3)
+        assert back.cameras[i].model == cam.model
+        np.testing.assert_allclose(back.cameras[i].params.numpy(), cam.params)
+    np.testing.assert_allclose(back.time_offsets.numpy(), [CAM.dt, CAM_DS.dt], atol=5e-4)
     values = json.loads((tmp_path / "out" / "summary.json").read_text())["values"]
     g = np.array(values["gravity"]["value"])
     assert abs(np.linalg.norm(g) - 9.80665) < 1e-9 and g[1] < -9.8  # board upright: -Y

@@ -327,15 +327,34 @@ def _check_scale(w_cam: Tensor, w_imu: Tensor, camera: int) -> None:
                       f"{spread[0]:.3g} rad/s): the readings look like {hint}")
 
 
-def _kabsch(w_cam: Tensor, w_body: Tensor) -> tuple[Tensor, Tensor]:
+def _kabsch(w_cam: Tensor, w_body: Tensor, camera: int) -> tuple[Tensor, Tensor]:
     r"""Rotation ``R`` (quaternion) and bias ``b`` minimising
-    :math:`\sum |w_b - (R w_c + b)|^2` (centred Kabsch)."""
+    :math:`\sum |w_b - (R w_c + b)|^2` (centred Kabsch); a ``ValueError`` where a reflection
+    explains the gyroscope's rates and no rotation does (left-handed IMU axes)."""
     mc, mb = w_cam.mean(0), w_body.mean(0)
     H = (w_cam - mc).T @ (w_body - mb)
-    U, _, Vh = torch.linalg.svd(H)
+    U, S, Vh = torch.linalg.svd(H)
     d = torch.sign(torch.linalg.det(Vh.T @ U.T))
+    if float(d) < 0:
+        _handedness(S, w_cam - mc, w_body - mb, camera)
     R = Vh.T @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ U.T
     return quat.from_matrix(R), mb - R @ mc
+
+
+def _handedness(S: Tensor, c: Tensor, b: Tensor, camera: int) -> None:
+    """Kabsch's best orthogonal map is a reflection (singular values ``S`` of the centred
+    rates' cross-covariance, ``c`` camera, ``b`` gyroscope): a ``ValueError`` where the best
+    rotation leaves over a tenth of the gyroscope's rates unexplained and the reflection
+    under a quarter of that (with weak rotation about one axis both fit alike)."""
+    total = float(c.square().sum() + b.square().sum())
+    rotation = (total - 2.0 * float(S[0] + S[1] - S[2])) / float(b.square().sum())
+    reflection = (total - 2.0 * float(S.sum())) / float(b.square().sum())
+    if rotation > 0.1 and reflection < 0.25 * rotation:
+        _checks.fail(_FN, f"camera {camera}: the gyroscope's rates follow the camera's through "
+                          f"a reflection, not a rotation (misfit {reflection:.1%} of the "
+                          f"rates against {rotation:.1%}): the IMU's axes are left-handed (two "
+                          f"gyroscope columns swapped or one sign flipped in the log), or the "
+                          f"target's points are mirrored (Kalibr's: Y up, Z = 0)")
 
 
 def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> Tensor | None:
@@ -391,7 +410,7 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
         dt = _offset(t_imu, gyro, w, a, b, max_offset, i)
         w_imu = _mean_gyro(t_imu, gyro, a + dt, b + dt)
         _check_scale(w, w_imu, i)
-        q, bias = _kabsch(w, w_imu)
+        q, bias = _kabsch(w, w_imu, i)
         rot.append(q)
         offs.append(dt)
         biases.append(bias)
@@ -537,7 +556,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             ``max_line_delay`` or ``gravity_magnitude`` that is not positive, fewer than 10
             frames of a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
-            ``max_time_offset`` (correlation below 0.3: another recording's log).
+            ``max_time_offset`` (correlation below 0.3: another recording's log), a
+            gyroscope whose rates follow a camera's through a reflection and not a rotation
+            (left-handed axes: two columns swapped or one sign flipped).
         TypeError: cameras that are not :class:`~torch_dq.camera.Camera`.
 
     Warns:
