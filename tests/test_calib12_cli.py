@@ -187,3 +187,28 @@ def test_cli_target_in_millimetres(rig, tmp_path):
     path.write_text("\n".join([lines[0]] + [",".join(v[:5] + [f"{1e3 * float(x):.3f}"
                                                               for x in v[5:8]]) for v in rows]))
     _one_line_exit_2(calibrate(files, tmp_path / "out"), "millimetres", "1000")
+
+
+def test_cli_cameras_alone_double_sphere_without_intrinsics(tmp_path):
+    """Without --imu, a camchain of models and resolutions only (Kalibr's ds among them):
+    the intrinsics and the pair's pose come out near the truth (the ds camera's placeholder
+    intrinsics were written in our order, not Kalibr's: fu = 0, an error)."""
+    cams = [Cam(CAM.model, CAM.params, CAM.R_bc, CAM.t_bc, 0.01),
+            Cam(CAM_DS.model, CAM_DS.params, CAM_DS.R_bc, CAM_DS.t_bc, 0.01)]
+    files = write_rig(tmp_path / "in", make_rig(cams, seed=8, t0=0.0, duration=4.0))
+    chain = {f"cam{i}": {k: v for k, v in c.kalibr().items()
+                         if k not in ("intrinsics", "distortion_coeffs")}
+             for i, c in enumerate(cams)}
+    Path(files["--cameras"]).write_text(yaml.safe_dump(chain))
+    del files["--imu"], files["--imu-noise"]
+    done = calibrate(files, tmp_path / "out")
+    assert done.returncode == 0, done.stderr
+    out = yaml.safe_load((tmp_path / "out" / "camchain.yaml").read_text())
+    for i, c in enumerate(cams):
+        want = c.kalibr()
+        assert out[f"cam{i}"]["camera_model"] == want["camera_model"]
+        got = np.r_[out[f"cam{i}"]["intrinsics"], out[f"cam{i}"].get("distortion_coeffs", [])]
+        want = np.r_[want["intrinsics"], want["distortion_coeffs"]]
+        np.testing.assert_allclose(got, want, rtol=0.02, atol=0.02)
+    T10 = np.array(out["cam1"]["T_cn_cnm1"])  # p_cam1 = T p_cam0
+    np.testing.assert_allclose(T10[:3, 3], CAM_DS.R_bc.T @ (CAM.t_bc - CAM_DS.t_bc), atol=2e-3)

@@ -185,8 +185,8 @@ def _models(entries, path: str) -> list[tuple[str, tuple]]:
     models = []
     for i, e in enumerate(entries):
         probe = dict(e)
-        probe.setdefault("intrinsics", [1.0, 1.0, 0.0, 0.0] + (
-            [0.0, 0.5] if e.get("camera_model") == "ds" else []))
+        probe.setdefault("intrinsics", [0.0, 0.5, 1.0, 1.0, 0.0, 0.0]  # Kalibr's ds order
+                         if e.get("camera_model") == "ds" else [1.0, 1.0, 0.0, 0.0])
         if e.get("distortion_model", "none") in ("radtan", "equidistant"):
             probe.setdefault("distortion_coeffs", [0.0] * 4)
         try:
