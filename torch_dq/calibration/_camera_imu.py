@@ -261,6 +261,18 @@ def _camera_rates(times: Tensor, poses: Tensor) -> tuple[Tensor, Tensor, Tensor]
     return w[keep], times[:-1][keep], times[1:][keep]
 
 
+def _within(w: Tensor, a: Tensor, b: Tensor, t_imu: Tensor, max_offset: float, camera: int
+            ) -> tuple[Tensor, Tensor, Tensor]:
+    """The rates ``w`` over ``[a, b]`` inside the IMU log at any offset within ``max_offset``
+    (a log covering part of the frames read as uncorrelated); fewer than 10: ValueError."""
+    keep = (a - max_offset >= t_imu[0]) & (b + max_offset <= t_imu[-1])
+    if int(keep.sum()) < 10:
+        _checks.fail(_FN, f"camera {camera}: only {int(keep.sum())} pairs of consecutive frames "
+                          f"lie inside the IMU log (at least 10 are needed to start the clock "
+                          f"offset and orientation)")
+    return w[keep], a[keep], b[keep]
+
+
 def _mean_gyro(t: Tensor, gyro: Tensor, a: Tensor, b: Tensor) -> Tensor:
     """Gyroscope readings averaged over ``[a, b]`` (trapezoid integral, linear between
     samples, clamped at the ends): ``(M, 3)``."""
@@ -406,7 +418,7 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
         if t.numel() < 10:
             _checks.fail(_FN, f"camera {i}: only {t.numel()} frames give the target a pose "
                               f"(at least 10 with >= {min_points} corners are needed)")
-        w, a, b = _camera_rates(t, T)
+        w, a, b = _within(*_camera_rates(t, T), t_imu, max_offset, i)
         dt = _offset(t_imu, gyro, w, a, b, max_offset, i)
         w_imu = _mean_gyro(t_imu, gyro, a + dt, b + dt)
         _check_scale(w, w_imu, i)
@@ -538,12 +550,11 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             simulated rig with walks ``(1e-3, 0.02)``, bound 0.17 s: errors within 3.5
             standard deviations at the bound and at half of it, up to 4.8 at eight times
             it; constant biases: 3.6 on the extrinsics).
-        gravity_magnitude: the local gravity's magnitude (m/s^2), fixed; its direction is
-            estimated. The accelerometer bias along gravity takes up an error of it: 9.81
-            against standard gravity 9.80665 moved that bias by 0.0034 m/s^2, 4 to 6 of its
-            standard deviations on a simulated 8 s rig (the magnitude estimated as well made
-            that standard deviation 20 times larger). Give the place's value (normal
-            gravity: 9.780 at the equator to 9.832 at the poles, 9.807 in Zurich).
+        gravity_magnitude: the local gravity's magnitude (m/s^2), fixed (its direction is
+            estimated). The accelerometer bias along gravity takes up its error: 9.81 against
+            9.80665 moved it by 6 of its standard deviations on a simulated 8 s rig
+            (estimating the magnitude made that deviation 20 times larger). Give the place's
+            value (9.780 at the equator to 9.832 at the poles, 9.807 in Zurich).
 
     Returns:
         :class:`CameraImuCalibration`.
