@@ -67,7 +67,8 @@ SLOW_FILES_FIRST = (
     "test_learner8_module.py", "test_fitting.py", "test_term_jacobians.py",
     "test_learner8_pipeline.py", "test_calibration_cameras.py", "test_learner8_second_order.py",
     "test_float32.py", "test_outside8_stereo.py", "test_estimation_prior.py", "test_fit_cli.py",
-    "test_camera_imu.py", "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
+    "test_camera_imu.py", "test_calib12_camera_imu.py", "test_calib12_cli.py",
+    "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
     "test_span_jacobians.py", "test_kernels.py", "test_nn.py", "test_reprojections.py",
     "test_continuous_time.py", "test_split.py", "test_estimation.py",
 )

@@ -22,7 +22,8 @@ for multi-sensor systems", IROS 2013, sec. IV, for the overall scheme):
 Then one :func:`torch_dq.fitting.estimate` over the trajectory, one
 :class:`~torch_dq.fitting.Reprojections` term per camera (the target is the world frame),
 :class:`~torch_dq.fitting.Gyro` and :class:`~torch_dq.fitting.Accel` with constant
-biases and gravity of magnitude 9.81 with its direction estimated (started from the mean
+biases and gravity of a known magnitude (``gravity_magnitude``, 9.81 by default) with its
+direction estimated (started from the mean
 accelerometer reading rotated into the target frame by the start trajectory).
 
 Clock convention: the trajectory is on the IMU's clock, a frame stamped ``t`` by its camera
@@ -53,7 +54,6 @@ from ._walk import WalkAccel, WalkGyro, segments
 __all__ = ["CameraImuCalibration", "camera_imu"]
 
 _FN = "calibration.camera_imu"
-_GRAVITY = 9.81
 _MIN_RATE = 0.05  # rad/s RMS of the centred rate about an axis: less counts as no rotation
 _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the accel bias
 # pixels may stray this fraction of the image's size outside it (a corner refined at the
@@ -229,7 +229,8 @@ def _seconds(name: str, t: Tensor, longest: float) -> None:
     step = float(t.diff().median()) if t.numel() > 2 else 0.0
     if step <= longest:
         return
-    for unit, scale in (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3)):
+    # the coarsest unit that gives a sensor's spacing: milliseconds before nanoseconds
+    for unit, scale in (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9)):
         if step * scale <= longest:
             _checks.fail(_FN, f"{name} look like {unit}, not seconds: read as seconds they "
                               f"lie {step:.4g} s apart (median), as {unit} {step * scale:.4g}"
@@ -258,6 +259,18 @@ def _camera_rates(times: Tensor, poses: Tensor) -> tuple[Tensor, Tensor, Tensor]
     rel = quat.mul(quat.conj(q[:-1]), q[1:])
     w = quat.to_rotvec(rel) / dt[:, None]
     return w[keep], times[:-1][keep], times[1:][keep]
+
+
+def _within(w: Tensor, a: Tensor, b: Tensor, t_imu: Tensor, max_offset: float, camera: int
+            ) -> tuple[Tensor, Tensor, Tensor]:
+    """The rates ``w`` over ``[a, b]`` inside the IMU log at any offset within ``max_offset``
+    (a log covering part of the frames read as uncorrelated); fewer than 10: ValueError."""
+    keep = (a - max_offset >= t_imu[0]) & (b + max_offset <= t_imu[-1])
+    if int(keep.sum()) < 10:
+        _checks.fail(_FN, f"camera {camera}: only {int(keep.sum())} pairs of consecutive frames "
+                          f"lie inside the IMU log (at least 10 are needed to start the clock "
+                          f"offset and orientation)")
+    return w[keep], a[keep], b[keep]
 
 
 def _mean_gyro(t: Tensor, gyro: Tensor, a: Tensor, b: Tensor) -> Tensor:
@@ -326,15 +339,34 @@ def _check_scale(w_cam: Tensor, w_imu: Tensor, camera: int) -> None:
                       f"{spread[0]:.3g} rad/s): the readings look like {hint}")
 
 
-def _kabsch(w_cam: Tensor, w_body: Tensor) -> tuple[Tensor, Tensor]:
+def _kabsch(w_cam: Tensor, w_body: Tensor, camera: int) -> tuple[Tensor, Tensor]:
     r"""Rotation ``R`` (quaternion) and bias ``b`` minimising
-    :math:`\sum |w_b - (R w_c + b)|^2` (centred Kabsch)."""
+    :math:`\sum |w_b - (R w_c + b)|^2` (centred Kabsch); a ``ValueError`` where a reflection
+    explains the gyroscope's rates and no rotation does (left-handed IMU axes)."""
     mc, mb = w_cam.mean(0), w_body.mean(0)
     H = (w_cam - mc).T @ (w_body - mb)
-    U, _, Vh = torch.linalg.svd(H)
+    U, S, Vh = torch.linalg.svd(H)
     d = torch.sign(torch.linalg.det(Vh.T @ U.T))
+    if float(d) < 0:
+        _handedness(S, w_cam - mc, w_body - mb, camera)
     R = Vh.T @ torch.diag(torch.stack((d.new_ones(()), d.new_ones(()), d))) @ U.T
     return quat.from_matrix(R), mb - R @ mc
+
+
+def _handedness(S: Tensor, c: Tensor, b: Tensor, camera: int) -> None:
+    """Kabsch's best orthogonal map is a reflection (singular values ``S`` of the centred
+    rates' cross-covariance, ``c`` camera, ``b`` gyroscope): a ``ValueError`` where the best
+    rotation leaves over a tenth of the gyroscope's rates unexplained and the reflection
+    under a quarter of that (with weak rotation about one axis both fit alike)."""
+    total = float(c.square().sum() + b.square().sum())
+    rotation = (total - 2.0 * float(S[0] + S[1] - S[2])) / float(b.square().sum())
+    reflection = (total - 2.0 * float(S.sum())) / float(b.square().sum())
+    if rotation > 0.1 and reflection < 0.25 * rotation:
+        _checks.fail(_FN, f"camera {camera}: the gyroscope's rates follow the camera's through "
+                          f"a reflection, not a rotation (misfit {reflection:.1%} of the "
+                          f"rates against {rotation:.1%}): the IMU's axes are left-handed (two "
+                          f"gyroscope columns swapped or one sign flipped in the log), or the "
+                          f"target's points are mirrored (Kalibr's: Y up, Z = 0)")
 
 
 def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> Tensor | None:
@@ -386,11 +418,11 @@ def _starts(cameras, obs, imu, max_offset: float, min_points: int):
         if t.numel() < 10:
             _checks.fail(_FN, f"camera {i}: only {t.numel()} frames give the target a pose "
                               f"(at least 10 with >= {min_points} corners are needed)")
-        w, a, b = _camera_rates(t, T)
+        w, a, b = _within(*_camera_rates(t, T), t_imu, max_offset, i)
         dt = _offset(t_imu, gyro, w, a, b, max_offset, i)
         w_imu = _mean_gyro(t_imu, gyro, a + dt, b + dt)
         _check_scale(w, w_imu, i)
-        q, bias = _kabsch(w, w_imu)
+        q, bias = _kabsch(w, w_imu, i)
         rot.append(q)
         offs.append(dt)
         biases.append(bias)
@@ -459,7 +491,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                max_time_offset: float = 0.1, max_line_delay: float = 1e-4,
                robust: str | None = None, steps: int = 30, prior: float = 0.0,
                min_points: int = 6, bias_walk: tuple[float, float] | None = None,
-               bias_interval: float = 1.0, verbose: bool = False) -> CameraImuCalibration:
+               bias_interval: float = 1.0, gravity_magnitude: float = 9.81,
+               verbose: bool = False) -> CameraImuCalibration:
     r"""Cameras' poses on an IMU, clock offsets, line delays, IMU biases and gravity from
     target observations and IMU readings (Kalibr's ``calibrate_imu_camera``).
 
@@ -517,6 +550,11 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             simulated rig with walks ``(1e-3, 0.02)``, bound 0.17 s: errors within 3.5
             standard deviations at the bound and at half of it, up to 4.8 at eight times
             it; constant biases: 3.6 on the extrinsics).
+        gravity_magnitude: the local gravity's magnitude (m/s^2), fixed (its direction is
+            estimated). The accelerometer bias along gravity takes up its error: 9.81 against
+            9.80665 moved it by 6 of its standard deviations on a simulated 8 s rig
+            (estimating the magnitude made that deviation 20 times larger). Give the place's
+            value (9.780 at the equator to 9.832 at the poles, 9.807 in Zurich).
 
     Returns:
         :class:`CameraImuCalibration`.
@@ -526,10 +564,12 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             camera's resolution (by over 1 % of its size) or that look like normalised
             coordinates (all within 4 px of ``(0, 0)``), target points off the plane
             ``Z = 0`` or spread over more than 20 m (millimetres, not metres), a
-            ``max_line_delay`` that is not positive, fewer than 10 frames of
-            a camera with a target pose, IMU and frames that do not overlap by 1 s, a
+            ``max_line_delay`` or ``gravity_magnitude`` that is not positive, fewer than 10
+            frames of a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
-            ``max_time_offset`` (correlation below 0.3: another recording's log).
+            ``max_time_offset`` (correlation below 0.3: another recording's log), a
+            gyroscope whose rates follow a camera's through a reflection and not a rotation
+            (left-handed axes: two columns swapped or one sign flipped).
         TypeError: cameras that are not :class:`~torch_dq.camera.Camera`.
 
     Warns:
@@ -544,6 +584,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     max_time_offset = _positive("max_time_offset", max_time_offset)
     max_line_delay = _positive("max_line_delay", max_line_delay)
     _positive("bias_interval", bias_interval)
+    gravity_magnitude = _positive("gravity_magnitude", gravity_magnitude)
     min_points = _checks.integer(_FN, "min_points", min_points, 4)
     for name, value in (("rolling_shutter", rolling_shutter),
                         ("shared_time_offset", shared_time_offset), ("verbose", verbose)):
@@ -563,8 +604,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                           shared_time_offset, max_time_offset, max_line_delay, robust,
                           (lo, hi, reach))
     keep = (t_imu >= lo) & (t_imu <= hi)
-    terms = [*terms, *_imu_terms(t_imu[keep], gyro[keep], accel[keep], sg, sa, bg0,
-                                 bias_walk, bias_interval)]
+    terms = [*terms, *_imu_terms(t_imu[keep], gyro[keep], accel[keep], (sg, sa), bg0,
+                                 bias_walk, bias_interval, gravity_magnitude)]
     est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
     clock.append(time.perf_counter())
     res = _result(cams, terms, spline, est, rolling_shutter, notes)
@@ -574,13 +615,15 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     return res
 
 
-def _imu_terms(t: Tensor, gyro: Tensor, accel: Tensor, sg: float, sa: float, bg0: Tensor,
-               walk, interval) -> list:
-    """The Gyro and Accel terms: constant biases, or piecewise constant tied by the random
-    walks ``walk`` over segments of about ``interval`` seconds."""
+def _imu_terms(t: Tensor, gyro: Tensor, accel: Tensor, sigmas: tuple[float, float],
+               bg0: Tensor, walk, interval, gravity: float) -> list:
+    """The Gyro and Accel terms (``sigmas`` theirs, ``gravity`` the magnitude): constant
+    biases, or piecewise constant tied by the random walks ``walk`` over segments of about
+    ``interval`` seconds."""
+    sg, sa = sigmas
     if walk is None:
         return [Gyro(t, gyro, sigma=sg, bias=Free(start=bg0)),
-                Accel(t, accel, sigma=sa, bias=True, gravity=_GRAVITY)]
+                Accel(t, accel, sigma=sa, bias=True, gravity=gravity)]
     if not isinstance(walk, (tuple, list)) or len(walk) != 2:
         _checks.fail(_FN, f"expected bias_walk to be None or (gyroscope_random_walk, "
                           f"accelerometer_random_walk), got {walk!r}")
@@ -589,7 +632,7 @@ def _imu_terms(t: Tensor, gyro: Tensor, accel: Tensor, sg: float, sa: float, bg0
     k = edges.numel() - 1
     return [WalkGyro(t, gyro, sigma=sg, edges=edges, walk=wg, starts=bg0.expand(k, 3)),
             WalkAccel(t, accel, sigma=sa, edges=edges, walk=wa,
-                      starts=torch.zeros(k, 3, dtype=torch.float64), gravity=_GRAVITY)]
+                      starts=torch.zeros(k, 3, dtype=torch.float64), gravity=gravity)]
 
 
 def _camera_terms(cams, obs, e0, dt0, sigma, rolling, shared, max_offset, max_delay, robust,

@@ -152,10 +152,13 @@ def _on_target(path, points, target, target_path) -> None:
     bad = (gap > tol).nonzero()
     if len(bad):
         i = int(bad[0])
+        why = next((f"the points are in {unit}, not metres: divide X_m, Y_m, Z_m by {k}"
+                    for unit, k in (("millimetres", 1000), ("centimetres", 100))
+                    if bool((torch.cdist(points / k, ref).amin(-1) <= tol).all())),
+                   "the corners were measured on another target, or --target is not it")
         raise UserError(f"{path}: the point {points[i].tolist()} (row {i + 1}) is not a "
                         f"corner of the target in {target_path} (nearest {float(gap[i]):.3g} "
-                        f"m away; {len(bad)} of {len(points)} rows are off): the "
-                        f"corners were measured on another target, or --target is not it")
+                        f"m away; {len(bad)} of {len(points)} rows are off): {why}")
 
 
 def _observations(args, target, n: int):
@@ -182,8 +185,8 @@ def _models(entries, path: str) -> list[tuple[str, tuple]]:
     models = []
     for i, e in enumerate(entries):
         probe = dict(e)
-        probe.setdefault("intrinsics", [1.0, 1.0, 0.0, 0.0] + (
-            [0.0, 0.5] if e.get("camera_model") == "ds" else []))
+        probe.setdefault("intrinsics", [0.0, 0.5, 1.0, 1.0, 0.0, 0.0]  # Kalibr's ds order
+                         if e.get("camera_model") == "ds" else [1.0, 1.0, 0.0, 0.0])
         if e.get("distortion_model", "none") in ("radtan", "equidistant"):
             probe.setdefault("distortion_coeffs", [0.0] * 4)
         try:
@@ -261,7 +264,8 @@ def _summary(res, noise: dict, caught: list[str], elapsed: float, interval: floa
             "converged": bool(est.converged.all()), "reason": est.reason,
             "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
-                      "(m) in camera axes; gravity in the target frame; "
+                      "(m) in camera axes; gravity in the target frame, its magnitude fixed "
+                      f"(--gravity {float(res.gravity.norm()):.6g} m/s^2); "
                       + ("biases (K, 3): one row per segment between bias.edges_s (IMU "
                          "clock, s), tied by imu.yaml's random walks; the IMU terms' chi2 "
                          "counts the K - 1 ties" if walk else "biases constant (--bias "
@@ -334,7 +338,8 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
-                         bias_interval=interval, verbose=not args.quiet)
+                         bias_interval=interval, gravity_magnitude=args.gravity,
+                         verbose=not args.quiet)
     return cams, res, caught
 
 

@@ -239,6 +239,10 @@ def _add_calibrate(sub) -> None:
                    help="estimate each camera's line delay")
     p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
+    p.add_argument("--gravity", type=_positive_float, default=9.81, metavar="M/S2",
+                   help="the local gravity's magnitude, fixed (its direction is estimated); "
+                        "the accelerometer bias along gravity takes up its error: give the "
+                        "place's value (9.780 at the equator to 9.832 at the poles)")
     p.add_argument("--shared-time-offset", action="store_true",
                    help="one clock offset for all cameras (hardware-synchronised)")
     p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
