@@ -19,9 +19,9 @@ from torch._C._functorch import is_functorch_wrapped_tensor
 
 __all__ = [
     "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
-    "evens", "nan_unless", "piecewise", "plain_range", "power_of_two_scale", "prescale",
-    "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask", "threshold",
-    "unscaled",
+    "evens", "may_hold", "nan_unless", "piecewise", "plain_range", "power_of_two_scale",
+    "prescale", "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask",
+    "threshold", "unscaled",
 ]
 
 
@@ -427,11 +427,23 @@ def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
     return torch.where((size >= low) & (size <= high), 1.0, power_of_two_scale(x))
 
 
+def _readable(x: Tensor) -> bool:
+    """Whether the values of ``x`` may be read on the host: eager on the CPU (not on other
+    devices, under ``torch.compile`` or in ``torch.func`` transforms)."""
+    return x.is_cpu and not torch.compiler.is_compiling() and not is_functorch_wrapped_tensor(x)
+
+
+def may_hold(mask: Tensor) -> bool:
+    """False only where the bool ``mask`` is read on the host (:func:`_readable`) and holds
+    no True: the caller may then skip a branch that no element takes (one pass over it)."""
+    return not _readable(mask) or bool(mask.any())
+
+
 def _extremes(x: Tensor) -> tuple[float, float]:
     """``(min, max)`` of ``x`` read on the host, eager on the CPU (``(1, 1)`` if empty);
     ``(nan, nan)`` where ``x`` holds a NaN, and elsewhere (other devices, ``torch.compile``,
     ``torch.func`` transforms: no host read), so that every comparison with them fails."""
-    if not x.is_cpu or torch.compiler.is_compiling() or is_functorch_wrapped_tensor(x):
+    if not _readable(x):
         return math.nan, math.nan
     if x.numel() <= 1:  # one read
         v = x.item() if x.numel() else 1.0

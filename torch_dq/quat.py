@@ -103,15 +103,18 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
     w_in = torch.where(inner, w, 1.0)
     z2 = torch.where(inner, v2, 0.0) / (w_in * w_in)
-    s = torch.sqrt(torch.where(inner | (v2 == 0), 1.0, v2))
+    flat = v2 == 0
+    s = torch.sqrt(torch.where(inner | flat, 1.0, v2))
     scale = torch.where(inner, _numerics.even("atanc", z2) / w_in, torch.atan2(s, w) / s)
+    vec = v * scale
     # On the negative real axis (v = 0, w < 0) the direction of v is undefined: use x.
-    # (q = 0 gives theta = atan2(0, 0) = 0.)
-    axis_line = (v2 == 0) & (w <= 0)
-    # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
-    # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
-    theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
-    vec = torch.where(axis_line, theta * p.new_tensor([1.0, 0.0, 0.0]), v * scale)
+    # (q = 0 gives theta = atan2(0, 0) = 0.) Eager on the CPU only where some row is there.
+    axis_line = flat & (w <= 0)
+    if _numerics.may_hold(axis_line):
+        # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
+        # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
+        theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
+        vec = torch.where(axis_line, theta * p.new_tensor([1.0, 0.0, 0.0]), vec)
     if m is None:  # every row finite
         return vec
     n2 = v2 + w2
