@@ -276,21 +276,39 @@ def even(name: str, x2: Tensor) -> Tensor:
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
     where), so no branch ever produces a NaN or an infinite derivative. Eager on the CPU,
     where every element is below the switch (or every one above it and finite), only that
-    branch is evaluated: the same values and derivatives (the other branch's share of them
-    is zero).
+    branch is evaluated, and (outside reverse mode, from 16384 elements) where fewer than a
+    quarter of them, all finite, are below it, the series on those alone: the same values
+    and derivatives (the other branch's share of them is zero).
     """
     coeffs, exact = _EVEN[name]
     switch = threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
     least, most = _extremes(x2)  # eager CPU: where every element takes one branch, only it
     if switch <= least and most < math.inf:
         return exact(torch.sqrt(x2))
+    if most < switch:
+        return _series(coeffs, x2)
+    small = x2 < switch
+    # Not where autograd records: its sums of the series' terms into the gradient of x2
+    # interleave with those of other functions of x2 (cos and sinc), in another order.
+    if (small.numel() >= _FEW_MIN and most < math.inf
+            and not (x2.requires_grad and torch.is_grad_enabled())
+            and int(small.count_nonzero()) < small.numel() // 4):
+        at = small.nonzero(as_tuple=True)
+        closed = exact(torch.sqrt(torch.where(small, 1.0, x2)))
+        return closed.index_put_(at, _series(coeffs, x2[at]))
+    series = _series(coeffs, x2)
+    return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+
+
+_FEW_MIN = 16384  # elements from which even()'s series on a few of them pays its indexing
+
+
+def _series(coeffs: tuple[float, ...], x2: Tensor) -> Tensor:
+    """Horner's :math:`\\sum_{k < K} c_k x_2^k` of :func:`even` (``x2`` a tensor)."""
     series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
-    if most < switch:
-        return cast(Tensor, series)
-    small = x2 < switch
-    return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+    return cast(Tensor, series)
 
 
 def _sinc_slope(th: Tensor) -> Tensor:
