@@ -17,7 +17,7 @@ from ._numerics import compute_dtype, even, may_hold
 
 __all__ = [
     "Frozen", "align", "align_chain", "canonical", "distinct", "dq_from_rt", "dq_mul",
-    "hemisphere", "join", "lift", "qconj", "qmul", "qrotate", "split", "translation",
+    "hemisphere", "join", "lift", "lower", "qconj", "qmul", "qrotate", "split", "translation",
     "twist_translation",
 ]
 
@@ -26,6 +26,12 @@ def lift(x: Tensor) -> Tensor:
     """``x`` in its compute dtype (float16/bfloat16 compute in float32): ``x`` itself when
     it is float32 or float64 (as ``x.to`` returns it, without its per-call cost)."""
     return x if x.dtype in _COMPUTE else x.to(compute_dtype(x.dtype))
+
+
+def lower(x: Tensor, dtype: torch.dtype) -> Tensor:
+    """``x`` back in the caller's ``dtype`` (the inverse of :func:`lift`): ``x`` itself when
+    it already has it (as ``x.to`` returns it, without its per-call cost)."""
+    return x if x.dtype == dtype else x.to(dtype)
 
 
 _COMPUTE = (torch.float32, torch.float64)
