@@ -83,7 +83,7 @@ def canonical(q: Tensor) -> Tensor:
     lead = q[..., :1]
     if may_hold(lead == 0):
         lead = torch.gather(q, -1, (q != 0).to(torch.uint8).argmax(-1, keepdim=True))
-    return torch.where(lead < 0, -q, q)
+    return q * torch.where(lead < 0, -1.0, 1.0)  # exact (a where over q is 3x slower on CPU)
 
 
 # ----------------------------------------------------------------------------- dual quaternions
