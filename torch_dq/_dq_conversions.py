@@ -89,8 +89,7 @@ def to_matrix(x: Tensor) -> Tensor:
     _checks.tensor("dualquat.to_matrix", "x", x, 8)
     r, d = split(lift(x))
     top = torch.cat((quat.to_matrix(r), translation(r, d)[..., None]), dim=-1)
-    bottom = torch.zeros_like(top[..., :1, :])
-    bottom[..., 3] = 1.0
+    bottom = top.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(*top.shape[:-2], 1, 4)
     return lower(torch.cat((top, bottom), dim=-2), x.dtype)
 
 
