@@ -102,7 +102,8 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     v2, w2 = (v * v).sum(-1, keepdim=True), w * w
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
     w_in = torch.where(inner, w, 1.0)
-    z2 = torch.where(inner, v2, 0.0) / (w_in * w_in)
+    # 1 elsewhere: atanc's closed form there (its series only on the few rows near 0)
+    z2 = torch.where(inner, v2, 1.0) / (w_in * w_in)
     flat = v2 == 0
     s = torch.sqrt(torch.where(inner | flat, 1.0, v2))
     scale = torch.where(inner, _numerics.even("atanc", z2) / w_in, torch.atan2(s, w) / s)
