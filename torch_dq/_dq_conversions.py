@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, quat
-from ._core import canonical, dq_from_rt, join, lift, split, translation
+from ._core import canonical, dq_from_rt, join, lift, lower, split, translation
 from ._numerics import nan_unless, safe_denominator, threshold
 
 __all__ = ["from_matrix", "from_pose7", "from_rt", "from_screw", "to_matrix", "to_pose7", "to_rt",
@@ -38,7 +38,7 @@ def from_rt(q: Tensor, t: Tensor) -> Tensor:
     _checks.tensor(fn, "t", t, 3)
     _checks.same_dtype_device(fn, q=q, t=t)
     _checks.broadcast_batch(fn, q=(q, 1), t=(t, 1))
-    return dq_from_rt(lift(q), lift(t)).to(q.dtype)
+    return lower(dq_from_rt(lift(q), lift(t)), q.dtype)
 
 
 def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
@@ -53,7 +53,7 @@ def to_rt(x: Tensor) -> tuple[Tensor, Tensor]:
     """
     _checks.tensor("dualquat.to_rt", "x", x, 8)
     r, d = split(lift(x))
-    return x[..., :4].clone(), translation(r, d).to(x.dtype)
+    return x[..., :4].clone(), lower(translation(r, d), x.dtype)
 
 
 def from_matrix(T: Tensor, check: bool = False) -> Tensor:
@@ -77,7 +77,7 @@ def from_matrix(T: Tensor, check: bool = False) -> Tensor:
     if _checks.flag("dualquat.from_matrix", "check", check):
         _checks.rigid_matrix("dualquat.from_matrix", "T", T)
     Tl = lift(T)
-    return dq_from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]).to(T.dtype)
+    return lower(dq_from_rt(quat.from_matrix(Tl[..., :3, :3]), Tl[..., :3, 3]), T.dtype)
 
 
 def to_matrix(x: Tensor) -> Tensor:
@@ -89,9 +89,8 @@ def to_matrix(x: Tensor) -> Tensor:
     _checks.tensor("dualquat.to_matrix", "x", x, 8)
     r, d = split(lift(x))
     top = torch.cat((quat.to_matrix(r), translation(r, d)[..., None]), dim=-1)
-    bottom = torch.zeros_like(top[..., :1, :])
-    bottom[..., 3] = 1.0
-    return torch.cat((top, bottom), dim=-2).to(x.dtype)
+    bottom = top.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(*top.shape[:-2], 1, 4)
+    return lower(torch.cat((top, bottom), dim=-2), x.dtype)
 
 
 def from_pose7(p: Tensor) -> Tensor:
@@ -103,7 +102,7 @@ def from_pose7(p: Tensor) -> Tensor:
     """
     _checks.tensor("dualquat.from_pose7", "p", p, 7)
     pl = lift(p)
-    return dq_from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]).to(p.dtype)
+    return lower(dq_from_rt(pl[..., [6, 3, 4, 5]], pl[..., :3]), p.dtype)
 
 
 def to_pose7(x: Tensor) -> Tensor:
@@ -115,7 +114,7 @@ def to_pose7(x: Tensor) -> Tensor:
     """
     _checks.tensor("dualquat.to_pose7", "x", x, 8)
     r, d = split(lift(x))
-    return torch.cat((translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1).to(x.dtype)
+    return lower(torch.cat((translation(r, d), r[..., [1, 2, 3, 0]]), dim=-1), x.dtype)
 
 
 def from_screw(axis: Tensor, moment: Tensor, theta: Tensor | float, d: Tensor | float,
@@ -153,7 +152,7 @@ def from_screw(axis: Tensor, moment: Tensor, theta: Tensor | float, d: Tensor | 
     h = 0.5 * d[..., None]
     real = torch.cat((c, s * axis), dim=-1)
     dual = torch.cat((-h * s, s * moment + h * c * axis), dim=-1)
-    return join(real, dual).to(dtype)
+    return lower(join(real, dual), dtype)
 
 
 def to_screw(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:

@@ -19,9 +19,9 @@ from torch._C._functorch import is_functorch_wrapped_tensor
 
 __all__ = [
     "ANGLE_SQUARE_TERMS", "THRESHOLDS", "compute_dtype", "even", "even_slope", "even_slopes",
-    "evens", "nan_unless", "piecewise", "plain_range", "power_of_two_scale", "prescale",
-    "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask", "threshold",
-    "unscaled",
+    "evens", "may_hold", "nan_unless", "piecewise", "plain_range", "power_of_two_scale",
+    "prescale", "safe_denominator", "safe_norm", "screw_series_terms", "select", "series_mask",
+    "threshold", "unscaled",
 ]
 
 
@@ -276,21 +276,39 @@ def even(name: str, x2: Tensor) -> Tensor:
     evaluated at :math:`\sqrt{x_2}` with the series' elements replaced by 1 first (safe
     where), so no branch ever produces a NaN or an infinite derivative. Eager on the CPU,
     where every element is below the switch (or every one above it and finite), only that
-    branch is evaluated: the same values and derivatives (the other branch's share of them
-    is zero).
+    branch is evaluated, and (outside reverse mode, from 16384 elements) where fewer than a
+    quarter of them, all finite, are below it, the series on those alone: the same values
+    and derivatives (the other branch's share of them is zero).
     """
     coeffs, exact = _EVEN[name]
     switch = threshold("even_series", compute_dtype(x2.dtype), coeffs[-1])
     least, most = _extremes(x2)  # eager CPU: where every element takes one branch, only it
     if switch <= least and most < math.inf:
         return exact(torch.sqrt(x2))
+    if most < switch:
+        return _series(coeffs, x2)
+    small = x2 < switch
+    # Not where autograd records: its sums of the series' terms into the gradient of x2
+    # interleave with those of other functions of x2 (cos and sinc), in another order.
+    if (small.numel() >= _FEW_MIN and most < math.inf
+            and not (x2.requires_grad and torch.is_grad_enabled())
+            and int(small.count_nonzero()) < small.numel() // 4):
+        at = small.nonzero(as_tuple=True)
+        closed = exact(torch.sqrt(torch.where(small, 1.0, x2)))
+        return closed.index_put_(at, _series(coeffs, x2[at]))
+    series = _series(coeffs, x2)
+    return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+
+
+_FEW_MIN = 16384  # elements from which even()'s series on a few of them pays its indexing
+
+
+def _series(coeffs: tuple[float, ...], x2: Tensor) -> Tensor:
+    """Horner's :math:`\\sum_{k < K} c_k x_2^k` of :func:`even` (``x2`` a tensor)."""
     series: Tensor | float = coeffs[_EVEN_TERMS - 1]
     for c in reversed(coeffs[:_EVEN_TERMS - 1]):
         series = series * x2 + c
-    if most < switch:
-        return cast(Tensor, series)
-    small = x2 < switch
-    return torch.where(small, series, exact(torch.sqrt(torch.where(small, 1.0, x2))))
+    return cast(Tensor, series)
 
 
 def _sinc_slope(th: Tensor) -> Tensor:
@@ -427,11 +445,23 @@ def prescale(x: Tensor, size: Tensor, power: int = 2) -> Tensor | None:
     return torch.where((size >= low) & (size <= high), 1.0, power_of_two_scale(x))
 
 
+def _readable(x: Tensor) -> bool:
+    """Whether the values of ``x`` may be read on the host: eager on the CPU (not on other
+    devices, under ``torch.compile`` or in ``torch.func`` transforms)."""
+    return x.is_cpu and not torch.compiler.is_compiling() and not is_functorch_wrapped_tensor(x)
+
+
+def may_hold(mask: Tensor) -> bool:
+    """False only where the bool ``mask`` is read on the host (:func:`_readable`) and holds
+    no True: the caller may then skip a branch that no element takes (one pass over it)."""
+    return not _readable(mask) or bool(mask.any())
+
+
 def _extremes(x: Tensor) -> tuple[float, float]:
     """``(min, max)`` of ``x`` read on the host, eager on the CPU (``(1, 1)`` if empty);
     ``(nan, nan)`` where ``x`` holds a NaN, and elsewhere (other devices, ``torch.compile``,
     ``torch.func`` transforms: no host read), so that every comparison with them fails."""
-    if not x.is_cpu or torch.compiler.is_compiling() or is_functorch_wrapped_tensor(x):
+    if not _readable(x):
         return math.nan, math.nan
     if x.numel() <= 1:  # one read
         v = x.item() if x.numel() else 1.0

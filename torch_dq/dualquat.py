@@ -29,6 +29,7 @@ from ._core import (
     hemisphere,
     join,
     lift,
+    lower,
     qconj,
     qmul,
     qrotate,
@@ -145,7 +146,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         (``to_matrix(mul(a, b)) == to_matrix(a) @ to_matrix(b)``).
     """
     _checks.pair("dualquat.mul", a, b, 8)
-    return dq_mul(lift(a), lift(b)).to(a.dtype)
+    return lower(dq_mul(lift(a), lift(b)), a.dtype)
 
 
 def conj(x: Tensor) -> Tensor:
@@ -197,7 +198,7 @@ def inv(x: Tensor) -> Tensor:
     p = r / m  # exact
     n2 = (p * p).sum(-1, keepdim=True)
     r_inv = qconj(p) / (nan_unless(torch.isfinite(n2), n2) * m)
-    return join(r_inv, -qmul(qmul(r_inv, d), r_inv)).to(dtype)
+    return lower(join(r_inv, -qmul(qmul(r_inv, d), r_inv)), dtype)
 
 
 def norm(x: Tensor) -> Dual:
@@ -265,7 +266,7 @@ def normalize(x: Tensor, check: bool = False) -> Tensor:
         ok = torch.isfinite(r).all(-1) & (r != 0).any(-1)
         if not _checks.host_all("dualquat.normalize", "check=True", ok):
             _checks.fail("dualquat.normalize", "x contains zero or non-finite real parts")
-    return _normalize(x).to(dtype)
+    return lower(_normalize(x), dtype)
 
 
 def is_unit(x: Tensor, atol: float | None = None) -> Tensor:
@@ -327,7 +328,7 @@ def exp(xi: Tensor) -> Tensor:
     wxv = torch.linalg.cross(omega, v, dim=-1)
     t = v + even("se3_c1", theta2) * wxv + even("se3_c2", theta2) * torch.linalg.cross(
         omega, wxv, dim=-1)
-    return dq_from_rt(quat.from_rotvec(omega), t).to(xi.dtype)
+    return lower(dq_from_rt(quat.from_rotvec(omega), t), xi.dtype)
 
 
 def log(x: Tensor) -> Tensor:
@@ -350,7 +351,7 @@ def log(x: Tensor) -> Tensor:
     _dq("dualquat.log", "x", x)
     r, d = split(lift(x))
     omega = quat.to_rotvec(r)
-    return torch.cat((omega, twist_translation(omega, translation(r, d))), -1).to(x.dtype)
+    return lower(torch.cat((omega, twist_translation(omega, translation(r, d))), -1), x.dtype)
 
 
 # ----------------------------------------------------------------------------- actions
@@ -376,7 +377,7 @@ def apply(x: Tensor, points: Tensor) -> Tensor:
     _checks.same_dtype_device(fn, x=x, points=points)
     _checks.broadcast_batch(fn, x=(x, 1), points=(points, 1))
     r, d = split(lift(x))
-    return (qrotate(r, lift(points)) + translation(r, d)).to(x.dtype)
+    return lower(qrotate(r, lift(points)) + translation(r, d), x.dtype)
 
 
 def apply_line(x: Tensor, direction: Tensor, moment: Tensor) -> tuple[Tensor, Tensor]:
@@ -574,7 +575,7 @@ def sclerp(a: Tensor, b: Tensor, t: Tensor | float, shortest: bool = True) -> Te
         opposite = 1.0 + (a[..., :4] * b[..., :4]).sum(-1) <= threshold("opposite_real_parts",
                                                                          dtype)
         out = nan_unless(~opposite[..., None], out)
-    return out.to(dtype)
+    return lower(out, dtype)
 
 
 def _eq11(a: Tensor, b: Tensor, t: Tensor, shortest: bool) -> Tensor:
@@ -642,4 +643,4 @@ def dlb(weights: Tensor, xs: Tensor) -> Tensor:
     _checks.broadcast_batch(fn, weights=(weights, 1), xs=(xs, 2))
     dtype, xs, weights = xs.dtype, lift(xs), lift(weights)
     sign = hemisphere(xs, xs[..., :1, :])
-    return _normalize(((weights * sign)[..., None] * xs).sum(-2)).to(dtype)
+    return lower(_normalize(((weights * sign)[..., None] * xs).sum(-2)), dtype)

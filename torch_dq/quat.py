@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from . import _checks, _dispatch, _numerics
-from ._core import canonical, lift, qconj, qmul, qrotate
+from ._core import canonical, lift, lower, qconj, qmul, qrotate
 from ._euler import from_euler, to_euler
 from ._kernels import slerp as _slerp_kernel
 
@@ -102,16 +102,20 @@ def _log(q: Tensor, real: bool = True) -> Tensor:
     v2, w2 = (v * v).sum(-1, keepdim=True), w * w
     inner = (w > 0) & (v2 <= w2)  # theta <= pi / 4
     w_in = torch.where(inner, w, 1.0)
-    z2 = torch.where(inner, v2, 0.0) / (w_in * w_in)
-    s = torch.sqrt(torch.where(inner | (v2 == 0), 1.0, v2))
+    # 1 elsewhere: atanc's closed form there (its series only on the few rows near 0)
+    z2 = torch.where(inner, v2, 1.0) / (w_in * w_in)
+    flat = v2 == 0
+    s = torch.sqrt(torch.where(inner | flat, 1.0, v2))
     scale = torch.where(inner, _numerics.even("atanc", z2) / w_in, torch.atan2(s, w) / s)
+    vec = v * scale
     # On the negative real axis (v = 0, w < 0) the direction of v is undefined: use x.
-    # (q = 0 gives theta = atan2(0, 0) = 0.)
-    axis_line = (v2 == 0) & (w <= 0)
-    # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
-    # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
-    theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
-    vec = torch.where(axis_line, theta * p.new_tensor([1.0, 0.0, 0.0]), v * scale)
+    # (q = 0 gives theta = atan2(0, 0) = 0.) Eager on the CPU only where some row is there.
+    axis_line = flat & (w <= 0)
+    if _numerics.may_hold(axis_line):
+        # Safe-where: atan2(0, w) is only read on that line; elsewhere w = -1 keeps its
+        # derivatives finite (at w = 0 they are 0 / 0 and would poison the double backward).
+        theta = torch.atan2(torch.zeros_like(w), torch.where(axis_line, w, -1.0))
+        vec = torch.where(axis_line, theta * p.new_tensor([1.0, 0.0, 0.0]), vec)
     if m is None:  # every row finite
         return vec
     n2 = v2 + w2
@@ -160,7 +164,7 @@ def mul(a: Tensor, b: Tensor) -> Tensor:
         tensor([0., 0., 0., 1.])
     """
     _checks.pair("quat.mul", a, b, 4)
-    return qmul(lift(a), lift(b)).to(a.dtype)
+    return lower(qmul(lift(a), lift(b)), a.dtype)
 
 
 def conj(q: Tensor) -> Tensor:
@@ -185,7 +189,7 @@ def norm(q: Tensor) -> Tensor:
     _checks.tensor("quat.norm", "q", q, 4)
     ql = lift(q)
     m = _numerics.power_of_two_scale(ql)
-    return (m[..., 0] * torch.linalg.vector_norm(ql / m, dim=-1)).to(q.dtype)
+    return lower(m[..., 0] * torch.linalg.vector_norm(ql / m, dim=-1), q.dtype)
 
 
 def inv(q: Tensor) -> Tensor:
@@ -200,7 +204,7 @@ def inv(q: Tensor) -> Tensor:
     m = _numerics.power_of_two_scale(ql)
     p = ql / m
     n2 = (p * p).sum(-1, keepdim=True)
-    return (qconj(p) / (_numerics.nan_unless(torch.isfinite(n2), n2) * m)).to(q.dtype)
+    return lower(qconj(p) / (_numerics.nan_unless(torch.isfinite(n2), n2) * m), q.dtype)
 
 
 def normalize(q: Tensor, check: bool = False) -> Tensor:
@@ -221,14 +225,14 @@ def normalize(q: Tensor, check: bool = False) -> Tensor:
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     m = _numerics.prescale(q, n, power=1)
     if m is None:  # every norm finite and far from under- or overflow
-        return (q / _numerics.unscaled(n)).to(dtype)
+        return lower(q / _numerics.unscaled(n), dtype)
     q = q / m  # exact; no square over- or underflows
     n = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     finite = torch.isfinite(n)
     if check and not _checks.host_all("quat.normalize", "check=True", finite & (n > 0)):
         _checks.fail("quat.normalize", "q contains zero or non-finite quaternions")
     # n = 0 (q = 0) gives 0 / 0 = NaN in every component by itself.
-    return (q / _numerics.nan_unless(finite, n)).to(dtype)
+    return lower(q / _numerics.nan_unless(finite, n), dtype)
 
 
 def dot(a: Tensor, b: Tensor) -> Tensor:
@@ -242,7 +246,7 @@ def dot(a: Tensor, b: Tensor) -> Tensor:
         ``(...)`` tensor.
     """
     _checks.pair("quat.dot", a, b, 4)
-    return (lift(a) * lift(b)).sum(-1).to(a.dtype)
+    return lower((lift(a) * lift(b)).sum(-1), a.dtype)
 
 
 def rotate(q: Tensor, v: Tensor) -> Tensor:
@@ -265,7 +269,7 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
     _checks.tensor("quat.rotate", "v", v, 3)
     _checks.same_dtype_device("quat.rotate", q=q, v=v)
     _checks.broadcast_batch("quat.rotate", q=(q, 1), v=(v, 1))
-    return qrotate(lift(q), lift(v)).to(q.dtype)
+    return lower(qrotate(lift(q), lift(v)), q.dtype)
 
 
 def slerp(q0: Tensor, q1: Tensor, t: Tensor | float, shortest: bool = True) -> Tensor:
@@ -320,7 +324,7 @@ def slerp(q0: Tensor, q1: Tensor, t: Tensor | float, shortest: bool = True) -> T
         out = _slerp_kernel.slerp(q0, q1, t)
     else:
         out = _slerp_kernel.plain(q0, q1, t.expand(batch))
-    return out.to(dtype)
+    return lower(out, dtype)
 
 
 def _great_circle(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
@@ -377,7 +381,7 @@ def exp(q: Tensor) -> Tensor:
         tensor([0.7071, 0.7071, 0.0000, 0.0000])
     """
     _checks.tensor("quat.exp", "q", q, 4)
-    return _exp(lift(q)).to(q.dtype)
+    return lower(_exp(lift(q)), q.dtype)
 
 
 def log(q: Tensor) -> Tensor:
@@ -401,7 +405,7 @@ def log(q: Tensor) -> Tensor:
         tensor([0.0000, 0.0000, 1.5708, 0.0000])
     """
     _checks.tensor("quat.log", "q", q, 4)
-    return _log(lift(q)).to(q.dtype)
+    return lower(_log(lift(q)), q.dtype)
 
 
 def from_matrix(R: Tensor, check: bool = False) -> Tensor:
@@ -443,7 +447,7 @@ def from_matrix(R: Tensor, check: bool = False) -> Tensor:
     pick = k.diagonal(dim1=-2, dim2=-1).argmax(-1)
     row = torch.gather(k, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
     n = torch.linalg.vector_norm(row, dim=-1, keepdim=True)
-    return canonical(row / _numerics.nan_unless(torch.isfinite(n), n)).to(dtype)
+    return lower(canonical(row / _numerics.nan_unless(torch.isfinite(n), n)), dtype)
 
 
 def to_matrix(q: Tensor) -> Tensor:
@@ -480,11 +484,11 @@ def to_matrix(q: Tensor) -> Tensor:
     s = 2.0 / n2
     xx, yy, zz = s * x * x, s * y * y, s * z * z
     wx, wy, wz, xy, xz, yz = s * w * x, s * w * y, s * w * z, s * x * y, s * x * z, s * y * z
-    return torch.cat((
+    return lower(torch.cat((
         1.0 - yy - zz, xy - wz, xz + wy,
         xy + wz, 1.0 - xx - zz, yz - wx,
         xz - wy, yz + wx, 1.0 - xx - yy,
-    ), dim=-1).unflatten(-1, (3, 3)).to(q.dtype)
+    ), dim=-1).unflatten(-1, (3, 3)), q.dtype)
 
 
 def from_axis_angle(axis: Tensor, angle: Tensor | float) -> Tensor:
@@ -513,7 +517,7 @@ def from_axis_angle(axis: Tensor, angle: Tensor | float) -> Tensor:
     zero = n == 0
     n = _numerics.nan_unless(torch.isfinite(n), torch.where(zero, 1.0, n))
     q = torch.cat((torch.cos(half), torch.sin(half) * axis / n), dim=-1)
-    return torch.where(zero, q.new_tensor([1.0, 0.0, 0.0, 0.0]), q).to(dtype)
+    return lower(torch.where(zero, q.new_tensor([1.0, 0.0, 0.0, 0.0]), q), dtype)
 
 
 def to_axis_angle(q: Tensor) -> tuple[Tensor, Tensor]:
@@ -561,7 +565,7 @@ def from_rotvec(rotvec: Tensor) -> Tensor:
     """
     _checks.tensor("quat.from_rotvec", "rotvec", rotvec, 3)
     rv = lift(rotvec)
-    return _exp_pure(rv / 2.0).to(rotvec.dtype)
+    return lower(_exp_pure(rv / 2.0), rotvec.dtype)
 
 
 def to_rotvec(q: Tensor) -> Tensor:
@@ -580,7 +584,7 @@ def to_rotvec(q: Tensor) -> Tensor:
         tensor([0.0000, 3.1416, 0.0000])
     """
     _checks.tensor("quat.to_rotvec", "q", q, 4)
-    return (2.0 * _log(canonical(lift(q)), real=False)).to(q.dtype)
+    return lower(2.0 * _log(canonical(lift(q)), real=False), q.dtype)
 
 
 def from_xyzw(q: Tensor) -> Tensor:
