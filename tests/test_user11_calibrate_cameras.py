@@ -121,7 +121,10 @@ def test_calibrate_without_imu_calibrates_the_cameras(tmp_path):
 @pytest.mark.parametrize("extra, message", [
     (["--imu", "imu.csv"], "--imu and --imu-noise go together"),
     (["--imu-noise", "imu.yaml"], "--imu and --imu-noise go together"),
-    (["--rolling-shutter"], "--rolling-shutter and --shared-time-offset need --imu"),
+    (["--rolling-shutter"], "--rolling-shutter needs --imu"),
+    (["--gravity", "9.80665"], "--gravity needs --imu"),  # was ignored without the IMU
+    (["--shared-time-offset", "--bias", "constant", "--bias-interval", "2"],
+     "--shared-time-offset, --bias, --bias-interval need --imu"),
 ])
 def test_calibrate_imu_options_without_the_imu_are_one_error_line(tmp_path, capsys, extra,
                                                                  message):

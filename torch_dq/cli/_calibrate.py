@@ -364,9 +364,15 @@ def _run_cameras(args, say) -> int:
     from .. import dualquat
     from ..calibration import cameras, read_target
 
-    if args.rolling_shutter or args.shared_time_offset:
-        raise UserError("--rolling-shutter and --shared-time-offset need --imu and "
-                        "--imu-noise (they are camera-IMU options)")
+    given = [flag for flag, on in (
+        ("--rolling-shutter", args.rolling_shutter),
+        ("--shared-time-offset", args.shared_time_offset), ("--gravity", args.gravity != 9.81),
+        ("--bias", args.bias != "random-walk"), ("--bias-interval", args.bias_interval != "1.0"),
+    ) if on]
+    if given:
+        raise UserError(f"{', '.join(given)} need{'s' * (len(given) == 1)} --imu and "
+                        f"--imu-noise (camera-IMU options; the cameras alone have no use "
+                        f"for them)")
     out = _check_outputs(args)
     start = time.perf_counter()
     target = read_target(args.target)
