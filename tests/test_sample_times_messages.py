@@ -52,3 +52,28 @@ def test_float32_absolute_times_hint():
     q, p = _poses(10)
     with pytest.raises(ValueError, match=r"torch.float32 rounds these times to steps of 128"):
         nn.BSpline.from_poses(q.float(), p.float(), t, n_ctrl=6)
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_nonfinite_pose_named(batched):
+    t = torch.arange(12, dtype=F64)
+    q, p = _poses(12)
+    p = p.clone()
+    p[7, 1] = float("nan")
+    if batched:  # trajectory 1 holds the NaN
+        q, p = q.expand(2, 12, 4), torch.stack((torch.zeros_like(p), p))
+    where = r"1, 7" if batched else r"7"
+    with pytest.raises(ValueError, match=rf"poses must be finite, with non-zero rotations "
+                                         rf"\(not poses\[{where}\]\)"):
+        nn.BSpline.from_poses(q, p, t, n_ctrl=5)
+
+
+def test_too_few_poses_advice():
+    """Fewer samples than a degree-3 curve needs: the advice is to add samples or lower the
+    degree, not finer knots (which need more samples too)."""
+    t = torch.arange(2, dtype=F64)
+    q, p = _poses(2)
+    with pytest.raises(ValueError, match=r"needs at least 4 samples: add samples or lower the "
+                                         r"degree$"):
+        nn.BSpline.from_poses(q, p, t, n_ctrl=4)
+    assert nn.BSpline.from_poses(q, p, t, n_ctrl=2, degree=1).n_ctrl == 2  # the advice works

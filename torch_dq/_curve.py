@@ -319,15 +319,15 @@ class Curve(torch.nn.Module, abc.ABC):
         n, N = self.n_ctrl, x.shape[-2]
         if n > N:
             low = self._min_samples
-            fix = (f"use n_ctrl <= {N}" if N >= low else
-                   f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
-                   f"lower the degree")
+            fix = (f"a degree-{low - 1} curve needs at least {low} samples: add samples or "
+                   f"lower the degree" if N < low else f"use n_ctrl <= {N} (from_poses(..., "
+                   f"knot_spacing=) starts knots finer than the poses, smoothing between them)")
             _checks.fail(fn, f"the fit is underdetermined: n_ctrl = {n} control points for "
-                             f"N = {N} samples; {fix} (BSpline.from_poses(..., knot_spacing=) "
-                             f"starts knots finer than the poses, smoothing between them)")
+                             f"N = {N} samples; {fix}")
         x64 = x.detach().to(dtype=torch.float64, device="cpu")
-        if not bool(torch.isfinite(x64).all()):
-            _checks.fail(fn, "the poses must be finite, with non-zero rotations")
+        if not bool((ok := torch.isfinite(x64).all(-1)).all()):
+            at = ", ".join(map(str, _checks.first_index(~ok)))
+            _checks.fail(fn, f"the poses must be finite, with non-zero rotations (not poses[{at}])")
         dom = self.time_model
         origin = dom.origin.cpu() if isinstance(dom.origin, Tensor) else dom.origin
         dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, origin)
