@@ -77,3 +77,25 @@ def test_too_few_poses_advice():
                                          r"degree$"):
         nn.BSpline.from_poses(q, p, t, n_ctrl=4)
     assert nn.BSpline.from_poses(q, p, t, n_ctrl=2, degree=1).n_ctrl == 2  # the advice works
+
+
+@pytest.mark.parametrize("unit, scale", [("nanoseconds", 1e9), ("microseconds", 1e6),
+                                         ("milliseconds", 1e3)])
+def test_unix_times_in_a_finer_unit_warn(unit, scale):
+    """UNIX times in ns / us / ms fit a curve in that unit (the caller's), whose rates would
+    be per nanosecond: a warning names the unit and the factor to seconds."""
+    t = (1.6e9 + 0.05 * np.arange(12)) * scale
+    q, p = _poses(12)
+    with pytest.warns(UserWarning, match=rf"look like UNIX {unit} .*pass seconds \(times \* "
+                                         rf"{1 / scale:g}\)"):
+        nn.BSpline.from_poses(q, p, torch.from_numpy(t), n_ctrl=5)
+
+
+@pytest.mark.parametrize("t0", [0.0, 1.6e9])
+def test_seconds_do_not_warn(t0):
+    import warnings
+    q, p = _poses(12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        nn.BSpline.from_poses(q, p, torch.from_numpy(t0 + 0.05 * np.arange(12)), n_ctrl=5)
+        nn.BSpline.from_poses(q, p, torch.from_numpy(50.0 * np.arange(12)), n_ctrl=5)  # ms

@@ -83,7 +83,21 @@ def check_sample_times(fn: str, times: Tensor, n: int | None = None,
                     f"units); pass absolute "
                     f"timestamps such as UNIX seconds as float64)")
         _checks.fail(fn, "times must be strictly increasing" + _row(increasing, tt, 1) + hint)
+    _warn_unit(fn, float(tt.abs().max()))
     return times
+
+
+def _warn_unit(fn: str, last: float) -> None:
+    """Warn where the times cannot be seconds (beyond 1e11 s, year 5138) but a finer unit
+    gives a UNIX time (nanoseconds, microseconds, milliseconds): the curve keeps the
+    caller's unit, so its velocities would be per nanosecond, its knot spacing in them."""
+    unit = next(((name, scale) for name, scale in _checks.TIME_UNITS
+                 if last >= 1e11 and 1e8 <= last * scale <= 1e10), None)
+    if unit:
+        warnings.warn(f"{fn}: the times look like UNIX {unit[0]} (the latest {last:.6g}): the "
+                      f"curve keeps the caller's unit, so its rates would be per "
+                      f"{unit[0][:-1]}; pass seconds (times * {unit[1]:g})", UserWarning,
+                      stacklevel=5)  # the caller of from_poses / from_dualquats / fit
 
 
 def _row(bad: Tensor, times: Tensor, pair: int) -> str:
