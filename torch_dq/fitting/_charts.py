@@ -144,11 +144,14 @@ class Scalar(Chart):
         return pinned
 
     def outward(self, value: Tensor, gradient: Tensor) -> Tensor:
-        """Bool: on a bound (to ``1e-9`` relatively; a bound of zero exactly) with the
-        descent direction ``-gradient`` pointing out of the range (the step holds it)."""
-        def on(bound: float) -> Tensor:
-            return (value - bound).abs() <= 1e-9 * abs(bound)
-        return (on(self.low) & (gradient > 0)) | (on(self.high) & (gradient < 0))
+        """Bool: pinned with a descent direction ``-gradient`` pointing out of the range."""
+        return self.pinned(value) & (value * gradient < 0)
+
+    def at_end(self, value: Tensor) -> Tensor:
+        """Bool, the shape of ``value``: on a lower bound of zero, the parameter's natural
+        end (a line delay), where a step that would go below holds it
+        (``torch_dq.fitting._solver.DampedStep``); the other bounds are search limits."""
+        return (value <= 0.0) & (self.low == 0.0)
 
 
 @register

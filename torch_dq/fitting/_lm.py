@@ -227,19 +227,25 @@ class LevenbergMarquardt:
             self._gradient = ((self.point, self.system), grad)
         return grad
 
-    def _held(self) -> Tensor | None:
-        """``(Bf, m)`` bool: the bounded scalars on their bound whose descent points outwards
-        at the current point (a line delay at 0, a clock offset at its limit), which the
-        steps hold there and the convergence test leaves out (the projected gradient); None
-        where there are none. A step that moved them would be clamped back: the step of the
-        others, computed as if they moved, stalled (a line delay at 0 on global-shutter
-        pixels: 50 steps, unconverged)."""
-        gn = self.gradient()[1]
-        held = torch.zeros_like(gn, dtype=torch.bool)
+    def _bounded(self, gn: Tensor) -> Tensor:
+        """``gn`` without the components of bounded scalars on their bound whose descent
+        points outwards (a constrained optimum there: the projected gradient)."""
+        gn = gn.clone()
         for q, v in zip(self.p.params, self.point.values, strict=True):
             if isinstance(q.chart, Scalar):
-                held[:, q.offset] = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
-        return held if bool(held.any()) else None
+                out = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
+                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
+        return gn
+
+    def _ends(self) -> Tensor | None:
+        """``(Bf, m)`` bool: the scalars at their natural end 0 (a line delay) at the current
+        point, which the steps that would go below hold there (``DampedStep``); None where
+        none is."""
+        ends = torch.zeros(self.Bf, self.p.m, dtype=torch.bool, device=self.start.device)
+        for q, v in zip(self.p.params, self.point.values, strict=True):
+            if isinstance(q.chart, Scalar):
+                ends[:, q.offset] = q.chart.at_end(v.reshape(self.Bf))
+        return ends if bool(ends.any()) else None
 
     def _step_pull(self) -> Tensor:
         r"""The control points' pull information in the current point's step charts,
@@ -270,7 +276,7 @@ class LevenbergMarquardt:
         pulls = (cpull, self.pulls[1]) if stiff == 1.0 else (stiff * cpull,
                                                                stiff * self.pulls[1])
         return DampedStep(self.system, pulls, self.null, self.p.prior_information(),
-                          self.solver, self._held())
+                          self.solver, self._ends())
 
     def _decrement(self) -> tuple[Tensor, Tensor]:
         r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
@@ -283,6 +289,7 @@ class LevenbergMarquardt:
         :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from ``epsilon =
         REGULARISE`` and ``100 REGULARISE``."""
         gc, gn = self.gradient()
+        gn = self._bounded(gn)
         if self._null_of is not self.system:  # factored once per system
             self._control_null(_prior.Regularised(self.system.band, self._step_pull()))
         if self.informed:

@@ -114,40 +114,47 @@ class DampedStep:
         null: ``U`` and ``D U`` (``torch_dq.fitting._prior.control_null``).
         prior_information: ``(m,)`` the Free priors' diagonal information.
         solver: the linear solver (:class:`SchurSolver` by default).
-        held: ``(Bf, m)`` bool, nuisance components the step leaves where they are (a
-            bounded scalar on its bound, descent outwards), or None: the system without
-            their rows and columns (the others' step with those fixed; their own zero).
+        ends: ``(Bf, m)`` bool, the nuisance components at their natural end 0 (a line
+            delay), or None: a step that would take one below is solved again with it held
+            (its rows and columns out, its step zero), until none goes below (an active
+            set). Clamped afterwards instead, the others' step was the one for a move that
+            did not happen: a line delay at 0 on global-shutter pixels crept for 50 steps,
+            unconverged. (A clock offset's bound is a search limit, clamped: held there, a
+            far start's offset stayed on it while the rest fit around it.)
     """
 
     def __init__(self, system, pulls: tuple[Tensor, Tensor], null: tuple[Tensor, Tensor],
                  prior_information: Tensor, solver: SchurSolver | None = None,
-                 held: Tensor | None = None) -> None:
-        self.s, self.null, self.cn = system, null, system.cn
+                 ends: Tensor | None = None) -> None:
+        self.s, self.null, self.ends = system, null, ends
         self.solver = SchurSolver() if solver is None else solver
         self.band = system.band + pulls[0]
         self.nn = system.nn + torch.diag(prior_information.to(system.band)) + pulls[1]
-        self.keep = None
-        if held is not None:
-            self.keep = (~held).to(self.nn.dtype)
-            self.cn = self.cn * self.keep[:, None, None, :]
-            self.nn = (self.nn * self.keep[:, :, None] * self.keep[:, None, :]
-                       + torch.diag_embed(held.to(self.nn.dtype)))
         self.diag, self.ndiag, self.floor = Marquardt.diagonals(system.band, self.band, self.nn)
 
     def step(self, lam: Tensor, gc: Tensor, gn: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` at damping ``lam``."""
         shift = lam[:, None, None] * (self.diag + self.floor[:, None, None])
         nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
-        gn = gn if self.keep is None else gn * self.keep
-        dc, dn, ok = self.solver.solve(self.band, self.cn, nn, gc, gn, shift)
+        cn, held = self.s.cn, torch.zeros_like(gn, dtype=torch.bool)
+        while True:
+            dc, dn, ok = self.solver.solve(self.band, cn, nn, gc, gn, shift)
+            if self.ends is None:
+                break
+            out = self.ends & (dn < 0)
+            if not bool(out.any()):
+                break
+            held = held | out  # grows each pass: at most m passes
+            keep = (~held).to(nn.dtype)
+            cn, gn = self.s.cn * keep[:, None, None, :], gn * keep
+            nn = nn * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(1.0 - keep)
         return self._project(dc), dn, ok
 
     def predicted(self, gc: Tensor, gn: Tensor, dc: Tensor, dn: Tensor) -> Tensor:
         r"""``(Bf,)`` the decrease of the objective that the undamped quadratic model
         predicts for the step ``(dc, dn)``: :math:`-(2 g^T \delta + \delta^T H \delta)`
         (``g`` half the gradient, ``H`` half the Hessian: data, pulls, Free priors)."""
-        cn = self.cn
-        gn = gn if self.keep is None else gn * self.keep
+        cn = self.s.cn
         hc = _prior.band_apply(self.band, dc[..., None])[..., 0]
         hc = hc + torch.einsum("bnim,bm->bni", cn, dn)
         hn = torch.einsum("bnim,bni->bm", cn, dc) + (self.nn @ dn[..., None])[..., 0]
