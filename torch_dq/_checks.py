@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 __all__ = [
+    "LATEST",
     "TIME_UNITS",
     "as_float_tensor",
     "broadcast_batch",
@@ -37,6 +38,7 @@ __all__ = [
     "shape_str",
     "tensor",
     "times",
+    "unix_unit",
 ]
 
 
@@ -252,6 +254,14 @@ def rigid_matrix(fn: str, name: str, T: Tensor, atol: float = 1e-3) -> None:
 #: Time units finer than seconds, and the factor to seconds (the readers' and the terms'
 #: unit checks).
 TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+LATEST = 1e11  # seconds (3170 years): beyond any clock's seconds (UNIX time is 1.8e9)
+
+
+def unix_unit(last: float) -> tuple[str, float] | None:
+    """The unit of :data:`TIME_UNITS` in which the time ``last`` is a UNIX time (1e8 to
+    1e10 s), or None."""
+    return next(((name, scale) for name, scale in TIME_UNITS if 1e8 <= last * scale <= 1e10),
+                None)
 
 
 def poses(fn: str, name: str, x: Tensor) -> None:

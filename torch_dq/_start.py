@@ -91,8 +91,7 @@ def _warn_unit(fn: str, last: float) -> None:
     """Warn where the times cannot be seconds (beyond 1e11 s, year 5138) but a finer unit
     gives a UNIX time (nanoseconds, microseconds, milliseconds): the curve keeps the
     caller's unit, so its velocities would be per nanosecond, its knot spacing in them."""
-    unit = next(((name, scale) for name, scale in _checks.TIME_UNITS
-                 if last >= 1e11 and 1e8 <= last * scale <= 1e10), None)
+    unit = _checks.unix_unit(last) if last >= _checks.LATEST else None
     if unit:
         warnings.warn(f"{fn}: the times look like UNIX {unit[0]} (the latest {last:.6g}): the "
                       f"curve keeps the caller's unit, so its rates would be per "

@@ -102,16 +102,13 @@ def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
                          f"rounded); pass times as torch.float64")
 
 
-_LATEST = 1e11  # seconds (3170 years): beyond any clock's seconds (UNIX time is 1.8e9)
-
-
 def _finer_unit(last: float, step: float, imu: bool) -> tuple[str, float] | None:
     """The finer unit that makes the times plausible: the last one a UNIX time (1e8 to 1e10
     s), else the median step an IMU's sampling period (0.2 ms to 0.05 s) or a pose
     sensor's (0.2 ms to 5 s); None where none does."""
-    for name, scale in _checks.TIME_UNITS:
-        if 1e8 <= last * scale <= 1e10:
-            return name, scale
+    unit = _checks.unix_unit(last)
+    if unit:
+        return unit
     for name, scale in _checks.TIME_UNITS:
         if 2e-4 <= step * scale <= (0.05 if imu else 5.0):
             return name, scale
@@ -119,7 +116,7 @@ def _finer_unit(last: float, step: float, imu: bool) -> tuple[str, float] | None
 
 
 def _check_time_unit(fn: str, name: str, t: Tensor, valid: Tensor, imu: bool) -> None:
-    r"""Times that cannot be seconds. A time beyond ``_LATEST`` (1e11 s: UNIX nanoseconds,
+    r"""Times that cannot be seconds. A time beyond ``_checks.LATEST`` (1e11 s: UNIX nanoseconds,
     microseconds, milliseconds are 1.8e18, 1.8e15, 1.8e12) fails, naming the likely unit
     (:func:`_finer_unit`); samples a median step of 0.5 s or more apart for an IMU term (IMUs
     sample at 20 Hz to a few kHz), of 1e4 s or more for the others, warn where a finer unit
@@ -134,7 +131,7 @@ def _check_time_unit(fn: str, name: str, t: Tensor, valid: Tensor, imu: bool) ->
     what = (f"{name} look like {unit[0]}, not seconds" if unit else
             f"{name} cannot be seconds")
     fix = f": pass seconds ({name} * {unit[1]:g})" if unit else ": pass seconds"
-    if last >= _LATEST:
+    if last >= _checks.LATEST:
         _checks.fail(fn, f"{what}: the latest is {last:.6g} s, {last / 3.156e7:.3g} years"
                          f"{fix}")
     if unit and step >= (0.5 if imu else 1e4):
