@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_perf9_cumulative_lie import _spline, span_samples  # one curve, its spans' samples
 
 import torch_dq.dualquat as dq
 from torch_dq.fitting import Accel, Gyro, Poses, _linearize
@@ -18,20 +19,6 @@ from torch_dq.fitting._problem import Problem
 from torch_dq.nn import BSpline
 
 F64 = torch.float64
-
-
-def _spline(n: int = 9, seed: int = 0) -> BSpline:
-    """A cumulative cubic B-spline whose control points wander (0.3 rad, 0.5 m a step) 20 m
-    from the origin, on irregular knots."""
-    g = torch.Generator().manual_seed(seed)
-    steps = dq.exp(torch.randn(n, 6, generator=g, dtype=F64)
-                   * torch.tensor([0.3] * 3 + [0.5] * 3, dtype=F64))
-    c = [dq.exp(torch.tensor([0.2, -0.1, 0.3, 20.0, -10.0, 7.0], dtype=F64))]
-    for s in steps[1:]:
-        c.append(dq.mul(c[-1], s))
-    knots = torch.arange(-3, n + 1, dtype=F64) * 0.05 + torch.linspace(0, 0.01, n + 4,
-                                                                        dtype=F64) ** 2
-    return BSpline(torch.stack(c), degree=3, knots=knots, form="cumulative")
 
 
 def _reverse(spline: BSpline, pts, local, first, cot):
@@ -51,12 +38,7 @@ def test_span_vjp_of_known_zero_second_order_rows_equals_reverse_mode(second):
     """Rows outside ``second`` with zero second-order cotangents (leading, trailing, both
     sides, none): the same products as reverse mode, and entries there are not read."""
     spline = _spline(seed=5)
-    lo, hi = (float(x) for x in spline.domain)
-    t = torch.linspace(lo + 1e-3, hi - 1e-3, 11, dtype=F64)
-    first = spline.support(t)[0]
-    local = spline.local_times(t, first)
-    ctrl = spline.control_points.detach()
-    pts = torch.stack([ctrl[f:f + 4] for f in first.tolist()])
+    t, first, local, ctrl, pts = span_samples(spline, 11)
     cot = torch.randn(len(t), 5, 3, 8, generator=torch.Generator().manual_seed(6), dtype=F64)
     off = torch.ones(5, dtype=torch.bool)
     off[second] = False

@@ -33,6 +33,17 @@ def _spline(n: int = 9, seed: int = 0, far: float = 20.0) -> BSpline:
     return BSpline(torch.stack(c), degree=3, knots=knots, form="cumulative")
 
 
+def span_samples(spline: BSpline, count: int):
+    """``count`` times inside the domain, their spans ``first``, local times, the control
+    points and each time's span points ``(count, 4, 8)``."""
+    lo, hi = (float(x) for x in spline.domain)
+    t = torch.linspace(lo + 1e-3, hi - 1e-3, count, dtype=F64)
+    first = spline.support(t)[0]
+    ctrl = spline.control_points.detach()
+    pts = torch.stack([ctrl[f:f + 4] for f in first.tolist()])
+    return t, first, spline.local_times(t, first), ctrl, pts
+
+
 # ---------------------------------------------------------------- mpmath reference (readable)
 
 def _qmul(a, b):
@@ -208,12 +219,7 @@ def test_span_vjp_against_central_differences(order):
     tables' evaluation (a graph forces them) along random right steps ``c_i Exp(h e)`` of
     each control point, at generic times of a spline 20 m from the origin."""
     spline = _spline(seed=3)
-    lo, hi = (float(x) for x in spline.domain)
-    t = torch.linspace(lo + 1e-3, hi - 1e-3, 7, dtype=F64)
-    first = spline.support(t)[0]
-    local = spline.local_times(t, first)
-    ctrl = spline.control_points.detach()
-    pts = torch.stack([ctrl[f:f + 4] for f in first.tolist()])
+    t, first, local, ctrl, pts = span_samples(spline, 7)
     g = torch.Generator().manual_seed(4)
     cot = torch.randn(len(t), 2, order + 1, 8, generator=g, dtype=F64)
     with torch.no_grad():
