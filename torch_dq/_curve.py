@@ -609,42 +609,42 @@ class Curve(torch.nn.Module, abc.ABC):
         B-spline's ``p + 1``; a Bézier curve's ``n``)."""
         return self.time_model.degree + 1
 
-    def support(self, t: Tensor) -> tuple[Tensor, int]:
+    def support(self, t: Tensor, since_origin: bool = False) -> tuple[Tensor, int]:
         r"""The control points that the poses at ``t`` depend on: ``(first, w)``.
 
         The pose at ``t[..., i]`` is :meth:`evaluate_span` of the control points
         ``first[..., i] .. first[..., i] + w - 1`` only (``w =`` :attr:`span_size`): the span
-        of the time model (``KnotDomain.span``) holding ``t``; times
-        beyond the domain take the end spans. No domain check, no gradient.
+        of the time model (``KnotDomain.span``) holding ``t``; times beyond the domain take
+        the end spans. No domain check, no gradient.
 
         Args:
-            t: ``(..., T)`` times in the caller's units (float64 absolute timestamps
-                welcome); with a row of knots per trajectory its leading dims broadcast
-                against the knots' batch.
+            t: ``(..., T)`` times in the caller's units (float64 UNIX times welcome;
+                ``since_origin``: since the time model's origin, exact where ``t + dt``
+                rounds); with a row of knots per trajectory its leading dims broadcast.
 
         Returns:
             ``first`` ``(..., T)`` int64 (each trajectory's own index) and ``w``.
         """
         dom = self.time_model
-        return dom.span(dom.relative(t.detach(), torch.float64)) - dom.degree, self.span_size
+        rel = dom.relative(t.detach(), torch.float64, since_origin)
+        return dom.span(rel) - dom.degree, self.span_size
 
-    def local_times(self, t: Tensor, first: Tensor) -> Tensor:
+    def local_times(self, t: Tensor, first: Tensor, since_origin: bool = False) -> Tensor:
         r"""Time since the start of span ``first``: ``t - origin - u_{first + p}`` (float64).
 
         Clamped into the span ``[0, u_{first + p + 1} - u_{first + p}]`` (times beyond the
         domain by a rounding: evaluated at the end); differentiable with respect to ``t``.
 
         Args:
-            t: ``(..., T)`` times in the caller's units.
+            t: ``(..., T)`` times in the caller's units (``since_origin``: :meth:`support`).
             first: ``(..., T)`` int64 spans of them (:meth:`support`); ``t`` may have more
                 leading dims (copies), broadcasting against it.
 
         Returns:
             ``(...)`` float64 local times, ``t``'s and ``first``'s broadcast shape.
         """
-        lo, hi = self._span_bounds(first)
-        local = self.time_model.relative(t, torch.float64) - lo
-        return torch.minimum(local.clamp_min(0.0), hi - lo)  # rounding at the ends
+        dom = self.time_model
+        return dom.local_times(t, first + dom.degree, since_origin)
 
     def _span_bounds(self, first: Tensor) -> tuple[Tensor, Tensor]:
         """The knots ``u_{first + p}``, ``u_{first + p + 1}`` relative to the origin, float64

@@ -246,10 +246,13 @@ class KnotDomain:
                                            threshold("domain_rtol", dtype) * scale), stored)
 
     # -- times
-    def relative(self, t: Tensor, dtype: torch.dtype) -> Tensor:
-        """``t - origin`` in the wide time dtype ``promote(t.dtype, dtype)``."""
+    def relative(self, t: Tensor, dtype: torch.dtype, since_origin: bool = False) -> Tensor:
+        """``t - origin`` in the wide time dtype ``promote(t.dtype, dtype)`` (``since_origin``:
+        ``t`` is such a time already, only widened)."""
         wide = torch.promote_types(t.dtype, dtype)
         origin = self.origin
+        if since_origin:
+            return t.to(wide)
         if isinstance(origin, Tensor):
             return t.to(wide) - origin.to(wide)
         return t.to(wide) - origin if origin != 0.0 else t.to(wide)
@@ -427,13 +430,14 @@ class KnotDomain:
         width = right - left
         return r, ((rel - left) / width).to(dtype), (1.0 / width).to(dtype)
 
-    def local_times(self, t: Tensor, r: Tensor) -> Tensor:
+    def local_times(self, t: Tensor, r: Tensor, since_origin: bool = False) -> Tensor:
         """Time since the start of span ``r`` of absolute times ``t``, ``t - origin - u_r``
         (float64, ``(..., T)``: ``t`` and ``r`` broadcast against each other and the knots'
         batch), clamped to the span ``[0, u_{r+1} - u_r]`` (the rounding of times admitted
-        at its ends): a one-span curve's time (the per-sample evaluation of
-        ``torch_dq.fitting._local``)."""
-        rel = self.relative(t.detach(), torch.float64)
+        at its ends; differentiable with respect to ``t``): a one-span curve's time (the
+        per-sample evaluation of ``torch_dq.fitting._local``). ``since_origin``: ``t`` are
+        times since the origin (:meth:`relative`)."""
+        rel = self.relative(t, torch.float64, since_origin)
         k = self.knots.detach().to(torch.float64)
         shape = _checks.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
         k = k.expand(*shape[:-1], k.shape[-1])

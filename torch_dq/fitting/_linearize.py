@@ -141,7 +141,7 @@ def _part_derivatives(spans, term, ctrl: Tensor, shift: Tensor, order: int,
     moved by ``shift``."""
     derivs = []
     for t in term.times_list():
-        t = t + shift
+        t = spans.since_origin(t, shift)
         first = spans.first(t)
         with torch.no_grad():
             derivs.append(_point_derivatives(spans, ctrl, t, first,
@@ -167,7 +167,7 @@ def width(problem, values: list[Tensor]) -> int:
         ts = term.times_list()
         if len(ts) > 1:
             dt = term.time_shift(term.per_sample(problem.term_values(i, values)))
-            f = [spans.first(t + dt) for t in ts]
+            f = [spans.first(spans.since_origin(t, dt)) for t in ts]
             w = max(w, int((f[1] - f[0]).abs().max()) + spans.support)
     return min(w, spans.n)
 
@@ -322,7 +322,8 @@ class Linearization:
         times move with no estimated parameter)."""
         p, lead = self.p, terms[0]
         vals = [p.term_values(i, values) for i in group]
-        times = [t + lead.time_shift(lead.per_sample(vals[0])) for t in lead.times_list()]
+        shift = lead.time_shift(lead.per_sample(vals[0]))
+        times = [self.spans.since_origin(t, shift) for t in lead.times_list()]
         firsts = [self.spans.first(t) for t in times]
         f0, gathered, offs = self._window(ctrl, firsts, w)
         shared = [_distinct_times(t, f, 2) for t, f in zip(times, firsts, strict=True)]

@@ -41,10 +41,19 @@ class SpanEvaluator:
         self.n, self.support = trajectory.n_ctrl, trajectory.span_size
         self.device = trajectory.control_points.device
 
+    def since_origin(self, t: Tensor, shift: Tensor | float = 0.0) -> Tensor:
+        r"""The samples' times ``t (..., N)`` moved by ``shift`` (``(..., N)`` or
+        broadcastable), as times since the trajectory's origin: float64 ``(t - origin) +
+        shift``, the times every other method takes. At UNIX-time stamps (``~1.7e9`` s)
+        ``t + shift`` would round to ``2.4e-7`` s, a staircase cost in a clock offset; the
+        difference from the origin is exact there."""
+        rel = self.trajectory.time_model.relative(t, torch.float64)
+        return rel + shift if isinstance(shift, Tensor) or shift else rel
+
     def first(self, t: Tensor) -> Tensor:
         """First control point ``(..., T)`` int64 of the span of each time ``t (..., T)``
-        (batched knots broadcast into the leading dims)."""
-        return self.trajectory.support(t)[0]
+        (:meth:`since_origin`; batched knots broadcast into the leading dims)."""
+        return self.trajectory.support(t, since_origin=True)[0]
 
     def derivatives(self, points: Tensor, t: Tensor, first: Tensor, order: int,
                     ) -> tuple[Tensor, ...]:
@@ -55,7 +64,7 @@ class SpanEvaluator:
         ``points.shape[:-2]``; leading dims beyond it (copies, a shared batch) are evaluated
         with the same spans. ``t`` broadcasts against ``points.shape[:-2]``.
         """
-        local = self.trajectory.local_times(t, first)
+        local = self.trajectory.local_times(t, first, True)
         return self.trajectory.evaluate_span(points, local, first, order)
 
     def vjp(self, points: Tensor, t: Tensor, first: Tensor, cotangents: Tensor, pose: Tensor,
@@ -66,7 +75,7 @@ class SpanEvaluator:
         the rows ``second`` may be nonzero, None: all; ``tables``: :meth:`tables` of the
         control points the spans are of, None: from ``points``), or None (no closed form:
         reverse passes)."""
-        local = self.trajectory.local_times(t, first)
+        local = self.trajectory.local_times(t, first, True)
         return self.trajectory.span_vjp(points, local, first, cotangents, pose, second, tables)
 
     def tables(self, ctrl: Tensor) -> Tensor | None:
@@ -82,7 +91,7 @@ class SpanEvaluator:
         (:meth:`~torch_dq.nn.Curve.span_derivatives`): the costs and the linearisation
         points, without per-sample copies."""
         traj = self.trajectory
-        return traj.span_derivatives(ctrl, traj.local_times(t, first), first, order)
+        return traj.span_derivatives(ctrl, traj.local_times(t, first, True), first, order)
 
     def time_rate(self, t: Tensor, first: Tensor) -> Tensor:
         r"""``d local / d t`` ``(...)`` of :meth:`~torch_dq.nn.Curve.local_times` at ``t``
@@ -96,7 +105,7 @@ class SpanEvaluator:
         shift = t.detach().new_zeros(_checks.broadcast_shapes(t.shape, first.shape))
         with torch.enable_grad():
             shift.requires_grad_()
-            local = self.trajectory.local_times(t.detach() + shift, first)
+            local = self.trajectory.local_times(t.detach() + shift, first, True)
             return torch.autograd.grad(local.sum(), shift)[0]
 
 

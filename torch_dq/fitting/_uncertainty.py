@@ -496,7 +496,7 @@ class Estimate:
                              f"batch {_checks.shape_str(p.batch)}")
         shape = p.batch
         T = t.shape[-1]
-        t = t.to(torch.float64).expand(*shape, T)
+        t = spans.since_origin(t.to(torch.float64).expand(*shape, T))
         first = spans.first(t)
         window = first[..., None] + torch.arange(sup, device=t.device)
         pts = ctrl.expand(*shape, n, 8).gather(-2, window.reshape(*shape, T * sup, 1).expand(
