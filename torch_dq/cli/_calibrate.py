@@ -161,6 +161,16 @@ def _on_target(path, points, target, target_path) -> None:
                         f"m away; {len(bad)} of {len(points)} rows are off): {why}")
 
 
+def _imu_file(path: str) -> str:
+    """``--imu``: the file, or EuRoC's ``imu0`` folder holding it as ``data.csv``."""
+    if not Path(path).is_dir():
+        return path
+    if (Path(path) / "data.csv").is_file():
+        return os.fspath(Path(path) / "data.csv")
+    raise UserError(f"--imu {path} is a folder without data.csv: give the IMU file (EuRoC: "
+                    f"mav0/imu0/data.csv)")
+
+
 def _observations(args, target, n: int):
     from ..calibration import detect_folder, read_corners
 
@@ -175,7 +185,7 @@ def _observations(args, target, n: int):
         for path, (_, points, _) in zip(args.corners, obs, strict=True):
             _on_target(path, points, target, args.target)
         return obs
-    return [tuple(detect_folder(p, target)[:3]) for p in args.images]
+    return [tuple(detect_folder(p, target, verbose=not args.quiet)[:3]) for p in args.images]
 
 
 def _models(entries, path: str) -> list[tuple[str, tuple]]:
@@ -217,8 +227,8 @@ def _check_outputs(args) -> Path:
     for name in _OUTPUTS:
         if (out / name).resolve() in resolved:
             raise UserError(f"--out {args.out} would overwrite the input {out / name}")
-    for p in args.images:
-        if out.resolve() == Path(p).resolve():
+    for p in args.images:  # the folder or its data subfolder (EuRoC's cam0/data)
+        if out.resolve() in (Path(p).resolve(), (Path(p) / "data").resolve()):
             raise UserError(f"--out {args.out} is an --images folder (an input)")
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {args.out} is a file, not a folder")
@@ -327,7 +337,7 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
     from ..calibration import camera_imu
 
     with _printed_warnings() as caught:
-        imu = io.read_imu(args.imu)
+        imu = io.read_imu(_imu_file(args.imu), duplicates=args.duplicates)
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
             f"camera(s)")
         obs = _observations(args, target, len(entries))
@@ -339,6 +349,7 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
                          bias_interval=interval, gravity_magnitude=args.gravity,
+                         max_time_offset=args.max_time_offset,
                          verbose=not args.quiet)
     return cams, res, caught
 
@@ -367,6 +378,8 @@ def _run_cameras(args, say) -> int:
     given = [flag for flag, on in (
         ("--rolling-shutter", args.rolling_shutter),
         ("--shared-time-offset", args.shared_time_offset), ("--gravity", args.gravity != 9.81),
+        ("--max-time-offset", args.max_time_offset != 0.1),
+        ("--duplicates", args.duplicates != "error"),
         ("--bias", args.bias != "random-walk"), ("--bias-interval", args.bias_interval != "1.0"),
     ) if on]
     if given:
