@@ -4,6 +4,7 @@ beyond the default search (``--max-time-offset``), a repeated IMU timestamp
 folder, the detection's summary on ``--images``; Kalibr's files written as Kalibr and EuRoC
 write them (comments, CRLF line ends), the result against the simulated truth in numpy."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -73,13 +74,32 @@ def test_offset_of_0_2_s_found_with_max_time_offset(files, tmp_path):
     t_imu = t_cam + timeshift_cam_imu)."""
     files = {**files, "--imu": str(Path(files["--imu"]).parent)}
     argv = _argv(files, tmp_path / "out", "--duplicates", "first", "--max-time-offset", "0.3",
-                 "--bias", "constant", "--pixel-sigma", "0.3")
+                 "--bias", "constant", "--pixel-sigma", "0.3", "--knot-spacing", "0.04")
     assert main(argv) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert abs(summary["knot_spacing_s"] - 0.04) < 1e-3
+    assert not [w for w in summary["warnings"] if "--knot-spacing" in w]  # IMU chi2/dof ~1
     entry = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())["cam0"]
     assert abs(entry["timeshift_cam_imu"] - CAM.dt) < 5e-4
     T = np.array(entry["T_cam_imu"])
     assert np.degrees(Rotation.from_matrix(T[:3, :3] @ CAM.R_bc).magnitude()) < 0.1
     np.testing.assert_allclose(T[:3, 3], -CAM.R_bc.T @ CAM.t_bc, atol=3e-3)
+
+
+def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
+    """imu.yaml's densities 10 times too small (the IMU's chi2/dof about 100): a warning
+    naming --knot-spacing and the densities, in summary.json."""
+    noise = tmp_path / "imu.yaml"
+    noise.write_text("".join(
+        f"{k}: {float(v) / 10 if 'noise_density' in k else v}\n" for k, v in
+        yaml.safe_load(Path(files["--imu-noise"]).read_text()).items()))
+    argv = _argv({**files, "--imu-noise": str(noise)}, tmp_path / "out", "--duplicates",
+                 "first", "--max-time-offset", "0.3", "--bias", "constant", "--pixel-sigma",
+                 "0.3")
+    assert main(argv) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    hints = [w for w in summary["warnings"] if "--knot-spacing 0.025" in w]
+    assert len(hints) == 1 and "noise densities" in hints[0] and "accel" in hints[0], hints
 
 
 def test_imu_folder_without_data_csv(files, tmp_path, capsys):
@@ -90,8 +110,9 @@ def test_imu_folder_without_data_csv(files, tmp_path, capsys):
 
 def test_camera_imu_options_need_the_imu(files, tmp_path, capsys):
     cams = {k: v for k, v in files.items() if k not in ("--imu", "--imu-noise")}
-    assert main(_argv(cams, tmp_path / "out", "--max-time-offset", "0.3")) == 2
-    assert "--max-time-offset needs --imu" in _error(capsys)
+    argv = _argv(cams, tmp_path / "out", "--max-time-offset", "0.3", "--knot-spacing", "0.02")
+    assert main(argv) == 2
+    assert "--max-time-offset, --knot-spacing need --imu" in _error(capsys)
 
 
 def _euroc_images(root: Path) -> list[Path]:

@@ -251,6 +251,10 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--duplicates", type=str.lower, choices=("error", "first"),
                    default="error",
                    help="repeated IMU timestamps: an error, or keep the first sample")
+    p.add_argument("--knot-spacing", type=_positive_float, default=0.05, metavar="SECONDS",
+                   help="the body trajectory's knot spacing (Kalibr: 100 knots per second, "
+                        "0.01); finer for a fast dance, when the gyro's or accel's chi2/dof "
+                        "in summary.json is well above 1")
     p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
                    help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
                         "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
