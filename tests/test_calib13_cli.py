@@ -102,6 +102,19 @@ def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
     assert len(hints) == 1 and "noise densities" in hints[0] and "accel" in hints[0], hints
 
 
+def test_kalibr_output_imu_yaml_nested_under_imu0(files, tmp_path, capsys):
+    """Kalibr's imu-*.yaml output (the noises under imu0, with T_i_b, time_offset) read as
+    its imu.yaml: the run gets past it (to the clock offset's bound, here)."""
+    flat = yaml.safe_load(Path(files["--imu-noise"]).read_text())
+    noise = tmp_path / "imu-camchain-imucam.yaml"
+    noise.write_text(yaml.safe_dump({"imu0": {**flat, "T_i_b": np.eye(4).tolist(),
+                                              "model": "calibrated", "time_offset": 0.0}}))
+    argv = _argv({**files, "--imu-noise": str(noise)}, tmp_path / "out", "--duplicates",
+                 "first")
+    assert main(argv) == 2
+    assert "--max-time-offset" in _error(capsys)
+
+
 def test_imu_folder_without_data_csv(files, tmp_path, capsys):
     (tmp_path / "imu0").mkdir()
     assert main(_argv({**files, "--imu": str(tmp_path / "imu0")}, tmp_path / "out")) == 2

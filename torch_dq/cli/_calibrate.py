@@ -92,8 +92,10 @@ def _noise(path: str, walk: bool) -> dict:
     """The noise densities of Kalibr's imu.yaml (and its random walks, required with
     ``walk``; numbers written without a dot, ``1e-4``, which YAML 1.1 reads as strings,
     taken as numbers); ``update_rate`` and, without ``walk``, the walks are copied as
-    given."""
+    given. The keys at the top, or under ``imu0`` (Kalibr's ``imu-*.yaml`` output)."""
     data = _yaml(path)
+    if "gyroscope_noise_density" not in data and isinstance(data.get("imu0"), dict):
+        data = data["imu0"]  # Kalibr's imu-camchain output and multi-IMU yamls: imu0 nested
     out = {}
     for key in ("gyroscope_noise_density", "accelerometer_noise_density",
                 *(_WALKS if walk else ())):
