@@ -362,7 +362,7 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
 def _imu_fit(res, spacing: float) -> None:
     """A warning naming ``--knot-spacing`` and the noise densities where the IMU terms'
     chi2/dof exceeds 3: a trajectory too coarse for the motion (a fast dance; Kalibr puts
-    100 knots in a second) or ``imu.yaml``'s densities too small."""
+    70 knots in a second) or ``imu.yaml``'s densities too small."""
     from ..fitting import Accel, Gyro
 
     est = res.estimate

@@ -252,8 +252,8 @@ def _add_calibrate(sub) -> None:
                    default="error",
                    help="repeated IMU timestamps: an error, or keep the first sample")
     p.add_argument("--knot-spacing", type=_positive_float, default=0.05, metavar="SECONDS",
-                   help="the body trajectory's knot spacing (Kalibr: 100 knots per second, "
-                        "0.01); finer for a fast dance, when the gyro's or accel's chi2/dof "
+                   help="the body trajectory's knot spacing (Kalibr: 70 knots per second, "
+                        "0.014 s); finer for a fast dance, when the gyro's or accel's chi2/dof "
                         "in summary.json is well above 1")
     p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
                    help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
