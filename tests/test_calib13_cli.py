@@ -100,6 +100,7 @@ def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     hints = [w for w in summary["warnings"] if "--knot-spacing 0.025" in w]
     assert len(hints) == 1 and "noise densities" in hints[0] and "accel" in hints[0], hints
+    assert "--bias random-walk" in hints[0]  # --bias constant: drifting biases, a cause too
 
 
 def test_kalibr_output_imu_yaml_nested_under_imu0(files, tmp_path, capsys):

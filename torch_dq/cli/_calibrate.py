@@ -362,7 +362,8 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
 def _imu_fit(res, spacing: float) -> None:
     """A warning naming ``--knot-spacing`` and the noise densities where the IMU terms'
     chi2/dof exceeds 3: a trajectory too coarse for the motion (a fast dance; Kalibr puts
-    70 knots in a second) or ``imu.yaml``'s densities too small."""
+    70 knots in a second), constant biases that drift, or ``imu.yaml``'s densities too
+    small."""
     from ..fitting import Accel, Gyro
 
     est = res.estimate
@@ -373,8 +374,10 @@ def _imu_fit(res, spacing: float) -> None:
     if high:
         warnings.warn(f"the IMU's chi2/dof is {', '.join(f'{k} {v:.3g}' for k, v in high.items())}"
                       f" (expected about 1): the trajectory's knots every {spacing:g} s are "
-                      f"too coarse for this motion (try --knot-spacing {spacing / 2:g}), or "
-                      f"imu.yaml's noise densities are too small", UserWarning, stacklevel=2)
+                      f"too coarse for this motion (try --knot-spacing {spacing / 2:g}), "
+                      + ("the biases drift (--bias random-walk), " if res.bias_edges is None
+                         else "") + "or imu.yaml's noise densities are too small",
+                      UserWarning, stacklevel=2)
 
 
 @contextlib.contextmanager
