@@ -21,7 +21,8 @@ by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
 - ``summary.json``: every value with its standard deviation (random-walk biases ``(K, 3)``,
   one row per segment, the segments' edges under ``bias``), per-term chi2/dof (keys unique:
   ``reprojections_cam<i>``, ``gyro``, ``accel``), the reprojection RMS per camera, the
-  warnings;
+  trajectory's knot spacing (``--knot-spacing``), the warnings (one names
+  ``--knot-spacing`` where the IMU's chi2/dof exceeds 3);
 - figures (matplotlib, optional): ``reprojection.png`` (errors per camera over time and in
   the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases: random-walk
   ones as steps over time with their standard deviation bands).
@@ -91,8 +92,10 @@ def _noise(path: str, walk: bool) -> dict:
     """The noise densities of Kalibr's imu.yaml (and its random walks, required with
     ``walk``; numbers written without a dot, ``1e-4``, which YAML 1.1 reads as strings,
     taken as numbers); ``update_rate`` and, without ``walk``, the walks are copied as
-    given."""
+    given. The keys at the top, or under ``imu0`` (Kalibr's ``imu-*.yaml`` output)."""
     data = _yaml(path)
+    if "gyroscope_noise_density" not in data and isinstance(data.get("imu0"), dict):
+        data = data["imu0"]  # Kalibr's imu-camchain output and multi-IMU yamls: imu0 nested
     out = {}
     for key in ("gyroscope_noise_density", "accelerometer_noise_density",
                 *(_WALKS if walk else ())):
@@ -161,6 +164,16 @@ def _on_target(path, points, target, target_path) -> None:
                         f"m away; {len(bad)} of {len(points)} rows are off): {why}")
 
 
+def _imu_file(path: str) -> str:
+    """``--imu``: the file, or EuRoC's ``imu0`` folder holding it as ``data.csv``."""
+    if not Path(path).is_dir():
+        return path
+    if (Path(path) / "data.csv").is_file():
+        return os.fspath(Path(path) / "data.csv")
+    raise UserError(f"--imu {path} is a folder without data.csv: give the IMU file (EuRoC: "
+                    f"mav0/imu0/data.csv)")
+
+
 def _observations(args, target, n: int):
     from ..calibration import detect_folder, read_corners
 
@@ -175,7 +188,7 @@ def _observations(args, target, n: int):
         for path, (_, points, _) in zip(args.corners, obs, strict=True):
             _on_target(path, points, target, args.target)
         return obs
-    return [tuple(detect_folder(p, target)[:3]) for p in args.images]
+    return [tuple(detect_folder(p, target, verbose=not args.quiet)[:3]) for p in args.images]
 
 
 def _models(entries, path: str) -> list[tuple[str, tuple]]:
@@ -217,8 +230,8 @@ def _check_outputs(args) -> Path:
     for name in _OUTPUTS:
         if (out / name).resolve() in resolved:
             raise UserError(f"--out {args.out} would overwrite the input {out / name}")
-    for p in args.images:
-        if out.resolve() == Path(p).resolve():
+    for p in args.images:  # the folder or its data subfolder (EuRoC's cam0/data)
+        if out.resolve() in (Path(p).resolve(), (Path(p) / "data").resolve()):
             raise UserError(f"--out {args.out} is an --images folder (an input)")
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {args.out} is a file, not a folder")
@@ -262,6 +275,7 @@ def _summary(res, noise: dict, caught: list[str], elapsed: float, interval: floa
             "reprojection_rms_px": val(res.reprojection_rms),
             "imu_noise": noise, "steps": int(est.steps),
             "converged": bool(est.converged.all()), "reason": est.reason,
+            "knot_spacing_s": float(res.trajectory.knots.diff().median()),
             "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
                       "(m) in camera axes; gravity in the target frame, its magnitude fixed "
@@ -327,7 +341,7 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
     from ..calibration import camera_imu
 
     with _printed_warnings() as caught:
-        imu = io.read_imu(args.imu)
+        imu = io.read_imu(_imu_file(args.imu), duplicates=args.duplicates)
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
             f"camera(s)")
         obs = _observations(args, target, len(entries))
@@ -339,8 +353,31 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
                          bias_interval=interval, gravity_magnitude=args.gravity,
+                         max_time_offset=args.max_time_offset, knot_spacing=args.knot_spacing,
                          verbose=not args.quiet)
+        _imu_fit(res, args.knot_spacing)
     return cams, res, caught
+
+
+def _imu_fit(res, spacing: float) -> None:
+    """A warning naming ``--knot-spacing`` and the noise densities where the IMU terms'
+    chi2/dof exceeds 3: a trajectory too coarse for the motion (a fast dance; Kalibr puts
+    70 knots in a second), constant biases that drift, or ``imu.yaml``'s densities too
+    small."""
+    from ..fitting import Accel, Gyro
+
+    est = res.estimate
+    high = {name: float(est.chi2[t]) / float(est.dof[t]) for t in res.terms
+            for name, kind in (("gyro", Gyro), ("accel", Accel))
+            if isinstance(t, kind) and float(est.dof[t]) > 0}
+    high = {k: v for k, v in high.items() if v > 3.0}
+    if high:
+        warnings.warn(f"the IMU's chi2/dof is {', '.join(f'{k} {v:.3g}' for k, v in high.items())}"
+                      f" (expected about 1): the trajectory's knots every {spacing:g} s are "
+                      f"too coarse for this motion (try --knot-spacing {spacing / 2:g}), "
+                      + ("the biases drift (--bias random-walk), " if res.bias_edges is None
+                         else "") + "or imu.yaml's noise densities are too small",
+                      UserWarning, stacklevel=2)
 
 
 @contextlib.contextmanager
@@ -367,6 +404,9 @@ def _run_cameras(args, say) -> int:
     given = [flag for flag, on in (
         ("--rolling-shutter", args.rolling_shutter),
         ("--shared-time-offset", args.shared_time_offset), ("--gravity", args.gravity != 9.81),
+        ("--max-time-offset", args.max_time_offset != 0.1),
+        ("--duplicates", args.duplicates != "error"),
+        ("--knot-spacing", args.knot_spacing != 0.05),
         ("--bias", args.bias != "random-walk"), ("--bias-interval", args.bias_interval != "1.0"),
     ) if on]
     if given:

@@ -245,6 +245,16 @@ def _add_calibrate(sub) -> None:
                         "place's value (9.780 at the equator to 9.832 at the poles)")
     p.add_argument("--shared-time-offset", action="store_true",
                    help="one clock offset for all cameras (hardware-synchronised)")
+    p.add_argument("--max-time-offset", type=_positive_float, default=0.1, metavar="SECONDS",
+                   help="bound on the cameras' clock offsets from the IMU (searched within "
+                        "+-SECONDS; the frames within it of the IMU log's ends are left out)")
+    p.add_argument("--duplicates", type=str.lower, choices=("error", "first"),
+                   default="error",
+                   help="repeated IMU timestamps: an error, or keep the first sample")
+    p.add_argument("--knot-spacing", type=_positive_float, default=0.05, metavar="SECONDS",
+                   help="the body trajectory's knot spacing (Kalibr: 70 knots per second, "
+                        "0.014 s); finer for a fast dance, when the gyro's or accel's chi2/dof "
+                        "in summary.json is well above 1")
     p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
                    help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
                         "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
