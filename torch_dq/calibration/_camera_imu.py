@@ -17,7 +17,9 @@ for multi-sensor systems", IROS 2013, sec. IV, for the overall scheme):
    relative to camera 0 from the shared frames.
 5. The body trajectory: the target poses of the cameras moved to the body by the
    extrinsics' starts, on the IMU clock, fit by a coarse spline (knots every 0.1 s), sampled
-   densely and refit with knots every ``knot_spacing`` (cumulative cubic B-spline).
+   densely and refit with knots every ``knot_spacing`` (cumulative cubic B-spline; by
+   default chosen from the IMU readings' spectra, the private
+   ``calibration._knot_spacing``).
 
 Then one :func:`torch_dq.fitting.estimate` over the trajectory, one
 :class:`~torch_dq.fitting.Reprojections` term per camera (the target is the world frame),
@@ -459,7 +461,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             EuRoC stand-in's speed, up to 6.9 rad/s: chi2/dof at most 1.8 where 0.05 s
             read up to 490, the values within 3 standard deviations of the truth). With
             densities too small, the spectrum's own floor (its median over the upper half
-            of the band) replaces theirs. Chosen in :attr:`CameraImuCalibration.knot_spacing`.
+            of the band) replaces theirs. The result's ``knot_spacing`` holds it.
         max_time_offset: bound on the offsets (seconds); the frames within it of the IMU
             log's ends are left out.
         max_line_delay: bound on the line delays (seconds per row).

@@ -44,7 +44,8 @@ class CameraImuCalibration:
             ``Accel``.
         warnings: the warnings issued (degenerate motion), as text.
         timings: seconds per stage: ``"start"`` (target poses, offsets, orientations),
-            ``"trajectory"`` (the start spline), ``"estimate"``, ``"uncertainties"``.
+            ``"trajectory"`` (the knot spacing's choice, the start spline), ``"estimate"``,
+            ``"uncertainties"``.
         bias_edges: ``(K + 1,)`` the edges (IMU clock, seconds) of the biases' segments with
             ``bias_walk``; None for constant biases.
         knot_spacing: the trajectory's knot spacing (seconds): the one given, or the one

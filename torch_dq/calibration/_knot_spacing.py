@@ -29,10 +29,20 @@ signal; the model error then adds
     df}{3\,\sigma^2}, \qquad \sigma^2 = \mathrm{density}^2 \cdot \mathrm{rate}
 
 to the term's chi2/dof (1 for the noise alone). The spacing chosen is the largest ``h`` at
-most ``coarsest`` (0.05 s: slow motions keep it, and their time) and at least two IMU
-periods for which both terms' excess is at most ``EXCESS`` (0.1). Only the bins where the
-spectrum stands clearly above the noise count as signal (by four standard deviations of
-Welch's estimate of the noise there), so that the noise's own scatter adds nothing.
+most ``coarsest`` (0.05 s: slow motions keep it, and their time) and at least 0.01 s (and
+two IMU periods) for which both terms' excess is at most ``EXCESS`` (0.15: the model error
+then adds at most 15 % to the noise's power; a slow synthetic rig measured 1.12 at 0.05 s and
+keeps it). Only the bins where the spectrum stands clearly above the noise count as signal
+(by four standard deviations of Welch's estimate of the noise there), so that the noise's
+own scatter adds nothing; where the spectrum's median over the upper half of the band
+(above ``rate / 4``, beyond any calibration dance) lies above the densities' floor, that
+median is the floor (densities too small: the readings' noise is not motion, and finer
+knots would not lower their chi2/dof).
+
+Measured against the estimate (EuRoC stand-in, ``tests/_camera_imu_sim.py``, 12 s): the
+gyroscope's excess as predicted to within 15 %; the accelerometer's up to 2.4 times the
+prediction on a dance 2.5 times faster (the rotation modulates the body-frame acceleration
+that the spline's twists model), where the spacing reaches 0.01 s anyway.
 """
 
 from __future__ import annotations
@@ -45,7 +55,7 @@ import numpy as np
 EXCESS = 0.15
 _SEGMENT = 2.0  # seconds per Welch segment (0.5 Hz bins)
 _FINEST = 0.01  # seconds: the finest spacing (also at least two IMU periods)
-_ALIASES = 64  # terms m = -64..64 of the sum over aliases
+_ALIASES = 16  # terms m = -16..16 of the sum over aliases (the rest: < 1e-4 of it)
 
 
 def spline_loss(omega: np.ndarray, order: int) -> np.ndarray:
@@ -130,7 +140,7 @@ def choose(times: np.ndarray, readings: tuple[np.ndarray, np.ndarray],
     h = coarsest
     if worst(h) > EXCESS:
         lo, hi = math.log(finest), math.log(coarsest)
-        for _ in range(30):  # bisection on log h: the excess grows with h
+        for _ in range(16):  # bisection on log h (to 2e-5 of it): the excess grows with h
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if worst(math.exp(mid)) <= EXCESS else (lo, mid)
         h = math.exp(lo)
