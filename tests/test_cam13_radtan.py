@@ -19,9 +19,11 @@ from torch_dq import camera
 
 F64 = torch.float64
 WIDTH, HEIGHT = 752, 480
-# fu, fv, cu, cv and (k1, k2, p1, p2): two folding lenses, one whose radial slope dips to 0.09
-# without folding (plain Newton left 9 % of its pixels invalid), one with tangential terms
+# fu, fv, cu, cv and (k1, k2, p1, p2): folding lenses (one with tangential terms), one whose
+# radial slope dips to 0.09 without folding (plain Newton left 9 % of its pixels invalid) and
+# one without a fold (30 % of the points within radius 2 left invalid)
 LENSES = {
+    "no-fold": [300.0, 300.0, 376.0, 240.0, -0.4, 0.2, 0.0, 0.0],
     "fold": [300.0, 300.0, 376.0, 240.0, -0.4, 0.05, 0.0, 0.0],
     "fold-k2-0": [300.0, 300.0, 376.0, 240.0, -0.3, 0.0, 0.0, 0.0],
     "fold-tangential": [300.0, 300.0, 376.0, 240.0, -0.4, 0.05, 1e-3, -1e-3],
