@@ -26,8 +26,9 @@ __all__ = ["unproject_equidistant", "unproject_radtan"]
 # Over whole images the residual reaches rounding (2e-16) after 4 on EuRoC's cam0; near a fold
 # (k1 = -0.4, k2 = 0.05; k1 = -0.3) or a near-fold (k1 = -0.45, k2 = 0.1: the radial slope
 # dips to 0.09), 12 leave 1e-3 of the pixels inside the fold unconverged, 16 leave 3e-5, all
-# within 5e-5 of the fold's radius (tests/test_cam13_radtan.py; plain Newton, 8 steps, left
-# 2 % and 9 %: it bounced between the fold and the far side of the root).
+# at roots within 2e-5 of the fold's radius or, with tangential terms, where the Jacobian's
+# determinant is below 1e-5 (tests/test_cam13_radtan.py; plain Newton, 8 steps, left 2 % and
+# 9 %: it bounced between the fold and the far side of the root).
 _ITERATIONS = 16
 # The equidistant root's safeguarded iteration (rtsafe): 12 steps invert every pixel inside
 # the fold of a strong fisheye (k1 = 0.6, tests/test_rigs_cameras.py: 401 x 401 on 800 x 600).

@@ -213,8 +213,9 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           r^2 + 5 k_2 r^4`, with a positive Jacobian determinant, and the iteration
           converged (``256 eps`` relative); invalid beyond (no preimage inside the fold: a
           pixel beyond the largest distorted radius). Near a fold the root is
-          ill-conditioned: pixels whose root lies within 1e-5 of the fold's radius (3e-5 of
-          the pixels inside a k1 = -0.4 lens's fold) may come back invalid. A lens
+          ill-conditioned: pixels whose root lies within 2e-5 of the fold's radius or where
+          the map's Jacobian determinant is below 1e-5 (3e-5 of the pixels inside a k1 =
+          -0.4 lens's fold) may come back invalid. A lens
           without a fold (:math:`9 k_1^2 < 20 k_2`) inverts every pixel.
         - equidistant: 1-D Newton on :math:`\theta_d(\theta) = |m|` (``m`` the normalised
           pixel) safeguarded by bisection in a bracket of the first root within
