@@ -49,9 +49,7 @@ def ds_w2(xi, alpha):
 
 
 def ds_project(p, pts):
-    """Eqs. 40-43, the pixels ``(N, 2)`` and the validity ``z > -w2 d1`` and, for xi > 1,
-    ``d1 + xi z > 0`` (the first sphere's side where a line from the second sphere's centre
-    leaves it; eq. 43 admits part of the other side, whose pixels are those of this one)."""
+    """Eqs. 40-43, the pixels ``(N, 2)`` and the validity ``z > -w2 d1``."""
     fu, fv, cu, cv, xi, alpha = p
     pts = np.asarray(pts, dtype=np.float64)  # scale-free: no overflow at 1e300
     pts = pts / np.maximum(np.abs(pts).max(-1, keepdims=True), 1e-300)
@@ -62,7 +60,7 @@ def ds_project(p, pts):
     den = alpha * d2 + (1 - alpha) * w
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = np.stack([fu * x / den + cu, fv * y / den + cv], -1)
-    return uv, (z > -ds_w2(xi, alpha) * d1) & (d1 + xi * z > 0)
+    return uv, z > -ds_w2(xi, alpha) * d1
 
 
 def _points(n=300, seed=0, spread=1.0):
@@ -148,9 +146,8 @@ def test_double_sphere_origin_invalid():
 @pytest.mark.parametrize("xi,alpha", [(0.0, 0.5), (0.3, 0.6), (0.8, 0.3), (1.2, 0.7),
                                       (0.0, 0.0), (0.5, 1.0)])
 def test_double_sphere_validity_boundary(xi, alpha):
-    """Eq. 43 exactly (0 <= xi <= 1; the exit side too for xi > 1): directions at angles
-    just inside and outside the boundary ``z = -w2 d1`` of the paper, and random directions
-    of the whole sphere."""
+    """Eq. 43 exactly (xi >= 0): directions at angles just inside and outside the boundary
+    ``z = -w2 d1`` of the paper, and random directions of the whole sphere."""
     p = [300.0, 300.0, 320.0, 240.0, xi, alpha]
     w2 = ds_w2(xi, alpha)
     # the boundary direction: z / d1 = -w2 (cos of the angle from the axis)
@@ -163,7 +160,7 @@ def test_double_sphere_validity_boundary(xi, alpha):
     pts = np.concatenate([dirs * 2.0, rand])
     px, ok = camera.project("double-sphere", torch.tensor(p, dtype=F64), torch.tensor(pts))
     ref, ref_ok = ds_project(p, pts)
-    if abs(w2) < 1 and xi <= 1:  # for xi > 1 the exit side's limit lies inside
+    if abs(w2) < 1:
         assert ref_ok[:2].tolist() == [True, False]
     assert ok.tolist() == ref_ok.tolist()
     sane = ref_ok & (np.abs(ref).max(-1) < 1e5)  # at the boundary the pixels go to infinity

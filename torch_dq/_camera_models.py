@@ -96,19 +96,13 @@ def ds_w2(xi: Tensor, alpha: Tensor) -> Tensor:
 
 
 def ds_sees(xi: Tensor, alpha: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
-    r"""The double sphere's projection domain (no gradient): eq. 43; :math:`w > -w_1 d_2`
-    (:math:`w = \xi d_1 + z`), the second sphere's part that eq. 40 sees one-to-one, which
-    eq. 43 implies only for :math:`\xi \ge 0` (``xi = -0.5, alpha = 0.1``: 3 % of the
-    directions beyond it, their pixels through infinity on the image's other side); and
-    :math:`d_1 + \xi z > 0`, the first sphere's side where a line from the second sphere's
-    centre :math:`(0, 0, -\xi)` leaves it (eq. 50's root), which eq. 43 implies only for
-    :math:`\xi \le 1` (for :math:`\xi > 1` that centre lies outside the first sphere: a
-    point where the line enters it has the pixel of the point where it leaves,
-    ``xi = 2, alpha = 0.5``: 25 % of the directions)."""
+    r"""The double sphere's projection domain (no gradient): eq. 43 and :math:`w > -w_1
+    d_2` (:math:`w = \xi d_1 + z`), the second sphere's part that eq. 40 sees one-to-one,
+    which eq. 43 implies only for :math:`\xi \ge 0` (``xi = -0.5, alpha = 0.1``: 3 % of
+    the directions beyond it, their pixels through infinity on the image's other side)."""
     d1 = torch.sqrt(x * x + y * y + z * z)
     w = xi * d1 + z
-    return ((z > -ds_w2(xi, alpha) * d1) & (d1 + xi * z > 0)
-            & (w > -ds_w1(alpha) * torch.sqrt(x * x + y * y + w * w)))
+    return (z > -ds_w2(xi, alpha) * d1) & (w > -ds_w1(alpha) * torch.sqrt(x * x + y * y + w * w))
 
 
 def project_ds(p, x, y, z):
@@ -156,9 +150,9 @@ def unproject_ds(p, a, b):
             + 1.0 - alpha)
         keep = inside & (mz * mz + (1.0 - xi * xi) * r2 > 0)  # a first sphere's point
     x, y, z = ds_ray(xi, alpha, torch.where(keep, a, 0.0), torch.where(keep, b, 0.0))
-    # project's domain on the ray (eq. 50's boundary maps slightly outside it for xi != 0;
-    # for xi > 1 it holds the first sphere's exit side, where eq. 50's root is positive)
+    # project's domain on the ray (eq. 50's boundary maps slightly outside it for xi != 0)
+    # and, for xi > 1, the first sphere's near side (else eq. 50's root is negative)
     with torch.no_grad():
-        return x, y, z, keep & ds_sees(xi, alpha, x, y, z)
+        return x, y, z, keep & ds_sees(xi, alpha, x, y, z) & (1.0 + xi * z > 0)
 
 

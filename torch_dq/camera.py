@@ -145,11 +145,7 @@ def project(model: str, params: Tensor, points: Tensor) -> tuple[Tensor, Tensor]
         :math:`z > -w_2 d_1` (eq. 43) fails (the origin is invalid) or, for
         :math:`\xi < 0` where eq. 43 is not exact, the point lies beyond the part of the
         second sphere that the projection sees, :math:`w \le -w_1 d_2` (its pixel would
-        pass through infinity to the other side of the image) or, for :math:`\xi > 1`
-        where eq. 43 admits part of it, :math:`d_1 + \xi z \le 0` (the second sphere's
-        centre lies outside the first: where a line from it enters the first sphere, the
-        point has the pixel of the point where the line leaves it, and its pixel unprojects
-        to that one); where the parameters
+        pass through infinity to the other side of the image); where the parameters
         lie outside the model's domain (``fu <= 0`` or ``fv <= 0``; for the double sphere
         ``xi <= -1`` or ``alpha`` outside ``[0, 1]``): every element of that camera is
         invalid, a mask and not an error (no host read); and where an input is not finite
@@ -215,8 +211,8 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           pixel beyond the largest distorted radius). Near a fold the root is
           ill-conditioned: pixels whose root lies within 2e-5 of the fold's radius or where
           the map's Jacobian determinant is below 1e-5 (3e-5 of the pixels inside a k1 =
-          -0.4 lens's fold) may come back invalid. A lens
-          without a fold (:math:`9 k_1^2 < 20 k_2`) inverts every pixel.
+          -0.4 lens's fold) may come back invalid. A lens without a fold (:math:`9 k_1^2 <
+          20 k_2`) inverts every pixel.
         - equidistant: 1-D Newton on :math:`\theta_d(\theta) = |m|` (``m`` the normalised
           pixel) safeguarded by bisection in a bracket of the first root within
           :math:`[0, \pi/2]`. Invalid where the root is at
@@ -227,11 +223,10 @@ def unproject(model: str, params: Tensor, pixels: Tensor) -> tuple[Tensor, Tenso
           domain, :math:`r^2 \ge 1/(2\alpha - 1)` for :math:`\alpha > 0.5`, where
           :math:`m_z^2 + (1 - \xi^2) r^2 \le 0` (no real point of the first sphere, possible
           for :math:`\xi > 1`), where the ray fails :func:`project`'s domain (for
-          :math:`\xi \ne 0` the boundary of eq. 50 maps slightly outside it; for
-          :math:`\xi > 1` that domain holds the first sphere's exit side, :math:`1 + \xi z
-          > 0`, where eq. 50's root is a positive distance). So ``valid`` is the same set
-          both ways: a valid point's pixel unprojects valid to its ray, a valid pixel's ray
-          projects valid onto it.
+          :math:`\xi \ne 0` the boundary of eq. 50 maps slightly outside it) and, for
+          :math:`\xi > 1`, where it is not on the first sphere's near side,
+          :math:`1 + \xi z \le 0` (eq. 50's root is then a negative distance: the ray would
+          point away from the pixel's point).
 
     The iterations' accuracy: ``project(unproject(px)) == px`` to 1e-10 px in float64 over
     the whole image of EuRoC's cam0 (radtan) and of a 190-degree fisheye (tested). In
