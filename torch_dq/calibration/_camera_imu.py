@@ -242,14 +242,14 @@ def _offset(imu_t, gyro, w_cam, a, b, max_offset: float, camera: int) -> float:
     if not float(c.max()) >= _MIN_CORRELATION:
         _checks.fail(_FN, f"camera {camera}: the gyroscope's angular speeds do not follow the "
                           f"camera's (best correlation {float(c.max()):.2f} over offsets "
-                          f"within +-{max_offset:g} s): the IMU log is not this recording's, "
-                          f"or its clock is further off than max_time_offset (--max-time-offset)")
+                          f"within +-{max_offset:g} s): the IMU log is not this recording's, or"
+                          f" its clock further off (max_time_offset; --max-time-offset)")
     best = int(c.argmax())
     if best in (0, c.numel() - 1):
         _checks.fail(_FN, f"camera {camera}: the angular speeds correlate best at the bound of "
                           f"the offsets searched ({float(offsets[best]):+g} s; correlation "
-                          f"{float(c[best]):.2f}): the clock offset is likely beyond "
-                          f"max_time_offset={max_offset:g} s: raise it (--max-time-offset)")
+                          f"{float(c[best]):.2f}): the clock offset is beyond {max_offset:g} s:"
+                          f" raise max_time_offset (calibrate: --max-time-offset)")
     c0, c1, c2 = (float(c[best + d]) for d in (-1, 0, 1))
     denom = c0 - 2 * c1 + c2
     frac = 0.5 * (c0 - c2) / denom if denom < 0 else 0.0
