@@ -573,7 +573,7 @@ def _automatic(t: Tensor, gyro: Tensor, accel: Tensor, densities: tuple[float, f
     if verbose:
         print(f"{_FN}: knots every {h:.4g} s, chosen from the IMU readings (signal above the "
               f"noise up to {seen['gyro_hz']:.3g} Hz in the gyroscope, {seen['accel_hz']:.3g} "
-              f"Hz in the accelerometer; the spline's predicted share of the chi2/dof: gyro "
+              f"Hz in the accelerometer; predicted excess chi2/dof from the spline: gyro "
               f"{seen['gyro']:.2g}, accel {seen['accel']:.2g})", file=sys.stderr)
     return h
 

@@ -82,11 +82,11 @@ def welch(seg: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
     """One-sided power spectral density of the segments ``seg (K, L, 3)`` of a signal
     sampled at ``rate``, averaged over the segments and summed over the axes; returns
     ``(frequencies (F,), psd (F,))``, ``psd`` in units^2/Hz (its integral over
-    ``[0, rate/2]`` the variance) and 0 at 0 Hz. Each segment is differenced (whitened:
-    the motion's power at a few Hz would leak through the Hann window's side lobes into
-    the bins above, which the division by the difference's gain ``(2 sin(pi f / rate))^2``
-    afterwards does not restore), its mean removed (a straight line before: biases, drift)
-    and Hann-windowed."""
+    ``[0, rate/2]`` the variance) and 0 at 0 Hz. Each segment is differenced (its straight
+    line, biases and drift, becomes the mean, removed), Hann-windowed and transformed, and
+    the spectrum divided by the difference's gain ``(2 sin(pi f / rate))^2``: the
+    difference flattens the spectrum first, or the motion's power at a few Hz (50 dB above
+    the noise) would leak through the window's side lobes into the bins above."""
     d = np.diff(seg, axis=1)
     d = d - d.mean(1, keepdims=True)
     n = d.shape[1]
