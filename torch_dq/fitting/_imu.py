@@ -31,7 +31,7 @@ def check_repeated(fn: str, times: Tensor, mask: Tensor) -> None:
     filled by the term: masked ones carry the largest valid time before them): an inertial
     sensor samples each instant once, and a logger's repeated stamp would count a reading
     twice or put two at one instant, silently."""
-    m = (mask if times.dim() == mask.dim() else mask.any(0)).expand(times.shape)
+    m = (mask if times.dim() == mask.dim() else mask.flatten(0, -2).any(0)).expand(times.shape)
     before = (m.cumsum(-1) - m.long()) > 0  # a valid sample earlier in the row
     bad = m[..., 1:] & before[..., 1:] & (times[..., 1:] == times[..., :-1])
     _first_bad(fn, "times must be strictly increasing (an IMU samples each instant once)",
