@@ -97,3 +97,22 @@ def test_cov_names_an_item_that_is_not_a_pair():
     with pytest.raises(ValueError, match=r"Estimate\.cov: Poses\.extrinsic was not estimated"):
         est.cov((poses, "extrinsic"))
     assert est.cov((gyro, "bias")).shape == (3, 3)
+
+
+def test_a_free_prior_std_of_the_wrong_length_names_the_chart():
+    """``prior_std``: a float or one per chart axis (extrinsic 6, gravity 2: the plane
+    orthogonal to it; a bias 3); other lengths failed at estimate with a RuntimeError of
+    ``expand``."""
+    t, g, f = _imu()
+    x = dq.exp(t[:, None] * XI)
+    g0 = torch.tensor([0.0, 0.0, -9.81], dtype=F64)
+    with pytest.raises(ValueError, match=r"Gyro: bias's fitting\.Free has 2 prior_std values: "
+                                         r"expected a float or 3"):
+        Gyro(t, g, sigma=0.01, bias=Free(prior_std=[0.01, 0.01]))
+    with pytest.raises(ValueError, match=r"gravity's fitting\.Free has 3 .*a float or 2"):
+        Accel(t, f, sigma=0.1, gravity=Free(start=g0, prior_std=[0.1, 0.1, 0.1]))
+    with pytest.raises(ValueError, match=r"extrinsic's fitting\.Free has 3 .*a float or 6"):
+        Poses(t, x, rot_sigma=0.01, trans_sigma=0.01, extrinsic=Free(prior_std=[0.1] * 3))
+    Accel(t, f, sigma=0.1, gravity=Free(start=g0, prior_std=[0.1, 0.1]))
+    Poses(t, x, rot_sigma=0.01, trans_sigma=0.01, extrinsic=Free(prior_std=[0.1] * 6))
+    Gyro(t, g, sigma=0.01, bias=Free(prior_std=0.01), time_offset=Free(prior_std=[0.01]))

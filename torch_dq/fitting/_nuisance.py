@@ -119,6 +119,12 @@ class Slot:
                                       f"pass separate Free objects")
         if free.start is not None:
             self._check_value(self.fn, f"{self.name} start", free.start)
+        if free.prior_std is not None:
+            k = torch.as_tensor(free.prior_std).numel()
+            if k not in (1, self.dim):
+                _checks.fail(self.fn, f"{self.name}'s fitting.Free has {k} prior_std values: "
+                                      f"expected a float or {self.dim}, one per axis of its "
+                                      f"chart ({self.chart.describe()}: {self.dim}-d)")
         self.free = free
         free._slots.add(self)
 
