@@ -214,7 +214,8 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     put it (``torch_dq.fitting._prior``): combinations of neighbouring control points
     carrying less than ``1e-6`` times the typical information (time gaps, ends without
     samples; ``prior`` times it, their weakly determined edges included, when no nuisance
-    parameter is estimated) are pulled to the start with weight ``prior``, nuisance directions
+    parameter is estimated and no IMU term reads the curve's derivatives) are pulled to the
+    start with weight ``prior``, nuisance directions
     without information (below ``1e-9``, scaled) likewise, and combinations of control
     points that no sample resolves (knots closer than the samples) are never stepped along.
     With estimated nuisance parameters the pulls are found again and anchored at every

@@ -147,7 +147,11 @@ class LevenbergMarquardt:
         weighed = prior > 0 and any(bool((w < t.mask).any()) for t, w in zip(
             p.terms, s.weights, strict=True))  # some robust weight below 1
         data = p.system(self.start, self.anchor, self.w, robust=False) if weighed else s
-        cpull = _prior.control_pull(data.band, prior, bool(p.params))
+        # relative thresholds where an IMU term reads the curve's derivatives, nuisance or
+        # not: its information sets the typical level, and the poses that alone see the ends
+        # of its record were judged against it (pulled to a far start: 190 sigmas off)
+        relative = bool(p.params) or any(t.order >= 1 for t in p.terms)
+        cpull = _prior.control_pull(data.band, prior, relative)
         del data  # (memory: a second band while the pulls are found)
         info = torch.diag(p.prior_information().to(s.nn))
         reg = _prior.Regularised(s.band, cpull)
