@@ -185,8 +185,9 @@ class Linearization:
         self.spans = problem.spans
 
     def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
-               ) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
+               robust: bool = True) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (unit
+        weights where not ``robust``: the data's information whatever their residuals; the span
         derivatives and the residuals taken, and dropped, from ``memo`` where
         :func:`group_residuals` kept them at this point), a group of terms read at the same
         times (``Problem.groups``) and a part of its samples at a time.
@@ -211,7 +212,7 @@ class Linearization:
             for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
                                        None if memo is None else memo.take((group[0], k)),
-                                       tables)
+                                       tables, robust)
                 for i, (r, wt) in zip(group, added, strict=True):
                     rs[i].append(r)
                     weights[i].append(wt)
@@ -220,7 +221,8 @@ class Linearization:
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                   values: list[Tensor], w: int,
                   known: tuple[list[tuple[Tensor, ...]], list[Tensor]] | None,
-                  tables: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
+                  tables: Tensor | None = None, robust: bool = True,
+                  ) -> list[tuple[Tensor, Tensor]]:
         """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
         samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives and residuals
         ``known`` where known, :class:`Memo`; the spans' ``tables`` where shared) to
@@ -230,7 +232,7 @@ class Linearization:
         out = []
         for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
                 group, terms, ctrl, values, w, derivs, rs, tables), strict=True):
-            wt = _weights(term, r)
+            wt = _weights(term, r, robust)
             keys = self._windows(f0, w)
             local, gcols, valid = self._columns(i, Jn, keys, G)
             # every sample's window takes all the term's columns, in order: none selected
@@ -577,10 +579,10 @@ def _or_none(xs: list[Tensor] | None, n: int) -> list[Tensor | None]:
     return [None] * n if xs is None else list(xs)
 
 
-def _weights(term, r: Tensor) -> Tensor:
-    """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)``, masked samples'
-    zero."""
-    wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
+def _weights(term, r: Tensor, robust: bool = True) -> Tensor:
+    """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)`` (ones where not
+    ``robust``), masked samples' zero."""
+    wt = _robust.weight(term.robust if robust else None, r.norm(dim=-1), term.robust_k)
     return wt * term.mask.to(wt.dtype)
 
 
