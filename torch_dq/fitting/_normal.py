@@ -80,10 +80,10 @@ class _Normal:
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
 
     def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> None:
-        """:meth:`add` of the consecutive windows ``f, f + 1, ...``: each of a row's blocks
+        """``add`` of the consecutive windows ``f, f + 1, ...``: each of a row's blocks
         added to a slice of the band, ``g_c`` (and the coupling, where every window takes
         the same consecutive nuisance columns), row ``a`` from the last to the first, so
-        that every destination sums its windows in :meth:`add`'s ``index_add_`` order
+        that every destination sums its windows in ``add``'s ``index_add_`` order
         (increasing window): the same bits, without the scatter."""
         w, U, M = self.w, block.shape[0], gcols.shape[-1]
         cn = None
