@@ -22,6 +22,7 @@ and 1e-7 (checked once, not run here). Found nothing: this stands as a regressio
 import numpy as np
 import pytest
 import torch
+from _scipy_poses import pose, t64
 from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
@@ -71,20 +72,12 @@ def accel(t):
     return rotation(t).inv().apply(position(t, 2) - G)
 
 
-def _t(a):
-    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))
-
-
-def _dq(R, p):
-    return dq.from_rt(_t(R.as_quat(scalar_first=True)), _t(p))
-
-
 def _data(seed):
     rng = np.random.default_rng(seed)
     n = lambda k: rng.standard_normal((len(k), 3))  # noqa: E731
     tc = np.arange(0.0, DURATION + 1e-9, 1 / 20)
     R = rotation(tc)
-    cam = _dq(R * ROT_E * Rotation.from_rotvec(SP * n(tc)), position(tc) + R.apply(T_E)
+    cam = pose(R * ROT_E * Rotation.from_rotvec(SP * n(tc)), position(tc) + R.apply(T_E)
               + SP * n(tc))
     ti = np.arange(0.2, DURATION - 0.2, 1 / 200)  # stamped DT early
     g, a = gyro(ti + DT) + BG + SG * n(ti), accel(ti + DT) + BA + SA * n(ti)
@@ -92,9 +85,9 @@ def _data(seed):
     x = position(tx) + rotation(tx).apply(LEVER) + SX * n(tx)
     ta, tb = tx[:-1], tx[1:]
     Ra, Rb = rotation(ta), rotation(tb)
-    rel = _dq(Ra.inv() * Rb * Rotation.from_rotvec(SO * n(tb)),
+    rel = pose(Ra.inv() * Rb * Rotation.from_rotvec(SO * n(tb)),
               Ra.inv().apply(position(tb) - position(ta)) + SO * n(tb))
-    return [_t(tc), cam, _t(ti), _t(g), _t(a), _t(tx), _t(x), _t(ta), _t(tb), rel]
+    return [t64(tc), cam, t64(ti), t64(g), t64(a), t64(tx), t64(x), t64(ta), t64(tb), rel]
 
 
 def _solve(seeds, knot_spacing):
@@ -115,9 +108,9 @@ def _solve(seeds, knot_spacing):
 def _z(terms, est):
     """``(B, 19)`` errors over the reported standard deviations, in the charts."""
     cam, pos, _, gy, ac = terms
-    e_rot = dq.log(dq.mul(dq.conj(_dq(ROT_E, T_E)), cam.extrinsic))
-    err = [e_rot, pos.lever_arm - _t(LEVER), gy.bias - _t(BG), ac.bias - _t(BA),
-           (gy.time_offset - DT)[..., None], ac.gravity - _t(G)]
+    e_rot = dq.log(dq.mul(dq.conj(pose(ROT_E, T_E)), cam.extrinsic))
+    err = [e_rot, pos.lever_arm - t64(LEVER), gy.bias - t64(BG), ac.bias - t64(BA),
+           (gy.time_offset - DT)[..., None], ac.gravity - t64(G)]
     std = [est.std(cam, "extrinsic"), est.std(pos, "lever_arm"), est.std(gy, "bias"),
            est.std(ac, "bias"), est.std(gy, "time_offset")[..., None], est.std(ac, "gravity")]
     return (torch.cat(err, -1) / torch.cat(std, -1)).numpy()

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import torch
 from _rig11_rig import accel, gyro, position, rotation
+from _scipy_poses import pose, t64
 from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
@@ -37,27 +38,20 @@ SP, SG, SA = 3e-3, 2e-3, 2e-2
 DURATION = 2.4
 
 
-def _t(a):
-    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))
-
-
-def _dq(R, p):
-    return dq.from_rt(_t(R.as_quat(scalar_first=True)), _t(p))
-
-
 def _data(outliers):
     rng = np.random.default_rng(13)
     n = lambda k: rng.standard_normal((len(k), 3))  # noqa: E731
     tc = np.arange(0.0, DURATION + 1e-9, 0.05)
     R = rotation(tc)
-    cam = _dq(R * ROT_E * Rotation.from_rotvec(SP * n(tc)),
+    cam = pose(R * ROT_E * Rotation.from_rotvec(SP * n(tc)),
               position(tc) + R.apply(T_E) + SP * n(tc))
     bad = np.zeros(len(tc), bool)
     if outliers:
         inside = np.nonzero((tc > 0.5) & (tc < DURATION - 0.5))[0]  # where the IMU tells
         bad[rng.choice(inside, 4, replace=False)] = True  # (alone, poses bend to an outlier)
-        kick = _dq(Rotation.from_rotvec(rng.normal(0.0, 0.3, (4, 3))), rng.normal(0.0, 0.3, (4, 3)))
-        cam[_t(bad).bool()] = dq.mul(cam[_t(bad).bool()], kick)
+        kick = pose(Rotation.from_rotvec(rng.normal(0.0, 0.3, (4, 3))),
+                    rng.normal(0.0, 0.3, (4, 3)))
+        cam[t64(bad).bool()] = dq.mul(cam[t64(bad).bool()], kick)
     ti = np.arange(0.3, DURATION - 0.3, 1 / 100)
     return tc, cam, ti, gyro(ti) + SG * n(ti), accel(ti) + SA * n(ti), torch.from_numpy(bad)
 
@@ -65,11 +59,11 @@ def _data(outliers):
 def _solve(robust, outliers=False, mask=None):
     tc, cam, ti, g, a, bad = _data(outliers)
     q, p = dq.to_rt(cam)  # the camera's poses as the body's: 0.7 rad off
-    spline = BSpline.from_poses(q, p, _t(tc), form="cumulative", degree=4, knot_spacing=0.1)
-    poses = Poses(_t(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=_dq(ROT_E, T_E),
+    spline = BSpline.from_poses(q, p, t64(tc), form="cumulative", degree=4, knot_spacing=0.1)
+    poses = Poses(t64(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=pose(ROT_E, T_E),
                   robust=robust, mask=None if mask is None else ~bad)
-    terms = [poses, Gyro(_t(ti), _t(g), sigma=SG, bias=True),
-             Accel(_t(ti), _t(a), sigma=SA, bias=True)]
+    terms = [poses, Gyro(t64(ti), t64(g), sigma=SG, bias=True),
+             Accel(t64(ti), t64(a), sigma=SA, bias=True)]
     est = estimate(spline, terms, verbose=False)
     return est, spline, poses, tc, bad
 
@@ -81,10 +75,10 @@ def test_poses_outside_the_imu_record_are_fitted(robust):
     w = est.weights[poses]
     assert float(w.min()) > 0.3, w  # no inlier rejected (Cauchy: 0.68 at sqrt(6) sigmas)
     with torch.no_grad():
-        q, p = dq.to_rt(spline(_t(tc)))
+        q, p = dq.to_rt(spline(t64(tc)))
     rot = (Rotation.from_quat(q.numpy(), scalar_first=True).inv() * rotation(tc)).as_rotvec()
     err = np.concatenate([-rot, p.numpy() - position(tc)], -1)
-    z = np.abs(err) / est.pose_std(_t(tc)).numpy()
+    z = np.abs(err) / est.pose_std(t64(tc)).numpy()
     assert z.max() < 4.5, (z.max(), np.unravel_index(z.argmax(), z.shape))
 
 
@@ -95,8 +89,8 @@ def test_cauchy_with_outliers_matches_the_outliers_masked():
     assert float(est.weights[poses][bad].max()) < 1e-2
     assert float(est.weights[poses][~bad].min()) > 0.3
     with torch.no_grad():
-        d = dq.log(dq.mul(dq.conj(ref_spline(_t(tc))), spline(_t(tc))))
-    assert float((d / ref.pose_std(_t(tc))).abs().max()) < 1.0
+        d = dq.log(dq.mul(dq.conj(ref_spline(t64(tc))), spline(t64(tc))))
+    assert float((d / ref.pose_std(t64(tc))).abs().max()) < 1.0
 
 
 @pytest.mark.parametrize("robust", [None, "huber", "cauchy"])
@@ -104,10 +98,10 @@ def test_without_nuisance_the_ends_are_fitted(robust):
     tc, cam, ti, _, _, _ = _data(False)
     g = gyro(ti) + SG * np.random.default_rng(1).standard_normal((len(ti), 3))
     q, p = dq.to_rt(cam)  # 0.7 rad off, as above
-    spline = BSpline.from_poses(q, p, _t(tc), form="cumulative", degree=4, knot_spacing=0.1)
-    poses = Poses(_t(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=_dq(ROT_E, T_E),
+    spline = BSpline.from_poses(q, p, t64(tc), form="cumulative", degree=4, knot_spacing=0.1)
+    poses = Poses(t64(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=pose(ROT_E, T_E),
                   robust=robust)
-    est = estimate(spline, [poses, Gyro(_t(ti), _t(g), sigma=SG)], verbose=False)
+    est = estimate(spline, [poses, Gyro(t64(ti), t64(g), sigma=SG)], verbose=False)
     assert bool(est.converged)
     with torch.no_grad():
         r = poses(spline).norm(dim=-1)
