@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 from _rig11_rig import G, accel, gyro, position, rotation
+from _scipy_poses import pose, t64
 from scipy.spatial.transform import Rotation
 
 import torch_dq.dualquat as dq
@@ -31,20 +32,12 @@ SP, SG, SA, SX = 2e-3, 2e-3, 2e-2, 1e-2
 DURATION = 4.0
 
 
-def _t(a):
-    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))
-
-
-def _dq(R, p):
-    return dq.from_rt(_t(R.as_quat(scalar_first=True)), _t(p))
-
-
 def _data(seed):
     rng = np.random.default_rng(seed)
     n = lambda k: rng.standard_normal((len(k), 3))  # noqa: E731
     tc = np.arange(0.0, DURATION + 1e-9, 1 / 30)
     R = rotation(tc)
-    cam = _dq(R * ROT_E * Rotation.from_rotvec(SP * n(tc)),
+    cam = pose(R * ROT_E * Rotation.from_rotvec(SP * n(tc)),
               position(tc) + R.apply(T_E) + SP * n(tc))
     ti = np.arange(0.2, DURATION - 0.2, 1 / 200)  # stamped DT early
     g = gyro(ti + DT) + BG + SG * n(ti)
@@ -58,16 +51,16 @@ def _solve(seed, start):
     tc, cam, ti, g, a, tx, x = _data(seed)
     opts = dict(form="cumulative", degree=4, margin=0.1, knot_spacing=0.05)
     if start == "camera":
-        spline = BSpline.from_dualquats(cam, _t(tc), **opts)
+        spline = BSpline.from_dualquats(cam, t64(tc), **opts)
     else:
         q = torch.zeros(len(tx), 4, dtype=torch.float64)
         q[:, 0] = 1.0
-        spline = BSpline.from_poses(q, _t(x), _t(tx), **opts)
+        spline = BSpline.from_poses(q, t64(x), t64(tx), **opts)
     clock = Free(start=0.0)
-    terms = [Poses(_t(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=True),
-             Gyro(_t(ti), _t(g), sigma=SG, bias=True, time_offset=clock),
-             Accel(_t(ti), _t(a), sigma=SA, bias=True, gravity=9.81, time_offset=clock),
-             Positions(_t(tx), _t(x), sigma=SX, lever_arm=True)]
+    terms = [Poses(t64(tc), cam, rot_sigma=SP, trans_sigma=SP, extrinsic=True),
+             Gyro(t64(ti), t64(g), sigma=SG, bias=True, time_offset=clock),
+             Accel(t64(ti), t64(a), sigma=SA, bias=True, gravity=9.81, time_offset=clock),
+             Positions(t64(tx), t64(x), sigma=SX, lever_arm=True)]
     return spline, terms, estimate(spline, terms, verbose=False)
 
 
@@ -75,17 +68,17 @@ def _errors(spline, terms, est):
     """(error, std) of every nuisance value and of the pose at a few times, errors in the
     reported charts."""
     cam, gy, ac, pos = terms
-    err = [dq.log(dq.mul(dq.conj(_dq(ROT_E, T_E)), cam.extrinsic)), gy.bias - _t(BG),
-           ac.bias - _t(BA), (gy.time_offset - DT).reshape(1), pos.lever_arm - _t(LEVER),
-           ac.gravity - _t(G)]
+    err = [dq.log(dq.mul(dq.conj(pose(ROT_E, T_E)), cam.extrinsic)), gy.bias - t64(BG),
+           ac.bias - t64(BA), (gy.time_offset - DT).reshape(1), pos.lever_arm - t64(LEVER),
+           ac.gravity - t64(G)]
     std = [est.std(cam, "extrinsic"), est.std(gy, "bias"), est.std(ac, "bias"),
            est.std(gy, "time_offset").reshape(1), est.std(pos, "lever_arm"),
            est.std(ac, "gravity")]
     t = np.linspace(0.3, DURATION - 0.3, 5)
-    q, p = dq.to_rt(spline(_t(t)).detach())
+    q, p = dq.to_rt(spline(t64(t)).detach())
     d_rot = (Rotation.from_quat(q.numpy(), scalar_first=True).inv() * rotation(t)).as_rotvec()
-    err.append(_t(np.hstack([d_rot, position(t) - p.numpy()])).reshape(-1))
-    std.append(est.pose_std(_t(t)).reshape(-1))
+    err.append(t64(np.hstack([d_rot, position(t) - p.numpy()])).reshape(-1))
+    std.append(est.pose_std(t64(t)).reshape(-1))
     return (torch.cat([e.detach().reshape(-1) for e in err]).numpy(),
             torch.cat([s.reshape(-1) for s in std]).numpy())
 

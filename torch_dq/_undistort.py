@@ -3,11 +3,12 @@ point is ``torch_dq.camera.unproject``).
 
 Neither the radtan nor the equidistant map has a closed-form inverse. Each root is found by
 a fixed number of detached iterations (no data-dependent branching or host reads:
-``torch.func.vmap`` and ``torch.compile(fullgraph=True)`` go through), then the derivatives
-are attached by two Newton steps from that detached root: one step ``x - J(x)^{-1} (F(x) -
-y)`` from a detached root has the implicit function's exact first derivatives, a second step
-from it the exact second derivatives too (the Newton map's derivative in ``x`` vanishes at
-the root).
+``torch.func.vmap`` and ``torch.compile(fullgraph=True)`` go through; in plain eager mode
+the radtan iteration stops once every pixel is at rounding, read every 4 steps: a pixel at
+rounding moves no more, so the bits are the same), then the derivatives are attached by two
+Newton steps from that detached root: one step ``x - J(x)^{-1} (F(x) - y)`` from a detached
+root has the implicit function's exact first derivatives, a second step from it the exact
+second derivatives too (the Newton map's derivative in ``x`` vanishes at the root).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import math
 
 import torch
 from torch import Tensor
+from torch._C._functorch import is_functorch_wrapped_tensor
 
 from ._camera_models import poly, poly_slope, radtan, unit
 from ._numerics import even, threshold
@@ -90,21 +92,30 @@ def radtan_root(k, da, db):
     e = _radtan_error(k, a, b, da, db)
     error, damping = torch.maximum(abs(e[0]), abs(e[1])), torch.ones_like(a)
     na, nb = _newton(a, b, e, guard=True)
-    for _ in range(_ITERATIONS):
+    scale, eager = abs(da) + abs(db), _eager(da)
+    for i in range(_ITERATIONS):
+        if eager and i % 4 == 0 and i and bool(converged(error, scale).all()):
+            break  # every pixel at rounding (a check per 4 steps: few host syncs)
         step_a, step_b = na - a, nb - b
         na, nb = a + damping * step_a, b + damping * step_b
         e = _radtan_error(k, na, nb, da, db)
         new_error = torch.maximum(abs(e[0]), abs(e[1]))
-        better = (new_error < error) & (na * na + nb * nb < fold)
+        better = (new_error < error) & (na * na + nb * nb < fold) & ~converged(error, scale)
         a, b = torch.where(better, na, a), torch.where(better, nb, b)
         error = torch.where(better, new_error, error)
         damping = torch.where(better, torch.clamp(2.0 * damping, max=1.0), 0.5 * damping)
         na, nb = _newton(na, nb, e, guard=True)  # the next full step's end
         na, nb = torch.where(better, na, a + step_a), torch.where(better, nb, b + step_b)
     e = _radtan_error(k, a, b, da, db)
-    ok = (converged(error, abs(da) + abs(db)) & (a * a + b * b < fold)
+    ok = (converged(error, scale) & (a * a + b * b < fold)
           & (e[2] * e[4] - e[3] * e[3] > 0))
     return a, b, ok
+
+
+def _eager(x: Tensor) -> bool:
+    """Whether an iteration on ``x`` may read its convergence on the host and stop: not
+    under ``torch.compile`` nor a ``torch.func`` transform (``vmap``)."""
+    return not torch.compiler.is_compiling() and not is_functorch_wrapped_tensor(x)
 
 
 def unproject_radtan(p, a, b):

@@ -36,27 +36,32 @@ __all__ = ["BandedCholesky"]
 
 
 def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
-    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero), ``n``
-    a multiple of ``g``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
+    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero),
+    ``G = ceil(n / g)``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
     matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
-    written once into its place (no per-element index, no concatenation)."""
+    written once into its place (no per-element index, no concatenation, no copy of the
+    band); the rows past ``n`` (``G g > n``) are identity rows, and the band's blocks past
+    the last row are never read into the rest."""
     *batch, n, w, s, _ = band.shape
-    G = n // g
-    rows = band.reshape(*batch, G, g, w, s, s)  # group j's block rows
-    D = band.new_empty(*batch, G, g, s, g, s)
+    G = -(-n // g)
+    D = band.new_zeros(*batch, G, g, s, g, s)
     E = band.new_zeros(*batch, G, g, s, g, s)
     for a in range(g):
         for c in range(g):
             d = abs(a - c)  # D_j (a, c): band[j g + min(a, c), d], transposed below the diagonal
             if d < w:
-                blk = rows[..., min(a, c), d, :, :]
-                D[..., a, :, c, :] = blk.mT if a > c else blk
-            else:
-                D[..., a, :, c, :] = 0.0
+                blk = band[..., min(a, c)::g, d, :, :]
+                D[..., :blk.shape[-3], a, :, c, :] = blk.mT if a > c else blk
             # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band
             dist = g + a - c
             if dist < w:
-                E[..., 1:, a, :, c, :] = rows[..., :-1, c, dist, :, :].mT
+                blk = band[..., c::g, dist, :, :][..., :G - 1, :, :]
+                E[..., 1:1 + blk.shape[-3], a, :, c, :] = blk.mT
+    for a in range(n - (G - 1) * g, g):  # the last group's rows past n: identity rows
+        D[..., -1, a, :, :, :] = 0.0
+        D[..., -1, :, :, a, :] = 0.0
+        D[..., -1, a, :, a, :] = torch.eye(s, dtype=band.dtype, device=band.device)
+        E[..., -1, a, :, :, :] = 0.0
     return D.reshape(*batch, G, g * s, g * s), E.reshape(*batch, G, g * s, g * s)
 
 
@@ -164,18 +169,11 @@ class BandedCholesky:
     def __init__(self, band: Tensor, shift: Tensor | None = None) -> None:
         *batch, n, w, s, _ = band.shape
         dev = band.device
-        beyond = torch.arange(n, device=dev)[:, None] + torch.arange(w, device=dev) >= n
-        band = band.masked_fill(beyond[:, :, None, None], 0.0)
         g = max(w - 1, 1)
         G = -(-n // g)
-        pad = G * g - n
-        if pad:  # identity rows after the last block row
-            eye = band.new_zeros(*batch, pad, w, s, s)
-            eye[..., 0, :, :] = torch.eye(s, dtype=band.dtype, device=dev)
-            band = torch.cat((band, eye), dim=-4)
+        pad = G * g - n  # identity rows after the last block row (_grouped)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
         D, E = _grouped(band, g)
-        del band  # the masked copy (memory)
         if shift is not None:
             shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
             D.diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))

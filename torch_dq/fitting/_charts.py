@@ -89,7 +89,7 @@ class Chart:
     def describe(self) -> str:
         """The kind and the value's shape, for messages."""
         shape = self.shape
-        return f"{self.name} {'(' + ', '.join(map(str, shape)) + ',)' if shape else 'scalar'}"
+        return f"{self.name} ({', '.join(map(str, shape))},)" if shape else self.name
 
 
 @register

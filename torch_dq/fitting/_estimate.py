@@ -101,6 +101,33 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                                  f"[{pick(first)!r}, {pick(last)!r}]; {fix}")
 
 
+def _check_batches(fn: str, terms: list[Term], batch: torch.Size) -> None:
+    """Each term's data and nuisance values (fixed, or a Free's start or value) with
+    leading dims that broadcast to the trajectory's batch (and no more of them)."""
+    def fits(lead: torch.Size) -> bool:
+        try:
+            return torch.broadcast_shapes(lead, batch) == batch
+        except RuntimeError:
+            return False
+
+    for term in terms:
+        name = type(term).__name__
+        if not fits(term.mask.shape[:-1]):
+            _checks.fail(fn, f"{name} data of batch {_checks.shape_str(term.mask.shape[:-1])} "
+                             f"do not match the trajectory's batch {_checks.shape_str(batch)}")
+        for key, slot in term.slots().items():
+            free = slot.free
+            v = slot.fixed if free is None else (free.value if free.value is not None
+                                                 else free.start)
+            if isinstance(v, Tensor) and not fits(v.shape[:v.dim() - len(slot.shape)]):
+                what = "" if free is None else (" start" if free.value is None else " value")
+                each = (f" or one per trajectory {_checks.shape_str(batch + slot.shape)}"
+                        if batch else "")
+                _checks.fail(fn, f"{name}'s {key}{what} {_checks.shape_str(v.shape)} does "
+                                 f"not match the trajectory's batch {_checks.shape_str(batch)}: "
+                                 f"expected {_checks.shape_str(slot.shape)}{each}")
+
+
 def _warn_c1(trajectory, terms: list[Term]) -> None:
     """Warn when an Accel term reads the accelerations of a curve that is not C2
     (:meth:`torch_dq.nn.Curve.acceleration_jumps`: a de Boor B-spline of degree >= 2, a
@@ -187,7 +214,8 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     put it (``torch_dq.fitting._prior``): combinations of neighbouring control points
     carrying less than ``1e-6`` times the typical information (time gaps, ends without
     samples; ``prior`` times it, their weakly determined edges included, when no nuisance
-    parameter is estimated) are pulled to the start with weight ``prior``, nuisance directions
+    parameter is estimated and no IMU term reads the curve's derivatives) are pulled to the
+    start with weight ``prior``, nuisance directions
     without information (below ``1e-9``, scaled) likewise, and combinations of control
     points that no sample resolves (knots closer than the samples) are never stepped along.
     With estimated nuisance parameters the pulls are found again and anchored at every
@@ -268,6 +296,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     structure.check(fn, terms)
     ctrl = trajectory.control_points.detach().to(torch.float64)
     batch = ctrl.shape[:-2]
+    _check_batches(fn, terms, batch)
     _check_domains(fn, trajectory, terms, batch)
     _warn_c1(trajectory, terms)
     _warn_offset_kinks(trajectory, terms)

@@ -31,7 +31,7 @@ def check_repeated(fn: str, times: Tensor, mask: Tensor) -> None:
     filled by the term: masked ones carry the largest valid time before them): an inertial
     sensor samples each instant once, and a logger's repeated stamp would count a reading
     twice or put two at one instant, silently."""
-    m = (mask if times.dim() == mask.dim() else mask.any(0)).expand(times.shape)
+    m = (mask if times.dim() == mask.dim() else mask.flatten(0, -2).any(0)).expand(times.shape)
     before = (m.cumsum(-1) - m.long()) > 0  # a valid sample earlier in the row
     bad = m[..., 1:] & before[..., 1:] & (times[..., 1:] == times[..., :-1])
     _first_bad(fn, "times must be strictly increasing (an IMU samples each instant once)",
@@ -44,6 +44,7 @@ class _Imu(Term):
 
     dim = 3
     _unique_times = True  # False where a subclass adds samples of its own (checked before)
+    _bias_kind = "bias"  # a gyroscope's (rad/s) or an accelerometer's (m/s^2): one Free each
 
     def __init__(self, times, readings, sigma, bias, options: Options) -> None:
         fn = self._fn
@@ -53,7 +54,7 @@ class _Imu(Term):
         if self._unique_times:
             check_repeated(fn, self.times, self.mask)
         self._buffer("readings", _masked(readings, options.mask, 0.0), 1)
-        self._slots["bias"] = Slot(fn, "bias", Vector(3), bias)
+        self._slots["bias"] = Slot(fn, "bias", Vector(3), bias, kind=self._bias_kind)
         self._units_checked = False  # the readings' units, checked once (first values())
         self._units_pending = False  # a Gyro's check left to the poses (start at rest)
 
@@ -106,6 +107,7 @@ class Gyro(_Imu):
 
     order = 1
     _fn = "fitting.Gyro"
+    _bias_kind = "gyroscope bias"
 
     def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
                  time_offset=None, max_time_offset: float = 0.1, robust: str | None = None,
@@ -330,6 +332,7 @@ class Accel(_Imu):
 
     order = 2
     _fn = "fitting.Accel"
+    _bias_kind = "accelerometer bias"
 
     def __init__(self, times: Tensor, readings: Tensor, *, sigma, bias=None,
                  gravity=(0.0, 0.0, -9.81), time_offset=None, max_time_offset: float = 0.1,

@@ -40,7 +40,10 @@ from ._normal import System, _Normal, _window_normal
 
 __all__ = ["Linearization", "Memo", "System", "group_residuals", "residuals"]
 
-PART = 1 << 16  # samples of a term linearised at once (Term.parts: bounds the memory)
+#: Samples of a term linearised at once (Term.parts): bounds the memory, and keeps a part's
+#: per-sample arrays (a few MB each) out of fresh mappings: 65,536 took 12-21 % more CPU on
+#: 600-1200 s records (a 60 s record's 12,000 IMU samples are one part either way)
+PART = 1 << 14
 _CHUNK = 1 << 15  # samples per chunk of reverse passes through the spans (order 0)
 _ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their copies)
 
@@ -185,8 +188,9 @@ class Linearization:
         self.spans = problem.spans
 
     def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
-               ) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
+               robust: bool = True) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (unit
+        weights where not ``robust``: the data's information whatever their residuals; the span
         derivatives and the residuals taken, and dropped, from ``memo`` where
         :func:`group_residuals` kept them at this point), a group of terms read at the same
         times (``Problem.groups``) and a part of its samples at a time.
@@ -211,7 +215,7 @@ class Linearization:
             for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
                                        None if memo is None else memo.take((group[0], k)),
-                                       tables)
+                                       tables, robust)
                 for i, (r, wt) in zip(group, added, strict=True):
                     rs[i].append(r)
                     weights[i].append(wt)
@@ -220,36 +224,40 @@ class Linearization:
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                   values: list[Tensor], w: int,
                   known: tuple[list[tuple[Tensor, ...]], list[Tensor]] | None,
-                  tables: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
+                  tables: Tensor | None = None, robust: bool = True,
+                  ) -> list[tuple[Tensor, Tensor]]:
         """Add the normal equations of ``terms`` (the terms ``group`` or a part of their
         samples, :meth:`~torch_dq.fitting.Term.parts`; their span derivatives and residuals
         ``known`` where known, :class:`Memo`; the spans' ``tables`` where shared) to
         ``acc``, a term after the other; their residuals and robust weights."""
-        G = acc.band.shape[0]
         derivs, rs = known or (None, None)
         out = []
         for i, term, (r, f0, Jc, Jn) in zip(group, terms, self._group_chained(
                 group, terms, ctrl, values, w, derivs, rs, tables), strict=True):
-            wt = _weights(term, r)
+            wt = _weights(term, r, robust)
             keys = self._windows(f0, w)
-            local, gcols, valid = self._columns(i, Jn, keys, G)
+            # the windows from the part's first on (a part of a long record: not all n)
+            lo, hi = torch.stack(torch.aminmax(keys)).tolist() if keys.numel() else (0, 0)
+            rel = keys - lo
+            local, gcols, valid = self._columns(i, Jn, rel, hi - lo + 1)
             # every sample's window takes all the term's columns, in order: none selected
             plain = (local.shape[-1] == sum(J.shape[-1] for J in Jn.values())
-                     and bool(valid[keys].all()))
+                     and bool(valid[rel].all()))
             for a in range(0, r.shape[-2], _ROWS):  # the rows a chunk at a time
-                k = keys[:, a:a + _ROWS]
+                k = rel[:, a:a + _ROWS]
                 Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w,
                                None if plain else (local[k], valid[k]))
                 win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
-                acc.add(win, block, gcols[win])
+                acc.add(win + lo, block, gcols[win])
             out.append((r, wt))
         return out
 
     def _columns(self, i: int, Jn: dict[str, Tensor], keys: Tensor, G: int,
                  ) -> tuple[Tensor, Tensor, Tensor]:
-        """Per window ``(G, M)``: the term's nuisance columns its samples touch (a nonzero
-        Jacobian entry), as the term's own (``local``) and the problem's (``gcols``)
-        indices, and ``valid`` (False on padding; ``M`` the most any window touches)."""
+        """Per window ``(G, M)`` (``keys``: the samples' windows, below ``G``): the term's
+        nuisance columns its samples touch (a nonzero Jacobian entry), as the term's own
+        (``local``) and the problem's (``gcols``) indices, and ``valid`` (False on padding;
+        ``M`` the most any window touches)."""
         p, Bf = self.p, keys.shape[0]
         N = keys.shape[-1]
         act, glob = [], []
@@ -577,10 +585,10 @@ def _or_none(xs: list[Tensor] | None, n: int) -> list[Tensor | None]:
     return [None] * n if xs is None else list(xs)
 
 
-def _weights(term, r: Tensor) -> Tensor:
-    """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)``, masked samples'
-    zero."""
-    wt = _robust.weight(term.robust, r.norm(dim=-1), term.robust_k)
+def _weights(term, r: Tensor, robust: bool = True) -> Tensor:
+    """Robust weights ``(..., N)`` of ``term``'s residuals ``r (..., N, k)`` (ones where not
+    ``robust``), masked samples' zero."""
+    wt = _robust.weight(term.robust if robust else None, r.norm(dim=-1), term.robust_k)
     return wt * term.mask.to(wt.dtype)
 
 

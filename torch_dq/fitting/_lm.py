@@ -137,9 +137,22 @@ class LevenbergMarquardt:
                         for o, a in zip(flat, self.active.tolist(), strict=True)]
 
     def _pulls(self, prior: float) -> None:
-        """The pulls at the start and the directions no sample determines."""
+        """The pulls at the start and the directions no sample determines. Which control
+        point combinations the data determine is judged without the robust weights: from a
+        far start a robust kernel weighs every sample of its term down (Cauchy: 2e-4 at 230
+        sigmas), and where that term alone sees the control points (poses at the ends of an
+        IMU record) they fell below the floor and were pulled, held at the start for good
+        (their residuals, and weights, never recovered)."""
         s, p = self.system, self.p
-        cpull = _prior.control_pull(s.band, prior, bool(p.params))
+        weighed = prior > 0 and any(bool((w < t.mask).any()) for t, w in zip(
+            p.terms, s.weights, strict=True))  # some robust weight below 1
+        data = p.system(self.start, self.anchor, self.w, robust=False) if weighed else s
+        # relative thresholds where an IMU term reads the curve's derivatives, nuisance or
+        # not: its information sets the typical level, and the poses that alone see the ends
+        # of its record were judged against it (pulled to a far start: 190 sigmas off)
+        relative = bool(p.params) or any(t.order >= 1 for t in p.terms)
+        cpull = _prior.control_pull(data.band, prior, relative)
+        del data  # (memory: a second band while the pulls are found)
         info = torch.diag(p.prior_information().to(s.nn))
         reg = _prior.Regularised(s.band, cpull)
         self.pulls = (cpull, _prior.nuisance_pull(reg, s.cn, s.nn + info, prior))

@@ -59,19 +59,50 @@ class _Normal:
         w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
         nuis = slice(6 * w, 6 * w + M)
         at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
-        src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
-                           for a, d in self.pairs], 1)  # (U, P, 6, 6)
-        band_at = at[:, self.pair_a] * w + self.pair_d  # (U, P) in the band's (G w) blocks
-        self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1), src.reshape(-1, 6, 6))
-        self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
+        if U and int(windows[-1] - windows[0]) == U - 1:
+            self._add_consecutive(int(windows[0]), block, gcols)
+        else:
+            src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
+                               for a, d in self.pairs], 1)  # (U, P, 6, 6)
+            band_at = at[:, self.pair_a] * w + self.pair_d  # (U, P): the band's (G w) blocks
+            self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1),
+                                                src.reshape(-1, 6, 6))
+            self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
+            if M:
+                cols = ((at[:, :, None, None] * 6 + self.rows[:, None]) * m
+                        + gcols[:, None, None, :])
+                self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
         if not M:
             return
-        cols = (at[:, :, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, None, :]
-        self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
         row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
         self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
                            block[:, nuis, nuis].reshape(-1))
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
+
+    def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> None:
+        """``add`` of the consecutive windows ``f, f + 1, ...``: each of a row's blocks
+        added to a slice of the band, ``g_c`` (and the coupling, where every window takes
+        the same consecutive nuisance columns), row ``a`` from the last to the first, so
+        that every destination sums its windows in ``add``'s ``index_add_`` order
+        (increasing window): the same bits, without the scatter."""
+        w, U, M = self.w, block.shape[0], gcols.shape[-1]
+        cn = None
+        if M:
+            c = int(gcols[0, 0])
+            if bool((gcols == torch.arange(c, c + M, device=gcols.device)).all()):
+                cn = self.cn.view(-1, 6, self.m)[:, :, c:c + M]
+        for a in reversed(range(w)):
+            rows = block[:, 6 * a:6 * a + 6]
+            for d in range(w - a):
+                self.band[f + a:f + a + U, d] += rows[:, :, 6 * (a + d):6 * (a + d) + 6]
+            self.gc[f + a:f + a + U] += rows[:, :, -1]
+            if cn is not None:
+                cn[f + a:f + a + U] += rows[:, :, 6 * w:6 * w + M]
+        if M and cn is None:
+            at = f + torch.arange(U, device=gcols.device)[:, None] + self.offsets
+            cols = ((at[:, :, None, None] * 6 + self.rows[:, None]) * self.m
+                    + gcols[:, None, None, :])
+            self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, 6 * w:6 * w + M].reshape(-1))
 
     def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
         Bf, n, w, m = self.Bf, self.n, self.w, self.m
@@ -88,8 +119,9 @@ def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
 
     The samples of a window are laid out on pages of ``P`` samples (``P`` the mean count
     per used window: at most about twice as many pages as used windows, the padding at
-    most ``S``), one product per page, the pages summed into their windows: each sample's
-    rows copied once to their slot, the padding slots alone zeroed.
+    most ``S``), one product per page, the pages summed into their windows (where a window
+    has several): each sample's rows copied once to their slot, the padding slots alone
+    zeroed (by row index: a boolean mask's ``index_put`` cost a third of the call).
     """
     S, k, q = Y.shape
     windows, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
@@ -103,9 +135,14 @@ def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
     first_page = torch.cumsum(pages, 0) - pages
     # sample order[i] goes to page first_page + pos[i] // P, slot pos[i] % P
     slot = torch.empty_like(order).index_put_((order,), first_page[inverse[order]] * P + pos)
-    X = Y.new_empty(int(pages.sum()) * P, k, q).index_copy_(0, slot, Y)
-    pad = torch.ones(X.shape[0], dtype=torch.bool, device=keys.device).index_fill_(0, slot, False)
-    X[pad] = 0.0
+    n_pages = int(pages.sum())
+    X = Y.new_empty(n_pages * P, k, q).index_copy_(0, slot, Y)
+    if n_pages * P > S:
+        pad = torch.ones(X.shape[0], dtype=torch.bool, device=keys.device).index_fill_(
+            0, slot, False)
+        X.index_fill_(0, pad.nonzero()[:, 0], 0.0)
     X = X.reshape(-1, P * k, q)
+    if n_pages == U:  # a page per window
+        return windows, X.mT @ X
     owner = torch.repeat_interleave(torch.arange(U, device=keys.device), pages)
     return windows, Y.new_zeros(U, q, q).index_add_(0, owner, X.mT @ X)

@@ -85,10 +85,14 @@ class Slot:
         name: argument name (``"bias"``, ...).
         chart: the parameter's :class:`~torch_dq.fitting._charts.Chart`.
         arg: the user's argument.
+        kind: what the parameter is (None: ``name``; a gyroscope's and an accelerometer's
+            bias are two kinds): one :class:`Free` is one parameter of one kind, so a lever
+            arm and a bias, or a time offset and a line delay, never share one.
     """
 
-    def __init__(self, fn: str, name: str, chart: Chart, arg) -> None:
+    def __init__(self, fn: str, name: str, chart: Chart, arg, kind: str | None = None) -> None:
         self.fn, self.name, self.chart = fn, name, chart
+        self.kind = name if kind is None else kind
         self.free: Free | None = None
         self.fixed: Tensor | None = None
         if arg is None or arg is False:
@@ -107,13 +111,20 @@ class Slot:
         """Take ``free`` as this parameter: its start checked, and of this slot's kind
         (and shape) wherever else a live term uses it (one Free is one parameter)."""
         for other in list(free._slots):
-            if not other.chart.same_kind(self.chart):
+            if other.kind != self.kind or not other.chart.same_kind(self.chart):
                 _checks.fail(self.fn, f"{self.name} is given a fitting.Free that is also "
                                       f"{other.fn}'s {other.name}, a parameter of another kind "
-                                      f"({self.chart.describe()} vs {other.chart.describe()}): "
-                                      f"one Free is one parameter; pass separate Free objects")
+                                      f"({self.kind}: {self.chart.describe()} vs {other.kind}: "
+                                      f"{other.chart.describe()}): one Free is one parameter; "
+                                      f"pass separate Free objects")
         if free.start is not None:
             self._check_value(self.fn, f"{self.name} start", free.start)
+        if free.prior_std is not None:
+            k = torch.as_tensor(free.prior_std).numel()
+            if k not in (1, self.dim):
+                _checks.fail(self.fn, f"{self.name}'s fitting.Free has {k} prior_std values: "
+                                      f"expected a float or {self.dim}, one per axis of its "
+                                      f"chart ({self.chart.describe()}: {self.dim}-d)")
         self.free = free
         free._slots.add(self)
 

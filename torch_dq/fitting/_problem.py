@@ -204,10 +204,11 @@ class Problem:
         return _linearize.width(self, values)
 
     def system(self, ctrl: Tensor, values: list[Tensor], w: int, memo: Memo | None = None,
-               ) -> System:
-        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (the span
-        derivatives from ``memo`` where :meth:`data_cost` kept them at this point)."""
-        return self.linearization.system(ctrl, values, w, memo)
+               robust: bool = True) -> System:
+        """Gauss-Newton system at ``(ctrl, values)`` with the robust weights there (unit
+        weights where not ``robust``; the span derivatives from ``memo`` where
+        :meth:`data_cost` kept them at this point)."""
+        return self.linearization.system(ctrl, values, w, memo, robust)
 
 
 def _same_timing(a: tuple[list[Tensor], bool], b: tuple[list[Tensor], bool]) -> bool:

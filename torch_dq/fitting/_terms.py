@@ -282,7 +282,7 @@ class Term(torch.nn.Module):
         (the first valid one before any), so that sorted times stay sorted. Checks finite
         valid times, non-decreasing for a term with one time argument (pairs of times,
         listed by keyframe or loop closure, may come in any order)."""
-        m = mask if t.dim() == mask.dim() else mask.any(0)
+        m = mask if t.dim() == mask.dim() else mask.flatten(0, -2).any(0)
         mm = m.expand(t.shape)
         _first_bad(fn, f"{name} must be finite", mm & ~torch.isfinite(t))
         _check_resolution(fn, name, t, mm)
@@ -640,7 +640,8 @@ class RelativePoses(_PoseTerm):
                           trans_sigma, Options(time_offset, max_time_offset, robust, robust_k,
                                                mask))
         a, b = self.times_list()
-        valid = (self.mask if a.dim() == self.mask.dim() else self.mask.any(0)).expand(a.shape)
+        valid = (self.mask if a.dim() == self.mask.dim() else self.mask.flatten(0, -2).any(0)
+                 ).expand(a.shape)
         _first_bad(self._fn, "times_from and times_to must differ (a pair at one instant "
                              "predicts the identity whatever the trajectory)", valid & (a == b),
                    " (mask it, or check the time columns)")

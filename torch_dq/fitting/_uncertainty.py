@@ -396,8 +396,7 @@ class Estimate:
         big = a.abs() > 1e-8 * a.abs().amax(-1, keepdim=True)
         return torch.where(big, a * a * inv, 0.0).sum(-1)
 
-    def _param(self, term, name: str):
-        fn = "fitting.Estimate.std"
+    def _param(self, term, name: str, fn: str = "fitting.Estimate.std"):
         p = self._problem
         if not any(t is term for t in p.terms):
             _checks.fail(fn, "term is not one of the estimated terms")
@@ -432,9 +431,13 @@ class Estimate:
         Returns:
             ``(..., k, k)``, ``k`` the sum of the sizes.
         """
+        for item in items:
+            if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)):
+                _checks.fail("fitting.Estimate.cov", f"items must be (term, name) pairs, got "
+                                                     f"{item!r}", TypeError)
         self._ensure()
         p = self._problem
-        qs = [self._param(t, n) for t, n in items] if items else p.params
+        qs = [self._param(t, n, "fitting.Estimate.cov") for t, n in items] if items else p.params
         dev = self._U.device
         cols = torch.cat([torch.arange(q.offset, q.offset + q.dim, device=dev) for q in qs])
         Bf = self._U.shape[0]
@@ -531,6 +534,8 @@ class Estimate:
                           RuntimeWarning, stacklevel=4)
         if _checks.flag("fitting.Estimate", "scaled", scaled):
             std = std * self._factor_scale()[:, None, None]
+        # a NaN time passes the domain check; its std is NaN, never a finite number
+        std = torch.where(torch.isnan(t).reshape(Bf, T, 1), torch.nan, std)
         if not p.batch:
             return std.reshape(*lead, -1, k)
         return std.reshape(*p.batch, T, k)
