@@ -20,11 +20,13 @@ Usage::
 
     python benchmarks/bench_calibration.py                  # 72 s, 2 threads
     python benchmarks/bench_calibration.py --rolling-shutter --duration 24
+    python benchmarks/bench_calibration.py --duration 12 --speed 2.5 --knot-spacing 0.05
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import sys
@@ -58,6 +60,10 @@ def _arguments():
                         help="simulate and estimate a 30 us/row line delay")
     parser.add_argument("--random-walk", action="store_true",
                         help="estimate random-walk biases (bias_walk: imu.yaml's walks)")
+    parser.add_argument("--speed", type=float, default=1.0,
+                        help="the dance's frequencies times this (2.5: up to 6.9 rad/s)")
+    parser.add_argument("--knot-spacing", default="auto", metavar="SECONDS|auto",
+                        help="camera_imu's knot_spacing (auto: chosen from the IMU readings)")
     parser.add_argument("--verbose", action="store_true", help="the estimate's progress")
     return parser.parse_args()
 
@@ -67,8 +73,8 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     delay = LINE_DELAY if args.rolling_shutter else 0.0
     t0 = time.perf_counter()
-    imu, cams = sim.rig(duration=args.duration, offset=args.offset, line_delay=delay,
-                        spec=sim.EUROC)
+    spec = dataclasses.replace(sim.EUROC, freq_scale=args.speed)
+    imu, cams = sim.rig(duration=args.duration, offset=args.offset, line_delay=delay, spec=spec)
     t_sim = time.perf_counter() - t0
     cameras = [Camera("pinhole-radtan", _f64(sim.intrinsics(i, sim.EUROC)), sim.RESOLUTION)
                for i in range(2)]
@@ -83,11 +89,16 @@ def main() -> int:
     res = calibration.camera_imu(
         cameras, obs, tuple(_f64(x) for x in imu), gyro_noise=sim.GYRO_DENSITY,
         accel_noise=sim.ACCEL_DENSITY, pixel_sigma=0.3, rolling_shutter=args.rolling_shutter,
-        bias_walk=sim.EUROC_WALK if args.random_walk else None, verbose=args.verbose)
+        bias_walk=sim.EUROC_WALK if args.random_walk else None, verbose=args.verbose,
+        knot_spacing=None if args.knot_spacing == "auto" else float(args.knot_spacing))
     total = time.perf_counter() - t0
     for stage, seconds in res.timings.items():
         print(f"  {stage:<14s} {seconds:8.2f} s")
     print(f"  {'total':<14s} {total:8.2f} s  ({res.estimate.steps} LM steps)")
+    est = res.estimate
+    chi2 = ", ".join(f"{type(t).__name__} {float(est.chi2[t]) / float(est.dof[t]):.3g}"
+                     for t in res.terms[-2:])
+    print(f"  knots every {res.knot_spacing:.4g} s; chi2/dof {chi2}")
     if delay:
         err = 1e9 * (res.line_delays.numpy() - delay)
         print(f"  line delay errors {err.round(3).tolist()} ns/row (truth "

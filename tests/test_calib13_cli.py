@@ -88,7 +88,9 @@ def test_offset_of_0_2_s_found_with_max_time_offset(files, tmp_path):
 
 def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
     """imu.yaml's densities 10 times too small (the IMU's chi2/dof about 100): a warning
-    naming --knot-spacing and the densities, in summary.json."""
+    naming the densities, in summary.json; the knots chosen from the readings stay as coarse
+    as for the right densities (the spectrum's own noise floor), and the warning names
+    --knot-spacing only where it was given."""
     noise = tmp_path / "imu.yaml"
     noise.write_text("".join(
         f"{k}: {float(v) / 10 if 'noise_density' in k else v}\n" for k, v in
@@ -98,9 +100,16 @@ def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
                  "0.3")
     assert main(argv) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    hints = [w for w in summary["warnings"] if "--knot-spacing 0.025" in w]
+    assert summary["knot_spacing_s"] >= 0.04
+    hints = [w for w in summary["warnings"] if "chi2/dof is" in w]
     assert len(hints) == 1 and "noise densities" in hints[0] and "accel" in hints[0], hints
     assert "--bias random-walk" in hints[0]  # --bias constant: drifting biases, a cause too
+    assert "--knot-spacing auto" in hints[0] and "too coarse" not in hints[0]
+    assert main([*argv, "--knot-spacing", "0.05", "--out", str(tmp_path / "given")]) == 0
+    summary = json.loads((tmp_path / "given" / "summary.json").read_text())
+    assert summary["knot_spacing_s"] == 0.05
+    hints = [w for w in summary["warnings"] if "--knot-spacing 0.025" in w]
+    assert len(hints) == 1 and "noise densities" in hints[0], hints
 
 
 def test_kalibr_output_imu_yaml_nested_under_imu0(files, tmp_path, capsys):

@@ -21,8 +21,9 @@ by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
 - ``summary.json``: every value with its standard deviation (random-walk biases ``(K, 3)``,
   one row per segment, the segments' edges under ``bias``), per-term chi2/dof (keys unique:
   ``reprojections_cam<i>``, ``gyro``, ``accel``), the reprojection RMS per camera, the
-  trajectory's knot spacing (``--knot-spacing``), the warnings (one names
-  ``--knot-spacing`` where the IMU's chi2/dof exceeds 3);
+  trajectory's knot spacing (``--knot-spacing``: given, or chosen from the IMU readings by
+  default), the warnings (one where the IMU's chi2/dof exceeds 3: the noise densities, or
+  ``--knot-spacing`` where it was given);
 - figures (matplotlib, optional): ``reprojection.png`` (errors per camera over time and in
   the image), ``imu.png`` (gyroscope and accelerometer residuals, the biases: random-walk
   ones as steps over time with their standard deviation bands).
@@ -275,7 +276,7 @@ def _summary(res, noise: dict, caught: list[str], elapsed: float, interval: floa
             "reprojection_rms_px": val(res.reprojection_rms),
             "imu_noise": noise, "steps": int(est.steps),
             "converged": bool(est.converged.all()), "reason": est.reason,
-            "knot_spacing_s": float(res.trajectory.knots.diff().median()),
+            "knot_spacing_s": res.knot_spacing,
             "seconds": elapsed, "seconds_per_stage": res.timings, "warnings": caught,
             "notes": ["extrinsics' std: chart e exp(delta), rotation (rad) then translation "
                       "(m) in camera axes; gravity in the target frame, its magnitude fixed "
@@ -353,17 +354,18 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
                          bias_interval=interval, gravity_magnitude=args.gravity,
-                         max_time_offset=args.max_time_offset, knot_spacing=args.knot_spacing,
+                         max_time_offset=args.max_time_offset,
+                         knot_spacing=None if args.knot_spacing == "auto" else args.knot_spacing,
                          verbose=not args.quiet)
-        _imu_fit(res, args.knot_spacing)
+        _imu_fit(res, args.knot_spacing == "auto")
     return cams, res, caught
 
 
-def _imu_fit(res, spacing: float) -> None:
-    """A warning naming ``--knot-spacing`` and the noise densities where the IMU terms'
-    chi2/dof exceeds 3: a trajectory too coarse for the motion (a fast dance; Kalibr puts
-    70 knots in a second), constant biases that drift, or ``imu.yaml``'s densities too
-    small."""
+def _imu_fit(res, auto: bool) -> None:
+    """A warning where the IMU terms' chi2/dof exceeds 3: with the knot spacing chosen from
+    the readings (``auto``), the noise densities too small or biases that drift (the
+    spacing follows the motion's spectrum); with one given, also a trajectory too coarse
+    for the motion (``--knot-spacing`` named)."""
     from ..fitting import Accel, Gyro
 
     est = res.estimate
@@ -371,13 +373,18 @@ def _imu_fit(res, spacing: float) -> None:
             for name, kind in (("gyro", Gyro), ("accel", Accel))
             if isinstance(t, kind) and float(est.dof[t]) > 0}
     high = {k: v for k, v in high.items() if v > 3.0}
-    if high:
-        warnings.warn(f"the IMU's chi2/dof is {', '.join(f'{k} {v:.3g}' for k, v in high.items())}"
-                      f" (expected about 1): the trajectory's knots every {spacing:g} s are "
-                      f"too coarse for this motion (try --knot-spacing {spacing / 2:g}), "
-                      + ("the biases drift (--bias random-walk), " if res.bias_edges is None
-                         else "") + "or imu.yaml's noise densities are too small",
-                      UserWarning, stacklevel=2)
+    if not high:
+        return
+    spacing = res.knot_spacing
+    knots = (f"the knots every {spacing:.3g} s (chosen from the readings' spectrum: "
+             f"--knot-spacing auto) follow the motion, so " if auto else
+             f"the trajectory's knots every {spacing:g} s are too coarse for this motion "
+             f"(try --knot-spacing {spacing / 2:g} or auto), ")
+    warnings.warn(f"the IMU's chi2/dof is {', '.join(f'{k} {v:.3g}' for k, v in high.items())}"
+                  f" (expected about 1): {knots}"
+                  + ("the biases drift (--bias random-walk), " if res.bias_edges is None
+                     else "") + "or imu.yaml's noise densities are too small",
+                  UserWarning, stacklevel=2)
 
 
 @contextlib.contextmanager
@@ -406,7 +413,7 @@ def _run_cameras(args, say) -> int:
         ("--shared-time-offset", args.shared_time_offset), ("--gravity", args.gravity != 9.81),
         ("--max-time-offset", args.max_time_offset != 0.1),
         ("--duplicates", args.duplicates != "error"),
-        ("--knot-spacing", args.knot_spacing != 0.05),
+        ("--knot-spacing", args.knot_spacing != "auto"),
         ("--bias", args.bias != "random-walk"), ("--bias-interval", args.bias_interval != "1.0"),
     ) if on]
     if given:

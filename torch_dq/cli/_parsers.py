@@ -251,10 +251,11 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--duplicates", type=str.lower, choices=("error", "first"),
                    default="error",
                    help="repeated IMU timestamps: an error, or keep the first sample")
-    p.add_argument("--knot-spacing", type=_positive_float, default=0.05, metavar="SECONDS",
-                   help="the body trajectory's knot spacing (Kalibr: 70 knots per second, "
-                        "0.014 s); finer for a fast dance, when the gyro's or accel's chi2/dof "
-                        "in summary.json is well above 1")
+    p.add_argument("--knot-spacing", type=_spacing, default="auto", metavar="SECONDS|auto",
+                   help="the body trajectory's knot spacing; auto: the largest spacing up to "
+                        "0.05 s (down to 0.01 s) whose spline follows the motion in the IMU "
+                        "readings' spectrum to within their noise (a fast dance gets finer "
+                        "knots; Kalibr: 70 knots per second, 0.014 s)")
     p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
                    help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
                         "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
