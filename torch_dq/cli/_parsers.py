@@ -239,6 +239,17 @@ def _add_calibrate(sub) -> None:
                    help="estimate each camera's line delay")
     p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
+    _calibrate_imu_options(p)
+    p.add_argument("--threads", type=_positive_int, default=1,
+                   help="torch intra-op threads (more help only on an idle multi-core "
+                        "machine: on EuRoC's stereo corners, 2 threads on a busy 2-core "
+                        "machine took 8 times longer than 1)")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings")
+
+
+def _calibrate_imu_options(p) -> None:
+    """The calibrate command's options of the camera-IMU calibration alone."""
     p.add_argument("--gravity", type=_positive_float, default=9.81, metavar="M/S2",
                    help="the local gravity's magnitude, fixed (its direction is estimated); "
                         "the accelerometer bias along gravity takes up its error: give the "
@@ -265,9 +276,3 @@ def _add_calibrate(sub) -> None:
                         "per sensor: right for short recordings of a stable IMU)")
     p.add_argument("--bias-interval", default="1.0", metavar="SECONDS",
                    help="length of the random-walk biases' segments (seconds, > 0)")
-    p.add_argument("--threads", type=_positive_int, default=1,
-                   help="torch intra-op threads (more help only on an idle multi-core "
-                        "machine: on EuRoC's stereo corners, 2 threads on a busy 2-core "
-                        "machine took 8 times longer than 1)")
-    p.add_argument("--no-plots", action="store_true", help="skip the figures")
-    p.add_argument("--quiet", action="store_true", help="print nothing but warnings")
