@@ -14,7 +14,7 @@ dimension ``d`` (the norm of ``d`` standard normal components): 2.7955 for ``d =
 3.5485 for ``d = 6``, from :func:`chi_quantile`.
 
 With a kernel the sigmas describe the inliers, and a term's chi-square counts only them
-(:func:`inliers`): the samples whose squared norm is within the 99.9 % quantile of the
+(``inliers``): the samples whose squared norm is within the 99.9 % quantile of the
 chi-square distribution of ``d`` degrees of freedom, scaled by the term's own chi2/dof
 (a self-consistent cutoff), their sum divided by the mean of that truncated distribution.
 """
@@ -82,7 +82,7 @@ def weight(kind: str | None, s: Tensor, k: float) -> Tensor:
 
 def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, float]:
     r"""The inliers of a robust term, for its chi-square: samples whose squared whitened
-    norm is at most :math:`q f`, ``q`` the :data:`INLIER_QUANTILE` quantile of the
+    norm is at most :math:`q f`, ``q`` the ``INLIER_QUANTILE`` quantile of the
     chi-square distribution with ``d`` degrees of freedom and ``f`` the term's chi2/dof
     found with them (a fixed point, from the median's estimate
     :math:`\mathrm{median}(s^2) / \mathrm{median}(\chi^2_d)`):
