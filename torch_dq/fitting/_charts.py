@@ -144,8 +144,11 @@ class Scalar(Chart):
         return pinned
 
     def outward(self, value: Tensor, gradient: Tensor) -> Tensor:
-        """Bool: pinned with a descent direction ``-gradient`` pointing out of the range."""
-        return self.pinned(value) & (value * gradient < 0)
+        """Bool: pinned with a descent direction ``-gradient`` pointing out of the range (up
+        on the upper bound, down on a negative lower one: a ``max_time_offset=0`` offset at
+        0 with the descent upwards is outward too)."""
+        up = (value >= self.high * (1.0 - 1e-9)) & (gradient < 0)
+        return self.pinned(value) & (up | ((value < 0) & (gradient > 0)))
 
     def at_end(self, value: Tensor) -> Tensor:
         """Bool, the shape of ``value``: on a lower bound of zero, the parameter's natural

@@ -253,7 +253,11 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
             standard deviations of any quantity. An accepted step that lowers the objective
             by at most ``tol`` relatively while that test fails stops the iteration as not
             converged (``reason`` starts with "no progress"; a ``RuntimeWarning``); so does
-            ``steps`` (warned too) or no damped step lowering the objective.
+            ``steps`` (warned too) or no damped step lowering the objective; so does a
+            clock offset held on its ``max_time_offset`` bound (the descent pointing
+            outwards) while two steps in a row lower the objective by at most ``1e-3``
+            relatively (``reason`` starts with "a bound holds" and names it, e.g.
+            ``Gyro.time_offset on its bound 0.1``; the bound is warned).
         prior: relative weight and threshold of the pull on what the data do not
             determine (see above), ``>= 0``.
         verbose: progress on stderr: a tqdm bar when stderr is a terminal and tqdm is

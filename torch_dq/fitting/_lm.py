@@ -38,6 +38,9 @@ _ROUNDOFF = 1e-14  # per residual component: a cost at float64 roundoff (whitene
 # sigma 1e-3 round to ~1e-13 on unit-scale data): converged where no damped step lowers it
 # or where its decrease is no longer the quadratic model's (LevenbergMarquardt.iteration)
 _LEFT_OUT = 1e6  # the pulls' stiffening in the scaled gradient test when they are re-anchored
+_BOUND_SLOW = 1e-3  # a step lowering the objective by at most this much relatively, a clock
+# offset held on its bound (descent outwards): two in a row stop it, the data put it further
+# (a truth 0.05 s past the bound crept 50 steps at 1e-3 to 1e-5 a step, unconverged)
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
 
 
@@ -129,6 +132,8 @@ class LevenbergMarquardt:
         self.timed, self.span = _time_columns(problem)
         like = self.damping.lam
         self.stalled = torch.zeros_like(like, dtype=torch.bool)
+        self.slow = torch.zeros_like(like, dtype=torch.bool)  # last step below _BOUND_SLOW
+        self.on_bound = torch.zeros_like(like, dtype=torch.long)  # slow steps held there
         self.decrement = torch.full_like(like, torch.inf)
         flat = self.point.objective.reshape(self.Bf)
         self.active = torch.isfinite(flat) & (flat > 0)
@@ -240,15 +245,27 @@ class LevenbergMarquardt:
             self._gradient = ((self.point, self.system), grad)
         return grad
 
+    def _outward(self, gn: Tensor) -> Tensor:
+        """``(Bf, m)`` bool: the bounded scalars on their bound whose descent (``-gn``)
+        points outwards."""
+        out = torch.zeros_like(gn, dtype=torch.bool)
+        for q, v in zip(self.p.params, self.point.values, strict=True):
+            if isinstance(q.chart, Scalar):
+                out[:, q.offset] = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
+        return out
+
     def _bounded(self, gn: Tensor) -> Tensor:
         """``gn`` without the components of bounded scalars on their bound whose descent
         points outwards (a constrained optimum there: the projected gradient)."""
-        gn = gn.clone()
-        for q, v in zip(self.p.params, self.point.values, strict=True):
-            if isinstance(q.chart, Scalar):
-                out = q.chart.outward(v.reshape(self.Bf), gn[:, q.offset])
-                gn[:, q.offset] = torch.where(out, 0.0, gn[:, q.offset])
-        return gn
+        return torch.where(self._outward(gn), 0.0, gn)
+
+    def _held_names(self, b: int) -> str:
+        """The bounded scalars of element ``b`` held on their bound (descent outwards)."""
+        out = self._outward(self.gradient()[1])[b]
+        return ", ".join(f"{type(q.uses[0][0]).__name__}.{q.uses[0][1]} on its bound "
+                         f"{float(self.point.values[i].reshape(self.Bf)[b]):g}"
+                         for i, q in enumerate(self.p.params)
+                         if isinstance(q.chart, Scalar) and bool(out[q.offset]))
 
     def _ends(self) -> Tensor | None:
         """``(Bf, m)`` bool: the scalars at their natural end 0 (a line delay) at the current
@@ -338,12 +355,20 @@ class LevenbergMarquardt:
         self.decrement = torch.where(self.active, dec, self.decrement)
         thr = tol * torch.maximum(self.point.objective.reshape(self.Bf), _EXACT * self.count)
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
-        stop = self.active & ~good & (self.stalled | final)
+        held = self.active & self.slow & self._outward(self.gradient()[1]).any(-1)
+        self.on_bound = torch.where(held, self.on_bound + 1, 0)
+        bound = ~good & (self.on_bound >= 2)
+        stop = self.active & ~good & (self.stalled | final | bound)
         for b in range(self.Bf):
             what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
                    f"{float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"
+            elif bool(stop[b]) and bool(bound[b]):
+                self.reasons[b] = (f"a bound holds {self._held_names(b)}, the data put it "
+                                   f"further (raise max_time_offset): two steps lowered the "
+                                   f"objective by at most {_BOUND_SLOW:g} relatively ({what}); "
+                                   f"not converged")
             elif bool(stop[b]) and bool(self.stalled[b]):
                 self.reasons[b] = (f"no progress: a step lowered the objective by at most "
                                    f"tol={tol!r} relatively, the gradient is not negligible "
@@ -403,6 +428,8 @@ class LevenbergMarquardt:
         or when the quadratic model no longer predicts the decrease (gain at most 1/4)."""
         new, pending, gain = self._trials(self.active.clone())
         Bf, old = self.Bf, self.point.objective.reshape(self.Bf)
+        self.slow = self.active & ~pending & ((old - new.objective.reshape(Bf))
+                                              <= _BOUND_SLOW * new.objective.reshape(Bf))
         self.stalled = self.active & ~pending & ((old - new.objective.reshape(Bf))
                                                  <= tol * new.objective.reshape(Bf))
         exact = self.active & (pending | (gain <= 0.25)) & (old <= _ROUNDOFF * self.count)

@@ -12,6 +12,11 @@ loss), and the weight of iteratively reweighted least squares is
 The default ``k`` is the 95 % quantile of the chi distribution with the residual's
 dimension ``d`` (the norm of ``d`` standard normal components): 2.7955 for ``d = 3``,
 3.5485 for ``d = 6``, from :func:`chi_quantile`.
+
+With a kernel the sigmas describe the inliers, and a term's chi-square counts only them
+(``inliers``): the samples whose squared norm is within the 99.9 % quantile of the
+chi-square distribution of ``d`` degrees of freedom, scaled by the term's own chi2/dof
+(a self-consistent cutoff), their sum divided by the mean of that truncated distribution.
 """
 
 from __future__ import annotations
@@ -21,9 +26,11 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["KERNELS", "chi_quantile", "rho", "weight"]
+__all__ = ["INLIER_QUANTILE", "KERNELS", "chi_quantile", "inliers", "rho", "weight"]
 
 KERNELS = (None, "huber", "cauchy")
+INLIER_QUANTILE = 0.999  # inliers: squared norm within this chi-square quantile (scaled)
+_PASSES = 100  # at most this many passes of the cutoff's fixed point (a few in practice)
 
 
 def _chi2_cdf(x: float, d: int) -> float:
@@ -71,3 +78,43 @@ def weight(kind: str | None, s: Tensor, k: float) -> Tensor:
     if kind == "huber":
         return torch.where(s <= k, torch.ones_like(s), k / s.clamp_min(k))
     return 1.0 / (1.0 + (s / k) ** 2)
+
+
+def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, float]:
+    r"""The inliers of a robust term, for its chi-square: samples whose squared whitened
+    norm is at most :math:`q f`, ``q`` the ``INLIER_QUANTILE`` quantile of the
+    chi-square distribution with ``d`` degrees of freedom and ``f`` the term's chi2/dof
+    found with them (a fixed point, from the median's estimate
+    :math:`\mathrm{median}(s^2) / \mathrm{median}(\chi^2_d)`):
+
+    .. math::
+        f = \frac{\sum_{s_i^2 \le q f} s_i^2 / \kappa}{d\, n_{in} (1 - share)},\qquad
+        \kappa = \frac{P(\chi^2_{d+2} \le q)}{P(\chi^2_d \le q)},
+
+    ``kappa`` the mean of :math:`\chi^2_d / d` truncated at ``q`` (0.9939 for ``d = 3``):
+    with sigmas that describe the inliers ``f`` is 1 whatever the outliers (those beyond
+    ``q f``), and the cutoff scales with sigmas that are off (2x too small: ``f`` about 4, a
+    fixed cutoff at ``q`` would keep only the smaller 75 % and read 2.5).
+
+    Args:
+        s2: ``(..., N)`` squared whitened residual norms.
+        mask: ``(..., N)`` bool, the samples counted.
+        d: the residual's dimension.
+        share: ``(...)`` or float, the fraction of the residual components taken by the
+            estimated parameters (:attr:`~torch_dq.fitting.Estimate.dof`).
+
+    Returns:
+        ``(keep, kappa)``: ``(..., N)`` bool, the inliers among ``mask``, and ``kappa``.
+    """
+    q = chi_quantile(d, INLIER_QUANTILE) ** 2
+    kappa = _chi2_cdf(q, d + 2) / _chi2_cdf(q, d)
+    per = d * (1.0 - torch.as_tensor(share, dtype=s2.dtype, device=s2.device)).clamp_min(1e-12)
+    f = s2.masked_fill(~mask, math.nan).nanmedian(-1).values / chi_quantile(d, 0.5) ** 2
+    keep = torch.zeros_like(mask)
+    for _ in range(_PASSES):
+        new = mask & (s2 <= q * f[..., None])
+        if torch.equal(new, keep):
+            break
+        keep = new
+        f = torch.where(keep, s2, 0.0).sum(-1) / (kappa * keep.sum(-1).clamp_min(1) * per)
+    return keep, kappa

@@ -37,6 +37,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
+from . import _robust
 from ._banded import BandedCholesky
 from ._charts import Scalar
 from ._local import sample_jacobians, tangent_step
@@ -136,6 +137,11 @@ def _band(nu: Tensor, z: float) -> Tensor:
     return nu * (1.0 - a + z * a.sqrt()).clamp_min(0.0) ** 3
 
 
+def _count(x: Tensor) -> str:
+    """A 0-d count's value, or a batch's largest."""
+    return f"{int(x.max())}" if x.dim() == 0 else f"up to {int(x.max())}"
+
+
 def _number(x: Tensor) -> str:
     """A 0-d tensor's value, or a batch's shape."""
     return f"{float(x):.6g}" if x.dim() == 0 else f"<{tuple(x.shape)} tensor>"
@@ -157,7 +163,10 @@ class Estimate:
         reason: what stopped it (one string per batch element, joined by ``"; "``).
         chi2, dof, weights: per term (dicts keyed by the term), see the properties; the
             first uncertainty asked for warns where a term's chi2/dof is far above or below
-            1 (:meth:`summary` lists them).
+            1 (:meth:`summary` lists them). With a robust kernel the sigmas describe the
+            inliers and ``chi2`` and ``dof`` count only them (a cutoff at the 99.9 % chi-square
+            quantile scaled by the term's own chi2/dof, the sum divided by the truncated
+            mean: :attr:`chi2`); the summary and the warning say how many were left out.
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
@@ -176,6 +185,7 @@ class Estimate:
         self._pulled = summary.pulled
         self._informed = history.informed
         self._factored = False
+        self._inliers: dict | None = None
 
     def __repr__(self) -> str:
         ratios = ", ".join(f"{type(t).__name__}: {r:.3g}" + (f" (far {far} 1)" if far else "")
@@ -193,37 +203,78 @@ class Estimate:
 
     def _per_term(self, what: str) -> dict:
         batch, s = self._problem.batch, self._system
+        kept = self._kept() if what != "weights" else {}
         out = {}
         for term, r, w in zip(self._problem.terms, s.residuals, s.weights, strict=True):
             if what == "chi2":
-                out[term] = torch.where(term.mask[..., None], r * r, 0.0).sum((-1, -2)).expand(
-                    batch)
+                keep, kappa = kept[term]
+                out[term] = torch.where(keep[..., None], r * r, 0.0).sum((-1, -2)).expand(
+                    batch) / kappa
             elif what == "count":
-                out[term] = (term.mask.sum(-1) * term.dim).expand(batch).to(torch.float64)
+                out[term] = (kept[term][0].sum(-1) * term.dim).expand(batch).to(torch.float64)
             else:
                 out[term] = w.expand(*batch, w.shape[-1])
         return out
 
+    def _share(self) -> Tensor:
+        """``(...)`` the fraction of the residual components (every unmasked sample) that
+        the estimated parameters take (:attr:`dof`)."""
+        p = self._problem
+        total = sum((t.mask.sum(-1) * t.dim).expand(p.batch).to(torch.float64)
+                    for t in p.terms)
+        return ((6 * p.n - self._pulled + p.m) / total.clamp_min(1.0)).clamp(max=1.0)
+
+    def _kept(self) -> dict:
+        """Per term: the samples its :attr:`chi2` counts ``(..., N)`` bool and the divisor of
+        their sum: the unmasked samples and 1 without a robust kernel, the inliers and the
+        truncated mean ``kappa`` with one (``torch_dq.fitting._robust.inliers``); once."""
+        if self._inliers is None:
+            batch, share, out = self._problem.batch, self._share(), {}
+            for term, r in zip(self._problem.terms, self._system.residuals, strict=True):
+                mask = term.mask
+                if term.robust is None:
+                    out[term] = (mask, 1.0)
+                    continue
+                s2 = (r * r).sum(-1)
+                s2 = s2.expand(*batch, s2.shape[-1])
+                out[term] = _robust.inliers(s2, mask.expand_as(s2), term.dim, share)
+            self._inliers = out
+        return self._inliers
+
+    def _left_out(self) -> dict:
+        """Per robust term: ``(...)`` int, the unmasked samples beyond its inlier cutoff."""
+        return {t: (t.mask.expand_as(keep) & ~keep).sum(-1) for t, (keep, _) in
+                self._kept().items() if t.robust is not None}
+
     @property
     def chi2(self) -> dict:
-        """Per term ``(...)``: sum of squared whitened residuals of the unmasked samples."""
+        r"""Per term ``(...)``: sum of squared whitened residuals of the unmasked samples.
+
+        With a robust kernel the sigmas describe the inliers, and only they count: the
+        samples whose squared whitened norm is at most :math:`q f` (``q`` the 99.9 %
+        quantile of the chi-square distribution with the residual's dimension ``d``
+        degrees of freedom, 16.27 for 3, 22.46 for 6; ``f`` the term's chi2/dof itself, a
+        fixed point), their sum divided by :math:`\kappa = P(\chi^2_{d+2} \le q) /
+        P(\chi^2_d \le q)`, the mean of the truncated distribution over ``d`` (0.994 for
+        3): chi2/dof is about 1 when the sigmas are right whatever the gross outliers, 4 for
+        sigmas 2x too small, 0.25 for 2x too large; :attr:`dof` counts the inliers, and
+        :meth:`summary` how many samples were left out
+        (``torch_dq.fitting._robust.inliers``)."""
         return self._per_term("chi2")
 
     @property
     def dof(self) -> dict:
-        r"""Per term ``(...)`` float: the term's residual components (unmasked samples)
-        less its share of the estimated parameters. The parameters are ``6 n`` (control
+        r"""Per term ``(...)`` float: the term's residual components (unmasked samples; with
+        a robust kernel its inliers, see :attr:`chi2`) less its share of the estimated
+        parameters. The parameters are ``6 n`` (control
         points) less the directions kept by ``estimate``'s ``prior`` (no data information),
         plus the ``m`` nuisance chart coordinates, and at most the residual components (the
         data determine no more combinations than they have components: knots finer than the
         samples give zero, not a negative count); they are shared among the terms in
-        proportion to their residual counts: :math:`\nu_t = N_t (1 - \min(p / \sum_u N_u,
-        1))`."""
-        counts = self._per_term("count")
-        total = sum(counts.values())
-        p = self._problem
-        share = ((6 * p.n - self._pulled + p.m) / total.clamp_min(1.0)).clamp(max=1.0)
-        return {t: c * (1.0 - share) for t, c in counts.items()}
+        proportion to their residual counts (every unmasked sample's: ``N_u``):
+        :math:`\nu_t = N_t (1 - \min(p / \sum_u N_u, 1))`."""
+        share = self._share()
+        return {t: c * (1.0 - share) for t, c in self._per_term("count").items()}
 
     def _factor_scale(self) -> Tensor:
         r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
@@ -264,22 +315,28 @@ class Estimate:
     def summary(self) -> str:
         r"""A few lines: the steps and why they stopped, the final loss, and per term its
         :math:`\chi^2`, :attr:`dof` and their ratio, marked where far above or below 1
-        (the tests of the warning that the first uncertainty asked for gives)."""
+        (the tests of the warning that the first uncertainty asked for gives), and for a
+        robust term the samples beyond its inlier cutoff, left out (:attr:`chi2`)."""
         loss = self.final_loss
         lines = [f"estimate: {self.steps} step{'s' * (self.steps != 1)} ({self.reason}), "
                  f"final loss {_number(loss)}"]
         note = {"above": "  far above 1: sigmas too small, standard deviations too small",
                 "below": "  far below 1: sigmas too large, standard deviations too large",
                 None: ""}
+        left = self._left_out()
         for (term, (ratio, far)), c, d in zip(self._far().items(), self.chi2.values(),
                                               self.dof.values(), strict=True):
+            out = (f"  ({_count(left[term])} beyond the {term.robust} kernel's inlier cutoff "
+                   f"left out)" if term in left else "")
             lines.append(f"  {type(term).__name__:<14} chi2 {_number(c)}  dof "
-                         f"{_number(d)}  chi2/dof {ratio:.3g}{note[far]}")
+                         f"{_number(d)}  chi2/dof {ratio:.3g}{note[far]}{out}")
         return "\n".join(lines)
 
     def _check_chi2(self) -> None:
         """Warn where a term's chi2/dof is far above or far below 1 (:meth:`_far`)."""
-        far = [(type(t).__name__, f"{r:.3g}", t.order, how)
+        left = self._left_out()
+        far = [(type(t).__name__, f"{r:.3g}" + (f" ({_count(left[t])} outliers left out)"
+                                                if t in left else ""), t.order, how)
                for t, (r, how) in self._far().items() if how]
         above = [(n, r, o) for n, r, o, how in far if how == "above"]
         below = [(n, r) for n, r, _, how in far if how == "below"]
