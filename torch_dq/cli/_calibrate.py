@@ -408,14 +408,8 @@ def _run_cameras(args, say) -> int:
     from .. import dualquat
     from ..calibration import cameras, read_target
 
-    given = [flag for flag, on in (
-        ("--rolling-shutter", args.rolling_shutter),
-        ("--shared-time-offset", args.shared_time_offset), ("--gravity", args.gravity != 9.81),
-        ("--max-time-offset", args.max_time_offset != 0.1),
-        ("--duplicates", args.duplicates != "error"),
-        ("--knot-spacing", args.knot_spacing != "auto"),
-        ("--bias", args.bias != "random-walk"), ("--bias-interval", args.bias_interval != "1.0"),
-    ) if on]
+    given = [flag for flag, dest, default in args.imu_options
+             if getattr(args, dest) != default]
     if given:
         raise UserError(f"{', '.join(given)} need{'s' * (len(given) == 1)} --imu and "
                         f"--imu-noise (camera-IMU options; the cameras alone have no use "

@@ -235,8 +235,6 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--images", action="append", default=[], metavar="DIR",
                    help="a folder of one camera's images named by nanosecond timestamps")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--rolling-shutter", action="store_true",
-                   help="estimate each camera's line delay")
     p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
     _calibrate_imu_options(p)
@@ -249,30 +247,37 @@ def _add_calibrate(sub) -> None:
 
 
 def _calibrate_imu_options(p) -> None:
-    """The calibrate command's options of the camera-IMU calibration alone."""
-    p.add_argument("--gravity", type=_positive_float, default=9.81, metavar="M/S2",
-                   help="the local gravity's magnitude, fixed (its direction is estimated); "
-                        "the accelerometer bias along gravity takes up its error: give the "
-                        "place's value (9.780 at the equator to 9.832 at the poles)")
-    p.add_argument("--shared-time-offset", action="store_true",
-                   help="one clock offset for all cameras (hardware-synchronised)")
-    p.add_argument("--max-time-offset", type=_positive_float, default=0.1, metavar="SECONDS",
-                   help="bound on the cameras' clock offsets from the IMU (searched within "
-                        "+-SECONDS; the frames within it of the IMU log's ends are left out)")
-    p.add_argument("--duplicates", type=str.lower, choices=("error", "first"),
-                   default="error",
-                   help="repeated IMU timestamps: an error, or keep the first sample")
-    p.add_argument("--knot-spacing", type=_spacing, default="auto", metavar="SECONDS|auto",
-                   help="the body trajectory's knot spacing; auto: the largest spacing up to "
-                        "0.05 s (down to 0.01 s) whose spline follows the motion in the IMU "
-                        "readings' spectrum to within their noise (a fast dance gets finer "
-                        "knots; Kalibr: 70 knots per second, 0.014 s)")
-    p.add_argument("--bias", default="random-walk", metavar="{random-walk,constant}",
-                   help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
-                        "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
-                        "accelerometer_random_walk, which it then requires; a Kalibr user's "
-                        "imu.yaml states them, and a bias that drifts over a long recording is "
-                        "then tracked, not folded into the extrinsics) or constant (one bias "
-                        "per sensor: right for short recordings of a stable IMU)")
-    p.add_argument("--bias-interval", default="1.0", metavar="SECONDS",
-                   help="length of the random-walk biases' segments (seconds, > 0)")
+    """The calibrate command's options of the camera-IMU calibration alone; their flags,
+    destinations and defaults as ``args.imu_options`` (given without ``--imu``: an error)."""
+    add = p.add_argument
+    actions = [
+        add("--rolling-shutter", action="store_true",
+            help="estimate each camera's line delay"),
+        add("--gravity", type=_positive_float, default=9.81, metavar="M/S2",
+            help="the local gravity's magnitude, fixed (its direction is estimated); the "
+                 "accelerometer bias along gravity takes up its error: give the place's "
+                 "value (9.780 at the equator to 9.832 at the poles)"),
+        add("--shared-time-offset", action="store_true",
+            help="one clock offset for all cameras (hardware-synchronised)"),
+        add("--max-time-offset", type=_positive_float, default=0.1, metavar="SECONDS",
+            help="bound on the cameras' clock offsets from the IMU (searched within "
+                 "+-SECONDS; the frames within it of the IMU log's ends are left out)"),
+        add("--duplicates", type=str.lower, choices=("error", "first"), default="error",
+            help="repeated IMU timestamps: an error, or keep the first sample"),
+        add("--knot-spacing", type=_spacing, default="auto", metavar="SECONDS|auto",
+            help="the body trajectory's knot spacing; auto: the largest spacing up to 0.05 "
+                 "s (down to 0.01 s) whose spline follows the motion in the IMU readings' "
+                 "spectrum to within their noise (a fast dance gets finer knots; Kalibr: 70 "
+                 "knots per second, 0.014 s)"),
+        add("--bias", default="random-walk", metavar="{random-walk,constant}",
+            help="IMU bias model: random-walk (as Kalibr: piecewise constant over "
+                 "--bias-interval segments tied by imu.yaml's gyroscope_random_walk and "
+                 "accelerometer_random_walk, which it then requires; a Kalibr user's "
+                 "imu.yaml states them, and a bias that drifts over a long recording is then "
+                 "tracked, not folded into the extrinsics) or constant (one bias per sensor: "
+                 "right for short recordings of a stable IMU)"),
+        add("--bias-interval", default="1.0", metavar="SECONDS",
+            help="length of the random-walk biases' segments (seconds, > 0)"),
+    ]
+    p.set_defaults(imu_options=tuple((a.option_strings[0], a.dest, a.default)
+                                     for a in actions))
