@@ -21,7 +21,17 @@ from .._kinematics import body_field
 from ._charts import Direction, Vector
 from ._imu_jacobians import accel_rows, gyro_rows
 from ._nuisance import Slot
-from ._terms import Options, Poses, Term, _first_bad, _masked, _nuisance, _sigma, _vector_data
+from ._terms import (
+    Options,
+    Poses,
+    Term,
+    _first_bad,
+    _masked,
+    _nuisance,
+    _sigma,
+    _valid_at,
+    _vector_data,
+)
 
 __all__ = ["Accel", "Gyro", "check_repeated", "degrees_message"]
 
@@ -31,7 +41,7 @@ def check_repeated(fn: str, times: Tensor, mask: Tensor) -> None:
     filled by the term: masked ones carry the largest valid time before them): an inertial
     sensor samples each instant once, and a logger's repeated stamp would count a reading
     twice or put two at one instant, silently."""
-    m = (mask if times.dim() == mask.dim() else mask.flatten(0, -2).any(0)).expand(times.shape)
+    m = _valid_at(mask, times)
     before = (m.cumsum(-1) - m.long()) > 0  # a valid sample earlier in the row
     bad = m[..., 1:] & before[..., 1:] & (times[..., 1:] == times[..., :-1])
     _first_bad(fn, "times must be strictly increasing (an IMU samples each instant once)",

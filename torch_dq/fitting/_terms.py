@@ -88,6 +88,13 @@ def _first_bad(fn: str, message: str, bad: Tensor, hint: str = "") -> None:
         _checks.fail(fn, f"{message}: {where} is not{hint}")
 
 
+def _valid_at(mask: Tensor, t: Tensor) -> Tensor:
+    """The samples' ``mask`` at their times ``t (..., N)``, expanded to ``t``'s shape: the
+    mask itself where it has ``t``'s dims, else (times shared by a batch of data) whether
+    any element of the batch holds the sample."""
+    return (mask if t.dim() == mask.dim() else mask.flatten(0, -2).any(0)).expand(t.shape)
+
+
 def _check_resolution(fn: str, name: str, t: Tensor, valid: Tensor) -> None:
     """Fail when the times' dtype cannot resolve them (:func:`torch_dq._time.unresolved` at
     the largest time and the span: float32 UNIX timestamps round to steps of 128 s)."""
@@ -282,13 +289,12 @@ class Term(torch.nn.Module):
         (the first valid one before any), so that sorted times stay sorted. Checks finite
         valid times, non-decreasing for a term with one time argument (pairs of times,
         listed by keyframe or loop closure, may come in any order)."""
-        m = mask if t.dim() == mask.dim() else mask.flatten(0, -2).any(0)
-        mm = m.expand(t.shape)
+        mm = _valid_at(mask, t)
         _first_bad(fn, f"{name} must be finite", mm & ~torch.isfinite(t))
         _check_resolution(fn, name, t, mm)
         _check_time_unit(fn, name, t, mm, self.order >= 1)
-        first = torch.where(m, t, torch.inf).min(-1, keepdim=True).values
-        filled = torch.where(m, t, -torch.inf).cummax(-1).values
+        first = torch.where(mm, t, torch.inf).min(-1, keepdim=True).values
+        filled = torch.where(mm, t, -torch.inf).cummax(-1).values
         filled = torch.where(mm, t, torch.where(torch.isinf(filled), first, filled))
         if len(self._names) == 1:
             bad = torch.cat((torch.zeros_like(mm[..., :1]),
@@ -640,10 +646,9 @@ class RelativePoses(_PoseTerm):
                           trans_sigma, Options(time_offset, max_time_offset, robust, robust_k,
                                                mask))
         a, b = self.times_list()
-        valid = (self.mask if a.dim() == self.mask.dim() else self.mask.flatten(0, -2).any(0)
-                 ).expand(a.shape)
         _first_bad(self._fn, "times_from and times_to must differ (a pair at one instant "
-                             "predicts the identity whatever the trajectory)", valid & (a == b),
+                             "predicts the identity whatever the trajectory)",
+                   _valid_at(self.mask, a) & (a == b),
                    " (mask it, or check the time columns)")
 
     def _residual(self, ev, p):
