@@ -59,8 +59,9 @@ class _Normal:
         w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
         nuis = slice(6 * w, 6 * w + M)
         at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
+        coupled = False
         if U and int(windows[-1] - windows[0]) == U - 1:
-            self._add_consecutive(int(windows[0]), block, gcols)
+            coupled = self._add_consecutive(int(windows[0]), block, gcols)
         else:
             src = torch.stack([block[:, 6 * a:6 * a + 6, 6 * (a + d):6 * (a + d) + 6]
                                for a, d in self.pairs], 1)  # (U, P, 6, 6)
@@ -68,22 +69,21 @@ class _Normal:
             self.band.view(-1, 6, 6).index_add_(0, band_at.reshape(-1),
                                                 src.reshape(-1, 6, 6))
             self.gc.index_add_(0, at.reshape(-1), block[:, :6 * w, -1].reshape(U * w, 6))
-            if M:
-                cols = ((at[:, :, None, None] * 6 + self.rows[:, None]) * m
-                        + gcols[:, None, None, :])
-                self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
         if not M:
             return
+        if not coupled:
+            cols = (at[:, :, None, None] * 6 + self.rows[:, None]) * m + gcols[:, None, None, :]
+            self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, nuis].reshape(-1))
         row = torch.div(windows, self.n + w, rounding_mode="floor")[:, None] * m + gcols
         self.nn.index_add_(0, (row[:, :, None] * m + gcols[:, None, :]).reshape(-1),
                            block[:, nuis, nuis].reshape(-1))
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
 
-    def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> None:
+    def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> bool:
         """``add`` of the consecutive windows ``f, f + 1, ...``: each of a row's blocks
         added to a slice of the band, ``g_c`` (and the coupling, where every window takes
-        the same consecutive nuisance columns), row ``a`` from the last to the first, so
-        that every destination sums its windows in ``add``'s ``index_add_`` order
+        the same consecutive nuisance columns: then True), row ``a`` from the last to the
+        first, so that every destination sums its windows in ``add``'s ``index_add_`` order
         (increasing window): the same bits, without the scatter."""
         w, U, M = self.w, block.shape[0], gcols.shape[-1]
         cn = None
@@ -98,11 +98,7 @@ class _Normal:
             self.gc[f + a:f + a + U] += rows[:, :, -1]
             if cn is not None:
                 cn[f + a:f + a + U] += rows[:, :, 6 * w:6 * w + M]
-        if M and cn is None:
-            at = f + torch.arange(U, device=gcols.device)[:, None] + self.offsets
-            cols = ((at[:, :, None, None] * 6 + self.rows[:, None]) * self.m
-                    + gcols[:, None, None, :])
-            self.cn.index_add_(0, cols.reshape(-1), block[:, :6 * w, 6 * w:6 * w + M].reshape(-1))
+        return cn is not None
 
     def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
         Bf, n, w, m = self.Bf, self.n, self.w, self.m
