@@ -63,9 +63,6 @@ from torch import Tensor
 from . import _camera_models as _models
 from . import _camera_values as _values
 from . import _checks
-from ._camera_values import normalised_hint as _normalised_hint  # noqa: F401  # fitting's
-from ._camera_values import outside as _outside  # noqa: F401  # fitting's, calibration's
-from ._camera_values import yaml_number as _yaml_number  # noqa: F401  # calibration's
 from ._numerics import compute_dtype, nan_unless
 from ._undistort import unproject_equidistant, unproject_radtan
 

@@ -46,7 +46,8 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat, quat
-from ..camera import Camera, _normalised_hint
+from .._camera_values import normalised_hint
+from ..camera import Camera
 from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _knot_spacing, _start
@@ -112,7 +113,7 @@ def _units(i: int, cam: Camera, times: Tensor, points: Tensor, pixels: Tensor) -
     _seconds(f"observations[{i}] times", times.unique(), 10.0)
     _inside(i, pixels, cam.resolution, _FN, "cameras[{i}].resolution", _SLACK)
     _planar(i, points, _FN)
-    hint = _normalised_hint(pixels, cam.params)
+    hint = normalised_hint(pixels, cam.params)
     if hint is not None:
         _checks.fail(_FN, f"observations[{i}]: {hint}")
     span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0

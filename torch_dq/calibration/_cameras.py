@@ -39,7 +39,8 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from ..camera import MODELS, Camera, _outside, project
+from .._camera_values import outside
+from ..camera import MODELS, Camera, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, rho, weight
 from . import _start
@@ -220,7 +221,7 @@ def _inside(i: int, pixels: Tensor, res: tuple[int, int], fn: str = _FN,
     top-left pixel, so ``u`` in ``[-0.5, width - 0.5]`` and ``v`` in ``[-0.5, height - 0.5]``,
     widened by ``slack`` times the image's size (``fn`` and ``where``, the resolution's
     argument with ``{i}``, name the caller's)."""
-    out = _outside(pixels, res, slack)
+    out = outside(pixels, res, slack)
     if out is not None:
         _checks.fail(fn, f"observations[{i}] pixels reach {out[0]} = {out[1]:.6g}, outside "
                          f"{where.format(i=i)} = {res} (expected {out[2]}; is the resolution "

@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks
-from ..camera import _yaml_number
+from .._camera_values import yaml_number
 
 __all__ = ["Target", "aprilgrid", "checkerboard", "read_target"]
 
@@ -274,7 +274,7 @@ def read_target(path: str | os.PathLike[str]) -> Target:
         _checks.fail(fn, where + f"a {kind} target needs {', '.join(keys)}; missing "
                                  f"{', '.join(missing)}")
     try:
-        return Target(kind, *(_yaml_number(doc[k]) for k in keys))
+        return Target(kind, *(yaml_number(doc[k]) for k in keys))
     except ValueError as exc:
         names = dict(zip(("rows", "cols", "size", "spacing"), keys, strict=True))
         message = str(exc).removeprefix("calibration.Target: ")

@@ -37,7 +37,8 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from ..camera import _in_domain, _normalised_hint, _outside
+from .._camera_values import normalised_hint, outside
+from ..camera import _in_domain
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
 from ._terms import Options, Term, _masked, _nuisance, _sigma
@@ -165,11 +166,11 @@ class Reprojections(Term):
             _checks.fail(fn, f"max_line_delay must be a positive finite float, got "
                              f"{max_line_delay!r}")
         self.max_line_delay = float(max_line_delay)
-        hint = _normalised_hint(pixels[self.mask], params)
+        hint = normalised_hint(pixels[self.mask], params)
         if hint is not None:
             warnings.warn(f"{fn}: {hint}", UserWarning, stacklevel=2)
         else:
-            out = _outside(pixels[self.mask], camera.resolution, _SLACK)
+            out = outside(pixels[self.mask], camera.resolution, _SLACK)
             if out is not None:
                 _checks.fail(fn, f"pixels reach {out[0]} = {out[1]:.6g}, outside "
                                  f"camera.resolution = {camera.resolution} by over "
