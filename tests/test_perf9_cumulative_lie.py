@@ -130,7 +130,7 @@ def test_lie_derivatives_against_mpmath():
         tables = [x.detach() for x in spline.span_derivatives(ctrl.clone().requires_grad_(),
                                                                local, first, 2)]
     aligned = align_chain(ctrl)
-    w = spline.time_model.bases(spline._span_bounds(first)[0] + local, first + 3, 2,
+    w = spline.time_model.bases(spline.time_model.span_bounds(first + 3)[0] + local, first + 3, 2,
                                 cumulative=True)
     ref = torch.tensor([_reference(aligned[f:f + 4], w[0][i], w[1][i], w[2][i])
                         for i, f in enumerate(first.tolist())], dtype=F64).transpose(0, 1)

@@ -646,17 +646,6 @@ class Curve(torch.nn.Module, abc.ABC):
         dom = self.time_model
         return dom.local_times(t, first + dom.degree, since_origin)
 
-    def _span_bounds(self, first: Tensor) -> tuple[Tensor, Tensor]:
-        """The knots ``u_{first + p}``, ``u_{first + p + 1}`` relative to the origin, float64
-        (with a row of knots per trajectory, broadcast against its batch)."""
-        dom = self.time_model
-        p, k = dom.degree, dom.knots.detach().to(torch.float64)
-        if k.dim() > 1:  # a row of knots per trajectory
-            lead = _checks.broadcast_shapes(k.shape[:-1], first.shape[:-1])
-            k, first = k.expand(*lead, k.shape[-1]), first.expand(*lead, first.shape[-1])
-            return k.gather(-1, first + p), k.gather(-1, first + p + 1)
-        return k[first + p], k[first + p + 1]
-
     def acceleration_jumps(self) -> str | None:
         """None where the accelerations are continuous in time (the curve is C2); else what
         the curve is and what to do instead, for the estimation's warning when an

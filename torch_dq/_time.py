@@ -437,14 +437,19 @@ class KnotDomain:
         at its ends; differentiable with respect to ``t``): a one-span curve's time (the
         per-sample evaluation of ``torch_dq.fitting._local``). ``since_origin``: ``t`` are
         times since the origin (:meth:`relative`)."""
+        left, right = self.span_bounds(r)
         rel = self.relative(t, torch.float64, since_origin)
+        return torch.minimum((rel - left).clamp_min(0.0), right - left)
+
+    def span_bounds(self, r: Tensor) -> tuple[Tensor, Tensor]:
+        """The knots ``u_r`` and ``u_{r+1}`` of spans ``r (..., T)`` relative to the origin,
+        float64 (batched knots broadcast against ``r``'s leading dims)."""
         k = self.knots.detach().to(torch.float64)
-        shape = _checks.broadcast_shapes(rel.shape, r.shape, (*k.shape[:-1], 1))
-        k = k.expand(*shape[:-1], k.shape[-1])
-        r = r.expand(shape)
-        left = torch.take_along_dim(k, r, -1)
-        width = torch.take_along_dim(k, r + 1, -1) - left
-        return torch.minimum((rel - left).clamp_min(0.0), width)
+        if k.dim() == 1:
+            return k[r], k[r + 1]
+        lead = _checks.broadcast_shapes(k.shape[:-1], r.shape[:-1])  # a row per trajectory
+        k, r = k.expand(*lead, k.shape[-1]), r.expand(*lead, r.shape[-1])
+        return k.gather(-1, r), k.gather(-1, r + 1)
 
     def de_boor_levels(self, rel: Tensor, r: Tensor, dtype: torch.dtype,
                        ) -> list[tuple[Tensor, Tensor]]:

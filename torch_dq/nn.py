@@ -472,8 +472,8 @@ class BSpline(Curve):
                          ) -> tuple[Tensor, ...]:
         # the form's own evaluation at the given spans: the cumulative form's span tables
         # are built once per span, not once per sample
-        lo, _ = self._span_bounds(first)
-        rel, r = lo + local, first + self.degree
+        r = first + self.degree
+        rel = self.time_model.span_bounds(r)[0] + local
         batch = _checks.broadcast_shapes(ctrl.shape[:-2], rel.shape[:-1],
                                          self._knots.shape[:-1])
         if self.form == "cumulative" and ctrl.dtype == torch.float64:
@@ -503,8 +503,8 @@ class BSpline(Curve):
         lead = _checks.broadcast_shapes(points.shape[:-2], cotangents.shape[:-3],
                                         pose.shape[:-1])
         first = first.expand(lead[len(lead) - first.dim():])
-        lo, _ = self._span_bounds(first)
-        rel, r = (lo + local).expand(lead), (first + p).expand(lead)
+        r = first + p
+        rel, r = (self.time_model.span_bounds(r)[0] + local).expand(lead), r.expand(lead)
         weights = self.time_model.bases(rel, r, O - 1, cumulative=True)
         N, n = (lead[-1] if lead else 1), self.n_ctrl - p  # spans
         key = first.expand(lead).reshape(-1) + n * torch.arange(
