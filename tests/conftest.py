@@ -39,6 +39,10 @@ def dtype(request):
 
 @pytest.fixture(params=DEVICES)
 def device(request):
+    """The CPU, or the current GPU with its index (a tensor's device is ``cuda:0``, and
+    ``torch.device("cuda")`` does not compare equal to it)."""
+    if request.param == "cuda":
+        return torch.device("cuda", torch.cuda.current_device())
     return torch.device(request.param)
 
 

@@ -202,8 +202,11 @@ class Op:
 
 
 def times(like) -> Tensor:
-    """``TIMES`` in the dtype of ``like`` (the curve rows' evaluation times)."""
-    return torch.tensor(TIMES, dtype=like.dtype if isinstance(like, Tensor) else F64)
+    """``TIMES`` in the dtype and on the device of ``like`` (the curve rows' evaluation
+    times)."""
+    if isinstance(like, Tensor):
+        return torch.tensor(TIMES, dtype=like.dtype, device=like.device)
+    return torch.tensor(TIMES, dtype=F64)
 
 
 def outs(r) -> list[Tensor]:

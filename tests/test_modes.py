@@ -65,7 +65,8 @@ def _grads(f, args):
     diff = [o for o in got if o.requires_grad]
     grads = [None] * len(xs)
     if diff:  # is_unit: no differentiable output
-        loss = sum((torch.linspace(-1, 1, o.numel(), dtype=o.dtype).view(o.shape) * o).sum()
+        loss = sum((torch.linspace(-1, 1, o.numel(), dtype=o.dtype, device=o.device)
+                    .view(o.shape) * o).sum()
                    for o in diff)
         grads = torch.autograd.grad(loss, xs, allow_unused=True)
     grads = [torch.zeros_like(x) if g is None else g for g, x in zip(grads, xs, strict=True)]
