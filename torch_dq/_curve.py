@@ -315,7 +315,8 @@ class Curve(torch.nn.Module, abc.ABC):
     def _fitted(self, fn: str, x: Tensor, t64: Tensor) -> Tensor:
         """``(..., n, 8)`` float64 control points of the local least-squares start
         (:func:`torch_dq._start.least_squares_start`) on poses ``x`` at float64 times ``t64``,
-        on this curve's knots (the layer left as it is)."""
+        on this curve's knots (the layer left as it is); computed on the CPU, returned on
+        ``x``'s device."""
         n, N = self.n_ctrl, x.shape[-2]
         if n > N:
             low = self._min_samples
@@ -331,11 +332,12 @@ class Curve(torch.nn.Module, abc.ABC):
         dom = self.time_model
         origin = dom.origin.cpu() if isinstance(dom.origin, Tensor) else dom.origin
         dom = KnotDomain(dom.knots.detach().cpu(), dom.degree, origin)
-        rel, split = dom.relative(t64, torch.float64), self._split_charts
+        rel, split = dom.relative(t64.detach().cpu(), torch.float64), self._split_charts
         if dom.knots.dim() > 1:
-            return _start_rows(fn, x64, rel, dom, n, split)
+            return _start_rows(fn, x64, rel, dom, n, split).to(x.device)
         first, values = dom.basis(rel)
-        return _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(), split)
+        return _start.least_squares_start(fn, x64, rel, first, values, n, dom.greville(),
+                                          split).to(x.device)
 
     @classmethod
     def from_matrices(cls, T: Tensor, times: Tensor, **kwargs: Any) -> Self:

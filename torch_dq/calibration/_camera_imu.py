@@ -558,7 +558,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                                  bias_walk, bias_interval, gravity_magnitude)]
     est = estimate(spline, terms, steps=steps, prior=prior, verbose=verbose)
     clock.append(time.perf_counter())
-    res = result(cams, terms, spline, est, rolling_shutter, notes)
+    res = result(cams, terms, spline, est, rolling_shutter, notes).to(imu[0].device)
     res.knot_spacing = knot_spacing
     clock.append(time.perf_counter())
     res.timings = dict(zip(("start", "trajectory", "estimate", "uncertainties"),

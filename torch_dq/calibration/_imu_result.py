@@ -50,6 +50,10 @@ class CameraImuCalibration:
             ``bias_walk``; None for constant biases.
         knot_spacing: the trajectory's knot spacing (seconds): the one given, or the one
             chosen from the IMU readings (``knot_spacing=None``).
+
+    The calibration computes in float64 on the CPU (a problem of a few thousand control
+    points and host-side starts); the tensors above and :attr:`trajectory` are on the IMU
+    times' device, :attr:`estimate` and :attr:`terms` stay on the CPU.
     """
 
     cameras: list
@@ -68,6 +72,18 @@ class CameraImuCalibration:
     timings: dict = field(default_factory=dict, repr=False)
     bias_edges: Tensor | None = field(default=None, repr=False)
     knot_spacing: float = field(default=0.0, repr=False)
+
+    def to(self, device) -> CameraImuCalibration:
+        """The result with its tensors and :attr:`trajectory` on ``device`` (itself, moved:
+        :func:`camera_imu` returns it on the IMU times' device)."""
+        for name in ("extrinsics", "time_offsets", "line_delays", "gyro_bias", "accel_bias",
+                     "gravity", "reprojection_rms", "bias_edges"):
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, value.to(device))
+        self.std = {k: v.to(device) for k, v in self.std.items()}
+        self.trajectory = self.trajectory.to(device)
+        return self
 
     def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
         """Kalibr's ``camchain-imucam.yaml`` as a dict of plain lists and floats: per camera

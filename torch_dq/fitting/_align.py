@@ -108,7 +108,7 @@ def _integrate(t: Tensor, rates: Tensor) -> Tensor:
     :math:`\exp(\tfrac12 (\omega_k + \omega_{k+1}) (t_{k+1} - t_k))`, multiplied on the right,
     by a parallel prefix product (Hillis and Steele: ``log2 N`` passes)."""
     steps = quat.from_rotvec(0.5 * (rates[1:] + rates[:-1]) * (t[1:] - t[:-1])[:, None])
-    q = torch.cat((quat.identity(dtype=rates.dtype).expand(1, 4), steps))
+    q = torch.cat((quat.identity(dtype=rates.dtype, device=rates.device).expand(1, 4), steps))
     d = 1
     while d < q.shape[0]:
         q = torch.cat((q[:d], qmul(q[:-d], q[d:])))
@@ -147,7 +147,8 @@ def _translation_curve(trajectory, pos: Positions):
     half as many control points as positions (smoothing) and at most the trajectory's."""
     m = pos.mask
     p = pos.positions[m].to(torch.float64)
-    x = dualquat.from_rt(quat.identity(dtype=torch.float64).expand(p.shape[0], 4), p)
+    q = quat.identity(dtype=torch.float64, device=p.device)
+    x = dualquat.from_rt(q.expand(p.shape[0], 4), p)
     cls = cast("type[Curve]", type_before_parametrizations(trajectory))
     return cls.from_dualquats(x, pos.times[m].to(torch.float64),
                               n_ctrl=min(trajectory.n_ctrl, p.shape[0] // 2))

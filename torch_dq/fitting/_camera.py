@@ -179,7 +179,7 @@ class Reprojections(Term):
         self._buffer("points", _masked(points, self.mask, 1.0), 1)
         self._buffer("pixels", _masked(pixels, self.mask, 0.0), 1)
         self._buffer("rows", self.pixels[..., 1].to(torch.float64), 0)
-        self._buffer("camera_params", params)
+        self._buffer("camera_params", params.to(pixels.device))
         if intrinsics is None or intrinsics is False:
             intrinsics = params
         self._slots["extrinsic"] = Slot(fn, "extrinsic", Pose(), extrinsic)
@@ -226,9 +226,9 @@ class Reprojections(Term):
         step out of the domain would empty the term and be taken for a better fit)."""
         pix, valid = self._project(ev[0][0], p)
         r = pix - self.pixels.to(pix.dtype)
-        r = torch.where(valid[..., None], r, torch.zeros((), dtype=r.dtype))
+        r = torch.where(valid[..., None], r, 0.0)
         seen = _in_domain(self.model, list(p["intrinsics"].unbind(-1)))[..., None]
-        return torch.where(seen, r, torch.full((), float(sum(self.resolution)), dtype=r.dtype))
+        return torch.where(seen, r, float(sum(self.resolution)))
 
     def seen(self, derivs, p):
         return self._project(derivs[0][0], p)[1] & self.mask
@@ -241,7 +241,8 @@ class Reprojections(Term):
         with torch.no_grad():
             p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()})
             t = self.times + self.time_shift(p).to(self.times.dtype) + shift
-            lo, hi = (torch.as_tensor(e, dtype=t.dtype) for e in trajectory.domain)
+            lo, hi = (torch.as_tensor(e, dtype=t.dtype, device=t.device)
+                      for e in trajectory.domain)
             x = trajectory(torch.minimum(torch.maximum(t, lo[..., None]), hi[..., None]))
             return self._project(x, p)
 

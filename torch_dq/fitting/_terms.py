@@ -251,7 +251,7 @@ class Term(torch.nn.Module):
         _first_bad(fn, "the measurements must be finite", mask & ~finite,
                    " (mask the samples that are not)")
         self._buffer("mask", mask.clone(), 0)
-        self._buffer("sigma", sigma)
+        self._buffer("sigma", sigma.to(data.device))
         self._names = list(names)
         for name, t in zip(names, times, strict=True):
             self._buffer(name, self._fill_times(fn, name, t.detach(), mask), 0)
@@ -427,7 +427,7 @@ class Term(torch.nn.Module):
         samples' times (one tuple per time argument) and per-sample nuisance values."""
         r = self._residual(derivs, p)
         r = r / self.sigma.to(r.dtype)
-        return torch.where(self.mask[..., None], r, torch.zeros((), dtype=r.dtype))
+        return torch.where(self.mask[..., None], r, 0.0)
 
     def per_sample(self, values: dict[str, Tensor]) -> dict[str, Tensor]:
         """Values by name with a sample dim inserted before their charts' event dims."""
