@@ -26,6 +26,9 @@ Bias errors are reported in standard deviations of the estimate (``|estimate - t
 std`` per axis, the largest of the three). ``--cpu`` reports process CPU seconds
 (steadier on a shared machine). ``--scaling`` times one warm run per duration (10, 60, 300,
 1200 s; ``--long`` adds 3600 s) and fits the time per LM step against the samples.
+``--device cuda`` runs torch_dq's side on the GPU (the job's tensors and the spline moved
+there; times after ``torch.cuda.synchronize``, peak memory the GPU allocator's peak;
+GTSAM stays on the CPU).
 ``--real`` replaces the synthetic motion by a real one (:func:`make_real_job`: a hand-held
 camera's motion capture, the repository's TUM freiburg1_xyz subsample by default); ``--knot``
 sets torch_dq's knot spacing (at most one control point per pose).
@@ -58,6 +61,7 @@ import numpy as np
 
 G = 9.81
 CLOCK = 0  # 0: wall-clock times, 1: process CPU times (--cpu)
+DEVICE = "cpu"  # torch_dq's device (--device)
 POSE_HZ, IMU_HZ, KNOT = 20, 200, 0.05
 SIGMA_ROT, SIGMA_POS, SIGMA_GYRO, SIGMA_ACC = 1e-3, 1e-3, 2e-3, 2e-2
 B_GYRO = np.array([0.01, -0.02, 0.015])
@@ -183,7 +187,10 @@ def _expm(w: np.ndarray) -> np.ndarray:
 
 def _now() -> np.ndarray:
     """Wall-clock and process CPU seconds (the CPU time is the steadier figure on a loaded
-    machine; with 2 threads it counts both)."""
+    machine; with 2 threads it counts both), after the GPU's queued work (``--device``)."""
+    if DEVICE != "cpu":
+        import torch
+        torch.cuda.synchronize()
     return np.array([time.perf_counter(), time.process_time()])
 
 
@@ -202,23 +209,23 @@ def torch_dq_run(job: dict):
     from torch_dq.nn import BSpline
     f64 = torch.float64
     t0 = _now()
-    tc, ti = (torch.from_numpy(job[k]) for k in ("tc", "ti"))
-    q = quat.from_matrix(torch.from_numpy(job["R"]))
-    poses = dq.from_rt(q, torch.from_numpy(job["p"]))
+    tc, ti, R, p, w, a = (torch.from_numpy(job[k]).to(DEVICE)
+                          for k in ("tc", "ti", "R", "p", "gyro", "acc"))
+    poses = dq.from_rt(quat.from_matrix(R), p)
     duration = float(tc[-1] - tc[0])
     n_ctrl = min(math.ceil(duration / KNOT - 1e-9) + 3, len(tc))  # the start needs <= N
     spline = BSpline.from_dualquats(poses, tc, n_ctrl=n_ctrl, form="cumulative")
     cam = fitting.Poses(tc, poses, rot_sigma=SIGMA_ROT, trans_sigma=SIGMA_POS)
-    gyro = fitting.Gyro(ti, torch.from_numpy(job["gyro"]), sigma=SIGMA_GYRO, bias=True)
-    acc = fitting.Accel(ti, torch.from_numpy(job["acc"]), sigma=SIGMA_ACC, bias=True,
-                        gravity=torch.tensor([0.0, 0.0, -G], dtype=f64))
+    gyro = fitting.Gyro(ti, w, sigma=SIGMA_GYRO, bias=True)
+    acc = fitting.Accel(ti, a, sigma=SIGMA_ACC, bias=True,
+                        gravity=torch.tensor([0.0, 0.0, -G], dtype=f64, device=DEVICE))
     t1 = _now()
     est = fitting.estimate(spline, [cam, gyro, acc], verbose=False)
     t2 = _now()
     sg, sa = est.std(gyro, "bias"), est.std(acc, "bias")
     t3 = _now()
-    res = dict(gyro_sigmas=_sigmas(gyro.bias.numpy(), sg.numpy(), B_GYRO),
-               acc_sigmas=_sigmas(acc.bias.numpy(), sa.numpy(), B_ACC),
+    sg, sa, bg, ba = (x.cpu().numpy() for x in (sg, sa, gyro.bias, acc.bias))
+    res = dict(gyro_sigmas=_sigmas(bg, sg, B_GYRO), acc_sigmas=_sigmas(ba, sa, B_ACC),
                gyro_std=float(sg.max()), acc_std=float(sa.max()), reason=est.reason)
     return t1 - t0, t2 - t1, t3 - t2, est.steps, res
 
@@ -286,12 +293,18 @@ def child(side: str, duration: float, repeats: int, threads: int) -> dict:
     run = gtsam_run if side == "gtsam" else torch_dq_run
     run(make_job(10.0))  # warm-up on a 10 s job (imports, first calls)
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    gpu = side != "gtsam" and DEVICE != "cpu"
+    if gpu:
+        torch.cuda.reset_peak_memory_stats()
     runs = [run(job) for _ in range(repeats)]
     best = min(runs, key=lambda r: r[1][CLOCK] + r[2][CLOCK])
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    if gpu:  # the GPU allocator's peak, and its share above what the first run started from
+        base, peak = 0, torch.cuda.max_memory_allocated() / 1024
     span = float(job["tc"][-1] - job["tc"][0])
-    return dict(side=side, duration=span, threads=threads, setup=best[0][CLOCK],
-                solve=best[1][CLOCK], unc=best[2][CLOCK], steps=best[3], peak_mb=peak / 1024,
+    return dict(side=side + ("@" + DEVICE if gpu else ""), duration=span, threads=threads,
+                setup=best[0][CLOCK], solve=best[1][CLOCK], unc=best[2][CLOCK],
+                steps=best[3], peak_mb=peak / 1024,
                 grew_mb=(peak - base) / 1024, imu=len(job["ti"]), poses=len(job["tc"]),
                 wall=[float(r[1][0] + r[2][0]) for r in runs],
                 cpu=[float(r[1][1] + r[2][1]) for r in runs], **best[4])
@@ -302,6 +315,7 @@ def spawn(side: str, duration: float, repeats: int, threads: int) -> dict | None
     cmd = [sys.executable, __file__, "--child", side, "--duration", str(duration),
            "--repeats", str(repeats), "--threads", str(threads), "--knot", str(KNOT)]
     cmd += (["--cpu"] if CLOCK else []) + (["--real", REAL] if REAL else [])
+    cmd += ["--device", DEVICE]
     out = subprocess.run(cmd, env=env, capture_output=True, text=True)
     if out.returncode:
         print(f"  {side} failed:\n{out.stderr[-2000:]}", file=sys.stderr)
@@ -333,7 +347,7 @@ def side_by_side(duration: float, repeats: int, threads: list[int], sides: list[
         for name in ("torch_dq", "torch_dq+reuse"):
             a = rows.get(name)
             if a and b:
-                print(f"  {th} thread(s): {name} estimate + std / GTSAM solve + marginals = "
+                print(f"  {th} thread(s): {a['side']} estimate + std / GTSAM solve + marginals = "
                       f"{(a['solve'] + a['unc']) / (b['solve'] + b['unc']):.2f}x")
 
 
@@ -446,7 +460,7 @@ def profile(duration: float, threads: int) -> None:
 
 
 def main() -> None:
-    global CLOCK, REAL, KNOT
+    global CLOCK, REAL, KNOT, DEVICE
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=3)
@@ -461,13 +475,15 @@ def main() -> None:
     ap.add_argument("--real", nargs="?", const=REAL_FILE, metavar="TUM_FILE",
                     help="the real-motion job (make_real_job) on a TUM trajectory file "
                          "(default: the repository's tests/data/tum_fr1_xyz_sub.txt)")
+    ap.add_argument("--device", default="cpu",
+                    help="torch_dq's device: cpu (default) or cuda (GTSAM stays on the CPU)")
     ap.add_argument("--cpu", action="store_true",
                     help="report process CPU seconds instead of wall-clock (loaded machines)")
     ap.add_argument("--child", choices=["torch_dq", "torch_dq+reuse", "gtsam"],
                     help=argparse.SUPPRESS)
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
-    CLOCK, REAL, KNOT = (1 if args.cpu else 0), args.real, args.knot
+    CLOCK, REAL, KNOT, DEVICE = (1 if args.cpu else 0), args.real, args.knot, args.device
     if args.child:
         print(json.dumps(child(args.child, args.duration, args.repeats, threads[0])))
         return
@@ -477,7 +493,8 @@ def main() -> None:
     import torch
     have = importlib.util.find_spec("gtsam") is not None
     glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
-    sides = ["torch_dq"] + (["torch_dq+reuse"] if glibc else []) + (["gtsam"] if have else [])
+    reuse = glibc and args.device == "cpu"  # the heap's reuse is a CPU matter
+    sides = ["torch_dq"] + (["torch_dq+reuse"] if reuse else []) + (["gtsam"] if have else [])
     if args.only:
         sides = [s for s in sides if s == args.only]
     if not have:
