@@ -221,12 +221,15 @@ def _robust(args) -> dict:
     return {"robust": kind, "robust_k": math.sqrt(-2.0 * math.log(0.05)) * args.pixel_sigma}
 
 
-def _cameras(entries, obs, path: str, say, robust: dict):
+def _cameras(entries, obs, path: str, say, robust: dict | None = None):
     """The camchain's cameras: those with intrinsics as given (fixed), the others calibrated
     first from their corners (:func:`~torch_dq.calibration.cameras`: jointly where none has
-    intrinsics, else each camera without alone)."""
+    intrinsics, else each camera without alone; ``robust``: its keywords, ``_robust``,
+    None: least squares)."""
     from ..calibration import cameras
     from ..camera import Camera
+
+    robust = robust or {}
 
     missing = [i for i, e in enumerate(entries) if "intrinsics" not in e]
     if not missing:
