@@ -438,9 +438,10 @@ class Curve(torch.nn.Module, abc.ABC):
         return self.time_model.domain()
 
     def _times(self, fn: str, t: Tensor, like: Tensor, extrapolate: bool | None,
-               fix: str = f"or {EXTRAPOLATE_HINT}") -> Tensor:
+               fix: str = f"or {EXTRAPOLATE_HINT}", since_origin: bool = False) -> Tensor:
         """``t - origin`` in the wider of ``t``'s and ``like``'s dtypes, admitted by the time
-        model (checked when ``self.check``; ``fix``: the last advice on other times)."""
+        model (checked when ``self.check``; ``fix``: the last advice on other times;
+        ``since_origin``: ``t`` is such a time already)."""
         _checks.tensor(fn, "t", t)
         if t.dim() < 1:
             _checks.fail(fn, "expected a (T,) or (..., T) tensor for t, got shape ()")
@@ -454,6 +455,7 @@ class Curve(torch.nn.Module, abc.ABC):
                        else _checks.flag(fn, "extrapolate", extrapolate))
         return self.time_model.prepare(
             fn, t, like.dtype, check=self.check, extrapolate=extrapolate, knots=None,
+            since_origin=since_origin,
             what="the module's time domain", fix="evaluate inside it (the caller's units; "
             f"from_poses places it over [times[0], times[-1]]), {fix}")
 
@@ -486,7 +488,8 @@ class Curve(torch.nn.Module, abc.ABC):
         return self._curve(ctrl, self._times(fn, t, ctrl, extrapolate))
 
     def derivatives(self, t: Tensor, order: int = 2, ctrl: Tensor | None = None,
-                    extrapolate: bool | None = None) -> tuple[Tensor, ...]:
+                    extrapolate: bool | None = None, *, since_origin: bool = False,
+                    ) -> tuple[Tensor, ...]:
         r"""Poses and their exact time derivatives ``(x, dx/dt, ..., d^order x/dt^order)``.
 
         Derivatives are with respect to the caller's time (the module's own), through
@@ -498,6 +501,9 @@ class Curve(torch.nn.Module, abc.ABC):
             order: highest derivative, 0 to 3.
             ctrl: optional predicted control points (see :meth:`forward`).
             extrapolate: see :meth:`forward`.
+            since_origin: ``t`` are times since the module's origin (``domain[0]``, per
+                trajectory for batched knots): ``(t - origin) + dt`` stays exact at UNIX
+                stamps, where ``t + dt`` rounds to ``2.4e-7`` s.
 
         Returns:
             ``order + 1`` tensors, each ``(..., T, 8)``.
@@ -507,7 +513,8 @@ class Curve(torch.nn.Module, abc.ABC):
         if order > 3:
             _checks.fail(fn, f"order must be an int in 0..3, got {order!r}")
         ctrl = self._resolve(fn, ctrl)
-        return self._curve_derivatives(ctrl, self._times(fn, t, ctrl, extrapolate), order)
+        rel = self._times(fn, t, ctrl, extrapolate, since_origin=since_origin)
+        return self._curve_derivatives(ctrl, rel, order)
 
     def kinematics(self, t: Tensor, frame: str = "world", ctrl: Tensor | None = None,
                    extrapolate: bool | None = None) -> curves.Kinematics:

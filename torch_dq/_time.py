@@ -281,11 +281,11 @@ class KnotDomain:
 
     def prepare(self, fn: str, t: Tensor, dtype: torch.dtype, *, check: bool,
                 extrapolate: bool, knots: str | None, fix: str,
-                what: str = "the domain") -> Tensor:
-        """The relative times to evaluate (:meth:`relative`, then :meth:`admit`), checked
-        first (:meth:`check`) when ``check`` and :func:`checks_possible`: the one entry of
-        every evaluation."""
-        rel = self.relative(t, dtype)
+                what: str = "the domain", since_origin: bool = False) -> Tensor:
+        """The relative times to evaluate (:meth:`relative`, ``since_origin`` passed on, then
+        :meth:`admit`), checked first (:meth:`check`) when ``check`` and
+        :func:`checks_possible`: the one entry of every evaluation."""
+        rel = self.relative(t, dtype, since_origin)
         if check and checks_possible(rel, self.knots):
             self.check(fn, rel, knots=knots, extrapolate=extrapolate, fix=fix, what=what,
                        t_dtype=t.dtype)

@@ -49,10 +49,18 @@ class Camchain:
     rostopics: list[str | None]
 
 
+# Defect of a rotation block accepted, max |R^T R - I| (det R > 0): a camchain a user
+# rounded to 4 decimals is off by up to ~3e-4, Kalibr's own output by ~1e-9; a scaled,
+# sheared or hand-edited matrix by far more. Accepted ones are projected onto the nearest
+# rotation (Frobenius norm: the polar factor, by SVD).
+_ORTHONORMAL_ATOL = 1e-3
+
+
 def _rigid(fn: str, where: str, value) -> Tensor:
     """A 4 x 4 rigid transform of the yaml as a unit dual quaternion, or an error naming
-    ``where``: not 4 x 4 numbers, a last row other than ``0 0 0 1``, a rotation block that
-    is not orthonormal with determinant 1 (within 1e-6)."""
+    ``where``: not 4 x 4 numbers, a last row other than ``0 0 0 1``, a rotation block not
+    orthonormal within ``_ORTHONORMAL_ATOL`` or with determinant <= 0. The rotation
+    block is replaced by the nearest rotation (rounded files: exact rigid transforms)."""
     try:
         T = torch.tensor(value, dtype=torch.float64)
     except (TypeError, ValueError):
@@ -63,9 +71,13 @@ def _rigid(fn: str, where: str, value) -> Tensor:
     bad_row = float((T[3] - T.new_tensor([0.0, 0.0, 0.0, 1.0])).abs().max())
     bad_rot = float((R.T @ R - torch.eye(3, dtype=R.dtype)).abs().max())
     det = float(torch.linalg.det(R))
-    if bad_row > 1e-9 or bad_rot > 1e-6 or det < 0:
+    if bad_row > 1e-9 or bad_rot > _ORTHONORMAL_ATOL or det <= 0:
         _checks.fail(fn, f"{where} is not a rigid transform (last row {T[3].tolist()}, "
-                         f"|R^T R - I| up to {bad_rot:.2g}, det R {det:.6g})")
+                         f"|R^T R - I| up to {bad_rot:.2g} (accepted: "
+                         f"{_ORTHONORMAL_ATOL:g}), det R {det:.6g})")
+    U, _, Vh = torch.linalg.svd(R)  # det R > 0 and R near orthonormal: U Vh is a rotation
+    T = T.clone()
+    T[:3, :3] = U @ Vh
     return dualquat.normalize(dualquat.from_matrix(T))
 
 
@@ -92,7 +104,10 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
         ValueError: naming the file and the camera: not a yaml mapping, no ``cam0`` or a
             gap in the numbering, an entry that is not a mapping, a camera the library does
             not model (from :meth:`~torch_dq.camera.Camera.from_kalibr`), a transform that
-            is not a rigid 4 x 4 matrix, a ``timeshift_cam_imu`` that is not a number.
+            is not a rigid 4 x 4 matrix (its key named; rotation blocks orthonormal within
+            ``1e-3``, ``max |R^T R - I|``, with ``det R > 0``, are accepted and projected
+            onto the nearest rotation: files rounded to 4 decimals read), a
+            ``timeshift_cam_imu`` that is not a number.
         TypeError: ``path`` is not a path.
         ImportError: PyYAML is not installed.
         OSError: the file cannot be opened.

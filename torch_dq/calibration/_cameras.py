@@ -42,7 +42,7 @@ from .. import _checks, dualquat
 from .._camera_values import outside
 from ..camera import MODELS, Camera, project
 from ..fitting._local import sample_jacobians, tangent_step
-from ..fitting._robust import KERNELS, chi_quantile, rho, weight
+from ..fitting._robust import KERNELS, chi_quantile, inliers, rho, weight
 from . import _start
 
 __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
@@ -76,9 +76,13 @@ class CameraCalibration:
         used: ``(C,)`` observations used per camera; ``excluded``: ``(C,)`` observations
             left out (in a view with too few points, or projecting invalid at the end).
         sigma: the residuals' standard deviation per pixel axis, :math:`\sqrt{\chi^2 /
-            (2 n - m)}` (pixels), the scale of ``std``.
+            (2 n - m)}` (pixels), the scale of ``std``; with a robust kernel of the inliers
+            alone (``chi2`` and ``n`` counted as :attr:`torch_dq.fitting.Estimate.chi2`
+            counts them: gross outliers do not inflate it).
         iterations: Levenberg-Marquardt steps taken; ``converged``: whether the cost's
             relative decrease fell below ``tol``; ``cost``: the final (robust) cost.
+        outliers: ``(C,)`` per camera the observations used beyond the robust kernel's
+            inlier cutoff, left out of ``sigma`` (zeros without a kernel).
     """
 
     cameras: list
@@ -93,6 +97,7 @@ class CameraCalibration:
     iterations: int = 0
     converged: bool = False
     cost: float = 0.0
+    outliers: Tensor | None = field(default=None, repr=False)
 
     def to_kalibr(self, rostopics: list[str] | None = None) -> dict:
         """Kalibr's ``camchain.yaml`` (what ``kalibr_calibrate_cameras`` writes) as a dict of
@@ -422,7 +427,7 @@ def _variances(S: Tensor) -> Tensor:
     return torch.where(blind, torch.inf, part * d ** 2)
 
 
-def _std(system, layout: _Layout, sizes, chi2: float, dof: int):
+def _std(system, layout: _Layout, sizes, chi2: float, dof: float):
     r"""Standard deviations of the intrinsics ``(C, P)`` and relative poses ``(C - 1, 6)``
     from the inverse Schur complement, scaled by :math:`\chi^2 / \text{dof}`."""
     Hff, Hfg, Hgg, _, _ = system
@@ -534,7 +539,7 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
     state, it, converged, cost, valid = _lm(cams, intr, rel, frames, layout, robust, k,
                                             max_iterations, tol)
     system, _ = _linearize(cams, state[0], state[1], state[2], layout, robust, k, valid)
-    out = _result(cams, state, system, layout, valid, robust, k, like, times[used],
+    out = _result(cams, state, system, layout, valid, robust, like, times[used],
                   (it, converged, cost))
     if not converged and max_iterations > 0:  # 0: the start alone was asked for
         _warn_unconverged(out, models)
@@ -553,16 +558,31 @@ def _warn_unconverged(out: CameraCalibration, models: list[str]) -> None:
                   f"need more iterations?", RuntimeWarning, stacklevel=3)
 
 
-def _result(cams, state, system, layout, valid, kind, k, like, frame_times, run):
+def _chi2(e2: list[Tensor], kind, params: int) -> tuple[float, float, list[int]]:
+    r"""Chi-square, degrees of freedom and outliers per camera of the squared pixel-error
+    norms ``e2`` (one ``(n_c,)`` per camera, the observations used), ``params`` the
+    parameters estimated. Without a kernel every observation counts: ``dof = 2 n - m``.
+    With one only the inliers, as :attr:`torch_dq.fitting.Estimate.chi2` counts them
+    (``torch_dq.fitting._robust.inliers``: a cutoff at the 99.9 % quantile scaled by the
+    chi2/dof found, the sum over the truncated mean; ``dof`` the inliers' share)."""
+    s2 = torch.cat(e2)
+    n = s2.numel()
+    share = min(params / max(2 * n, 1), 1.0)
+    if kind is None:
+        return float(s2.sum()), float(2 * n - min(params, 2 * n)), [0] * len(e2)
+    keep, kappa = inliers(s2, torch.ones_like(s2, dtype=torch.bool), 2,
+                          torch.tensor(share, dtype=s2.dtype))
+    chi2 = float(torch.where(keep, s2, 0.0).sum()) / kappa
+    out = [int((~k).sum()) for k in keep.split([x.numel() for x in e2])]
+    return chi2, 2 * int(keep.sum()) * (1.0 - share), out
+
+
+def _result(cams, state, system, layout, valid, kind, like, frame_times, run):
     intr, rel, frames = state
-    chi2, rms, n_used = 0.0, [], []
-    for (e, _), v in zip(_errors(cams, *state), valid, strict=True):
-        e2 = (e ** 2).sum(-1)[v]
-        chi2 += float((_kernel(kind, k, e2.sqrt(), torch.ones_like(e2, dtype=torch.bool))[1]
-                       * e2).sum())
-        rms.append(e2.mean().sqrt())
-        n_used.append(int(v.sum()))
-    dof = 2 * sum(n_used) - layout.G - 6 * frames.shape[0]
+    e2 = [(e ** 2).sum(-1)[v] for (e, _), v in zip(_errors(cams, *state), valid, strict=True)]
+    rms = [x.mean().sqrt() for x in e2]
+    n_used = [x.numel() for x in e2]
+    chi2, dof, outliers = _chi2(e2, kind, layout.G + 6 * frames.shape[0])
     std = _std(system, layout, layout.sizes, chi2, dof)
     out = {"device": like.device, "dtype": like.dtype}
     cams_out = [Camera(cam.model, p.to(**out), cam.resolution)
@@ -574,5 +594,4 @@ def _result(cams, state, system, layout, valid, kind, k, like, frame_times, run)
         {key: v.to(**out) for key, v in std.items()}, frames.to(**out),
         frame_times.to(**out), torch.tensor(n_used, device=like.device),
         torch.tensor(excluded, device=like.device), math.sqrt(chi2 / max(dof, 1)), it,
-        converged, cost)
-
+        converged, cost, torch.tensor(outliers, device=like.device))

@@ -9,9 +9,9 @@ piecewise constant over ``--bias-interval`` seconds, at most ``sqrt(3)`` times t
 ratio of noise density to random walk, 1.15 s for EuRoC's IMU: ``camera_imu``'s
 ``bias_interval``; ``update_rate`` is reported) and a camchain yaml
 (``cam0``, ``cam1``, ...: ``camera_model``, ``distortion_model``, ``resolution`` and, when
-known, ``intrinsics`` and ``distortion_coeffs``; without intrinsics they are calibrated first
-by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
-(:func:`~torch_dq.calibration.read_corners`) or ``--images`` folder
+known, ``intrinsics`` and ``distortion_coeffs``; the cameras without intrinsics are
+calibrated first by :func:`~torch_dq.calibration.cameras`, those with them keep them as
+given), one ``--corners`` CSV (:func:`~torch_dq.calibration.read_corners`) or ``--images`` folder
 (:func:`~torch_dq.calibration.detect_folder`) per camera in the camchain's order; runs
 :func:`~torch_dq.calibration.camera_imu` and writes to ``--out``:
 
@@ -19,8 +19,10 @@ by :func:`~torch_dq.calibration.cameras`), one ``--corners`` CSV
   ``timeshift_cam_imu``, the camera models), reloadable by
   :meth:`torch_dq.camera.Camera.from_kalibr`;
 - ``summary.json``: every value with its standard deviation (random-walk biases ``(K, 3)``,
-  one row per segment, the segments' edges under ``bias``), per-term chi2/dof (keys unique:
-  ``reprojections_cam<i>``, ``gyro``, ``accel``), the reprojection RMS per camera, the
+  one row per segment, the segments' edges under ``bias``), per-term chi2/dof and outliers
+  (keys unique: ``reprojections_cam<i>``, ``gyro``, ``accel``; ``--robust huber|cauchy`` on
+  the reprojection errors, default none: the corners beyond the kernel's inlier cutoff,
+  counted, left out of chi2), the reprojection RMS per camera, the
   trajectory's knot spacing (``--knot-spacing``: given, or chosen from the IMU readings by
   default), the warnings (one where the IMU's chi2/dof exceeds 3: the noise densities, or
   ``--knot-spacing`` where it was given);
@@ -211,16 +213,37 @@ def _models(entries, path: str) -> list[tuple[str, tuple]]:
     return models
 
 
-def _cameras(entries, obs, path: str, say):
+def _robust(args) -> dict:
+    """``--robust`` as the keywords of :func:`~torch_dq.calibration.cameras`: the kernel
+    (None for ``none``) and its scale in pixels, ``2.45 --pixel-sigma`` (the 95 % quantile
+    of the norm of two normal components, ``sqrt(-2 ln 0.05)``, as ``camera_imu``'s)."""
+    kind = None if args.robust == "none" else args.robust
+    return {"robust": kind, "robust_k": math.sqrt(-2.0 * math.log(0.05)) * args.pixel_sigma}
+
+
+def _cameras(entries, obs, path: str, say, robust: dict | None = None):
+    """The camchain's cameras: those with intrinsics as given (fixed), the others calibrated
+    first from their corners (:func:`~torch_dq.calibration.cameras`: jointly where none has
+    intrinsics, else each camera without alone; ``robust``: its keywords, ``_robust``,
+    None: least squares)."""
     from ..calibration import cameras
     from ..camera import Camera
 
-    if all("intrinsics" in e for e in entries):
+    robust = robust or {}
+
+    missing = [i for i, e in enumerate(entries) if "intrinsics" not in e]
+    if not missing:
         return [Camera.from_kalibr(e) for e in entries]
     models = _models(entries, path)
-    say("calibrating the cameras' intrinsics first (the camchain has none)")
-    calib = cameras(obs, [m for m, _ in models], [r for _, r in models])
-    return calib.cameras
+    if len(missing) == len(entries):
+        say("calibrating the cameras' intrinsics first (the camchain has none)")
+        return cameras(obs, [m for m, _ in models], [r for _, r in models], **robust).cameras
+    out = [None if i in missing else Camera.from_kalibr(e) for i, e in enumerate(entries)]
+    say(f"calibrating the intrinsics of {', '.join(f'cam{i}' for i in missing)} first (the "
+        f"camchain has none for them; the others' are kept as given)")
+    for i in missing:
+        out[i] = cameras([obs[i]], [models[i][0]], [models[i][1]], **robust).cameras[0]
+    return out
 
 
 def _check_outputs(args) -> Path:
@@ -244,8 +267,10 @@ def _val(x):
 
 
 def _chi2(res) -> dict:
-    """Per-term chi2, dof and chi2/dof keyed ``reprojections_cam<i>``, ``gyro``, ``accel``
-    (a suffix ``_2``, ``_3`` ... on a name taken already: the keys are unique)."""
+    """Per-term chi2, dof, chi2/dof and outliers (``--robust``: the samples beyond the
+    kernel's inlier cutoff, left out of chi2; else 0) keyed ``reprojections_cam<i>``,
+    ``gyro``, ``accel`` (a suffix ``_2``, ``_3`` ... on a name taken already: the keys are
+    unique)."""
     from ..fitting import Accel, Gyro
 
     est, chi2 = res.estimate, {}
@@ -258,7 +283,8 @@ def _chi2(res) -> dict:
             n += 1
             name = f"{base}_{n}"
         c, d = float(est.chi2[term]), float(est.dof[term])
-        chi2[name] = {"chi2": c, "dof": d, "chi2_per_dof": c / d if d else None}
+        chi2[name] = {"chi2": c, "dof": d, "chi2_per_dof": c / d if d else None,
+                      "outliers": int(est.outliers[term])}
     return chi2
 
 
@@ -346,11 +372,12 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
             f"camera(s)")
         obs = _observations(args, target, len(entries))
-        cams = _cameras(entries, obs, args.cameras, say)
+        cams = _cameras(entries, obs, args.cameras, say, _robust(args))
         say("estimating (start from the gyroscope and the target poses, then one joint fit)")
         res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
                          accel_noise=noise["accelerometer_noise_density"],
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
+                         robust=_robust(args)["robust"],
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
                          bias_interval=interval, gravity_magnitude=args.gravity,
@@ -425,7 +452,7 @@ def _run_cameras(args, say) -> int:
         say(f"calibrating {len(entries)} camera(s) from the target alone (no --imu)"
             + "; the camchain's intrinsics are not used" * any("intrinsics" in e
                                                               for e in entries))
-        res = cameras(obs, [m for m, _ in models], [r for _, r in models])
+        res = cameras(obs, [m for m, _ in models], [r for _, r in models], **_robust(args))
     elapsed = time.perf_counter() - start
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -448,7 +475,8 @@ def _cameras_summary(res, caught: list[str], elapsed: float) -> dict:
                          "std": _val(std[i, :c.params.numel()]),
                          "resolution": list(c.resolution),
                          "reprojection_rms_px": float(res.reprojection_rms[i]),
-                         "used": int(res.used[i]), "excluded": int(res.excluded[i])}
+                         "used": int(res.used[i]), "excluded": int(res.excluded[i]),
+                         "outliers": int(res.outliers[i])}
                         for i, c in enumerate(res.cameras)],
             "relative_poses": {"value": _val(res.relative_poses),
                                "std": _val(res.std["relative_poses"])},

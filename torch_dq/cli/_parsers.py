@@ -228,8 +228,8 @@ def _add_calibrate(sub) -> None:
                    help="Kalibr's imu.yaml (noise densities, random walks, update_rate)")
     p.add_argument("--cameras", required=True, metavar="CAMCHAIN.yaml",
                    help="Kalibr's camchain yaml (camera_model, distortion_model, resolution "
-                        "per camera); cameras without intrinsics are calibrated, all of them "
-                        "without --imu")
+                        "per camera); cameras without intrinsics are calibrated first, those "
+                        "with them keep them fixed; all are calibrated without --imu")
     p.add_argument("--corners", action="append", default=[], metavar="CSV",
                    help="corners of one camera (t_ns or t, u_px, v_px, X_m, Y_m, Z_m)")
     p.add_argument("--images", action="append", default=[], metavar="DIR",
@@ -237,6 +237,12 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
+    p.add_argument("--robust", type=str.lower, choices=("none", "huber", "cauchy"),
+                   default="none",
+                   help="robust kernel on each corner's reprojection error (its scale: 2.45 "
+                        "--pixel-sigma, the 95%% quantile of the error's norm): none (least "
+                        "squares), huber or cauchy (gross outliers, misdetected corners, "
+                        "lose their pull; summary.json counts them under chi2's outliers)")
     _calibrate_imu_options(p)
     p.add_argument("--threads", type=_positive_int, default=1,
                    help="torch intra-op threads (more help only on an idle multi-core "

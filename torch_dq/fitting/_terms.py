@@ -49,6 +49,7 @@ from .. import _checks, dualquat, quat
 from .._time import MIN_RESOLUTION, time_step, unresolved
 from . import _robust
 from ._charts import Pose, Scalar, Vector
+from ._local import SpanEvaluator
 from ._nuisance import Slot
 
 __all__ = ["Options", "Poses", "Positions", "RelativePoses", "Term"]
@@ -439,11 +440,13 @@ class Term(torch.nn.Module):
         return self.evaluate(trajectory, ctrl, self.values(trajectory, ctrl))
 
     def evaluate(self, trajectory, ctrl: Tensor | None, values: dict[str, Tensor]) -> Tensor:
-        """Whitened residuals with the nuisance ``values`` (by name, batch first)."""
+        """Whitened residuals with the nuisance ``values`` (by name, batch first), the
+        trajectory read at ``(t - origin) + shift`` (as the estimation reads it)."""
         like = trajectory.control_points if ctrl is None else ctrl
         p = self.per_sample({k: v.to(like.dtype) for k, v in values.items()})
-        derivs = [trajectory.derivatives(t + self.time_shift(p), self.order, ctrl=ctrl)
-                  for t in self.times_list()]
+        since = SpanEvaluator(trajectory).since_origin  # exact at UNIX stamps
+        derivs = [trajectory.derivatives(since(t, self.time_shift(p)), self.order, ctrl=ctrl,
+                                         since_origin=True) for t in self.times_list()]
         return self.residuals(derivs, p)
 
     def cost(self, trajectory, ctrl: Tensor | None = None) -> Tensor:

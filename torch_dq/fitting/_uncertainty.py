@@ -166,7 +166,8 @@ class Estimate:
             1 (:meth:`summary` lists them). With a robust kernel the sigmas describe the
             inliers and ``chi2`` and ``dof`` count only them (a cutoff at the 99.9 % chi-square
             quantile scaled by the term's own chi2/dof, the sum divided by the truncated
-            mean: :attr:`chi2`); the summary and the warning say how many were left out.
+            mean: :attr:`chi2`); the summary and the warning say how many were left out,
+            :attr:`outliers` per term.
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
@@ -245,6 +246,15 @@ class Estimate:
         """Per robust term: ``(...)`` int, the unmasked samples beyond its inlier cutoff."""
         return {t: (t.mask.expand_as(keep) & ~keep).sum(-1) for t, (keep, _) in
                 self._kept().items() if t.robust is not None}
+
+    @property
+    def outliers(self) -> dict:
+        """Per term ``(...)`` int64: its unmasked samples beyond its robust kernel's inlier
+        cutoff, left out of :attr:`chi2` and :attr:`dof` (zero for a term without one)."""
+        left = self._left_out()
+        none = torch.zeros(self._problem.batch, dtype=torch.int64,
+                           device=self._problem.spans.device)
+        return {t: left.get(t, none) for t in self._problem.terms}
 
     @property
     def chi2(self) -> dict:
