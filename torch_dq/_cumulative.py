@@ -124,7 +124,7 @@ def jets(points: Tensor, weights: list[Tensor], order: int) -> list[Tensor]:
     w_rows = [w.expand(*batch, T, m - 1).reshape(n, m - 1).T / math.factorial(k)
               for k, w in enumerate(weights[:order + 1])]
     outs = []
-    for part in chunks(n, JET_CHUNK):
+    for part in chunks(n, JET_CHUNK, points.device):
         coefs: _taylor.Jet = [w[:, part].contiguous() for w in w_rows]
         x = _chunk_jets(rows[..., part].contiguous(), coefs)
         outs.append([v.T for v in _taylor.derivatives(x)])

@@ -95,7 +95,7 @@ def jet_scheme(points: Tensor, levels, order: int, batch: torch.Size) -> list[Te
     flat = [tuple(x.expand(*batch, T, m - j).reshape(n, m - j).T for x in level)
             for j, level in enumerate(levels, start=1)]
     outs = []
-    parts = chunks(n, JET_CHUNK)  # temporaries stay in cache
+    parts = chunks(n, JET_CHUNK, points.device)  # temporaries stay in cache
     # split, not sliced: one backward node for all chunks, not a zero-filled copy of the
     # whole gradient per chunk
     pieces = points.split(JET_CHUNK, -1) if len(parts) > 1 else (points,)

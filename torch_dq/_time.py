@@ -602,7 +602,7 @@ def span_bases(knots: Tensor, r: Tensor, t: Tensor, degree: int, order: int = 0,
     flat_r, flat_t = r.reshape(-1), t.reshape(-1)
     parts = [[math.factorial(k) * (v[1:].flip(0).cumsum(0).flip(0) if cumulative else v)
               for k, v in enumerate(_span_basis(knots, flat_r[i], flat_t[i], degree, order))]
-             for i in chunks(flat_r.shape[0], BASIS_CHUNK)]  # cache-sized temporaries
+             for i in chunks(flat_r.shape[0], BASIS_CHUNK, t.device)]  # cache-sized temporaries
     width = degree if cumulative else degree + 1
     return [(x[0] if len(x) == 1 else torch.cat(x, -1)).view(width, *r.shape).movedim(0, -1)
             for x in zip(*parts, strict=True)]

@@ -144,7 +144,7 @@ class _Poses(torch.autograd.Function):
         keep = save and runs is None and not torch.compiler.is_compiling()
         bags = table.new_empty(N if keep else 0, width)
         kept = table.new_empty(6 * w.shape[0] * N if save else 0)
-        for i, run in chunk_parts(N, runs):
+        for i, run in chunk_parts(N, runs, table.device):
             fr, ws, b_r = chunk_weights(full, first[i], w[:, i], save, False)
             W = subset_jets(b_r[None], _dual_parts(fr.sigma, fr.delta, ws.G)[None])[0]
             if save:
@@ -183,7 +183,7 @@ class _Poses(torch.autograd.Function):
         grad = grad.contiguous()
         g_pairs = torch.zeros_like(pairs[:2])
         g_table, grad_w = table.new_zeros(F, width, 8), []
-        for i, run in chunk_parts(first.shape[0], runs):
+        for i, run in chunk_parts(first.shape[0], runs, table.device):
             f, G = first[i], grad[i]
             if reuse:
                 sd = full.view(6, -1, F)[1:3].flatten(0, 1).index_select(1, f)

@@ -281,5 +281,5 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
     squares = torch.stack(angle_square(pairs[0])).to(ctrl.dtype)
     coefs = [w / math.factorial(k) for k, w in enumerate(weights)]
     W = torch.cat([_weight_jets(full, squares, first[i], [w[:, i] for w in coefs])
-                   for i in chunks(N, POSES_CHUNK)], -1)
+                   for i in chunks(N, POSES_CHUNK, first.device)], -1)
     return list(Rows.apply(table, first, W, sorted_runs(first)))

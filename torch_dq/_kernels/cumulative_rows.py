@@ -162,10 +162,12 @@ def run_sums(x: Tensor, runs: list[tuple[int, int, int]], total: Tensor) -> Tens
     return total.index_add(-1, x.new_tensor([f for *_, f in runs], dtype=torch.long), sums)
 
 
-def chunk_parts(N: int, runs: Runs | None) -> Runs | list[tuple[slice, None]]:
+def chunk_parts(N: int, runs: Runs | None, device: torch.device
+                ) -> Runs | list[tuple[slice, None]]:
     """The chunks of the fused op: ``runs`` (:func:`sorted_runs`) if given, else
-    :func:`~torch_dq._kernels.layout.chunks` of :data:`POSES_CHUNK` times, without runs."""
-    return runs if runs is not None else [(i, None) for i in chunks(N, POSES_CHUNK)]
+    :func:`~torch_dq._kernels.layout.chunks` of :data:`POSES_CHUNK` times on ``device``,
+    without runs."""
+    return runs if runs is not None else [(i, None) for i in chunks(N, POSES_CHUNK, device)]
 
 
 class Rows(torch.autograd.Function):
@@ -185,7 +187,7 @@ class Rows(torch.autograd.Function):
         L, width, N = W.shape
         outs = tuple(table.new_empty(N, 8) for _ in range(L))
         for W_l, out in zip(W, outs, strict=True):
-            for i, run in chunk_parts(N, runs):
+            for i, run in chunk_parts(N, runs, table.device):
                 if run is not None:
                     run_rows(table.view(-1, width, 8), W_l[:, i], i, run, out)
                 else:
@@ -213,7 +215,7 @@ class Rows(torch.autograd.Function):
                 g_W[l].zero_()
                 continue
             grad = grad.contiguous()
-            for i, run in chunk_parts(N, ctx.runs):
+            for i, run in chunk_parts(N, ctx.runs, table.device):
                 if run is not None:
                     g_W[l, :, i] = run_cotangents(blocks, W[l, :, i], to_rows(grad[i]), i, run,
                                                    g_table)

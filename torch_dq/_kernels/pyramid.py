@@ -93,7 +93,7 @@ class _Pyramid(InputsSaved):
         rows = to_rows(ctrl)
         table = _pair_table(rows)
         parts = [from_rows(_levels(rows, table, first[i], alphas[:, i], m)[0][-1][0])
-                 for i in chunks(first.shape[0], layout.PYRAMID_CHUNK)]
+                 for i in chunks(first.shape[0], layout.PYRAMID_CHUNK, first.device)]
         return torch.cat(parts)
 
     @staticmethod
@@ -107,7 +107,7 @@ class _Pyramid(InputsSaved):
         pair_d = torch.zeros_like(pair_c)
         used = torch.zeros_like(pair_c, dtype=torch.bool)  # pairs inside one curve's span
         grad_alphas: list[Tensor] = []
-        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK):
+        for i in chunks(first.shape[0], layout.PYRAMID_CHUNK, first.device):
             points, frames, ws = _levels(rows, table, first[i], alphas[:, i], m, True, need_alpha)
             G = to_rows(grad[i]).unsqueeze(0)
             g_alpha: list[Tensor] = []

@@ -165,7 +165,7 @@ class _Sclerp(InputsSaved):
             return _forward(a2.T, b2.T, t1, shortest).T.reshape(a.shape)
         out = a.new_empty(a.shape)  # the output itself, not a view (a caller may modify it)
         flat = out.view(-1, 8)
-        for i in chunks(t1.shape[0]):  # in the caller's layout, seen as rows
+        for i in chunks(t1.shape[0], device=t1.device):  # the caller's layout, seen as rows
             _forward(a2[i].T, b2[i].T, t1[i], shortest, flat[i].T)
         return out
 
@@ -175,7 +175,7 @@ class _Sclerp(InputsSaved):
         (shortest,) = ctx.constants
         need_t = ctx.needs_input_grad[2]
         a2, b2, t1, g2 = a.reshape(-1, 8), b.reshape(-1, 8), t.reshape(-1), grad.reshape(-1, 8)
-        parts = chunks(t1.shape[0])
+        parts = chunks(t1.shape[0], device=t1.device)
         if not (batched(grad) or torch.compiler.is_compiling() or torch.is_grad_enabled()):
             ga, gb = torch.empty_like(a2), torch.empty_like(b2)
             gt = t1.new_empty(t1.shape) if need_t else None

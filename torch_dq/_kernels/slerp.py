@@ -99,7 +99,7 @@ class _Slerp(torch.autograd.Function):
     def forward(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
         out = torch.empty_like(q0)
         host = _host_branch(q0)
-        for i in chunks(q0.shape[0]):
+        for i in chunks(q0.shape[0], device=q0.device):
             plain(q0[i], q1[i], t if t.shape[0] == 1 else t[i], host, out=out[i])
         return out
 
@@ -116,7 +116,7 @@ class _Slerp(torch.autograd.Function):
         common = t.shape[0] == 1
         g0, g1 = torch.empty_like(q0), torch.empty_like(q1)
         gts = []
-        for i in chunks(q0.shape[0]):
+        for i in chunks(q0.shape[0], device=q0.device):
             ti = t if common else t[i]
             gt = _vjp(q0[i], q1[i], ti, grad[i], g0[i], g1[i], need_t)
             if gt is not None:
