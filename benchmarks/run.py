@@ -3,7 +3,7 @@
 Usage (see benchmarks/README.md)::
 
     python benchmarks/run.py                 # full CPU run, float32 and float64 (~4 min)
-    python benchmarks/run.py --quick         # smoke run, small sizes (< 1 min)
+    python benchmarks/run.py --quick         # smoke run, small sizes on any device (< 1 min)
     python benchmarks/run.py --device cuda   # sizes that fill the GPU, HBM bandwidth
     python benchmarks/run.py --sizes sclerp=1e5,bspline=2e4 --json out.json
 
@@ -91,7 +91,7 @@ def _bench(args) -> Bench:
     torch.set_num_threads(args.threads)
     b = Bench(args)
     b.memory = {}
-    base = CUDA_TARGETS if b.cuda else QUICK_SIZES if args.quick else CPU_SIZES
+    base = QUICK_SIZES if args.quick else CUDA_TARGETS if b.cuda else CPU_SIZES
     b.sizes = _parse_sizes(args.sizes, base)
     b.dtypes = [getattr(torch, d.strip()) for d in args.dtypes.split(",") if d.strip()]
     return b
