@@ -216,6 +216,22 @@ class BandedCholesky:
             diag, sub = level.inverse(diag, sub)
         return diag, sub
 
+    def trace_products(self, bands: list[Tensor]) -> list[Tensor]:
+        r""":math:`\mathrm{tr}(M A^{-1})` ``(...)`` for each symmetric block-banded ``M``
+        given by its upper band ``(..., n, w', s, s)`` in ``bands`` (``w' <= g + 1``): the
+        elementwise products of its grouped blocks with those of the selected inverse
+        (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
+        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out."""
+        diag, sub = self.selected_inverse()
+        rows = torch.arange(self.G * self.g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(self.G, self.g * self.s).to(diag.dtype)
+        out = []
+        for band in bands:
+            D, E = _grouped(band, self.g)
+            own = ((D * diag).sum(-1) * real).sum((-1, -2))
+            out.append(own + 2.0 * (E[..., 1:, :, :] * sub[..., :-1, :, :]).sum((-1, -2, -3)))
+        return out
+
     def window_covariance(self, first: Tensor, width: int) -> Tensor:
         r"""Covariance blocks of the ``width`` consecutive block rows ``first .. first +
         width - 1`` (``width <= g + 1``; rows past ``n`` read as zero).
