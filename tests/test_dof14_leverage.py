@@ -228,3 +228,37 @@ def test_monte_carlo_chi2_over_dof_is_one_per_term():
     mean = np.mean(ratios, 0)
     se = np.sqrt(2.0 / np.array(nus) / 15)
     assert np.all(np.abs(mean - 1) < 3 * se), (mean, se)
+
+
+@pytest.mark.parametrize(("n", "w"), [(7, 3), (10, 4), (5, 2), (1, 1), (4, 4)])
+def test_trace_products_against_numpy(n, w):
+    """``BandedCholesky.trace_products``: trace(M (A^-1 + U V^T)) of block-banded ``M``
+    against numpy's dense inverse, a batch of two, with and without the update."""
+    from torch_dq.fitting._banded import BandedCholesky
+    rng = np.random.default_rng(n + 10 * w)
+    s = 6
+    block = np.arange(n * s) // s
+    near = np.abs(block[:, None] - block[None, :]) < w
+    J = rng.standard_normal((2, 3 * n * s, n * s))
+    A = (J.transpose(0, 2, 1) @ J) * near + 5 * np.eye(n * s)
+    M = rng.standard_normal((2, n * s, n * s))
+    M = (M + M.transpose(0, 2, 1)) * near
+    U = rng.standard_normal((2, n * s, 2))
+    S = rng.standard_normal((2, 2, 2))
+    V = U @ (S + S.transpose(0, 2, 1))  # U V^T symmetric
+
+    def band(X):
+        b = np.zeros((2, n, w, s, s))
+        for k in range(n):
+            for d in range(min(w, n - k)):
+                b[:, k, d] = X[:, k * s:(k + 1) * s, (k + d) * s:(k + d + 1) * s]
+        return torch.from_numpy(b)
+
+    chol = BandedCholesky(band(A))
+    plain, = chol.trace_products([band(M)])
+    up, = chol.trace_products([band(M)], *(torch.from_numpy(x.reshape(2, n, s, 2))
+                                           for x in (U, V)))
+    inv = np.linalg.inv(A)
+    np.testing.assert_allclose(plain.numpy(), np.einsum("bij,bji->b", M, inv), rtol=1e-10)
+    ref = np.einsum("bij,bji->b", M, inv + U @ V.transpose(0, 2, 1))
+    np.testing.assert_allclose(up.numpy(), ref, rtol=1e-10)

@@ -10,21 +10,23 @@ leverages summed (the diagonal of the hat matrix :math:`W^{1/2} J \Sigma J^T W^{
 its rows), which sum over the terms to the parameters the data determine. Its expected
 :math:`\chi^2` is :math:`N_t - \mathrm{tr}(H_t \Sigma)` (Seber and Lee, "Linear Regression
 Analysis", 2003, sec. 10.2: the residuals' covariance is ``I`` less the hat matrix), whatever
-share of the residual count it has: 20 Hz poses beside a 200 Hz IMU determine far more of
-the trajectory than their tenth of the residuals.
+share of the residual count it has: 20 Hz poses beside a 200 Hz IMU take far fewer of the
+parameters than their tenth of the residuals (the IMU determines the trajectory's shape, the
+poses little more than its placement: 209 against 656 on the 60 s benchmark job).
 
 With the blocks of ``Sigma`` of :mod:`torch_dq.fitting._uncertainty`
 (:math:`\Sigma_{cc} = A^{-1} + Z \Sigma_{nn} Z^T`, :math:`\Sigma_{cn} = -Z \Sigma_{nn}`)
 and ``H_t``'s (``A_t`` banded, ``C_t``, ``N_t``):
 
 .. math::
-    \mathrm{tr}(H_t \Sigma) = \mathrm{tr}(A_t A^{-1}) + \mathrm{tr}(\Sigma_{nn} M_t),\qquad
-    M_t = N_t - C_t^T Z - Z^T C_t + Z^T A_t Z,
+    \mathrm{tr}(H_t \Sigma) = \langle A_t, \Sigma_{cc} \rangle
+    - 2 \langle C_t, Z \Sigma_{nn} \rangle + \langle N_t, \Sigma_{nn} \rangle,
 
-the first from the band of ``A^{-1}`` alone (``BandedCholesky.trace_products``), the second
-``m x m``: no dense inverse, no per-sample Jacobian. The blocks of every term but the last
-are summed apart during the linearisation (``System.own``); the last term's trace is the
-total's less theirs.
+elementwise products where ``H_t`` is nonzero: ``Sigma_cc`` only on the band, from the
+selected inverse of ``A`` and the band of :math:`Z \Sigma_{nn} Z^T`
+(``BandedCholesky.trace_products``): no dense inverse, no per-sample Jacobian. The blocks
+of every term but the last are summed apart during the linearisation (``System.own``); the
+last term's trace is the total's less theirs.
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ import torch
 from torch import Tensor
 
 from ._banded import BandedCholesky
-from ._prior import band_apply
 
 __all__ = ["decouple", "taken"]
 
@@ -69,11 +70,9 @@ def taken(chol: BandedCholesky, Z: Tensor, cov_nn: Tensor, free: Tensor,
     """
     blocks = [*system.own, (system.band, system.cn, system.nn)]
     parts = [decouple(band, cn, free) for band, cn, _ in blocks]
-    out = chol.trace_products([band for band, _ in parts])
-    if cov_nn.shape[-1]:
-        for k, ((band, cn), (_, _, nn)) in enumerate(zip(parts, blocks, strict=True)):
-            CZ = torch.einsum("bnim,bniq->bmq", cn, Z)
-            M = nn - CZ - CZ.mT + torch.einsum("bnim,bniq->bmq", Z, band_apply(band, Z))
-            out[k] = out[k] + (cov_nn * M).sum((-1, -2))
+    W = Z @ cov_nn[:, None]  # Z Sigma_nn = -Sigma_cn
+    out = chol.trace_products([band for band, _ in parts], Z, W)
+    out = [x + (cov_nn * nn).sum((-1, -2)) - 2.0 * (cn * W).sum((-1, -2, -3))
+           for x, (_, cn), (_, _, nn) in zip(out, parts, blocks, strict=True)]
     *own, total = out
     return [*own, total - sum(own, torch.zeros_like(total))]

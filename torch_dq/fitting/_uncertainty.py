@@ -280,7 +280,7 @@ class Estimate:
         data-only matrix with the :class:`~torch_dq.fitting.Free` priors, on the directions
         the data determine), so that :math:`\chi^2_t / \nu_t` is about 1 when the term's
         sigmas describe its data, whatever the other terms (``torch_dq.fitting._leverage``:
-        the term's samples' leverages summed; 20 Hz poses beside a 200 Hz IMU take far more
+        the term's samples' leverages summed; 20 Hz poses beside a 200 Hz IMU take far fewer
         than their share of the residual count). Summed over the terms, the residual
         components less the parameters the data determine (the directions kept by
         ``estimate``'s ``prior``, or without information, count for no term). NaN where the
@@ -495,14 +495,14 @@ class Estimate:
                 parameter, in the order of :attr:`parameters` (``(term, name, size)``,
                 ``size`` rows each).
             scaled: multiply by the pooled :math:`\sum_t \chi^2_t / \sum_t \nu_t` over
-                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p` exactly,
-                ``N`` every residual component, ``p`` the estimated parameters): the
+                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p`, ``N``
+                every residual component, ``p`` the parameters the data determine): the
                 a-posteriori reference variance of least squares (``scipy.optimize.
                 curve_fit``'s ``absolute_sigma=False``, MATLAB's ``lscov``), the covariance as
                 the residuals' own scatter suggests when every term's sigmas are off by one
-                common factor (no term's own: the per-term :attr:`dof` is a proportional
-                share, not the term's redundancy, and a per-term factor would inherit its
-                error; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
+                common factor (no term's own: a parameter is determined by several terms
+                together, each term's :math:`\chi^2_t / \nu_t` says how far its own sigmas
+                are off; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
                 nothing, as ``scaled=False`` does).
 
         Returns:
