@@ -179,7 +179,6 @@ class Estimate:
         self.converged: Tensor = history.converged
         self.reason: str = history.reason
         self._system = summary.system
-        self._pulled = summary.pulled
         self._informed = history.informed
         self._factored = self._checked = False
         self._weak: list[str] = []  # nuisance parameters with a direction without information
