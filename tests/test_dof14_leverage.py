@@ -262,3 +262,23 @@ def test_trace_products_against_numpy(n, w):
     np.testing.assert_allclose(plain.numpy(), np.einsum("bij,bji->b", M, inv), rtol=1e-10)
     ref = np.einsum("bij,bji->b", M, inv + U @ V.transpose(0, 2, 1))
     np.testing.assert_allclose(up.numpy(), ref, rtol=1e-10)
+
+
+def test_a_time_gap_counts_its_control_points_for_no_term():
+    """Poses and gyroscope with a 0.8 s gap over 0.2 s knots: the control points without
+    data are no term's parameters (the dense pseudo-inverse's null space), the rest match."""
+    rng = np.random.default_rng(7)
+    tc, ti = np.arange(61) / 20.0, np.arange(301) / 100.0
+    tc, ti = tc[(tc < 1.0) | (tc > 1.8)], ti[(ti < 1.0) | (ti > 1.8)]
+    R, p, _, _ = _truth(tc)
+    poses = _pose(R * Rotation.from_rotvec(ROT * rng.standard_normal((len(tc), 3))),
+                  p + POS * rng.standard_normal(p.shape))
+    gyro = _truth(ti)[2] + B_G + GYR * rng.standard_normal((len(ti), 3))
+    t = torch.tensor(tc)
+    terms = [Poses(t, poses, rot_sigma=ROT, trans_sigma=POS),
+             Gyro(torch.tensor(ti), torch.tensor(gyro), sigma=GYR, bias=True)]
+    spline = BSpline.from_dualquats(poses, t, n_ctrl=18, form="cumulative")
+    est = _solve(spline, terms)
+    _, lev = _check(est, spline, terms)
+    # one control point's 6 directions without data: 105 of the 111 parameters determined
+    assert sum(float(x) for x in lev) == pytest.approx(6 * 18 + 3 - 6, abs=1e-6)
