@@ -1,11 +1,13 @@
 """Per-term degrees of freedom: nu_t = N_t - tr(H_t H^+), each term's samples' leverages.
 
 (a) Against a dense numpy reference: each term's whitened residuals differentiated by
-autograd with respect to a local step of every control point (``c exp(delta)``) and of the
-estimated biases (additive), rows weighted by the square roots of the robust weights, and
+central differences with respect to a local step of every control point (``c exp(delta)``)
+and of the estimated biases (additive), rows weighted by the square roots of the robust
+weights, and
 ``nu_t = N_t - trace(J_t pinv(J^T J) J_t^T)`` (the hat matrix's diagonal over the term's
 rows; invariant under a change of the local charts), for several terms, a robust term
-(its inliers by a fixed point written here with scipy), a masked term and a batch.
+(its inliers by a fixed point written here with scipy), a masked term, a batch and a
+time gap; ``BandedCholesky.trace_products`` against numpy's dense inverse.
 
 (b) Monte Carlo: poses and an IMU with correct sigmas on a closed-form motion (scipy
 rotations), the mean chi2/dof per term over seeds about 1; the proportional share of the
