@@ -27,8 +27,9 @@ from test_honest8_chi2 import BIAS, GYRO, ROT, TRANS, _job, _truth
 F64 = torch.float64
 
 
-def _reference(s2: np.ndarray, d: int, share: float) -> tuple[np.ndarray, float]:
-    """The inliers and chi2/dof by the fixed point, in numpy and scipy."""
+def _reference(s2: np.ndarray, d: int, taken: float) -> tuple[np.ndarray, float]:
+    """The inliers and chi2/dof by the fixed point, in numpy and scipy (``taken``: the
+    residual components the parameters take, dof14)."""
     q = chi2_dist.ppf(0.999, d)
     kappa = chi2_dist.cdf(q, d + 2) / chi2_dist.cdf(q, d)
     f = np.median(s2) / chi2_dist.ppf(0.5, d)
@@ -38,7 +39,7 @@ def _reference(s2: np.ndarray, d: int, share: float) -> tuple[np.ndarray, float]
         if (new == keep).all():
             break
         keep = new
-        f = s2[keep].sum() / (kappa * keep.sum() * d * (1 - share))
+        f = s2[keep].sum() / (kappa * (keep.sum() * d - taken))
     return keep, f
 
 
@@ -60,18 +61,19 @@ def test_inliers_fixed_point_and_its_ratio(d, scale, frac):
     sigmas 1/scale of the noise's); the outliers all left out, about 0.1 % of the inliers
     too."""
     rng = np.random.default_rng(d + int(10 * scale) + int(100 * frac))
-    n, share = 20000, 0.05
+    n = 20000
+    taken = 0.05 * n * d
     s2 = _samples(rng, n, d, scale, frac)
-    keep, kappa = inliers(torch.from_numpy(s2), torch.ones(n, dtype=torch.bool), d, share)
-    ref_keep, ref_f = _reference(s2, d, share)
+    keep, kappa = inliers(torch.from_numpy(s2), torch.ones(n, dtype=torch.bool), d, taken)
+    ref_keep, ref_f = _reference(s2, d, taken)
     assert kappa == pytest.approx(chi2_dist.cdf(chi2_dist.ppf(0.999, d), d + 2) / 0.999,
                                   rel=1e-9)
     np.testing.assert_array_equal(keep.numpy(), ref_keep)
     k = keep.numpy()
-    f = s2[k].sum() / kappa / (k.sum() * d * (1 - share))
+    f = s2[k].sum() / kappa / (k.sum() * d - taken)
     assert f == pytest.approx(ref_f, rel=1e-12)
     nu = k.sum() * d  # the fixed point's bias, -0.3 % at d = 3 (40 seeds), is 0.5 sd here
-    assert abs(f * (1 - share) / scale**2 - 1) < 4.5 * math.sqrt(2 / nu)
+    assert abs(f * (1 - taken / nu) / scale**2 - 1) < 4.5 * math.sqrt(2 / nu)
     inl = n - round(frac * n)
     assert abs((n - k.sum()) - (n - inl) - 1e-3 * inl) < 5 * math.sqrt(1e-3 * n) + 0.02 * frac * n
 
@@ -83,9 +85,10 @@ def test_inliers_masked_and_batched():
     s2 = np.stack((_samples(rng, 500, 3, 1.0, 0.1), _samples(rng, 500, 3, 2.0, 0.0)))
     mask = np.ones_like(s2, dtype=bool)
     mask[0, :50] = False
-    keep, _ = inliers(torch.from_numpy(s2), torch.from_numpy(mask), 3, torch.tensor([0.1, 0.2]))
-    for b, share in ((0, 0.1), (1, 0.2)):
-        ref, _ = _reference(s2[b][mask[b]], 3, share)
+    keep, _ = inliers(torch.from_numpy(s2), torch.from_numpy(mask), 3,
+                      torch.tensor([135.0, 300.0]))
+    for b, taken in ((0, 135.0), (1, 300.0)):
+        ref, _ = _reference(s2[b][mask[b]], 3, taken)
         np.testing.assert_array_equal(keep[b].numpy()[mask[b]], ref)
     assert not keep[0, :50].any()
 
@@ -154,13 +157,16 @@ def test_sigmas_too_large_flagged_with_kernel():
 
 def test_no_kernel_is_the_plain_sum():
     """robust=None: chi2 is the sum of the unmasked samples' squared whitened residuals
-    (the terms' own residuals, summed in numpy), dof their count less the share."""
+    (the terms' own residuals, summed in numpy), dof their count less the parameters they
+    take: summed, the residual count less every parameter (all determined here; dof14: no
+    longer a share proportional to the counts, tests/test_dof14_leverage.py)."""
     spline, cam, gyro = _job(2)
     est = estimate(spline, [cam, gyro], verbose=False)
     for term in (cam, gyro):
         r = term(spline).detach().numpy()
         assert float(est.chi2[term]) == pytest.approx((r * r).sum(), rel=1e-9)
     n = 6 * cam.N + 3 * gyro.N
-    assert float(est.dof[gyro]) == pytest.approx(3 * gyro.N * float(est.dof[cam]) / (6 * cam.N))
-    assert float(est.dof[cam] + est.dof[gyro]) < n
+    p = 6 * spline.control_points.shape[0] + 3
+    assert float(est.dof[cam] + est.dof[gyro]) == pytest.approx(n - p, abs=1e-6)
+    assert 0 < float(est.dof[cam]) < 6 * cam.N and 0 < float(est.dof[gyro]) < 3 * gyro.N
     assert "left out" not in est.summary()

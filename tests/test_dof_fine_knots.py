@@ -38,8 +38,10 @@ def test_dof_is_zero_when_the_knots_are_finer_than_the_samples():
     assert dofs == [0.0, 0.0]
 
 
-def test_dof_shares_the_parameters_by_residual_count():
+def test_dof_is_each_terms_residuals_less_what_the_parameters_take():
+    """The lone anchor pose alone places the trajectory: the parameters take all of its 6
+    components (dof 0, its residual 0 at the optimum), the relative poses the rest; summed,
+    the residual count less the parameters (dof14: the proportional share N_t (1 - p / sum
+    N) gave the anchor 6 (1 - p / 366) > 0)."""
     dofs, n = _dofs(0.5)
-    counts = np.array([60 * 6, 6], dtype=float)
-    ref = counts * (1 - 6 * n / counts.sum())  # numpy: N_t (1 - p / sum N)
-    np.testing.assert_allclose(dofs, ref, rtol=1e-12)
+    np.testing.assert_allclose(dofs, [60 * 6 - 6 * n + 6, 0.0], rtol=0, atol=1e-6)

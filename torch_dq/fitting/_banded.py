@@ -190,12 +190,9 @@ class BandedCholesky:
 
     def solve(self, rhs: Tensor) -> Tensor:
         """``A^-1 rhs`` for ``rhs (..., n, s, r)`` (batch broadcast with the matrix's)."""
-        *rb, n, s, r = rhs.shape
+        n, s, r = rhs.shape[-3:]
         g, G = self.g, self.G
-        pad = G * g - n
-        if pad:
-            rhs = torch.cat((rhs, rhs.new_zeros(*rb, pad, s, r)), dim=-3)
-        b = rhs.reshape(*rb, G, g * s, r)
+        b = self._groups(rhs)
         ys = []
         for level in self.levels:
             y, b = level.forward(b)
@@ -215,6 +212,36 @@ class BandedCholesky:
         for level in reversed(self.levels):
             diag, sub = level.inverse(diag, sub)
         return diag, sub
+
+    def trace_products(self, bands: list[Tensor], U: Tensor | None = None,
+                       V: Tensor | None = None) -> list[Tensor]:
+        r""":math:`\mathrm{tr}(M (A^{-1} + U V^T))` ``(...)`` for each symmetric block-banded
+        ``M`` given by its upper band ``(..., n, w', s, s)`` in ``bands`` (``w' <= g + 1``),
+        ``U V^T`` symmetric (``U``, ``V``: ``(..., n, s, r)``; None: none): the elementwise
+        products of its grouped blocks with those of the selected inverse plus the update's
+        (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
+        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out."""
+        diag, sub = self.selected_inverse()
+        rows = torch.arange(self.G * self.g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(self.G, self.g * self.s).to(diag.dtype)
+        if U is not None and V is not None:
+            Ug, Vg = (self._groups(x) for x in (U, V))
+            diag = diag + Ug @ Vg.mT
+            sub = sub + _pad(Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT, self.G)
+        out = []
+        for band in bands:
+            D, E = _grouped(band, self.g)
+            own = ((D * diag).sum(-1) * real).sum((-1, -2))
+            out.append(own + 2.0 * (E[..., 1:, :, :] * sub[..., :-1, :, :]).sum((-1, -2, -3)))
+        return out
+
+    def _groups(self, x: Tensor) -> Tensor:
+        """``x (..., n, s, r)`` as ``(..., G, g s, r)``, zero rows past ``n``."""
+        *rb, n, s, r = x.shape
+        pad = self.G * self.g - n
+        if pad:
+            x = torch.cat((x, x.new_zeros(*rb, pad, s, r)), dim=-3)
+        return x.reshape(*rb, self.G, self.g * s, r)
 
     def window_covariance(self, first: Tensor, width: int) -> Tensor:
         r"""Covariance blocks of the ``width`` consecutive block rows ``first .. first +

@@ -327,4 +327,4 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     _warn_pinned(problem, values)
     system = history.system if history.width == problem.width(values) else \
         problem.system(ctrl, values, problem.width(values))
-    return Estimate(problem.summary(system, history.pulled), ctrl, values, history)
+    return Estimate(problem.summary(system), ctrl, values, history)

@@ -205,7 +205,7 @@ class Linearization:
         compute their own spans', whose memory is a part's)."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
-        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m)
+        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m, len(p.terms))
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
         groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
@@ -248,7 +248,7 @@ class Linearization:
                 Y = self._rows(slice(a, a + _ROWS), r, wt, Jc, Jn, w,
                                None if plain else (local[k], valid[k]))
                 win, block = _window_normal(k.reshape(-1), Y.flatten(0, 1))
-                acc.add(win + lo, block, gcols[win])
+                acc.add(win + lo, block, gcols[win], i)
             out.append((r, wt))
         return out
 

@@ -87,8 +87,8 @@ class Point:
 class History:
     """What the loop did: ``loss`` and ``objective`` ``(steps + 1, ...)``, ``steps`` run,
     ``reason`` (joined per batch element), ``converged (...)``, the data ``system`` at the
-    last point, its band ``width``, the control-point directions ``pulled`` and whether
-    every direction of that system carries information (``informed``: its band plus the
+    last point, its band ``width`` and whether every direction of that system carries
+    information (``informed``: its band plus the
     pulls certified positive definite with room, nothing pulled)."""
 
     loss: Tensor
@@ -98,7 +98,6 @@ class History:
     converged: Tensor
     system: System
     width: int
-    pulled: int
     informed: bool
 
 
@@ -142,7 +141,7 @@ class LevenbergMarquardt:
                         for o, a in zip(flat, self.active.tolist(), strict=True)]
 
     def _pulls(self, prior: float) -> None:
-        """The pulls at the start and the directions no sample determines. Which control
+        """The pulls at the start and the combinations no sample determines. Which control
         point combinations the data determine is judged without the robust weights: from a
         far start a robust kernel weighs every sample of its term down (Cauchy: 2e-4 at 230
         sigmas), and where that term alone sees the control points (poses at the ends of an
@@ -162,8 +161,6 @@ class LevenbergMarquardt:
         reg = _prior.Regularised(s.band, cpull)
         self.pulls = (cpull, _prior.nuisance_pull(reg, s.cn, s.nn + info, prior))
         self._control_null(reg)
-        self.pulled = (int(_prior.undetermined(s.band).sum())
-                       + int((self.null[0] != 0).any(-2).any(-2).sum())) // self.Bf
 
     def _relinearize(self) -> None:
         """The data system at the current point (and the pulls re-anchored there, with
@@ -468,8 +465,7 @@ class LevenbergMarquardt:
                 self._relinearize()
             self.check(tol, final=True)
         return History(torch.stack(losses), torch.stack(objectives), done, self._reason(steps),
-                       self.converged.reshape(p.batch), self.system, self.w, self.pulled,
-                       self.informed)
+                       self.converged.reshape(p.batch), self.system, self.w, self.informed)
 
     def _reason(self, steps: int) -> str:
         """The stop reasons joined (with a warning when ``steps`` ran out or the steps

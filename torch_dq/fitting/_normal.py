@@ -18,7 +18,9 @@ __all__ = ["System"]
 class System:
     """Gauss-Newton system (flattened batch ``Bf``): ``band (Bf, n, w, 6, 6)``, ``cn (Bf,
     n, 6, m)``, ``nn (Bf, m, m)``, gradients ``gc (Bf, n, 6)``, ``gn (Bf, m)``; per term
-    whitened residuals and robust weights."""
+    whitened residuals and robust weights; ``own``: the blocks ``(band, cn, nn)`` of each
+    term but the last alone (the last's are the rest: the per-term degrees of freedom of
+    ``torch_dq.fitting._leverage``)."""
 
     band: Tensor
     cn: Tensor
@@ -27,6 +29,7 @@ class System:
     gn: Tensor
     residuals: list[Tensor]
     weights: list[Tensor]
+    own: list[tuple[Tensor, Tensor, Tensor]]
 
 
 class _Normal:
@@ -34,10 +37,13 @@ class _Normal:
     ``(U, 6 w + M + 1, ...)`` (``[J_c | J_n | r]``, the nuisance columns given per window):
     window ``f``'s block ``(a, a + d)`` added to the band at ``(f + a, d)`` and its rows
     ``a`` to control point ``f + a`` (``g_c``, the coupling), ``A_nn`` and ``g_n``
-    scattered to their columns. Memory: the band and the coupling, whatever the samples."""
+    scattered to their columns. Memory: the band and the coupling, whatever the samples,
+    and those of each of the ``terms`` but the last alone (:attr:`System.own`; their blocks
+    added to both, the sum's bits those of one accumulator)."""
 
-    def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int) -> None:
+    def __init__(self, like: Tensor, Bf: int, n: int, w: int, m: int, terms: int = 1) -> None:
         self.Bf, self.n, self.w, self.m = Bf, n, w, m
+        self.own = [_Normal(like, Bf, n, w, m) for _ in range(terms - 1)]
         G = Bf * (n + w)  # window f of batch row b is b (n + w) + f
         self.band = like.new_zeros(G, w, 6, 6)
         self.gc = like.new_zeros(G, 6)
@@ -50,12 +56,14 @@ class _Normal:
         self.pair_a = torch.tensor([a for a, _ in self.pairs], device=like.device)
         self.pair_d = torch.tensor([d for _, d in self.pairs], device=like.device)
 
-    def add(self, windows: Tensor, block: Tensor, gcols: Tensor) -> None:
+    def add(self, windows: Tensor, block: Tensor, gcols: Tensor, term: int = -1) -> None:
         """Add the blocks ``(U, q, q)`` of the ``windows (U,)``, columns ``[J_c (6 w) | J_n
         (M) | r]`` (window ``u``'s nuisance column ``j`` is the problem's ``gcols[u, j]``;
-        padding columns are zero): one scatter per destination (rows ``a`` of window ``f``
-        belong to control point ``f + a``, its block ``(a, a + d)`` to the band at ``(f +
-        a, d)``)."""
+        padding columns are zero), rows of term ``term`` (to its own blocks too, where it
+        has them): one scatter per destination (rows ``a`` of window ``f`` belong to control
+        point ``f + a``, its block ``(a, a + d)`` to the band at ``(f + a, d)``)."""
+        if 0 <= term < len(self.own):
+            self.own[term].add(windows, block, gcols)
         w, m, M, U = self.w, self.m, gcols.shape[-1], windows.shape[0]
         nuis = slice(6 * w, 6 * w + M)
         at = windows[:, None] + self.offsets  # (U, w): the control points of the rows
@@ -100,13 +108,17 @@ class _Normal:
                 cn[f + a:f + a + U] += rows[:, :, 6 * w:6 * w + M]
         return cn is not None
 
-    def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
+    def blocks(self) -> tuple[Tensor, Tensor, Tensor]:
+        """``band (Bf, n, w, 6, 6)``, ``cn (Bf, n, 6, m)`` and ``nn (Bf, m, m)``."""
         Bf, n, w, m = self.Bf, self.n, self.w, self.m
-        band = self.band.reshape(Bf, n + w, w, 6, 6)[:, :n]
-        gc = self.gc.reshape(Bf, n + w, 6)[:, :n]
-        cn = self.cn.reshape(Bf, n + w, 6, m)[:, :n]
-        return System(band, cn, self.nn.reshape(Bf, m, m), gc, self.gn.reshape(Bf, m), rs,
-                      weights)
+        return (self.band.reshape(Bf, n + w, w, 6, 6)[:, :n],
+                self.cn.reshape(Bf, n + w, 6, m)[:, :n], self.nn.reshape(Bf, m, m))
+
+    def system(self, rs: list[Tensor], weights: list[Tensor]) -> System:
+        band, cn, nn = self.blocks()
+        gc = self.gc.reshape(self.Bf, self.n + self.w, 6)[:, :self.n]
+        return System(band, cn, nn, gc, self.gn.reshape(self.Bf, self.m), rs, weights,
+                      [o.blocks() for o in self.own])
 
 
 def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:

@@ -42,8 +42,7 @@ from torch import Tensor
 from ._banded import BandedCholesky
 
 __all__ = ["NULL", "REGULARISE", "SPARSE", "WEAK", "Regularised", "band_apply", "control_null",
-           "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh",
-           "undetermined"]
+           "control_pull", "damping_floor", "nuisance_chart", "nuisance_pull", "scaled_eigh"]
 
 NULL = 1e-9  # scaled eigenvalue of the nuisance information below which a direction is null
 SPARSE = 1e-6  # scaled information of a window direction below which it is pulled
@@ -51,7 +50,6 @@ WEAK = 0.1  # least diagonal of the damping, relative to the typical information
 REGULARISE = 1e-10  # fraction of the control points' diagonal added to factor a singular band
 _WINDOW = 4  # consecutive control points whose joint information is tested for weak directions
 _WINDOWS = 1 << 12  # windows decomposed at once (memory: 4.6 kB each, a few copies)
-_SCREENED = 1e4  # largest scaled trace of a block whose eigenvalues a factorisation screens
 _NULL_RANK = 12  # columns of the subspace iteration for combinations without information
 
 
@@ -144,24 +142,6 @@ def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
                 pull.index_put_((bi, lo + a + ki, torch.full_like(ki, b - a)),
                                 W[:, 6 * a:6 * a + 6, 6 * b:6 * b + 6], accumulate=True)
     return pull[:, :n]
-
-
-def undetermined(band: Tensor) -> Tensor:
-    """``(Bf,)`` the control-point directions without any information (scaled eigenvalue
-    of their diagonal block at most ``NULL``: time gaps, ends without samples). The
-    eigenvalues of the blocks that a Cholesky factorisation certifies (``A - 2 NULL I``
-    factors and the trace is at most ``_SCREENED``) are not computed: the factorisation's
-    backward error and the eigenvalues' (a few ``1e-16`` times the trace each) leave them
-    above ``NULL``, so they would count none (the same count, a twelfth of the cost)."""
-    blocks = band[:, :, 0]
-    s = _typical(blocks).sqrt()[:, None, :]
-    scaled = blocks / (s[..., :, None] * s[..., None, :])
-    rest = _weak_windows(scaled, NULL) | (scaled.diagonal(dim1=-2, dim2=-1).sum(-1) > _SCREENED)
-    count = torch.zeros(band.shape[0], dtype=torch.long, device=band.device)
-    if bool(rest.any()):
-        lam = torch.linalg.eigvalsh(scaled[rest])
-        count.index_add_(0, rest.nonzero()[:, 0], (lam <= NULL).sum(-1))
-    return count
 
 
 def damping_floor(band: Tensor) -> Tensor:

@@ -58,7 +58,6 @@ class Summary:
         spans: the curve's span evaluation (``first``, ``derivatives``, ``support``).
         trajectory: the curve layer (its domain check).
         system: the data-only Gauss-Newton system at the solution.
-        pulled: control-point directions kept by ``estimate``'s ``prior`` (no data).
     """
 
     terms: list[Term]
@@ -70,7 +69,6 @@ class Summary:
     spans: SpanEvaluator
     trajectory: object
     system: System
-    pulled: int
 
 
 class Problem:
@@ -107,10 +105,10 @@ class Problem:
         self.index[(term_i, name)] = p
         self.m += chart.dim
 
-    def summary(self, system: System, pulled: int) -> Summary:
+    def summary(self, system: System) -> Summary:
         """The solved problem for :class:`~torch_dq.fitting.Estimate`."""
         return Summary(self.terms, self.batch, self.spans.n, self.m, list(self.params),
-                       self.prior_information(), self.spans, self.trajectory, system, pulled)
+                       self.prior_information(), self.spans, self.trajectory, system)
 
     def groups(self, values: list[Tensor]) -> list[tuple[int, ...]]:
         """The terms by their span evaluation, in order of their first term: terms read at

@@ -80,7 +80,7 @@ def weight(kind: str | None, s: Tensor, k: float) -> Tensor:
     return 1.0 / (1.0 + (s / k) ** 2)
 
 
-def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, float]:
+def inliers(s2: Tensor, mask: Tensor, d: int, taken: Tensor | float) -> tuple[Tensor, float]:
     r"""The inliers of a robust term, for its chi-square: samples whose squared whitened
     norm is at most :math:`q f`, ``q`` the ``INLIER_QUANTILE`` quantile of the
     chi-square distribution with ``d`` degrees of freedom and ``f`` the term's chi2/dof
@@ -88,7 +88,7 @@ def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, fl
     :math:`\mathrm{median}(s^2) / \mathrm{median}(\chi^2_d)`):
 
     .. math::
-        f = \frac{\sum_{s_i^2 \le q f} s_i^2 / \kappa}{d\, n_{in} (1 - share)},\qquad
+        f = \frac{\sum_{s_i^2 \le q f} s_i^2 / \kappa}{d\, n_{in} - \tau},\qquad
         \kappa = \frac{P(\chi^2_{d+2} \le q)}{P(\chi^2_d \le q)},
 
     ``kappa`` the mean of :math:`\chi^2_d / d` truncated at ``q`` (0.9939 for ``d = 3``):
@@ -100,15 +100,16 @@ def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, fl
         s2: ``(..., N)`` squared whitened residual norms.
         mask: ``(..., N)`` bool, the samples counted.
         d: the residual's dimension.
-        share: ``(...)`` or float, the fraction of the residual components taken by the
-            estimated parameters (:attr:`~torch_dq.fitting.Estimate.dof`).
+        taken: ``(...)`` or float, the residual components that the estimated parameters
+            take from the term, :math:`\tau` (its leverages summed,
+            :attr:`~torch_dq.fitting.Estimate.dof`).
 
     Returns:
         ``(keep, kappa)``: ``(..., N)`` bool, the inliers among ``mask``, and ``kappa``.
     """
     q = chi_quantile(d, INLIER_QUANTILE) ** 2
     kappa = _chi2_cdf(q, d + 2) / _chi2_cdf(q, d)
-    per = d * (1.0 - torch.as_tensor(share, dtype=s2.dtype, device=s2.device)).clamp_min(1e-12)
+    tau = torch.as_tensor(taken, dtype=s2.dtype, device=s2.device)
     f = s2.masked_fill(~mask, math.nan).nanmedian(-1).values / chi_quantile(d, 0.5) ** 2
     keep = torch.zeros_like(mask)
     for _ in range(_PASSES):
@@ -116,5 +117,6 @@ def inliers(s2: Tensor, mask: Tensor, d: int, share: Tensor) -> tuple[Tensor, fl
         if torch.equal(new, keep):
             break
         keep = new
-        f = torch.where(keep, s2, 0.0).sum(-1) / (kappa * keep.sum(-1).clamp_min(1) * per)
+        nu = (d * keep.sum(-1).clamp_min(1) - tau).clamp_min(1e-12 * d)
+        f = torch.where(keep, s2, 0.0).sum(-1) / (kappa * nu)
     return keep, kappa

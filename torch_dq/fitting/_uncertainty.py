@@ -40,6 +40,7 @@ from .. import _checks, curves, dualquat, quat
 from . import _robust
 from ._banded import BandedCholesky
 from ._charts import Scalar
+from ._leverage import decouple, taken
 from ._local import sample_jacobians, tangent_step
 from ._prior import NULL, REGULARISE, scaled_eigh
 
@@ -116,17 +117,13 @@ def _drop_undetermined(band: Tensor, cn: Tensor,
         The band and coupling with those points decoupled, and ``free (Bf, n)`` bool, True
         at the undetermined control points.
     """
-    n, w = band.shape[1], band.shape[2]
     free = (band[:, :, 0].abs().amax((-1, -2)) <= _FLOOR * scale) & (scale > 0)  # none: inf
     if not bool(free.any()):
         return band, cn, free
-    col = torch.arange(n, device=band.device)[:, None] + torch.arange(w, device=band.device)
-    hit = free[:, :, None] | free.gather(1, col.clamp(max=n - 1).reshape(1, -1).expand(
-        free.shape[0], -1)).reshape(-1, n, w)
-    band = band.masked_fill(hit[..., None, None], 0.0)
+    band, cn = decouple(band, cn, free)
     eye = torch.eye(band.shape[-1], dtype=band.dtype, device=band.device)
     band[:, :, 0] = torch.where(free[..., None, None], eye, band[:, :, 0])
-    return band, cn.masked_fill(free[..., None, None], 0.0), free
+    return band, cn, free
 
 
 def _band(nu: Tensor, z: float) -> Tensor:
@@ -183,10 +180,11 @@ class Estimate:
         self.converged: Tensor = history.converged
         self.reason: str = history.reason
         self._system = summary.system
-        self._pulled = summary.pulled
         self._informed = history.informed
-        self._factored = False
+        self._factored = self._checked = False
+        self._weak: list[str] = []  # nuisance parameters with a direction without information
         self._inliers: dict | None = None
+        self._taken: list[Tensor] | None = None
 
     def __repr__(self) -> str:
         ratios = ", ".join(f"{type(t).__name__}: {r:.3g}" + (f" (far {far} 1)" if far else "")
@@ -217,28 +215,37 @@ class Estimate:
                 out[term] = w.expand(*batch, w.shape[-1])
         return out
 
-    def _share(self) -> Tensor:
-        """``(...)`` the fraction of the residual components (every unmasked sample) that
-        the estimated parameters take (:attr:`dof`)."""
-        p = self._problem
-        total = sum((t.mask.sum(-1) * t.dim).expand(p.batch).to(torch.float64)
-                    for t in p.terms)
-        return ((6 * p.n - self._pulled + p.m) / total.clamp_min(1.0)).clamp(max=1.0)
+    def _leverages(self) -> list[Tensor]:
+        r"""Per term ``(...)``: :math:`\mathrm{tr}(H_t \Sigma)`, the parameters its residuals
+        take (``torch_dq.fitting._leverage``), NaN where the factorisation failed; once,
+        on first use (it factors the Gauss-Newton matrix)."""
+        if self._taken is None:
+            self._factorise()
+            bad = torch.isinf(self._inv)
+            inv = torch.where(bad, 0.0, self._inv)
+            r = self._r
+            cov = ((self._U * inv[:, None, :]) @ self._U.mT) * r[:, :, None] * r[:, None, :]
+            b = self._problem.batch
+            self._taken = [torch.where(self._ok, x, torch.nan).reshape(b) for x in taken(
+                self._chol, self._Z, cov, self._free, self._system)]
+        return self._taken
 
     def _kept(self) -> dict:
         """Per term: the samples its :attr:`chi2` counts ``(..., N)`` bool and the divisor of
         their sum: the unmasked samples and 1 without a robust kernel, the inliers and the
         truncated mean ``kappa`` with one (``torch_dq.fitting._robust.inliers``); once."""
         if self._inliers is None:
-            batch, share, out = self._problem.batch, self._share(), {}
-            for term, r in zip(self._problem.terms, self._system.residuals, strict=True):
+            batch, out = self._problem.batch, {}
+            for i, (term, r) in enumerate(zip(self._problem.terms, self._system.residuals,
+                                              strict=True)):
                 mask = term.mask
                 if term.robust is None:
                     out[term] = (mask, 1.0)
                     continue
                 s2 = (r * r).sum(-1)
                 s2 = s2.expand(*batch, s2.shape[-1])
-                out[term] = _robust.inliers(s2, mask.expand_as(s2), term.dim, share)
+                out[term] = _robust.inliers(s2, mask.expand_as(s2), term.dim,
+                                            self._leverages()[i])
             self._inliers = out
         return self._inliers
 
@@ -274,23 +281,28 @@ class Estimate:
 
     @property
     def dof(self) -> dict:
-        r"""Per term ``(...)`` float: the term's residual components (unmasked samples; with
-        a robust kernel its inliers, see :attr:`chi2`) less its share of the estimated
-        parameters. The parameters are ``6 n`` (control
-        points) less the directions kept by ``estimate``'s ``prior`` (no data information),
-        plus the ``m`` nuisance chart coordinates, and at most the residual components (the
-        data determine no more combinations than they have components: knots finer than the
-        samples give zero, not a negative count); they are shared among the terms in
-        proportion to their residual counts (every unmasked sample's: ``N_u``):
-        :math:`\nu_t = N_t (1 - \min(p / \sum_u N_u, 1))`."""
-        share = self._share()
-        return {t: c * (1.0 - share) for t, c in self._per_term("count").items()}
+        r"""Per term ``(...)`` float: the term's residual components ``N_t`` (unmasked
+        samples; with a robust kernel its inliers, see :attr:`chi2`) less the parameters its
+        residuals take, :math:`\nu_t = N_t - \mathrm{tr}(H_t \Sigma)` (at least 0): ``H_t``
+        the term's Gauss-Newton matrix at the optimum (robust weights as converged),
+        ``Sigma`` the covariance of :meth:`cov` and :meth:`pose_std` (the inverse of the
+        data-only matrix with the :class:`~torch_dq.fitting.Free` priors, on the directions
+        the data determine), so that :math:`\chi^2_t / \nu_t` is about 1 when the term's
+        sigmas describe its data, whatever the other terms (``torch_dq.fitting._leverage``:
+        the term's samples' leverages summed; 20 Hz poses beside a 200 Hz IMU take far fewer
+        than their share of the residual count). Summed over the terms, the residual
+        components less the parameters the data determine (the directions kept by
+        ``estimate``'s ``prior``, or without information, count for no term). NaN where the
+        Gauss-Newton matrix could not be factored. Computed on first use (it factors the
+        matrix, as the first uncertainty does)."""
+        return {t: (c - x).clamp_min(0.0) for (t, c), x in zip(
+            self._per_term("count").items(), self._leverages(), strict=True)}
 
     def _factor_scale(self) -> Tensor:
         r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
         (``scaled=True``; see :meth:`cov`)."""
         chi2 = sum(self.chi2.values())
-        dof = sum(self.dof.values())
+        dof = cast(Tensor, sum(self.dof.values()))
         return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
     def _far(self) -> dict:
@@ -301,22 +313,20 @@ class Estimate:
         upper end of the two-sided 99.9 % band of the chi-square distribution with
         :attr:`dof` degrees of freedom (its sigmas too small for its residuals, or, for an
         IMU term, the knots too far apart for its readings). Far below 1: :math:`\chi^2`
-        below both :attr:`dof` over ``_FAR`` and the lower end of that band for the fewest
-        degrees of freedom the term can have, :math:`N_t - p` (``p`` every estimated
-        parameter: a term's residuals absorb at most all of them, whatever the share
-        :attr:`dof` gives it), so that a correct model stays silent: its sigmas are too
-        large, its standard deviations too (the Wilson-Hilferty cube-root approximation of
-        the quantiles)."""
-        counts = self._per_term("count")
-        params = float(6 * self._problem.n - self._pulled + self._problem.m)
+        below both :attr:`dof` over ``_FAR`` and the lower end of that band: its sigmas are
+        too large, its standard deviations too (the Wilson-Hilferty cube-root approximation
+        of the quantiles). The band is the chi-square distribution's with :attr:`dof`
+        degrees of freedom, which a term's :math:`\chi^2` has in the mean (a quadratic form
+        of the residuals whose eigenvalues are between 0 and 1: its variance at most that
+        distribution's, the band conservative)."""
+        dofs = self.dof
         out: dict = {}
         for term, c in self.chi2.items():
-            nu = self.dof[term].clamp_min(1.0)
-            fewest = (counts[term] - params).clamp_min(1.0)
+            nu = dofs[term].clamp_min(1.0)
             ratio = c / nu
             if bool(((c > _band(nu, _Z999)) & (ratio > _FAR)).any()):
                 out[term] = (float(ratio.max()), "above")
-            elif bool(((c < _band(fewest, -_Z999)) & (ratio < 1.0 / _FAR)).any()):
+            elif bool(((c < _band(nu, -_Z999)) & (ratio < 1.0 / _FAR)).any()):
                 out[term] = (float(ratio.min()), "below")
             else:
                 out[term] = (float(ratio.max()), None)
@@ -374,9 +384,20 @@ class Estimate:
         return self._per_term("weights")
 
     def _ensure(self) -> None:
-        """Factor the Gauss-Newton matrix on the first uncertainty asked for."""
-        if not self._factored:
+        """On the first uncertainty asked for: the Gauss-Newton matrix factored, and the
+        warnings of :meth:`_check_chi2` and of the directions without information."""
+        if not self._checked:
+            self._checked = True
             self._check_chi2()
+            self._factorise()
+            if self._weak:
+                warnings.warn(f"fitting.Estimate: the data carry no information on a "
+                              f"direction of {', '.join(self._weak)}: its standard deviation "
+                              f"is inf", RuntimeWarning, stacklevel=3)
+
+    def _factorise(self) -> None:
+        """Factor the Gauss-Newton matrix, once (the uncertainties, :attr:`dof`)."""
+        if not self._factored:
             self._factor(self._system)
             self._factored = True
 
@@ -418,12 +439,10 @@ class Estimate:
         self._U, self._r = U, d.rsqrt()
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
-            weak = [f"{type(t).__name__}.{name}" for q in p.params for t, name in q.uses
-                    if bool((U[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
-                            .any(-2)[bad].any())]
-            warnings.warn(f"fitting.Estimate: the data carry no information on a direction of "
-                          f"{', '.join(sorted(set(weak)))}: its standard deviation is inf",
-                          RuntimeWarning, stacklevel=4)
+            self._weak = sorted({f"{type(t).__name__}.{name}" for q in p.params
+                                 for t, name in q.uses
+                                 if bool((U[:, q.offset:q.offset + q.dim, :].abs() > 1e-6)
+                                         .any(-2)[bad].any())})
 
     def _loads_free(self, J: Tensor, idx: Tensor) -> Tensor:
         """``(Bf, T, k)`` bool: the outputs with a component on a control point without data
@@ -485,14 +504,14 @@ class Estimate:
                 parameter, in the order of :attr:`parameters` (``(term, name, size)``,
                 ``size`` rows each).
             scaled: multiply by the pooled :math:`\sum_t \chi^2_t / \sum_t \nu_t` over
-                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p` exactly,
-                ``N`` every residual component, ``p`` the estimated parameters): the
+                every term (:attr:`chi2`, :attr:`dof`; :math:`\sum_t \nu_t = N - p`, ``N``
+                every residual component, ``p`` the parameters the data determine): the
                 a-posteriori reference variance of least squares (``scipy.optimize.
                 curve_fit``'s ``absolute_sigma=False``, MATLAB's ``lscov``), the covariance as
                 the residuals' own scatter suggests when every term's sigmas are off by one
-                common factor (no term's own: the per-term :attr:`dof` is a proportional
-                share, not the term's redundancy, and a per-term factor would inherit its
-                error; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
+                common factor (no term's own: a parameter is determined by several terms
+                together, each term's :math:`\chi^2_t / \nu_t` says how far its own sigmas
+                are off; GTSAM's ``Marginals``, Ceres' ``Covariance`` and pypose scale by
                 nothing, as ``scaled=False`` does).
 
         Returns:
