@@ -564,17 +564,16 @@ def _chi2(e2: list[Tensor], kind, params: int) -> tuple[float, float, list[int]]
     parameters estimated. Without a kernel every observation counts: ``dof = 2 n - m``.
     With one only the inliers, as :attr:`torch_dq.fitting.Estimate.chi2` counts them
     (``torch_dq.fitting._robust.inliers``: a cutoff at the 99.9 % quantile scaled by the
-    chi2/dof found, the sum over the truncated mean; ``dof`` the inliers' share)."""
+    chi2/dof found, the sum over the truncated mean; ``dof`` the inliers' components less
+    the parameters: one term takes them all)."""
     s2 = torch.cat(e2)
-    n = s2.numel()
-    share = min(params / max(2 * n, 1), 1.0)
+    taken = min(params, 2 * s2.numel())
     if kind is None:
-        return float(s2.sum()), float(2 * n - min(params, 2 * n)), [0] * len(e2)
-    keep, kappa = inliers(s2, torch.ones_like(s2, dtype=torch.bool), 2,
-                          torch.tensor(share, dtype=s2.dtype))
+        return float(s2.sum()), float(2 * s2.numel() - taken), [0] * len(e2)
+    keep, kappa = inliers(s2, torch.ones_like(s2, dtype=torch.bool), 2, float(taken))
     chi2 = float(torch.where(keep, s2, 0.0).sum()) / kappa
     out = [int((~k).sum()) for k in keep.split([x.numel() for x in e2])]
-    return chi2, 2 * int(keep.sum()) * (1.0 - share), out
+    return chi2, max(2 * int(keep.sum()) - taken, 0), out
 
 
 def _result(cams, state, system, layout, valid, kind, like, frame_times, run):
