@@ -72,17 +72,21 @@ Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``un
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False) -> Rows:
-    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
-    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting), each a tensor or its rows
-    (``unbind(0)``, which callers reading the rows of one tensor several times take once):
-    six fused multiply-adds into ``out`` and no temporaries (``torch.linalg.cross`` over the
-    first dim of broadcast rows is several times slower, a stack of component products
-    allocates each)."""
+def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False, base: Rows | None = None,
+                ) -> Rows:
+    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`; ``base``:
+    :math:`{} = \mathrm{base} + a \times b`, the bits of ``base`` copied to ``out`` then
+    ``acc``, without the copy) in place, for component-major ``(3, ...)`` vectors ``a, b``
+    (broadcasting), each a tensor or its rows (``unbind(0)``, which callers reading the rows
+    of one tensor several times take once): six fused multiply-adds into ``out`` and no
+    temporaries (``torch.linalg.cross`` over the first dim of broadcast rows is several
+    times slower, a stack of component products allocates each)."""
     o, x, y = (t.unbind(0) if isinstance(t, Tensor) else t for t in (out, a, b))
     for i in range(3):
         j, m = (i + 1) % 3, (i + 2) % 3
-        if acc:
+        if base is not None:
+            torch.addcmul(base[i], x[j], y[m], out=o[i])
+        elif acc:
             o[i].addcmul_(x[j], y[m])
         else:
             torch.mul(x[j], y[m], out=o[i])
@@ -188,14 +192,16 @@ def _bracket(a: Tensor, b: Tensor) -> Tensor:
     return out
 
 
-def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
+def _row_ad(a: Tensor, z: Tensor, out: Tensor, base: Tensor | None = None) -> Tensor:
     r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
     (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
-    place."""
+    place (``base``: ``out`` :math:`{} = \mathrm{base} + {}` the same, the bits of a copy
+    of ``base`` into ``out`` first)."""
     o, x, y = out.unbind(0), a.unbind(0), z.unsqueeze(1).unbind(0)
-    _cross_into(o[:3], x[:3], y[:3], acc=True)
+    b = (None, None) if base is None else (base[:3].unbind(0), base[3:].unbind(0))
+    _cross_into(o[:3], x[:3], y[:3], acc=True, base=b[0])
     _cross_into(o[:3], x[3:], y[3:], acc=True)
-    _cross_into(o[3:], x[3:], y[:3], acc=True)
+    _cross_into(o[3:], x[3:], y[:3], acc=True, base=b[1])
     return out
 
 
@@ -326,11 +332,11 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
 
 
 def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, second: slice,
-              ) -> tuple[list[Tensor], Tensor]:
+              first: Tensor) -> list[Tensor]:
     r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
     (:func:`_algebra_cotangents`, updated in place; of :math:`\dot V` the rows ``second``
-    alone are read): those ``(6, k, S)`` of every :math:`d_j` and of the first point's step
-    (through the pose alone)."""
+    alone are read): those ``(6, k, S)`` of every :math:`d_j`, returned, and of the first
+    point's step (through the pose alone), written to ``first``."""
     O, p = a.shape[1], d.shape[0]
     out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
@@ -338,9 +344,10 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         a2 = a[:, 2, second] if O > 2 else a
         if O > 2:
             _row_ad(a2, -lj[1] * dj, a[:, 1, second])
-        t = a[:, 0].clone()
-        if O > 1 and j:
-            _row_ad(a[:, 1], fw["z"][j], t)
+        # the pose's rows, plus the bracket's where V's reach them (a fresh array: then
+        # updated in place), else as they are (only read)
+        t = (_row_ad(a[:, 1], fw["z"][j], torch.empty_like(a[:, 0]), a[:, 0])
+             if O > 1 and j else a[:, 0])
         if O > 2 and j:
             _row_ad(a2, fw["zd"][j], t[:, second])
         c = _rows(t, fw["Jr"][j])
@@ -351,7 +358,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         out.append(c)
         # at the first step only the pose's rows go on (to the first point's step)
         if not j:
-            a = _rows(a[:, 0], fw["M"][j])[:, None]
+            _rows(a[:, 0], fw["M"][j], first)
             continue
         b = torch.empty_like(a)
         S = a.shape[-1]
@@ -359,7 +366,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         if O > 2:
             _rows(a2, fw["M"][j], b[:, 2, second])
         a = b
-    return out[::-1], a[:, 0]
+    return out[::-1]
 
 
 def _inverse_jacobians(powers: tuple[Tensor, ...], signs: tuple[int, ...],
@@ -460,9 +467,8 @@ def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], 
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
     rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second)
-    cd, first = _backward(fw, d, lam, rows, second)
+    cd = _backward(fw, d, lam, rows, second, steps[0])
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
-    steps[0] = first
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
         _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
