@@ -339,6 +339,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
     point's step (through the pose alone), written to ``first``."""
     O, p = a.shape[1], d.shape[0]
     out: list[Tensor] = []  # from the last step back
+    spare: Tensor | None = None  # the rows two steps back, dead: the next step's array
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         a2 = a[:, 2, second] if O > 2 else a
@@ -360,12 +361,12 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         if not j:
             _rows(a[:, 0], fw["M"][j], first)
             continue
-        b = torch.empty_like(a)
+        b = torch.empty_like(a) if spare is None else spare
         S = a.shape[-1]
         _rows(a[:, :2].view(6, -1, S), fw["M"][j], b[:, :2].view(6, -1, S))
         if O > 2:
             _rows(a2, fw["M"][j], b[:, 2, second])
-        a = b
+        spare, a = a, b
     return out[::-1]
 
 
@@ -440,11 +441,12 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
     size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
+    gathered = span.new_empty(80 * p * min(size, S))  # every part's gathered span parts
     for a in range(0, S, size):
         c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
                   rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
-                  steps[..., c], slice(None) if second is None else second)
+                  steps[..., c], slice(None) if second is None else second, gathered)
     return steps.permute(3, 2, 0, 1)
 
 
@@ -455,14 +457,15 @@ VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
-              pose: Tensor, steps: Tensor, second: slice) -> None:
+              pose: Tensor, steps: Tensor, second: slice, buffer: Tensor) -> None:
     r""":func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)`` (of
     :math:`\ddot X` the rows ``second``), into their ``steps (p + 1, 6, k, S)``: the span
     parts ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the
-    columns ``at + inverse`` (``at``: each step's first)."""
-    p = at.shape[0]
-    d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
-                             .view(80, p, -1))
+    columns ``at + inverse`` (``at``: each step's first) into the front of ``buffer`` (flat,
+    shared by the parts of a call: no fresh mapping a part)."""
+    p, idx = at.shape[0], (at[:, None] + inverse).view(1, -1)
+    out = buffer[:80 * idx.shape[1]].view(80, -1)
+    d, powers, fin = _unpack(torch.gather(span, 1, idx.expand(80, -1), out=out).view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
