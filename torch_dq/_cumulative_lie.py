@@ -332,13 +332,12 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
 
 
 def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, second: slice,
-              first: Tensor) -> list[Tensor]:
+              first: Tensor, cd: Tensor) -> None:
     r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
     (:func:`_algebra_cotangents`, updated in place; of :math:`\dot V` the rows ``second``
-    alone are read): those ``(6, k, S)`` of every :math:`d_j`, returned, and of the first
-    point's step (through the pose alone), written to ``first``."""
+    alone are read): those of every :math:`d_j`, written to ``cd (p, 6, k, S)``, and of
+    the first point's step (through the pose alone), written to ``first``."""
     O, p = a.shape[1], d.shape[0]
-    out: list[Tensor] = []  # from the last step back
     spare: Tensor | None = None  # the rows two steps back, dead: the next step's array
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
@@ -351,12 +350,11 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
              if O > 1 and j else a[:, 0])
         if O > 2 and j:
             _row_ad(a2, fw["zd"][j], t[:, second])
-        c = _rows(t, fw["Jr"][j])
+        c = _rows(t, fw["Jr"][j], cd[j])
         if O > 1:
             c.addcmul_(a[:, 1], lj[1])
         if O > 2:
             _row_ad(a2, lj[1] * fw["V"][j], c[:, second].addcmul_(a2, lj[2]))
-        out.append(c)
         # at the first step only the pose's rows go on (to the first point's step)
         if not j:
             _rows(a[:, 0], fw["M"][j], first)
@@ -367,7 +365,6 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         if O > 2:
             _rows(a2, fw["M"][j], b[:, 2, second])
         spare, a = a, b
-    return out[::-1]
 
 
 def _inverse_jacobians(powers: tuple[Tensor, ...], signs: tuple[int, ...],
@@ -441,12 +438,13 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
     size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
-    gathered = span.new_empty(80 * p * min(size, S))  # every part's gathered span parts
+    # every part's gathered span parts and cotangent rows of the twists
+    buffers = (span.new_empty(80 * p * min(size, S)), cot.new_empty(p * 6 * k * min(size, S)))
     for a in range(0, S, size):
         c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
                   rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
-                  steps[..., c], slice(None) if second is None else second, gathered)
+                  steps[..., c], slice(None) if second is None else second, buffers)
     return steps.permute(3, 2, 0, 1)
 
 
@@ -457,20 +455,23 @@ VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
-              pose: Tensor, steps: Tensor, second: slice, buffer: Tensor) -> None:
+              pose: Tensor, steps: Tensor, second: slice, buffers: tuple[Tensor, Tensor],
+              ) -> None:
     r""":func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)`` (of
     :math:`\ddot X` the rows ``second``), into their ``steps (p + 1, 6, k, S)``: the span
     parts ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the
-    columns ``at + inverse`` (``at``: each step's first) into the front of ``buffer`` (flat,
-    shared by the parts of a call: no fresh mapping a part)."""
+    columns ``at + inverse`` (``at``: each step's first) into the front of ``buffers[0]``,
+    the twists' cotangent rows into ``buffers[1]`` (flat, shared by the parts of a call: no
+    fresh mapping a part)."""
     p, idx = at.shape[0], (at[:, None] + inverse).view(1, -1)
-    out = buffer[:80 * idx.shape[1]].view(80, -1)
+    out = buffers[0][:80 * idx.shape[1]].view(80, -1)
     d, powers, fin = _unpack(torch.gather(span, 1, idx.expand(80, -1), out=out).view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
     rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second)
-    cd = _backward(fw, d, lam, rows, second, steps[0])
+    cd = buffers[1][:steps[0].numel() * p].view(p, *steps.shape[1:])
+    _backward(fw, d, lam, rows, second, steps[0], cd)
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
