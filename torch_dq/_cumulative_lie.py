@@ -288,7 +288,7 @@ def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[s
 
 
 def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: slice,
-                        ) -> Tensor:
+                        out: Tensor) -> Tensor:
     r"""Cotangent rows ``(6, O, k, S)`` of the pose's right step, of :math:`V` and of
     :math:`\dot V` (the orders there are) from those ``g (8, O, k, S)`` of :math:`X, \dot X,
     \ddot X`: :math:`\mathrm d X = X h(\xi)`, :math:`\mathrm d\dot X = X h(\xi) h(V) + X
@@ -301,9 +301,9 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
     alone are formed, and :math:`P (R + L)(h)^T u = -\frac12 (u_{a0} \omega + u_{b0} v,\
     u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel). The
     second order's terms are taken for the rows ``second`` alone (the others' cotangents
-    there are zero, :func:`vjp`), whose rows of :math:`\dot V` alone are set."""
-    _, O, k, S = g.shape
-    out = g.new_empty(6, O, k, S)
+    there are zero, :func:`vjp`), whose rows of :math:`\dot V` alone are set; into ``out``,
+    returned."""
+    O = g.shape[1]
     r, d = _halves(X)
     pw, pv = out[:3, 0], out[3:, 0]
     _conj_vec(pw, r, g[:4, 0], True)
@@ -332,13 +332,14 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
 
 
 def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, second: slice,
-              first: Tensor, cd: Tensor) -> None:
+              first: Tensor, cd: Tensor, spare: Tensor) -> None:
     r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
     (:func:`_algebra_cotangents`, updated in place; of :math:`\dot V` the rows ``second``
     alone are read): those of every :math:`d_j`, written to ``cd (p, 6, k, S)``, and of
-    the first point's step (through the pose alone), written to ``first``."""
+    the first point's step (through the pose alone), written to ``first``; ``spare``, an
+    array like ``a``, and ``a`` take the rows of the steps in turn (the rows two steps back
+    are dead)."""
     O, p = a.shape[1], d.shape[0]
-    spare: Tensor | None = None  # the rows two steps back, dead: the next step's array
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         a2 = a[:, 2, second] if O > 2 else a
@@ -359,8 +360,7 @@ def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, seco
         if not j:
             _rows(a[:, 0], fw["M"][j], first)
             continue
-        b = torch.empty_like(a) if spare is None else spare
-        S = a.shape[-1]
+        b, S = spare, a.shape[-1]
         _rows(a[:, :2].view(6, -1, S), fw["M"][j], b[:, :2].view(6, -1, S))
         if O > 2:
             _rows(a2, fw["M"][j], b[:, 2, second])
@@ -438,8 +438,10 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
     size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
-    # every part's gathered span parts and cotangent rows of the twists
-    buffers = (span.new_empty(80 * p * min(size, S)), cot.new_empty(p * 6 * k * min(size, S)))
+    # every part's gathered span parts, cotangent rows of the twists and of the recursions
+    n = min(size, S)
+    buffers = (span.new_empty(80 * p * n), cot.new_empty(p * 6 * k * n),
+               cot.new_empty(2 * 6 * cot.shape[2] * k * n))
     for a in range(0, S, size):
         c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
@@ -455,23 +457,25 @@ VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
-              pose: Tensor, steps: Tensor, second: slice, buffers: tuple[Tensor, Tensor],
+              pose: Tensor, steps: Tensor, second: slice, buffers: tuple[Tensor, ...],
               ) -> None:
     r""":func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)`` (of
     :math:`\ddot X` the rows ``second``), into their ``steps (p + 1, 6, k, S)``: the span
     parts ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the
     columns ``at + inverse`` (``at``: each step's first) into the front of ``buffers[0]``,
-    the twists' cotangent rows into ``buffers[1]`` (flat, shared by the parts of a call: no
-    fresh mapping a part)."""
+    the twists' cotangent rows into ``buffers[1]``, the recursions' into ``buffers[2]``
+    (flat, shared by the parts of a call: no fresh mapping a part)."""
     p, idx = at.shape[0], (at[:, None] + inverse).view(1, -1)
     out = buffers[0][:80 * idx.shape[1]].view(80, -1)
     d, powers, fin = _unpack(torch.gather(span, 1, idx.expand(80, -1), out=out).view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second)
+    shape = (6, *cot.shape[1:])  # (6, O, k, S)
+    two = buffers[2][:2 * cot[0].numel() * 6].view(2, *shape)
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second, two[0])
     cd = buffers[1][:steps[0].numel() * p].view(p, *steps.shape[1:])
-    _backward(fw, d, lam, rows, second, steps[0], cd)
+    _backward(fw, d, lam, rows, second, steps[0], cd, two[1])
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
