@@ -281,8 +281,9 @@ def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[s
             out["V"].append(V)
         if O > 2:
             out["zd"].append(_apply(out["M"][j], Vd) if j else None)
-            Vd = (out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj) if j
-                  else lam[2][j] * dj)
+            Vd = out["zd"][j] + lam[2][j] * dj if j else lam[2][j] * dj
+            if j:  # the bracket's product into its own array, added in place
+                Vd += _bracket(V, dj).mul_(lam[1][j])
     out["last"] = [V, Vd]
     return out
 
@@ -580,13 +581,13 @@ def _adjoint(d: Tensor, c1: tuple[Tensor, Tensor], c2: tuple[Tensor, Tensor], y:
              ) -> Tensor:
     r""":math:`M y = y + c_1 [d, y] + c_2 [d, [d, y]]` (:func:`_forward`'s :math:`M_j` without
     its matrices) for twists ``d (6, 1, N)``, ``y (6, n, N)`` and dual scalars ``c1, c2``
-    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`)."""
-    out = y.clone()
+    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`), into ``y`` (updated
+    in place once its brackets are taken; returned)."""
     b = _bracket(d, y)
     for (a, e), z in ((c1, b), (c2, _bracket(d, b))):
-        out.addcmul_(z, a)
-        out[3:].addcmul_(z[:3], e)
-    return out
+        y.addcmul_(z, a)
+        y[3:].addcmul_(z[:3], e)
+    return y
 
 
 def _pure_rows(xi: Tensor) -> Tensor:
