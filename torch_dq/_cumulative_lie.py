@@ -72,17 +72,21 @@ Rows = Tensor | tuple[Tensor, ...]  # a component-major tensor or its rows (``un
 # ``(A, B)``, each ``(3, 3, S)``.
 
 
-def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False) -> Rows:
-    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`) in place, for
-    component-major ``(3, ...)`` vectors ``a, b`` (broadcasting), each a tensor or its rows
-    (``unbind(0)``, which callers reading the rows of one tensor several times take once):
-    six fused multiply-adds into ``out`` and no temporaries (``torch.linalg.cross`` over the
-    first dim of broadcast rows is several times slower, a stack of component products
-    allocates each)."""
+def _cross_into(out: Rows, a: Rows, b: Rows, acc: bool = False, base: Rows | None = None,
+                ) -> Rows:
+    r"""``out`` :math:`{} = a \times b` (``acc``: :math:`{} \mathrel{+}=`; ``base``:
+    :math:`{} = \mathrm{base} + a \times b`, the bits of ``base`` copied to ``out`` then
+    ``acc``, without the copy) in place, for component-major ``(3, ...)`` vectors ``a, b``
+    (broadcasting), each a tensor or its rows (``unbind(0)``, which callers reading the rows
+    of one tensor several times take once): six fused multiply-adds into ``out`` and no
+    temporaries (``torch.linalg.cross`` over the first dim of broadcast rows is several
+    times slower, a stack of component products allocates each)."""
     o, x, y = (t.unbind(0) if isinstance(t, Tensor) else t for t in (out, a, b))
     for i in range(3):
         j, m = (i + 1) % 3, (i + 2) % 3
-        if acc:
+        if base is not None:
+            torch.addcmul(base[i], x[j], y[m], out=o[i])
+        elif acc:
             o[i].addcmul_(x[j], y[m])
         else:
             torch.mul(x[j], y[m], out=o[i])
@@ -188,14 +192,16 @@ def _bracket(a: Tensor, b: Tensor) -> Tensor:
     return out
 
 
-def _row_ad(a: Tensor, z: Tensor, out: Tensor) -> Tensor:
+def _row_ad(a: Tensor, z: Tensor, out: Tensor, base: Tensor | None = None) -> Tensor:
     r"""``out`` :math:`\mathrel{+}=` rows ``a (6, k, S)`` times :math:`\mathrm{ad}_z` (``z
     (6, S)``): :math:`(a_\omega \times z_\omega + a_v \times z_v,\ a_v \times z_\omega)`, in
-    place."""
+    place (``base``: ``out`` :math:`{} = \mathrm{base} + {}` the same, the bits of a copy
+    of ``base`` into ``out`` first)."""
     o, x, y = out.unbind(0), a.unbind(0), z.unsqueeze(1).unbind(0)
-    _cross_into(o[:3], x[:3], y[:3], acc=True)
+    b = (None, None) if base is None else (base[:3].unbind(0), base[3:].unbind(0))
+    _cross_into(o[:3], x[:3], y[:3], acc=True, base=b[0])
     _cross_into(o[:3], x[3:], y[3:], acc=True)
-    _cross_into(o[3:], x[3:], y[:3], acc=True)
+    _cross_into(o[3:], x[3:], y[:3], acc=True, base=b[1])
     return out
 
 
@@ -275,14 +281,15 @@ def _forward(d: Tensor, powers: tuple[Tensor, ...], lam: list[Tensor]) -> dict[s
             out["V"].append(V)
         if O > 2:
             out["zd"].append(_apply(out["M"][j], Vd) if j else None)
-            Vd = (out["zd"][j] + lam[2][j] * dj + lam[1][j] * _bracket(V, dj) if j
-                  else lam[2][j] * dj)
+            Vd = out["zd"][j] + lam[2][j] * dj if j else lam[2][j] * dj
+            if j:  # the bracket's product into its own array, added in place
+                Vd += _bracket(V, dj).mul_(lam[1][j])
     out["last"] = [V, Vd]
     return out
 
 
 def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: slice,
-                        ) -> Tensor:
+                        out: Tensor) -> Tensor:
     r"""Cotangent rows ``(6, O, k, S)`` of the pose's right step, of :math:`V` and of
     :math:`\dot V` (the orders there are) from those ``g (8, O, k, S)`` of :math:`X, \dot X,
     \ddot X`: :math:`\mathrm d X = X h(\xi)`, :math:`\mathrm d\dot X = X h(\xi) h(V) + X
@@ -295,9 +302,9 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
     alone are formed, and :math:`P (R + L)(h)^T u = -\frac12 (u_{a0} \omega + u_{b0} v,\
     u_{b0} \omega)` for a pure :math:`h = h(\omega, v)` (the cross terms cancel). The
     second order's terms are taken for the rows ``second`` alone (the others' cotangents
-    there are zero, :func:`vjp`), whose rows of :math:`\dot V` alone are set."""
-    _, O, k, S = g.shape
-    out = g.new_empty(6, O, k, S)
+    there are zero, :func:`vjp`), whose rows of :math:`\dot V` alone are set; into ``out``,
+    returned."""
+    O = g.shape[1]
     r, d = _halves(X)
     pw, pv = out[:3, 0], out[3:, 0]
     _conj_vec(pw, r, g[:4, 0], True)
@@ -326,40 +333,39 @@ def _algebra_cotangents(X: Tensor, V: Tensor, Vd: Tensor, g: Tensor, second: sli
 
 
 def _backward(fw: dict[str, list], d: Tensor, lam: list[Tensor], a: Tensor, second: slice,
-              ) -> tuple[list[Tensor], Tensor]:
+              first: Tensor, cd: Tensor, spare: Tensor) -> None:
     r"""The recursions run backwards from the cotangent rows ``a (6, O, k, S)``
     (:func:`_algebra_cotangents`, updated in place; of :math:`\dot V` the rows ``second``
-    alone are read): those ``(6, k, S)`` of every :math:`d_j` and of the first point's step
-    (through the pose alone)."""
+    alone are read): those of every :math:`d_j`, written to ``cd (p, 6, k, S)``, and of
+    the first point's step (through the pose alone), written to ``first``; ``spare``, an
+    array like ``a``, and ``a`` take the rows of the steps in turn (the rows two steps back
+    are dead)."""
     O, p = a.shape[1], d.shape[0]
-    out: list[Tensor] = []  # from the last step back
     for j in reversed(range(p)):
         dj, lj = d[j], [w[j] for w in lam]
         a2 = a[:, 2, second] if O > 2 else a
         if O > 2:
             _row_ad(a2, -lj[1] * dj, a[:, 1, second])
-        t = a[:, 0].clone()
-        if O > 1 and j:
-            _row_ad(a[:, 1], fw["z"][j], t)
+        # the pose's rows, plus the bracket's where V's reach them (a fresh array: then
+        # updated in place), else as they are (only read)
+        t = (_row_ad(a[:, 1], fw["z"][j], torch.empty_like(a[:, 0]), a[:, 0])
+             if O > 1 and j else a[:, 0])
         if O > 2 and j:
             _row_ad(a2, fw["zd"][j], t[:, second])
-        c = _rows(t, fw["Jr"][j])
+        c = _rows(t, fw["Jr"][j], cd[j])
         if O > 1:
             c.addcmul_(a[:, 1], lj[1])
         if O > 2:
             _row_ad(a2, lj[1] * fw["V"][j], c[:, second].addcmul_(a2, lj[2]))
-        out.append(c)
         # at the first step only the pose's rows go on (to the first point's step)
         if not j:
-            a = _rows(a[:, 0], fw["M"][j])[:, None]
+            _rows(a[:, 0], fw["M"][j], first)
             continue
-        b = torch.empty_like(a)
-        S = a.shape[-1]
+        b, S = spare, a.shape[-1]
         _rows(a[:, :2].view(6, -1, S), fw["M"][j], b[:, :2].view(6, -1, S))
         if O > 2:
             _rows(a2, fw["M"][j], b[:, 2, second])
-        a = b
-    return out[::-1], a[:, 0]
+        spare, a = a, b
 
 
 def _inverse_jacobians(powers: tuple[Tensor, ...], signs: tuple[int, ...],
@@ -433,11 +439,15 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     steps = cot.new_empty(p + 1, 6, k, S)
     rows = cot.reshape(S, -1).T.contiguous()  # (k O 8, S): a 2-d transpose is the fastest
     size = VJP_CHUNK if cot.device.type == "cpu" else max(S, 1)  # parts for the CPU cache
+    # every part's gathered span parts, cotangent rows of the twists and of the recursions
+    n = min(size, S)
+    buffers = (span.new_empty(80 * p * n), cot.new_empty(p * 6 * k * n),
+               cot.new_empty(2 * 6 * cot.shape[2] * k * n))
     for a in range(0, S, size):
         c = slice(a, a + size)
         _vjp_part(span, at, inverse[c], [w[c] for w in weights],
                   rows[:, c].view(k, cot.shape[2], 8, -1).permute(2, 1, 0, 3), pose[c],
-                  steps[..., c], slice(None) if second is None else second)
+                  steps[..., c], slice(None) if second is None else second, buffers)
     return steps.permute(3, 2, 0, 1)
 
 
@@ -448,21 +458,26 @@ VJP_CHUNK = 4096
 
 
 def _vjp_part(span: Tensor, at: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor,
-              pose: Tensor, steps: Tensor, second: slice) -> None:
+              pose: Tensor, steps: Tensor, second: slice, buffers: tuple[Tensor, ...],
+              ) -> None:
     r""":func:`vjp` on some samples, their cotangents component-major ``(8, O, k, S)`` (of
     :math:`\ddot X` the rows ``second``), into their ``steps (p + 1, 6, k, S)``: the span
     parts ``(80, p U)`` gathered (faster than ``index_select`` on the last dim) at the
-    columns ``at + inverse`` (``at``: each step's first)."""
-    p = at.shape[0]
-    d, powers, fin = _unpack(span.gather(1, (at[:, None] + inverse).view(1, -1).expand(80, -1))
-                             .view(80, p, -1))
+    columns ``at + inverse`` (``at``: each step's first) into the front of ``buffers[0]``,
+    the twists' cotangent rows into ``buffers[1]``, the recursions' into ``buffers[2]``
+    (flat, shared by the parts of a call: no fresh mapping a part)."""
+    p, idx = at.shape[0], (at[:, None] + inverse).view(1, -1)
+    out = buffers[0][:80 * idx.shape[1]].view(80, -1)
+    d, powers, fin = _unpack(torch.gather(span, 1, idx.expand(80, -1), out=out).view(80, p, -1))
     lam = [w.T.contiguous() for w in weights]
     fw = _forward(d, powers, lam)
     V, Vd = fw["last"]
-    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second)
-    cd, first = _backward(fw, d, lam, rows, second)
+    shape = (6, *cot.shape[1:])  # (6, O, k, S)
+    two = buffers[2][:2 * cot[0].numel() * 6].view(2, *shape)
+    rows = _algebra_cotangents(pose.T.contiguous(), V, Vd, cot, second, two[0])
+    cd = buffers[1][:steps[0].numel() * p].view(p, *steps.shape[1:])
+    _backward(fw, d, lam, rows, second, steps[0], cd, two[1])
     # d_j = Log(c_{j-1}^-1 c_j): J_r^-1 (delta_j - Ad_{Exp(-d_j)} delta_{j-1})
-    steps[0] = first
     for j, c in enumerate(cd):
         _rows(c, (fin[j, 1, 0], fin[j, 1, 1]), steps[j], acc=True, value=-1.0)
         _rows(c, (fin[j, 0, 0], fin[j, 0, 1]), steps[j + 1])
@@ -566,13 +581,13 @@ def _adjoint(d: Tensor, c1: tuple[Tensor, Tensor], c2: tuple[Tensor, Tensor], y:
              ) -> Tensor:
     r""":math:`M y = y + c_1 [d, y] + c_2 [d, [d, y]]` (:func:`_forward`'s :math:`M_j` without
     its matrices) for twists ``d (6, 1, N)``, ``y (6, n, N)`` and dual scalars ``c1, c2``
-    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`)."""
-    out = y.clone()
+    (:math:`(a + \varepsilon b) y = (a y_\omega, a y_v + b y_\omega)`), into ``y`` (updated
+    in place once its brackets are taken; returned)."""
     b = _bracket(d, y)
     for (a, e), z in ((c1, b), (c2, _bracket(d, b))):
-        out.addcmul_(z, a)
-        out[3:].addcmul_(z[:3], e)
-    return out
+        y.addcmul_(z, a)
+        y[3:].addcmul_(z[:3], e)
+    return y
 
 
 def _pure_rows(xi: Tensor) -> Tensor:

@@ -370,11 +370,14 @@ def _even_rows(names: tuple[str, ...], x2: Tensor, slopes: bool,
     # columns (len(names), 1, ...) of the coefficients and of the slope's, i c_i
     cs = x2.new_tensor([[c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
     ds = x2.new_tensor([[i * c[i] for c in coeffs] for i in range(_EVEN_TERMS)]).view(-1, *rows)
-    series, slope = cs[-1], ds[-1] if slopes else None
-    for i in reversed(range(_EVEN_TERMS - 1)):
-        series = series * x2 + cs[i]
+    # Horner's steps in place after the first (fresh arrays' page faults cost as much as
+    # the arithmetic; the same operations, the same bits)
+    series = cs[-1] * x2 + cs[-2]
+    slope = ds[-1] * x2 + ds[-2] if slopes else None
+    for i in reversed(range(_EVEN_TERMS - 2)):
+        series.mul_(x2).add_(cs[i])
         if i and slope is not None:
-            slope = slope * x2 + ds[i]
+            slope.mul_(x2).add_(ds[i])
     if x2.device.type != "cpu" or not bool(small.all()):
         th = torch.sqrt(torch.where(small, 1.0, x2))
         series = torch.where(small, series, torch.stack(

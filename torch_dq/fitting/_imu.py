@@ -70,10 +70,15 @@ class _Imu(Term):
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
-    def _whitened(self, rows: Tensor, event: int) -> Tensor:
-        """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero."""
+    def _whitened(self, rows: Tensor, event: int, fresh: bool = False) -> Tensor:
+        """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero
+        (``fresh``: ``rows`` an array of the caller's own, scaled in place where the
+        product keeps their shape: no second array of their size)."""
         scale = self.mask[..., None].to(rows.dtype) / self.sigma.to(rows.dtype)
-        return rows * scale.reshape(*scale.shape, *[1] * event)
+        scale = scale.reshape(*scale.shape, *[1] * event)
+        if fresh and _checks.broadcast_shapes(rows.shape, scale.shape) == rows.shape:
+            return rows.mul_(scale)
+        return rows * scale
 
     def _steps(self, names: list[str], p: dict[str, Tensor], toward: dict[str, Tensor],
                ) -> list[Tensor] | None:
@@ -139,7 +144,7 @@ class Gyro(_Imu):
         steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3)})
         if steps is None:
             return None
-        rows = self._whitened(gyro_rows(x, dx), 2)
+        rows = self._whitened(gyro_rows(x, dx), 2, fresh=True)
         return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
@@ -412,7 +417,8 @@ class Accel(_Imu):
                                           "gravity": toward_g})
         if steps is None:
             return None
-        return self.residuals(derivs, p) if r is None else r, [self._whitened(rows, 2), *steps]
+        rows = self._whitened(rows, 2, fresh=True)
+        return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
 
 _STANDARD_GRAVITY = 9.80665  # m/s^2 per g

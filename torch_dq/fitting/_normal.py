@@ -88,8 +88,8 @@ class _Normal:
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
 
     def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> bool:
-        """``add`` of the consecutive windows ``f, f + 1, ...``: each of a row's blocks
-        added to a slice of the band, ``g_c`` (and the coupling, where every window takes
+        """``add`` of the consecutive windows ``f, f + 1, ...``: a row's blocks added to a
+        slice of the band at once, ``g_c`` (and the coupling, where every window takes
         the same consecutive nuisance columns: then True), row ``a`` from the last to the
         first, so that every destination sums its windows in ``add``'s ``index_add_`` order
         (increasing window): the same bits, without the scatter."""
@@ -100,9 +100,9 @@ class _Normal:
             if bool((gcols == torch.arange(c, c + M, device=gcols.device)).all()):
                 cn = self.cn.view(-1, 6, self.m)[:, :, c:c + M]
         for a in reversed(range(w)):
-            rows = block[:, 6 * a:6 * a + 6]
-            for d in range(w - a):
-                self.band[f + a:f + a + U, d] += rows[:, :, 6 * (a + d):6 * (a + d) + 6]
+            rows = block[:, 6 * a:6 * a + 6]  # (U, 6, q): its blocks (a, a + d) in one add
+            self.band[f + a:f + a + U, :w - a] += rows[:, :, 6 * a:6 * w].unflatten(
+                2, (w - a, 6)).transpose(1, 2)
             self.gc[f + a:f + a + U] += rows[:, :, -1]
             if cn is not None:
                 cn[f + a:f + a + U] += rows[:, :, 6 * w:6 * w + M]
