@@ -27,21 +27,32 @@ def _motion(t: np.ndarray):
     return rv, p
 
 
-def _problem(device, robust=None):
-    """8 s: poses at 20 Hz, a gyroscope and an accelerometer at 200 Hz (their readings from
-    the spline the poses start, so the data are consistent), biases and a clock offset."""
-    rng = np.random.default_rng(0)
-    tp = np.arange(0.0, 8.0 + 1e-9, 0.05)
+GRAVITY = torch.tensor([0.0, 0.0, -9.81], dtype=F64)
+
+
+def _recording(duration: float, seed: int):
+    """Poses at 20 Hz over ``duration`` s and an IMU at 200 Hz 0.2 s inside them, its
+    readings (1e-3 rad/s, 1e-2 m/s^2 noise) from the spline through the poses (the data
+    consistent): times, rotation vectors, positions, rotations, that spline, IMU times, gyro,
+    accel and the generator."""
+    rng = np.random.default_rng(seed)
+    tp = np.arange(0.0, duration + 1e-9, 0.05)
     rv, p = _motion(tp)
     q = quat.from_rotvec(torch.as_tensor(rv))
     truth = BSpline.from_poses(q, torch.as_tensor(p), torch.as_tensor(tp), knot_spacing=0.1,
                                form="cumulative")
-    ti = torch.as_tensor(np.arange(0.2, 7.8, 0.005))
-    gravity = torch.tensor([0.0, 0.0, -9.81], dtype=F64)
+    ti = torch.as_tensor(np.arange(0.2, duration - 0.2, 0.005))
     with torch.no_grad():
-        w, a = truth.imu(ti, gravity=gravity)
-    w = w + 1e-3 * torch.as_tensor(rng.standard_normal(w.shape)) + 0.01
-    a = a + 1e-2 * torch.as_tensor(rng.standard_normal(a.shape)) - 0.05
+        w, a = truth.imu(ti, gravity=GRAVITY)
+    w = w + 1e-3 * torch.as_tensor(rng.standard_normal(w.shape))
+    a = a + 1e-2 * torch.as_tensor(rng.standard_normal(a.shape))
+    return tp, rv, p, q, truth, ti, w, a, rng
+
+
+def _problem(device, robust=None):
+    """8 s of :func:`_recording` with biases on the IMU, its clock offset estimated."""
+    tp, rv, p, q, _, ti, w, a, rng = _recording(8.0, 0)
+    w, a = w + 0.01, a - 0.05
     noisy = quat.mul(q, quat.from_rotvec(torch.as_tensor(1e-3 * rng.standard_normal(rv.shape))))
     poses = dq.from_rt(noisy, torch.as_tensor(p + 1e-3 * rng.standard_normal(p.shape)))
     spline = BSpline.from_poses(noisy, torch.as_tensor(p), torch.as_tensor(tp),
@@ -52,7 +63,7 @@ def _problem(device, robust=None):
              fitting.Gyro(ti.to(**mv), w.to(**mv), sigma=1e-3, bias=True,
                           time_offset=fitting.Free(0.0)),
              fitting.Accel(ti.to(**mv), a.to(**mv), sigma=1e-2, bias=True,
-                           gravity=gravity.to(**mv))]
+                           gravity=GRAVITY.to(**mv))]
     return spline, terms
 
 
@@ -83,22 +94,13 @@ def test_estimate_on_cuda_matches_cpu(robust):
 def test_other_terms_on_cuda_match_cpu():
     """Positions with an estimated lever arm, odometry, and gravity of known magnitude whose
     direction is estimated (its start from the mean reading)."""
-    rng = np.random.default_rng(4)
-    tp = np.arange(0.0, 6.0 + 1e-9, 0.05)
-    rv, p = _motion(tp)
-    q = quat.from_rotvec(torch.as_tensor(rv))
-    truth = BSpline.from_poses(q, torch.as_tensor(p), torch.as_tensor(tp), knot_spacing=0.1,
-                               form="cumulative")
+    tp, _, p, q, truth, ti, w, a, rng = _recording(6.0, 4)
     arm = torch.tensor([0.1, -0.05, 0.02], dtype=F64)
-    ti = torch.as_tensor(np.arange(0.2, 5.8, 0.005))
     with torch.no_grad():
         x = truth(torch.as_tensor(tp))
         pos = dq.apply(x, arm) + 1e-3 * torch.as_tensor(rng.standard_normal((tp.size, 3)))
         odo = dq.mul(dq.mul(dq.inv(x[:-1]), x[1:]),
                      dq.exp(1e-3 * torch.as_tensor(rng.standard_normal((tp.size - 1, 6)))))
-        w, a = truth.imu(ti, gravity=torch.tensor([0.0, 0.0, -9.81], dtype=F64))
-    w = w + 1e-3 * torch.as_tensor(rng.standard_normal(w.shape))
-    a = a + 1e-2 * torch.as_tensor(rng.standard_normal(a.shape))
     t = torch.as_tensor(tp)
     out = []
     for device in ("cpu", CUDA):
@@ -120,16 +122,7 @@ def test_other_terms_on_cuda_match_cpu():
 def test_positions_and_imu_from_identity_on_cuda_match_cpu():
     """Positions, a gyroscope and an accelerometer from a start without rotation: the
     IMU-aligned start (``fitting._align``) runs on the GPU too."""
-    rng = np.random.default_rng(5)
-    tp = np.arange(0.0, 6.0 + 1e-9, 0.05)
-    rv, p = _motion(tp)
-    truth = BSpline.from_poses(quat.from_rotvec(torch.as_tensor(rv)), torch.as_tensor(p),
-                               torch.as_tensor(tp), knot_spacing=0.1, form="cumulative")
-    ti = torch.as_tensor(np.arange(0.2, 5.8, 0.005))
-    with torch.no_grad():
-        w, a = truth.imu(ti, gravity=torch.tensor([0.0, 0.0, -9.81], dtype=F64))
-    w = w + 1e-3 * torch.as_tensor(rng.standard_normal(w.shape))
-    a = a + 1e-2 * torch.as_tensor(rng.standard_normal(a.shape))
+    tp, _, p, _, truth, ti, w, a, rng = _recording(6.0, 5)
     pos = torch.as_tensor(p + 1e-3 * rng.standard_normal(p.shape))
     t = torch.as_tensor(tp)
     out = []
@@ -256,7 +249,7 @@ def test_training_step_on_cuda_matches_cpu(form):
         m = BSpline.from_poses(q, torch.as_tensor(p), torch.as_tensor(tp), n_ctrl=8,
                                form=form).to(device)
         t = torch.as_tensor(tp).to(device)
-        w, a = m.imu(t, gravity=torch.tensor([0.0, 0.0, -9.81], dtype=F64, device=device))
+        w, a = m.imu(t, gravity=GRAVITY.to(device))
         loss = w.square().sum() + 1e-2 * a.square().sum()
         grads = torch.autograd.grad(loss, [x for x in m.parameters() if x.requires_grad])
         out.append((w.detach(), a.detach(), *grads))
