@@ -230,7 +230,6 @@ def _cameras(entries, obs, path: str, say, robust: dict | None = None):
     from ..camera import Camera
 
     robust = robust or {}
-
     missing = [i for i, e in enumerate(entries) if "intrinsics" not in e]
     if not missing:
         return [Camera.from_kalibr(e) for e in entries]
