@@ -10,8 +10,9 @@ import pytest
 import torch
 
 import torch_dq.dualquat as dq
-from torch_dq import fitting, quat
+from torch_dq import calibration, camera, fitting, quat
 from torch_dq.fitting import _knots
+from torch_dq.nn import BSpline
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 F64 = torch.float64
@@ -49,10 +50,64 @@ def _close(gpu: torch.Tensor, cpu: torch.Tensor, rel: float = 1e-9) -> None:
 
 def test_from_poses_with_chosen_knots_on_cuda_matches_cpu():
     """``BSpline.from_dualquats(n_ctrl=None)``: the knot spacing chosen from the data."""
-    from torch_dq.nn import BSpline
     tp = np.arange(0.0, 4.0, 0.04)
     x, t = _motion(tp), torch.as_tensor(tp)
     out = [BSpline.from_dualquats(x.to(d), t.to(d), form="cumulative") for d in ("cpu", CUDA)]
     assert out[1].n_ctrl == out[0].n_ctrl
     _close(out[1].control_points.detach(), out[0].control_points.detach(), 1e-10)
     _close(out[1](t.to(CUDA)).detach(), out[0](t).detach(), 1e-10)
+
+
+def _estimate_on_cpu():
+    """A CPU estimate: poses of a constant screw motion at 20 Hz and a gyroscope at 200 Hz."""
+    xi = torch.tensor([0.1, 0.3, 0.5, 0.5, 0.0, 0.1], dtype=F64)  # rad/s, m/s
+    tp, ti = torch.arange(0.0, 4.0 + 1e-9, 0.05, dtype=F64), torch.arange(0.1, 3.9, 0.005,
+                                                                          dtype=F64)
+    rng = np.random.default_rng(6)
+    x = dq.mul(dq.exp(tp[:, None] * xi), dq.exp(torch.as_tensor(
+        1e-3 * rng.standard_normal((tp.numel(), 6)))))
+    gyro = xi[:3] + 1e-3 * torch.as_tensor(rng.standard_normal((ti.numel(), 3)))
+    spline = BSpline.from_dualquats(x, tp, knot_spacing=0.2, form="cumulative")
+    terms = [fitting.Poses(tp, x, rot_sigma=1e-3, trans_sigma=1e-3),
+             fitting.Gyro(ti, gyro, sigma=1e-3, bias=True)]
+    return fitting.estimate(spline, terms, verbose=False)
+
+
+def test_estimate_std_along_answers_cuda_times():
+    """``Estimate.pose_std`` / ``kinematics_std`` compute where the estimate lives and answer
+    on the times' device: a CPU estimate (as ``calibration.camera_imu``'s) takes CUDA times."""
+    est = _estimate_on_cpu()
+    t = torch.linspace(0.5, 3.5, 13, dtype=F64)
+    for name in ("pose_std", "kinematics_std"):
+        cpu = getattr(est, name)(t)
+        gpu = getattr(est, name)(t.to(CUDA))
+        assert gpu.device.type == CUDA.type and torch.equal(gpu.cpu(), cpu)
+        assert bool(torch.isfinite(cpu).all()) and bool((cpu > 0).all())
+
+
+def test_camera_imu_estimate_usable_on_cuda():
+    """``calibration.camera_imu`` on CUDA inputs computes on the CPU and moved its trajectory
+    onto the IMU's device in place: the trajectory of its ``estimate`` with it, whose
+    ``pose_std`` then met CPU factors with CUDA knots. The result's trajectory is a moved
+    copy now; the estimate's stays where it was computed and answers times on any device."""
+    import _camera_imu_sim as sim
+    imu, cams = sim.rig(duration=5.0, offset=0.004, seed=2)
+
+    def dev(x):
+        return torch.as_tensor(np.asarray(x)).to(CUDA)
+    cam = camera.Camera("pinhole-radtan", torch.tensor(sim.intrinsics(0)), sim.RESOLUTION)
+    res = calibration.camera_imu([cam, cam], [tuple(dev(x) for x in c) for c in cams],
+                                 tuple(dev(x) for x in imu), gyro_noise=sim.GYRO_DENSITY,
+                                 accel_noise=sim.ACCEL_DENSITY, pixel_sigma=0.3,
+                                 knot_spacing=0.05)
+    assert res.trajectory.control_points.device.type == CUDA.type
+    assert res.gyro_bias.device.type == CUDA.type
+    t = torch.linspace(1.0, 4.0, 7, dtype=F64)
+    cpu = res.estimate.pose_std(t)
+    gpu = res.estimate.pose_std(t.to(CUDA))
+    assert gpu.device.type == CUDA.type and torch.equal(gpu.cpu(), cpu)
+    assert bool(torch.isfinite(cpu).all())
+    # the trajectory returned is the estimated one, on the IMU's device
+    est_traj = res.estimate._problem.trajectory
+    assert torch.equal(res.trajectory.control_points.detach().cpu(),
+                       est_traj.control_points.detach().cpu())
