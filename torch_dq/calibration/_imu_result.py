@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import warnings
 from dataclasses import dataclass, field
 
@@ -75,14 +76,17 @@ class CameraImuCalibration:
 
     def to(self, device) -> CameraImuCalibration:
         """The result with its tensors and :attr:`trajectory` on ``device`` (itself, moved:
-        :func:`camera_imu` returns it on the IMU times' device)."""
+        :func:`camera_imu` returns it on the IMU times' device). The trajectory moved is a
+        copy: :attr:`estimate` keeps the one it was computed with (on its device; its
+        ``pose_std`` and ``kinematics_std`` answer times on any device)."""
         for name in ("extrinsics", "time_offsets", "line_delays", "gyro_bias", "accel_bias",
                      "gravity", "reprojection_rms", "bias_edges"):
             value = getattr(self, name)
             if value is not None:
                 setattr(self, name, value.to(device))
         self.std = {k: v.to(device) for k, v in self.std.items()}
-        self.trajectory = self.trajectory.to(device)
+        if self.trajectory.control_points.device != torch.device(device):
+            self.trajectory = copy.deepcopy(self.trajectory).to(device)
         return self
 
     def to_kalibr(self, rostopics: list[str] | None = None) -> dict:

@@ -295,8 +295,10 @@ def knot_spacing_search(times: Tensor, poses: Tensor, degree: int = 3, *,
     _check_args(fn, times, poses, degree, tolerance)
     if form not in ("de_boor", "cumulative", "split"):
         _checks.fail(fn, f"form must be 'de_boor', 'cumulative' or 'split', got {form!r}")
-    times = times.detach().double()
-    poses = poses.detach()
+    # on the CPU whatever the inputs' device: the search's results are host numbers, and its
+    # many small least-squares starts would be launch-bound on an accelerator
+    times = times.detach().to("cpu", torch.float64)
+    poses = poses.detach().cpu()
     fit, check = inner_split(times.shape[0])
     duration = float(times[fit][-1] - times[fit][0])
     grid = _grid(duration, fit.shape[0], degree)

@@ -254,9 +254,11 @@ def control_null(reg: Regularised, rank: int = _NULL_RANK) -> tuple[Tensor, Tens
     if reg.certified:
         none = A.new_zeros(*D.shape, 0)
         return none, none
-    gen = torch.Generator(device=A.device).manual_seed(0)
+    # drawn on the CPU whatever A's device: every device starts from the same columns (a
+    # CUDA generator draws others), so that a GPU finds the CPU's combinations
+    gen = torch.Generator().manual_seed(0)
     rank = min(rank, D.shape[1] * 6)
-    X = torch.randn(*D.shape, rank, generator=gen, dtype=A.dtype, device=A.device)
+    X = torch.randn(*D.shape, rank, generator=gen, dtype=A.dtype).to(A.device)
     Bf, n = D.shape[:2]
     for _ in range(3):
         X = chol.solve(D[..., None] * X)

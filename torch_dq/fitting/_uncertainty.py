@@ -570,10 +570,12 @@ class Estimate:
     # -- trajectory uncertainties
     def _along(self, fn: str, t: Tensor, k: int, output, scaled: bool) -> Tensor:
         """Standard deviations ``(..., T, k)`` of ``output(derivs, ref)`` at ``t`` (errors
-        named by ``fn``)."""
+        named by ``fn``); computed on the estimate's device, returned on ``t``'s."""
         self._ensure()
         p = self._problem
         spans, ctrl = p.spans, self._ctrl
+        home = _checks.tensor(fn, "t", t).device
+        t = t.to(ctrl.device)
         sup, n = spans.support, spans.n
         # the layer's checks: type, shape, domain (no extrapolation of the uncertainty)
         p.trajectory._times(fn, t, ctrl, False, "as the standard deviations are not extrapolated")
@@ -622,16 +624,17 @@ class Estimate:
             std = std * self._factor_scale()[:, None, None]
         # a NaN time passes the domain check; its std is NaN, never a finite number
         std = torch.where(torch.isnan(t).reshape(Bf, T, 1), torch.nan, std)
-        if not p.batch:
-            return std.reshape(*lead, -1, k)
-        return std.reshape(*p.batch, T, k)
+        return (std.reshape(*lead, -1, k) if not p.batch else std.reshape(*p.batch, T, k)
+                ).to(home)
 
     def pose_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 6)``: standard deviations of the pose at ``t``: the rotation ``delta``
         with ``R = R_hat exp(delta)`` (body axes, radians), then the translation (world).
         ``t``: ``(T,)``, or ``(..., T)`` broadcasting to the batch (any leading shape for
-        one trajectory); ``scaled`` as for :meth:`std`. Inf (with a warning) where the pose
-        depends on control points or combinations of them that the data do not determine."""
+        one trajectory), on any device (the result on ``t``'s: an estimate computed on the
+        CPU, as ``calibration.camera_imu``'s, answers CUDA times); ``scaled`` as for
+        :meth:`std`. Inf (with a warning) where the pose depends on control points or
+        combinations of them that the data do not determine."""
         def output(d, ref):
             q, pos = dualquat.to_rt(d[0])
             q0, p0 = dualquat.to_rt(ref[0])
