@@ -59,7 +59,8 @@ def gen():
 
 # The files whose tests take ~12 s or more together (compilation, notebooks, mypy, the
 # solves, the registry's second-order checks), longest first (whole-file process CPU times,
-# one process, 2026-11-29; test_compile ~80 s down to test_split ~12 s). They run first, so
+# one process, 2026-11-29; test_compile ~80 s down to test_split ~12 s; test_calib12_camera_imu
+# 30 s with its 6-calibration Monte Carlo, before test_fitting's 28 s). They run first, so
 # that `pytest -n 2` deals them to both workers at the start (xdist hands out tests in
 # collection order) instead of one of them running alone at the end.
 # Not test_docs.py: its build renders the notebooks that test_notebooks.py executed and
@@ -68,10 +69,11 @@ SLOW_FILES_FIRST = (
     "test_compile.py", "test_compile_float32_pyramid.py", "test_notebooks.py",
     "test_reliability.py", "test_modes.py",
     "test_second_order.py", "test_cumulative.py", "test_typing.py", "test_interp.py",
-    "test_learner8_module.py", "test_fitting.py", "test_term_jacobians.py",
+    "test_learner8_module.py", "test_calib12_camera_imu.py", "test_fitting.py",
+    "test_term_jacobians.py",
     "test_learner8_pipeline.py", "test_calibration_cameras.py", "test_learner8_second_order.py",
     "test_float32.py", "test_outside8_stereo.py", "test_estimation_prior.py", "test_fit_cli.py",
-    "test_camera_imu.py", "test_calib12_camera_imu.py", "test_calib12_cli.py",
+    "test_camera_imu.py", "test_calib12_cli.py",
     "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
     "test_span_jacobians.py", "test_kernels.py", "test_nn.py", "test_reprojections.py",
     "test_continuous_time.py", "test_split.py", "test_estimation.py",

@@ -2,6 +2,8 @@
 (target, imu, camchain yamls, EuRoC imu0/data.csv, corner CSVs), its camchain-imucam.yaml
 parsed with PyYAML and compared with the truth; bad inputs end in one line and exit 2."""
 
+import contextlib
+import io
 import json
 import os
 import subprocess
@@ -15,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from torch_dq import dualquat
 from torch_dq.calibration import read_camchain
+from torch_dq.cli import main
 
 yaml = pytest.importorskip("yaml")
 pytest.importorskip("cv2")
@@ -65,13 +68,32 @@ def write_rig(d: Path, rig, *, gyro_scale=1.0, corner_seconds=False) -> dict:
             "corners": corners}
 
 
-def calibrate(files: dict, out, *extra) -> subprocess.CompletedProcess:
-    args = [sys.executable, "-m", "torch_dq", "calibrate", "--no-plots", "--quiet"]
+def _argv(files: dict, out, *extra) -> list[str]:
+    args = ["calibrate", "--no-plots", "--quiet"]
     for k, v in files.items():
         args += [x for c in v for x in ("--corners", c)] if k == "corners" else [k, v]
+    return [*args, "--out", str(out), *extra]
+
+
+def calibrate(files: dict, out, *extra) -> subprocess.CompletedProcess:
+    """``python -m torch_dq calibrate`` in a process of its own (the real entry point)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([*args, "--out", str(out), *extra], capture_output=True, text=True,
-                          env=env, timeout=300, cwd=ROOT)
+    return subprocess.run([sys.executable, "-m", "torch_dq", *_argv(files, out, *extra)],
+                          capture_output=True, text=True, env=env, timeout=300, cwd=ROOT)
+
+
+def calibrate_here(files: dict, out, *extra) -> subprocess.CompletedProcess:
+    """The same command line through ``torch_dq.cli.main`` in this process (what ``python -m
+    torch_dq`` runs, without a fresh interpreter's ~5 s of imports): its exit status (an
+    argparse ``SystemExit`` included), stdout and stderr. For the errors: an uncaught
+    exception (a traceback in a process) fails the test here."""
+    argv, out_, err = _argv(files, out, *extra), io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out_):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:
+            rc = exc.code
+    return subprocess.CompletedProcess(argv, rc, out_.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="module")
@@ -140,17 +162,17 @@ def _one_line_exit_2(done: subprocess.CompletedProcess, *words: str) -> None:
 def test_cli_missing_file(rig, tmp_path):
     files = write_rig(tmp_path / "in", rig)
     files["--imu"] = str(tmp_path / "nope.csv")
-    _one_line_exit_2(calibrate(files, tmp_path / "out"), "nope.csv")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"), "nope.csv")
     assert not (tmp_path / "out").exists()
 
 
 def test_cli_wrong_yaml(rig, tmp_path):
     files = write_rig(tmp_path / "in", rig)
     files["--target"], files["--cameras"] = files["--cameras"], files["--target"]
-    _one_line_exit_2(calibrate(files, tmp_path / "out"))
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"))
     files = write_rig(tmp_path / "in2", rig)
     Path(files["--imu-noise"]).write_text("gyroscope_noise_density: [1, 2\n")
-    _one_line_exit_2(calibrate(files, tmp_path / "out"), "imu.yaml")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"), "imu.yaml")
 
 
 def test_cli_never_writes_over_an_input(rig, tmp_path):
@@ -160,21 +182,21 @@ def test_cli_never_writes_over_an_input(rig, tmp_path):
     chain.rename(renamed)
     files["--cameras"] = str(renamed)
     text = renamed.read_text()
-    _one_line_exit_2(calibrate(files, tmp_path / "in"), "overwrite")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "in"), "overwrite")
     assert renamed.read_text() == text
 
 
 def test_cli_seconds_under_t_ns(rig, tmp_path):
     """Corner times written in seconds under a ``t_ns`` header: an error naming the file."""
     files = write_rig(tmp_path / "in", rig, corner_seconds=True)
-    _one_line_exit_2(calibrate(files, tmp_path / "out"), "cam0_corners.csv")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"), "cam0_corners.csv")
 
 
 def test_cli_gyro_in_degrees(rig, tmp_path):
     """A gyroscope logged in deg/s under a rad/s header: the rates do not match the
     cameras' (57 times larger), an error, not a calibration."""
     files = write_rig(tmp_path / "in", rig, gyro_scale=180 / np.pi)
-    _one_line_exit_2(calibrate(files, tmp_path / "out"), "deg")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"), "deg")
 
 
 def test_cli_target_in_millimetres(rig, tmp_path):
@@ -186,7 +208,7 @@ def test_cli_target_in_millimetres(rig, tmp_path):
     rows = [v.split(",") for v in lines[1:]]
     path.write_text("\n".join([lines[0]] + [",".join(v[:5] + [f"{1e3 * float(x):.3f}"
                                                               for x in v[5:8]]) for v in rows]))
-    _one_line_exit_2(calibrate(files, tmp_path / "out"), "millimetres", "1000")
+    _one_line_exit_2(calibrate_here(files, tmp_path / "out"), "millimetres", "1000")
 
 
 def test_cli_cameras_alone_double_sphere_without_intrinsics(tmp_path):
@@ -201,7 +223,7 @@ def test_cli_cameras_alone_double_sphere_without_intrinsics(tmp_path):
              for i, c in enumerate(cams)}
     Path(files["--cameras"]).write_text(yaml.safe_dump(chain))
     del files["--imu"], files["--imu-noise"]
-    done = calibrate(files, tmp_path / "out")
+    done = calibrate_here(files, tmp_path / "out")
     assert done.returncode == 0, done.stderr
     out = yaml.safe_load((tmp_path / "out" / "camchain.yaml").read_text())
     for i, c in enumerate(cams):

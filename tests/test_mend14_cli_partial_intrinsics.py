@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from _calib12_rig import Cam, make_rig
 from scipy.spatial.transform import Rotation
-from test_calib12_cli import CAM, CAM_DS, calibrate, write_rig
+from test_calib12_cli import CAM, CAM_DS, calibrate_here, write_rig
 
 yaml = pytest.importorskip("yaml")
 pytest.importorskip("cv2")
@@ -27,7 +27,7 @@ def test_given_intrinsics_kept_missing_ones_calibrated(tmp_path):
     given_dist = list(chain["cam0"]["distortion_coeffs"])
     del chain["cam1"]["intrinsics"]
     Path(files["--cameras"]).write_text(yaml.safe_dump(chain))
-    done = calibrate(files, tmp_path / "out", "--pixel-sigma", "0.3", "--bias", "constant")
+    done = calibrate_here(files, tmp_path / "out", "--pixel-sigma", "0.3", "--bias", "constant")
     assert done.returncode == 0, done.stderr
     out = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())
     assert out["cam0"]["intrinsics"] == given  # kept, to the bit

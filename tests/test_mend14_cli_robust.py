@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from _calib12_rig import make_rig
 from scipy.spatial.transform import Rotation
-from test_calib12_cli import CAM, calibrate, write_rig
+from test_calib12_cli import CAM, calibrate_here, write_rig
 
 yaml = pytest.importorskip("yaml")
 pytest.importorskip("cv2")
@@ -36,7 +36,7 @@ def test_cauchy_keeps_the_truth_and_counts_the_outliers(tmp_path):
     rig = _with_outliers(make_rig([CAM], seed=4, t0=0.0, duration=5.0))
     n = len(rig.observations[0][0])
     files = write_rig(tmp_path / "in", rig)
-    done = calibrate(files, tmp_path / "out", "--pixel-sigma", "0.3", "--bias", "constant",
+    done = calibrate_here(files, tmp_path / "out", "--pixel-sigma", "0.3", "--bias", "constant",
                      "--robust", "cauchy")
     assert done.returncode == 0, done.stderr
     out = yaml.safe_load((tmp_path / "out" / "camchain-imucam.yaml").read_text())
@@ -54,7 +54,7 @@ def test_cauchy_keeps_the_truth_and_counts_the_outliers(tmp_path):
 def test_robust_choices_in_help_and_refused_otherwise(tmp_path):
     rig = make_rig([CAM], seed=4, t0=0.0, duration=2.0)
     files = write_rig(tmp_path / "in", rig)
-    done = calibrate(files, tmp_path / "out", "--robust", "tukey")
+    done = calibrate_here(files, tmp_path / "out", "--robust", "tukey")
     assert done.returncode == 2 and "--robust" in done.stderr, done.stderr
-    helped = calibrate(files, tmp_path / "out", "--help")
+    helped = calibrate_here(files, tmp_path / "out", "--help")
     assert "--robust {none,huber,cauchy}" in helped.stdout, helped.stdout
