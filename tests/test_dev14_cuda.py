@@ -8,6 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from test_cuda_pipelines import CUDA, F64, _close
+from test_cuda_pipelines import _motion as motion
 
 import torch_dq.dualquat as dq
 from torch_dq import calibration, camera, fitting, quat
@@ -15,14 +17,11 @@ from torch_dq.fitting import _knots
 from torch_dq.nn import BSpline
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
-F64 = torch.float64
-CUDA = torch.device("cuda")
 
 
 def _motion(t: np.ndarray):
-    """Poses of a smooth motion (rotation vectors and positions written out here)."""
-    rv = np.stack([0.4 * np.sin(0.7 * t), 0.3 * np.cos(0.5 * t), 0.5 * t], -1)
-    p = np.stack([np.sin(0.6 * t), 0.5 * np.cos(0.4 * t), 0.1 * t], -1)
+    """Poses ``(N, 8)`` of ``test_cuda_pipelines``' smooth motion."""
+    rv, p = motion(t)
     return dq.from_rt(quat.from_rotvec(torch.as_tensor(rv)), torch.as_tensor(p))
 
 
@@ -40,12 +39,6 @@ def test_knot_spacing_search_on_cuda_matches_cpu(form):
     assert dataclasses.asdict(gpu) == dataclasses.asdict(cpu)
     assert fitting.choose_knot_spacing(t.to(CUDA), x.float().to(CUDA), form=form) == \
         fitting.choose_knot_spacing(t, x.float(), form=form)
-
-
-def _close(gpu: torch.Tensor, cpu: torch.Tensor, rel: float = 1e-9) -> None:
-    assert gpu.device.type == CUDA.type
-    err = (gpu.cpu() - cpu).abs().max()
-    assert err <= rel * cpu.abs().max().clamp(min=1e-300), (err, cpu.abs().max())
 
 
 def test_from_poses_with_chosen_knots_on_cuda_matches_cpu():
