@@ -202,10 +202,12 @@ class Linearization:
         Where there are several groups, each one part, the closed-form span products of
         all groups read one table of the spans
         (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a longer record's parts
-        compute their own spans', whose memory is a part's)."""
+        compute their own spans', whose memory is a part's). The terms' own blocks
+        (``System.own``, the per-term degrees of freedom) only where ``robust``: a unit-weight
+        system judges the data's information and is never the one the uncertainties read."""
         p = self.p
         Bf = max(p.batch.numel(), 1)
-        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m, len(p.terms))
+        acc = _Normal(ctrl, Bf, self.spans.n, w, p.m, len(p.terms) if robust else 1)
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
         groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
