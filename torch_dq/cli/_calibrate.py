@@ -371,12 +371,13 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
             f"camera(s)")
         obs = _observations(args, target, len(entries))
-        cams = _cameras(entries, obs, args.cameras, say, _robust(args))
+        robust = _robust(args)
+        cams = _cameras(entries, obs, args.cameras, say, robust)
         say("estimating (start from the gyroscope and the target poses, then one joint fit)")
         res = camera_imu(cams, obs, imu, gyro_noise=noise["gyroscope_noise_density"],
                          accel_noise=noise["accelerometer_noise_density"],
                          pixel_sigma=args.pixel_sigma, rolling_shutter=args.rolling_shutter,
-                         robust=_robust(args)["robust"],
+                         robust=robust["robust"],
                          shared_time_offset=args.shared_time_offset,
                          bias_walk=tuple(noise[k] for k in _WALKS) if walk else None,
                          bias_interval=interval, gravity_magnitude=args.gravity,
