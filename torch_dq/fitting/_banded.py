@@ -34,35 +34,40 @@ from torch import Tensor
 
 __all__ = ["BandedCholesky"]
 
+_CHUNK = 1 << 12  # groups of a low-rank update added at once (bounds its products' memory)
 
-def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
-    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero),
+
+def _grouped(band: Tensor, g: int, below: bool = False) -> Tensor:
+    """``D (..., G, g s, g s)`` of the band, or where ``below`` ``E (..., G + 1, g s, g s)``
+    (``E[0]`` and ``E[G]`` zero: :class:`_Level` reads ``E_{i+1}`` of every even group),
     ``G = ceil(n / g)``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
     matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
     written once into its place (no per-element index, no concatenation, no copy of the
     band); the rows past ``n`` (``G g > n``) are identity rows, and the band's blocks past
-    the last row are never read into the rest."""
+    the last row are never read into the rest. One at a time (memory: each is the size of
+    the band's two thirds at ``w = 4``)."""
     *batch, n, w, s, _ = band.shape
     G = -(-n // g)
-    D = band.new_zeros(*batch, G, g, s, g, s)
-    E = band.new_zeros(*batch, G, g, s, g, s)
+    out = band.new_zeros(*batch, G + below, g, s, g, s)
     for a in range(g):
         for c in range(g):
-            d = abs(a - c)  # D_j (a, c): band[j g + min(a, c), d], transposed below the diagonal
-            if d < w:
+            # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band;
+            # D_j (a, c) = band[j g + min(a, c), |a - c|], transposed below the diagonal
+            d = g + a - c if below else abs(a - c)
+            if d >= w:
+                continue
+            if below:
+                blk = band[..., c::g, d, :, :][..., :G - 1, :, :]
+                out[..., 1:1 + blk.shape[-3], a, :, c, :] = blk.mT
+            else:
                 blk = band[..., min(a, c)::g, d, :, :]
-                D[..., :blk.shape[-3], a, :, c, :] = blk.mT if a > c else blk
-            # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band
-            dist = g + a - c
-            if dist < w:
-                blk = band[..., c::g, dist, :, :][..., :G - 1, :, :]
-                E[..., 1:1 + blk.shape[-3], a, :, c, :] = blk.mT
+                out[..., :blk.shape[-3], a, :, c, :] = blk.mT if a > c else blk
     for a in range(n - (G - 1) * g, g):  # the last group's rows past n: identity rows
-        D[..., -1, a, :, :, :] = 0.0
-        D[..., -1, :, :, a, :] = 0.0
-        D[..., -1, a, :, a, :] = torch.eye(s, dtype=band.dtype, device=band.device)
-        E[..., -1, a, :, :, :] = 0.0
-    return D.reshape(*batch, G, g * s, g * s), E.reshape(*batch, G, g * s, g * s)
+        out[..., G - 1, a, :, :, :] = 0.0
+        if not below:
+            out[..., -1, :, :, a, :] = 0.0
+            out[..., -1, a, :, a, :] = torch.eye(s, dtype=band.dtype, device=band.device)
+    return out.reshape(*batch, G + below, g * s, g * s)
 
 
 def _pad(x: Tensor, count: int, front: bool = False) -> Tensor:
@@ -93,29 +98,35 @@ class _Level:
         ok: ``(...)`` every factor succeeded.
     """
 
-    def __init__(self, D: Tensor, E: Tensor) -> None:
+    def __init__(self, pair: list[Tensor]) -> None:
+        """From ``pair = [D, E]`` (``D (..., G, b, b)``, ``E (..., G or G + 1, b, b)``; the
+        list emptied, so that each is freed once read: memory)."""
+        D, E = pair
+        pair.clear()
         G = D.shape[-3]
         ne, h = (G + 1) // 2, G // 2
         self.G = G
         C, info = torch.linalg.cholesky_ex(D[..., 0::2, :, :])
+        odd = D[..., 1::2, :, :].clone()  # D of the next level, less its updates below
+        del D
         bad = info != 0
         self.ok = ~bad.any(-1)
         # a failed element continues on the identity: its own results are flagged
-        b = D.shape[-1]
+        b = C.shape[-1]
         if bool(bad.any()):
-            C[bad] = torch.eye(b, dtype=D.dtype, device=D.device)
+            C[bad] = torch.eye(b, dtype=C.dtype, device=C.device)
         self.C = C
-        rhs = E.new_zeros(*E.shape[:-3], ne, b, 2 * b)  # [E_i | E_{i+1}^T], one array (memory)
-        rhs[..., :b] = E[..., 0::2, :, :]
-        rhs[..., :h, :, b:] = E[..., 1::2, :, :].mT
-        LR = torch.linalg.solve_triangular(C, rhs, upper=False)
-        del rhs
-        self.L, self.R = LR[..., :b], LR[..., b:]
+        # E_i and E_{i+1}^T (zero past the last group) solved apart: a column's bits are
+        # those of one solve of [E_i | E_{i+1}^T], without that copy (memory)
+        self.L = torch.linalg.solve_triangular(C, E[..., 0:2 * ne:2, :, :], upper=False)
+        self.R = torch.linalg.solve_triangular(
+            C, _pad(E[..., 1::2, :, :], ne)[..., :ne, :, :].mT, upper=False)
+        del E
         Rprev = self.R[..., :h, :, :]
-        self.D = D[..., 1::2, :, :] - Rprev.mT @ Rprev
+        self.D = odd.sub_(Rprev.mT @ Rprev)
         nxt = min(ne - 1, h)  # odd group i has an even neighbour i + 1 below it
         self.D[..., :nxt, :, :] -= self.L[..., 1:nxt + 1, :, :].mT @ self.L[..., 1:nxt + 1, :, :]
-        self.E = -(Rprev.mT @ self.L[..., :h, :, :])
+        self.E = (Rprev.mT @ self.L[..., :h, :, :]).neg_()
 
     def forward(self, b: Tensor) -> tuple[Tensor, Tensor]:
         """``y`` of the even groups and the right-hand side of the odd ones."""
@@ -135,21 +146,37 @@ class _Level:
         return _interleave(x_even, x_odd)
 
     def inverse(self, diag: Tensor, sub: Tensor) -> tuple[Tensor, Tensor]:
-        """The blocks of the inverse at this level from those of the odd groups."""
-        ne = self.C.shape[-3]
+        """The blocks of the inverse at this level, ``(..., G, b, b)`` each, from those of
+        the odd groups (``diag``, ``sub``: ``(..., G // 2, b, b)``), each product written
+        once into its place (memory: no padded copies of the odd groups' blocks, no
+        interleaving copy); an end without a neighbour takes zero blocks."""
+        G, ne, h = self.G, self.C.shape[-3], diag.shape[-3]
         eye = torch.eye(self.C.shape[-1], dtype=self.C.dtype, device=self.C.device)
         Ci = torch.linalg.solve_triangular(self.C, eye, upper=False)
-        P, Q = Ci.mT @ self.L, Ci.mT @ self.R  # D^-1 E_i, D^-1 E_{i+1}^T
-        d_left = _pad(diag, 0, front=True)[..., :ne, :, :]  # Sigma_{i-1,i-1}
-        d_right = _pad(diag, ne)  # Sigma_{i+1,i+1}
-        s_far = _pad(sub, 0, front=True)[..., :ne, :, :]  # Sigma_{i+1,i-1}
-        to_left = -(P @ d_left + Q @ s_far)  # Sigma_{i,i-1}
-        to_right = -(P @ s_far.mT + Q @ d_right)  # Sigma_{i,i+1}
-        own = Ci.mT @ Ci - P @ to_left.mT - Q @ to_right.mT
-        own = 0.5 * (own + own.mT)
+        P, Q = Ci.mT @ self.L, Ci.mT @ self.R  # D^-1 E_i, D^-1 E_{i+1}^T (P_0 = 0)
+        # Sigma_{i,i-1} = -(P_i Sigma_{i-1,i-1} + Q_i Sigma_{i+1,i-1}), odd group i - 1 = k
+        to_left = torch.zeros_like(P)
+        torch.matmul(P[..., 1:, :, :], diag[..., :ne - 1, :, :], out=to_left[..., 1:, :, :])
+        to_left[..., 1:, :, :] += Q[..., 1:, :, :] @ sub[..., :ne - 1, :, :]
+        to_left.neg_()
+        # Sigma_{i,i+1} = -(P_i Sigma_{i-1,i+1} + Q_i Sigma_{i+1,i+1}) (Q_i = 0 past the last)
+        to_right = torch.zeros_like(P)
+        torch.matmul(Q[..., :h, :, :], diag, out=to_right[..., :h, :, :])
+        to_right[..., 1:, :, :] += P[..., 1:, :, :] @ sub[..., :ne - 1, :, :].mT
+        to_right.neg_()
+        own = Ci.mT @ Ci
+        own -= P @ to_left.mT
+        own -= Q @ to_right.mT
+        del Ci, P, Q
+        fine = own.new_empty(*own.shape[:-3], G, *own.shape[-2:])
+        torch.add(own, own.mT, out=fine[..., 0::2, :, :]).mul_(0.5)
+        fine[..., 1::2, :, :] = diag
+        del own
         # sub[j] = Sigma_{j+1,j}: Sigma_{i+1,i} for even j = i, Sigma_{i,i-1} for odd j = i - 1
-        fine_sub = _interleave(to_right.mT, to_left[..., 1:, :, :])
-        return _interleave(own, diag), _pad(fine_sub, self.G)[..., :self.G, :, :]
+        fine_sub = torch.zeros_like(fine)
+        fine_sub[..., 0::2, :, :] = to_right.mT
+        fine_sub[..., 1:2 * ne - 1:2, :, :] = to_left[..., 1:, :, :]
+        return fine, fine_sub
 
 
 class BandedCholesky:
@@ -173,18 +200,19 @@ class BandedCholesky:
         G = -(-n // g)
         pad = G * g - n  # identity rows after the last block row (_grouped)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
-        D, E = _grouped(band, g)
+        # [D, E]: each level frees its input once read (memory)
+        pair = [_grouped(band, g), _grouped(band, g, below=True)]
         if shift is not None:
             shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
-            D.diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
+            pair[0].diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
         self.levels: list[_Level] = []
         ok = torch.ones(batch, dtype=torch.bool, device=dev)
-        while D.shape[-3]:
-            level = _Level(D, E)
+        while pair[0].shape[-3]:
+            level = _Level(pair)
             ok &= level.ok
             self.levels.append(level)
-            D, E = level.D, level.E
-            if D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
+            pair = [level.D, level.E]
+            if level.D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
                 del level.D, level.E
         self.ok = ok
 
@@ -226,13 +254,16 @@ class BandedCholesky:
         real = rows.repeat_interleave(self.s).reshape(self.G, self.g * self.s).to(diag.dtype)
         if U is not None and V is not None:
             Ug, Vg = (self._groups(x) for x in (U, V))
-            diag = diag + Ug @ Vg.mT
-            sub = sub + _pad(Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT, self.G)
+            for a in range(0, self.G, _CHUNK):  # the update added in place, a chunk at a time
+                c = slice(a, min(a + _CHUNK, self.G))
+                diag[..., c, :, :] += Ug[..., c, :, :] @ Vg[..., c, :, :].mT
+                p = slice(max(a, 1) - 1, c.stop - 1)  # sub[j] = (j + 1, j)
+                sub[..., p, :, :] += Ug[..., p.start + 1:c.stop, :, :] @ Vg[..., p, :, :].mT
         out = []
-        for band in bands:
-            D, E = _grouped(band, self.g)
-            own = ((D * diag).sum(-1) * real).sum((-1, -2))
-            out.append(own + 2.0 * (E[..., 1:, :, :] * sub[..., :-1, :, :]).sum((-1, -2, -3)))
+        for band in bands:  # products in place of the grouped blocks, one at a time (memory)
+            own = (_grouped(band, self.g).mul_(diag).sum(-1) * real).sum((-1, -2))
+            E = _grouped(band, self.g, below=True)[..., 1:self.G, :, :]
+            out.append(own + 2.0 * E.mul_(sub[..., :-1, :, :]).sum((-1, -2, -3)))
         return out
 
     def _groups(self, x: Tensor) -> Tensor:
