@@ -171,28 +171,33 @@ class Regularised:
     r"""The factorisation of the data band plus the pulls, ``A = band + pull``, regularised
     by ``REGULARISE`` times its floored diagonal ``D`` (``(Bf, n, 6)``, plus ``1e-12`` of
     its largest entry): :math:`(A + \epsilon D)^{-1}` for :func:`nuisance_pull` and
-    :func:`control_null`, factored once for both.
+    :func:`control_null`, factored once for both, on first use (:func:`control_null` needs
+    none where :attr:`certified`); the certification factored first, alone (memory: one
+    factorisation alive at a time).
 
     Args:
         band: ``(Bf, n, w, 6, 6)`` data band.
         pull: ``(Bf, n, w, 6, 6)`` the control points' pull information.
+
+    Attributes:
+        certified: whether a factorisation of :math:`A - \mathrm{NULL}\, D` succeeds (every
+            batch element): no generalised eigenvalue at or below ``NULL``, every
+            combination of control points informed.
     """
 
     def __init__(self, band: Tensor, pull: Tensor) -> None:
         self.A = band + pull
         D = self.A[:, :, 0].diagonal(dim1=-2, dim2=-1)
         self.D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
-        self.chol = BandedCholesky(self.A, shift=REGULARISE * self.D)
-        self._certified: bool | None = None
+        self.certified = bool(BandedCholesky(self.A, shift=-NULL * self.D).ok.all())
+        self._chol: BandedCholesky | None = None
 
     @property
-    def certified(self) -> bool:
-        r"""Whether a factorisation of :math:`A - \mathrm{NULL}\, D` succeeds (every batch
-        element): no generalised eigenvalue at or below ``NULL``, every combination of
-        control points informed (factored on first use)."""
-        if self._certified is None:
-            self._certified = bool(BandedCholesky(self.A, shift=-NULL * self.D).ok.all())
-        return self._certified
+    def chol(self) -> BandedCholesky:
+        r""":math:`A + \epsilon D` factored (on first use)."""
+        if self._chol is None:
+            self._chol = BandedCholesky(self.A, shift=REGULARISE * self.D)
+        return self._chol
 
 
 def nuisance_pull(reg: Regularised, cn: Tensor, nn: Tensor, prior: float) -> Tensor:
@@ -250,10 +255,11 @@ def control_null(reg: Regularised, rank: int = _NULL_RANK) -> tuple[Tensor, Tens
     Returns:
         ``U`` and ``D U``: a step ``x`` without those combinations is :math:`x - U (D U)^T
         x`."""
-    A, D, chol = reg.A, reg.D, reg.chol
+    A, D = reg.A, reg.D
     if reg.certified:
         none = A.new_zeros(*D.shape, 0)
         return none, none
+    chol = reg.chol
     # drawn on the CPU whatever A's device: every device starts from the same columns (a
     # CUDA generator draws others), so that a GPU finds the CPU's combinations
     gen = torch.Generator().manual_seed(0)
