@@ -1,7 +1,8 @@
 """torch_dq.fitting._banded after session 15's memory work: the selected inverse written
-into place (no padded copies, no interleaving) and the traces' low-rank update added a
-chunk of groups at a time, against numpy's dense inverse in float64; chunks of one and two
-groups cross every chunk boundary, odd and even group counts reach both ends."""
+into place a chunk of groups at a time (no padded copies, no interleaving) and the traces'
+low-rank update added a chunk of groups at a time, against numpy's dense inverse in float64;
+chunks of one and two groups cross every chunk boundary, odd and even group counts reach
+both ends."""
 
 import numpy as np
 import pytest
@@ -54,10 +55,13 @@ def test_trace_products_in_chunks_match_numpy(monkeypatch, chunk, n, w):
     np.testing.assert_allclose(alone.numpy(), np.einsum("bij,bji->b", M, inv), rtol=1e-10)
 
 
+@pytest.mark.parametrize("chunk", [1, 2, 4096])
 @pytest.mark.parametrize(("n", "w"), [(3, 4), (9, 4), (12, 4), (15, 4), (14, 3), (5, 2)])
-def test_selected_inverse_blocks_match_numpy(n, w):
+def test_selected_inverse_blocks_match_numpy(monkeypatch, chunk, n, w):
     """The grouped diagonal and sub-diagonal blocks of A^-1 (groups of g = w - 1 block
-    rows; the rows past n and the last sub-diagonal block left out) against numpy."""
+    rows; the rows past n and the last sub-diagonal block left out) against numpy, the
+    even groups of a level ``chunk`` at a time."""
+    monkeypatch.setattr(_banded, "_CHUNK", chunk)
     rng = np.random.default_rng(n + 100 * w)
     A, *_, bA, _ = _problem(rng, n, w)
     chol = BandedCholesky(bA)

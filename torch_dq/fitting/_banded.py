@@ -34,7 +34,8 @@ from torch import Tensor
 
 __all__ = ["BandedCholesky"]
 
-_CHUNK = 1 << 12  # groups of a low-rank update added at once (bounds its products' memory)
+_CHUNK = 1 << 10  # groups of a selected inverse or low-rank update at once (bounds their
+# temporaries: 2.7 MB each at 18 x 18 blocks)
 
 
 def _grouped(band: Tensor, g: int, below: bool = False) -> Tensor:
@@ -147,36 +148,50 @@ class _Level:
 
     def inverse(self, diag: Tensor, sub: Tensor) -> tuple[Tensor, Tensor]:
         """The blocks of the inverse at this level, ``(..., G, b, b)`` each, from those of
-        the odd groups (``diag``, ``sub``: ``(..., G // 2, b, b)``), each product written
-        once into its place (memory: no padded copies of the odd groups' blocks, no
-        interleaving copy); an end without a neighbour takes zero blocks."""
-        G, ne, h = self.G, self.C.shape[-3], diag.shape[-3]
+        the odd groups (``diag``, ``sub``: ``(..., G // 2, b, b)``), ``_CHUNK`` even groups
+        at a time, each written once into its place (memory: a chunk's temporaries, no
+        padded copies of the odd groups' blocks, no interleaving copy); an end without a
+        neighbour takes zero blocks."""
+        G, ne = self.G, self.C.shape[-3]
+        fine = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
+        fine[..., 1::2, :, :] = diag
+        # sub[j] = Sigma_{j+1,j}: Sigma_{i+1,i} for even j = i, Sigma_{i,i-1} for odd j = i - 1
+        fine_sub = torch.empty_like(fine)
+        fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
+        for a in range(0, ne, _CHUNK):
+            c = slice(a, min(a + _CHUNK, ne))
+            fine[..., 2 * c.start:2 * c.stop:2, :, :] = self._inverse_part(c, diag, sub,
+                                                                            fine_sub)
+        return fine, fine_sub
+
+    def _inverse_part(self, c: slice, diag: Tensor, sub: Tensor, fine_sub: Tensor) -> Tensor:
+        """:meth:`inverse` of the even groups ``c``: their blocks to the neighbours written
+        into ``fine_sub``, their diagonal blocks ``(..., len(c), b, b)`` returned."""
+        h = diag.shape[-3]
+        lo = max(c.start, 1)  # the even groups with an odd group k = i - 1 before them
+        k, at = slice(lo - 1, c.stop - 1), slice(lo - c.start, None)
         eye = torch.eye(self.C.shape[-1], dtype=self.C.dtype, device=self.C.device)
-        Ci = torch.linalg.solve_triangular(self.C, eye, upper=False)
-        P, Q = Ci.mT @ self.L, Ci.mT @ self.R  # D^-1 E_i, D^-1 E_{i+1}^T (P_0 = 0)
-        # Sigma_{i,i-1} = -(P_i Sigma_{i-1,i-1} + Q_i Sigma_{i+1,i-1}), odd group i - 1 = k
+        Ci = torch.linalg.solve_triangular(self.C[..., c, :, :], eye, upper=False)
+        # D^-1 E_i, D^-1 E_{i+1}^T (P_0 = 0, Q_i = 0 past the last group)
+        P, Q = Ci.mT @ self.L[..., c, :, :], Ci.mT @ self.R[..., c, :, :]
+        # Sigma_{i,i-1} = -(P_i Sigma_{i-1,i-1} + Q_i Sigma_{i+1,i-1}), zero for i = 0
         to_left = torch.zeros_like(P)
-        torch.matmul(P[..., 1:, :, :], diag[..., :ne - 1, :, :], out=to_left[..., 1:, :, :])
-        to_left[..., 1:, :, :] += Q[..., 1:, :, :] @ sub[..., :ne - 1, :, :]
+        torch.matmul(P[..., at, :, :], diag[..., k, :, :], out=to_left[..., at, :, :])
+        to_left[..., at, :, :] += Q[..., at, :, :] @ sub[..., k, :, :]
         to_left.neg_()
-        # Sigma_{i,i+1} = -(P_i Sigma_{i-1,i+1} + Q_i Sigma_{i+1,i+1}) (Q_i = 0 past the last)
+        # Sigma_{i,i+1} = -(P_i Sigma_{i-1,i+1} + Q_i Sigma_{i+1,i+1})
         to_right = torch.zeros_like(P)
-        torch.matmul(Q[..., :h, :, :], diag, out=to_right[..., :h, :, :])
-        to_right[..., 1:, :, :] += P[..., 1:, :, :] @ sub[..., :ne - 1, :, :].mT
+        r = slice(c.start, min(c.stop, h))  # an odd group k = i after them
+        torch.matmul(Q[..., :r.stop - r.start, :, :], diag[..., r, :, :],
+                     out=to_right[..., :r.stop - r.start, :, :])
+        to_right[..., at, :, :] += P[..., at, :, :] @ sub[..., k, :, :].mT
         to_right.neg_()
         own = Ci.mT @ Ci
         own -= P @ to_left.mT
         own -= Q @ to_right.mT
-        del Ci, P, Q
-        fine = own.new_empty(*own.shape[:-3], G, *own.shape[-2:])
-        torch.add(own, own.mT, out=fine[..., 0::2, :, :]).mul_(0.5)
-        fine[..., 1::2, :, :] = diag
-        del own
-        # sub[j] = Sigma_{j+1,j}: Sigma_{i+1,i} for even j = i, Sigma_{i,i-1} for odd j = i - 1
-        fine_sub = torch.zeros_like(fine)
-        fine_sub[..., 0::2, :, :] = to_right.mT
-        fine_sub[..., 1:2 * ne - 1:2, :, :] = to_left[..., 1:, :, :]
-        return fine, fine_sub
+        fine_sub[..., 2 * c.start:2 * c.stop:2, :, :] = to_right.mT
+        fine_sub[..., 2 * lo - 1:2 * c.stop - 1:2, :, :] = to_left[..., at, :, :]
+        return (own + own.mT).mul_(0.5)
 
 
 class BandedCholesky:
@@ -234,10 +249,15 @@ class BandedCholesky:
         """Blocks of :math:`A^{-1}` of the grouped matrix: ``diag (..., G, g s, g s)`` and
         ``sub (..., G, g s, g s)`` (``sub[j]`` the block of groups ``(j + 1, j)``, the last
         one zero)."""
+        return self._inverse_from(0)
+
+    def _inverse_from(self, first: int) -> tuple[Tensor, Tensor]:
+        """:meth:`selected_inverse`'s blocks of the groups of level ``first`` (level 1: the
+        odd groups of the matrix)."""
         last = self.levels[-1]
         diag = last.D  # (..., 0, b, b)
         sub = last.E
-        for level in reversed(self.levels):
+        for level in reversed(self.levels[first:]):
             diag, sub = level.inverse(diag, sub)
         return diag, sub
 
@@ -249,21 +269,38 @@ class BandedCholesky:
         products of its grouped blocks with those of the selected inverse plus the update's
         (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
         \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out."""
-        diag, sub = self.selected_inverse()
-        rows = torch.arange(self.G * self.g, device=diag.device) < self.n
-        real = rows.repeat_interleave(self.s).reshape(self.G, self.g * self.s).to(diag.dtype)
-        if U is not None and V is not None:
-            Ug, Vg = (self._groups(x) for x in (U, V))
-            for a in range(0, self.G, _CHUNK):  # the update added in place, a chunk at a time
-                c = slice(a, min(a + _CHUNK, self.G))
-                diag[..., c, :, :] += Ug[..., c, :, :] @ Vg[..., c, :, :].mT
-                p = slice(max(a, 1) - 1, c.stop - 1)  # sub[j] = (j + 1, j)
-                sub[..., p, :, :] += Ug[..., p.start + 1:c.stop, :, :] @ Vg[..., p, :, :].mT
+        g, G, top = self.g, self.G, self.levels[0]
+        ne = top.C.shape[-3]
+        diag, sub = self._inverse_from(1)  # the odd groups' blocks
+        rows = torch.arange(G * g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
+        fine_sub = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
+        fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
+        Ug, Vg = (None, None) if U is None or V is None else (self._groups(x) for x in (U, V))
+        sums = [diag.new_empty(*diag.shape[:-3], G, g * self.s) for _ in bands]
+        for a in range(0, ne, _CHUNK):  # the diagonal blocks a chunk of groups at a time
+            c = slice(a, min(a + _CHUNK, ne))
+            own = top._inverse_part(c, diag, sub, fine_sub)
+            grp = slice(2 * c.start, min(2 * c.stop, G))  # its even groups and the odd after
+            X = own.new_empty(*own.shape[:-3], grp.stop - grp.start, *own.shape[-2:])
+            X[..., 0::2, :, :] = own
+            X[..., 1::2, :, :] = diag[..., c.start:c.start + X.shape[-3] // 2, :, :]
+            if Ug is not None and Vg is not None:
+                X += Ug[..., grp, :, :] @ Vg[..., grp, :, :].mT
+            for rs, band in zip(sums, bands, strict=True):
+                rs[..., grp, :] = _grouped(band[..., grp.start * g:grp.stop * g, :, :, :],
+                                           g).mul_(X).sum(-1)
+        del diag, sub
+        if Ug is not None and Vg is not None:
+            for a in range(0, G, _CHUNK):  # the update added in place, a chunk at a time
+                p = slice(max(a, 1) - 1, min(a + _CHUNK, G) - 1)  # sub[j] = (j + 1, j)
+                fine_sub[..., p, :, :] += Ug[..., p.start + 1:p.stop + 1, :, :] @ Vg[
+                    ..., p, :, :].mT
         out = []
-        for band in bands:  # products in place of the grouped blocks, one at a time (memory)
-            own = (_grouped(band, self.g).mul_(diag).sum(-1) * real).sum((-1, -2))
-            E = _grouped(band, self.g, below=True)[..., 1:self.G, :, :]
-            out.append(own + 2.0 * E.mul_(sub[..., :-1, :, :]).sum((-1, -2, -3)))
+        for rs, band in zip(sums, bands, strict=True):  # products in place, one at a time
+            below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(fine_sub[..., :-1, :, :])
+            out.append((rs * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
+            del below  # before the next band's (memory)
         return out
 
     def _groups(self, x: Tensor) -> Tensor:
