@@ -143,7 +143,7 @@ class DampedStep:
         cn, held = self.s.cn, torch.zeros_like(gn, dtype=torch.bool)
         factor = None if self.factor is None or bool(lam.any()) else self.factor
         while True:
-            dc, dn, ok = self.solver.solve(self.band, cn, nn, gc, gn, shift, factor)
+            dc, dn, ok = self.solver.solve(self.band, cn, nn, gc, gn, shift, factor=factor)
             if self.ends is None:
                 break
             out = self.ends & (dn < 0)
