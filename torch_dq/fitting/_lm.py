@@ -21,6 +21,7 @@ from torch import Tensor
 
 from .. import _cumulative_lie, dualquat
 from . import _prior
+from ._banded import BandedCholesky
 from ._charts import Scalar
 from ._linearize import Memo, System
 from ._problem import Problem
@@ -123,6 +124,7 @@ class LevenbergMarquardt:
         self._null_of: System | None = None  # the system the null space was found for
         self._gradient: tuple = (None, None)  # ((point, system), gradient) at the last call
         self._pull_at: tuple = (None, None)  # (point, its _step_pull)
+        self._factor: BandedCholesky | None = None  # the undamped band's, for _decrement
         self._pulls(prior)
         self.count = torch.stack([(t.mask.sum(-1) * t.dim).expand(self.batch).to(torch.float64)
                                   for t in problem.terms]).sum(0).reshape(self.Bf)
@@ -166,7 +168,7 @@ class LevenbergMarquardt:
         """The data system at the current point (and the pulls re-anchored there, with
         estimated nuisance parameters: :meth:`_reanchor`)."""
         del self.system, self._null_of  # the old system freed before the new is built
-        self._gradient = (None, None)
+        self._gradient, self._factor = (None, None), None
         x = self.point
         self.system = self.p.system(x.ctrl, x.values, self.w, x.memo)
         self._null_of, self.informed = None, False  # until the new system's null is found
@@ -297,20 +299,22 @@ class LevenbergMarquardt:
             self._pull_at = (x, out)
         return out
 
-    def _step(self, stiff: float = 1.0) -> DampedStep:
-        """The damped step, the pulls ``stiff`` times stiffer."""
+    def _step(self, stiff: float = 1.0, factor: BandedCholesky | None = None) -> DampedStep:
+        """The damped step, the pulls ``stiff`` times stiffer (``factor``: the undamped
+        band's factorisation, or None)."""
         cpull = self._step_pull()
         pulls = (cpull, self.pulls[1]) if stiff == 1.0 else (stiff * cpull,
                                                                stiff * self.pulls[1])
         return DampedStep(self.system, pulls, self.null, self.p.prior_information(),
-                          self.solver, self._ends())
+                          self.solver, self._ends(), factor)
 
     def _decrement(self) -> tuple[Tensor, Tensor]:
         r"""The Newton decrement :math:`g^T H^{-1} g` ``(Bf,)`` at the current point and
         whether its solves succeeded. Where every direction carries information (the
         factorisation of :math:`A - \mathrm{NULL}\, D` certified no control-point
         combination without it, ``torch_dq.fitting._prior.Regularised.certified``, and
-        nothing is pulled: ``informed``), one undamped solve where it succeeds. Else, on
+        nothing is pulled: ``informed``), one undamped solve where it succeeds, on the
+        factorisation of the band that :meth:`_control_null` kept. Else, on
         directions without information it is no distance, so it is the limit of
         :math:`g^T (H + \epsilon D)^{-1} g` as :math:`\epsilon \to 0` without its
         :math:`1/\epsilon` part (``D`` the diagonal), extrapolated from ``epsilon =
@@ -320,7 +324,9 @@ class LevenbergMarquardt:
         if self._null_of is not self.system:  # factored once per system
             self._control_null(_prior.Regularised(self.system.band, self._step_pull()))
         if self.informed:
-            dc, dn, ok = self._step().step(torch.zeros_like(self.damping.lam), gc, gn)
+            factor, self._factor = self._factor, None  # held no longer (memory)
+            dc, dn, ok = self._step(factor=factor).step(torch.zeros_like(self.damping.lam),
+                                                        gc, gn)
             if bool(ok.all()):
                 return -((gc * dc).sum((-1, -2)) + (gn * dn).sum(-1)), ok
         # re-anchored pulls (nuisance estimated) hold their directions where they are: those
@@ -336,10 +342,14 @@ class LevenbergMarquardt:
 
     def _control_null(self, reg: _prior.Regularised) -> None:
         """The combinations of control points without information of the current system
-        (``reg``: its band plus the pulls, factored) and whether it is :attr:`informed`."""
+        (``reg``: its band plus the pulls) and whether it is :attr:`informed`; if so, the
+        band's factorisation as it is (``reg.exact``, often factored already by
+        ``torch_dq.fitting._prior.nuisance_pull``), kept for :meth:`_decrement`'s undamped
+        solve: nothing pulled, that band is the damped step's bit for bit."""
         self.null, self._null_of = _prior.control_null(reg), self.system
         self.informed = (reg.certified and not bool(self.pulls[0].any())
                          and not bool(self.pulls[1].any()))
+        self._factor = reg.exact if self.informed else None
 
     def check(self, tol: float, final: bool = False) -> None:
         r"""The scaled gradient test at the current point (its system built): an element

@@ -168,49 +168,103 @@ def scaled_eigh(S: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 class Regularised:
-    r"""The factorisation of the data band plus the pulls, ``A = band + pull``, regularised
-    by ``REGULARISE`` times its floored diagonal ``D`` (``(Bf, n, 6)``, plus ``1e-12`` of
-    its largest entry): :math:`(A + \epsilon D)^{-1}` for :func:`nuisance_pull` and
-    :func:`control_null`, factored once for both, on first use (:func:`control_null` needs
-    none where :attr:`certified`); the certification factored first, alone (memory: one
-    factorisation alive at a time).
+    r"""The data band plus the pulls, ``A = band + pull``, and its factorisations, each on
+    first use: regularised by ``REGULARISE`` times its floored diagonal ``D`` (``(Bf, n,
+    6)``, plus ``1e-12`` of its largest entry), :math:`(A + \epsilon D)^{-1}`
+    (:attr:`chol`, for :func:`nuisance_pull` and :func:`control_null`); shifted by ``-NULL
+    D`` (:attr:`certified`); and ``A`` as it is (:attr:`exact`, where certified: the
+    undamped Gauss-Newton solve, and :func:`nuisance_pull`'s test that no nuisance direction
+    is null, which spares :attr:`chol` there).
 
     Args:
         band: ``(Bf, n, w, 6, 6)`` data band.
         pull: ``(Bf, n, w, 6, 6)`` the control points' pull information.
 
     Attributes:
-        certified: whether a factorisation of :math:`A - \mathrm{NULL}\, D` succeeds (every
-            batch element): no generalised eigenvalue at or below ``NULL``, every
-            combination of control points informed.
+        A, D: the band plus the pulls and its floored diagonal; pulled: whether ``pull``
+            has a nonzero entry.
     """
 
     def __init__(self, band: Tensor, pull: Tensor) -> None:
-        self.A = band + pull
+        self.A, self.pulled = band + pull, bool(pull.any())
         D = self.A[:, :, 0].diagonal(dim1=-2, dim2=-1)
         self.D = D + 1e-12 * D.amax((-1, -2), keepdim=True).clamp_min(1e-300)
-        self.certified = bool(BandedCholesky(self.A, shift=-NULL * self.D).ok.all())
         self._chol: BandedCholesky | None = None
+        self._exact: BandedCholesky | None = None
+        self._certified: bool | None = None
 
     @property
     def chol(self) -> BandedCholesky:
-        r""":math:`A + \epsilon D` factored (on first use)."""
+        r"""The factorisation of :math:`A + \epsilon D`, ``epsilon = REGULARISE``."""
         if self._chol is None:
             self._chol = BandedCholesky(self.A, shift=REGULARISE * self.D)
         return self._chol
 
+    @property
+    def exact(self) -> BandedCholesky:
+        """The factorisation of ``A`` itself (no shift)."""
+        if self._exact is None:
+            self._exact = BandedCholesky(self.A)
+        return self._exact
+
+    @property
+    def certified(self) -> bool:
+        r"""Whether a factorisation of :math:`A - \mathrm{NULL}\, D` succeeds (every batch
+        element): no generalised eigenvalue at or below ``NULL``, every combination of
+        control points informed."""
+        if self._certified is None:
+            self._certified = bool(BandedCholesky(self.A, shift=-NULL * self.D).ok.all())
+        return self._certified
+
+
+def _no_null(reg: Regularised, cn: Tensor, nn: Tensor) -> bool:
+    r"""Whether :func:`nuisance_pull` finds no null direction, decided without
+    ``reg.chol`` where nothing is pulled and ``A`` is certified (its factorisation as it is,
+    ``reg.exact``, then serves the undamped solve): the Schur complement :math:`S_0 = N - C^T
+    Z`, :math:`Z = A^{-1} C`, scaled by ``E`` (below) is positive definite with room,
+    :math:`\lambda_{\min}(E^{-1/2} S_0 E^{-1/2}) > 10\, m\, \mathrm{NULL} + 2 r`.
+
+    With :math:`\hat A = D^{-1/2} A D^{-1/2}` (eigenvalues :math:`\mu > 0`) and
+    :math:`\epsilon` = ``REGULARISE``, :math:`\mu^{-1} - \epsilon \mu^{-2} \le (\mu +
+    \epsilon)^{-1} \le \mu^{-1}`, so the regularised complement :math:`S_\epsilon = N - C^T
+    (A + \epsilon D)^{-1} C` satisfies :math:`S_\epsilon \succeq S_0` and
+    :math:`\mathrm{diag}(S_\epsilon) \le u = \mathrm{diag}(S_0 + \epsilon Z^T D Z)`: its
+    diagonal floored as :func:`scaled_eigh` does is at most :math:`E = u + 10^{-12}
+    \max u`. Its scaled smallest eigenvalue is then at least the test's, its largest at
+    most its trace ``m``: none is at or below ``NULL`` times the largest, and the pull is
+    zero, as from ``reg.chol``. ``r`` bounds either complement's roundoff: a backward
+    error :math:`\|\delta \hat A\| \le 10^3\, \mathrm{eps}\, \|\hat
+    A\|`, :math:`\|\hat A\| \le 6 (2 w - 1)`, moves :math:`C^T A^{-1} C` by at most
+    :math:`\|\delta \hat A\|\, \mathrm{tr}(E^{-1} Z^T D Z)` in the scaled norm. (The 60 s
+    job of ``benchmarks/bench_gtsam.py``: 0.51 against a room below ``1e-7``.)"""
+    if reg.pulled or not reg.certified:
+        return False
+    chol, m, w = reg.exact, nn.shape[-1], reg.A.shape[2]
+    Z = chol.solve(cn)
+    S = nn - torch.einsum("bnim,bniq->bmq", cn, Z)
+    zdz = torch.einsum("bnim,bni->bm", Z * Z, reg.D)  # diag(Z^T D Z)
+    u = (S.diagonal(dim1=-2, dim2=-1) + REGULARISE * zdz).clamp_min(0.0)
+    e = (u + 1e-12 * u.amax(-1, keepdim=True)).clamp_min(1e-300)
+    r = 1e3 * torch.finfo(nn.dtype).eps * 6 * (2 * w - 1) * (zdz / e).sum(-1)
+    room = 10 * m * NULL + 2.0 * r
+    s = e.rsqrt()
+    eye = torch.eye(m, dtype=nn.dtype, device=nn.device)
+    hat = 0.5 * (S + S.mT) * s[:, :, None] * s[:, None, :] - room[:, None, None] * eye
+    return bool(chol.ok.all()) and bool((torch.linalg.cholesky_ex(hat).info == 0).all())
+
 
 def nuisance_pull(reg: Regularised, cn: Tensor, nn: Tensor, prior: float) -> Tensor:
-    """``(Bf, m, m)`` pull information of the nuisance parameters (module doc).
+    """``(Bf, m, m)`` pull information of the nuisance parameters (module doc); zero without
+    ``reg.chol`` where ``_no_null`` decides it.
 
     Args:
-        reg: the data band at the start plus the control points' pulls, factored.
+        reg: the data band at the start plus the control points' pulls.
         cn: ``(Bf, n, 6, m)`` coupling.
         nn: ``(Bf, m, m)`` nuisance block (with the Free priors' information).
         prior: the pull's relative weight.
     """
     m = nn.shape[-1]
-    if prior == 0 or m == 0:
+    if prior == 0 or m == 0 or _no_null(reg, cn, nn):
         return torch.zeros_like(nn)
     chol = reg.chol
     S = nn - torch.einsum("bnim,bniq->bmq", cn, chol.solve(cn))

@@ -25,12 +25,14 @@ class SchurSolver:
     """Banded Cholesky of ``A`` and dense Cholesky of the Schur complement on the nuisance."""
 
     def solve(self, band: Tensor, cn: Tensor, nn: Tensor, gc: Tensor, gn: Tensor,
-              shift: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+              shift: Tensor | None = None, factor: BandedCholesky | None = None,
+              ) -> tuple[Tensor, Tensor, Tensor]:
         """Steps ``dc (Bf, n, 6)``, ``dn (Bf, m)`` and ``ok (Bf,)`` (both factorisations
         succeeded) of the system ``band (Bf, n, w, 6, 6)`` (plus ``shift (Bf, n, 6)`` on its
         diagonal, or None), ``cn (Bf, n, 6, m)``, ``nn (Bf, m, m)`` with gradients ``gc``,
-        ``gn``."""
-        chol = BandedCholesky(band, shift=shift)
+        ``gn``; ``factor``: that band's factorisation where one is at hand (None: factored
+        here)."""
+        chol = BandedCholesky(band, shift=shift) if factor is None else factor
         ok = chol.ok
         m = nn.shape[-1]
         if not m:
@@ -114,6 +116,8 @@ class DampedStep:
         null: ``U`` and ``D U`` (``torch_dq.fitting._prior.control_null``).
         prior_information: ``(m,)`` the Free priors' diagonal information.
         solver: the linear solver (:class:`SchurSolver` by default).
+        factor: the factorisation of the undamped band ``system.band + pulls[0]`` (bit
+            for bit: no shift), reused by the steps at zero damping, or None.
         ends: ``(Bf, m)`` bool, the nuisance components at their natural end 0 (a line
             delay), or None: a step that would take one below is solved again with it held
             (its rows and columns out, its step zero), until none goes below (an active
@@ -125,8 +129,8 @@ class DampedStep:
 
     def __init__(self, system, pulls: tuple[Tensor, Tensor], null: tuple[Tensor, Tensor],
                  prior_information: Tensor, solver: SchurSolver | None = None,
-                 ends: Tensor | None = None) -> None:
-        self.s, self.null, self.ends = system, null, ends
+                 ends: Tensor | None = None, factor: BandedCholesky | None = None) -> None:
+        self.s, self.null, self.ends, self.factor = system, null, ends, factor
         self.solver = SchurSolver() if solver is None else solver
         self.band = system.band + pulls[0]
         self.nn = system.nn + torch.diag(prior_information.to(system.band)) + pulls[1]
@@ -137,8 +141,9 @@ class DampedStep:
         shift = lam[:, None, None] * (self.diag + self.floor[:, None, None])
         nn = self.nn + torch.diag_embed(lam[:, None] * (self.ndiag + self.floor[:, None]))
         cn, held = self.s.cn, torch.zeros_like(gn, dtype=torch.bool)
+        factor = None if self.factor is None or bool(lam.any()) else self.factor
         while True:
-            dc, dn, ok = self.solver.solve(self.band, cn, nn, gc, gn, shift)
+            dc, dn, ok = self.solver.solve(self.band, cn, nn, gc, gn, shift, factor=factor)
             if self.ends is None:
                 break
             out = self.ends & (dn < 0)
