@@ -40,7 +40,7 @@ _CHUNK = 1 << 10  # groups of a selected inverse or low-rank update at once (bou
 
 def _grouped(band: Tensor, g: int, below: bool = False) -> Tensor:
     """``D (..., G, g s, g s)`` of the band, or where ``below`` ``E (..., G + 1, g s, g s)``
-    (``E[0]`` and ``E[G]`` zero: :class:`_Level` reads ``E_{i+1}`` of every even group),
+    (``E[0]`` and ``E[G]`` zero: ``_Level`` reads ``E_{i+1}`` of every even group),
     ``G = ceil(n / g)``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
     matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
     written once into its place (no per-element index, no concatenation, no copy of the
@@ -165,7 +165,7 @@ class _Level:
         return fine, fine_sub
 
     def _inverse_part(self, c: slice, diag: Tensor, sub: Tensor, fine_sub: Tensor) -> Tensor:
-        """:meth:`inverse` of the even groups ``c``: their blocks to the neighbours written
+        """``inverse`` of the even groups ``c``: their blocks to the neighbours written
         into ``fine_sub``, their diagonal blocks ``(..., len(c), b, b)`` returned."""
         h = diag.shape[-3]
         lo = max(c.start, 1)  # the even groups with an odd group k = i - 1 before them
@@ -252,7 +252,7 @@ class BandedCholesky:
         return self._inverse_from(0)
 
     def _inverse_from(self, first: int) -> tuple[Tensor, Tensor]:
-        """:meth:`selected_inverse`'s blocks of the groups of level ``first`` (level 1: the
+        """``selected_inverse``'s blocks of the groups of level ``first`` (level 1: the
         odd groups of the matrix)."""
         last = self.levels[-1]
         diag = last.D  # (..., 0, b, b)
@@ -268,7 +268,9 @@ class BandedCholesky:
         ``U V^T`` symmetric (``U``, ``V``: ``(..., n, s, r)``; None: none): the elementwise
         products of its grouped blocks with those of the selected inverse plus the update's
         (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
-        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out."""
+        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out. The finest
+        level's diagonal blocks are taken ``_CHUNK`` groups at a time, as its selected
+        inverse makes them (their row sums kept, never the whole diagonal: memory)."""
         g, G, top = self.g, self.G, self.levels[0]
         ne = top.C.shape[-3]
         diag, sub = self._inverse_from(1)  # the odd groups' blocks
