@@ -41,9 +41,9 @@ local cubic, so it models :math:`\dot u`, not the readings (the product
 rotation). :math:`c_1 = 1`; :math:`c_2` = ``ACCEL_MARGIN`` (2) for the couplings of
 rotation and translation in the cumulative spline's increments that :math:`\dot u` leaves
 out (measured on simulated rigs, the accelerometer's model error alone, noise-free
-readings: 0.9 times :math:`\dot u`'s prediction on a gentle motion, 1.8 to 2.5 on EuRoC's
-calibration dance and faster ones; a plain cubic fit of the readings predicted 0.58 to 0.2
-of it). The spacing chosen is the largest ``h`` at most ``coarsest`` (0.05 s: slow motions
+readings: 0.9 times :math:`\dot u`'s prediction on a gentle motion, 2.0 to 2.6 on the
+EuRoC stand-in's calibration dance, 2.2 on one 2.5 times faster; a plain cubic fitted to the
+readings predicted 0.64 and 0.35 of it). The spacing chosen is the largest ``h`` at most ``coarsest`` (0.05 s: slow motions
 keep it, and their time) and at least 0.01 s (and two IMU periods) for which both terms'
 excess is at most ``EXCESS`` (0.05: honest uncertainties, the standard deviations too small
 by at most 2.5 %). Only the bins where the spectrum stands clearly above the noise count as
@@ -55,7 +55,7 @@ finer knots would not lower their chi2/dof).
 
 Measured against the estimate (``tests/_camera_imu_sim.py``, its gentle rig and the EuRoC
 stand-in): the accelerometer's chi2/dof 1.26 with the earlier rule (0.15, the readings'
-spectrum, per reading), 1.01 to 1.08 with this one (knots every 0.027 s).
+spectrum, per reading), 1.02 to 1.07 with this one (knots every 0.026 to 0.027 s).
 """
 
 from __future__ import annotations
