@@ -33,25 +33,25 @@ to the term's chi2/dof (1 for the noise alone): the misfit per reading (a least-
 residual, orthogonal to what the spline fits: the parameters take none of it) over the
 term's dof per reading, ``1 - 1 / (h rate)`` (each knot's three coordinates that the term
 reads, against three readings per sample: measured, the accelerometer's exact dof
-``N - 3.0 T / h``). The signals: the gyroscope's readings; for the accelerometer, the rate
-of the body-axes velocity :math:`\dot u = f + R^T g - \omega \times u` (the caller's, from
-the start trajectory): the cumulative (SE(3)) spline's body twist is the derivative of its
-local cubic, so it models :math:`\dot u`, not the readings (the product
-:math:`\omega \times u` puts power at higher frequencies; :math:`R^T g` comes with the
-rotation). :math:`c_1 = 1`; :math:`c_2` = ``ACCEL_MARGIN`` (2) for the couplings of
-rotation and translation in the cumulative spline's increments that :math:`\dot u` leaves
-out (measured on simulated rigs, the accelerometer's model error alone, noise-free
-readings: 0.9 times :math:`\dot u`'s prediction on a gentle motion, 2.0 to 2.6 on the
-EuRoC stand-in's calibration dance, 2.2 on one 2.5 times faster; a plain cubic fitted to the
-readings predicted 0.64 and 0.35 of it). The spacing chosen is the largest ``h`` at most ``coarsest`` (0.05 s: slow motions
-keep it, and their time) and at least 0.01 s (and two IMU periods) for which both terms'
-excess is at most ``EXCESS`` (0.05: honest uncertainties, the standard deviations too small
-by at most 2.5 %). Only the bins where the spectrum stands clearly above the noise count as
-signal (by four standard deviations of Welch's estimate of the noise there), so that the
-noise's own scatter adds nothing; where the spectrum's median over the upper half of the
-band (above ``rate / 4``, beyond any calibration dance) lies above the densities' floor,
-that median is the floor (densities too small: the readings' noise is not motion, and
-finer knots would not lower their chi2/dof).
+``N - 3.0 T / h``). The signals: the gyroscope's readings; for the accelerometer, the rate of the
+body-axes velocity :math:`\dot u = f + R^T g - \omega \times u` (the caller's, from the
+start trajectory): the cumulative (SE(3)) spline's body twist is the derivative of its local
+cubic, so it models :math:`\dot u`, not the readings (the product :math:`\omega \times u`
+puts power at higher frequencies; :math:`R^T g` comes with the rotation). :math:`c_1 = 1`;
+:math:`c_2` = ``ACCEL_MARGIN`` (2) for the couplings of rotation and translation in the
+cumulative spline's increments that :math:`\dot u` leaves out (measured on simulated rigs,
+the accelerometer's model error alone, noise-free readings: 0.9 times :math:`\dot u`'s
+prediction on a gentle motion, 2.0 to 2.6 on the EuRoC stand-in's calibration dance, 2.2 on
+one 2.5 times faster; a plain cubic fitted to the readings predicted 0.64 and 0.35 of it).
+The spacing chosen is the largest ``h`` at most ``coarsest`` (0.05 s: slow motions keep it,
+and their time) and at least 0.01 s (and two IMU periods) for which both terms' excess is at
+most ``EXCESS`` (0.05: honest uncertainties, the standard deviations too small by at most
+2.5 %). Only the bins where the spectrum stands clearly above the noise count as signal (by
+four standard deviations of Welch's estimate of the noise there), so that the noise's own
+scatter adds nothing; where the spectrum's median over the upper half of the band (above
+``rate / 4``, beyond any calibration dance) lies above the densities' floor, that median is
+the floor (densities too small: the readings' noise is not motion, and finer knots would not
+lower their chi2/dof).
 
 Measured against the estimate (``tests/_camera_imu_sim.py``, its gentle rig and the EuRoC
 stand-in): the accelerometer's chi2/dof 1.26 with the earlier rule (0.15, the readings'
