@@ -100,7 +100,8 @@ def test_imu_chi2_far_above_1_names_the_knot_spacing(files, tmp_path):
                  "0.3")
     assert main(argv) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["knot_spacing_s"] >= 0.04
+    # chi15: 0.029 s, the right densities' spacing (their floor would give the finest, 0.01)
+    assert summary["knot_spacing_s"] >= 0.025
     hints = [w for w in summary["warnings"] if "chi2/dof is" in w]
     assert len(hints) == 1 and "noise densities" in hints[0] and "accel" in hints[0], hints
     assert "--bias random-walk" in hints[0]  # --bias constant: drifting biases, a cause too

@@ -315,12 +315,10 @@ def _relative(times0: Tensor, poses0: Tensor, times: Tensor, poses: Tensor) -> T
     return dualquat.from_rt(quat.normalize(q.mean(0)), t.median(0).values)
 
 
-def _start_trajectory(samples: list[tuple[Tensor, Tensor]], lo: float, hi: float,
-                      knot_spacing: float) -> BSpline:
-    """Cumulative cubic B-spline with knots every ``knot_spacing`` over ``[lo, hi]`` from
-    body poses ``(times, poses)`` (of several cameras: one per 1 ms): a coarse spline (knots
-    every 0.1 s) fit to the poses, sampled four times per knot span (constant beyond its
-    domain) and refit."""
+def _coarse_trajectory(samples: list[tuple[Tensor, Tensor]]
+                       ) -> tuple[BSpline, tuple[float, float]]:
+    """A cubic B-spline with knots every 0.1 s fit to body poses ``(times, poses)`` (of
+    several cameras: one per 1 ms), and the poses' time span."""
     t = torch.cat([s[0] for s in samples])
     order = torch.argsort(t, stable=True)
     t, x = t[order], torch.cat([s[1] for s in samples])[order]
@@ -333,10 +331,18 @@ def _start_trajectory(samples: list[tuple[Tensor, Tensor]], lo: float, hi: float
     n = max(4, math.ceil(float(t[-1] - t[0]) / 0.1) + 3)
     q, p = dualquat.to_rt(x)
     coarse = BSpline.from_poses(q, p, t, n_ctrl=min(n, t.numel()))
+    return coarse, (float(t[0]), float(t[-1]))
+
+
+def _start_trajectory(coarse: BSpline, span: tuple[float, float], lo: float, hi: float,
+                      knot_spacing: float) -> BSpline:
+    """Cumulative cubic B-spline with knots every ``knot_spacing`` over ``[lo, hi]``: the
+    coarse spline (``_coarse_trajectory``, over ``span``) sampled four times per knot span
+    (constant beyond ``span``) and refit."""
     grid = torch.linspace(lo, hi, max(8, math.ceil((hi - lo) / knot_spacing * 4) + 1),
                           dtype=torch.float64)
     with torch.no_grad():
-        y = coarse(grid.clamp(float(t[0]), float(t[-1])))
+        y = coarse(grid.clamp(*span))
     q, p = dualquat.to_rt(y)
     n = math.ceil((hi - lo) / knot_spacing) + 3
     return BSpline.from_poses(q, p, grid, n_ctrl=n, form="cumulative")
@@ -454,13 +460,15 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             from the IMU readings before the estimate, the largest spacing up to 0.05 s
             (down to 0.01 s, and two IMU periods) whose cubic spline follows the motion
             seen in the readings' spectra (Welch) to within their noise: the model error
-            adds at most 0.15 to the gyroscope's and accelerometer's chi2/dof, predicted
+            adds at most 0.05 to the gyroscope's and accelerometer's chi2/dof, predicted
             from the least-squares approximation error of a uniform cubic B-spline's first
-            and second derivatives at each frequency (the rule and its derivation:
-            private module ``calibration._knot_spacing``). Slow motions keep 0.05 s (their
-            time); a fast dance gets finer knots (on simulated rigs within 2.5 times the
-            EuRoC stand-in's speed, up to 6.9 rad/s: chi2/dof at most 1.8 where 0.05 s
-            read up to 490, the values within 3 standard deviations of the truth). With
+            and second derivatives at each frequency, the accelerometer's from the body
+            velocity's rate that the cumulative spline models (the rule and its
+            derivation: private module ``calibration._knot_spacing``). Slow motions keep
+            0.05 s (their time); a faster one gets finer knots (EuRoC's calibration dance
+            about 0.027 s, its accelerometer's chi2/dof about 1.05 where 0.05 s read 1.26
+            on the gentle simulated rig); a motion too fast for 0.01 s is warned of (on a
+            dance 2.5 times faster than the simulated ones the accelerometer reads 2.8). With
             densities too small, the spectrum's own floor (its median over the upper half
             of the band) replaces theirs. The result's ``knot_spacing`` holds it.
         max_time_offset: bound on the offsets (seconds); the frames within it of the IMU
@@ -519,7 +527,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
         TypeError: cameras that are not :class:`~torch_dq.camera.Camera`.
 
     Warns:
-        UserWarning: motion too weak to determine a parameter (named), and
+        UserWarning: motion too weak to determine a parameter (named), too fast for the
+            finest knots (``knot_spacing=None``: the predicted model error named), and
         :func:`~torch_dq.fitting.estimate`'s own warnings.
     """
     cams, obs, (t_imu, gyro, accel) = _arguments(cameras, observations, imu)
@@ -546,10 +555,12 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
                                     min_points)
     clock.append(time.perf_counter())
     keep = (t_imu >= lo) & (t_imu <= hi)
+    coarse, span = _coarse_trajectory(samples)
     if knot_spacing is None:
         knot_spacing = _automatic(t_imu[keep], gyro[keep], accel[keep],
-                                  (float(gyro_noise), float(accel_noise)), verbose)
-    spline = _start_trajectory(samples, lo, hi, knot_spacing)
+                                  (float(gyro_noise), float(accel_noise)), (coarse, span),
+                                  verbose)
+    spline = _start_trajectory(coarse, span, lo, hi, knot_spacing)
     clock.append(time.perf_counter())
     terms: list = _camera_terms(cams, obs, e0, dt0, pixel_sigma, rolling_shutter,
                           shared_time_offset, max_time_offset, max_line_delay, robust,
@@ -567,16 +578,46 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
 
 
 def _automatic(t: Tensor, gyro: Tensor, accel: Tensor, densities: tuple[float, float],
-               verbose: bool) -> float:
-    """``knot_spacing=None``: the spacing chosen from the readings' spectra
-    (``calibration._knot_spacing``), told on stderr with ``verbose``."""
-    h, seen = _knot_spacing.choose(t.numpy(), (gyro.numpy(), accel.numpy()), densities)
+               coarse: tuple[BSpline, tuple[float, float]], verbose: bool) -> float:
+    """``knot_spacing=None``: the spacing chosen from the spectra of the gyroscope's
+    readings and of the body velocity's rate (``_velocity_rate``) that the trajectory's
+    accelerometer model follows (``calibration._knot_spacing``), told on stderr with
+    ``verbose``."""
+    rate = _velocity_rate(t, gyro, accel, *coarse)
+    h, seen = _knot_spacing.choose(t.numpy(), (gyro.numpy(), rate.numpy()), densities)
+    if max(seen["gyro"], seen["accel"]) > _knot_spacing.EXCESS:
+        warnings.warn(f"{_FN}: the motion is too fast for the finest knots chosen (every "
+                      f"{h:.3g} s): the spline's model error adds about {seen['gyro']:.2g} "
+                      f"to the gyroscope's chi2/dof and {seen['accel']:.2g} to the "
+                      f"accelerometer's (predicted from the readings' spectra), and the "
+                      f"standard deviations come out too small: record a slower motion, or "
+                      f"pass a finer knot_spacing (at least two IMU periods)", UserWarning,
+                      stacklevel=3)
     if verbose:
         print(f"{_FN}: knots every {h:.4g} s, chosen from the IMU readings (signal above the "
               f"noise up to {seen['gyro_hz']:.3g} Hz in the gyroscope, {seen['accel_hz']:.3g} "
               f"Hz in the accelerometer; predicted excess chi2/dof from the spline: gyro "
               f"{seen['gyro']:.2g}, accel {seen['accel']:.2g})", file=sys.stderr)
     return h
+
+
+def _velocity_rate(t: Tensor, gyro: Tensor, accel: Tensor, coarse: BSpline,
+                   span: tuple[float, float]) -> Tensor:
+    r"""The rate of the body-axes velocity :math:`u = R^T v` at the IMU times ``t (N,)``:
+    :math:`\dot u = f + R^T g - \omega \times u` (``f`` the accelerometer's readings,
+    ``omega`` the gyroscope's), ``(N, 3)``; ``R`` and ``u`` from the coarse start
+    spline (``_coarse_trajectory``, clamped to ``span``), gravity ``g`` (world axes) minus
+    the mean of ``R f``. The cumulative (SE(3)) spline's body twist is the derivative of
+    its local cubic, so its model of the accelerometer follows :math:`\dot u` as a cubic's
+    second derivative, not the readings: the product :math:`\omega \times u` adds the
+    power at the higher frequencies that the knots must follow (``_knot_spacing``)."""
+    with torch.no_grad():
+        tc = t.clamp(*span)
+        q, _ = dualquat.to_rt(coarse(tc))
+        u = coarse.kinematics(tc, frame="body").linear_velocity
+        g = -quat.rotate(q, accel).mean(0)
+        return accel + quat.rotate(quat.conj(q), g.expand_as(accel)) - torch.linalg.cross(
+            gyro, u)
 
 
 def _imu_terms(t: Tensor, gyro: Tensor, accel: Tensor, sigmas: tuple[float, float],
