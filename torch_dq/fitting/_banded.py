@@ -34,35 +34,41 @@ from torch import Tensor
 
 __all__ = ["BandedCholesky"]
 
+_CHUNK = 1 << 10  # groups of a selected inverse or low-rank update at once (bounds their
+# temporaries: 2.7 MB each at 18 x 18 blocks)
 
-def _grouped(band: Tensor, g: int) -> tuple[Tensor, Tensor]:
-    """``D (..., G, g s, g s)`` and ``E (..., G, g s, g s)`` of the band (``E[0]`` zero),
+
+def _grouped(band: Tensor, g: int, below: bool = False) -> Tensor:
+    """``D (..., G, g s, g s)`` of the band, or where ``below`` ``E (..., G + 1, g s, g s)``
+    (``E[0]`` and ``E[G]`` zero: ``_Level`` reads ``E_{i+1}`` of every even group),
     ``G = ceil(n / g)``: block ``(a, c)`` of ``D_j`` is block ``(j g + a, j g + c)`` of the
     matrix, of ``E_j`` block ``(j g + a, (j - 1) g + c)``, each a strided slice of the band
     written once into its place (no per-element index, no concatenation, no copy of the
     band); the rows past ``n`` (``G g > n``) are identity rows, and the band's blocks past
-    the last row are never read into the rest."""
+    the last row are never read into the rest. One at a time (memory: each is the size of
+    the band's two thirds at ``w = 4``)."""
     *batch, n, w, s, _ = band.shape
     G = -(-n // g)
-    D = band.new_zeros(*batch, G, g, s, g, s)
-    E = band.new_zeros(*batch, G, g, s, g, s)
+    out = band.new_zeros(*batch, G + below, g, s, g, s)
     for a in range(g):
         for c in range(g):
-            d = abs(a - c)  # D_j (a, c): band[j g + min(a, c), d], transposed below the diagonal
-            if d < w:
+            # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band;
+            # D_j (a, c) = band[j g + min(a, c), |a - c|], transposed below the diagonal
+            d = g + a - c if below else abs(a - c)
+            if d >= w:
+                continue
+            if below:
+                blk = band[..., c::g, d, :, :][..., :G - 1, :, :]
+                out[..., 1:1 + blk.shape[-3], a, :, c, :] = blk.mT
+            else:
                 blk = band[..., min(a, c)::g, d, :, :]
-                D[..., :blk.shape[-3], a, :, c, :] = blk.mT if a > c else blk
-            # E_j (a, c) = band[(j - 1) g + c, g + a - c]^T, zero for j = 0 and past the band
-            dist = g + a - c
-            if dist < w:
-                blk = band[..., c::g, dist, :, :][..., :G - 1, :, :]
-                E[..., 1:1 + blk.shape[-3], a, :, c, :] = blk.mT
+                out[..., :blk.shape[-3], a, :, c, :] = blk.mT if a > c else blk
     for a in range(n - (G - 1) * g, g):  # the last group's rows past n: identity rows
-        D[..., -1, a, :, :, :] = 0.0
-        D[..., -1, :, :, a, :] = 0.0
-        D[..., -1, a, :, a, :] = torch.eye(s, dtype=band.dtype, device=band.device)
-        E[..., -1, a, :, :, :] = 0.0
-    return D.reshape(*batch, G, g * s, g * s), E.reshape(*batch, G, g * s, g * s)
+        out[..., G - 1, a, :, :, :] = 0.0
+        if not below:
+            out[..., -1, :, :, a, :] = 0.0
+            out[..., -1, a, :, a, :] = torch.eye(s, dtype=band.dtype, device=band.device)
+    return out.reshape(*batch, G + below, g * s, g * s)
 
 
 def _pad(x: Tensor, count: int, front: bool = False) -> Tensor:
@@ -93,29 +99,35 @@ class _Level:
         ok: ``(...)`` every factor succeeded.
     """
 
-    def __init__(self, D: Tensor, E: Tensor) -> None:
+    def __init__(self, pair: list[Tensor]) -> None:
+        """From ``pair = [D, E]`` (``D (..., G, b, b)``, ``E (..., G or G + 1, b, b)``; the
+        list emptied, so that each is freed once read: memory)."""
+        D, E = pair
+        pair.clear()
         G = D.shape[-3]
         ne, h = (G + 1) // 2, G // 2
         self.G = G
         C, info = torch.linalg.cholesky_ex(D[..., 0::2, :, :])
+        odd = D[..., 1::2, :, :].clone()  # D of the next level, less its updates below
+        del D
         bad = info != 0
         self.ok = ~bad.any(-1)
         # a failed element continues on the identity: its own results are flagged
-        b = D.shape[-1]
+        b = C.shape[-1]
         if bool(bad.any()):
-            C[bad] = torch.eye(b, dtype=D.dtype, device=D.device)
+            C[bad] = torch.eye(b, dtype=C.dtype, device=C.device)
         self.C = C
-        rhs = E.new_zeros(*E.shape[:-3], ne, b, 2 * b)  # [E_i | E_{i+1}^T], one array (memory)
-        rhs[..., :b] = E[..., 0::2, :, :]
-        rhs[..., :h, :, b:] = E[..., 1::2, :, :].mT
-        LR = torch.linalg.solve_triangular(C, rhs, upper=False)
-        del rhs
-        self.L, self.R = LR[..., :b], LR[..., b:]
+        # E_i and E_{i+1}^T (zero past the last group) solved apart: a column's bits are
+        # those of one solve of [E_i | E_{i+1}^T], without that copy (memory)
+        self.L = torch.linalg.solve_triangular(C, E[..., 0:2 * ne:2, :, :], upper=False)
+        self.R = torch.linalg.solve_triangular(
+            C, _pad(E[..., 1::2, :, :], ne)[..., :ne, :, :].mT, upper=False)
+        del E
         Rprev = self.R[..., :h, :, :]
-        self.D = D[..., 1::2, :, :] - Rprev.mT @ Rprev
+        self.D = odd.sub_(Rprev.mT @ Rprev)
         nxt = min(ne - 1, h)  # odd group i has an even neighbour i + 1 below it
         self.D[..., :nxt, :, :] -= self.L[..., 1:nxt + 1, :, :].mT @ self.L[..., 1:nxt + 1, :, :]
-        self.E = -(Rprev.mT @ self.L[..., :h, :, :])
+        self.E = (Rprev.mT @ self.L[..., :h, :, :]).neg_()
 
     def forward(self, b: Tensor) -> tuple[Tensor, Tensor]:
         """``y`` of the even groups and the right-hand side of the odd ones."""
@@ -135,21 +147,51 @@ class _Level:
         return _interleave(x_even, x_odd)
 
     def inverse(self, diag: Tensor, sub: Tensor) -> tuple[Tensor, Tensor]:
-        """The blocks of the inverse at this level from those of the odd groups."""
-        ne = self.C.shape[-3]
-        eye = torch.eye(self.C.shape[-1], dtype=self.C.dtype, device=self.C.device)
-        Ci = torch.linalg.solve_triangular(self.C, eye, upper=False)
-        P, Q = Ci.mT @ self.L, Ci.mT @ self.R  # D^-1 E_i, D^-1 E_{i+1}^T
-        d_left = _pad(diag, 0, front=True)[..., :ne, :, :]  # Sigma_{i-1,i-1}
-        d_right = _pad(diag, ne)  # Sigma_{i+1,i+1}
-        s_far = _pad(sub, 0, front=True)[..., :ne, :, :]  # Sigma_{i+1,i-1}
-        to_left = -(P @ d_left + Q @ s_far)  # Sigma_{i,i-1}
-        to_right = -(P @ s_far.mT + Q @ d_right)  # Sigma_{i,i+1}
-        own = Ci.mT @ Ci - P @ to_left.mT - Q @ to_right.mT
-        own = 0.5 * (own + own.mT)
+        """The blocks of the inverse at this level, ``(..., G, b, b)`` each, from those of
+        the odd groups (``diag``, ``sub``: ``(..., G // 2, b, b)``), ``_CHUNK`` even groups
+        at a time, each written once into its place (memory: a chunk's temporaries, no
+        padded copies of the odd groups' blocks, no interleaving copy); an end without a
+        neighbour takes zero blocks."""
+        G, ne = self.G, self.C.shape[-3]
+        fine = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
+        fine[..., 1::2, :, :] = diag
         # sub[j] = Sigma_{j+1,j}: Sigma_{i+1,i} for even j = i, Sigma_{i,i-1} for odd j = i - 1
-        fine_sub = _interleave(to_right.mT, to_left[..., 1:, :, :])
-        return _interleave(own, diag), _pad(fine_sub, self.G)[..., :self.G, :, :]
+        fine_sub = torch.empty_like(fine)
+        fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
+        for a in range(0, ne, _CHUNK):
+            c = slice(a, min(a + _CHUNK, ne))
+            fine[..., 2 * c.start:2 * c.stop:2, :, :] = self._inverse_part(c, diag, sub,
+                                                                            fine_sub)
+        return fine, fine_sub
+
+    def _inverse_part(self, c: slice, diag: Tensor, sub: Tensor, fine_sub: Tensor) -> Tensor:
+        """``inverse`` of the even groups ``c``: their blocks to the neighbours written
+        into ``fine_sub``, their diagonal blocks ``(..., len(c), b, b)`` returned."""
+        h = diag.shape[-3]
+        lo = max(c.start, 1)  # the even groups with an odd group k = i - 1 before them
+        k, at = slice(lo - 1, c.stop - 1), slice(lo - c.start, None)
+        eye = torch.eye(self.C.shape[-1], dtype=self.C.dtype, device=self.C.device)
+        Ci = torch.linalg.solve_triangular(self.C[..., c, :, :], eye, upper=False)
+        # D^-1 E_i, D^-1 E_{i+1}^T (P_0 = 0, Q_i = 0 past the last group)
+        P, Q = Ci.mT @ self.L[..., c, :, :], Ci.mT @ self.R[..., c, :, :]
+        # Sigma_{i,i-1} = -(P_i Sigma_{i-1,i-1} + Q_i Sigma_{i+1,i-1}), zero for i = 0
+        to_left = torch.zeros_like(P)
+        torch.matmul(P[..., at, :, :], diag[..., k, :, :], out=to_left[..., at, :, :])
+        to_left[..., at, :, :] += Q[..., at, :, :] @ sub[..., k, :, :]
+        to_left.neg_()
+        # Sigma_{i,i+1} = -(P_i Sigma_{i-1,i+1} + Q_i Sigma_{i+1,i+1})
+        to_right = torch.zeros_like(P)
+        r = slice(c.start, min(c.stop, h))  # an odd group k = i after them
+        torch.matmul(Q[..., :r.stop - r.start, :, :], diag[..., r, :, :],
+                     out=to_right[..., :r.stop - r.start, :, :])
+        to_right[..., at, :, :] += P[..., at, :, :] @ sub[..., k, :, :].mT
+        to_right.neg_()
+        own = Ci.mT @ Ci
+        own -= P @ to_left.mT
+        own -= Q @ to_right.mT
+        fine_sub[..., 2 * c.start:2 * c.stop:2, :, :] = to_right.mT
+        fine_sub[..., 2 * lo - 1:2 * c.stop - 1:2, :, :] = to_left[..., at, :, :]
+        return (own + own.mT).mul_(0.5)
 
 
 class BandedCholesky:
@@ -173,18 +215,19 @@ class BandedCholesky:
         G = -(-n // g)
         pad = G * g - n  # identity rows after the last block row (_grouped)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
-        D, E = _grouped(band, g)
+        # [D, E]: each level frees its input once read (memory)
+        pair = [_grouped(band, g), _grouped(band, g, below=True)]
         if shift is not None:
             shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
-            D.diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
+            pair[0].diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
         self.levels: list[_Level] = []
         ok = torch.ones(batch, dtype=torch.bool, device=dev)
-        while D.shape[-3]:
-            level = _Level(D, E)
+        while pair[0].shape[-3]:
+            level = _Level(pair)
             ok &= level.ok
             self.levels.append(level)
-            D, E = level.D, level.E
-            if D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
+            pair = [level.D, level.E]
+            if level.D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
                 del level.D, level.E
         self.ok = ok
 
@@ -206,10 +249,15 @@ class BandedCholesky:
         """Blocks of :math:`A^{-1}` of the grouped matrix: ``diag (..., G, g s, g s)`` and
         ``sub (..., G, g s, g s)`` (``sub[j]`` the block of groups ``(j + 1, j)``, the last
         one zero)."""
+        return self._inverse_from(0)
+
+    def _inverse_from(self, first: int) -> tuple[Tensor, Tensor]:
+        """``selected_inverse``'s blocks of the groups of level ``first`` (level 1: the
+        odd groups of the matrix)."""
         last = self.levels[-1]
         diag = last.D  # (..., 0, b, b)
         sub = last.E
-        for level in reversed(self.levels):
+        for level in reversed(self.levels[first:]):
             diag, sub = level.inverse(diag, sub)
         return diag, sub
 
@@ -220,19 +268,41 @@ class BandedCholesky:
         ``U V^T`` symmetric (``U``, ``V``: ``(..., n, s, r)``; None: none): the elementwise
         products of its grouped blocks with those of the selected inverse plus the update's
         (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
-        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out."""
-        diag, sub = self.selected_inverse()
-        rows = torch.arange(self.G * self.g, device=diag.device) < self.n
-        real = rows.repeat_interleave(self.s).reshape(self.G, self.g * self.s).to(diag.dtype)
-        if U is not None and V is not None:
-            Ug, Vg = (self._groups(x) for x in (U, V))
-            diag = diag + Ug @ Vg.mT
-            sub = sub + _pad(Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT, self.G)
+        \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out. The finest
+        level's diagonal blocks are taken ``_CHUNK`` groups at a time, as its selected
+        inverse makes them (their row sums kept, never the whole diagonal: memory)."""
+        g, G, top = self.g, self.G, self.levels[0]
+        ne = top.C.shape[-3]
+        diag, sub = self._inverse_from(1)  # the odd groups' blocks
+        rows = torch.arange(G * g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
+        fine_sub = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
+        fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
+        Ug, Vg = (None, None) if U is None or V is None else (self._groups(x) for x in (U, V))
+        sums = [diag.new_empty(*diag.shape[:-3], G, g * self.s) for _ in bands]
+        for a in range(0, ne, _CHUNK):  # the diagonal blocks a chunk of groups at a time
+            c = slice(a, min(a + _CHUNK, ne))
+            own = top._inverse_part(c, diag, sub, fine_sub)
+            grp = slice(2 * c.start, min(2 * c.stop, G))  # its even groups and the odd after
+            X = own.new_empty(*own.shape[:-3], grp.stop - grp.start, *own.shape[-2:])
+            X[..., 0::2, :, :] = own
+            X[..., 1::2, :, :] = diag[..., c.start:c.start + X.shape[-3] // 2, :, :]
+            if Ug is not None and Vg is not None:
+                X += Ug[..., grp, :, :] @ Vg[..., grp, :, :].mT
+            for rs, band in zip(sums, bands, strict=True):
+                rs[..., grp, :] = _grouped(band[..., grp.start * g:grp.stop * g, :, :, :],
+                                           g).mul_(X).sum(-1)
+        del diag, sub
+        if Ug is not None and Vg is not None:
+            for a in range(0, G, _CHUNK):  # the update added in place, a chunk at a time
+                p = slice(max(a, 1) - 1, min(a + _CHUNK, G) - 1)  # sub[j] = (j + 1, j)
+                fine_sub[..., p, :, :] += Ug[..., p.start + 1:p.stop + 1, :, :] @ Vg[
+                    ..., p, :, :].mT
         out = []
-        for band in bands:
-            D, E = _grouped(band, self.g)
-            own = ((D * diag).sum(-1) * real).sum((-1, -2))
-            out.append(own + 2.0 * (E[..., 1:, :, :] * sub[..., :-1, :, :]).sum((-1, -2, -3)))
+        for rs, band in zip(sums, bands, strict=True):  # products in place, one at a time
+            below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(fine_sub[..., :-1, :, :])
+            out.append((rs * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
+            del below  # before the next band's (memory)
         return out
 
     def _groups(self, x: Tensor) -> Tensor:
