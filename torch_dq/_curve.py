@@ -256,6 +256,12 @@ class Curve(torch.nn.Module, abc.ABC):
     #: whether the least-squares start fits in the split form's charts (:mod:`torch_dq._start`)
     _split_charts = False
 
+    #: the float64 first and last times ``(...)`` of the poses a curve was built from
+    #: (``_from_dq``; None otherwise and after loading a state): the estimation's advice on
+    #: times beyond the domain gives the ``margin=`` that such a curve needs, which counts
+    #: from those times
+    _poses_span: tuple[Tensor, Tensor] | None = None
+
     # -- control points
     def _setup(self, ctrl: Tensor, min_points: int, check: bool, extrapolate: bool) -> None:
         fn = self._name
@@ -377,6 +383,7 @@ class Curve(torch.nn.Module, abc.ABC):
         else:
             self._origin = extra_float(fn, state, "origin")
         self._restore(fn, state)
+        self._poses_span = None  # the knots may be another curve's now
 
     @classmethod
     def from_state_dict(cls, state_dict: Mapping[str, Any], *, check: bool = True,

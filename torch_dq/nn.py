@@ -578,6 +578,7 @@ class BSpline(Curve):
         n = check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
         module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device), degree=degree,
                      knots=_uniform(n, degree, t0, t1), form=form, check=check)
+        module._poses_span = (t64[..., 0], t64[..., -1])
         coarse = max(degree + 1, x.shape[-2] // _POSES_PER_COARSE_CTRL)
         if knot_spacing is None or n <= coarse:
             return module._fill(fn, x, t64)
