@@ -87,7 +87,7 @@ from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._fused_curves import fused_cumulative
 from ._time import KnotDomain, time_pair
 from .fitting import FitHistory, fit
-from .fitting._knots import choose_knot_spacing, round_up
+from .fitting._knots import check_fineness, choose_knot_spacing
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -119,36 +119,6 @@ def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> i
 # coarse knots (a control point per this many poses), sampled this many times per fine span.
 _POSES_PER_COARSE_CTRL = 2
 _SAMPLES_PER_SPAN = 4
-# knot_spacing at most this many times finer than the poses' mean spacing (an IMU at 1 kHz
-# with 5 samples per knot span under 1 Hz poses asks for 200): finer is a unit mistake
-# (nanosecond times with a spacing in seconds asked for 3e10 control points, 960 GB)
-_FINEST_PER_POSE = 1000
-
-
-def _check_fineness(fn: str, t64: Tensor, knot_spacing: float, degree: int,
-                    margin: float) -> None:
-    """Refuse a ``knot_spacing`` more than :data:`_FINEST_PER_POSE` times finer than the
-    mean spacing of the poses at float64 times ``t64 (..., N)`` (the longest row's), before
-    anything of that size is allocated; the message gives the control points it needs, the
-    spacing that works and, for times that look like UNIX nanoseconds (or micro-, milli-),
-    the unit."""
-    N = t64.shape[-1]
-    duration = float((t64[..., -1] - t64[..., 0]).max())
-    mean = duration / (N - 1)
-    if knot_spacing * _FINEST_PER_POSE >= mean:
-        return
-    spans = (duration + 2 * margin) / knot_spacing  # finite: knot_spacing is a normal float
-    count = math.ceil(spans - 1e-9) + degree if spans < 1e15 else f"{spans + degree:.3g}"
-    unit = _checks.unix_unit(float(t64.abs().max()))
-    hint = (f" (the times look like UNIX {unit[0]}: pass seconds, times * {unit[1]:g})"
-            if unit and float(t64.abs().max()) >= _checks.LATEST else "")
-    _checks.fail(fn, f"knot_spacing={knot_spacing!r} is more than {_FINEST_PER_POSE} times "
-                     f"finer than the poses' mean spacing {mean:.6g} (the times' units): it "
-                     f"needs {count} control points for N = {N} poses{hint}; pass "
-                     f"knot_spacing={round_up(mean / _FINEST_PER_POSE):g} or more, in the "
-                     f"times' units")
-
-
 def _uniform(n: int, degree: int, t0: float | Tensor, t1: float | Tensor) -> Tensor:
     """Clamped uniform knots of ``n`` control points over ``[t0, t1]`` (float64; a row per
     trajectory for ``(..., 1)`` tensors)."""
@@ -599,7 +569,7 @@ class BSpline(Curve):
         else:
             t0, t1 = float(t64[0]) - margin, float(t64[-1]) + margin
         if knot_spacing is not None:  # the longest row's span at most knot_spacing apart
-            _check_fineness(fn, t64, knot_spacing, degree, margin)
+            check_fineness(fn, t64, knot_spacing, degree, margin)
             span = float(torch.as_tensor(t1 - t0, dtype=torch.float64).max())
             n_ctrl = max(math.ceil(span / knot_spacing - 1e-9), 1) + degree
         elif n_ctrl is None:  # chosen from the data
