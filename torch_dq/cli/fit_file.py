@@ -582,16 +582,10 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
 
         joint = functools.partial(fit_with_imu, imu=imu, time_offset=time_offset,
                                   steps=max(steps, 1), say=say)
-
-    def announce(fit: dict) -> None:  # the pose-only fit, before the IMU's
-        if not fit_steps:  # the least-squares start kept by the knot search: say why
-            fit["reason"] = ("--steps 0" if not steps else
-                             "refining chases the poses' noise, see the knot spacing")
-        say(_steps_line(fit, imu is not None))
-
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, joint,
-                                   gate=refine == "auto" and imu is None, announce=announce)
+                                   gate=refine == "auto" and imu is None,
+                                   announce=_announcer(say, steps, fit_steps, imu is not None))
     fit["seconds"]["read"] = read_s
     fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
     model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
@@ -603,6 +597,18 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     say(f"wrote {', '.join(sorted(paths))} to {out}")
     say(f"reload: {summary['reload']}")
     return summary
+
+
+def _announcer(say, steps: int, fit_steps: int, imu: bool):
+    """``announce`` of :func:`_fit_and_measure`: print the pose-only fit's line (before the
+    IMU fit's), saying why the least-squares start was kept where the knot search or
+    ``steps=0`` kept it."""
+    def announce(fit: dict) -> None:
+        if not fit_steps:
+            fit["reason"] = ("--steps 0" if not steps else
+                             "refining chases the poses' noise, see the knot spacing")
+        say(_steps_line(fit, imu))
+    return announce
 
 
 def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
