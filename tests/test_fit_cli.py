@@ -69,7 +69,8 @@ def test_heldout_errors_next_to_scipy(full_run):
     fit[::2] = True
     fit[-1] = True
     assert summary["holdout"] == {"every": 2, "fitted": int(fit.sum()),
-                                  "held_out": int((~fit).sum()), "errors_on": "held-out poses"}
+                                  "held_out": int((~fit).sum()), "errors_on": "held-out poses",
+                                  "curve": "poses alone"}
     # scipy through the same fitted samples, measured on the same held-out ones
     from scipy.interpolate import CubicSpline
     from scipy.spatial.transform import RotationSpline

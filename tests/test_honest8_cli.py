@@ -82,7 +82,7 @@ def test_imu_fit_in_nanoseconds_as_in_seconds(tmp_path, capsys):
         lines = _run(["fit", str(poses), "--imu", str(imu), "--out",
                       str(tmp_path / f"o{ns}"), "--no-plots", "--steps", "10"], capsys)
         fit = next(s for s in lines if s.startswith("fit"))
-        assert fit.startswith("fit (poses alone): ") and "the IMU fit below refines" in fit
+        assert fit.startswith("fit (poses alone): ") and "the IMU fitted together" in fit
         assert any("converted to seconds" in s for s in lines) == ns, lines
         out[ns] = json.loads((tmp_path / f"o{ns}" / "summary.json").read_text())
     for ns in (True, False):

@@ -87,7 +87,7 @@ from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._fused_curves import fused_cumulative
 from ._time import KnotDomain, time_pair
 from .fitting import FitHistory, fit
-from .fitting._knots import choose_knot_spacing
+from .fitting._knots import check_fineness, choose_knot_spacing
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -119,8 +119,6 @@ def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> i
 # coarse knots (a control point per this many poses), sampled this many times per fine span.
 _POSES_PER_COARSE_CTRL = 2
 _SAMPLES_PER_SPAN = 4
-
-
 def _uniform(n: int, degree: int, t0: float | Tensor, t1: float | Tensor) -> Tensor:
     """Clamped uniform knots of ``n`` control points over ``[t0, t1]`` (float64; a row per
     trajectory for ``(..., 1)`` tensors)."""
@@ -571,6 +569,7 @@ class BSpline(Curve):
         else:
             t0, t1 = float(t64[0]) - margin, float(t64[-1]) + margin
         if knot_spacing is not None:  # the longest row's span at most knot_spacing apart
+            check_fineness(fn, t64, knot_spacing, degree, margin)
             span = float(torch.as_tensor(t1 - t0, dtype=torch.float64).max())
             n_ctrl = max(math.ceil(span / knot_spacing - 1e-9), 1) + degree
         elif n_ctrl is None:  # chosen from the data
@@ -578,6 +577,7 @@ class BSpline(Curve):
         n = check_int(fn, "n_ctrl", n_ctrl, degree + 1, f"> degree = {degree}")
         module = cls(dualquat.identity((*batch, n), dtype=x.dtype, device=x.device), degree=degree,
                      knots=_uniform(n, degree, t0, t1), form=form, check=check)
+        module._poses_span = (t64[..., 0], t64[..., -1])
         coarse = max(degree + 1, x.shape[-2] // _POSES_PER_COARSE_CTRL)
         if knot_spacing is None or n <= coarse:
             return module._fill(fn, x, t64)
@@ -643,7 +643,9 @@ class BSpline(Curve):
                 of an estimate): the start is then the regularised least squares of
                 ``torch_dq._start.least_squares_start`` (``smooth``: the smoothest
                 curve in the local charts between the poses, exact for a constant screw
-                motion), and more control points than poses are allowed.
+                motion), and more control points than poses are allowed, up to a spacing
+                1000 times finer than the poses' mean spacing (finer is refused as a unit
+                mistake, e.g. nanosecond times with a spacing in seconds).
             margin: widen the domain by this much (``>= 0``, the times' units) before the
                 first and after the last time: measurements with a time offset up to
                 ``margin`` (:mod:`torch_dq.fitting`'s ``max_time_offset``) stay inside it
@@ -657,7 +659,8 @@ class BSpline(Curve):
                 row of ``(..., N)`` times), non-finite poses, an unknown ``form``, more
                 control points than samples without ``knot_spacing`` (underdetermined),
                 ``n_ctrl=None`` with a batch, ``n_ctrl`` and ``knot_spacing`` both given,
-                a non-positive ``knot_spacing`` or a negative ``margin``.
+                a non-positive ``knot_spacing``, one over 1000 times finer than the poses,
+                or a negative ``margin``.
 
         Example:
             >>> import torch_dq.dualquat as dq

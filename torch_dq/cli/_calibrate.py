@@ -38,7 +38,8 @@ and ``summary.json`` (intrinsics and relative poses with their formal standard d
 reprojection RMS, the warnings).
 
 User errors (unreadable or malformed files, options the data cannot satisfy, an output
-that would overwrite an input) end in one line on stderr and exit status 2.
+that would overwrite an input, an ``--out`` holding an earlier run's results without
+``--overwrite``, as ``fit``) end in one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
@@ -258,6 +259,11 @@ def _check_outputs(args) -> Path:
             raise UserError(f"--out {args.out} is an --images folder (an input)")
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {args.out} is a file, not a folder")
+    earlier = [name for name in _OUTPUTS if (out / name).exists()]
+    if earlier and not args.overwrite:  # fit's rule (fit_file._check_out)
+        raise UserError(f"{args.out} already holds results of an earlier run "
+                        f"({', '.join(earlier)}): pass --overwrite to replace them, or choose "
+                        f"another --out")
     return out
 
 

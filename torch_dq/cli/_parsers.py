@@ -218,7 +218,8 @@ def _add_calibrate(sub) -> None:
         "summary.json and figures to --out. Without --imu and --imu-noise, calibrates the "
         "cameras alone (Kalibr's calibrate_cameras: intrinsics of the camchain's models and "
         "the cameras' relative poses) and writes camchain.yaml and summary.json. Inputs are "
-        "never written to. Errors end in one line and exit status 2.")
+        "never written to, and an output folder holding earlier results is refused without "
+        "--overwrite. Errors end in one line and exit status 2.")
     p.add_argument("--target", required=True, metavar="TARGET.yaml",
                    help="Kalibr's target yaml (aprilgrid or checkerboard)")
     p.add_argument("--imu", metavar="IMU_FILE",
@@ -235,6 +236,8 @@ def _add_calibrate(sub) -> None:
     p.add_argument("--images", action="append", default=[], metavar="DIR",
                    help="a folder of one camera's images named by nanosecond timestamps")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results of an earlier run in --out (never an input)")
     p.add_argument("--pixel-sigma", type=_positive_float, default=1.0,
                    help="corner noise per axis (pixels)")
     p.add_argument("--robust", type=str.lower, choices=("none", "huber", "cauchy"),

@@ -1,7 +1,9 @@
 r"""The application behind ``python -m torch_dq fit FILE``: fit a B-spline to a trajectory file.
 
 Reads a TUM, KITTI or EuRoC trajectory (:func:`torch_dq.io.read_trajectory`, float64 times
-in the file's own seconds, UNIX seconds included), then
+in the file's own seconds, UNIX seconds included; times that the reader finds to be
+nanoseconds, microseconds or milliseconds are converted to seconds here, with a printed
+note, where :func:`~torch_dq.io.read_trajectory` itself keeps them and warns), then
 
 1. *split*: every ``holdout``-th pose (and the last) is fitted, the others are held out to
    measure the fit (``holdout=1``: fit all, report the fit residuals);
@@ -49,7 +51,6 @@ import warnings
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import torch
 from torch import Tensor
 
@@ -57,8 +58,8 @@ from .. import _checks, dualquat, io
 from .. import nn as dqnn
 from .._report import evaluate, import_matplotlib, no_matplotlib, pose_errors, say_warnings
 from ..fitting import _knots
-from ..io import _units
 from ._errors import OptionError
+from ._fit_input import read_seconds
 from ._refine import predicted_gain
 
 __all__ = ["DEFAULTS", "FIGURES", "MAX_RESAMPLED", "OUTPUTS", "REFINE_GAIN", "REFINE_TOL",
@@ -326,11 +327,11 @@ def _errors(pred: Tensor, truth: Tensor, idx: Tensor) -> dict:
     return {"translation_mm": _stats(1e3 * trans), "rotation_deg": _stats(rot)}
 
 
-def _print_errors(say, result: FitResult, errors: dict) -> None:
+def _print_errors(say, result: FitResult, errors: dict, imu: bool) -> None:
     held = len(result.held_idx)
     what = "held-out" if held else "fit (nothing held out)"
     say(f"{what + f' errors ({len(result.report_idx)} poses)':<34}{'mean':>9}{'median':>9}"
-        f"{'max':>9}")
+        f"{'max':>9}" + ("   (the poses and IMU fit)" if imu else ""))
     for label, key in (("translation [mm]", "translation_mm"), ("rotation [deg]", "rotation_deg")):
         s = errors[key]
         say(f"  {label:<32}{s['mean']:9.3f}{s['median']:9.3f}{s['max']:9.3f}")
@@ -396,8 +397,9 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
     os.makedirs(out, exist_ok=True)
     paths = {name: os.path.join(out, name) for name in OUTPUTS}
     model = summary["model"]
+    imu = f" and the IMU {summary['imu']['file']}" if summary["imu"] else ""
     _write_csv(paths["trajectory.csv"], result, model["knot_spacing_s"],
-               f"torch_dq fit of {path}: B-spline of degree {model['degree']}, "
+               f"torch_dq fit of {path}{imu}: B-spline of degree {model['degree']}, "
                f"{model['n_ctrl']} control points (a knot every {model['knot_spacing_s']:g} "
                f"s), resampled at {summary['resampled']['rate_hz']:.9g} Hz")
     torch.save(result.spline.state_dict(), paths["spline.pt"])
@@ -421,14 +423,20 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
 
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
                      degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
-                     verbose: bool, joint=None, gate: bool = False) -> tuple[FitResult, dict]:
-    """Fit (``gate``: LM only where it pays, :func:`_fit`; and ``joint(spline, times, poses)
-    -> (spline, summary entry)``, e.g. with an IMU), then measure and resample the curve."""
+                     verbose: bool, joint=None, gate: bool = False,
+                     announce=None) -> tuple[FitResult, dict]:
+    """Fit (``gate``: LM only where it pays, :func:`_fit`), tell ``announce(fit)`` of it,
+    fit ``joint(spline, times, poses) -> (spline, summary entry)`` (e.g. with an IMU: the
+    curve measured, resampled and written is then that joint fit's), then measure and
+    resample the curve."""
     poses = traj.poses()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spline, history, seconds, gain = _fit(traj.select(fit_idx), poses[fit_idx], spacing,
                                               degree, form, steps, dtype, verbose, gate)
+        fit = _pose_fit(history, seconds, gain)
+        if announce:
+            announce(fit)
         extra = None
         if joint:  # may fit another curve (the IMU's knots)
             spline, extra = joint(spline, traj.times[fit_idx], poses[fit_idx])
@@ -440,16 +448,22 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     kin = type(kin)(*(None if v is None else v.double() for v in kin))
     result = FitResult(traj, poses, fit_idx, held_idx, spline, pred, rot, 1e3 * trans, grid,
                        evaluate(spline, grid), kin, _in_gap(grid, traj.times, spacing))
+    fit.update(warnings=say_warnings("torch-dq fit", caught), imu=extra)
+    return result, fit
+
+
+def _pose_fit(history, seconds: dict, gain: tuple[float, float] | None) -> dict:
+    """``summary.json``'s ``fit`` entry of the pose-only fit (its ``warnings`` and ``imu``
+    come later)."""
     fit = {"steps": history.steps if history else 0,
            "refined": history is not None, "reason": history.reason if history else None,
            "loss_start": history.loss[0] if history and history.loss else None,
-           "loss_final": history.final_loss if history else None, "seconds": seconds,
-           "warnings": say_warnings("torch-dq fit", caught), "imu": extra}
+           "loss_final": history.final_loss if history else None, "seconds": seconds}
     if gain is not None:
         fit["predicted_gain"] = {"rotation": gain[0], "translation": gain[1]}
         if history is None:
             fit["reason"] = _kept(gain)
-    return result, fit
+    return fit
 
 
 def _kept(gain: tuple[float, float]) -> str:
@@ -510,7 +524,10 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
             then refined on the fitted poses and the IMU together
             (``torch_dq.cli.fit_imu.fit_with_imu``; biases, gravity and their standard
             deviations printed and in the summary), on the cumulative form unless ``form``
-            says otherwise (continuous accelerations).
+            says otherwise (continuous accelerations). The pose-only fit's line is printed
+            first, then the joint fit's; the errors, ``trajectory.csv``, ``spline.pt`` and
+            the figures are of the joint fit's curve (``summary.json``: ``holdout.curve``;
+            its ``fit`` entry is the pose-only fit's, its ``imu`` entry the joint fit's).
         time_offset: with ``imu``: ``None`` (the clocks agree) or ``"estimate"`` (one
             offset for the gyroscope and the accelerometer, at most 0.1 s).
         plots: write the figures (needs matplotlib).
@@ -541,7 +558,7 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     path, out = os.fspath(path), os.fspath(out)
     _check_inputs(path, out, times, imu, time_offset, overwrite, plots)
     say = print if verbose else (lambda *a, **k: None)
-    traj, read_warnings, read_s, unit = _read(path, format, times, duplicates)
+    traj, read_warnings, read_s, unit = read_seconds(path, format, times, duplicates)
     fit_idx, held_idx = _split(len(traj), holdout, degree)
     train = traj.select(fit_idx)
     spacing, why, fit_steps = _knot_spacing(train.times, train.poses(), degree, form,
@@ -567,11 +584,9 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
                                   steps=max(steps, 1), say=say)
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, joint,
-                                   gate=refine == "auto" and imu is None)
+                                   gate=refine == "auto" and imu is None,
+                                   announce=_announcer(say, steps, fit_steps, imu is not None))
     fit["seconds"]["read"] = read_s
-    if not fit_steps:  # the least-squares start kept by the knot search: say why
-        fit["reason"] = ("--steps 0" if not steps else
-                         "refining chases the poses' noise, see the knot spacing")
     fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
     model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
              "knot_spacing_reason": why}
@@ -582,6 +597,18 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     say(f"wrote {', '.join(sorted(paths))} to {out}")
     say(f"reload: {summary['reload']}")
     return summary
+
+
+def _announcer(say, steps: int, fit_steps: int, imu: bool):
+    """``announce`` of :func:`_fit_and_measure`: print the pose-only fit's line (before the
+    IMU fit's), saying why the least-squares start was kept where the knot search or
+    ``steps=0`` kept it."""
+    def announce(fit: dict) -> None:
+        if not fit_steps:
+            fit["reason"] = ("--steps 0" if not steps else
+                             "refining chases the poses' noise, see the knot spacing")
+        say(_steps_line(fit, imu))
+    return announce
 
 
 def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
@@ -600,51 +627,10 @@ def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
     _check_out(out, inputs, overwrite, plots)
 
 
-def _read(path: str, format: str, times, duplicates: str
-          ) -> tuple[io.Trajectory, list[str], float, str | None]:
-    """The file's poses (at least 2) in seconds (:func:`_in_seconds`), the warnings on units
-    the data contradict (printed once), the seconds it took and the unit converted from
-    (``None``: seconds as read)."""
-    begin = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        traj = io.read_trajectory(path, format=format, times=times, duplicates=duplicates)
-    traj, unit, guess = _in_seconds(traj)
-    if unit:  # the reader's warning is answered by the conversion, which is printed
-        caught = [w for w in caught if guess not in str(w.message)]
-    read_warnings = say_warnings("torch-dq fit", caught)
-    read_s = time.perf_counter() - begin
-    if len(traj) < 2:
-        raise OptionError(f"fit: {path} holds {len(traj)} pose; a fit needs at least 2")
-    return traj, read_warnings, read_s, unit
-
-
-def _in_seconds(traj: io.Trajectory) -> tuple[io.Trajectory, str | None, str]:
-    """The poses with their times in seconds, the unit they were converted from and the
-    reader's guess (:func:`torch_dq.io.read_trajectory`'s warning that the times look like
-    nanoseconds, microseconds or milliseconds: integer UNIX nanoseconds in a TUM file).
-
-    The times are divided by the first finer unit in which the reader finds them plausible
-    seconds: every output (``trajectory.csv``'s times, velocities and accelerations, the
-    knot spacing, ``--rate``) is then in seconds, as the command states. Times it finds
-    implausible in every unit are kept, with the reader's warning."""
-    t = traj.times.numpy()
-    q, p = traj.rotations.numpy(), traj.translations.numpy()
-    guess = _units._time_unit_guess(t, q, p)
-    if guess is None:
-        return traj, None, ""
-    step = float(np.median(np.diff(t)))
-    for name, scale in _checks.TIME_UNITS:
-        if 2e-4 <= step * scale <= 5.0 and _units._time_unit_guess(t * scale, q, p) is None:
-            seconds = io.Trajectory(traj.times * scale, traj.rotations, traj.translations)
-            return seconds, name, guess
-    return traj, None, guess
-
-
-def _steps_line(fit: dict) -> str:
+def _steps_line(fit: dict, imu: bool) -> str:
     """The report's line on the pose-only fit: its refinement steps and what stopped them,
-    or why the least-squares start was kept (never a bare "0 steps"); with an IMU, that
-    its fit (reported below) refines the curve."""
+    or why the least-squares start was kept (never a bare "0 steps"); with an ``imu``, that
+    the joint fit (printed next) gives the curve reported and written."""
     seconds = (f"{fit['seconds']['fit_total']:.2f} s (least-squares start "
                f"{fit['seconds']['least_squares_start']:.2f} s)")
     n = fit["steps"]
@@ -654,19 +640,19 @@ def _steps_line(fit: dict) -> str:
         what = f"0 steps: the least-squares start already fits ({fit['reason']}), {seconds}"
     else:
         what = f"{n} step{'s' * (n != 1)} in {seconds}: {fit['reason']}"
-    imu = "; the IMU fit below refines the curve" if fit["imu"] is not None else ""
-    return f"fit{' (poses alone)' if imu else ''}: {what}{imu}"
+    joint = ("; next the poses and the IMU fitted together, whose curve the errors, "
+             "trajectory.csv and spline.pt are of") if imu else ""
+    return f"fit{' (poses alone)' if imu else ''}: {what}{joint}"
 
 
 def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdout: int,
                dtype: torch.dtype, rate_hz: float) -> dict[str, Any]:
-    """Print the fit's steps and errors; the summary of ``summary.json`` (but the reload
+    """Print the errors; the summary of ``summary.json`` (but the reload
     line and the outputs). ``model`` gives the pose-only fit's knots, replaced by the IMU
     fit's where there was one."""
     fit_idx, held_idx = result.fit_idx, result.held_idx
     heldout = _errors(result.pred, result.poses, result.report_idx)
-    say(_steps_line(fit))
-    _print_errors(say, result, heldout)
+    _print_errors(say, result, heldout, fit["imu"] is not None)
     if fit["imu"] is not None:  # the IMU fit's knots
         knots = fit["imu"]["knots"]
         model = {**model, "n_ctrl": knots["n_ctrl"], "knot_spacing_s": knots["spacing_s"],
@@ -677,7 +663,9 @@ def _summarize(say, result: FitResult, fit: dict, info: dict, model: dict, holdo
                   "dtype": str(dtype).replace("torch.", ""),
                   "domain_s": list(result.spline.domain)},
         "holdout": {"every": holdout, "fitted": len(fit_idx), "held_out": len(held_idx),
-                    "errors_on": "held-out poses" if len(held_idx) else "fitted poses"},
+                    "errors_on": "held-out poses" if len(held_idx) else "fitted poses",
+                    "curve": "poses and IMU fitted together" if fit["imu"] is not None
+                    else "poses alone"},
         "heldout_errors": heldout,
         "fit_errors": _errors(result.pred, result.poses, fit_idx),
         "fit": {k: v for k, v in fit.items() if k not in ("seconds", "warnings", "imu")},

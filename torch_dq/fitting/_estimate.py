@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -25,6 +25,7 @@ from . import _structure as structure
 from ._align import imu_aligned
 from ._charts import Scalar
 from ._imu import Accel, Gyro
+from ._knots import round_up
 from ._lm import LevenbergMarquardt
 from ._problem import Problem
 from ._terms import Term
@@ -80,7 +81,8 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                 _checks.fail(fn, f"{name} times {_checks.shape_str(t.shape)} do not match the "
                                  f"trajectory's batch {_checks.shape_str(batch)}")
             first, last = (x.to(torch.float64) for x in ((t + a).amin(-1), (t + b).amax(-1)))
-            bad = dom.outside(torch.stack((first, last), -1)).any(-1).reshape(-1).cpu()
+            out = dom.outside(torch.stack((first, last), -1)).cpu()
+            bad = out.any(-1).reshape(-1)
             first, last = first.cpu(), last.cpu()
             if bool(bad.any()):
                 i = int(bad.nonzero()[0, 0])
@@ -88,9 +90,12 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                     return float(x.reshape(-1)[i] if x.numel() > 1 else x)
 
                 row = f" (trajectory {i})" if lo.dim() or t.dim() == 2 else ""
-                need = max(pick(lo) - pick(first), pick(last) - pick(hi))
-                extend = (f"extend the trajectory (nn.BSpline.from_dualquats / from_poses(..., "
-                          f"margin={need:.3g}) reaches that far beyond its samples)")
+                short = [pick(lo) - pick(first), pick(last) - pick(hi)]
+                ends = out.reshape(-1, 2)[i if out.numel() > 2 else 0].tolist()
+                slack = 0.5 * pick(dom.tolerance(torch.float64).cpu())  # within the rounding
+                extend = _extend_hint(trajectory, [s - slack if e else 0.0 for s, e in
+                                                   zip(short, ends, strict=True)],
+                                      (pick(first) + slack, pick(last) - slack), pick)
                 fix = (f"{extend} or lower max_time_offset" if slot.estimated
                        else f"{extend} or drop those samples")
                 if pick(last) - pick(first) < 1e-3 * (pick(hi) - pick(lo)) or (
@@ -99,6 +104,29 @@ def _check_domains(fn: str, trajectory, terms: list[Term], batch: torch.Size) ->
                 _checks.fail(fn, f"{name} times{' ' + what if what else ''} leave the "
                                  f"trajectory's domain{row} [{pick(lo)!r}, {pick(hi)!r}]: got "
                                  f"[{pick(first)!r}, {pick(last)!r}]; {fix}")
+
+
+def _extend_hint(trajectory, short: list[float], reach: tuple[float, float],
+                 pick: Callable[[Tensor], float]) -> str:
+    """The advice on times reaching ``reach`` (first, last) beyond the trajectory's domain
+    by ``short`` (at its start, at its end; 0 where inside), both less half the domain's
+    tolerance: for a curve built from poses (``Curve._poses_span``), the ``margin=`` that
+    covers them, counted like ``from_poses``' from the poses' first and last times; else how
+    far to extend the domain. Every number rounded up (followed literally, it works)."""
+    def up(x: float) -> str:
+        return f"{round_up(x):g}"
+
+    span = trajectory._poses_span
+    if span is not None:
+        reach_out = max(pick(span[0]) - reach[0], reach[1] - pick(span[1]))
+        return (f"extend the trajectory: build it with nn.BSpline.from_poses / from_dualquats"
+                f"(..., margin={up(reach_out)}) (the margin counts from the poses' first and "
+                f"last times; this curve's falls {up(max(short))} short)")
+    where = " and ".join(f"{up(s)} at its {end}" for s, end in zip(short, ("start", "end"),
+                                                                  strict=True) if s > 0)
+    return (f"extend the trajectory's domain by {where} (this curve was not built by "
+            f"nn.BSpline.from_poses / from_dualquats, whose margin= counts from the poses' "
+            f"first and last times)")
 
 
 def _check_batches(fn: str, terms: list[Term], batch: torch.Size) -> None:

@@ -45,8 +45,8 @@ from .. import _checks, _start, curves, dualquat, losses, quat
 from .._curve import UnitDualQuaternion
 from .._time import KnotDomain
 
-__all__ = ["CHECK_EVERY", "DATA_LIMIT_STEPS", "GRID_RATIO", "SpacingSearch",
-           "choose_knot_spacing", "errors_at", "finest_spacing", "inner_split",
+__all__ = ["CHECK_EVERY", "DATA_LIMIT_STEPS", "FINEST_PER_POSE", "GRID_RATIO", "SpacingSearch",
+           "check_fineness", "choose_knot_spacing", "errors_at", "finest_spacing", "inner_split",
            "knot_spacing_search", "n_ctrl", "round_down", "round_up"]
 
 #: Ratio between consecutive candidate spacings.
@@ -141,6 +141,38 @@ class SpacingSearch:
 def n_ctrl(duration: float, spacing: float, degree: int) -> int:
     """Control points of clamped uniform knots at most ``spacing`` apart over ``duration``."""
     return math.ceil(duration / spacing - 1e-9) + degree
+
+
+#: ``BSpline.from_poses(knot_spacing=)`` refuses a spacing more than this many times finer
+#: than the poses' mean spacing (an IMU at 1 kHz with 5 samples per knot span under 1 Hz
+#: poses asks for 200): finer is a unit mistake (nanosecond times with a spacing in
+#: seconds asked for 3e10 control points, 960 GB).
+FINEST_PER_POSE = 1000
+
+
+def check_fineness(fn: str, t64: Tensor, knot_spacing: float, degree: int,
+                   margin: float) -> None:
+    """``BSpline.from_poses(knot_spacing=)``'s check: refuse a ``knot_spacing`` more than
+    :data:`FINEST_PER_POSE` times finer than the mean spacing of the poses at float64 times
+    ``t64 (..., N)`` (the longest row's), before anything of that size is allocated; the
+    message gives the control points it needs (over the span widened by ``margin`` at each
+    end), the spacing that works and, for times that look like UNIX nanoseconds (or micro-,
+    milli-), the unit."""
+    N = t64.shape[-1]
+    duration = float((t64[..., -1] - t64[..., 0]).max())
+    mean = duration / (N - 1)
+    if knot_spacing * FINEST_PER_POSE >= mean:
+        return
+    spans = (duration + 2 * margin) / knot_spacing  # finite: knot_spacing is a normal float
+    count = math.ceil(spans - 1e-9) + degree if spans < 1e15 else f"{spans + degree:.3g}"
+    unit = _checks.unix_unit(float(t64.abs().max()))
+    hint = (f" (the times look like UNIX {unit[0]}: pass seconds, times * {unit[1]:g})"
+            if unit and float(t64.abs().max()) >= _checks.LATEST else "")
+    _checks.fail(fn, f"knot_spacing={knot_spacing!r} is more than {FINEST_PER_POSE} times "
+                     f"finer than the poses' mean spacing {mean:.6g} (the times' units): it "
+                     f"needs {count} control points for N = {N} poses{hint}; pass "
+                     f"knot_spacing={round_up(mean / FINEST_PER_POSE):g} or more, in the "
+                     f"times' units")
 
 
 def finest_spacing(duration: float, n_samples: int, degree: int) -> float:

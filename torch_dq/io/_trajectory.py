@@ -61,6 +61,10 @@ class Trajectory:
             file).
         translations: ``(N, 3)`` float64 positions of the body origin in the world frame
             (the file's unit: metres for TUM, KITTI and EuRoC).
+
+    The three are stored attributes; the poses as ``(N, 8)`` unit dual quaternions are
+    computed from them by the method :meth:`poses` (``traj.poses()``, with parentheses);
+    ``traj.select(index)`` gives a sub-trajectory and ``len(traj)`` its ``N``.
     """
 
     times: Tensor
@@ -301,7 +305,11 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
     Returns:
         :class:`Trajectory` of float64 CPU tensors: ``times (N,)`` in seconds (EuRoC's
         nanoseconds converted with correct rounding), ``rotations (N, 4)`` unit ``(w, x, y,
-        z)``, ``translations (N, 3)``.
+        z)``, ``translations (N, 3)``; ``.poses()`` gives them as ``(N, 8)`` unit dual
+        quaternions. TUM and KITTI times are kept as written, in the file's unit, also where
+        they look like nanoseconds, microseconds or milliseconds (a warning names the
+        division; ``python -m torch_dq fit`` converts such times to seconds itself, with a
+        note: the same file gives the API the file's numbers and the command seconds).
 
     Raises:
         TrajectoryFileError: (a ``ValueError``) malformed file, naming the file and the
@@ -317,9 +325,11 @@ def read_trajectory(path: str | os.PathLike[str], format: str = "auto",
     Warns:
         UserWarning: times that look like nanoseconds, microseconds or milliseconds (poses
             hours apart, or nearly still in seconds while plausible in the finer unit; TUM
-            and KITTI). Quaternion columns in another order than the header names (or
-            than TUM's, without a header) cannot be told from the poses alone (a
-            permutation of the components keeps the angle between any two rotations);
+            and KITTI): they are kept as read, and the warning names the division to do
+            (the ``fit`` command does it). Quaternion columns in another order than the
+            header names (or than TUM's, without a header) cannot be told from the poses
+            alone (a permutation of the components keeps the angle between any two
+            rotations);
             ``python -m torch_dq fit --imu`` tells them by the gyroscope.
 
     Example:

@@ -4,6 +4,7 @@ CSV with velocities and accelerations (private; the public names are
 
 from __future__ import annotations
 
+import io
 import os
 import re
 from collections.abc import Sequence
@@ -198,8 +199,11 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
     the file (``pandas.read_csv(path, comment='#')`` or ``numpy.genfromtxt(path,
     delimiter=',', names=True, skip_header=c)``), then the header row and the rows.
 
-    Times are written with 9 decimals (nanoseconds, UNIX seconds included), other floats
-    with 15 significant digits, bool and integer extra columns as integers.
+    Times are written as the shortest decimal that reads back as the same float64 (Python's
+    ``repr``, as :func:`write_trajectory`): a time read from a file as ``1305031098.6659``
+    is written ``1305031098.6659``, so a join on the time column with the input works where
+    the times agree. Other floats with 15 significant digits, bool and integer extra columns
+    as integers.
 
     Args:
         path: the file to (over)write.
@@ -257,7 +261,7 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
     if kinematics is not None:
         units += ("; vx, vy, vz [m/s]; wx, wy, wz angular velocity [rad/s]; ax, ay, az "
                   "[m/s^2]; alpha_x, alpha_y, alpha_z angular acceleration [rad/s^2]")
-    fmt = ["%.9f"] + ["%.15g"] * (len(names) - 1)
+    fmt = ["%.15g"] * (len(names) - 1)
     if extra_columns is not None:
         more, values, fmts, notes = _extra_columns(fn, extra_columns, t.shape[0], CSV_COLUMNS)
         names, columns, fmt = names + more, columns + values, fmt + fmts
@@ -271,5 +275,20 @@ def write_csv(path: str | os.PathLike[str], trajectory: Trajectory, kinematics: 
         header = "\n".join([*lines, ",".join(names)])
     else:
         header = "\n".join([",".join(names), *lines])
-    np.savetxt(path, np.concatenate(columns, axis=1), delimiter=",", header=header,
-               comments="", fmt=fmt)
+    _write_table(path, header, t, np.concatenate(columns[1:], axis=1), fmt)
+
+
+_ROWS_PER_CHUNK = 10_000
+
+
+def _write_table(path, header: str, t: np.ndarray, values: np.ndarray, fmt: list[str]) -> None:
+    """``header``, then one row per time: the time's shortest round-trip decimal
+    (``repr``), then ``values`` formatted by ``fmt`` (``numpy.savetxt``), comma-separated."""
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(header + "\n")
+        for start in range(0, t.shape[0], _ROWS_PER_CHUNK):
+            chunk = slice(start, start + _ROWS_PER_CHUNK)
+            rows = io.StringIO()
+            np.savetxt(rows, values[chunk], delimiter=",", fmt=fmt)
+            f.writelines(f"{ti!r},{row}\n" for ti, row in
+                         zip(t[chunk].tolist(), rows.getvalue().splitlines(), strict=True))
