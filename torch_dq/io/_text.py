@@ -126,8 +126,9 @@ def check_times(path, lines: list[int], t: np.ndarray, duplicates: str,
         return np.flatnonzero(np.concatenate(([True], step > 0)))
     first_bad(path, lines[1:], step == 0,
                lambda i: f"duplicate timestamp {show(i + 1)} {unit} (also on line "
-                         f"{lines[i]}){hint}; pass duplicates='first' (fit, calibrate: "
-                         f"--duplicates first) to keep the first row of each time")
+                         f"{lines[i]}){hint}; to keep the first row of each time, pass "
+                         f"duplicates='first' (Python) or --duplicates first (the fit and "
+                         f"calibrate commands)")
     return np.arange(t.shape[0])
 
 
