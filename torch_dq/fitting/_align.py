@@ -25,9 +25,9 @@ positions_imu_identity_start.py``). The data give a start in closed form:
 The curve fit to the poses :math:`(R_0 \Delta R(t_k),\ p(t_k))` (refined where 4. applies)
 at the gyroscope's times (``p`` the caller's translations: only the rotations change) is the
 start where its cost, every term at its start values, is below the caller's start's cost: a
-caller's better start (a previous estimate) is kept. Not tried: batches of trajectories, other terms (poses,
-odometry or cameras see the rotations themselves), a lever arm's effect on the accelerations
-(left to the iteration).
+caller's better start (a previous estimate) is kept. Not tried: batches of trajectories,
+other terms (poses, odometry or cameras see the rotations themselves), a lever arm's effect
+on the accelerations (left to the iteration).
 """
 
 from __future__ import annotations
