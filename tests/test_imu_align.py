@@ -13,7 +13,7 @@ from test_estimation import G, truth
 
 import torch_dq.dualquat as dq
 from torch_dq import quat
-from torch_dq.fitting import Accel, Gyro, Positions, _align, estimate
+from torch_dq.fitting import Accel, Free, Gyro, Positions, _align, estimate
 from torch_dq.nn import BSpline
 
 F64 = torch.float64
@@ -84,11 +84,18 @@ def test_aligned_start_is_near_the_truth_and_a_better_start_is_kept():
         spline.control_points = aligned
     # gyroscope bias (0.027 rad/s) integrated over 6 s from the start: the drift bounds it
     assert _rotation_error(spline, torch.linspace(0.0, 6.0, 61, dtype=F64)) < 0.25
-    R = truth(K * tp.numpy())[0]
-    best = BSpline.from_dualquats(dq.from_rt(torch.from_numpy(R.as_quat(scalar_first=True)), pos),
-                                  tp, knot_spacing=0.05, form="cumulative")
+    # the truth at the IMU's times with the true biases' starts: the truth's rotations at the
+    # positions' times alone (20 Hz) cost more than the aligned start now, whose heading and
+    # gyroscope bias are refined together and which is fitted at the gyroscope's times
+    R, p = truth(K * ti.numpy())[:2]
+    best = BSpline.from_dualquats(dq.from_rt(torch.from_numpy(R.as_quat(scalar_first=True)),
+                                             torch.from_numpy(p)),
+                                  ti, knot_spacing=0.05, form="cumulative")
     kept = best.control_points.detach()
-    assert _align.imu_aligned("test", best, terms, kept) is kept
+    truth_terms = [Positions(tp, pos, sigma=0.01),
+                   Gyro(ti, gyro, sigma=0.002, bias=Free(torch.from_numpy(BG))),
+                   Accel(ti, force, sigma=0.02, bias=Free(torch.from_numpy(BA)), gravity=tuple(G))]
+    assert _align.imu_aligned("test", best, truth_terms, kept) is kept
 
 
 def test_integrated_rates_against_scipy():
