@@ -119,6 +119,8 @@ def _chosen_n_ctrl(fn: str, x: Tensor, t64: Tensor, degree: int, form: str) -> i
 # coarse knots (a control point per this many poses), sampled this many times per fine span.
 _POSES_PER_COARSE_CTRL = 2
 _SAMPLES_PER_SPAN = 4
+
+
 def _uniform(n: int, degree: int, t0: float | Tensor, t1: float | Tensor) -> Tensor:
     """Clamped uniform knots of ``n`` control points over ``[t0, t1]`` (float64; a row per
     trajectory for ``(..., 1)`` tensors)."""
