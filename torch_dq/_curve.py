@@ -120,16 +120,15 @@ def _rebuild(cls: type[Curve], state: dict[str, Any], settings: dict[str, bool])
 class Curve(torch.nn.Module, abc.ABC):
     """A curve layer: learnable unit-dual-quaternion control points on a time model.
 
-    The contract that :class:`torch_dq.nn.Bezier` and :class:`torch_dq.nn.BSpline` implement
-    and that :mod:`torch_dq.fitting` relies on (nothing else of a layer). Concrete here: the
+    The contract that :class:`torch_dq.nn.Bezier` and :class:`torch_dq.nn.BSpline` implement and
+    that :mod:`torch_dq.fitting` relies on (nothing else of a layer). Concrete here: the
     parametrized control points (:attr:`control_points`, :attr:`n_ctrl`), the time
     (:attr:`domain`, the domain rules of :mod:`torch_dq.nn`), :meth:`forward`,
     :meth:`derivatives`, :meth:`kinematics`, :meth:`imu`, the Euclidean :meth:`basis` and
-    :meth:`greville` abscissae of the least-squares problems, saving and loading (extra
-    state, :meth:`from_state_dict`, pickling), the constructors from poses, and the span
-    structure that the estimation uses: :meth:`support` (which control points a time
-    depends on) and :meth:`local_times` (the time since the start of its span), both from
-    the time model.
+    :meth:`greville` abscissae of the least-squares problems, saving and loading (extra state,
+    :meth:`from_state_dict`, pickling), the constructors from poses, and the span structure that
+    the estimation uses: :meth:`support` (which control points a time depends on) and
+    :meth:`local_times` (the time since the start of its span), both from the time model.
 
     A subclass supplies its time model (:attr:`time_model`), its evaluation (``_curve``,
     ``_curve_derivatives``) and its span evaluation (:meth:`evaluate_span`, what the
