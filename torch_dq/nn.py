@@ -81,8 +81,8 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _cumulative_lie, _start, curves, dualquat
-from ._core import align_chain, distinct
-from ._curve import Curve, UnitDualQuaternion
+from ._core import distinct
+from ._curve import Curve, UnitDualQuaternion, aligned_chain
 from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._fused_curves import fused_cumulative
 from ._time import KnotDomain, time_pair
@@ -482,7 +482,7 @@ class BSpline(Curve):
             # span tables whatever a batch holds (a non-unit element would switch the path,
             # and the rounding, of its neighbours)
             weights = self.time_model.bases(rel, r, order, cumulative=True)
-            aligned, at = align_chain(ctrl), r
+            aligned, at = aligned_chain(ctrl), r
             if not batch and r.numel():  # one curve: the points its times read (a part of a
                 a, b = torch.stack(torch.aminmax(r)).tolist()  # long record reads a stretch)
                 aligned, at = aligned[a - self.degree:b + 1], r - (a - self.degree)
@@ -525,7 +525,7 @@ class BSpline(Curve):
         if self.form != "cumulative":
             return None
         p = self.degree
-        spans = align_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)  # (..., n - p, p + 1, 8)
+        spans = aligned_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)  # (..., n - p, p + 1, 8)
         return _cumulative_lie.span_parts(spans.reshape(-1, p + 1, 8)).unflatten(
             -1, spans.shape[:-2])
 
