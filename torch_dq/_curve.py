@@ -117,7 +117,7 @@ def aligned_chain(ctrl: Tensor) -> Tensor:
     record pay quadratically (44 parts). Callers do not modify the chain in place (a
     modified chain is not reused)."""
     global _LAST_CHAIN
-    if ctrl.requires_grad or ctrl.is_inference() or torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or ctrl.requires_grad or ctrl.is_inference():
         return align_chain(ctrl)
     last = _LAST_CHAIN
     if last is not None and last[0]() is ctrl and last[1] == ctrl._version \
