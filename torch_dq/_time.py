@@ -41,11 +41,8 @@ first and last non-empty ones, local parameters run outside ``[0, 1]``).
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import math
 import numbers
-from collections.abc import Iterator
 from typing import Literal, overload
 
 import torch
@@ -55,8 +52,8 @@ from . import _checks
 from ._kernels.layout import chunks
 from ._numerics import safe_denominator, threshold
 
-__all__ = ["MIN_RESOLUTION", "BasesMemo", "KnotDomain", "bspline_basis", "checks_possible",
-           "span_bases", "time_pair", "time_step", "unresolved"]
+__all__ = ["MIN_RESOLUTION", "KnotDomain", "bspline_basis", "checks_possible", "span_bases",
+           "time_pair", "time_step", "unresolved"]
 
 BASIS_CHUNK = 16384  # times per eager chunk of the basis (2x faster than 1e5 at once)
 _REL_TOL = 1e-9  # relative part of the domain tolerance, of t1 - t0 (docs/api_contract.md)
@@ -501,9 +498,6 @@ class KnotDomain:
         """The basis of span ``r`` (from :meth:`span`) at relative times ``rel`` and its time
         derivatives up to ``order``, plain or cumulative (:func:`span_bases`), computed in
         ``rel``'s dtype: ``order + 1`` tensors ``(..., T, p + 1)`` or ``(..., T, p)``."""
-        memo = None if torch.compiler.is_compiling() else _ACTIVE_MEMO.get()
-        if memo is not None and not (rel.requires_grad or self.knots.requires_grad):
-            return memo.bases(self, rel, r, order, cumulative)
         knots, flat_r = self.flat(r, rel.dtype)
         return span_bases(knots, flat_r, rel, self.degree, order, cumulative=cumulative)
 
@@ -512,67 +506,6 @@ class KnotDomain:
         k = self.knots.detach().to(torch.float64)
         p, n = self.degree, self.n
         return k[..., 1:n + p].unfold(-1, p, 1).mean(-1)
-
-
-class BasesMemo:
-    """Basis values kept for times evaluated again: :meth:`KnotDomain.bases` while the memo
-    is :meth:`active` (times without gradient). An estimation evaluates its spans at the
-    same sample times at every point (its costs, its systems) while no estimated parameter
-    moves them. Each entry is found by its slot (the domain's knots and degree, the form,
-    the shapes, the first and last span) and used only where the times and spans are
-    equal to the ones it was computed at (else computed again and replaced: a moving
-    clock offset), its derivatives up to the order asked (a higher order's first ones are
-    the lower order's, to the bit); at most ``budget`` bytes (times, spans and values).
-
-    Args:
-        budget: the most bytes kept.
-    """
-
-    def __init__(self, budget: int) -> None:
-        self.entries: dict[tuple, tuple[Tensor, Tensor, list[Tensor], int, list[int]]] = {}
-        self.left = budget
-
-    @contextlib.contextmanager
-    def active(self) -> Iterator[None]:
-        """``with memo.active():`` :meth:`KnotDomain.bases` reads and fills this memo."""
-        token = _ACTIVE_MEMO.set(self)
-        try:
-            yield
-        finally:
-            _ACTIVE_MEMO.reset(token)
-
-    def bases(self, domain: KnotDomain, rel: Tensor, r: Tensor, order: int,
-              cumulative: bool) -> list[Tensor]:
-        """:meth:`KnotDomain.bases` of ``domain`` at ``(rel, r)``: kept or computed (and kept
-        within the budget)."""
-        ends = torch.stack((r.reshape(-1)[0], r.reshape(-1)[-1])).tolist() if r.numel() else ()
-        key = (id(domain.knots), domain.degree, cumulative, rel.dtype, rel.shape, r.shape,
-               *ends)
-        old = self.entries.get(key)
-        if old is not None and len(old[2]) > order and _unchanged(old) \
-                and torch.equal(old[0], rel) and torch.equal(old[1], r):
-            return old[2][:order + 1]
-        knots, flat_r = domain.flat(r, rel.dtype)
-        out = span_bases(knots, flat_r, rel, domain.degree, order, cumulative=cumulative)
-        if old is not None:  # replaced (moved times, or a higher order)
-            self.left += old[3]
-            del self.entries[key]
-        size = sum(x.numel() * x.element_size() for x in (rel, r, *out))
-        if size <= self.left:
-            self.entries[key] = (rel, r, out, size, [x._version for x in (rel, r, *out)])
-            self.left -= size
-        return out
-
-
-def _unchanged(entry: tuple) -> bool:
-    """Whether a :class:`BasesMemo` entry's tensors are as kept (none modified in place)."""
-    return all(x._version == v for x, v in zip((entry[0], entry[1], *entry[2]), entry[4],
-                                                strict=True))
-
-
-#: The :class:`BasesMemo` that :meth:`KnotDomain.bases` reads, where one is active
-_ACTIVE_MEMO: contextvars.ContextVar[BasesMemo | None] = contextvars.ContextVar(
-    "torch_dq_bases_memo", default=None)
 
 
 def bspline_basis(t: Tensor, knots: Tensor, degree: int, r: Tensor | None = None,

@@ -19,13 +19,9 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
-from .._time import BasesMemo
 
 __all__ = ["SpanEvaluator"]
 
-#: basis values an estimation keeps (``SpanEvaluator.bases``): 88 bytes an IMU sample (its
-#: times, spans and cumulative basis to the second derivative), 11 MB for 600 s at 200 Hz
-BASES_BYTES = 1 << 25
 _COPY_ELEMENTS = 1 << 21  # leaf elements times copies above which rows are separate passes
 
 
@@ -44,9 +40,6 @@ class SpanEvaluator:
         self.trajectory = trajectory
         self.n, self.support = trajectory.n_ctrl, trajectory.span_size
         self.device = trajectory.control_points.device
-        #: the basis values of the costs' and systems' times (:meth:`shared`, :meth:`vjp`),
-        #: fixed while no estimated parameter moves them: computed once per estimate
-        self.bases = BasesMemo(BASES_BYTES)
 
     def since_origin(self, t: Tensor, shift: Tensor | float = 0.0) -> Tensor:
         r"""The samples' times ``t (..., N)`` moved by ``shift`` (``(..., N)`` or
@@ -83,9 +76,7 @@ class SpanEvaluator:
         control points the spans are of, None: from ``points``), or None (no closed form:
         reverse passes)."""
         local = self.trajectory.local_times(t, first, True)
-        with self.bases.active():
-            return self.trajectory.span_vjp(points, local, first, cotangents, pose, second,
-                                            tables)
+        return self.trajectory.span_vjp(points, local, first, cotangents, pose, second, tables)
 
     def tables(self, ctrl: Tensor) -> Tensor | None:
         """The layer's :meth:`~torch_dq.nn.Curve.span_vjp_tables` of the control points
@@ -100,8 +91,7 @@ class SpanEvaluator:
         (:meth:`~torch_dq.nn.Curve.span_derivatives`): the costs and the linearisation
         points, without per-sample copies."""
         traj = self.trajectory
-        with self.bases.active():
-            return traj.span_derivatives(ctrl, traj.local_times(t, first, True), first, order)
+        return traj.span_derivatives(ctrl, traj.local_times(t, first, True), first, order)
 
     def time_rate(self, t: Tensor, first: Tensor) -> Tensor:
         r"""``d local / d t`` ``(...)`` of :meth:`~torch_dq.nn.Curve.local_times` at ``t``
