@@ -1,5 +1,5 @@
 """The control points' sign-aligned chain kept between a long record's parts (session 15,
-``torch_dq._curve.aligned_chain``) against a numpy sign alignment written here: reused
+``torch_dq._core.aligned_chain``) against a numpy sign alignment written here: reused
 only for the same, unmodified points and an unmodified chain, never for points with a
 gradient."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from torch_dq._curve import aligned_chain
+from torch_dq._core import aligned_chain
 
 F64 = torch.float64
 

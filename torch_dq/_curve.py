@@ -12,7 +12,6 @@ the estimation works on any :class:`Curve` through its span contract
 from __future__ import annotations
 
 import abc
-import weakref
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -21,7 +20,7 @@ from torch import Tensor
 from torch.nn.utils import parametrize
 
 from . import _checks, _compat01, _start, curves, dualquat
-from ._core import align_chain
+from ._core import aligned_chain
 from ._curve_args import check_int, extra_float, extra_origins
 from ._fused_curves import span_points as gather_span_points
 from ._time import EXTRAPOLATE_HINT, KnotDomain
@@ -43,7 +42,7 @@ if TYPE_CHECKING:
     class _Parametrizations(Protocol):
         ctrl: _CtrlParametrization
 
-__all__ = ["Curve", "UnitDualQuaternion", "aligned_chain", "span_points"]
+__all__ = ["Curve", "UnitDualQuaternion", "span_points"]
 
 _RAW = "parametrizations.ctrl.original"  # state_dict key of the raw control points
 
@@ -103,29 +102,6 @@ def span_points(ctrl: Tensor, first: Tensor, count: int) -> Tensor:
     every evaluation reads, so per-sample copies and the shared points give one sign."""
     batch = torch.Size(_checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1]))
     return gather_span_points(aligned_chain(ctrl), first + count - 1, count - 1, batch)
-
-
-#: ``(control points (weak), their version, chain, its version)`` of :func:`aligned_chain`
-_LAST_CHAIN: tuple | None = None
-
-
-def aligned_chain(ctrl: Tensor) -> Tensor:
-    """:func:`torch_dq._core.align_chain` of ``ctrl (..., n, 8)``, kept for the last control
-    points aligned while neither they nor the chain change (same tensor, same version) and
-    they need no gradient: the estimation reads the chain of the same points once per part
-    of a long record (its costs, spans and windows), an O(n) pass each that made an hour's
-    record pay quadratically (44 parts). Callers do not modify the chain in place (a
-    modified chain is not reused)."""
-    global _LAST_CHAIN
-    if torch.compiler.is_compiling() or ctrl.requires_grad or ctrl.is_inference():
-        return align_chain(ctrl)
-    last = _LAST_CHAIN
-    if last is not None and last[0]() is ctrl and last[1] == ctrl._version \
-            and last[3] == last[2]._version:
-        return last[2]
-    out = align_chain(ctrl)
-    _LAST_CHAIN = (weakref.ref(ctrl), ctrl._version, out, out._version)
-    return out
 
 
 # ----------------------------------------------------------------------------- pickling

@@ -81,8 +81,8 @@ import torch
 from torch import Tensor
 
 from . import _checks, _compat01, _cumulative_lie, _start, curves, dualquat
-from ._core import distinct
-from ._curve import Curve, UnitDualQuaternion, aligned_chain
+from ._core import aligned_chain, distinct
+from ._curve import Curve, UnitDualQuaternion
 from ._curve_args import check_int, extra_float, extra_origins, poses_to_dq
 from ._fused_curves import fused_cumulative
 from ._kernels.layout import chunks
