@@ -9,6 +9,8 @@ each other's private names.
 
 from __future__ import annotations
 
+import weakref
+
 import torch
 from torch import Tensor
 
@@ -16,9 +18,9 @@ from ._checks import broadcast_shapes
 from ._numerics import compute_dtype, even, may_hold
 
 __all__ = [
-    "Frozen", "align", "align_chain", "canonical", "distinct", "dq_from_rt", "dq_mul",
-    "hemisphere", "join", "lift", "lower", "qconj", "qmul", "qrotate", "split", "translation",
-    "twist_translation",
+    "Frozen", "align", "align_chain", "aligned_chain", "canonical", "distinct", "dq_from_rt",
+    "dq_mul", "hemisphere", "join", "lift", "lower", "qconj", "qmul", "qrotate", "split",
+    "translation", "twist_translation",
 ]
 
 
@@ -135,6 +137,29 @@ def align_chain(x: Tensor) -> Tensor:
     non-negative dot with its predecessor's (same poses, continuous representatives)."""
     flips = torch.cumprod(hemisphere(x[..., 1:, :], x[..., :-1, :]), dim=-1)
     return torch.cat((x[..., :1, :], x[..., 1:, :] * flips[..., None]), dim=-2)
+
+
+#: ``(control points (weak), their version, chain, its version)`` of :func:`aligned_chain`
+_LAST_CHAIN: tuple | None = None
+
+
+def aligned_chain(ctrl: Tensor) -> Tensor:
+    """:func:`align_chain` of ``ctrl (..., n, 8)``, kept for the last control points aligned
+    while neither they nor the chain change (same tensor, same version) and they need no
+    gradient: the estimation reads the chain of the same points once per part of a long
+    record (its costs, spans and windows; ``torch_dq._curve.span_points``), an O(n) pass each
+    that made an hour's record pay quadratically (136 a cost and system). Callers do not
+    modify the chain in place (a modified chain is not reused)."""
+    global _LAST_CHAIN
+    if torch.compiler.is_compiling() or ctrl.requires_grad or ctrl.is_inference():
+        return align_chain(ctrl)
+    last = _LAST_CHAIN
+    if last is not None and last[0]() is ctrl and last[1] == ctrl._version \
+            and last[3] == last[2]._version:
+        return last[2]
+    out = align_chain(ctrl)
+    _LAST_CHAIN = (weakref.ref(ctrl), ctrl._version, out, out._version)
+    return out
 
 
 def twist_translation(omega: Tensor, t: Tensor) -> Tensor:

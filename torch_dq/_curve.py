@@ -20,7 +20,7 @@ from torch import Tensor
 from torch.nn.utils import parametrize
 
 from . import _checks, _compat01, _start, curves, dualquat
-from ._core import align_chain
+from ._core import aligned_chain
 from ._curve_args import check_int, extra_float, extra_origins
 from ._fused_curves import span_points as gather_span_points
 from ._time import EXTRAPOLATE_HINT, KnotDomain
@@ -101,7 +101,7 @@ def span_points(ctrl: Tensor, first: Tensor, count: int) -> Tensor:
     sign-aligned chain of ``ctrl (..., n, 8)`` (:func:`torch_dq._core.align_chain`): what
     every evaluation reads, so per-sample copies and the shared points give one sign."""
     batch = torch.Size(_checks.broadcast_shapes(ctrl.shape[:-2], first.shape[:-1]))
-    return gather_span_points(align_chain(ctrl), first + count - 1, count - 1, batch)
+    return gather_span_points(aligned_chain(ctrl), first + count - 1, count - 1, batch)
 
 
 # ----------------------------------------------------------------------------- pickling

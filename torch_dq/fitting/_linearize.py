@@ -49,6 +49,7 @@ _ROWS = 1 << 14  # samples per chunk of the normal equations' rows (bounds their
 
 
 MEMO_BYTES = 1 << 25  # span derivatives a point keeps for its system (Memo)
+TABLES_BYTES = 1 << 25  # the largest span table a system's parts share (_share_tables)
 
 
 class Memo:
@@ -199,10 +200,10 @@ class Linearization:
         (:meth:`_columns`: a camera term its extrinsic and clock, one bias segment of a
         random walk its own), so a window's normal matrix stays small however many
         nuisance parameters the problem has; :class:`_Normal` scatters them into place.
-        Where there are several groups, each one part, the closed-form span products of
-        all groups read one table of the spans
-        (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`; a longer record's parts
-        compute their own spans', whose memory is a part's). The terms' own blocks
+        Where there are several groups, the closed-form span products of all groups read
+        one table of the spans (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`)
+        where it is small (:meth:`_share_tables`; a longer record's parts compute their own
+        spans', whose memory is a part's). The terms' own blocks
         (``System.own``, the per-term degrees of freedom) only where ``robust``: a unit-weight
         system judges the data's information and is never the one the uncertainties read."""
         p = self.p
@@ -211,8 +212,7 @@ class Linearization:
         rs: list[list[Tensor]] = [[] for _ in p.terms]
         weights: list[list[Tensor]] = [[] for _ in p.terms]
         groups = [(g, _group_parts(p, g)) for g in p.groups(values)]
-        tables = (self.spans.tables(ctrl) if len(groups) > 1
-                  and all(len(x) == 1 for _, x in groups) else None)
+        tables = self.spans.tables(ctrl) if self._share_tables(groups) else None
         for group, cut in groups:
             for k, parts in enumerate(cut):  # memory: a part
                 added = self._add_part(acc, group, parts, ctrl, values, w,
@@ -222,6 +222,18 @@ class Linearization:
                     rs[i].append(r)
                     weights[i].append(wt)
         return acc.system([torch.cat(r, -2) for r in rs], [torch.cat(x, -1) for x in weights])
+
+    def _share_tables(self, groups: list[tuple[tuple[int, ...], list]]) -> bool:
+        """Whether the groups' parts read one table of every span
+        (:meth:`~torch_dq.fitting._local.SpanEvaluator.tables`): where several groups read
+        the spans (each part would compute its spans' again: twice the work for an IMU and a
+        pose term) and the table (80 ``p`` float64 per span, 23 MB for 600 s of 20 Hz
+        knots) is no larger than ``TABLES_BYTES`` or every group is one part (a part's own
+        spans are then all of them)."""
+        if len(groups) < 2:
+            return False
+        size = 80 * (self.spans.support - 1) * max(self.p.batch.numel(), 1) * self.spans.n * 8
+        return size <= TABLES_BYTES or all(len(x) == 1 for _, x in groups)
 
     def _add_part(self, acc: _Normal, group: tuple[int, ...], terms: tuple, ctrl: Tensor,
                   values: list[Tensor], w: int,
