@@ -9,19 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from test_prior_null import N, W, _band  # the dense matrix's upper band
 
 from torch_dq.fitting import _banded, _prior, _solver
 
-N, W, M = 8, 4, 3  # control points, band width (blocks), nuisance parameters
-
-
-def _band(A: np.ndarray) -> torch.Tensor:
-    """``(1, N, W, 6, 6)`` upper band of the dense ``(6 N, 6 N)`` matrix ``A``."""
-    band = np.zeros((1, N, W, 6, 6))
-    for k in range(N):
-        for d in range(min(W, N - k)):
-            band[0, k, d] = A[6 * k:6 * k + 6, 6 * (k + d):6 * (k + d) + 6]
-    return torch.from_numpy(band)
+M = 3  # nuisance parameters (N control points, W blocks wide: test_prior_null's)
 
 
 def _normal(seed: int, null: bool) -> np.ndarray:
