@@ -20,7 +20,8 @@ def test_grouped_blocks_are_the_dense_matrix_blocks(w):
                 M[s * k:s * k + s, s * (k + d):s * (k + d) + s] = band[b, k, d]
                 if d:
                     M[s * (k + d):s * (k + d) + s, s * k:s * k + s] = band[b, k, d].T
-        D, E = (x[b].numpy() for x in _banded._grouped(torch.from_numpy(band), g))
+        D, E = (_banded._grouped(torch.from_numpy(band), g, below)[b].numpy()
+                for below in (False, True))
         m = g * s
         for j in range(G):
             np.testing.assert_array_equal(D[j], M[m * j:m * j + m, m * j:m * j + m])
