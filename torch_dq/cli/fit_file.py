@@ -423,9 +423,10 @@ def _write(out: str, path: str, result: FitResult, summary: dict, plots: bool) -
 
 def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spacing: float,
                      degree: int, form: str, steps: int, rate: float, dtype: torch.dtype,
-                     verbose: bool, joint=None, gate: bool = False,
+                     verbose: bool, joint=None, gate: bool = False, kept: str | None = None,
                      announce=None) -> tuple[FitResult, dict]:
-    """Fit (``gate``: LM only where it pays, :func:`_fit`), tell ``announce(fit)`` of it,
+    """Fit (``gate``: LM only where it pays, :func:`_fit`; ``kept``: why the least-squares
+    start is kept, where the caller knows), tell ``announce(fit)`` of it,
     fit ``joint(spline, times, poses) -> (spline, summary entry)`` (e.g. with an IMU: the
     curve measured, resampled and written is then that joint fit's), then measure and
     resample the curve."""
@@ -434,7 +435,7 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
         warnings.simplefilter("always")
         spline, history, seconds, gain = _fit(traj.select(fit_idx), poses[fit_idx], spacing,
                                               degree, form, steps, dtype, verbose, gate)
-        fit = _pose_fit(history, seconds, gain)
+        fit = _pose_fit(history, seconds, gain, kept)
         if announce:
             announce(fit)
         extra = None
@@ -452,9 +453,10 @@ def _fit_and_measure(traj: io.Trajectory, fit_idx: Tensor, held_idx: Tensor, spa
     return result, fit
 
 
-def _pose_fit(history, seconds: dict, gain: tuple[float, float] | None) -> dict:
+def _pose_fit(history, seconds: dict, gain: tuple[float, float] | None,
+              kept: str | None) -> dict:
     """``summary.json``'s ``fit`` entry of the pose-only fit (its ``warnings`` and ``imu``
-    come later)."""
+    come later); ``kept``: the reason given where the least-squares start was kept."""
     fit = {"steps": history.steps if history else 0,
            "refined": history is not None, "reason": history.reason if history else None,
            "loss_start": history.loss[0] if history and history.loss else None,
@@ -463,6 +465,8 @@ def _pose_fit(history, seconds: dict, gain: tuple[float, float] | None) -> dict:
         fit["predicted_gain"] = {"rotation": gain[0], "translation": gain[1]}
         if history is None:
             fit["reason"] = _kept(gain)
+    if kept is not None:
+        fit["reason"] = kept
     return fit
 
 
@@ -585,7 +589,8 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     result, fit = _fit_and_measure(traj, fit_idx, held_idx, spacing, degree, form, fit_steps,
                                    rate_hz, dtype, verbose, joint,
                                    gate=refine == "auto" and imu is None,
-                                   announce=_announcer(say, steps, fit_steps, imu is not None))
+                                   kept=_kept_reason(steps, fit_steps),
+                                   announce=lambda fit: say(_steps_line(fit, imu is not None)))
     fit["seconds"]["read"] = read_s
     fit["warnings"] = read_warnings + fit["warnings"] + ([gap_note] if gap_note else [])
     model = {"degree": degree, "form": form, "n_ctrl": n_ctrl, "knot_spacing_s": spacing,
@@ -599,16 +604,12 @@ def run_fit(path: str | os.PathLike[str], *, format: str = "auto",
     return summary
 
 
-def _announcer(say, steps: int, fit_steps: int, imu: bool):
-    """``announce`` of :func:`_fit_and_measure`: print the pose-only fit's line (before the
-    IMU fit's), saying why the least-squares start was kept where the knot search or
-    ``steps=0`` kept it."""
-    def announce(fit: dict) -> None:
-        if not fit_steps:
-            fit["reason"] = ("--steps 0" if not steps else
-                             "refining chases the poses' noise, see the knot spacing")
-        say(_steps_line(fit, imu))
-    return announce
+def _kept_reason(steps: int, fit_steps: int) -> str | None:
+    """Why the least-squares start is kept where the knot search or ``steps=0`` kept it
+    (None: the fit refines)."""
+    if fit_steps:
+        return None
+    return "--steps 0" if not steps else "refining chases the poses' noise, see the knot spacing"
 
 
 def _check_inputs(path: str, out: str, times, imu, time_offset, overwrite: bool,
