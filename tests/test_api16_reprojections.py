@@ -1,6 +1,6 @@
-"""API.md, torch_dq.fitting: cameras, audited line by line (session 16): what the earlier
-reprojection tests did not pin. References: the pinhole formula in numpy on the body poses,
-the chi-square bookkeeping of excluded observations, the contract's ``line_delay >= 0``."""
+"""The API contract (docs/api_contract.md), torch_dq.fitting: cameras, audited line by line
+(session 16): what the earlier reprojection tests did not pin. References: the pinhole formula
+in numpy on the body poses, pytransform3d's exponential coordinates, central differences."""
 
 from __future__ import annotations
 
