@@ -184,12 +184,14 @@ class Reprojections(Term):
             intrinsics = params
         self._slots["extrinsic"] = Slot(fn, "extrinsic", Pose(), extrinsic)
         self._slots["target"] = Slot(fn, "target", Pose(), target)
-        self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics)
+        self._slots["intrinsics"] = Slot(fn, "intrinsics", Vector(params.shape[0]), intrinsics,
+                                         kind=f"{self.model} intrinsics")  # one Free: one model
         self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
                                          line_delay)
         _check_domain(fn, self.model, self._slots["intrinsics"])
-        fixed = self._slots["line_delay"].fixed
-        if fixed is not None and not bool((fixed >= 0).all()):
+        slot = self._slots["line_delay"]  # fixed, or a Free's start
+        known = slot.fixed if slot.free is None else slot.free.start
+        if known is not None and not bool((torch.as_tensor(known) >= 0).all()):
             _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
         self.invalid: Tensor | None = None
 
