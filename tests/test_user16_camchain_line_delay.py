@@ -58,6 +58,11 @@ def test_global_shutter_and_partial(tmp_path):
     # one camera stating none: read as a global shutter (0), as to_kalibr omits a zero delay
     chain = _read(tmp_path, {"cam0": _entry(line_delay=2e-5), "cam1": _entry()})
     assert chain.line_delays.tolist() == pytest.approx([2e-5, 0.0])
+    # hand-written 3e-05 (no dot) is a string to PyYAML: read as the number it is
+    path = tmp_path / "hand.yaml"
+    text = yaml.safe_dump({"cam0": _entry()})
+    path.write_text(text.replace("cam0:\n", "cam0:\n  line_delay: 3e-05\n"))
+    assert calibration.read_camchain(path).line_delays.tolist() == pytest.approx([3e-5])
 
 
 @pytest.mark.parametrize("extra, key", [({"line_delay": -1e-5}, "line_delay"),

@@ -52,3 +52,25 @@ def test_bad_update_rate_named(tmp_path, capsys):
     assert main(_files(tmp_path, "fast")) == 2
     err = capsys.readouterr().err
     assert "update_rate" in err and "'fast'" in err
+
+
+def _with_line_delay(tmp_path, key, value):
+    argv = _files(tmp_path, 200.0)
+    chain = tmp_path / "camchain.yaml"
+    chain.write_text(chain.read_text() + f"  {key}: {value}\n")
+    return argv
+
+
+@pytest.mark.parametrize("key, value", [("line_delay_nanoseconds", 30000),
+                                        ("line_delay", 3.0e-5)])
+def test_stated_line_delay_without_rolling_shutter_warned(tmp_path, capsys, key, value):
+    """A camchain stating a rolling shutter (the Kalibr RS fork's ``line_delay_nanoseconds``
+    or torch_dq's ``line_delay``) was calibrated as a global shutter without a word unless
+    ``--rolling-shutter`` was given (user16)."""
+    argv = _with_line_delay(tmp_path, key, value)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if "line delay" in x)
+    assert "warning" in line and "cam0" in line and "--rolling-shutter" in line
+    assert main([*argv, "--rolling-shutter"]) == 2
+    assert "line delay" not in capsys.readouterr().err

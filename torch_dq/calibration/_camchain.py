@@ -91,7 +91,8 @@ def _rigid(fn: str, where: str, value) -> Tensor:
 def _line_delay(fn: str, where: str, entry: dict) -> float | None:
     """The camera's line delay in seconds per row from ``line_delay`` (seconds) or
     ``line_delay_nanoseconds``, None if it states neither; an error naming ``where`` and
-    the key for a value that is not a finite number ``>= 0``, or for both keys."""
+    the key for a value that is not a finite number ``>= 0`` (a number PyYAML read as a
+    string, ``3e-05``, taken as the number), or for both keys."""
     keys = [k for k in ("line_delay", "line_delay_nanoseconds") if k in entry]
     if len(keys) == 2:
         _checks.fail(fn, f"{where}: give line_delay (seconds per row) or "
@@ -99,6 +100,11 @@ def _line_delay(fn: str, where: str, entry: dict) -> float | None:
     if not keys:
         return None
     v = entry[keys[0]]
+    if isinstance(v, str):  # 3e-05 without a dot: a string to YAML 1.1 (PyYAML)
+        try:
+            v = float(v)
+        except ValueError:
+            pass
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
         _checks.fail(fn, f"{where}: {keys[0]} must be a finite number >= 0 (per image row), "
                          f"got {v!r}")

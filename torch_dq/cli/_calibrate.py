@@ -400,6 +400,7 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
     from ..calibration import camera_imu
 
     with _printed_warnings() as caught:
+        _stated_line_delays(entries, args)
         imu = io.read_imu(_imu_file(args.imu), duplicates=args.duplicates)
         _update_rate(noise, imu[0], args.imu_noise)
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
@@ -420,6 +421,22 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          verbose=not args.quiet)
         _imu_fit(res, args.knot_spacing == "auto")
     return cams, res, caught
+
+
+def _stated_line_delays(entries: list, args) -> None:
+    """A warning where the camchain states a rolling shutter (``line_delay`` or
+    ``line_delay_nanoseconds`` above 0) but ``--rolling-shutter`` is not given: the cameras
+    would be calibrated as global shutters, the stated delays unused."""
+    from ..calibration._camchain import _line_delay
+
+    stated = [f"cam{i}" for i, e in enumerate(entries)
+              if (_line_delay("calibrate", f"{args.cameras}: cam{i}", e) or 0.0) > 0]
+    if stated and not args.rolling_shutter:
+        warnings.warn(f"{args.cameras}: {', '.join(stated)} state{'s' * (len(stated) == 1)} a "
+                      f"line delay (a rolling shutter), which is not used: without "
+                      f"--rolling-shutter every camera is calibrated as a global shutter "
+                      f"(pass --rolling-shutter to estimate the line delays)",
+                      UserWarning, stacklevel=2)
 
 
 def _imu_fit(res, auto: bool) -> None:
