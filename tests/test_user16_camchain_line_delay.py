@@ -74,3 +74,16 @@ def test_global_shutter_and_partial(tmp_path):
 def test_bad_line_delay_named(tmp_path, extra, key):
     with pytest.raises(ValueError, match=f"cam0.*{key}"):
         _read(tmp_path, {"cam0": _entry(**extra)})
+
+
+def test_timeshift_written_without_a_dot(tmp_path):
+    """``timeshift_cam_imu: 2e-3`` (hand-written; PyYAML reads it as a string) was refused as
+    "not a number"; it is read as 0.002 s. A non-finite one stays an error."""
+    path = tmp_path / "hand.yaml"
+    text = yaml.safe_dump({"cam0": _entry()})
+    path.write_text(text.replace("timeshift_cam_imu: 0.002", "timeshift_cam_imu: 2e-3"))
+    assert "2e-3" in path.read_text()
+    assert calibration.read_camchain(path).time_offsets.tolist() == [0.002]
+    path.write_text(text.replace("timeshift_cam_imu: 0.002", "timeshift_cam_imu: .nan"))
+    with pytest.raises(ValueError, match="timeshift_cam_imu"):
+        calibration.read_camchain(path)

@@ -88,6 +88,17 @@ def _rigid(fn: str, where: str, value) -> Tensor:
     return dualquat.normalize(dualquat.from_matrix(T))
 
 
+def _number(v):
+    """``v``, or the float of a string PyYAML left unread: YAML 1.1 wants a dot in a float,
+    so a hand-written ``3e-05`` is a string."""
+    if isinstance(v, str):
+        try:
+            return float(v)
+        except ValueError:
+            pass
+    return v
+
+
 def _line_delay(fn: str, where: str, entry: dict) -> float | None:
     """The camera's line delay in seconds per row from ``line_delay`` (seconds) or
     ``line_delay_nanoseconds``, None if it states neither; an error naming ``where`` and
@@ -99,12 +110,7 @@ def _line_delay(fn: str, where: str, entry: dict) -> float | None:
                          f"line_delay_nanoseconds, not both")
     if not keys:
         return None
-    v = entry[keys[0]]
-    if isinstance(v, str):  # 3e-05 without a dot: a string to YAML 1.1 (PyYAML)
-        try:
-            v = float(v)
-        except ValueError:
-            pass
+    v = _number(entry[keys[0]])
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
         _checks.fail(fn, f"{where}: {keys[0]} must be a finite number >= 0 (per image row), "
                          f"got {v!r}")
@@ -139,7 +145,8 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
             is not a rigid 4 x 4 matrix (its key named; rotation blocks orthonormal within
             ``1e-3``, ``max |R^T R - I|``, with ``det R > 0``, are accepted and projected
             onto the nearest rotation: files rounded to 4 decimals read), a
-            ``timeshift_cam_imu`` that is not a number, a line delay that is not a number
+            ``timeshift_cam_imu`` that is not a finite number (``2e-3``, a string to
+            PyYAML, is read as the number), a line delay that is not a number
             ``>= 0`` (or given under both keys).
         TypeError: ``path`` is not a path.
         ImportError: PyYAML is not installed.
@@ -195,8 +202,9 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
                            for k, e in zip(names, entries, strict=True)])
     shifts = None
     if all("timeshift_cam_imu" in e for e in entries):
-        values = [e["timeshift_cam_imu"] for e in entries]
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        values = [_number(e["timeshift_cam_imu"]) for e in entries]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                   and math.isfinite(v) for v in values):
             _checks.fail(fn, f"{file}: timeshift_cam_imu must be numbers (seconds), got "
                              f"{values}")
         shifts = torch.tensor(values, dtype=torch.float64)
