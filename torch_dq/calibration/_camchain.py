@@ -12,6 +12,7 @@ chain of ``T_cn_cnm1`` (``p_camN = T p_camN-1``), the extrinsics from ``T_cam_im
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -40,6 +41,11 @@ class Camchain:
         time_offsets: ``(C,)`` float64 seconds, ``timeshift_cam_imu`` (IMU time = camera
             stamp + offset); ``None`` unless every camera has it.
         rostopics: each camera's ``rostopic`` (``None`` where absent).
+        line_delays: ``(C,)`` float64 seconds per image row (rolling shutter), from
+            ``line_delay`` (seconds, as
+            :meth:`torch_dq.calibration.CameraImuCalibration.to_kalibr` writes it)
+            or ``line_delay_nanoseconds`` (the rolling-shutter Kalibr fork's and okvis'
+            key), 0 for a camera stating neither; ``None`` when no camera states one.
     """
 
     cameras: list[Camera]
@@ -47,6 +53,7 @@ class Camchain:
     extrinsics: Tensor | None
     time_offsets: Tensor | None
     rostopics: list[str | None]
+    line_delays: Tensor | None = None
 
 
 # Defect of a rotation block accepted, max |R^T R - I| (det R > 0): a camchain a user
@@ -81,6 +88,35 @@ def _rigid(fn: str, where: str, value) -> Tensor:
     return dualquat.normalize(dualquat.from_matrix(T))
 
 
+def _number(v):
+    """``v``, or the float of a string PyYAML left unread: YAML 1.1 wants a dot in a float,
+    so a hand-written ``3e-05`` is a string."""
+    if isinstance(v, str):
+        try:
+            return float(v)
+        except ValueError:
+            pass
+    return v
+
+
+def _line_delay(fn: str, where: str, entry: dict) -> float | None:
+    """The camera's line delay in seconds per row from ``line_delay`` (seconds) or
+    ``line_delay_nanoseconds``, None if it states neither; an error naming ``where`` and
+    the key for a value that is not a finite number ``>= 0`` (a number PyYAML read as a
+    string, ``3e-05``, taken as the number), or for both keys."""
+    keys = [k for k in ("line_delay", "line_delay_nanoseconds") if k in entry]
+    if len(keys) == 2:
+        _checks.fail(fn, f"{where}: give line_delay (seconds per row) or "
+                         f"line_delay_nanoseconds, not both")
+    if not keys:
+        return None
+    v = _number(entry[keys[0]])
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
+        _checks.fail(fn, f"{where}: {keys[0]} must be a finite number >= 0 (per image row), "
+                         f"got {v!r}")
+    return float(v) * (1e-9 if keys[0] == "line_delay_nanoseconds" else 1.0)
+
+
 def read_camchain(path: str | os.PathLike[str]) -> Camchain:
     r"""Read Kalibr's ``camchain.yaml`` or ``camchain-imucam.yaml``.
 
@@ -88,7 +124,8 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
     ``distortion_model``, ``intrinsics``, ``distortion_coeffs``, ``resolution``
     (:meth:`torch_dq.camera.Camera.from_kalibr`) and, where known, ``T_cn_cnm1`` (4 x 4,
     ``p_camN = T p_camN-1``), ``T_cam_imu`` (4 x 4, ``p_cam = T p_imu``),
-    ``timeshift_cam_imu`` (seconds) and ``rostopic``; other keys are ignored. Needs PyYAML
+    ``timeshift_cam_imu`` (seconds), ``line_delay`` (seconds per row) or
+    ``line_delay_nanoseconds`` and ``rostopic``; other keys are ignored. Needs PyYAML
     (the ``calib`` extra).
 
     Args:
@@ -98,7 +135,8 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
         A :class:`Camchain`: ``cameras``, ``relative_poses`` ``(C - 1, 8)`` (camera ``i`` in
         camera 0's frame, as :func:`cameras` returns them), ``extrinsics`` ``(C, 8)`` and
         ``time_offsets`` ``(C,)`` (as :func:`camera_imu` returns them), each ``None`` where
-        the file does not state it for every camera, and ``rostopics``.
+        the file does not state it for every camera, ``rostopics`` and ``line_delays``
+        ``(C,)`` (``None`` where no camera states one).
 
     Raises:
         ValueError: naming the file and the camera: not a yaml mapping, no ``cam0`` or a
@@ -107,7 +145,9 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
             is not a rigid 4 x 4 matrix (its key named; rotation blocks orthonormal within
             ``1e-3``, ``max |R^T R - I|``, with ``det R > 0``, are accepted and projected
             onto the nearest rotation: files rounded to 4 decimals read), a
-            ``timeshift_cam_imu`` that is not a number.
+            ``timeshift_cam_imu`` that is not a finite number (``2e-3``, a string to
+            PyYAML, is read as the number), a line delay that is not a number
+            ``>= 0`` (or given under both keys).
         TypeError: ``path`` is not a path.
         ImportError: PyYAML is not installed.
         OSError: the file cannot be opened.
@@ -162,11 +202,15 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
                            for k, e in zip(names, entries, strict=True)])
     shifts = None
     if all("timeshift_cam_imu" in e for e in entries):
-        values = [e["timeshift_cam_imu"] for e in entries]
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        values = [_number(e["timeshift_cam_imu"]) for e in entries]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                   and math.isfinite(v) for v in values):
             _checks.fail(fn, f"{file}: timeshift_cam_imu must be numbers (seconds), got "
                              f"{values}")
         shifts = torch.tensor(values, dtype=torch.float64)
     topics = [e.get("rostopic") if isinstance(e.get("rostopic"), str) else None
               for e in entries]
-    return Camchain(cams, rel, ext, shifts, topics)
+    delays = [_line_delay(fn, f"{file}: {k}", e) for k, e in zip(names, entries, strict=True)]
+    lines = (None if all(d is None for d in delays) else
+             torch.tensor([d or 0.0 for d in delays], dtype=torch.float64))
+    return Camchain(cams, rel, ext, shifts, topics, lines)

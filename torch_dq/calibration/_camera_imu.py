@@ -62,7 +62,6 @@ _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the ac
 # pixels may stray this fraction of the image's size outside it (a corner refined at the
 # border, the noise of a simulation); a camera of another resolution reaches far beyond
 _SLACK = 0.01
-_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (mm)
 _SAME_TIME = 1e-3  # seconds: body-pose samples closer than this are one in the start spline
 
 
@@ -109,18 +108,13 @@ def _units(i: int, cam: Camera, times: Tensor, points: Tensor, pixels: Tensor) -
     """Camera ``i``'s observations in seconds, metres and pixels of its image: a
     ``ValueError`` for times in nanoseconds (or us, ms), pixels outside the resolution or
     that look like normalised coordinates, target points off the plane ``Z = 0`` or spread
-    over more than 20 m."""
+    over more than 20 m (``_cameras._planar``)."""
     _seconds(f"observations[{i}] times", times.unique(), 10.0)
     _inside(i, pixels, cam.resolution, _FN, "cameras[{i}].resolution", _SLACK)
     _planar(i, points, _FN)
     hint = normalised_hint(pixels, cam.params)
     if hint is not None:
         _checks.fail(_FN, f"observations[{i}]: {hint}")
-    span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0
-    if span > _LARGEST_TARGET:
-        _checks.fail(_FN, f"observations[{i}] points span {span:.4g} (metres expected): "
-                          f"millimetres? Kalibr's targets and read_corners' X_m, Y_m, Z_m "
-                          f"are in metres; divide them by 1000")
 
 
 def _samples(label: str, fields: tuple[str, ...], xs, widths: tuple,

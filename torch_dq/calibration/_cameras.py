@@ -49,6 +49,7 @@ __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
 
 _FN = "calibration.cameras"
 _SIZES = {model: len(names) for model, names in MODELS.items()}
+_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (mm)
 
 
 @dataclass(frozen=True)
@@ -170,10 +171,17 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
 
 def _planar(i: int, points: Tensor, fn: str = _FN) -> None:
     """Check that camera ``i``'s ``(N, 3)`` target points lie on the plane ``Z = 0`` (the
-    closed-form starts are homographies of that plane)."""
+    closed-form starts are homographies of that plane) and span at most
+    ``_LARGEST_TARGET`` (metres: wider ones are millimetres, which the intrinsics would not
+    show but the poses' translations would carry)."""
     if points.numel() and bool(
             (points[:, 2].abs() > 1e-9 * points[:, :2].abs().max().clamp_min(1.0)).any()):
         _checks.fail(fn, f"expected a planar target (points with Z = 0) in observations[{i}]")
+    span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0
+    if span > _LARGEST_TARGET:
+        _checks.fail(fn, f"observations[{i}] points span {span:.4g} (metres expected): "
+                         f"millimetres? Kalibr's targets and read_corners' X_m, Y_m, Z_m "
+                         f"are in metres; divide them by 1000")
 
 
 def _arguments(observations, models, resolution, robust, robust_k, max_iterations, tol,
@@ -517,9 +525,10 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
 
     Raises:
         ValueError: lists of different lengths, an unknown model, a bad resolution, a
-            non-planar target, a camera with fewer than 3 views of ``min_points`` points,
-            a camera sharing no frame with camera 0 (directly or through others), pixels
-            outside a camera's resolution.
+            non-planar target or one spread over more than 20 m (millimetres, not
+            metres: the relative poses' translations would carry them), a camera with
+            fewer than 3 views of ``min_points`` points, a camera sharing no frame with
+            camera 0 (directly or through others), pixels outside a camera's resolution.
         TypeError: observations that are not floating-point tensors, times that are not
             float64.
 

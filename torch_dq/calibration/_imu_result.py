@@ -94,7 +94,9 @@ class CameraImuCalibration:
         ``camN`` with ``T_cam_imu`` (4 x 4, the inverse of the extrinsic), ``T_cn_cnm1``
         (``N >= 1``: camera ``N-1`` to camera ``N``), ``cam_overlaps``, the camera model
         and intrinsics (:meth:`torch_dq.camera.Camera.to_kalibr`), ``rostopic``
-        (``/camN/image_raw`` unless given) and ``timeshift_cam_imu``."""
+        (``/camN/image_raw`` unless given), ``timeshift_cam_imu`` and, for a camera with a
+        line delay above 0 (rolling shutter), ``line_delay`` (seconds per row;
+        :func:`torch_dq.calibration.read_camchain` reads it back)."""
         e = self.extrinsics.detach().double().cpu()
         T_cam_imu = dualquat.to_matrix(dualquat.inv(e))
         out = kalibr_entries(self.cameras, rostopics, "calibration.CameraImuCalibration.to_kalibr")

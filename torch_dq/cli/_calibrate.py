@@ -7,7 +7,8 @@ Reads Kalibr's target yaml (:func:`~torch_dq.calibration.read_target`), the IMU 
 for ``--bias random-walk``, the default, as in Kalibr: ``camera_imu``'s ``bias_walk``, biases
 piecewise constant over ``--bias-interval`` seconds, at most ``sqrt(3)`` times the smaller
 ratio of noise density to random walk, 1.15 s for EuRoC's IMU: ``camera_imu``'s
-``bias_interval``; ``update_rate`` is reported) and a camchain yaml
+``bias_interval``; ``update_rate`` is reported, and warned of where it is not the IMU
+file's rate: Kalibr's per-sample sigmas come from it, ours from the file) and a camchain yaml
 (``cam0``, ``cam1``, ...: ``camera_model``, ``distortion_model``, ``resolution`` and, when
 known, ``intrinsics`` and ``distortion_coeffs``; the cameras without intrinsics are
 calibrated first by :func:`~torch_dq.calibration.cameras`, those with them keep them as
@@ -117,7 +118,33 @@ def _noise(path: str, walk: bool) -> dict:
     for key in (*_WALKS, "update_rate"):
         if key in data and key not in out:
             out[key] = data[key]
+    rate = out.get("update_rate")
+    if rate is not None:
+        try:
+            out["update_rate"] = float(rate) if not isinstance(rate, bool) else math.nan
+        except (TypeError, ValueError):
+            out["update_rate"] = math.nan
+        if not 0 < out["update_rate"] < math.inf:
+            raise UserError(f"{path}: expected a positive number (Hz) under update_rate, "
+                            f"got {rate!r}")
     return out
+
+
+def _update_rate(noise: dict, times, path: str) -> None:
+    """A warning where imu.yaml's ``update_rate`` is more than 5 % off the IMU file's rate
+    (its median sample spacing): Kalibr's per-sample sigmas (``density *
+    sqrt(update_rate)``) would then differ from ``camera_imu``'s (the file's rate)."""
+    given = noise.get("update_rate")
+    if given is None or times.numel() < 2:
+        return
+    rate = 1.0 / float(times.diff().median())
+    if abs(given / rate - 1.0) > 0.05:
+        warnings.warn(f"{path}: update_rate {given:g} Hz is not the IMU file's rate "
+                      f"({rate:.4g} Hz, its median sample spacing): the noise sigmas per "
+                      f"sample use the file's rate (density * sqrt(rate)); Kalibr's, from "
+                      f"update_rate, would be {math.sqrt(given / rate):.3g} times these "
+                      f"(a stale update_rate: correct it)",
+                      UserWarning, stacklevel=2)
 
 
 def _bias_options(args) -> tuple[bool, float]:
@@ -373,7 +400,9 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
     from ..calibration import camera_imu
 
     with _printed_warnings() as caught:
+        _stated_line_delays(entries, args)
         imu = io.read_imu(_imu_file(args.imu), duplicates=args.duplicates)
+        _update_rate(noise, imu[0], args.imu_noise)
         say(f"read {imu[0].numel()} IMU samples; reading the corners of {len(entries)} "
             f"camera(s)")
         obs = _observations(args, target, len(entries))
@@ -392,6 +421,22 @@ def _estimate(args, target, noise: dict, entries: list, walk: bool, interval: fl
                          verbose=not args.quiet)
         _imu_fit(res, args.knot_spacing == "auto")
     return cams, res, caught
+
+
+def _stated_line_delays(entries: list, args) -> None:
+    """A warning where the camchain states a rolling shutter (``line_delay`` or
+    ``line_delay_nanoseconds`` above 0) but ``--rolling-shutter`` is not given: the cameras
+    would be calibrated as global shutters, the stated delays unused."""
+    from ..calibration._camchain import _line_delay
+
+    stated = [f"cam{i}" for i, e in enumerate(entries)
+              if (_line_delay("calibrate", f"{args.cameras}: cam{i}", e) or 0.0) > 0]
+    if stated and not args.rolling_shutter:
+        warnings.warn(f"{args.cameras}: {', '.join(stated)} state{'s' * (len(stated) == 1)} a "
+                      f"line delay (a rolling shutter), which is not used: without "
+                      f"--rolling-shutter every camera is calibrated as a global shutter "
+                      f"(pass --rolling-shutter to estimate the line delays)",
+                      UserWarning, stacklevel=2)
 
 
 def _imu_fit(res, auto: bool) -> None:
