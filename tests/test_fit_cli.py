@@ -351,6 +351,7 @@ def test_earlier_results_need_overwrite(tmp_path, capsys):
     assert main(missing) == 2  # the missing input is named, not the earlier results
     line = _error_line(capsys)
     assert "missing.txt" in line and "No such file" in line, line
+    assert "Errno" not in line, line  # "FILE: reason", as calibrate says it
 
 
 def test_five_poses_with_defaults_one_line_with_working_hints(tmp_path, capsys):

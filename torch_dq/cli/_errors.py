@@ -17,6 +17,10 @@ class OptionError(ValueError):
 
 def exit_on_error(program: str, exc: BaseException) -> int:
     """Print ``exc`` as one line ``"{program}: error: ..."`` on stderr (its whitespace,
-    newlines included, collapsed); returns the exit status 2."""
-    print(f"{program}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+    newlines included, collapsed; an operating system's error as ``"{file}: {reason}"``, not
+    Python's ``[Errno N]`` form); returns the exit status 2."""
+    text = str(exc)
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}"
+    print(f"{program}: error: {' '.join(text.split())}", file=sys.stderr)
     return 2
