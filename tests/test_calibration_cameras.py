@@ -473,7 +473,8 @@ def test_cameras_without_a_shared_frame():
     rng = np.random.default_rng(2)
     obs = _simulate(rng, ["pinhole"] * 2, [np.array([450.0, 450, 376, 240])] * 2, [T01],
                     frames=8, seen=lambda c, f: (f < 4) == (c == 0))
-    with pytest.raises(ValueError, match=r"cameras \[1\] share no frame"):
+    with pytest.raises(ValueError, match=r"cameras \[1\] share no frame(.|\n)*round their "
+                       r"times"):  # the advice for stamps apart by trigger jitter
         calibration.cameras(obs, ["pinhole"] * 2, [RES] * 2)
 
 

@@ -330,7 +330,9 @@ def relative_starts(view_frames: list[Tensor], poses: list[Tensor]) -> Tensor:
         if n == 0:
             missing = sorted(set(range(C)) - set(known))
             raise ValueError(f"calibration.cameras: cameras {missing} share no frame (equal "
-                             f"timestamps) with camera 0, directly or through other cameras")
+                             f"timestamps) with camera 0, directly or through other cameras "
+                             f"(cameras triggered together whose stamps differ by jitter: "
+                             f"round their times to the common frame times first)")
         ia = torch.stack([torch.nonzero(view_frames[a] == f)[0, 0] for f in common])
         ib = torch.stack([torch.nonzero(view_frames[b] == f)[0, 0] for f in common])
         rel = _average(dualquat.mul(poses[a][ia], dualquat.inv(poses[b][ib])))
