@@ -588,6 +588,8 @@ def test_camera_value_semantics_and_errors():
     bad = [({"camera_model": "omni", "intrinsics": [0.8, 400, 400, 320, 240]}, "'omni'"),
            ({**KALIBR["pinhole"], "distortion_model": "fov"}, "'fov'"),
            ({**KALIBR["pinhole-radtan"], "distortion_coeffs": [0.1, 0.2]}, "distortion_coeffs"),
+           ({k: v for k, v in KALIBR["pinhole-equidistant"].items()
+             if k != "distortion_coeffs"}, "needs distortion_coeffs .* has none"),
            ({**KALIBR["double-sphere"], "intrinsics": EUROC[:4]}, "intrinsics"),
            ({**KALIBR["pinhole"], "resolution": [640.5, 480]}, "resolution")]
     for entry, word in bad:

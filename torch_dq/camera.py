@@ -379,6 +379,9 @@ class Camera:
         model = _values.FROM_KALIBR[names]
         intr = _values.numbers_list(fn, "intrinsics", _values.kalibr_list(entry.get("intrinsics")),
                         6 if names[0] == "ds" else 4)
+        if names[1] != "none" and "distortion_coeffs" not in entry:
+            _checks.fail(fn, f"distortion_model {names[1]!r} needs distortion_coeffs (4 "
+                             f"numbers); the entry has none")
         raw = _values.kalibr_list(entry.get("distortion_coeffs", []))
         if names[1] == "none" and isinstance(raw, list) and all(
                 isinstance(v, numbers.Real) and v == 0 for v in raw):
