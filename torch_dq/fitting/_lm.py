@@ -380,8 +380,9 @@ class LevenbergMarquardt:
         bound = ~good & (self.on_bound >= 2)
         stop = self.active & ~good & (self.stalled | final | bound)
         for b in range(self.Bf):
-            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
-                   f"{float(thr[b]):.3g}"
+            bar = (f"max(tol * max(cost, 1e-20 residuals), {_RELEASED:g}) with the pulls "
+                   f"released" if bool(self.released[b]) else "tol * max(cost, 1e-20 residuals)")
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, {bar} = {float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"
             elif bool(stop[b]) and bool(bound[b]):
