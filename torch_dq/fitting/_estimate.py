@@ -44,7 +44,7 @@ def _check_args(fn: str, trajectory, terms, steps, tol, prior, verbose) -> list[
     if not isinstance(terms, Sequence) or not terms or not all(
             isinstance(t, Term) for t in terms):
         _checks.fail(fn, "terms must be a non-empty list of fitting terms (Poses, Positions, "
-                         "RelativePoses, Gyro, Accel)", TypeError)
+                         "RelativePoses, Gyro, Accel, Reprojections)", TypeError)
     if len({id(t) for t in terms}) != len(terms):
         _checks.fail(fn, "a term appears twice in terms")
     if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:
