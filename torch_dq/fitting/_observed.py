@@ -41,7 +41,9 @@ from torch import Tensor
 
 __all__ = ["FACTOR", "honest_std", "observed_ratio"]
 
-FACTOR = 1.2  # the exact marginal std above this many GN stds: the GN one is overconfident
+FACTOR = 1.25  # the exact marginal std above this many GN stds: the GN one is overconfident
+# (1.2 flagged a camera + gyroscope clock at 1.20, test_chi13_bound_stop; the GNSS rig's
+# flagged seeds are at 1.46 and above)
 _STEP = 1e-4  # the difference step, in conditional standard deviations
 
 
