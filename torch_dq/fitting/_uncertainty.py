@@ -547,7 +547,12 @@ class Estimate:
         ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
         says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
         tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
-        excites it (its linearised std is then unreliable)."""
+        excites it (its linearised std is then unreliable). A time parameter's std (time
+        offset, line delay) is the observed information's (the Hessian with exact nuisance
+        rows) where the Gauss-Newton one is more than 1.25 times smaller, and inf where that
+        Hessian's Schur complement is not positive definite, with a warning
+        (``torch_dq.fitting._observed``: its Jacobian, read on the estimated trajectory,
+        carries the fitted noise); :meth:`cov` stays Gauss-Newton's."""
         q = self._param(term, name)
         C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
