@@ -547,8 +547,8 @@ class Estimate:
         ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
         says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
         tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
-        excites it (its linearised std is then unreliable). A time parameter's std (time
-        offset, line delay) is the observed information's (the Hessian with exact nuisance
+        excites it (its linearised std is then unreliable). A time offset's std is the
+        observed information's (the Hessian with exact nuisance
         rows) where the Gauss-Newton one is more than 1.25 times smaller, and inf where that
         Hessian's Schur complement is not positive definite, with a warning
         (``torch_dq.fitting._observed``: its Jacobian, read on the estimated trajectory,
@@ -569,14 +569,16 @@ class Estimate:
                               f"its bound max_time_offset={q.chart.high!r}: its standard "
                               f"deviation is inf (raise max_time_offset)", RuntimeWarning,
                               stacklevel=2)
-            s = self._observed(term, name, q, torch.where(pinned, torch.inf, s))
+            s = torch.where(pinned, torch.inf, s)
+            if name == "time_offset":  # a line delay's exact rows: 0.65 to 1.36 and inf there
+                s = self._observed(term, name, q, s)
             if q.free.prior_std is None:  # with a prior, the std is the user's statement
                 _warn_unexcited(term, q.chart.high, torch.where(pinned, torch.nan, s))
             return s.reshape(b)
         return s.reshape(*b, s.shape[-1])
 
     def _observed(self, term, name: str, q, s: Tensor) -> Tensor:
-        """A time parameter's std ``s (Bf, 1)``, or the observed information's where the
+        """A time offset's std ``s (Bf, 1)``, or the observed information's where the
         Gauss-Newton one is more than ``FACTOR`` times smaller (``torch_dq.fitting._observed``:
         the ratio computed once per parameter, where ``s`` is finite)."""
         if not bool(torch.isfinite(s).any()):
