@@ -30,8 +30,9 @@ block's own are left out: along combinations of control points that the data har
 determine they are of either sign and of no meaning (the numerical ``prior`` of
 :func:`~torch_dq.fitting.estimate` holds those), and a conjugate-gradient solve with the full
 exact Hessian, preconditioned by the Gauss-Newton covariance, diverged there (a 1.2 s GNSS +
-IMU rig) while it agreed with this on the 8 s one. A Schur complement that is not positive
-definite means the estimate is no minimum along the parameter: the std is inf.
+IMU rig) while it agreed with this on the 8 s one. Where the inverse Schur complement's
+entry for the parameter is not positive (directions of negative curvature outweigh the
+others), the estimate is no minimum along it: the std is inf.
 """
 
 from __future__ import annotations
@@ -62,8 +63,8 @@ def _gradient(problem, ctrl: Tensor, values: list[Tensor], w: int, dn: Tensor,
 def observed_ratio(problem, ctrl: Tensor, values: list[Tensor], system, chol, free: Tensor,
                    k: int) -> Tensor:
     r"""``(Bf,)`` the marginal std of nuisance coordinate ``k`` from the Hessian with exact
-    nuisance rows over the Gauss-Newton one (inf where that Hessian's nuisance Schur
-    complement is not positive definite).
+    nuisance rows over the Gauss-Newton one (inf where the former is not positive:
+    ``_marginal``).
 
     Args:
         problem: the ``torch_dq.fitting._problem.Problem``; ``ctrl``, ``values`` the
@@ -107,7 +108,7 @@ def _marginal(S: Tensor, k: int) -> Tensor:
 def honest_std(name: str, s: Tensor, ratio: Tensor) -> Tensor:
     """``s (Bf, 1)`` (the Gauss-Newton std as reported, ``scaled`` or not), or where the
     exact Hessian's marginal std is more than ``FACTOR`` times it (``ratio (Bf,)``,
-    :func:`observed_ratio`), ``s`` times ``ratio``, with a warning naming ``name``
+    ``observed_ratio``), ``s`` times ``ratio``, with a warning naming ``name``
     (``"Term.parameter"``)."""
     over = torch.isfinite(s[:, 0]) & (ratio > FACTOR)
     if bool(over.any()):
@@ -116,8 +117,8 @@ def honest_std(name: str, s: Tensor, ratio: Tensor) -> Tensor:
                  f"{float((s[:, 0] * ratio)[over].max()):.3g}" if worst < torch.inf else
                  "inf: the estimate is no minimum along it")
         warnings.warn(f"fitting.Estimate: {name}'s Gauss-Newton standard deviation is "
-                      f"{worst:.3g} times smaller than its observed information's (the exact "
-                      f"Hessian of the cost at the estimate; {where}): its Jacobian is read "
+                      f"{worst:.3g} times smaller than its observed information's (the Hessian "
+                      f"with exact nuisance rows at the estimate; {where}): its Jacobian is read "
                       f"on the estimated trajectory, whose fitted noise inflates the "
                       f"Gauss-Newton information; std reports the observed one",
                       RuntimeWarning, stacklevel=4)

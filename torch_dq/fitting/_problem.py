@@ -58,7 +58,7 @@ class Summary:
         spans: the curve's span evaluation (``first``, ``derivatives``, ``support``).
         trajectory: the curve layer (its domain check).
         system: the data-only Gauss-Newton system at the solution.
-        problem: the :class:`Problem` itself (its systems at nearby points: the exact
+        problem: the ``Problem`` itself (its systems at nearby points: the exact
             Hessian's products of ``torch_dq.fitting._observed``).
     """
 
