@@ -58,6 +58,8 @@ class Summary:
         spans: the curve's span evaluation (``first``, ``derivatives``, ``support``).
         trajectory: the curve layer (its domain check).
         system: the data-only Gauss-Newton system at the solution.
+        problem: the ``Problem`` itself (its systems at nearby points: the exact
+            Hessian's products of ``torch_dq.fitting._observed``).
     """
 
     terms: list[Term]
@@ -69,6 +71,7 @@ class Summary:
     spans: SpanEvaluator
     trajectory: object
     system: System
+    problem: Problem
 
 
 class Problem:
@@ -108,7 +111,7 @@ class Problem:
     def summary(self, system: System) -> Summary:
         """The solved problem for :class:`~torch_dq.fitting.Estimate`."""
         return Summary(self.terms, self.batch, self.spans.n, self.m, list(self.params),
-                       self.prior_information(), self.spans, self.trajectory, system)
+                       self.prior_information(), self.spans, self.trajectory, system, self)
 
     def groups(self, values: list[Tensor]) -> list[tuple[int, ...]]:
         """The terms by their span evaluation, in order of their first term: terms read at

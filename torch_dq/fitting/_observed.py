@@ -1,0 +1,125 @@
+r"""The observed information of a time offset: the marginal variance from the exact
+Hessian of the data cost at the estimate, where the Gauss-Newton one is overconfident
+(private; :meth:`~torch_dq.fitting.Estimate.std` of a time offset; not of a line delay, whose
+exact rows scatter 0.65 to 1.36 times Gauss-Newton's and turn negative over the 30 draws of
+``test_reprojections``' Monte Carlo, where Gauss-Newton's std matches the scatter).
+
+Why. A time parameter (a sensor's clock offset, a line delay) moves its samples along the
+trajectory: its Jacobian is the time derivative of the predictions (an accelerometer's
+:math:`\partial_t (R^T (\ddot p - g))`), read on the *estimated* trajectory, which carries
+the part of the noise its control points fit. That part enters the Gauss-Newton
+information :math:`J^T J` squared: with hundreds of control points beside one clock whose
+information is what is left after they are marginalised (a time shift of the IMU is nearly
+a time shift of the curve), it can multiply that information (GNSS + IMU with a lever arm,
+``benchmarks/gnss_clock_profile.py``: 4x its value at the truth, the reported std about half
+the estimator's spread). The exact Hessian adds :math:`\sum_i r_i \nabla^2 r_i` (the
+residuals times the predictions' second time derivatives and the cross terms
+:math:`\partial^2 r / \partial t\, \partial \theta`), which cancels that inflation in the mean:
+its marginal is the local curvature of the clock's profile likelihood.
+
+How. The Hessian with exact nuisance rows: its nuisance columns (coupling ``C`` and block
+``N``, the :class:`~torch_dq.fitting.Free` priors added) by forward differences of the
+Gauss-Newton gradient :math:`g = J^T W r` (half the robust cost's gradient, on the
+Gauss-Newton matrix's scale) along each nuisance coordinate (a step of ``_STEP`` of its
+conditional standard deviation: ``m`` linearisations, no new estimate), the control-point
+block ``A`` Gauss-Newton's (its factor, as the uncertainties'); the marginal variance from
+the Schur complement :math:`N - C^T A^{-1} C`, against the same with the Gauss-Newton ``C``
+and ``N``. The second-order terms that matter here (:math:`r\, \partial^2 r / \partial t^2`,
+:math:`r\, \partial^2 r / \partial t\, \partial c`) lie in those rows; the control-point
+block's own are left out: along combinations of control points that the data hardly
+determine they are of either sign and of no meaning (the numerical ``prior`` of
+:func:`~torch_dq.fitting.estimate` holds those), and a conjugate-gradient solve with the full
+exact Hessian, preconditioned by the Gauss-Newton covariance, diverged there (a 1.2 s GNSS +
+IMU rig) while it agreed with this on the 8 s one. Where the inverse Schur complement's
+entry for the parameter is not positive (directions of negative curvature outweigh the
+others), the estimate is no minimum along it: the std is inf.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import torch
+from torch import Tensor
+
+from ._prior import NULL, scaled_eigh
+
+__all__ = ["FACTOR", "honest_std", "observed_ratio"]
+
+FACTOR = 1.25  # the exact marginal std above this many GN stds: the GN one is overconfident
+# (1.2 flagged a camera + gyroscope clock at 1.20, test_chi13_bound_stop; the GNSS rig's
+# flagged seeds are at 1.46 and above)
+_STEP = 1e-4  # the difference step, in conditional standard deviations
+
+
+def _gradient(problem, ctrl: Tensor, values: list[Tensor], w: int, dn: Tensor,
+              ) -> tuple[Tensor, Tensor]:
+    """The Gauss-Newton gradient ``(gc (Bf, n, 6), gn (Bf, m))`` with the nuisance values
+    moved by ``dn (Bf, m)``."""
+    s = problem.system(ctrl, problem.moved(values, dn.reshape(*problem.batch, problem.m)), w)
+    return s.gc, s.gn
+
+
+def observed_ratio(problem, ctrl: Tensor, values: list[Tensor], system, chol, free: Tensor,
+                   k: int) -> Tensor:
+    r"""``(Bf,)`` the marginal std of nuisance coordinate ``k`` from the Hessian with exact
+    nuisance rows over the Gauss-Newton one (inf where the former is not positive:
+    ``_marginal``).
+
+    Args:
+        problem: the ``torch_dq.fitting._problem.Problem``; ``ctrl``, ``values`` the
+            estimate; ``system`` its data-only Gauss-Newton system there.
+        chol: the banded factor of the control-point block (as the uncertainties').
+        free: ``(Bf, n)`` bool, the control points without data information (decoupled).
+        k: the coordinate.
+    """
+    m, Bf = problem.m, system.nn.shape[0]
+    keep = ~free[..., None, None]
+    prior = torch.diag(problem.prior_information()).to(system.nn)
+    w = problem.width(values)
+    g0 = _gradient(problem, ctrl, values, w, system.gn.new_zeros(Bf, m))
+    sd = system.nn.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()  # (Bf, m) a scale
+    cols_c, cols_n = [], []
+    for j in range(m):
+        h = _STEP * sd[:, j]
+        gc, gn = _gradient(problem, ctrl, values, w, torch.eye(m).to(sd)[j] * h[:, None])
+        cols_c.append((gc - g0[0]) / h[:, None, None])
+        cols_n.append((gn - g0[1]) / h[:, None])
+    cn = torch.where(keep, torch.stack(cols_c, -1), 0.0)
+    nn = torch.stack(cols_n, -1)
+    out = []
+    for c, n in ((torch.where(keep, system.cn, 0.0), system.nn), (cn, 0.5 * (nn + nn.mT))):
+        out.append(_marginal(n + prior - torch.einsum("bnim,bniq->bmq", c, chol.solve(c)), k))
+    return (out[1] / out[0]).sqrt()
+
+
+def _marginal(S: Tensor, k: int) -> Tensor:
+    r"""``(Bf,)`` :math:`[S^{-1}]_{kk}` of ``S (Bf, m, m)`` on the directions with information
+    (as the uncertainties': scaled eigenvalues beyond ``NULL`` of the largest in magnitude),
+    inf where it is not positive (directions of negative curvature outweigh the others
+    along ``k``: no minimum; a small negative share, a weak intrinsics direction in 3 of
+    ``test_reprojections``' 30 draws, only lowers it)."""
+    lam, V, d = scaled_eigh(S)
+    null = lam.abs() <= NULL * lam.abs().amax(-1, keepdim=True)
+    var = torch.where(null, 0.0, V[:, k, :] ** 2 / torch.where(null, 1.0, lam)).sum(-1)
+    return torch.where(var > 0, var / d[:, k], torch.inf)
+
+
+def honest_std(name: str, s: Tensor, ratio: Tensor) -> Tensor:
+    """``s (Bf, 1)`` (the Gauss-Newton std as reported, ``scaled`` or not), or where the
+    exact Hessian's marginal std is more than ``FACTOR`` times it (``ratio (Bf,)``,
+    ``observed_ratio``), ``s`` times ``ratio``, with a warning naming ``name``
+    (``"Term.parameter"``)."""
+    over = torch.isfinite(s[:, 0]) & (ratio > FACTOR)
+    if bool(over.any()):
+        worst = float(ratio[over].max())
+        where = (f"{float(s[over, 0].max()):.3g} against "
+                 f"{float((s[:, 0] * ratio)[over].max()):.3g}" if worst < torch.inf else
+                 "inf: the estimate is no minimum along it")
+        warnings.warn(f"fitting.Estimate: {name}'s Gauss-Newton standard deviation is "
+                      f"{worst:.3g} times smaller than its observed information's (the Hessian "
+                      f"with exact nuisance rows at the estimate; {where}): its Jacobian is read "
+                      f"on the estimated trajectory, whose fitted noise inflates the "
+                      f"Gauss-Newton information; std reports the observed one",
+                      RuntimeWarning, stacklevel=4)
+    return torch.where(over[:, None], s * ratio[:, None], s)
