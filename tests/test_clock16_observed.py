@@ -93,24 +93,30 @@ def _reference(curve, terms):
 def test_clock_on_no_minimum_is_inf():
     """Antenna positions on 1.2 s: the reference's Schur complement with the exact clock row
     is negative (the estimate is no minimum along the clock once the second-order terms are
-    counted, while Gauss-Newton reports 6 ms): the std is inf, with a warning naming the
-    parameter; ``cov`` stays Gauss-Newton's."""
+    counted, while Gauss-Newton reports 6 ms): ``std`` stays Gauss-Newton's (the contract),
+    with a warning naming the parameter; ``observed=True`` is inf, with the warning."""
     curve, terms, est = _rig("positions")
     gn_var, exact_var = _reference(curve, terms)
     assert exact_var < 0 < gn_var
     gn = float(est.cov((terms[1], "time_offset")).sqrt())
     assert gn == pytest.approx(gn_var ** 0.5, rel=0.05)  # weak ends: factored regularised
     with pytest.warns(RuntimeWarning, match=r"Gyro\.time_offset's Gauss-Newton standard "
-                                            r"deviation is inf times smaller.*no minimum"):
-        assert float(est.std(terms[1], "time_offset")) == float("inf")
-    assert float(est.cov((terms[1], "time_offset")).sqrt()) == gn
+                                            r"deviation is inf times smaller.*no minimum.*"
+                                            r"observed=True"):
+        assert float(est.std(terms[1], "time_offset")) == gn
+    with pytest.warns(RuntimeWarning, match=r"no minimum.*observed standard deviation is inf"):
+        assert float(est.std(terms[1], "time_offset", observed=True)) == float("inf")
+    with pytest.raises(ValueError, match=r"observed=True is for a time_offset.*'bias'"):
+        est.std(terms[1], "bias", observed=True)
+    with pytest.raises(TypeError, match="observed to be a bool"):
+        est.std(terms[1], "time_offset", observed=1)
 
 
 def test_clock_std_against_the_reference(monkeypatch):
-    """Poses (the rotation seen): the observed std 1.2 times the Gauss-Newton one. With
-    the factor above that ratio the std is Gauss-Newton's without the warning; with it
-    below, the Gauss-Newton one times the reference's ratio (and ``scaled`` times the pooled
-    factor), with the warning."""
+    """Poses (the rotation seen): the observed std 1.2 times the Gauss-Newton one. ``std``
+    is Gauss-Newton's; with the factor above that ratio without the warning, with it below
+    with the warning; ``observed=True`` is the Gauss-Newton one times the reference's ratio
+    (and ``scaled`` times the pooled factor) without a warning."""
     curve, terms, est = _rig("poses")
     gn_var, exact_var = _reference(curve, terms)
     ratio = (exact_var / gn_var) ** 0.5
@@ -121,11 +127,16 @@ def test_clock_std_against_the_reference(monkeypatch):
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*times smaller than its observed")
         assert float(est.std(terms[1], "time_offset")) == gn
+        s = float(est.std(terms[1], "time_offset", observed=True))
+        scaled = float(est.std(terms[2], "time_offset", scaled=True, observed=True))
+    assert s / gn == pytest.approx(ratio, rel=0.03)
     monkeypatch.setattr(_observed, "FACTOR", 1.1)
     with pytest.warns(RuntimeWarning, match=r"Gyro\.time_offset's Gauss-Newton standard"):
-        s = float(est.std(terms[1], "time_offset"))
-    assert s / gn == pytest.approx(ratio, rel=0.03)
+        assert float(est.std(terms[1], "time_offset")) == gn
     with pytest.warns(RuntimeWarning, match="Accel.time_offset"):
-        scaled = float(est.std(terms[2], "time_offset", scaled=True))
+        scaled_gn = float(est.std(terms[2], "time_offset", scaled=True))
     factor = float(est._factor_scale()[0])  # the pooled sqrt(chi2 / dof)
-    assert scaled == pytest.approx(s * factor, rel=1e-9)
+    accel_gn = float(est.cov((terms[2], "time_offset")).sqrt())
+    assert scaled_gn == pytest.approx(accel_gn * factor, rel=1e-9)
+    assert scaled / scaled_gn == pytest.approx(float(est._ratios[
+        est._param(terms[2], "time_offset").offset][0]), rel=1e-9)

@@ -105,21 +105,23 @@ def _marginal(S: Tensor, k: int) -> Tensor:
     return torch.where(var > 0, var / d[:, k], torch.inf)
 
 
-def honest_std(name: str, s: Tensor, ratio: Tensor) -> Tensor:
-    """``s (Bf, 1)`` (the Gauss-Newton std as reported, ``scaled`` or not), or where the
-    exact Hessian's marginal std is more than ``FACTOR`` times it (``ratio (Bf,)``,
-    ``observed_ratio``), ``s`` times ``ratio``, with a warning naming ``name``
-    (``"Term.parameter"``)."""
-    over = torch.isfinite(s[:, 0]) & (ratio > FACTOR)
-    if bool(over.any()):
+def honest_std(name: str, s: Tensor, ratio: Tensor, observed: bool) -> Tensor:
+    """``s (Bf, 1)``, the Gauss-Newton std as reported (``scaled`` or not), with a warning
+    naming ``name`` (``"Term.parameter"``) where the exact Hessian's marginal std is more
+    than ``FACTOR`` times it (``ratio (Bf,)``, ``observed_ratio``); with ``observed``, ``s``
+    times ``ratio`` (inf, with the warning, where that Hessian has no minimum along it)."""
+    over = torch.isfinite(s[:, 0]) & (ratio > (1.0 if observed else FACTOR))
+    none = over & ~torch.isfinite(ratio)
+    if bool(none.any()) or (bool(over.any()) and not observed):
         worst = float(ratio[over].max())
         where = (f"{float(s[over, 0].max()):.3g} against "
                  f"{float((s[:, 0] * ratio)[over].max()):.3g}" if worst < torch.inf else
                  "inf: the estimate is no minimum along it")
+        advice = ("std(..., observed=True) reports it" if not observed else
+                  "its observed standard deviation is inf")
         warnings.warn(f"fitting.Estimate: {name}'s Gauss-Newton standard deviation is "
                       f"{worst:.3g} times smaller than its observed information's (the Hessian "
                       f"with exact nuisance rows at the estimate; {where}): its Jacobian is read "
                       f"on the estimated trajectory, whose fitted noise inflates the "
-                      f"Gauss-Newton information; std reports the observed one",
-                      RuntimeWarning, stacklevel=4)
-    return torch.where(over[:, None], s * ratio[:, None], s)
+                      f"Gauss-Newton information; {advice}", RuntimeWarning, stacklevel=4)
+    return s * ratio[:, None] if observed else s

@@ -539,20 +539,25 @@ class Estimate:
             C = C * self._factor_scale()[:, None, None] ** 2
         return C.reshape(*p.batch, len(cols), len(cols))
 
-    def std(self, term, name: str, scaled: bool = False) -> Tensor:
+    def std(self, term, name: str, scaled: bool = False, observed: bool = False) -> Tensor:
         r"""Marginal standard deviation of ``term``'s estimated ``name`` in its chart: bias,
         lever arm ``(..., 3)``; time offset ``(...)``; gravity ``(..., 3)`` world axes;
-        extrinsic ``(..., 6)`` (``e exp(delta)``). ``scaled``: times
-        :math:`\sqrt{\chi^2 / \nu}` pooled over every term (see :meth:`cov`). A time offset that
-        ended on its ``max_time_offset`` bound (a constrained optimum, where the curvature
-        says nothing of its uncertainty) gets inf and a warning; one whose std exceeds a
-        tenth of that bound (without a ``Free`` ``prior_std``) warns that the motion barely
-        excites it (its linearised std is then unreliable). A time offset's std is the
-        observed information's (the Hessian with exact nuisance
-        rows) where the Gauss-Newton one is more than 1.25 times smaller, and inf where that
-        Hessian's Schur complement is not positive definite, with a warning
-        (``torch_dq.fitting._observed``: its Jacobian, read on the estimated trajectory,
-        carries the fitted noise); :meth:`cov` stays Gauss-Newton's."""
+        extrinsic ``(..., 6)`` (``e exp(delta)``), from the data-only Gauss-Newton matrix.
+        ``scaled``: times :math:`\sqrt{\chi^2 / \nu}` pooled over every term (see
+        :meth:`cov`). A time offset that ended on its ``max_time_offset`` bound (a
+        constrained optimum, where the curvature says nothing of its uncertainty) gets inf and
+        a warning; one whose std exceeds a tenth of that bound (without a ``Free``
+        ``prior_std``) warns that the motion barely excites it (its linearised std is then
+        unreliable). A time offset's Gauss-Newton std is also checked against the observed
+        information's (the Hessian with exact nuisance rows, ``torch_dq.fitting._observed``:
+        its Jacobian, read on the estimated trajectory, carries the fitted noise, which can
+        inflate the Gauss-Newton information): more than 1.25 times smaller, or the estimate
+        no minimum along it, is warned of. ``observed`` (a time offset's only): the observed
+        information's std instead (inf where the estimate is no minimum along it)."""
+        fn = "fitting.Estimate.std"
+        if _checks.flag(fn, "observed", observed) and name != "time_offset":
+            _checks.fail(fn, f"observed=True is for a time_offset (the observed information of "
+                             f"a sensor's clock), got name={name!r}")
         q = self._param(term, name)
         C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
@@ -571,23 +576,23 @@ class Estimate:
                               stacklevel=2)
             s = torch.where(pinned, torch.inf, s)
             if name == "time_offset":  # a line delay's exact rows: 0.65 to 1.36 and inf there
-                s = self._observed(term, name, q, s)
+                s = self._observed(term, name, q, s, observed)
             if q.free.prior_std is None:  # with a prior, the std is the user's statement
                 _warn_unexcited(term, q.chart.high, torch.where(pinned, torch.nan, s))
             return s.reshape(b)
         return s.reshape(*b, s.shape[-1])
 
-    def _observed(self, term, name: str, q, s: Tensor) -> Tensor:
-        """A time offset's std ``s (Bf, 1)``, or the observed information's where the
-        Gauss-Newton one is more than ``FACTOR`` times smaller (``torch_dq.fitting._observed``:
-        the ratio computed once per parameter, where ``s`` is finite)."""
+    def _observed(self, term, name: str, q, s: Tensor, observed: bool) -> Tensor:
+        """A time offset's Gauss-Newton std ``s (Bf, 1)``, checked against the observed
+        information's, or with ``observed`` the latter (``torch_dq.fitting._observed``: the
+        ratio computed once per parameter, where ``s`` is finite)."""
         if not bool(torch.isfinite(s).any()):
             return s
         if q.offset not in self._ratios:
             self._ratios[q.offset] = observed_ratio(
                 self._problem.problem, self._ctrl, self._values, self._system, self._chol,
                 self._free, q.offset)
-        return honest_std(f"{type(term).__name__}.{name}", s, self._ratios[q.offset])
+        return honest_std(f"{type(term).__name__}.{name}", s, self._ratios[q.offset], observed)
 
     # -- trajectory uncertainties
     def _along(self, fn: str, t: Tensor, k: int, output, scaled: bool) -> Tensor:
