@@ -59,8 +59,10 @@ def gen():
 
 # The files whose tests take ~12 s or more together (compilation, notebooks, mypy, the
 # solves, the registry's second-order checks), longest first (whole-file process CPU times,
-# one process, 2026-11-29; test_compile ~80 s down to test_split ~12 s; test_calib12_camera_imu
-# 30 s with its 6-calibration Monte Carlo, before test_fitting's 28 s). They run first, so
+# one process, 2026-11-29; test_compile ~80 s down to test_split ~12 s; test_fitting 28 s;
+# 2026-11-30, tests16: test_calib12_camera_imu 24 s on 4 s records, test_demo 20 s,
+# test_calib12_cli 18 s, test_calib12_cameras 15 s, test_fit13_every_term 14 s,
+# test_calib13_cli and test_mend14_cli_partial_intrinsics 12 s). They run first, so
 # that `pytest -n 2` deals them to both workers at the start (xdist hands out tests in
 # collection order) instead of one of them running alone at the end.
 # Not test_docs.py: its build renders the notebooks that test_notebooks.py executed and
@@ -69,13 +71,14 @@ SLOW_FILES_FIRST = (
     "test_compile.py", "test_compile_float32_pyramid.py", "test_notebooks.py",
     "test_reliability.py", "test_modes.py",
     "test_second_order.py", "test_cumulative.py", "test_typing.py", "test_interp.py",
-    "test_learner8_module.py", "test_calib12_camera_imu.py", "test_fitting.py",
+    "test_learner8_module.py", "test_fitting.py", "test_calib12_camera_imu.py",
     "test_term_jacobians.py",
     "test_learner8_pipeline.py", "test_calibration_cameras.py", "test_learner8_second_order.py",
     "test_float32.py", "test_outside8_stereo.py", "test_estimation_prior.py", "test_fit_cli.py",
-    "test_camera_imu.py", "test_calib12_cli.py",
-    "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
+    "test_demo.py", "test_camera_imu.py", "test_calib12_cli.py", "test_calib12_cameras.py",
+    "test_fit13_every_term.py", "test_estimation_montecarlo.py", "test_honest_imu_poses.py",
     "test_span_jacobians.py", "test_kernels.py", "test_nn.py", "test_reprojections.py",
+    "test_calib13_cli.py", "test_mend14_cli_partial_intrinsics.py",
     "test_continuous_time.py", "test_split.py", "test_estimation.py",
 )
 

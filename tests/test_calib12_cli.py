@@ -98,7 +98,8 @@ def calibrate_here(files: dict, out, *extra) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def rig():
-    return make_rig([CAM, CAM_DS], seed=3, t0=0.0, gravity=np.array([0.0, -9.80665, 0.0]))
+    return make_rig([CAM, CAM_DS], seed=3, t0=0.0, duration=4.0,
+                    gravity=np.array([0.0, -9.80665, 0.0]))
 
 
 def test_cli_end_to_end_against_the_truth(rig, tmp_path):
