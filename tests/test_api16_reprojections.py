@@ -52,9 +52,6 @@ def _scene(n_behind_every: int | None = None):
     return spline, torch.tensor(times), torch.tensor(pts), torch.tensor(pix), behind
 
 
-@pytest.mark.xfail(strict=True, reason="Estimate._kept (fitting/_uncertainty.py, out of this "
-                   "helper's files) counts the term's mask, not the observations that project "
-                   "valid: excluded observations add 2 dof each (api16 report)")
 def test_observations_without_image_are_left_out_of_chi2_and_dof():
     """"Observations that project invalid at the solution are excluded": they carry no
     residual, so they carry no degrees of freedom either; ``dof`` is at most the residual

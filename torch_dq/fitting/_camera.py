@@ -253,12 +253,13 @@ class Reprojections(Term):
         are not masked."""
         return self._predict(trajectory)[1] & self.mask
 
-    def solved(self, trajectory) -> None:
-        r"""Count the observations without an image at the solution (``invalid (...)``, int64
-        per batch element) and warn when there are any; warn when an estimated line delay
-        meets too little motion: its information :math:`\sum_i (v_i |\dot u_i| /
-        \sigma)^2` (``\dot u`` the predicted pixel velocity) leaves it a standard deviation
-        above ``max_line_delay``."""
+    def solved(self, trajectory) -> Tensor:
+        r"""The observations with an image at the solution ``(..., N)`` bool (those counted by
+        :attr:`~torch_dq.fitting.Estimate.chi2` and ``dof``); count those without
+        (``invalid (...)``, int64 per batch element) and warn when there are any; warn when
+        an estimated line delay meets too little motion: its information
+        :math:`\sum_i (v_i |\dot u_i| / \sigma)^2` (``\dot u`` the predicted pixel velocity)
+        leaves it a standard deviation above ``max_line_delay``."""
         valid = self.visible(trajectory)
         self.invalid = (self.mask & ~valid).sum(-1)
         n = int(self.invalid.sum())
@@ -277,6 +278,7 @@ class Reprojections(Term):
                               "the camera barely moves during its frames (the pixels move less "
                               "than sigma over a readout); fix it (None: global shutter)",
                               RuntimeWarning, stacklevel=3)
+        return valid
 
 
 Reprojections.__init__.__doc__ = Reprojections.__doc__

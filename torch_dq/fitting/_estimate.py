@@ -355,9 +355,8 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
         trajectory.control_points = ctrl.to(trajectory.control_points.dtype)
     for q, v in zip(problem.params, values, strict=True):
         q.free.value = v.detach().clone()
-    for term in terms:
-        term.solved(trajectory)
+    counted = [term.solved(trajectory) for term in terms]
     _warn_pinned(problem, values)
     system = history.system if history.width == problem.width(values) else \
         problem.system(ctrl, values, problem.width(values))
-    return Estimate(problem.summary(system), ctrl, values, history)
+    return Estimate(problem.summary(system, counted), ctrl, values, history)

@@ -60,6 +60,8 @@ class Summary:
         system: the data-only Gauss-Newton system at the solution.
         problem: the ``Problem`` itself (its systems at nearby points: the exact
             Hessian's products of ``torch_dq.fitting._observed``).
+        counted: per term ``(..., N)`` bool, the samples that ``chi2`` and ``dof`` count
+            (``Term.solved``: the unmasked ones, a reprojection's with an image).
     """
 
     terms: list[Term]
@@ -72,6 +74,7 @@ class Summary:
     trajectory: object
     system: System
     problem: Problem
+    counted: list[Tensor]
 
 
 class Problem:
@@ -108,10 +111,12 @@ class Problem:
         self.index[(term_i, name)] = p
         self.m += chart.dim
 
-    def summary(self, system: System) -> Summary:
-        """The solved problem for :class:`~torch_dq.fitting.Estimate`."""
+    def summary(self, system: System, counted: list[Tensor]) -> Summary:
+        """The solved problem for :class:`~torch_dq.fitting.Estimate` (``counted``: per term,
+        the samples its ``chi2`` counts)."""
         return Summary(self.terms, self.batch, self.spans.n, self.m, list(self.params),
-                       self.prior_information(), self.spans, self.trajectory, system, self)
+                       self.prior_information(), self.spans, self.trajectory, system, self,
+                       counted)
 
     def groups(self, values: list[Tensor]) -> list[tuple[int, ...]]:
         """The terms by their span evaluation, in order of their first term: terms read at

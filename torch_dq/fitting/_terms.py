@@ -387,10 +387,13 @@ class Term(torch.nn.Module):
                 lo, hi = lo + part, hi + part
         return lo, hi
 
-    def solved(self, trajectory) -> None:
+    def solved(self, trajectory) -> Tensor:
         """Called by :func:`~torch_dq.fitting.estimate` at the solution (the terms' values
-        set): nothing by default (:class:`~torch_dq.fitting.Reprojections` counts its
-        invalid observations)."""
+        set): the samples that :attr:`~torch_dq.fitting.Estimate.chi2` and ``dof`` count
+        ``(..., N)`` bool, the unmasked ones by default
+        (:class:`~torch_dq.fitting.Reprojections` leaves out, counts and warns of its
+        observations without an image)."""
+        return self.mask
 
     # -- residuals
     def _residual(self, ev: list[tuple[Tensor, ...]], p: dict[str, Tensor]) -> Tensor:

@@ -238,9 +238,9 @@ class Estimate:
         truncated mean ``kappa`` with one (``torch_dq.fitting._robust.inliers``); once."""
         if self._inliers is None:
             batch, out = self._problem.batch, {}
-            for i, (term, r) in enumerate(zip(self._problem.terms, self._system.residuals,
-                                              strict=True)):
-                mask = term.mask
+            for i, (term, r, mask) in enumerate(zip(self._problem.terms,
+                                                    self._system.residuals,
+                                                    self._problem.counted, strict=True)):
                 if term.robust is None:
                     out[term] = (mask, 1.0)
                     continue
@@ -253,8 +253,9 @@ class Estimate:
 
     def _left_out(self) -> dict:
         """Per robust term: ``(...)`` int, the unmasked samples beyond its inlier cutoff."""
-        return {t: (t.mask.expand_as(keep) & ~keep).sum(-1) for t, (keep, _) in
-                self._kept().items() if t.robust is not None}
+        return {t: (c.expand_as(keep) & ~keep).sum(-1) for (t, (keep, _)), c in
+                zip(self._kept().items(), self._problem.counted, strict=True)
+                if t.robust is not None}
 
     @property
     def outliers(self) -> dict:
