@@ -553,8 +553,9 @@ class Estimate:
         information's (the Hessian with exact nuisance rows, ``torch_dq.fitting._observed``:
         its Jacobian, read on the estimated trajectory, carries the fitted noise, which can
         inflate the Gauss-Newton information): more than 1.25 times smaller, or the estimate
-        no minimum along it, is warned of. ``observed`` (a time offset's only): the observed
-        information's std instead (inf where the estimate is no minimum along it)."""
+        no minimum along it, is warned of. ``observed`` (a time offset's only): the larger of
+        the Gauss-Newton and the observed information's std (inf where the estimate is no
+        minimum along it)."""
         fn = "fitting.Estimate.std"
         if _checks.flag(fn, "observed", observed) and name != "time_offset":
             _checks.fail(fn, f"observed=True is for a time_offset (the observed information of "
