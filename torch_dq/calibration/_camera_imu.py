@@ -62,7 +62,7 @@ _MIN_ACCEL = 0.2  # m/s^2 RMS of the specific force's change: less leaves the ac
 # pixels may stray this fraction of the image's size outside it (a corner refined at the
 # border, the noise of a simulation); a camera of another resolution reaches far beyond
 _SLACK = 0.01
-_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (mm)
+_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (cm, mm)
 _SAME_TIME = 1e-3  # seconds: body-pose samples closer than this are one in the start spline
 
 
@@ -118,9 +118,13 @@ def _units(i: int, cam: Camera, times: Tensor, points: Tensor, pixels: Tensor) -
         _checks.fail(_FN, f"observations[{i}]: {hint}")
     span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0
     if span > _LARGEST_TARGET:
+        # the units that make it a target of 5 cm to 5 m (millimetres where none does)
+        units = [(u, f) for u, f in (("centimetres", "100"), ("millimetres", "1000"))
+                 if 0.05 <= span / float(f) <= 5.0] or [("millimetres", "1000")]
         _checks.fail(_FN, f"observations[{i}] points span {span:.4g} (metres expected): "
-                          f"millimetres? Kalibr's targets and read_corners' X_m, Y_m, Z_m "
-                          f"are in metres; divide them by 1000")
+                          f"{' or '.join(u for u, _ in units)}? Kalibr's targets and "
+                          f"read_corners' X_m, Y_m, Z_m are in metres; divide them by "
+                          f"{' or '.join(f for _, f in units)}")
 
 
 def _samples(label: str, fields: tuple[str, ...], xs, widths: tuple,
@@ -384,6 +388,23 @@ def _positive(name: str, value) -> float:
     return float(value)
 
 
+def _check_accel_units(accel: Tensor, gravity_magnitude: float) -> None:
+    """A ``ValueError`` where the accelerometer's mean reading magnitude is more than 3 times
+    ``gravity_magnitude`` or less than a third of it (a rig held for calibration reads
+    about g in m/s^2): readings in g (9.81 times too small), milli-g, or another unit."""
+    meas = float(accel.norm(dim=-1).mean())
+    ratio = gravity_magnitude / max(meas, 1e-300)
+    if 1.0 / 3.0 <= ratio <= 3.0:
+        return
+    hint = "another unit than m/s^2"
+    for unit, factor in (("g", 9.80665), ("milli-g", 9.80665e-3)):
+        if factor / 1.5 < ratio < 1.5 * factor:
+            hint = f"{unit}, not m/s^2: multiply them by {factor:.6g}"
+    _checks.fail(_FN, f"the accelerometer's readings average {meas:.4g} in magnitude against "
+                      f"gravity_magnitude {gravity_magnitude:.4g} m/s^2 ({1 / ratio:.3g} "
+                      f"times): they look like {hint}")
+
+
 def _motion_warnings(gyro: Tensor, accel: Tensor) -> list[str]:
     """Warnings for motion that leaves parameters undetermined: rotation (the centred rate's
     RMS above 0.05 rad/s) about one IMU axis or none (the cameras' rates then fix their
@@ -518,7 +539,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             camera's resolution (by over 1 % of its size) or that look like normalised
             coordinates (all within 4 px of ``(0, 0)``), target points off the plane
             ``Z = 0`` or spread over more than 20 m (millimetres, not metres), a
-            ``max_line_delay`` or ``gravity_magnitude`` that is not positive, fewer than 10
+            ``max_line_delay`` or ``gravity_magnitude`` that is not positive, accelerometer
+            readings whose mean magnitude is not within a factor 3 of ``gravity_magnitude``
+            (in g or milli-g, not m/s^2), fewer than 10
             frames of a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
             ``max_time_offset`` (correlation below 0.3: another recording's log), a
@@ -545,6 +568,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     for name, value in (("rolling_shutter", rolling_shutter),
                         ("shared_time_offset", shared_time_offset), ("verbose", verbose)):
         _checks.flag(_FN, name, value)
+    _check_accel_units(accel, gravity_magnitude)
     notes = _motion_warnings(gyro, accel)
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)
