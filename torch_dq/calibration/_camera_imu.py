@@ -378,6 +378,20 @@ def _positive(name: str, value) -> float:
     return float(value)
 
 
+def _check_accel_units(accel: Tensor, gravity_magnitude: float) -> None:
+    """A ``ValueError`` where the accelerometer's mean reading magnitude is within a factor
+    1.5 of ``gravity_magnitude`` in g or in milli-g (a rig held for calibration reads about
+    g in m/s^2; fast motions may read several g, so other ratios pass)."""
+    meas = float(accel.norm(dim=-1).mean())
+    ratio = gravity_magnitude / max(meas, 1e-300)
+    for unit, factor in (("g", 9.80665), ("milli-g", 9.80665e-3)):
+        if factor / 1.5 < ratio < 1.5 * factor:
+            _checks.fail(_FN, f"the accelerometer's readings average {meas:.4g} in magnitude "
+                              f"against gravity_magnitude {gravity_magnitude:.4g} m/s^2 "
+                              f"({1 / ratio:.3g} times): they look like {unit}, not m/s^2: "
+                              f"multiply them by {factor:.6g}")
+
+
 def _motion_warnings(gyro: Tensor, accel: Tensor) -> list[str]:
     """Warnings for motion that leaves parameters undetermined: rotation (the centred rate's
     RMS above 0.05 rad/s) about one IMU axis or none (the cameras' rates then fix their
@@ -512,7 +526,9 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             camera's resolution (by over 1 % of its size) or that look like normalised
             coordinates (all within 4 px of ``(0, 0)``), target points off the plane
             ``Z = 0`` or spread over more than 20 m (millimetres, not metres), a
-            ``max_line_delay`` or ``gravity_magnitude`` that is not positive, fewer than 10
+            ``max_line_delay`` or ``gravity_magnitude`` that is not positive, accelerometer
+            readings whose mean magnitude is within a factor 1.5 of ``gravity_magnitude`` in
+            g or milli-g (not m/s^2), fewer than 10
             frames of a camera with a target pose, IMU and frames that do not overlap by 1 s, a
             gyroscope whose angular speeds do not follow a camera's at any offset within
             ``max_time_offset`` (correlation below 0.3: another recording's log), a
@@ -539,6 +555,7 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
     for name, value in (("rolling_shutter", rolling_shutter),
                         ("shared_time_offset", shared_time_offset), ("verbose", verbose)):
         _checks.flag(_FN, name, value)
+    _check_accel_units(accel, gravity_magnitude)
     notes = _motion_warnings(gyro, accel)
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=2)

@@ -49,7 +49,7 @@ __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
 
 _FN = "calibration.cameras"
 _SIZES = {model: len(names) for model, names in MODELS.items()}
-_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (mm)
+_LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (cm, mm)
 
 
 @dataclass(frozen=True)
@@ -172,16 +172,20 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
 def _planar(i: int, points: Tensor, fn: str = _FN) -> None:
     """Check that camera ``i``'s ``(N, 3)`` target points lie on the plane ``Z = 0`` (the
     closed-form starts are homographies of that plane) and span at most
-    ``_LARGEST_TARGET`` (metres: wider ones are millimetres, which the intrinsics would not
-    show but the poses' translations would carry)."""
+    ``_LARGEST_TARGET`` (metres: wider ones are centimetres or millimetres, which the
+    intrinsics would not show but the poses' translations would carry)."""
     if points.numel() and bool(
             (points[:, 2].abs() > 1e-9 * points[:, :2].abs().max().clamp_min(1.0)).any()):
         _checks.fail(fn, f"expected a planar target (points with Z = 0) in observations[{i}]")
     span = float((points.amax(0) - points.amin(0)).norm()) if points.numel() else 0.0
     if span > _LARGEST_TARGET:
+        # the units that make it a target of 5 cm to 5 m (millimetres where none does)
+        units = [(u, f) for u, f in (("centimetres", "100"), ("millimetres", "1000"))
+                 if 0.05 <= span / float(f) <= 5.0] or [("millimetres", "1000")]
         _checks.fail(fn, f"observations[{i}] points span {span:.4g} (metres expected): "
-                         f"millimetres? Kalibr's targets and read_corners' X_m, Y_m, Z_m "
-                         f"are in metres; divide them by 1000")
+                         f"{' or '.join(u for u, _ in units)}? Kalibr's targets and "
+                         f"read_corners' X_m, Y_m, Z_m are in metres; divide them by "
+                         f"{' or '.join(f for _, f in units)}")
 
 
 def _arguments(observations, models, resolution, robust, robust_k, max_iterations, tol,
