@@ -193,3 +193,27 @@ def test_std_of_target_time_offset_and_line_delay_in_their_charts():
         return ((_pixels(spline, times, p, target=t_d, shift=shift) - pix) / SIGMA).ravel()
 
     np.testing.assert_allclose(got, _fd_std(residual, [1e-6] * 7 + [1e-9]), rtol=1e-4)
+
+
+def test_std_of_intrinsics_next_to_a_pinned_trajectory_is_finite():
+    """The nuisance parameters' "no information" floor was relative to the control points'
+    largest information, a matter of units: 1e-7 m poses put it 1e13 above a camera's
+    intrinsics, and their well-determined std (0.15 px) came back inf with a warning (lead,
+    api16's finding 4). Against the Gauss-Newton inverse of a numpy projection's central
+    differences."""
+    spline, times, pts, _, _ = _scene()
+    noise = SIGMA * np.random.default_rng(1).standard_normal((len(times), 2))
+    pix = _pixels(spline, times, pts.numpy()) + noise
+    term = fitting.Reprojections(times, pts, torch.tensor(pix), camera=CAM, sigma=SIGMA,
+                                 intrinsics=True)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*chi2/dof far below 1")  # the pinning
+        warnings.filterwarnings("error", message=".*no information")
+        est = fitting.estimate(spline, [_pinned(spline), term], steps=20, verbose=False)
+        got = est.std(term, "intrinsics").numpy()
+    k_hat = term.intrinsics.detach().numpy()
+
+    def residual(d):
+        return ((_pixels(spline, times, pts.numpy(), k=k_hat + d) - pix) / SIGMA).ravel()
+
+    np.testing.assert_allclose(got, _fd_std(residual, [1e-6] * 4), rtol=1e-4)

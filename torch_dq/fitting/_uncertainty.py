@@ -429,6 +429,10 @@ class Estimate:
             self._inv = system.nn.new_zeros(Bf, 0)
             return
         S = system.nn + torch.diag(p.prior_information).to(system.nn)
+        # the nuisance information before the trajectory's share is taken out: S's
+        # diagonal below _FLOOR of it is cancellation, none (not the band's scale, which
+        # 1e-7 m poses put 1e13 above a camera's intrinsics)
+        own = S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True)
         if exact is not None:  # S exactly, from the one factor
             self._chol, self._Z = exact, exact.solve(cn)
             S = S - torch.einsum("bnim,bniq->bmq", cn, self._Z)
@@ -437,7 +441,7 @@ class Estimate:
         ok = self._ok = self._chol.ok
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
-               | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * scale)
+               | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * own)
                | ~ok[:, None])
         self._U, self._r = U, d.rsqrt()
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
