@@ -430,8 +430,10 @@ class Estimate:
             return
         S = system.nn + torch.diag(p.prior_information).to(system.nn)
         # the nuisance information before the trajectory's share is taken out: S's
-        # diagonal below _FLOOR of it is cancellation, none (not the band's scale, which
-        # 1e-7 m poses put 1e13 above a camera's intrinsics)
+        # diagonal below _FLOOR of it is cancellation, none; below _FLOOR**2 of the band's
+        # scale (a std ratio of 1e12) it is roundoff itself (a gyroscope's clock on a
+        # constant rate); _FLOOR of the band's scale alone is units (1e-7 m poses put it
+        # 1e13 above a camera's intrinsics)
         own = S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True)
         if exact is not None:  # S exactly, from the one factor
             self._chol, self._Z = exact, exact.solve(cn)
@@ -442,7 +444,7 @@ class Estimate:
         lam, U, d = scaled_eigh(S)
         bad = ((lam <= NULL * lam.amax(-1, keepdim=True).clamp_min(0.0))
                | (S.diagonal(dim1=-2, dim2=-1).amax(-1, keepdim=True) <= _FLOOR * own)
-               | ~ok[:, None])
+               | (own <= _FLOOR * _FLOOR * scale) | ~ok[:, None])
         self._U, self._r = U, d.rsqrt()
         self._inv = torch.where(bad, torch.inf, 1.0 / lam.clamp_min(1e-300))
         if bool(bad.any()):
