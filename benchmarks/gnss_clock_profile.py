@@ -23,9 +23,9 @@ steps). The Gauss-Newton information of a clock that the positions see only thro
 lever arm and the accelerations is inflated by the noise the spline fits (the clock's
 Jacobian is the estimated trajectory's time derivative); the exact Hessian's second-order
 terms cancel that in the mean. Since clock16, ``std`` of a time offset warns where the
-marginal with exact nuisance rows exceeds the Gauss-Newton one by 1.25x, and
+marginal with exact nuisance rows exceeds the Gauss-Newton one by 1.4x, and
 ``std(..., observed=True)`` returns the larger of the two (``torch_dq/fitting/_observed.py``):
-seed 0 12.87 ms. Monte Carlo ``mc 0 10`` (session 16, after far16's released pulls): clock z
+seed 0 12.87 ms. Monte Carlo ``mc 0 10`` (session 16, with far16's released pulls, since reverted): clock z
 in observed stds 0.57, 1.16, -0.40, -4.03, -1.03, (seed 5: 9.2, another basin, 63 ms),
 -1.01, -0.92, -4.88, 1.42 (rms 2.28; Gauss-Newton 2.48; seeds 3 and 8 have observed stds
 below Gauss-Newton's, hence the larger of the two: rms 1.78); lever arm and biases

@@ -82,15 +82,6 @@ def _check(est, terms):
         assert 0.8 < ratio < 1.25, (type(term).__name__, ratio)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "far16: with the numerical prior's pulls released once the pulled test passes, the "
-    "objective falls on past 50 steps (4705.40 reported converged before; 53 steps to "
-    "4696.77 with steps=100, the extrinsic's translation 4.0 std off; the optimum after 134 "
-    "steps 4695.35, 5.65 std off along the direction of the translation and the "
-    "accelerometer's clock, as the default-knot case's optimum, which the truth start "
-    "reaches too: 5494.570 from both, 5.36 std; seeds 1, 2: 3.4, 6.6). The 4 std bound held "
-    "only while the pulls kept the ends, and with them the translation, near the start: the "
-    "truth start, held, ended with those z at 0.00"))
 def test_imu_knots_far_extrinsic_start_ends_at_the_data():
     """Knots every 20 ms (as an IMU asks: ``knot_spacing``), 1 mrad / 1 mm poses: before
     the fix the pose-only ends were pinned, the estimate stopped after 50 steps unconverged

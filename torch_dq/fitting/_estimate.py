@@ -251,12 +251,7 @@ def estimate(trajectory, terms, steps: int = 50, tol: float = 1e-9, prior: float
     extrinsic that turns turns every control point with it), a window's information is judged
     against its own best-determined direction (control points seen only by poses are not
     undetermined next to an accelerometer's), and the pulled directions are left out of the
-    convergence test; once it passes, the pulls are released (kept only on directions below
-    ``1e-9`` times their window's best-determined one) and the iteration goes on until the
-    test passes with the data's information along them, where the decrement is at most
-    ``tol`` times the objective or ``1e-2`` (the optimum within 0.1 standard deviation of
-    any quantity; a far start's held directions had ended the estimate 22 above the optimum,
-    reported converged).
+    convergence test.
     Nothing else is pulled: a determined parameter (an extrinsic, a time offset, the
     trajectory's placement) ends where the data put it, whatever its start.
     Where only an IMU sees the rotations (one trajectory with :class:`~torch_dq.fitting.Positions`,

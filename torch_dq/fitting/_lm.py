@@ -43,8 +43,6 @@ _BOUND_SLOW = 1e-3  # a step lowering the objective by at most this much relativ
 # offset held on its bound (descent outwards): two in a row stop it, the data put it further
 # (a truth 0.05 s past the bound crept 50 steps at 1e-3 to 1e-5 a step, unconverged)
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
-_RELEASED = 1e-2  # Newton decrement negligible along released pulls' directions: the optimum
-# at most 0.1 standard deviation of any quantity away (LevenbergMarquardt._release)
 
 
 @dataclass
@@ -90,9 +88,10 @@ class Point:
 class History:
     """What the loop did: ``loss`` and ``objective`` ``(steps + 1, ...)``, ``steps`` run,
     ``reason`` (joined per batch element), ``converged (...)``, the data ``system`` at the
-    last point, its band ``width`` and whether every direction of that system carries
+    last point, its band ``width``, whether every direction of that system carries
     information (``informed``: its band plus the
-    pulls certified positive definite with room, nothing pulled)."""
+    pulls certified positive definite with room, nothing pulled) and the last Newton
+    decrement ``(Bf,)`` (inf where none was taken)."""
 
     loss: Tensor
     objective: Tensor
@@ -102,6 +101,7 @@ class History:
     system: System
     width: int
     informed: bool
+    decrement: Tensor
 
 
 class LevenbergMarquardt:
@@ -119,8 +119,6 @@ class LevenbergMarquardt:
         self.p, self.start, self.solver = problem, ctrl, solver
         self.anchor, self.prior = values, prior
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
-        # the elements whose control points' pulls are released (:meth:`_release`)
-        self.released = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
         self.w = problem.width(values)
         memo = Memo()
         data = torch.stack(problem.data_cost(ctrl, values, memo)).sum(0)
@@ -161,10 +159,7 @@ class LevenbergMarquardt:
         # not: its information sets the typical level, and the poses that alone see the ends
         # of its record were judged against it (pulled to a far start: 190 sigmas off)
         relative = bool(p.params) or any(t.order >= 1 for t in p.terms)
-        cpull = _prior.control_pull(data.band, prior, relative, bool(self.released.all()))
-        if bool(self.released.any()) and not bool(self.released.all()):
-            cpull = torch.where(self.released[:, None, None, None, None],
-                                _prior.control_pull(data.band, prior, relative, True), cpull)
+        cpull = _prior.control_pull(data.band, prior, relative)
         del data  # (memory: a second band while the pulls are found)
         info = torch.diag(p.prior_information().to(s.nn))
         reg = _prior.Regularised(s.band, cpull)
@@ -366,23 +361,16 @@ class LevenbergMarquardt:
         that stalled (its last accepted step lowered the objective by at most ``tol``
         relatively) or, with ``final``, ran out of steps, stops unconverged."""
         dec, ok = self._decrement()
+        self.decrement = torch.where(self.active, dec, self.decrement)
         thr = tol * torch.maximum(self.point.objective.reshape(self.Bf), _EXACT * self.count)
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
-        pulled = good & self._held()
-        if bool(pulled.any()):  # passed with pulled directions left out: tested without them
-            self._release(pulled)
-            dec, ok = self._decrement()
-        thr = torch.where(self.released, thr.clamp_min(_RELEASED), thr)
-        good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
-        self.decrement = torch.where(self.active, dec, self.decrement)
         held = self.active & self.slow & self._outward(self.gradient()[1]).any(-1)
         self.on_bound = torch.where(held, self.on_bound + 1, 0)
         bound = ~good & (self.on_bound >= 2)
         stop = self.active & ~good & (self.stalled | final | bound)
         for b in range(self.Bf):
-            bar = (f"max(tol * max(cost, 1e-20 residuals), {_RELEASED:g}) with the pulls "
-                   f"released" if bool(self.released[b]) else "tol * max(cost, 1e-20 residuals)")
-            what = f"g^T H^-1 g = {float(dec[b]):.3g}, {bar} = {float(thr[b]):.3g}"
+            what = f"g^T H^-1 g = {float(dec[b]):.3g}, tol * max(cost, 1e-20 residuals) = " \
+                   f"{float(thr[b]):.3g}"
             if bool(good[b]):
                 self.reasons[b] = f"the scaled gradient test passed ({what})"
             elif bool(stop[b]) and bool(bound[b]):
@@ -398,35 +386,6 @@ class LevenbergMarquardt:
                 self.reasons[b] = f"steps reached before convergence ({what})"
         self.converged |= good
         self.active &= ~(good | stop)
-
-    def _held(self) -> Tensor:
-        """``(Bf,)`` bool: the elements whose control points are pulled along re-anchored
-        directions (estimated nuisance parameters) that the scaled gradient test leaves out,
-        not yet released."""
-        if not self.p.params:
-            return torch.zeros_like(self.released)
-        return ~self.released & self.pulls[0].reshape(self.Bf, -1).ne(0).any(-1)
-
-    def _release(self, which: Tensor) -> None:
-        r"""Release the control points' pulls of the elements ``which (Bf,)``: from here on
-        they are found with ``released`` (``torch_dq.fitting._prior.control_pull``: only
-        directions below ``NULL`` times their window's best-determined one, numerically
-        none, are pulled), so that the steps and the scaled gradient test have the data's
-        information along the directions that the pulls held. Re-anchored at every
-        linearisation point, a pull is a damping of :math:`10^4`-:math:`10^7` times the
-        data's information along a weakly determined direction (the ends of an IMU record
-        seen by GNSS positions alone: :math:`10^{-10}`-:math:`3 \cdot 10^{-8}` of the
-        accelerometer's typical information), and the test, which leaves it out, passed
-        while those directions crawled, held near the start: a lever arm's identity start
-        ended 22 above the truth start's optimum (session 15's rig, seed 0: 9089.7 vs
-        9067.3, itself held 6.5 above the data's 9060.8), reported converged. Released
-        once the pulled test passes, near the optimum, after the pulls did their work
-        (keeping a far start's weak directions from outrunning the others); the test then
-        passes where the decrement is at most ``tol`` times the objective or ``_RELEASED``
-        (the optimum within 0.1 standard deviation of any quantity)."""
-        self.released |= which
-        self.stalled &= ~which  # the released directions get their steps
-        self._reanchor()
 
     def _trials(self, pending: Tensor) -> tuple[Point, Tensor, Tensor]:
         """Damped steps from the current point until each ``pending`` element accepts one
@@ -518,7 +477,8 @@ class LevenbergMarquardt:
                 self._relinearize()
             self.check(tol, final=True)
         return History(torch.stack(losses), torch.stack(objectives), done, self._reason(steps),
-                       self.converged.reshape(p.batch), self.system, self.w, self.informed)
+                       self.converged.reshape(p.batch), self.system, self.w, self.informed,
+                       self.decrement)
 
     def _reason(self, steps: int) -> str:
         """The stop reasons joined (with a warning when ``steps`` ran out or the steps

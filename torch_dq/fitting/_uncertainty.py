@@ -53,6 +53,8 @@ _FAR = 1.5  # chi2/dof above which (and above the band) a term's sigmas are too 
 # standard deviations 20 % too small at least (2 let an accelerometer at 1.57 on knots too
 # far apart for it pass silently, its bias 2.4 std off along a weak direction)
 _UNEXCITED = 0.1  # a time offset's std above this fraction of its bound: barely excited
+_NEAR = 1e-2  # a Newton decrement within which the estimate is at the optimum (0.1 std of any
+# quantity): the observed information's check of a time offset's std is taken there only
 _LOOSE = 100.0  # the second regularisation (times REGULARISE) that tells undetermined apart
 
 
@@ -182,6 +184,7 @@ class Estimate:
         self.reason: str = history.reason
         self._system = summary.system
         self._informed = history.informed
+        self._near = history.decrement <= _NEAR  # (Bf,) at the optimum (_observed)
         self._factored = self._checked = False
         self._weak: list[str] = []  # nuisance parameters with a direction without information
         self._inliers: dict | None = None
@@ -558,7 +561,7 @@ class Estimate:
         unreliable). A time offset's Gauss-Newton std is also checked against the observed
         information's (the Hessian with exact nuisance rows, ``torch_dq.fitting._observed``:
         its Jacobian, read on the estimated trajectory, carries the fitted noise, which can
-        inflate the Gauss-Newton information): more than 1.25 times smaller, or the estimate
+        inflate the Gauss-Newton information): more than 1.4 times smaller, or the estimate
         no minimum along it, is warned of. ``observed`` (a time offset's only): the larger of
         the Gauss-Newton and the observed information's std (inf where the estimate is no
         minimum along it)."""
@@ -593,13 +596,15 @@ class Estimate:
     def _observed(self, term, name: str, q, s: Tensor, observed: bool) -> Tensor:
         """A time offset's Gauss-Newton std ``s (Bf, 1)``, checked against the observed
         information's, or with ``observed`` the latter (``torch_dq.fitting._observed``: the
-        ratio computed once per parameter, where ``s`` is finite)."""
-        if not bool(torch.isfinite(s).any()):
+        ratio computed once per parameter, where ``s`` is finite and the estimate within
+        ``_NEAR`` of the optimum: elsewhere the second-order terms are a point's that is no
+        optimum)."""
+        if not bool((torch.isfinite(s[:, 0]) & self._near).any()):
             return s
         if q.offset not in self._ratios:
             self._ratios[q.offset] = observed_ratio(
                 self._problem.problem, self._ctrl, self._values, self._system, self._chol,
-                self._free, q.offset)
+                self._free, q.offset).where(self._near, 1.0)
         return honest_std(f"{type(term).__name__}.{name}", s, self._ratios[q.offset], observed)
 
     # -- trajectory uncertainties
