@@ -25,11 +25,10 @@ Jacobian is the estimated trajectory's time derivative); the exact Hessian's sec
 terms cancel that in the mean. Since clock16, ``std`` of a time offset warns where the
 marginal with exact nuisance rows exceeds the Gauss-Newton one by 1.4x, and
 ``std(..., observed=True)`` returns the larger of the two (``torch_dq/fitting/_observed.py``):
-seed 0 12.87 ms. Monte Carlo ``mc 0 10`` (session 16, with far16's released pulls, since reverted): clock z
-in observed stds 0.57, 1.16, -0.40, -4.03, -1.03, (seed 5: 9.2, another basin, 63 ms),
--1.01, -0.92, -4.88, 1.42 (rms 2.28; Gauss-Newton 2.48; seeds 3 and 8 have observed stds
-below Gauss-Newton's, hence the larger of the two: rms 1.78); lever arm and biases
-(Gauss-Newton) rms 1.12; about 1 s CPU for the clock's observed std.
+seed 0 12.54 ms. Monte Carlo ``mc 0 10`` (session 16, 05:20 UTC): clock z in observed stds
+0.58, 1.16, -0.41, inf (seed 3), -1.03, (seed 5: 9.1, another basin, 63 ms), -1.01, -0.92,
+-1.96, 1.42: rms 1.15 over the 8 finite ones (Gauss-Newton 2.21); lever arm and biases
+(Gauss-Newton) rms 1.06; 0.12-0.21 s CPU for the clock's check.
 """
 import sys
 import time
