@@ -65,8 +65,8 @@ def _gradient(problem, ctrl: Tensor, values: list[Tensor], w: int, dn: Tensor,
 
 def observed_ratio(problem, ctrl: Tensor, values: list[Tensor], system, chol, free: Tensor,
                    k: int) -> Tensor:
-    r"""``(Bf,)`` the marginal std of nuisance coordinate ``k`` from the Hessian with exact
-    nuisance rows over the Gauss-Newton one (inf where the former is not positive:
+    r"""``(Bf,)`` the marginal std of nuisance coordinate ``k`` from the Hessian with its row
+    ``k`` exact over the Gauss-Newton one (inf where the former is not positive:
     ``_marginal``).
 
     Args:
@@ -112,8 +112,8 @@ def honest_std(name: str, s: Tensor, ratio: Tensor, observed: bool) -> Tensor:
     larger of the two: ``s`` times ``max(ratio, 1)`` (inf, with the warning, where that
     Hessian has no minimum along it). Not the observed one where it is smaller: its
     second-order terms are themselves a noise draw (the GNSS rig's seeds 3 and 8 of
-    ``benchmarks/gnss_clock_profile.py``: 2.8 and 2.4 ms against Gauss-Newton's 3.4 and 3.5,
-    errors of 4.0 and 4.9 of the former)."""
+    ``benchmarks/gnss_clock_profile.py`` with session 16's released pulls: 2.8 and 2.4 ms
+    against Gauss-Newton's 3.4 and 3.5, errors of 4.0 and 4.9 of the former)."""
     over = torch.isfinite(s[:, 0]) & (ratio > (1.0 if observed else FACTOR))
     none = over & ~torch.isfinite(ratio)
     if bool(none.any()) or (bool(over.any()) and not observed):
@@ -125,7 +125,7 @@ def honest_std(name: str, s: Tensor, ratio: Tensor, observed: bool) -> Tensor:
                   "its observed standard deviation is inf")
         warnings.warn(f"fitting.Estimate: {name}'s Gauss-Newton standard deviation is "
                       f"{worst:.3g} times smaller than its observed information's (the Hessian "
-                      f"with exact nuisance rows at the estimate; {where}): its Jacobian is read "
+                      f"with its row exact at the estimate; {where}): its Jacobian is read "
                       f"on the estimated trajectory, whose fitted noise inflates the "
                       f"Gauss-Newton information; {advice}", RuntimeWarning, stacklevel=4)
     return s * ratio.clamp_min(1.0)[:, None] if observed else s

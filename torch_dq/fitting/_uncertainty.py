@@ -559,7 +559,7 @@ class Estimate:
         a warning; one whose std exceeds a tenth of that bound (without a ``Free``
         ``prior_std``) warns that the motion barely excites it (its linearised std is then
         unreliable). A time offset's Gauss-Newton std is also checked against the observed
-        information's (the Hessian with exact nuisance rows, ``torch_dq.fitting._observed``:
+        information's (the Hessian with the offset's row exact, ``torch_dq.fitting._observed``:
         its Jacobian, read on the estimated trajectory, carries the fitted noise, which can
         inflate the Gauss-Newton information): more than 1.4 times smaller, or the estimate
         no minimum along it, is warned of. ``observed`` (a time offset's only): the larger of
