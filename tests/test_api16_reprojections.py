@@ -68,6 +68,8 @@ def test_observations_without_image_are_left_out_of_chi2_and_dof():
     # the cameras' 6 pose dof per control point are all the data determine: dof = 2 N - 48
     assert float(est.dof[term]) == pytest.approx(2 * used - 48, abs=1e-3)
     assert 0.85 < float(est.chi2[term] / est.dof[term]) < 1.15
+    weights = est.weights[term]  # no kernel: 1 where used, 0 where excluded (was 1)
+    assert torch.equal(weights, torch.tensor(~behind, dtype=weights.dtype))
 
 
 @pytest.mark.parametrize("line_delay", [-1e-5, torch.tensor(-2e-6, dtype=F64),

@@ -209,7 +209,8 @@ class Estimate:
         batch, s = self._problem.batch, self._system
         kept = self._kept() if what != "weights" else {}
         out = {}
-        for term, r, w in zip(self._problem.terms, s.residuals, s.weights, strict=True):
+        for term, r, w, c in zip(self._problem.terms, s.residuals, s.weights,
+                                 self._problem.counted, strict=True):
             if what == "chi2":
                 keep, kappa = kept[term]
                 out[term] = torch.where(keep[..., None], r * r, 0.0).sum((-1, -2)).expand(
@@ -217,7 +218,7 @@ class Estimate:
             elif what == "count":
                 out[term] = (kept[term][0].sum(-1) * term.dim).expand(batch).to(torch.float64)
             else:
-                out[term] = w.expand(*batch, w.shape[-1])
+                out[term] = torch.where(c, w, 0.0).expand(*batch, w.shape[-1])
         return out
 
     def _leverages(self) -> list[Tensor]:
@@ -386,7 +387,8 @@ class Estimate:
 
     @property
     def weights(self) -> dict:
-        """Per term ``(..., N)``: robust weights at the optimum (0 where masked)."""
+        """Per term ``(..., N)``: robust weights at the optimum (0 where masked, and for a
+        reprojection without an image at the solution)."""
         return self._per_term("weights")
 
     def _ensure(self) -> None:
