@@ -21,7 +21,7 @@ How. The Hessian with the time offset's row exact: its column (coupling ``C`` an
 ``N``, the :class:`~torch_dq.fitting.Free` priors added) by a forward difference of the
 Gauss-Newton gradient :math:`g = J^T W r` (half the robust cost's gradient, on the
 Gauss-Newton matrix's scale) along that coordinate (a step of ``_STEP`` of its
-standard deviation: two linearisations, no new estimate, whatever the number of nuisance
+standard deviation: one linearisation, no new estimate, whatever the number of nuisance
 parameters: a random-walk bias has hundreds), the other nuisance columns and the
 control-point block ``A`` Gauss-Newton's (its factor, as the uncertainties'); the marginal
 variance from the Schur complement :math:`N - C^T A^{-1} C`, against the same with the
@@ -76,16 +76,15 @@ def observed_ratio(problem, ctrl: Tensor, values: list[Tensor], system, chol, fr
         free: ``(Bf, n)`` bool, the control points without data information (decoupled).
         k: the coordinate.
     """
-    m, Bf = problem.m, system.nn.shape[0]
+    m = problem.m
     keep = ~free[..., None, None]
     prior = torch.diag(problem.prior_information()).to(system.nn)
     w = problem.width(values)
-    g0 = _gradient(problem, ctrl, values, w, system.gn.new_zeros(Bf, m))
     h = _STEP * system.nn[:, k, k].clamp_min(1e-300).rsqrt()  # (Bf,) a scale
     gc, gn = _gradient(problem, ctrl, values, w, torch.eye(m).to(h)[k] * h[:, None])
     cn, nn = system.cn.clone(), system.nn.clone()  # column and row k exact, the rest GN's
-    cn[..., k] = (gc - g0[0]) / h[:, None, None]
-    nn[:, :, k] = nn[:, k, :] = (gn - g0[1]) / h[:, None]
+    cn[..., k] = (gc - system.gc) / h[:, None, None]  # the gradient at the estimate: system's
+    nn[:, :, k] = nn[:, k, :] = (gn - system.gn) / h[:, None]
     out = []
     for c, n in ((system.cn, system.nn), (cn, nn)):
         c = torch.where(keep, c, 0.0)
