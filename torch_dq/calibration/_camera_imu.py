@@ -72,8 +72,13 @@ def _sigma(name: str, density, times: Tensor) -> float:
             math.isfinite(density) and float(density) > 0):
         _checks.fail(_FN, f"expected {name} to be a positive finite noise density, got "
                           f"{density!r}")
-    step = float(times.diff().median())
-    return float(density) * math.sqrt(1.0 / step)
+    return float(density) * math.sqrt(sample_rate(times))
+
+
+def sample_rate(times: Tensor) -> float:
+    """The rate (Hz) of sorted sample ``times (N,)``, ``N >= 2``: one over the median
+    spacing (robust to dropped samples)."""
+    return 1.0 / float(times.diff().median())
 
 
 def _arguments(cameras, observations, imu):

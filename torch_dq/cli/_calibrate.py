@@ -134,10 +134,12 @@ def _update_rate(noise: dict, times, path: str) -> None:
     """A warning where imu.yaml's ``update_rate`` is more than 5 % off the IMU file's rate
     (its median sample spacing): Kalibr's per-sample sigmas (``density *
     sqrt(update_rate)``) would then differ from ``camera_imu``'s (the file's rate)."""
+    from ..calibration._camera_imu import sample_rate
+
     given = noise.get("update_rate")
     if given is None or times.numel() < 2:
         return
-    rate = 1.0 / float(times.diff().median())
+    rate = sample_rate(times)
     if abs(given / rate - 1.0) > 0.05:
         warnings.warn(f"{path}: update_rate {given:g} Hz is not the IMU file's rate "
                       f"({rate:.4g} Hz, its median sample spacing): the noise sigmas per "
