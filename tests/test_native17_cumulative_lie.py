@@ -76,18 +76,21 @@ def test_vjp_matches_torch(monkeypatch, p, kind):
 
 
 def test_vjp_matches_torch_in_several_chunks(monkeypatch):
-    """More samples than the PyTorch code's part (``VJP_CHUNK``): the same numbers."""
+    """More samples than the PyTorch code's part (``VJP_CHUNK``), cotangents as the callers
+    pass them (a component-major array's permuted view, read in place) and broadcast (a
+    zero stride): the same numbers."""
     g = torch.Generator().manual_seed(5)
     U, S, p = 30, 2 * _cumulative_lie.VJP_CHUNK + 17, 3
     span = _cumulative_lie.span_parts(_points(U, p, g, "generic"))
     inverse = torch.randint(0, U, (S,), generator=g)
     weights = [torch.rand(S, p, generator=g, dtype=F64) for _ in range(3)]
-    cot = torch.randn(S, 2, 3, 8, generator=g, dtype=F64)
     pose = dq.exp(torch.randn(S, 6, generator=g, dtype=F64))
-    got = _cumulative_lie.vjp(span, inverse, weights, cot, pose, slice(1, 2))
-    ref = _torch_path(monkeypatch, _cumulative_lie.vjp, span, inverse, weights, cot, pose,
-                      slice(1, 2))
-    _close(got, ref)
+    for cot in (torch.randn(2, 3, 8, S, generator=g, dtype=F64).permute(3, 0, 1, 2),
+                torch.randn(S, 1, 3, 8, generator=g, dtype=F64).expand(S, 2, 3, 8)):
+        got = _cumulative_lie.vjp(span, inverse, weights, cot, pose, slice(1, 2))
+        ref = _torch_path(monkeypatch, _cumulative_lie.vjp, span, inverse, weights,
+                          cot.contiguous(), pose, slice(1, 2))
+        _close(got, ref)
 
 
 def _spline(degree: int, seed: int, kind: str = "generic") -> BSpline:

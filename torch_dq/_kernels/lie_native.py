@@ -44,9 +44,9 @@ def _functions() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr]:  # type: ignore[n
     lib = native.library()
     assert lib is not None  # applies() held
     vjp_c, der_c = lib.tdq_lie_vjp, lib.tdq_lie_derivatives
-    vjp_c.argtypes = [_P, _I, _I, _P, _I, _P, _I, _P, _I, _P, _P, _P, _P]
+    vjp_c.argtypes = [_P, _I, _I, _P, _I, _P, _I, _P, _P, _I, _P, _P, _P, _P]
     der_c.argtypes = [_P, _P, _P, _I, _I, _P, _I, _P, _P]
-    vjp_c.restype = der_c.restype = None
+    vjp_c.restype, der_c.restype = ctypes.c_int, None
     return vjp_c, der_c
 
 
@@ -68,15 +68,20 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     ``(S, k, p + 1, 6)``, contiguous."""
     p, U = span.shape[1], span[0].numel() // span.shape[1]
     S, k, O = cot.shape[:3]
-    span, inverse, cot, pose = (t.contiguous() for t in (span, inverse, cot, pose))
+    span, inverse, pose = (t.contiguous() for t in (span, inverse, pose))
+    strides = (ctypes.c_int64 * 4)(*cot.stride())  # read in place (the callers' are
+    # component-major views: a copy would cost a fifth of the loop)
     lam = torch.stack(weights)  # (O, S, p)
     rows = bytes(int(i in range(k)[slice(None) if second is None else second])
                  for i in range(k))
     out = cot.new_empty(S, k, p + 1, 6)
     table = _even_table()
-    _functions()[0](native.address(span), p, U, native.address(inverse), S,
-                    native.address(lam), O, native.address(cot), k, native.address(pose),
+    failed = _functions()[0](native.address(span), p, U, native.address(inverse), S,
+                    native.address(lam), O, ctypes.c_void_p(cot.data_ptr()), strides, k,
+                    native.address(pose),
                     rows, native.address(table), native.address(out))
+    if failed:
+        raise MemoryError("torch_dq: no memory for the compiled vjp's scratch arrays")
     return out
 
 

@@ -9,6 +9,7 @@
  * with the same series. */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #define EVEN_TERMS 8
 #define EVEN_STRIDE (EVEN_TERMS + 1)
@@ -270,46 +271,75 @@ static void backward(int64_t p, int64_t O, int sec, const double (*d)[6],
     }
 }
 
-/* Cotangents of the control-point steps of S samples (_cumulative_lie.vjp): span parts `span`
- * (80, p, U) contiguous, inverse (S,), weights (O, S, p), cot (S, k, O, 8), pose (S, 8),
- * second (k,) 0/1: the rows whose cotangents of Xdd are read; out (S, k, p + 1, 6). The last
- * chain, d d_j = J_r^-1(d_j) (delta_{j+1} - Ad_{Exp(-d_j)} delta_j): steps j + 1 get cd_j
- * J_r^-1, steps j get -cd_j J_l^-1 (the span's matrices, rows 44..79). */
-void tdq_lie_vjp(const double *span, int64_t p, int64_t U, const int64_t *inverse, int64_t S,
-                 const double *weights, int64_t O, const double *cot, int64_t k,
-                 const double *pose, const uint8_t *second, const double *even, double *out) {
-    int64_t P = p * U;
-    for (int64_t s = 0; s < S; s++) {
-        const double *col = span + inverse[s];
-        double d[MAXP][6], pw[MAXP][38], lam[3][MAXP];
-        dmat Ji[MAXP], Jl[MAXP];
-        forward_t fw;
-        for (int64_t j = 0; j < p; j++) {
-            for (int i = 0; i < 6; i++) d[j][i] = col[i * P + j * U];
-            for (int i = 0; i < 38; i++) pw[j][i] = col[(6 + i) * P + j * U];
-            for (int64_t o = 0; o < O; o++) lam[o][j] = weights[(o * S + s) * p + j];
-            for (int i = 0; i < 9; i++) {
-                Ji[j].a[i] = col[(44 + i) * P + j * U];
-                Ji[j].b[i] = col[(53 + i) * P + j * U];
-                Jl[j].a[i] = col[(62 + i) * P + j * U];
-                Jl[j].b[i] = col[(71 + i) * P + j * U];
-            }
-        }
-        forward(p, O, (const double (*)[6])d, (const double (*)[38])pw,
-                (const double (*)[MAXP])lam, even, &fw);
-        for (int64_t r = 0; r < k; r++) {
-            double a[3][6], cd[MAXP][6];
-            double *st = out + (s * k + r) * (p + 1) * 6;
-            algebra_cotangents(pose + 8 * s, fw.last[0], fw.last[1], cot + (s * k + r) * O * 8,
-                               O, second[r], a);
-            backward(p, O, second[r], (const double (*)[6])d, (const double (*)[MAXP])lam, &fw,
-                     a, cd, st);
-            for (int64_t j = 0; j < p; j++) {
-                rows_dmat(cd[j], &Jl[j], st + 6 * j, 1, -1.0);
-                rows_dmat(cd[j], &Ji[j], st + 6 * (j + 1), 0, 1.0);
-            }
+/* One sample's cotangent rows (_vjp_part's loop body): its span's parts `part` (span-major: per
+ * step the 80 rows of span_parts), weights lam, cotangents g (k x O x 8), pose X, into st
+ * (k x (p + 1) x 6). The last chain, d d_j = J_r^-1(d_j) (delta_{j+1} - Ad_{Exp(-d_j)}
+ * delta_j): step j + 1 gets cd_j J_r^-1, step j gets -cd_j J_l^-1 (rows 44..79 of the part). */
+static void vjp_sample(int64_t p, int64_t O, int64_t k, const double *part,
+                       const double (*lam)[MAXP], const double *g, const double *X,
+                       const uint8_t *second, const double *even, double *st) {
+    double d[MAXP][6], pw[MAXP][38];
+    dmat Ji[MAXP], Jl[MAXP];
+    forward_t fw;
+    for (int64_t j = 0; j < p; j++) {
+        const double *c = part + 80 * j;
+        for (int i = 0; i < 6; i++) d[j][i] = c[i];
+        for (int i = 0; i < 38; i++) pw[j][i] = c[6 + i];
+        for (int i = 0; i < 9; i++) {
+            Ji[j].a[i] = c[44 + i];
+            Ji[j].b[i] = c[53 + i];
+            Jl[j].a[i] = c[62 + i];
+            Jl[j].b[i] = c[71 + i];
         }
     }
+    forward(p, O, (const double (*)[6])d, (const double (*)[38])pw, lam, even, &fw);
+    for (int64_t r = 0; r < k; r++, st += (p + 1) * 6) {
+        double a[3][6], cd[MAXP][6];
+        algebra_cotangents(X, fw.last[0], fw.last[1], g + r * O * 8, O, second[r], a);
+        backward(p, O, second[r], (const double (*)[6])d, lam, &fw, a, cd, st);
+        for (int64_t j = 0; j < p; j++) {
+            rows_dmat(cd[j], &Jl[j], st + 6 * j, 1, -1.0);
+            rows_dmat(cd[j], &Ji[j], st + 6 * (j + 1), 0, 1.0);
+        }
+    }
+}
+
+#define BLOCK 32 /* samples whose cotangents are gathered at once (strided reads stay local) */
+
+/* Cotangents of the control-point steps of S samples (_cumulative_lie.vjp): span parts `span`
+ * (80, p, U) contiguous, inverse (S,), weights (O, S, p), cot (S, k, O, 8) of strides cs[4]
+ * (the callers' are component-major views, the samples' stride 1: gathered a block of samples
+ * at a time), pose (S, 8), second (k,) 0/1: the rows whose cotangents of Xdd are read; out
+ * (S, k, p + 1, 6). Returns 0, or -1 where no scratch memory was had (nothing written). */
+int tdq_lie_vjp(const double *span, int64_t p, int64_t U, const int64_t *inverse, int64_t S,
+                const double *weights, int64_t O, const double *cot, const int64_t *cs,
+                int64_t k, const double *pose, const uint8_t *second, const double *even,
+                double *out) {
+    int64_t P = p * U, n = k * O * 8;
+    double *parts = malloc(sizeof(double) * (size_t)(80 * P + BLOCK * n));
+    if (!parts) return -1;
+    double *g = parts + 80 * P;
+    for (int64_t row = 0; row < 80; row++) /* span-major: a sample's parts in one stretch */
+        for (int64_t c = 0; c < P; c++) parts[(c % U * p + c / U) * 80 + row] = span[row * P + c];
+    for (int64_t s0 = 0; s0 < S; s0 += BLOCK) {
+        int64_t B = S - s0 < BLOCK ? S - s0 : BLOCK;
+        for (int64_t r = 0; r < k; r++)
+            for (int64_t o = 0; o < O; o++)
+                for (int c = 0; c < 8; c++) {
+                    const double *src = cot + s0 * cs[0] + r * cs[1] + o * cs[2] + c * cs[3];
+                    for (int64_t b = 0; b < B; b++) g[b * n + (r * O + o) * 8 + c] = src[b * cs[0]];
+                }
+        for (int64_t b = 0; b < B; b++) {
+            int64_t s = s0 + b;
+            double lam[3][MAXP];
+            for (int64_t o = 0; o < O; o++)
+                for (int64_t j = 0; j < p; j++) lam[o][j] = weights[(o * S + s) * p + j];
+            vjp_sample(p, O, k, parts + inverse[s] * p * 80, (const double (*)[MAXP])lam,
+                       g + b * n, pose + 8 * s, second, even, out + s * k * (p + 1) * 6);
+        }
+    }
+    free(parts);
+    return 0;
 }
 
 /* ------------------------------------------------------------------------------ evaluation */
