@@ -316,11 +316,14 @@ int tdq_lie_vjp(const double *span, int64_t p, int64_t U, const int64_t *inverse
                 int64_t k, const double *pose, const uint8_t *second, const double *even,
                 double *out) {
     int64_t P = p * U, n = k * O * 8;
+    if (S == 0) return 0;
     double *parts = malloc(sizeof(double) * (size_t)(80 * P + BLOCK * n));
     if (!parts) return -1;
     double *g = parts + 80 * P;
     for (int64_t row = 0; row < 80; row++) /* span-major: a sample's parts in one stretch */
-        for (int64_t c = 0; c < P; c++) parts[(c % U * p + c / U) * 80 + row] = span[row * P + c];
+        for (int64_t j = 0; j < p; j++)
+            for (int64_t u = 0; u < U; u++)
+                parts[(u * p + j) * 80 + row] = span[row * P + j * U + u];
     for (int64_t s0 = 0; s0 < S; s0 += BLOCK) {
         int64_t B = S - s0 < BLOCK ? S - s0 : BLOCK;
         for (int64_t r = 0; r < k; r++)
