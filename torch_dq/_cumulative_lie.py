@@ -47,6 +47,10 @@ times as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), whi
 keeps differentiating; both agree to rounding (``tests/test_perf9_cumulative_lie.py``, with
 an mpmath reference).
 
+Where the compiled kernels are built (``torch_dq._kernels.native``), :func:`vjp` and
+:func:`derivatives` run the same mathematics as one C loop over the samples
+(``torch_dq._kernels.lie_native``, ``csrc/cumulative_lie.c``); the code here is its reference.
+
 The readable reference is reverse mode through the span's evaluation
 (:meth:`torch_dq.nn.Curve.evaluate_span`, ``fitting._linearize``); the tests compare both
 with reverse mode through the public ``derivatives`` (``tests/test_span_jacobians.py``).
@@ -432,7 +436,8 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     Returns:
         ``(S, k, p + 1, 6)``: :math:`\sum_o \mathrm{cot}_o \cdot \partial X^{(o)} /
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
-        permuted view of a component-major array.
+        permuted view of a component-major array (contiguous from the compiled loop,
+        ``torch_dq._kernels.lie_native``, where it applies).
     """
     p, (S, k) = span.shape[1], cot.shape[:2]
     if lie_native.applies(p, span, inverse, cot, pose, *weights):  # the same, compiled

@@ -1,11 +1,11 @@
 """The cumulative form's vector-Jacobian products and evaluation in compiled C (private):
 ``csrc/cumulative_lie.c``, one loop over samples with everything per sample in local arrays,
-behind :func:`torch_dq._cumulative_lie.vjp` and :func:`torch_dq._cumulative_lie.derivatives`
-(the readable references, which run where :func:`applies` does not hold; the tests compare
+behind ``torch_dq._cumulative_lie.vjp`` and ``torch_dq._cumulative_lie.derivatives`` (the
+readable references, which run where :func:`applies` does not hold; the tests compare
 both, ``tests/test_native17_cumulative_lie.py``).
 
 The even functions' series coefficients and switch points are passed to the C from
-``torch_dq._numerics`` (:func:`_even_table`), so both paths take the same branch with the
+``torch_dq._numerics`` (``_even_table``), so both paths take the same branch with the
 same series.
 """
 
@@ -32,7 +32,7 @@ _EVENS = ("cos", "sinc", "se3_c1", "se3_c2")  # the C's rows EV_COS, EV_SINC, EV
 
 def applies(steps: int, *tensors: Tensor) -> bool:
     """Whether the compiled loops may run: the library is there
-    (:func:`torch_dq._kernels.native.enabled`: float64 CPU tensors, eager), at most
+    (``torch_dq._kernels.native.enabled``: float64 CPU tensors, eager), at most
     :data:`MAX_STEPS` steps, and no tensor records autograd (reverse mode goes through the
     PyTorch code)."""
     return (steps <= MAX_STEPS and native.enabled(*tensors)
@@ -64,8 +64,8 @@ def _even_table() -> Tensor:
 
 def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose: Tensor,
         second: slice | None) -> Tensor:
-    """:func:`torch_dq._cumulative_lie.vjp` (the same arguments) by the compiled loop:
-    ``(S, k, p + 1, 6)``, contiguous."""
+    """``torch_dq._cumulative_lie.vjp`` (the same arguments) by the compiled loop:
+    ``(S, k, p + 1, 6)``, contiguous (``cot`` read in place through its strides)."""
     p, U = span.shape[1], span[0].numel() // span.shape[1]
     S, k, O = cot.shape[:3]
     span, inverse, pose = (t.contiguous() for t in (span, inverse, pose))
@@ -87,8 +87,8 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
 
 def derivatives(ctrl: Tensor, first: Tensor, twists: Tensor, weights: list[Tensor],
                 ) -> list[Tensor]:
-    """:func:`torch_dq._cumulative_lie.derivatives` by the compiled loop, from the times'
-    span twists ``(6, p, N)`` (``_pair_twists``): ``order + 1`` tensors ``(N, 8)``."""
+    """``torch_dq._cumulative_lie.derivatives`` by the compiled loop, from the times' span
+    twists ``(6, p, N)`` (``_pair_twists``): ``order + 1`` tensors ``(N, 8)``."""
     p, N = twists.shape[1:]
     ctrl, first, twists = (t.contiguous() for t in (ctrl, first, twists))
     lam = torch.stack(weights)  # (O, p, N)
