@@ -68,7 +68,7 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     ``(S, k, p + 1, 6)``, contiguous (``cot`` read in place through its strides)."""
     p, U = span.shape[1], span[0].numel() // span.shape[1]
     S, k, O = cot.shape[:3]
-    span, inverse, pose = (t.contiguous() for t in (span, inverse, pose))
+    span, pose, inverse = span.contiguous(), pose.contiguous(), inverse.long().contiguous()
     strides = (ctypes.c_int64 * 4)(*cot.stride())  # read in place (the callers' are
     # component-major views: a copy would cost a fifth of the loop)
     lam = torch.stack(weights)  # (O, S, p)
@@ -76,10 +76,10 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
                  for i in range(k))
     out = cot.new_empty(S, k, p + 1, 6)
     table = _even_table()
-    failed = _functions()[0](native.address(span), p, U, native.address(inverse), S,
-                    native.address(lam), O, ctypes.c_void_p(cot.data_ptr()), strides, k,
-                    native.address(pose),
-                    rows, native.address(table), native.address(out))
+    failed = _functions()[0](
+        native.address(span), p, U, native.address(inverse), S, native.address(lam), O,
+        ctypes.c_void_p(cot.data_ptr()), strides, k, native.address(pose), rows,
+        native.address(table), native.address(out))
     if failed:
         raise MemoryError("torch_dq: no memory for the compiled vjp's scratch arrays")
     return out
@@ -90,7 +90,7 @@ def derivatives(ctrl: Tensor, first: Tensor, twists: Tensor, weights: list[Tenso
     """``torch_dq._cumulative_lie.derivatives`` by the compiled loop, from the times' span
     twists ``(6, p, N)`` (``_pair_twists``): ``order + 1`` tensors ``(N, 8)``."""
     p, N = twists.shape[1:]
-    ctrl, first, twists = (t.contiguous() for t in (ctrl, first, twists))
+    ctrl, first, twists = ctrl.contiguous(), first.long().contiguous(), twists.contiguous()
     lam = torch.stack(weights)  # (O, p, N)
     out = ctrl.new_empty(len(weights), N, 8)
     table = _even_table()

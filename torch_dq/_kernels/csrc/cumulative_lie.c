@@ -1,5 +1,5 @@
-/* The cumulative B-spline form in its Lie algebra, one loop over samples (torch_dq/_cumulative_lie.py
- * is the readable reference: the same mathematics, its formulas named per function below).
+/* The cumulative B-spline form in its Lie algebra, one loop over samples (the readable
+ * reference, the same mathematics: torch_dq/_cumulative_lie.py, its functions named below).
  *
  * Twists xi = (omega, v) are double[6]; a dual 3 x 3 matrix A + eps B acting on twists as
  * [[A, 0], [B, A]] is a `dmat` (row-major A, B); dual quaternions are double[8] (real, dual
