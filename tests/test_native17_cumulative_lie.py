@@ -5,12 +5,14 @@ the span tables' evaluation (the vjp) and a numpy formula of the even functions.
 
 from __future__ import annotations
 
+import math
+
 import mpmath as mp
 import pytest
 import torch
 
 import torch_dq.dualquat as dq
-from torch_dq import _cumulative_lie
+from torch_dq import _cumulative_lie, _numerics
 from torch_dq._kernels import lie_native, native
 from torch_dq.nn import BSpline
 
@@ -197,3 +199,35 @@ def test_even_functions_at_small_and_large_angles(monkeypatch, w):
             dq.exp(xi * 0.7), None)
     got = _cumulative_lie.vjp(*args)
     _close(got, _torch_path(monkeypatch, _cumulative_lie.vjp, *args), 1e-13)
+
+
+@pytest.mark.parametrize("name", ["cos", "sinc", "se3_c1", "se3_c2"])
+@pytest.mark.parametrize("side", [1 - 1e-9, 1 + 1e-9])
+def test_switch_points_as_torch(monkeypatch, name, side):
+    """Twists whose squared angle lies just below and above an even function's switch point
+    (``_numerics.threshold("even_series", ...)``, 1e-9 relative either side): the compiled
+    evaluation and vjp give the PyTorch numbers, and the pose mpmath's."""
+    mp.mp.dps = 40
+    coeffs = _numerics._EVEN[name][0]
+    x2 = _numerics.threshold("even_series", F64, coeffs[-1]) * side
+    lam = 0.7
+    theta = math.sqrt(x2 * (4.0 if name == "cos" else 1.0)) / lam  # cos is read at theta / 2
+    axis = torch.tensor([0.48, -0.6, 0.64], dtype=F64)
+    xi = torch.cat((theta * axis, torch.tensor([0.3, -0.2, 0.1], dtype=F64)))[None]
+    pts = torch.stack((dq.exp(torch.zeros(1, 6, dtype=F64)), dq.exp(xi)), 1)
+    w = [torch.tensor([[lam]], dtype=F64), torch.tensor([[1.3]], dtype=F64),
+         torch.tensor([[-0.4]], dtype=F64)]
+    first = torch.zeros(1, dtype=torch.int64)
+    got = _cumulative_lie.derivatives(pts[0], first, w)
+    ref = _torch_path(monkeypatch, _cumulative_lie.derivatives, pts[0], first, w)
+    for a, b in zip(got, ref, strict=True):
+        _close(a, b, 1e-14, floor=1.0)
+    d = _cumulative_lie.span_parts(pts)[:6, 0, 0]
+    exact = _mp_exp([mp.mpf(lam) * mp.mpf(float(x)) for x in d])
+    assert float((got[0][0] - torch.tensor([float(x) for x in exact], dtype=F64)).abs().max()) \
+        < 4e-16
+    cot = torch.randn(1, 2, 3, 8, generator=torch.Generator().manual_seed(1), dtype=F64)
+    args = (_cumulative_lie.span_parts(pts), first, [x.T for x in w], cot, dq.exp(xi * lam),
+            None)
+    _close(_cumulative_lie.vjp(*args), _torch_path(monkeypatch, _cumulative_lie.vjp, *args),
+           1e-13)
