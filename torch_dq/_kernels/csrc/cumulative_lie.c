@@ -231,7 +231,7 @@ static void algebra_cotangents(const double *X, const double *V, const double *V
             a[1][3 + i] -= u[4] * V[i];
         }
     }
-    for (int o = 0; o < (O > 2 && sec ? 3 : O); o++)
+    for (int o = 0; o < (O > 2 && !sec ? 2 : O); o++) /* of Vd only the rows `second` */
         for (int i = 0; i < 6; i++) a[o][i] *= 0.5;
 }
 
