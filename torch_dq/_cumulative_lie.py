@@ -47,6 +47,10 @@ times as fast as the span tables (:mod:`torch_dq._kernels.cumulative_jets`), whi
 keeps differentiating; both agree to rounding (``tests/test_perf9_cumulative_lie.py``, with
 an mpmath reference).
 
+Where the compiled kernels are built (``torch_dq._kernels.native``), :func:`vjp` and
+:func:`derivatives` run the same mathematics as one C loop over the samples
+(``torch_dq._kernels.lie_native``, ``csrc/cumulative_lie.c``); the code here is its reference.
+
 The readable reference is reverse mode through the span's evaluation
 (:meth:`torch_dq.nn.Curve.evaluate_span`, ``fitting._linearize``); the tests compare both
 with reverse mode through the public ``derivatives`` (``tests/test_span_jacobians.py``).
@@ -59,6 +63,7 @@ from torch import Tensor
 
 from . import dualquat
 from ._core import dq_mul
+from ._kernels import lie_native
 from ._numerics import even_slopes, evens
 
 __all__ = ["applies", "derivatives", "right_jacobian_inverse", "span_parts", "vjp"]
@@ -431,9 +436,12 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
     Returns:
         ``(S, k, p + 1, 6)``: :math:`\sum_o \mathrm{cot}_o \cdot \partial X^{(o)} /
         \partial \delta_i` for the right steps :math:`c_i \mathrm{Exp}(\delta_i)`; a
-        permuted view of a component-major array.
+        permuted view of a component-major array (contiguous from the compiled loop,
+        ``torch_dq._kernels.lie_native``, where it applies).
     """
     p, (S, k) = span.shape[1], cot.shape[:2]
+    if lie_native.applies(p, span, inverse, cot, pose, *weights):  # the same, compiled
+        return lie_native.vjp(span, inverse, weights, cot, pose, second)
     span = span.view(80, -1)  # (80, p U): column j U + u of step j, span u
     at = torch.arange(0, span.shape[1], span.shape[1] // p, device=inverse.device)
     steps = cot.new_empty(p + 1, 6, k, S)
@@ -638,6 +646,8 @@ def derivatives(ctrl: Tensor, first: Tensor, weights: list[Tensor]) -> list[Tens
         ``order + 1`` tensors ``(N, 8)``.
     """
     d = _pair_twists(ctrl, first, weights[0].shape[0])  # (6, p, N)
+    if lie_native.applies(d.shape[1], ctrl, first, d, *weights):  # the same, compiled
+        return lie_native.derivatives(ctrl, first, d, weights)
     x2 = weights[0] * weights[0] * (d[:3] * d[:3]).sum(0)
     sig, alp, bet = even_slopes(("sinc", "se3_c1", "se3_c2"), x2)
     E = _exp_rows(d * weights[0], x2, alp[0], bet[0])

@@ -22,6 +22,9 @@ runs each against its reference over random and degenerate inputs.
 - :mod:`.sincos`: the dual sine and cosine (reference: :func:`torch_dq.dual._sincos`).
 - :mod:`.jet_sclerp`, :mod:`.jet_pyramid`: eq. 11 and the triangular scheme on Taylor jets
   (the weights' op :class:`.jet_sclerp._WeightJets`; jet arithmetic: :mod:`torch_dq._taylor`).
+- :mod:`.native`, :mod:`.lie_native`: the optional compiled C loops (``csrc``, through
+  :mod:`ctypes`): the cumulative form's vjp and evaluation in its Lie algebra (reference:
+  ``torch_dq._cumulative_lie``).
 
 Every public function chooses between kernel and reference the same way
 (:mod:`torch_dq._dispatch`); the helpers of the custom ops are in :mod:`torch_dq._autograd`.
