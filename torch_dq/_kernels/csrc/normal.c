@@ -102,9 +102,9 @@ static void rows(const struct dims *d, int64_t s0, int64_t B, const int64_t *st,
 /* A (q x p; its upper triangle, and some entries below it) += Y^T Y of the k rows Y (k x
  * p), up to three rows at a time (a row of A read and written once per three rows), four
  * columns at a time from the diagonal's vector on. */
-#if defined(__x86_64__) && defined(__GNUC__) && defined(__linux__)
-/* a clone for AVX2 and FMA, chosen at load time where the processor has them (the build's
- * flags target the baseline x86-64) */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__)
+/* a clone for AVX and FMA, chosen at load time where the processor has them (the build's
+ * flags target the baseline x86-64; GCC's ifunc dispatch, glibc's loader) */
 __attribute__((target_clones("fma", "default")))
 #endif
 static void gram(int64_t q, int64_t p, int64_t k, const double *restrict Y,
