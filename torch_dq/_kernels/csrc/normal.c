@@ -99,41 +99,47 @@ static void rows(const struct dims *d, int64_t s0, int64_t B, const int64_t *st,
     }
 }
 
-/* A (q x p; its upper triangle, and some entries below it) += Y^T Y of the k rows Y (k x
- * p), up to three rows at a time (a row of A read and written once per three rows), four
- * columns at a time from the diagonal's vector on. */
+/* A (q x p; its upper triangle, and some entries below it) += Y^T Y of n rows Y (n x p),
+ * four columns at a time from the diagonal's vector on (n constant where inlined: the
+ * rows' sum in registers, a row of A read and written once per n rows). */
+static inline __attribute__((always_inline)) void
+rank_update(int n, int64_t q, int64_t p, const double *restrict Y, double *restrict A)
+{
+    for (int64_t i = 0; i < q; i++) {
+        double *restrict Ai = A + i * p;
+        double a[6];
+        for (int l = 0; l < n; l++)
+            a[l] = Y[l * p + i];
+        for (int64_t j = i & ~(int64_t)3; j < p; j += 4)
+            for (int t = 0; t < 4; t++) {
+                double sum = Ai[j + t];
+                for (int l = 0; l < n; l++)
+                    sum += a[l] * Y[l * p + j + t];
+                Ai[j + t] = sum;
+            }
+    }
+}
+
+/* A += Y^T Y of the R rows Y (R x p): six rows at a time, then the rest. */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__)
 /* a clone for AVX and FMA, chosen at load time where the processor has them (the build's
  * flags target the baseline x86-64; GCC's ifunc dispatch, glibc's loader) */
 __attribute__((target_clones("fma", "default")))
 #endif
-static void gram(int64_t q, int64_t p, int64_t k, const double *restrict Y,
+static void gram(int64_t q, int64_t p, int64_t R, const double *restrict Y,
                  double *restrict A)
 {
-    for (int64_t l = 0; l < k; l += 3) {
-        const double *y0 = Y + l * p, *y1 = y0 + p, *y2 = y0 + 2 * p;
-        const int64_t nl = k - l < 3 ? k - l : 3;
-        for (int64_t i = 0; i < q; i++) {
-            double *restrict Ai = A + i * p;
-            const double a0 = y0[i];
-            const int64_t j0 = i & ~(int64_t)3;
-            if (nl == 3) {
-                const double a1 = y1[i], a2 = y2[i];
-                for (int64_t j = j0; j < p; j += 4)
-                    for (int t = 0; t < 4; t++)
-                        Ai[j + t] += a0 * y0[j + t] + a1 * y1[j + t] + a2 * y2[j + t];
-            } else if (nl == 2) {
-                const double a1 = y1[i];
-                for (int64_t j = j0; j < p; j += 4)
-                    for (int t = 0; t < 4; t++)
-                        Ai[j + t] += a0 * y0[j + t] + a1 * y1[j + t];
-            } else {
-                for (int64_t j = j0; j < p; j += 4)
-                    for (int t = 0; t < 4; t++)
-                        Ai[j + t] += a0 * y0[j + t];
-            }
-        }
+    int64_t l = 0;
+    for (; l + 6 <= R; l += 6)
+        rank_update(6, q, p, Y + l * p, A);
+    if (R - l >= 3) {
+        rank_update(3, q, p, Y + l * p, A);
+        l += 3;
     }
+    if (R - l == 2)
+        rank_update(2, q, p, Y + l * p, A);
+    else if (R - l == 1)
+        rank_update(1, q, p, Y + l * p, A);
 }
 
 /* flush of window rel + lo's sum A to the destination sets out (one or two). */
@@ -164,14 +170,16 @@ int tdq_normal_add(const int64_t *dims, const int64_t *win, const int64_t *local
     for (int64_t s0 = 0; s0 < d.S; s0 += BLOCK) {
         const int64_t B = d.S - s0 < BLOCK ? d.S - s0 : BLOCK;
         rows(&d, s0, B, st, jc, jn, r, wt, win, local, gcol, Y);
-        for (int64_t b = 0; b < B; b++) {
+        for (int64_t b = 0, e; b < B; b = e) { /* a run of samples of one window */
             if (win[s0 + b] != cur) {
                 if (cur >= 0)
                     add(&d, A, cur, gcol, out);
                 memset(A, 0, sizeof(double) * (size_t)(q * p));
                 cur = win[s0 + b];
             }
-            gram(q, p, k, Y + b * k * p, A);
+            for (e = b + 1; e < B && win[s0 + e] == cur; e++)
+                ;
+            gram(q, p, (e - b) * k, Y + b * k * p, A);
         }
     }
     if (cur >= 0)
