@@ -3,7 +3,7 @@ window by window (private): each window's blocks :math:`\sum_i Y_i^T Y_i` of its
 whitened rows ``Y = [J_c | J_n | r]`` by batched matrix products (:func:`_window_normal`),
 scattered into the control-point band, the coupling and the nuisance blocks
 (:class:`_Normal`), the :class:`System` they make. Where the compiled kernels run
-(``torch_dq._kernels.native``), :meth:`_Normal.add_samples` sums the samples' rows into the
+(``torch_dq._kernels.native``), ``_Normal.add_samples`` sums the samples' rows into the
 same blocks in one pass over the samples instead (``csrc/normal.c``: no rows, pages or
 window blocks in memory); the PyTorch path stays the reference it is tested against."""
 
