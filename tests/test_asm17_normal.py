@@ -11,7 +11,7 @@ import torch
 from test_shared_spans import FIELDS, _job
 
 from torch_dq._kernels import native
-from torch_dq.fitting._normal import _Normal, _window_normal, compiled
+from torch_dq.fitting._normal import _Normal, _window_normal
 
 F64 = torch.float64
 pytestmark = pytest.mark.skipif(native.library() is None,
@@ -72,7 +72,7 @@ def _compiled(c, Bf, n, w, m, terms=1, term=-1, strided=False):
         Jc = Jc.permute(1, 2, 3, 0).contiguous().permute(3, 0, 1, 2)
         Jn = torch.cat((Jn, Jn), -1)[..., :Jn.shape[-1]]
         r = r.T.contiguous().T
-    assert compiled(Jc, Jn, r, t["wt"])
+    assert native.enabled(Jc, Jn, r, t["wt"])
     acc.add_samples(t["keys"] - c["lo"], c["lo"], Jc, Jn, r, t["wt"], t["local"],
                     t["gcols"].masked_fill(~torch.from_numpy(c["valid"]), -1), term)
     return acc
@@ -169,9 +169,11 @@ def test_compiled_rejects_mismatched_rows():
 
 def test_not_compiled_where_a_gradient_is_needed_or_not_float64():
     x = torch.zeros(3, dtype=F64)
-    assert compiled(x)
-    assert not compiled(x.requires_grad_())
-    assert not compiled(torch.zeros(3, dtype=torch.float32))
+    assert native.enabled(x, torch.zeros(2, dtype=torch.int64))
+    assert not native.enabled(x.requires_grad_())
+    with torch.no_grad():
+        assert native.enabled(x)
+    assert not native.enabled(torch.zeros(3, dtype=torch.float32))
 
 
 @pytest.mark.parametrize("robust", [True, False])

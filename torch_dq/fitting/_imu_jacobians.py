@@ -60,7 +60,7 @@ def gyro_rows(x: Tensor, dx: Tensor) -> Tensor:
     N, 8)`` (module doc: :math:`\partial_{\dot r} = 2 r e_j`, :math:`\partial_r = 2 C(e_j
     \dot r^*) = -2 \dot r e_j`; the dual parts and the sigmas left to the caller: zero,
     1); component-major in memory (``(3, 2, 8, ...)`` permuted, as :func:`accel_rows`)."""
-    if _compiled(x, dx):
+    if native.enabled(x, dx):
         out = x.new_empty(3, 2, 8, *x.shape[:-1])
         S = out[0, 0, 0].numel()
         xs, dxs = _samples(x), _samples(dx)
@@ -103,7 +103,7 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     rows (``(3, 6, 4, N)``, returned as a permuted view: the span's vector-Jacobian
     products read them component-major), and :math:`\partial_r` adds :math:`-2 U r e_j`."""
     lead = x.shape[:-1]
-    if _compiled(x, dx, ddx, gravity):
+    if native.enabled(x, dx, ddx, gravity):
         S = lead.numel()
         rows, toward = x.new_empty(72, S), x.new_empty(3, 3, S)
         g = _samples(gravity.expand(*lead, 3))
@@ -134,13 +134,6 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     out[:, :, 0] += _times_units(p.T, -2.0).permute(2, 1, 0)
     return (rows.view(72, -1).T.view(*lead, 3, 3, 8),
             (-0.5 * h).permute(2, 1, 0).reshape(*lead, 3, 3))
-
-
-def _compiled(*tensors: Tensor) -> bool:
-    """Whether the compiled rows may run on ``tensors`` (``native.enabled``, none needing a
-    gradient)."""
-    return native.enabled(*tensors) and not (
-        torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
 
 
 def _samples(x: Tensor) -> Tensor:

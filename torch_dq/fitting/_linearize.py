@@ -34,9 +34,10 @@ from torch import Tensor
 
 from .._core import distinct
 from .._curve import span_points
+from .._kernels import native
 from . import _robust
 from ._local import sample_jacobians, tangent_step
-from ._normal import System, _Normal, _window_normal, compiled
+from ._normal import System, _Normal, _window_normal
 
 __all__ = ["Linearization", "Memo", "System", "group_residuals", "residuals"]
 
@@ -254,7 +255,7 @@ class Linearization:
             lo, hi = torch.stack(torch.aminmax(keys)).tolist() if keys.numel() else (0, 0)
             rel = keys - lo
             local, gcols, valid = self._columns(i, Jn, rel, hi - lo + 1)
-            if compiled(r, wt, Jc, acc.band, *Jn.values()):  # one pass, no rows in memory
+            if native.enabled(r, wt, Jc, acc.band, *Jn.values()):  # one pass, no rows kept
                 acc.add_samples(rel.reshape(-1), lo, *self._flat(r, wt, Jc, Jn), local,
                                 gcols.masked_fill(~valid, -1), i)
                 out.append((r, wt))

@@ -98,7 +98,7 @@ class _Normal:
                     local: Tensor, gcols: Tensor, term: int = -1) -> None:
         r"""What ``add`` adds of ``_window_normal``'s blocks of the rows ``sqrt(wt) [J_c |
         J_n | r]``, summed sample by sample by the compiled kernel (``tdq_normal_add``;
-        where ``compiled`` holds): sample ``s`` of window ``rel[s] + lo`` (``rel (S,)``),
+        where ``native.enabled`` holds): sample ``s`` of window ``rel[s] + lo`` (``rel (S,)``),
         its rows ``Jc (S, k, w, 6)``, ``Jn (S, k, Mt)`` (the term's nuisance columns), ``r
         (S, k)``, robust weight ``wt (S,)`` (any strides: read as they lie); window ``u``'s
         nuisance columns are the term's ``local[u] (M,)``, the problem's ``gcols[u]`` (-1:
@@ -164,13 +164,6 @@ def _library() -> ctypes.CDLL:
     lib.tdq_normal_add.argtypes = [ctypes.c_void_p] * 9
     lib.tdq_normal_add.restype = ctypes.c_int
     return lib
-
-
-def compiled(*tensors: Tensor) -> bool:
-    """Whether ``_Normal.add_samples`` may sum the rows ``tensors`` (and the blocks): the
-    compiled kernels may run on them (``native.enabled``) and none needs a gradient."""
-    return native.enabled(*tensors) and not (
-        torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
 
 
 def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
