@@ -3,9 +3,11 @@ on ``bench_gtsam.py``'s 60 s IMU + poses job, one thread, process CPU time: one
 Gauss-Newton system (``Problem.system`` at the start) and a whole ``estimate`` + ``std``
 of both biases, the minimum over ``--repeats`` of each; then the largest relative
 differences of the systems' blocks and of the estimated biases and their standard
-deviations between the two.
+deviations between the two. ``--alone``: ``estimate`` + ``std`` only, as the environment
+sets ``TORCH_DQ_NATIVE`` (one process per setting: no heap shared by the two paths).
 
     python benchmarks/native_ab.py --repeats 6
+    for f in 1 0 1 0; do TORCH_DQ_NATIVE=$f python benchmarks/native_ab.py --alone; done
 """
 
 from __future__ import annotations
@@ -48,13 +50,27 @@ def _rel(a, b) -> float:
     return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300)) if b.size else 0.0
 
 
+def _alone(job: dict, repeats: int) -> None:
+    """``estimate`` + ``std`` ``repeats`` times, warm: their mean and least CPU time."""
+    bg.torch_dq_run(bg.make_job(10.0))
+    bg.torch_dq_run(job)
+    cpu = [float(solve[1] + unc[1]) for _, solve, unc, _, _ in
+           (bg.torch_dq_run(job) for _ in range(repeats))]
+    print(f"TORCH_DQ_NATIVE={os.environ.get('TORCH_DQ_NATIVE', '1')}: estimate + std "
+          f"mean {np.mean(cpu):.3f} s, min {min(cpu):.3f} s of {repeats} (process CPU)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=6)
+    ap.add_argument("--alone", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(1)
     bg.CLOCK = 1
     job = bg._job(60.0)
+    if args.alone:
+        _alone(job, args.repeats)
+        return
     problem, ctrl, values, w = _system_inputs(job)
     kept: list = []
     sigmas = bg._sigmas
