@@ -379,6 +379,7 @@ _PHASES = [  # (module, attribute, label) of the solver's phases (private: skipp
     ("_linearize", "Linearization._through_spans", "  reverse passes through the spans"),
     ("_linearize", "sample_jacobians", "  residual Jacobians w.r.t. span derivatives"),
     ("_linearize", "_window_normal", "  assembly of the banded normal equations"),
+    ("_normal", "_Normal.add_samples", "  assembly of the banded normal equations (compiled)"),
     ("_problem", "Problem.data_cost", "trial costs (span path)"),
     ("_solver", "DampedStep.step", "damped solves (banded Cholesky + Schur)"),
     ("_lm", "LevenbergMarquardt._prior_gradient", "prior gradients"),

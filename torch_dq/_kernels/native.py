@@ -43,11 +43,13 @@ def library() -> ctypes.CDLL | None:
 
 def enabled(*tensors: Tensor) -> bool:
     """Whether the compiled kernels may run on ``tensors``: the library is there, every
-    tensor is float64 (or an integer index) on the CPU, and nothing is traced or compiled."""
+    tensor is float64 (or an integer index) on the CPU, nothing is traced or compiled, and
+    none needs a gradient (autograd recording and a tensor that requires one)."""
     return (library() is not None and not torch.compiler.is_compiling()
             and all(t.device.type == "cpu"
                     and (t.dtype == torch.float64 or not t.is_floating_point())
-                    for t in tensors))
+                    for t in tensors)
+            and not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)))
 
 
 def address(t: Tensor) -> ctypes.c_void_p:

@@ -25,12 +25,21 @@ with :math:`e_j`). The rows are the cotangents of :math:`e_j` (divided by the si
 Both hold on unit dual quaternions and their derivatives, where they equal the residual
 code's formulas (:mod:`torch_dq._kinematics`); the Jacobians chained through the spans are
 then the same (``tests/test_term_jacobians.py`` compares them).
+
+Where the compiled kernels run (``torch_dq._kernels.native``), the rows are computed sample
+by sample in C (``csrc/imu_rows.c``: the same formulas, no per-component temporaries); the
+PyTorch code here is the reference they are tested against.
 """
 
 from __future__ import annotations
 
+import ctypes
+from functools import cache
+
 import torch
 from torch import Tensor
+
+from .._kernels import native
 
 __all__ = ["accel_rows", "gyro_rows"]
 
@@ -51,6 +60,12 @@ def gyro_rows(x: Tensor, dx: Tensor) -> Tensor:
     N, 8)`` (module doc: :math:`\partial_{\dot r} = 2 r e_j`, :math:`\partial_r = 2 C(e_j
     \dot r^*) = -2 \dot r e_j`; the dual parts and the sigmas left to the caller: zero,
     1); component-major in memory (``(3, 2, 8, ...)`` permuted, as :func:`accel_rows`)."""
+    if native.enabled(x, dx):
+        out = x.new_empty(3, 2, 8, *x.shape[:-1])
+        S = out[0, 0, 0].numel()
+        xs, dxs = _samples(x), _samples(dx)
+        _library().tdq_gyro_rows(S, *_at(xs), *_at(dxs), native.address(out))
+        return out.movedim((0, 1, 2), (-3, -2, -1))
     out = x.new_zeros(3, 2, 8, *x.shape[:-1]).movedim((0, 1, 2), (-3, -2, -1))
     q = torch.stack((dx[..., :4], x[..., :4]), -2)  # (..., N, 2, 4)
     scale = x.new_tensor([-2.0, 2.0])[:, None, None]
@@ -88,6 +103,14 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     rows (``(3, 6, 4, N)``, returned as a permuted view: the span's vector-Jacobian
     products read them component-major), and :math:`\partial_r` adds :math:`-2 U r e_j`."""
     lead = x.shape[:-1]
+    if native.enabled(x, dx, ddx, gravity):
+        S = lead.numel()
+        rows, toward = x.new_empty(72, S), x.new_empty(3, 3, S)
+        g = _samples(gravity.expand(*lead, 3))
+        _library().tdq_accel_rows(S, *_at(_samples(x)), *_at(_samples(dx)),
+                                  *_at(_samples(ddx)), *_at(g), native.address(rows),
+                                  native.address(toward))
+        return rows.T.view(*lead, 3, 3, 8), toward.permute(2, 0, 1).reshape(*lead, 3, 3)
     X = torch.cat((x, dx, ddx), -1).reshape(-1, 24).T.contiguous()
     r, d, rd, dd, rdd, ddd = X.view(6, 4, -1)
     h = _rotation(r)  # (3 i, 3 j, N): h_j = 2 R e_j
@@ -111,3 +134,28 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     out[:, :, 0] += _times_units(p.T, -2.0).permute(2, 1, 0)
     return (rows.view(72, -1).T.view(*lead, 3, 3, 8),
             (-0.5 * h).permute(2, 1, 0).reshape(*lead, 3, 3))
+
+
+def _samples(x: Tensor) -> Tensor:
+    """``x (..., c)`` as ``(S, c)`` with unit component stride (a view where it can be)."""
+    x = x.reshape(-1, x.shape[-1])
+    return x if x.stride(-1) == 1 else x.contiguous()
+
+
+def _at(x: Tensor) -> tuple[ctypes.c_void_p, int]:
+    """The address of ``(S, c)`` rows of unit component stride and their sample stride."""
+    return ctypes.c_void_p(x.data_ptr()), x.stride(0)
+
+
+@cache
+def _library() -> ctypes.CDLL:
+    """The compiled library, ``tdq_gyro_rows``' and ``tdq_accel_rows``' argument types
+    declared."""
+    lib = native.library()
+    if lib is None:
+        raise RuntimeError("the compiled kernels are not available")
+    p, i = ctypes.c_void_p, ctypes.c_int64
+    lib.tdq_gyro_rows.argtypes = [i, p, i, p, i, p]
+    lib.tdq_accel_rows.argtypes = [i, p, i, p, i, p, i, p, i, p, p]
+    lib.tdq_gyro_rows.restype = lib.tdq_accel_rows.restype = None
+    return lib

@@ -34,6 +34,7 @@ from torch import Tensor
 
 from .._core import distinct
 from .._curve import span_points
+from .._kernels import native
 from . import _robust
 from ._local import sample_jacobians, tangent_step
 from ._normal import System, _Normal, _window_normal
@@ -254,6 +255,11 @@ class Linearization:
             lo, hi = torch.stack(torch.aminmax(keys)).tolist() if keys.numel() else (0, 0)
             rel = keys - lo
             local, gcols, valid = self._columns(i, Jn, rel, hi - lo + 1)
+            if native.enabled(r, wt, Jc, acc.band, *Jn.values()):  # one pass, no rows kept
+                acc.add_samples(rel.reshape(-1), lo, *self._flat(r, wt, Jc, Jn), local,
+                                gcols.masked_fill(~valid, -1), i)
+                out.append((r, wt))
+                continue
             # every sample's window takes all the term's columns, in order: none selected
             plain = (local.shape[-1] == sum(J.shape[-1] for J in Jn.values())
                      and bool(valid[rel].all()))
@@ -315,6 +321,20 @@ class Linearization:
                       valid[:, :, None, :], out=out[..., 6 * w:-1]).mul_(sw)
         torch.mul(r.expand(*p.batch, S, k).reshape(Bf, S, k), sw[..., 0], out=out[..., -1])
         return out
+
+    def _flat(self, r: Tensor, wt: Tensor, Jc: Tensor, Jn: dict[str, Tensor],
+              ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """``Jc (Bf N, k, w, 6)``, the nuisance columns ``(Bf N, k, Mt)`` (the term's, in
+        order), ``r (Bf N, k)`` and ``wt (Bf N,)``: the batch's samples in a row, views
+        where they can be (``_Normal.add_samples`` reads them by their strides)."""
+        batch, (N, k) = self.p.batch, r.shape[-2:]
+        S = max(batch.numel(), 1) * N
+        own = [J.expand(*batch, N, k, J.shape[-1]) for J in Jn.values()]
+        Jnc = own[0] if len(own) == 1 else (torch.cat(own, -1) if own
+                                             else r.new_zeros(*batch, N, k, 0))
+        return (Jc.expand(*batch, *Jc.shape[-4:]).reshape(S, *Jc.shape[-3:]),
+                Jnc.reshape(S, k, Jnc.shape[-1]), r.expand(*batch, N, k).reshape(S, k),
+                wt.expand(*batch, N).reshape(S))
 
     def _windows(self, f0: Tensor, w: int) -> Tensor:
         """``(Bf, N)`` window ids ``b (n + w) + f0`` of the samples' window starts ``f0``."""

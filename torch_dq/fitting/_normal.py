@@ -2,14 +2,21 @@ r"""The normal equations of :class:`~torch_dq.fitting._linearize.Linearization`,
 window by window (private): each window's blocks :math:`\sum_i Y_i^T Y_i` of its samples'
 whitened rows ``Y = [J_c | J_n | r]`` by batched matrix products (:func:`_window_normal`),
 scattered into the control-point band, the coupling and the nuisance blocks
-(:class:`_Normal`), the :class:`System` they make."""
+(:class:`_Normal`), the :class:`System` they make. Where the compiled kernels run
+(``torch_dq._kernels.native``), ``_Normal.add_samples`` sums the samples' rows into the
+same blocks in one pass over the samples instead (``csrc/normal.c``: no rows, pages or
+window blocks in memory); the PyTorch path stays the reference it is tested against."""
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
+from functools import cache
 
 import torch
 from torch import Tensor
+
+from .._kernels import native
 
 __all__ = ["System"]
 
@@ -87,6 +94,32 @@ class _Normal:
                            block[:, nuis, nuis].reshape(-1))
         self.gn.index_add_(0, row.reshape(-1), block[:, nuis, -1].reshape(-1))
 
+    def add_samples(self, rel: Tensor, lo: int, Jc: Tensor, Jn: Tensor, r: Tensor, wt: Tensor,
+                    local: Tensor, gcols: Tensor, term: int = -1) -> None:
+        r"""What ``add`` adds of ``_window_normal``'s blocks of the rows ``sqrt(wt) [J_c |
+        J_n | r]``, summed sample by sample by the compiled kernel (``tdq_normal_add``;
+        where ``native.enabled`` holds): sample ``s`` of window ``rel[s] + lo`` (``rel (S,)``),
+        its rows ``Jc (S, k, w, 6)``, ``Jn (S, k, Mt)`` (the term's nuisance columns), ``r
+        (S, k)``, robust weight ``wt (S,)`` (any strides: read as they lie); window ``u``'s
+        nuisance columns are the term's ``local[u] (M,)``, the problem's ``gcols[u]`` (-1:
+        none). The samples need not be sorted (a window's samples in a row are summed
+        before they are added)."""
+        S, k = r.shape
+        if Jc.shape != (S, k, self.w, 6) or Jn.shape[:2] != (S, k) or wt.shape != (S,):
+            raise ValueError(f"_Normal.add_samples: rows of {S} samples of {k} expected, got "
+                             f"{tuple(Jc.shape)}, {tuple(Jn.shape)}, {tuple(wt.shape)}")
+        if not S:
+            return
+        dims = torch.tensor([S, k, self.w, local.shape[-1], self.m, self.n + self.w, lo,
+                             *Jc.stride(), *Jn.stride(), *r.stride(), *wt.stride()])
+        index = [x.to(torch.int64).contiguous() for x in (rel, local, gcols)]
+        sets = [self, *self.own[term:term + 1]] if term >= 0 else [self]
+        out = [x.data_ptr() for acc in sets for x in (acc.band, acc.gc, acc.cn, acc.nn, acc.gn)]
+        if _library().tdq_normal_add(*(native.address(x) for x in (dims, *index)),
+                                     (ctypes.c_void_p * 10)(*out),
+                                     *(ctypes.c_void_p(x.data_ptr()) for x in (Jc, Jn, r, wt))):
+            raise MemoryError("_Normal.add_samples: no memory for a window's accumulator")
+
     def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> bool:
         """``add`` of the consecutive windows ``f, f + 1, ...``: a row's blocks added to a
         slice of the band at once, ``g_c`` (and the coupling, where every window takes
@@ -119,6 +152,18 @@ class _Normal:
         gc = self.gc.reshape(self.Bf, self.n + self.w, 6)[:, :self.n]
         return System(band, cn, nn, gc, self.gn.reshape(self.Bf, self.m), rs, weights,
                       [o.blocks() for o in self.own])
+
+
+@cache
+def _library() -> ctypes.CDLL:
+    """The compiled library, ``tdq_normal_add``'s argument types declared (the rows by
+    address, not ``native.address``: they are read by their strides)."""
+    lib = native.library()
+    if lib is None:
+        raise RuntimeError("the compiled kernels are not available")
+    lib.tdq_normal_add.argtypes = [ctypes.c_void_p] * 9
+    lib.tdq_normal_add.restype = ctypes.c_int
+    return lib
 
 
 def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
