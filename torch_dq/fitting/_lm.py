@@ -43,10 +43,6 @@ _BOUND_SLOW = 1e-3  # a step lowering the objective by at most this much relativ
 # offset held on its bound (descent outwards): two in a row stop it, the data put it further
 # (a truth 0.05 s past the bound crept 50 steps at 1e-3 to 1e-5 a step, unconverged)
 _LOOSE = 100.0  # the second regularisation of the scaled gradient test (times REGULARISE)
-_FAR = 1.0  # Newton decrement, the pulls released, above which a pulled convergence is far
-# from the data's optimum (a standard deviation of some quantity): the iteration goes on
-# released (LevenbergMarquardt._far)
-_RELEASED = 1e-2  # decrement of a released element that stalls: the optimum within 0.1 std
 
 
 @dataclass
@@ -123,8 +119,6 @@ class LevenbergMarquardt:
         self.p, self.start, self.solver = problem, ctrl, solver
         self.anchor, self.prior = values, prior
         self.batch, self.Bf, self.n = problem.batch, max(problem.batch.numel(), 1), problem.spans.n
-        # the elements whose control points' pulls are released (:meth:`_far`)
-        self.released = torch.zeros(self.Bf, dtype=torch.bool, device=ctrl.device)
         self.w = problem.width(values)
         memo = Memo()
         data = torch.stack(problem.data_cost(ctrl, values, memo)).sum(0)
@@ -165,10 +159,7 @@ class LevenbergMarquardt:
         # not: its information sets the typical level, and the poses that alone see the ends
         # of its record were judged against it (pulled to a far start: 190 sigmas off)
         relative = bool(p.params) or any(t.order >= 1 for t in p.terms)
-        cpull = _prior.control_pull(data.band, prior, relative, bool(self.released.all()))
-        if bool(self.released.any()) and not bool(self.released.all()):
-            cpull = torch.where(self.released[:, None, None, None, None],
-                                _prior.control_pull(data.band, prior, relative, True), cpull)
+        cpull = _prior.control_pull(data.band, prior, relative)
         del data  # (memory: a second band while the pulls are found)
         info = torch.diag(p.prior_information().to(s.nn))
         reg = _prior.Regularised(s.band, cpull)
@@ -370,16 +361,9 @@ class LevenbergMarquardt:
         that stalled (its last accepted step lowered the objective by at most ``tol``
         relatively) or, with ``final``, ran out of steps, stops unconverged."""
         dec, ok = self._decrement()
+        self.decrement = torch.where(self.active, dec, self.decrement)
         thr = tol * torch.maximum(self.point.objective.reshape(self.Bf), _EXACT * self.count)
         good = self.active & ok & torch.isfinite(dec) & (dec <= thr)
-        if bool((good & self._held()).any()):  # passed with pulled directions left out
-            far, released = self._far(good & self._held())
-            good &= ~far
-            dec = torch.where(far, released, dec)
-        # released: a stall or the last step within _RELEASED of the optimum converged
-        near = self.released & ok & torch.isfinite(dec) & (dec <= _RELEASED)
-        good |= self.active & near & (self.stalled | final)
-        self.decrement = torch.where(self.active, dec, self.decrement)
         held = self.active & self.slow & self._outward(self.gradient()[1]).any(-1)
         self.on_bound = torch.where(held, self.on_bound + 1, 0)
         bound = ~good & (self.on_bound >= 2)
@@ -402,48 +386,6 @@ class LevenbergMarquardt:
                 self.reasons[b] = f"steps reached before convergence ({what})"
         self.converged |= good
         self.active &= ~(good | stop)
-
-    def _held(self) -> Tensor:
-        """``(Bf,)`` bool: the elements whose control points are pulled along re-anchored
-        directions (estimated nuisance parameters) that the scaled gradient test leaves out,
-        not yet released."""
-        if not self.p.params:
-            return torch.zeros_like(self.released)
-        return ~self.released & self.pulls[0].reshape(self.Bf, -1).ne(0).any(-1)
-
-    def _far(self, which: Tensor) -> tuple[Tensor, Tensor]:
-        r"""Of the elements ``which (Bf,)`` whose scaled gradient test passed with pulled
-        directions left out, those far from the data's optimum, released, and their
-        decrement with the pulls released ``(Bf,)``. Released pulls are found with
-        ``released`` (``torch_dq.fitting._prior.control_pull``: only directions below
-        ``NULL`` times their window's best-determined one, numerically none, are pulled).
-        Re-anchored at every linearisation point, a pull is a damping of
-        :math:`10^4`-:math:`10^7` times the data's information along a weakly determined
-        direction (the ends of an IMU record seen by GNSS positions alone: :math:`10^{-10}`-
-        :math:`3 \cdot 10^{-8}` of the accelerometer's typical information), and the test,
-        which leaves it out, passed while those directions crawled, held near the start: a
-        lever arm's identity start ended 47 above the truth start's optimum
-        (``tests/test_gnss15_positions_imu_lever_arm``'s rig, seed 0: 9098.39 vs 9051.66),
-        reported converged. An element whose decrement released is above ``_FAR`` (a
-        standard deviation of some quantity) stays released and iterates on to the
-        strict test; the others keep their pulls and their verdict (released, far16's
-        looser bar of 0.1 standard deviation moved converged estimates elsewhere)."""
-        kept = (self.pulls, self.null, self._null_of, self.informed, self._factor,
-                self.point, self._gradient, self._pull_at)
-        before = self.released.clone()
-        self.released |= which
-        self._reanchor()
-        dec, ok = self._decrement()
-        far = which & ~(ok & torch.isfinite(dec) & (dec <= _FAR))
-        if not bool(far.any()):
-            self.released = before
-            (self.pulls, self.null, self._null_of, self.informed, self._factor,
-             self.point, self._gradient, self._pull_at) = kept
-        elif not bool((far == which).all()):
-            self.released = before | far
-            self._reanchor()
-        self.stalled &= ~far  # the released directions get their steps
-        return far, dec
 
     def _trials(self, pending: Tensor) -> tuple[Point, Tensor, Tensor]:
         """Damped steps from the current point until each ``pending`` element accepts one

@@ -92,7 +92,7 @@ def _weak_windows(A: Tensor, threshold: float) -> Tensor:
     return torch.linalg.cholesky_ex(A - 2.0 * threshold * eye).info != 0
 
 
-def control_pull(band: Tensor, prior: float, nuisance: bool, released: bool = False) -> Tensor:
+def control_pull(band: Tensor, prior: float, nuisance: bool) -> Tensor:
     """``(Bf, n, w, 6, 6)`` pull information of the control points, banded (module doc).
 
     Args:
@@ -109,13 +109,8 @@ def control_pull(band: Tensor, prior: float, nuisance: bool, released: bool = Fa
             parameter) it is ``p`` itself, so that the
             weakly determined edges of long time gaps stay near the start instead of
             swinging to the few samples' least-squares answer (TUM fr2_desk: 40 deg).
-        released: with ``nuisance``, the threshold is ``NULL`` times the window's largest
-            scaled eigenvalue (at most 1, floored at ``NULL**2``): only directions without
-            information worth the name next to their own window's are pulled, not those
-            that a less informative sensor alone sees (``torch_dq.fitting._lm`` releases
-            the pulls so once the test with them left out passed).
     """
-    threshold = (NULL if released else min(prior, SPARSE)) if nuisance else prior
+    threshold = min(prior, SPARSE) if nuisance else prior
     if prior == 0:
         return torch.zeros_like(band)
     Bf, n, w = band.shape[:3]
@@ -128,8 +123,7 @@ def control_pull(band: Tensor, prior: float, nuisance: bool, released: bool = Fa
     hat = band.new_zeros(Bf, n + v, w, 6, 6)
     hat[:, :n] = band / scale
     hat[:, n:, 0] = torch.eye(6, dtype=band.dtype, device=band.device) / scale[:, 0]
-    floor = NULL * NULL if released else NULL
-    screen = max(threshold, floor) if nuisance else threshold
+    screen = max(threshold, NULL) if nuisance else threshold
     pull = band.new_zeros(Bf, n + v, w, 6, 6)
     for lo in range(0, n, _WINDOWS):  # a chunk of windows at a time (memory)
         hi = min(lo + _WINDOWS, n)
@@ -139,7 +133,7 @@ def control_pull(band: Tensor, prior: float, nuisance: bool, released: bool = Fa
             continue
         lam, V = torch.linalg.eigh(A[weak])
         # with nuisance: relative to the window's best-determined direction, at most typical
-        cut = ((threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(floor) if nuisance
+        cut = ((threshold * lam[..., -1:].clamp(0.0, 1.0)).clamp_min(NULL) if nuisance
                else threshold)
         bi, ki = weak.nonzero().unbind(-1)
         W = (V * torch.where(lam < cut, prior, 0.0)[..., None, :]) @ V.mT * outer[bi, 0]
