@@ -44,6 +44,7 @@ from ._leverage import decouple, taken
 from ._local import sample_jacobians, tangent_step
 from ._observed import honest_std, observed_ratio
 from ._prior import NULL, REGULARISE, scaled_eigh
+from ._score import directions, warn_omitted
 
 __all__ = ["Estimate"]
 
@@ -190,6 +191,7 @@ class Estimate:
         self._inliers: dict | None = None
         self._taken: list[Tensor] | None = None
         self._ratios: dict[int, Tensor] = {}  # the observed information's std ratios, by column
+        self._omitted = directions(summary.terms, summary.trajectory)  # at the solution
 
     def __repr__(self) -> str:
         ratios = ", ".join(f"{type(t).__name__}: {r:.3g}" + (f" (far {far} 1)" if far else "")
@@ -398,6 +400,7 @@ class Estimate:
             self._checked = True
             self._check_chi2()
             self._factorise()
+            warn_omitted(self, self._omitted)
             if self._weak:
                 warnings.warn(f"fitting.Estimate: the data carry no information on a "
                               f"direction of {', '.join(self._weak)}: its standard deviation "

@@ -1,0 +1,73 @@
+"""The score tests of what a camera model leaves out (``torch_dq.fitting._score``), through
+``calibration.camera_imu`` on ``_rig16_sim``'s rigs (4 s records): a rolling shutter fitted
+as global and a pinhole model on a distorted lens warn, with the value a Gauss-Newton step
+suggests close to the simulator's truth (the line delay, Kalibr's k1 of the lens); global
+shutters and undistorted lenses do not warn (the null: |z| measured 0.1 to 2.1 over 12
+seeds, the threshold 5)."""
+
+import re
+import warnings
+
+import _rig16_sim
+import numpy as np
+import pytest
+import torch
+from _rig16_sim import HEIGHT, PARAMS, WIDTH, make_rig
+
+from torch_dq.calibration import camera_imu
+from torch_dq.camera import Camera
+
+pytest.importorskip("cv2")
+
+
+def _t(a) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(a), dtype=torch.float64)
+
+
+def _warnings(rig, cam: Camera) -> list[str]:
+    """The score tests' warnings of ``camera_imu`` with defaults (a global shutter)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        camera_imu([cam], [tuple(map(_t, rig.obs))], tuple(map(_t, rig.imu)),
+                   gyro_noise=rig.gyro_noise, accel_noise=rig.accel_noise,
+                   pixel_sigma=rig.pixel_sigma)
+    return [str(w.message) for w in caught if "score test" in str(w.message)]
+
+
+def _suggested(message: str, name: str) -> float:
+    return float(re.search(rf"suggests {name} = ([-+0-9.e]+)", message).group(1))
+
+
+RADTAN = Camera("pinhole-radtan", _t(PARAMS), (WIDTH, HEIGHT))
+PINHOLE = Camera("pinhole", _t(PARAMS[:4]), (WIDTH, HEIGHT))
+
+
+def test_rolling_shutter_fitted_as_global_is_warned():
+    """test_rig16's case: a 4.8 ms readout (1e-5 s/row); the time offset ends 40 stds off."""
+    rig = make_rig(seed=11, duration=4.0, line_delay=1e-5)
+    found = _warnings(rig, RADTAN)
+    assert len(found) == 1, found
+    assert "line_delay" in found[0] and "rolling_shutter=True" in found[0]
+    assert "--rolling-shutter" in found[0] and "'pinhole-radtan'" in found[0]
+    assert _suggested(found[0], "line_delay") == pytest.approx(rig.line_delay, rel=0.1)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_global_shutter_is_not_warned(seed):
+    assert _warnings(make_rig(seed=seed, duration=4.0), RADTAN) == []
+
+
+def test_pinhole_on_a_distorted_lens_is_warned():
+    """k1 = -0.21 (the simulator's radtan lens) fitted by a pinhole model."""
+    found = _warnings(make_rig(seed=0, duration=4.0), PINHOLE)
+    k1 = [m for m in found if "score test of k1" in m]
+    assert len(k1) == 1, found
+    assert "'pinhole-radtan'" in k1[0] and "radial distortion" in k1[0]
+    assert _suggested(k1[0], "k1") == pytest.approx(PARAMS[4], rel=0.1)
+    # the misfit pulls the line delay too (z 10 against 128): said to be second
+    assert len(found) == 1 or all("model k1, the largest |z|, first" in m for m in found)
+
+
+def test_pinhole_on_an_undistorted_lens_is_not_warned(monkeypatch):
+    monkeypatch.setattr(_rig16_sim, "PARAMS", np.r_[PARAMS[:4], 0.0, 0.0, 0.0, 0.0])
+    assert _warnings(make_rig(seed=1, duration=4.0), PINHOLE) == []
