@@ -33,7 +33,7 @@ import math
 import numbers
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -43,6 +43,7 @@ from .._camera_values import outside
 from ..camera import MODELS, Camera, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, inliers, rho, weight
+from ..fitting._score import THRESHOLD, asking
 from . import _start
 
 __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
@@ -50,6 +51,7 @@ __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
 _FN = "calibration.cameras"
 _SIZES = {model: len(names) for model, names in MODELS.items()}
 _LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (cm, mm)
+_FLOOR = 0.01  # pixels: the smallest pixel error scale the score test of k1 assumes
 
 
 @dataclass(frozen=True)
@@ -556,7 +558,36 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
                   (it, converged, cost))
     if not converged and max_iterations > 0:  # 0: the start alone was asked for
         _warn_unconverged(out, models)
+    _warn_distortion(cams, state, robust, k, valid, max(out.sigma, _FLOOR))
     return out
+
+
+def _warn_distortion(cams: list[_Camera], state, kind, k: float, valid, ratio: float) -> None:
+    r"""The score test of ``k1`` for each ``"pinhole"`` camera (as
+    ``torch_dq.fitting._score``'s of a :class:`~torch_dq.fitting.Reprojections` term): the
+    problem linearised with that camera's model ``"pinhole-radtan"`` at
+    ``(fu, fv, cu, cv, 0, 0, 0, 0)``, ``k2, p1, p2`` left out; the Gauss-Newton step of
+    ``k1`` with every estimated parameter free over its standard deviation (the inverse
+    Schur complement's, scaled by ``ratio`` :math:`= \sqrt{\chi^2/\nu}` (no sigma is
+    given: the pixel errors' scale is estimated, as the reported ``std``'s; at least
+    ``_FLOOR``, no corner is finer: noise-free pixels would read roundoff). Beyond
+    ``THRESHOLD`` a RuntimeWarning names the camera and the ``k1`` suggested."""
+    for c, cam in enumerate(cams):
+        if cam.model != "pinhole":
+            continue
+        intr = [torch.cat((p, p.new_zeros(4))) if i == c else p for i, p in enumerate(state[0])]
+        wide = [replace(x, model="pinhole-radtan") if i == c else x for i, x in enumerate(cams)]
+        layout = _Layout([_SIZES[x.model] for x in wide])
+        Hff, Hfg, Hgg, bf, bg = _linearize(wide, intr, state[1], state[2], layout, kind, k,
+                                           valid)[0]
+        o = layout.intr[c] + 4  # k1's column; k2, p1, p2's (the next three) left out
+        keep = torch.tensor([i for i in range(layout.G) if not o < i <= o + 3])
+        Hfg, Hgg, bg = Hfg[..., keep], Hgg[keep][:, keep], bg[keep]
+        step = float(_solve((Hff, Hfg, Hgg, bf, bg), 0.0)[0][o])
+        z = step / float(_variances(_schur(Hff, Hfg, Hgg)[1])[o].sqrt()) / ratio
+        if abs(z) > THRESHOLD:
+            warnings.warn(f"{_FN}: the pixel errors of camera {c} ('pinhole') "
+                          f"{asking('k1', z, step)}", RuntimeWarning, stacklevel=3)
 
 
 def _warn_unconverged(out: CameraCalibration, models: list[str]) -> None:

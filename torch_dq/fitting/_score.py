@@ -45,7 +45,7 @@ from torch import Tensor
 
 from ._camera import Reprojections
 
-__all__ = ["THRESHOLD", "directions", "warn_omitted"]
+__all__ = ["THRESHOLD", "asking", "directions", "warn_omitted"]
 
 THRESHOLD = 5.0  # |z| beyond which a score test warns (module docstring)
 _SHIFT = 0.1  # the measured pixels' move for the coupling b, at most this many sigmas
@@ -123,15 +123,19 @@ def warn_omitted(est, found: list[tuple[int, str, Tensor]]) -> None:
     for i, tests in fired.items():
         largest = max(tests, key=lambda x: abs(x[1]))[0]
         for name, z, step in tests:
-            what, unit, advice = _ADVICE[name]
             both = (f" ({', '.join(n for n, _, _ in tests)} fire together; each test assumes "
                     f"the rest of the model right: model {largest}, the largest |z|, first)"
                     if len(tests) > 1 else "")
-            warnings.warn(
-                f"fitting.Estimate: the pixel errors of Reprojections (terms[{i}], camera "
-                f"{est._problem.terms[i].model!r}) ask for {what}: the score test of {name} at "
-                f"the estimate reads z = {z:.3g} (|z| > {THRESHOLD:g}: the data pull it from "
-                f"0 by {abs(z):.3g} of its standard deviations), one Gauss-Newton step "
-                f"suggests {name} = {step:.3g}{unit}; {advice}. The estimates and their "
-                f"standard deviations do not account for it{both}", RuntimeWarning,
-                stacklevel=4)
+            warnings.warn(f"fitting.Estimate: the pixel errors of Reprojections (terms[{i}], "
+                          f"camera {est._problem.terms[i].model!r}) {asking(name, z, step)}"
+                          f"{both}", RuntimeWarning, stacklevel=4)
+
+
+def asking(name: str, z: float, step: float) -> str:
+    """The warnings' text of a score test of ``name`` (``"line_delay"``, ``"k1"``) that read
+    ``z`` with the one-step value ``step``: what the pixels ask for and how to model it."""
+    what, unit, advice = _ADVICE[name]
+    return (f"ask for {what}: the score test of {name} at the estimate reads z = {z:.3g} "
+            f"(|z| > {THRESHOLD:g}: the data pull it from 0 by {abs(z):.3g} of its standard "
+            f"deviations), one Gauss-Newton step suggests {name} = {step:.3g}{unit}; "
+            f"{advice}. The estimates and their standard deviations do not account for it")
