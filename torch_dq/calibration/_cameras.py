@@ -542,7 +542,10 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
         RuntimeWarning: the bundle adjustment did not converge within ``max_iterations``
             (``converged`` False; not for ``max_iterations = 0``, the start alone), naming
             the camera with the largest reprojection error: the intrinsics may be far off
-            (e.g. a ``"pinhole"`` model on a distorted lens).
+            (e.g. a ``"pinhole"`` model on a distorted lens). A ``"pinhole"`` camera whose
+            pixel errors ask for radial distortion, converged or not: the score test of
+            ``k1`` beyond 5 of its standard deviations (``_warn_distortion``; a model
+            with distortion is named).
     """
     obs, models, res = _arguments(observations, models, resolution, robust, robust_k,
                                   max_iterations, tol, min_points)
