@@ -569,12 +569,13 @@ def _warn_distortion(cams: list[_Camera], state, kind, k: float, valid, ratio: f
     r"""The score test of ``k1`` for each ``"pinhole"`` camera (as
     ``torch_dq.fitting._score``'s of a :class:`~torch_dq.fitting.Reprojections` term): the
     problem linearised with that camera's model ``"pinhole-radtan"`` at
-    ``(fu, fv, cu, cv, 0, 0, 0, 0)``, ``k2, p1, p2`` left out; the Gauss-Newton step of
-    ``k1`` with every estimated parameter free over its standard deviation (the inverse
-    Schur complement's, scaled by ``ratio`` :math:`= \sqrt{\chi^2/\nu}` (no sigma is
-    given: the pixel errors' scale is estimated, as the reported ``std``'s; at least
-    ``_FLOOR``, no corner is finer: noise-free pixels would read roundoff). Beyond
-    ``THRESHOLD`` a RuntimeWarning names the camera and the ``k1`` suggested."""
+    ``(fu, fv, cu, cv, 0, 0, 0, 0)``, ``k2, p1, p2`` left out; ``z`` the Gauss-Newton step
+    of ``k1``, every estimated parameter free, over its standard deviation (from the inverse
+    Schur complement, times ``ratio``, the pixel errors' scale :math:`\sqrt{\chi^2/\nu}`:
+    no sigma is given, as for the reported ``std``; the caller floors it at ``_FLOOR``, no
+    corner is finer, else noise-free pixels would read roundoff). Beyond ``THRESHOLD`` a
+    RuntimeWarning names the camera and the ``k1`` suggested; a singular system (k1 not
+    determined apart from the rest) tests nothing."""
     for c, cam in enumerate(cams):
         if cam.model != "pinhole":
             continue
@@ -584,10 +585,14 @@ def _warn_distortion(cams: list[_Camera], state, kind, k: float, valid, ratio: f
         Hff, Hfg, Hgg, bf, bg = _linearize(wide, intr, state[1], state[2], layout, kind, k,
                                            valid)[0]
         o = layout.intr[c] + 4  # k1's column; k2, p1, p2's (the next three) left out
-        keep = torch.tensor([i for i in range(layout.G) if not o < i <= o + 3])
+        keep = torch.tensor([i for i in range(layout.G) if not o < i <= o + 3],
+                            device=Hgg.device)
         Hfg, Hgg, bg = Hfg[..., keep], Hgg[keep][:, keep], bg[keep]
-        step = float(_solve((Hff, Hfg, Hgg, bf, bg), 0.0)[0][o])
-        z = step / float(_variances(_schur(Hff, Hfg, Hgg)[1])[o].sqrt()) / ratio
+        try:
+            step = float(_solve((Hff, Hfg, Hgg, bf, bg), 0.0)[0][o])
+            z = step / float(_variances(_schur(Hff, Hfg, Hgg)[1])[o].sqrt()) / ratio
+        except torch.linalg.LinAlgError:
+            continue
         if abs(z) > THRESHOLD:
             warnings.warn(f"{_FN}: the pixel errors of camera {c} ('pinhole') "
                           f"{asking('k1', z, step)}", RuntimeWarning, stacklevel=3)
