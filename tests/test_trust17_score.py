@@ -97,29 +97,39 @@ def test_cameras_pinhole_on_an_undistorted_lens_is_not_warned(monkeypatch):
     assert _cameras_warnings(make_rig(seed=2, duration=4.0)) == []
 
 
-def test_a_batch_warns_as_its_elements_alone():
-    """``fitting.estimate`` of the trajectory alone (extrinsic fixed at the truth, started on
-    the true poses) from the rolling-shutter pixels, alone and as a batch of two (shared
-    data, the trajectory's control points stacked): the same warning, z and suggestion."""
-    rig = make_rig(seed=11, duration=2.5, line_delay=1e-5, dt=0.0, t0=0.0)
+def _camera_alone(rig, batch: int = 1, steps: int = 50) -> list[str]:
+    """The score tests' warnings of ``fitting.estimate`` of the trajectory alone (extrinsic
+    fixed at the truth, started on the true poses, ``batch`` copies of the control points:
+    shared data) and its first uncertainty."""
     t = np.arange(0.0, 2.5, 0.01)
     q = Rotation.from_matrix(rig.motion.rotation(t)).as_quat(scalar_first=True)
+    traj = BSpline.from_poses(_t(q), _t(rig.motion.position(t)), _t(t), knot_spacing=0.05,
+                              form="cumulative")
+    if batch > 1:
+        traj = BSpline(torch.stack([traj.control_points.detach()] * batch), knots=traj.knots,
+                       form="cumulative")
     E = np.eye(4)
     E[:3, :3], E[:3, 3] = rig.R_bc, rig.t_bc
-    texts = []
-    for batch in (1, 2):
-        traj = BSpline.from_poses(_t(q), _t(rig.motion.position(t)), _t(t), knot_spacing=0.05,
-                                  form="cumulative")
-        if batch > 1:
-            traj = BSpline(torch.stack([traj.control_points.detach()] * batch),
-                           knots=traj.knots, form="cumulative")
-        cam = fitting.Reprojections(*map(_t, rig.obs), camera=RADTAN, sigma=rig.pixel_sigma,
-                                    extrinsic=dualquat.from_matrix(_t(E)))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            est = fitting.estimate(traj, [cam], verbose=False)
-            est.pose_std(_t(rig.obs[0][:1]))
-        texts.append([str(w.message) for w in caught if "score test" in str(w.message)])
+    cam = fitting.Reprojections(*map(_t, rig.obs), camera=RADTAN, sigma=rig.pixel_sigma,
+                                extrinsic=dualquat.from_matrix(_t(E)))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est = fitting.estimate(traj, [cam], steps=steps, verbose=False)
+        est.pose_std(_t(rig.obs[0][:1]))
+    return [str(w.message) for w in caught if "score test" in str(w.message)]
+
+
+def test_a_batch_warns_as_its_elements_alone():
+    """The rolling-shutter pixels, the trajectory alone, as one problem and as a batch of two
+    (shared pixels, the control points stacked): the same warning, z and suggestion."""
+    rig = make_rig(seed=11, duration=2.5, line_delay=1e-5, dt=0.0, t0=0.0)
+    texts = [_camera_alone(rig, batch) for batch in (1, 2)]
     assert len(texts[0]) == 1 and texts[0] == texts[1], texts
     assert _suggested(texts[0][0], "line_delay") > 0  # 3.5e-6: the curve alone, one frame
     # per knot, takes up much of it (camera_imu's IMU holds the curve: 9.8e-6 against 1e-5)
+
+
+def test_no_test_away_from_the_optimum():
+    """``steps=0``: the uncertainties at the start, where the gradient is not the score."""
+    rig = make_rig(seed=11, duration=2.5, line_delay=1e-5, dt=0.0, t0=0.0)
+    assert _camera_alone(rig, steps=0) == []

@@ -28,6 +28,10 @@ with probability 5.7e-7; ``calibration.camera_imu`` on ``tests/_rig16_sim``'s 4 
 global shutter: the line delay's |z| 0.1 to 2.1 over 12 seeds and lenses, k1's of a pinhole
 on an undistorted lens at most 1.0 over 3; a 4.8 ms readout reads 74, k1 = -0.21 reads 128).
 
+At the optimum only (a Newton decrement within ``_NEAR`` of ``torch_dq.fitting.
+_uncertainty``, as the observed information's check): elsewhere ``g`` carries the gradient
+that the other parameters have left (a start, ``steps=0``), and no test is made.
+
 How. ``j`` from the predicted pixels at the solution (``Reprojections.omitted``), ``g`` and
 :math:`j^T W j` from the system's residuals and robust weights; ``b`` without a Jacobian of
 its own: the Gauss-Newton gradient :math:`J^T W r` is linear in the residuals, so moving the
@@ -87,23 +91,28 @@ def _coupling(problem, ctrl: Tensor, values: list[Tensor], system, term, d: Tens
 
 def _score(est, i: int, d: Tensor) -> tuple[Tensor, Tensor]:
     """``(z (Bf,), step (Bf,))`` of the omitted parameter with pixel derivatives ``d`` of
-    term ``i`` (module docstring); nan where the others leave it no information."""
+    term ``i`` (module docstring); nan where the others leave it no information or the
+    estimate is not at its optimum (``Estimate._near``: elsewhere the gradient ``g`` is not
+    the score, e.g. ``steps=0`` at the truth reads the parameter-alone information)."""
     summary, system = est._problem, est._system
     term = summary.terms[i]
     Bf = max(summary.batch.numel(), 1)
+    if not bool(est._near.any()):  # no test anywhere: no linearisation
+        nan = system.gn.new_full((Bf,), torch.nan)
+        return nan, nan
     r, w = system.residuals[i], torch.where(summary.counted[i], system.weights[i], 0.0)
     j = d / term.sigma
     g = (w * (j * r).sum(-1)).sum(-1).expand(summary.batch).reshape(Bf)
-    info = (w * j.square().sum(-1)).sum(-1).expand(summary.batch).reshape(Bf)
+    own = (w * j.square().sum(-1)).sum(-1).expand(summary.batch).reshape(Bf)
     bc, bn = _coupling(summary.problem, est._ctrl, est._values, system, term, d)
     bc = torch.where(est._free[..., None], 0.0, bc)
-    info = info - (bc * est._chol.solve(bc[..., None])[..., 0]).sum((-1, -2))
+    info = own - (bc * est._chol.solve(bc[..., None])[..., 0]).sum((-1, -2))
     if summary.m:
         u = bn - torch.einsum("bni,bnim->bm", bc, est._Z)
         info = info - est._quadratic(u[:, None, :])[:, 0]
     c, nu = est.chi2[term], est.dof[term]
     scale = (c / nu.clamp_min(1.0)).clamp_min(1.0).reshape(Bf)
-    info = torch.where(info > 1e-9 * (w * j.square().sum(-1)).sum(-1).amax(), info, torch.nan)
+    info = torch.where(est._near & (info > 1e-9 * own), info, torch.nan)
     return -g / (info * scale).sqrt(), -g / info
 
 
