@@ -107,11 +107,11 @@ class Reprojections(Term):
     Warns:
         UserWarning: pixels that look like normalised coordinates (all within 4 of the
         origin ``(0, 0)`` while the principal point is not).
-        RuntimeWarning: (at the estimate's first uncertainty) a global shutter (line delay
+        RuntimeWarning: (an optimum's first uncertainty) a global shutter (line delay
         fixed at 0 or None) whose pixels ask for a rolling shutter, a ``"pinhole"`` camera
         whose pixels ask for radial distortion: the score test of the line delay, of
         ``k1``, beyond 5 of its standard deviations (``torch_dq.fitting._score``,
-        :meth:`omitted`; the warning gives the value one Gauss-Newton step suggests).
+        ``_omitted``; the warning gives the value one Gauss-Newton step suggests).
 
     Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
         >>> import torch_dq.dualquat as dq
@@ -260,7 +260,7 @@ class Reprojections(Term):
         rate = (self._predict(trajectory, h)[0] - self._predict(trajectory, -h)[0]) / (2 * h)
         return rate.to(torch.float64)
 
-    def omitted(self, trajectory) -> dict[str, Tensor]:
+    def _omitted(self, trajectory) -> dict[str, Tensor]:
         r"""The predicted pixels' derivatives ``(..., N, 2)`` (float64) at the current values
         with respect to the parameters this term's model leaves out, as
         ``torch_dq.fitting._score``'s tests of them read them: ``"line_delay"`` where the

@@ -20,7 +20,7 @@ small would scale every :math:`z` up; so scaled, the test is one of the residual
 correlation with :math:`j`, which an omitted parameter's pattern has and noise has not).
 The Gauss-Newton step :math:`-g / I` is the value of ``k`` that the data suggest.
 
-What. Per :class:`~torch_dq.fitting.Reprojections` term (its ``omitted``): the line delay
+What. Per :class:`~torch_dq.fitting.Reprojections` term (its ``_omitted``): the line delay
 where it is fixed at 0 or absent (column :math:`v_i \dot u_i / \sigma`), and for a
 ``"pinhole"`` camera the first radial coefficient ``k1`` of ``"pinhole-radtan"`` (column
 :math:`(u - c)\, r^2 / \sigma`). ``|z| > THRESHOLD = 5`` warns (a standard normal exceeds it
@@ -32,7 +32,7 @@ At the optimum only (a Newton decrement within ``_NEAR`` of ``torch_dq.fitting.
 _uncertainty``, as the observed information's check): elsewhere ``g`` carries the gradient
 that the other parameters have left (a start, ``steps=0``), and no test is made.
 
-How. ``j`` from the predicted pixels at the solution (``Reprojections.omitted``), ``g`` and
+How. ``j`` from the predicted pixels at the solution (``Reprojections._omitted``), ``g`` and
 :math:`j^T W j` from the system's residuals and robust weights; ``b`` without a Jacobian of
 its own: the Gauss-Newton gradient :math:`J^T W r` is linear in the residuals, so moving the
 term's measured pixels by :math:`-h\, \sigma j` (at most ``_SHIFT`` of a sigma) moves it by
@@ -65,13 +65,13 @@ _ADVICE = {
 
 def directions(terms: list, trajectory) -> list[tuple[int, str, Tensor]]:
     """``(term index, parameter, d (..., N, 2))`` for every parameter that a
-    :class:`~torch_dq.fitting.Reprojections` term's model leaves out (its ``omitted``), read
+    :class:`~torch_dq.fitting.Reprojections` term's model leaves out (its ``_omitted``), read
     on ``trajectory`` at the solution."""
     out: list[tuple[int, str, Tensor]] = []
     for i, term in enumerate(terms):
         if isinstance(term, Reprojections):
             with torch.no_grad():
-                out.extend((i, name, d) for name, d in term.omitted(trajectory).items())
+                out.extend((i, name, d) for name, d in term._omitted(trajectory).items())
     return out
 
 
