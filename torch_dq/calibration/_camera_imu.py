@@ -466,7 +466,8 @@ def camera_imu(cameras, observations, imu, *, gyro_noise: float, accel_noise: fl
             sample spacing.
         pixel_sigma: corner noise (pixels, per axis).
         rolling_shutter: estimate one line delay per camera (seconds per row, in
-            ``[0, max_line_delay]``).
+            ``[0, max_line_delay]``); without it, a camera whose pixels ask for one is
+            warned of (the score test of :class:`~torch_dq.fitting.Reprojections`).
         shared_time_offset: one clock offset for all cameras (hardware-synchronised
             cameras); else one per camera.
         knot_spacing: the trajectory's knot spacing (seconds), or None (default): chosen

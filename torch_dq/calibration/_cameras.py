@@ -33,7 +33,7 @@ import math
 import numbers
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -43,6 +43,7 @@ from .._camera_values import outside
 from ..camera import MODELS, Camera, project
 from ..fitting._local import sample_jacobians, tangent_step
 from ..fitting._robust import KERNELS, chi_quantile, inliers, rho, weight
+from ..fitting._score import THRESHOLD, asking
 from . import _start
 
 __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
@@ -50,6 +51,7 @@ __all__ = ["CameraCalibration", "cameras", "kalibr_entries"]
 _FN = "calibration.cameras"
 _SIZES = {model: len(names) for model, names in MODELS.items()}
 _LARGEST_TARGET = 20.0  # metres: target points spread wider are in another unit (cm, mm)
+_FLOOR = 0.01  # pixels: the smallest pixel error scale the score test of k1 assumes
 
 
 @dataclass(frozen=True)
@@ -540,7 +542,10 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
         RuntimeWarning: the bundle adjustment did not converge within ``max_iterations``
             (``converged`` False; not for ``max_iterations = 0``, the start alone), naming
             the camera with the largest reprojection error: the intrinsics may be far off
-            (e.g. a ``"pinhole"`` model on a distorted lens).
+            (e.g. a ``"pinhole"`` model on a distorted lens). A ``"pinhole"`` camera whose
+            pixel errors ask for radial distortion, converged or not: the score test of
+            ``k1`` beyond 5 of its standard deviations (``_warn_distortion``; a model
+            with distortion is named).
     """
     obs, models, res = _arguments(observations, models, resolution, robust, robust_k,
                                   max_iterations, tol, min_points)
@@ -556,7 +561,41 @@ def cameras(observations, models, resolution, *, robust: str | None = None,
                   (it, converged, cost))
     if not converged and max_iterations > 0:  # 0: the start alone was asked for
         _warn_unconverged(out, models)
+    _warn_distortion(cams, state, robust, k, valid, max(out.sigma, _FLOOR))
     return out
+
+
+def _warn_distortion(cams: list[_Camera], state, kind, k: float, valid, ratio: float) -> None:
+    r"""The score test of ``k1`` for each ``"pinhole"`` camera (as
+    ``torch_dq.fitting._score``'s of a :class:`~torch_dq.fitting.Reprojections` term): the
+    problem linearised with that camera's model ``"pinhole-radtan"`` at
+    ``(fu, fv, cu, cv, 0, 0, 0, 0)``, ``k2, p1, p2`` left out; ``z`` the Gauss-Newton step
+    of ``k1``, every estimated parameter free, over its standard deviation (from the inverse
+    Schur complement, times ``ratio``, the pixel errors' scale :math:`\sqrt{\chi^2/\nu}`:
+    no sigma is given, as for the reported ``std``; the caller floors it at ``_FLOOR``, no
+    corner is finer, else noise-free pixels would read roundoff). Beyond ``THRESHOLD`` a
+    RuntimeWarning names the camera and the ``k1`` suggested; a singular system (k1 not
+    determined apart from the rest) tests nothing."""
+    for c, cam in enumerate(cams):
+        if cam.model != "pinhole":
+            continue
+        intr = [torch.cat((p, p.new_zeros(4))) if i == c else p for i, p in enumerate(state[0])]
+        wide = [replace(x, model="pinhole-radtan") if i == c else x for i, x in enumerate(cams)]
+        layout = _Layout([_SIZES[x.model] for x in wide])
+        Hff, Hfg, Hgg, bf, bg = _linearize(wide, intr, state[1], state[2], layout, kind, k,
+                                           valid)[0]
+        o = layout.intr[c] + 4  # k1's column; k2, p1, p2's (the next three) left out
+        keep = torch.tensor([i for i in range(layout.G) if not o < i <= o + 3],
+                            device=Hgg.device)
+        Hfg, Hgg, bg = Hfg[..., keep], Hgg[keep][:, keep], bg[keep]
+        try:
+            step = float(_solve((Hff, Hfg, Hgg, bf, bg), 0.0)[0][o])
+            z = step / float(_variances(_schur(Hff, Hfg, Hgg)[1])[o].sqrt()) / ratio
+        except torch.linalg.LinAlgError:
+            continue
+        if abs(z) > THRESHOLD:
+            warnings.warn(f"{_FN}: the pixel errors of camera {c} ('pinhole') "
+                          f"{asking('k1', z, step)}", RuntimeWarning, stacklevel=3)
 
 
 def _warn_unconverged(out: CameraCalibration, models: list[str]) -> None:

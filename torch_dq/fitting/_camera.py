@@ -107,6 +107,11 @@ class Reprojections(Term):
     Warns:
         UserWarning: pixels that look like normalised coordinates (all within 4 of the
         origin ``(0, 0)`` while the principal point is not).
+        RuntimeWarning: (an optimum's first uncertainty) a global shutter (line delay
+        fixed at 0 or None) whose pixels ask for a rolling shutter, a ``"pinhole"`` camera
+        whose pixels ask for radial distortion: the score test of the line delay, of
+        ``k1``, beyond 5 of its standard deviations (``torch_dq.fitting._score``,
+        ``_omitted``; the warning gives the value one Gauss-Newton step suggests).
 
     Example (the body at rest at the origin, the camera on it, two points 1 m ahead):
         >>> import torch_dq.dualquat as dq
@@ -248,6 +253,33 @@ class Reprojections(Term):
             x = trajectory(torch.minimum(torch.maximum(t, lo[..., None]), hi[..., None]))
             return self._project(x, p)
 
+    def _rate(self, trajectory) -> Tensor:
+        """``(..., N, 2)`` float64: the predicted pixels' rate in time (pixels per second,
+        a central difference over 2 ms)."""
+        h = 1e-3
+        rate = (self._predict(trajectory, h)[0] - self._predict(trajectory, -h)[0]) / (2 * h)
+        return rate.to(torch.float64)
+
+    def _omitted(self, trajectory) -> dict[str, Tensor]:
+        r"""The predicted pixels' derivatives ``(..., N, 2)`` (float64) at the current values
+        with respect to the parameters this term's model leaves out, as
+        ``torch_dq.fitting._score``'s tests of them read them: ``"line_delay"`` where the
+        line delay is fixed at 0 or absent (a global shutter: :math:`v_i \dot u_i`, the
+        row times the pixel's rate in time) and ``"k1"`` for a ``"pinhole"`` camera (the
+        first radial coefficient of ``"pinhole-radtan"`` at 0:
+        :math:`(u - c_u,\ v - c_v)\, r^2`, :math:`r^2 = a^2 + b^2` of the normalised
+        coordinates :math:`a = (u - c_u) / f_u`, :math:`b = (v - c_v) / f_v`)."""
+        out: dict[str, Tensor] = {}
+        slot = self._slots["line_delay"]
+        if not slot.estimated and (slot.fixed is None or not bool(
+                torch.as_tensor(slot.fixed).ne(0).any())):
+            out["line_delay"] = self._rate(trajectory) * self.rows[..., None]
+        if self.model == "pinhole":
+            k = self.values(trajectory)["intrinsics"].to(torch.float64)[..., None, :]
+            d = self._predict(trajectory)[0].to(torch.float64) - k[..., 2:4]
+            out["k1"] = d * (d / k[..., 0:2]).square().sum(-1, keepdim=True)
+        return out
+
     def visible(self, trajectory) -> Tensor:
         """``(..., N)`` bool: the observations that project valid at the current values and
         are not masked."""
@@ -269,9 +301,7 @@ class Reprojections(Term):
                           f"or outside the model's domain): excluded; their count is "
                           f"term.invalid", RuntimeWarning, stacklevel=3)
         if self._slots["line_delay"].estimated:
-            h = 1e-3
-            rate = (self._predict(trajectory, h)[0] - self._predict(trajectory, -h)[0]) / (2 * h)
-            w = (rate.to(torch.float64) * self.rows[..., None] / self.sigma).square().sum(-1)
+            w = (self._rate(trajectory) * self.rows[..., None] / self.sigma).square().sum(-1)
             info = torch.where(valid, w, 0.0).sum(-1)
             if bool((info * self.max_line_delay ** 2 < 1.0).any()):
                 warnings.warn("fitting.estimate: the Reprojections line_delay is undetermined: "

@@ -44,6 +44,7 @@ from ._leverage import decouple, taken
 from ._local import sample_jacobians, tangent_step
 from ._observed import honest_std, observed_ratio
 from ._prior import NULL, REGULARISE, scaled_eigh
+from ._score import directions, warn_omitted
 
 __all__ = ["Estimate"]
 
@@ -163,11 +164,12 @@ class Estimate:
         reason: what stopped it (one string per batch element, joined by ``"; "``).
         chi2, dof, weights: per term (dicts keyed by the term), see the properties; the
             first uncertainty asked for warns where a term's chi2/dof is far above or below
-            1 (:meth:`summary` lists them). With a robust kernel the sigmas describe the
-            inliers and ``chi2`` and ``dof`` count only them (a cutoff at the 99.9 % chi-square
-            quantile scaled by the term's own chi2/dof, the sum divided by the truncated
-            mean: :attr:`chi2`); the summary and the warning say how many were left out,
-            :attr:`outliers` per term.
+            1 (:meth:`summary` lists them) and where the pixels ask for a line delay or
+            distortion their camera model leaves out (score tests, ``fitting._score``). With
+            a robust kernel the sigmas describe the inliers and ``chi2`` and ``dof`` count
+            only them (a 99.9 % chi-square quantile cutoff scaled by the term's chi2/dof,
+            the sum over the truncated mean: :attr:`chi2`); the summary and the warning say
+            how many were left out, per term :attr:`outliers`.
         parameters: the estimated nuisance parameters in the order of :meth:`cov`'s rows.
     """
 
@@ -190,6 +192,7 @@ class Estimate:
         self._inliers: dict | None = None
         self._taken: list[Tensor] | None = None
         self._ratios: dict[int, Tensor] = {}  # the observed information's std ratios, by column
+        self._omitted = directions(summary.terms, summary.trajectory)  # at the solution
 
     def __repr__(self) -> str:
         ratios = ", ".join(f"{type(t).__name__}: {r:.3g}" + (f" (far {far} 1)" if far else "")
@@ -392,12 +395,12 @@ class Estimate:
         return self._per_term("weights")
 
     def _ensure(self) -> None:
-        """On the first uncertainty asked for: the Gauss-Newton matrix factored, and the
-        warnings of :meth:`_check_chi2` and of the directions without information."""
+        """The first uncertainty's factor and warnings (``_check_chi2``, ``_score``, null)."""
         if not self._checked:
             self._checked = True
             self._check_chi2()
             self._factorise()
+            warn_omitted(self, self._omitted)
             if self._weak:
                 warnings.warn(f"fitting.Estimate: the data carry no information on a "
                               f"direction of {', '.join(self._weak)}: its standard deviation "
