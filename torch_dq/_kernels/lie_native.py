@@ -31,12 +31,10 @@ _EVENS = ("cos", "sinc", "se3_c1", "se3_c2")  # the C's rows EV_COS, EV_SINC, EV
 
 
 def applies(steps: int, *tensors: Tensor) -> bool:
-    """Whether the compiled loops may run: the library is there
-    (``torch_dq._kernels.native.enabled``: float64 CPU tensors, eager), at most
-    :data:`MAX_STEPS` steps, and no tensor records autograd (reverse mode goes through the
-    PyTorch code)."""
-    return (steps <= MAX_STEPS and native.enabled(*tensors)
-            and not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)))
+    """Whether the compiled loops may run: at most :data:`MAX_STEPS` steps and
+    ``torch_dq._kernels.native.enabled`` (the library is there, float64 CPU tensors, eager,
+    no tensor recording autograd: reverse mode goes through the PyTorch code)."""
+    return steps <= MAX_STEPS and native.enabled(*tensors)
 
 
 @cache
