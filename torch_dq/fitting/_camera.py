@@ -262,6 +262,16 @@ class Reprojections(Term):
         leaves it a standard deviation above ``max_line_delay``."""
         valid = self.visible(trajectory)
         self.invalid = (self.mask & ~valid).sum(-1)
+        blind = ~valid.any(-1)  # a camera that sees nothing at the solution: no information
+        if bool(blind.any()):
+            i = tuple(int(v) for v in torch.nonzero(blind.reshape(blind.shape or (1,)))[0])
+            where = f" (batch element {list(i)})" if blind.dim() else ""
+            _checks.fail("fitting.estimate", f"every observation of Reprojections (camera "
+                         f"{self.model!r}){where} projects invalid at the solution (behind the "
+                         f"camera or outside the model's domain): the term carries no "
+                         f"information, and a result would ignore it; check the extrinsic (the "
+                         f"camera's pose on the body, p_body = e p_cam: Kalibr's T_imu_cam, not "
+                         f"T_cam_imu), the target's pose and the trajectory's start")
         n = int(self.invalid.sum())
         if n:
             warnings.warn(f"fitting.estimate: {n} observation(s) of Reprojections (camera "

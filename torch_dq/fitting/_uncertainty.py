@@ -176,6 +176,7 @@ class Estimate:
         ``Summary`` (``torch_dq.fitting._problem``), the solution and the loop's
         ``History`` (``torch_dq.fitting._lm``)."""
         self._problem, self._ctrl, self._values = summary, ctrl, values
+        self._dtype = summary.trajectory.control_points.dtype  # the uncertainties' (API.md)
         self.loss: Tensor = history.loss
         self.final_loss: Tensor = self.loss[-1]
         self.objective: Tensor = history.objective
@@ -529,8 +530,11 @@ class Estimate:
                 nothing, as ``scaled=False`` does).
 
         Returns:
-            ``(..., k, k)``, ``k`` the sum of the sizes.
+            ``(..., k, k)``, ``k`` the sum of the sizes, in the trajectory's dtype.
         """
+        return self._cov(items, scaled).to(self._dtype)
+
+    def _cov(self, items: tuple, scaled: bool) -> Tensor:  # cov in float64
         for item in items:
             if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)):
                 _checks.fail("fitting.Estimate.cov", f"items must be (term, name) pairs, got "
@@ -572,7 +576,7 @@ class Estimate:
             _checks.fail(fn, f"observed=True is for a time_offset (the observed information of "
                              f"a sensor's clock), got name={name!r}")
         q = self._param(term, name)
-        C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
+        C = self._cov(((term, name),), scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
         if M is not None:  # gravity: from its 2-d chart to world axes
             finite = torch.isfinite(C).all(-1).all(-1)[:, None, None]
@@ -592,8 +596,8 @@ class Estimate:
                 s = self._observed(term, name, q, s, observed)
             if q.free.prior_std is None:  # with a prior, the std is the user's statement
                 _warn_unexcited(term, q.chart.high, torch.where(pinned, torch.nan, s))
-            return s.reshape(b)
-        return s.reshape(*b, s.shape[-1])
+            return s.reshape(b).to(self._dtype)
+        return s.reshape(*b, s.shape[-1]).to(self._dtype)
 
     def _observed(self, term, name: str, q, s: Tensor, observed: bool) -> Tensor:
         """A time offset's Gauss-Newton std ``s (Bf, 1)``, checked against the observed
@@ -666,8 +670,7 @@ class Estimate:
             std = std * self._factor_scale()[:, None, None]
         # a NaN time passes the domain check; its std is NaN, never a finite number
         std = torch.where(torch.isnan(t).reshape(Bf, T, 1), torch.nan, std)
-        return (std.reshape(*lead, -1, k) if not p.batch else std.reshape(*p.batch, T, k)
-                ).to(home)
+        return std.reshape(*(p.batch or lead), -1, k).to(home, self._dtype)
 
     def pose_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 6)``: standard deviations of the pose at ``t``: the rotation ``delta``
