@@ -117,3 +117,30 @@ def test_uncertainties_follow_the_trajectory_dtype(dtype):
     np.testing.assert_allclose(std.double().numpy(), ref, rtol=0.01)
     np.testing.assert_allclose(cov.diagonal().double().numpy(), ref ** 2, rtol=0.02)
     assert bool(torch.isfinite(pose).all()) and bool((pose > 0).all())
+
+
+def test_scaled_uncertainties_without_redundancy_are_inf():
+    """Four noisy poses and a cubic of four control points: 24 residual components for 24
+    parameters, no degree of freedom left, so the residuals' scatter says nothing of the
+    sigmas: ``scaled=True`` has no variance factor to scale by. It scaled by
+    ``chi2 / max(dof, 1)``, a number of roundoff (4e-14 of the unscaled std); now inf, as
+    scipy's ``curve_fit`` (``absolute_sigma=False``) gives for a fit without redundancy."""
+    from scipy.optimize import OptimizeWarning, curve_fit
+
+    with pytest.warns(OptimizeWarning):  # the reference: a line through two points
+        _, pcov = curve_fit(lambda x, a, b: a + b * x, [0.0, 1.0], [0.3, 1.1])
+    assert np.isinf(pcov).all()
+    xi = torch.tensor([0.0, 0.3, 1.0, 0.5, 0.0, 0.1], dtype=F64)
+    t = torch.linspace(0.0, 4.0, 4, dtype=F64)
+    noise = torch.randn(4, 6, generator=torch.Generator().manual_seed(0), dtype=F64) * 1e-3
+    noisy = dq.mul(dq.exp(t[:, None] * xi), dq.exp(noise))
+    spline = BSpline.from_dualquats(dq.exp(t[:, None] * xi), t, n_ctrl=4)
+    term = fitting.Poses(t, noisy, rot_sigma=1e-3, trans_sigma=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fitting.estimate(spline, [term], verbose=False)
+        assert float(est.dof[term]) < 1e-6
+        plain = est.pose_std(t)
+        scaled = est.pose_std(t, scaled=True)
+    assert bool(torch.isfinite(plain).all())
+    assert bool(torch.isinf(scaled).all())

@@ -96,7 +96,7 @@ class Reprojections(Term):
 
     Residual ``(..., N, 2)``: predicted minus measured pixel over ``sigma``; zero for masked
     observations and for points without an image (``term.invalid`` counts them after
-    :func:`~torch_dq.fitting.estimate`).
+    :func:`~torch_dq.fitting.estimate`, which raises a ``ValueError`` where none is left).
 
     Raises:
         ValueError: shapes that do not match, points that are not finite, pixels (not
@@ -256,7 +256,8 @@ class Reprojections(Term):
     def solved(self, trajectory) -> Tensor:
         r"""The observations with an image at the solution ``(..., N)`` bool (those counted by
         :attr:`~torch_dq.fitting.Estimate.chi2` and ``dof``); count those without
-        (``invalid (...)``, int64 per batch element) and warn when there are any; warn when
+        (``invalid (...)``, int64 per batch element) and warn when there are any (raise
+        where a batch element has none with an image: the term says nothing); warn when
         an estimated line delay meets too little motion: its information
         :math:`\sum_i (v_i |\dot u_i| / \sigma)^2` (``\dot u`` the predicted pixel velocity)
         leaves it a standard deviation above ``max_line_delay``."""

@@ -308,10 +308,10 @@ class Estimate:
 
     def _factor_scale(self) -> Tensor:
         r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
-        (``scaled=True``; see :meth:`cov`)."""
+        (``scaled=True``; see :meth:`cov`); inf below 0.5 dof (scipy's ``curve_fit``'s)."""
         chi2 = sum(self.chi2.values())
         dof = cast(Tensor, sum(self.dof.values()))
-        return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
+        return torch.where(dof < 0.5, torch.inf, chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
     def _far(self) -> dict:
         r"""Per term: ``(ratio, "above" | "below" | None)``, ``ratio`` the largest (above)
