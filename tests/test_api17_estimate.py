@@ -7,6 +7,7 @@ gyroscope bias' standard deviation ``sigma / sqrt(N)`` of a mean."""
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -144,3 +145,36 @@ def test_scaled_uncertainties_without_redundancy_are_inf():
         scaled = est.pose_std(t, scaled=True)
     assert bool(torch.isfinite(plain).all())
     assert bool(torch.isinf(scaled).all())
+
+
+def test_batch_summary_shows_the_numbers():
+    """A batch of two problems: ``summary()`` and ``repr`` printed ``<(2,) tensor>`` for the
+    final loss and each term's chi2 and dof; they print the batch's range, the chi2 equal
+    to the whitened residuals' sum of squares computed with scipy's rotations."""
+    from scipy.spatial.transform import Rotation
+
+    xi = torch.tensor([0.0, 0.3, 1.0, 0.5, 0.0, 0.1], dtype=F64)
+    t = torch.linspace(0.0, 4.0, 81, dtype=F64)
+    truth = dq.exp(t[:, None] * xi)
+    g = torch.Generator().manual_seed(1)
+    noisy = torch.stack([dq.mul(truth, dq.exp(torch.randn(81, 6, generator=g, dtype=F64) * s))
+                         for s in (1e-3, 1e-2)])
+    one = BSpline.from_dualquats(truth, t, n_ctrl=23)
+    spline = BSpline(one.control_points.detach().expand(2, 23, 8).clone(), knots=one.knots)
+    term = fitting.Poses(t, noisy, rot_sigma=1e-3, trans_sigma=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fitting.estimate(spline, [term], verbose=False)
+        text = est.summary() + repr(est)
+    assert "tensor>" not in text
+    chi2 = []
+    for b in range(2):
+        m = dq.to_matrix(spline(t)[b]).detach().numpy()
+        mm = dq.to_matrix(noisy[b]).numpy()
+        rot = (Rotation.from_matrix(mm[:, :3, :3]).inv()
+               * Rotation.from_matrix(m[:, :3, :3])).as_rotvec()
+        chi2.append(float(((rot / 1e-3) ** 2).sum() + (((m - mm)[:, :3, 3] / 1e-3) ** 2).sum()))
+    for what in ("chi2", "final loss"):
+        found = re.search(rf"{what} (\S+) to (\S+) \(2,\)", text)
+        assert found is not None, text
+        assert [float(v) for v in found.groups()] == pytest.approx(sorted(chi2), rel=1e-5)

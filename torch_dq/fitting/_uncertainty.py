@@ -143,8 +143,8 @@ def _count(x: Tensor) -> str:
 
 
 def _number(x: Tensor) -> str:
-    """A 0-d tensor's value, or a batch's shape."""
-    return f"{float(x):.6g}" if x.dim() == 0 else f"<{tuple(x.shape)} tensor>"
+    """A 0-d tensor's value, or a batch's range and shape."""
+    return f"{float(x):.6g}" if x.dim() == 0 else f"{x.min():.6g} to {x.max():.6g} {tuple(x.shape)}"
 
 
 class Estimate:
