@@ -178,3 +178,20 @@ def test_batch_summary_shows_the_numbers():
         found = re.search(rf"{what} (\S+) to (\S+) \(2,\)", text)
         assert found is not None, text
         assert [float(v) for v in found.groups()] == pytest.approx(sorted(chi2), rel=1e-5)
+
+
+@pytest.mark.xfail(strict=True, raises=ValueError, reason="fitting/_uncertainty.py (trust17's; "
+                   "at its 700-line limit): Estimate.cov() with no nuisance parameter "
+                   "estimated raises torch.cat's 'expected a non-empty list of Tensors'")
+def test_cov_of_nothing_estimated_is_empty():
+    """``cov()`` is "every estimated parameter, in the order of ``parameters``": with none
+    (``parameters == []``) that is the ``(0, 0)`` matrix, not torch's error."""
+    t = torch.linspace(0.0, 1.0, 11, dtype=F64)
+    poses = dq.identity((11,), dtype=F64)
+    spline = BSpline.from_dualquats(poses, t, n_ctrl=4)
+    term = fitting.Poses(t, poses, rot_sigma=1e-3, trans_sigma=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fitting.estimate(spline, [term], verbose=False)
+        assert est.parameters == []
+        assert est.cov().shape == (0, 0)
