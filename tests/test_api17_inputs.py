@@ -1,0 +1,52 @@
+"""Nuisance arguments a user gets wrong (session 17): an extrinsic or target pose given as
+the 4 x 4 matrix a calibration file holds (Kalibr's ``T_cam_imu``) was refused as "expected
+extrinsic of shape (..., 8)" without saying how to get one; the error now names
+``torch_dq.dualquat.from_matrix``, and the converted matrix is accepted (the reference: the
+numpy matrix of the pose the term then holds)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+import torch_dq.dualquat as dq
+from torch_dq import fitting
+from torch_dq.camera import Camera
+
+F64 = torch.float64
+T = np.eye(4)
+T[:3, :3] = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+T[:3, 3] = [0.05, -0.02, 0.01]
+TIMES = torch.linspace(0.0, 1.0, 5, dtype=F64)
+CAM = Camera("pinhole", torch.tensor([400.0, 400.0, 320.0, 240.0], dtype=F64), (640, 480))
+
+
+def _poses(**kw):
+    return fitting.Poses(TIMES, dq.identity((5,), dtype=F64), rot_sigma=1e-3, trans_sigma=1e-3,
+                         **kw)
+
+
+def _camera(**kw):
+    pts = torch.tensor([[0.0, 0.0, 2.0]], dtype=F64).expand(5, 3)
+    pix = torch.tensor([[320.0, 240.0]], dtype=F64).expand(5, 2)
+    return fitting.Reprojections(TIMES, pts, pix, camera=CAM, sigma=1.0, **kw)
+
+
+@pytest.mark.parametrize("make, name", [(_poses, "extrinsic"), (_camera, "extrinsic"),
+                                        (_camera, "target")])
+@pytest.mark.parametrize("free", [False, True])
+def test_matrix_pose_names_from_matrix(make, name, free):
+    value = torch.tensor(T)
+    with pytest.raises(ValueError, match=rf"expected {name}( start)? of shape \(\.\.\., 8\).*"
+                                         r"got \(4, 4\): a 4 x 4 matrix\? convert it with "
+                                         r"torch_dq.dualquat.from_matrix"):
+        make(**{name: fitting.Free(start=value) if free else value})
+    term = make(**{name: dq.from_matrix(value)})
+    np.testing.assert_allclose(dq.to_matrix(getattr(term, name)).numpy(), T, atol=1e-12)
+
+
+def test_other_shapes_keep_the_plain_message():
+    with pytest.raises(ValueError, match=r"got \(7,\)$"):
+        _poses(extrinsic=torch.zeros(7, dtype=F64))
