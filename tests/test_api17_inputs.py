@@ -50,3 +50,27 @@ def test_matrix_pose_names_from_matrix(make, name, free):
 def test_other_shapes_keep_the_plain_message():
     with pytest.raises(ValueError, match=r"got \(7,\)$"):
         _poses(extrinsic=torch.zeros(7, dtype=F64))
+
+
+def test_gravity_magnitude_as_a_0d_tensor():
+    """``gravity``: "a float magnitude whose direction is estimated"; a magnitude computed
+    with torch (``readings.norm(dim=-1).mean()``, a 0-d tensor) was refused as "expected
+    gravity of shape (..., 3)". It is a magnitude: a body at rest, tilted by a known
+    rotation (scipy), its readings ``R^T (0 - g)``; the estimated gravity is ``g``."""
+    import warnings
+
+    from torch_dq.nn import BSpline
+
+    rot = Rotation.from_rotvec([0.3, -0.2, 0.1])
+    g = np.array([0.0, 0.0, -9.81])
+    t = torch.linspace(0.0, 2.0, 401, dtype=F64)
+    x = dq.from_matrix(torch.tensor(np.block([[rot.as_matrix(), np.zeros((3, 1))],
+                                              [np.zeros((1, 3)), np.ones((1, 1))]])))
+    readings = torch.tensor(rot.inv().apply(-g)).expand(401, 3)
+    spline = BSpline.from_dualquats(x.expand(41, 8), t[::10], n_ctrl=10, form="cumulative")
+    pose = fitting.Poses(t[::10], x.expand(41, 8), rot_sigma=1e-4, trans_sigma=1e-4)
+    accel = fitting.Accel(t, readings, sigma=1e-2, gravity=readings.norm(dim=-1).mean())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # exact data: chi2/dof far below 1
+        fitting.estimate(spline, [pose, accel], verbose=False)
+    np.testing.assert_allclose(accel.gravity.numpy(), g, atol=1e-6)
