@@ -74,3 +74,23 @@ def test_gravity_magnitude_as_a_0d_tensor():
         warnings.simplefilter("ignore")  # exact data: chi2/dof far below 1
         fitting.estimate(spline, [pose, accel], verbose=False)
     np.testing.assert_allclose(accel.gravity.numpy(), g, atol=1e-6)
+
+
+@pytest.mark.parametrize("delay, unit", [(30.0, "microseconds"), (0.03, "milliseconds")])
+def test_line_delay_in_another_unit_warns(delay, unit):
+    """A fixed rolling-shutter line delay of 30 (microseconds per row) was taken as 30 s per
+    row; ``estimate`` then asked to "extend the trajectory's domain by 9322". It warns at
+    construction, naming the readout it implies and the likely unit."""
+    with pytest.warns(UserWarning, match=rf"line_delay {delay:g} s per row reads 480 rows in "
+                                         rf".* s \(seconds per row expected\): {unit}\? "
+                                         rf"\({delay:g} of them: 3e-05 s\)"):
+        _camera(line_delay=delay)
+
+
+def test_a_camera_line_delay_is_silent():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        term = _camera(line_delay=3e-5)
+    assert float(term.line_delay) == 3e-5

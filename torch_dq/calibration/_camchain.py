@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
+from .._camera_values import LONGEST_LINE_DELAY, seconds_hint
 from ..camera import Camera
 from ._targets import load_yaml
 
@@ -61,7 +62,7 @@ class Camchain:
 # (Kalibr estimates milliseconds; camera_imu's bound is 0.1 s), a rolling shutter's delay
 # per row (1 ms reads 480 rows in 0.48 s) and a camera's distance from the IMU or from
 # the previous camera (a vehicle's rig). Beyond them a file is in another unit: warned.
-_LARGEST = {"timeshift_cam_imu": 1.0, "line_delay": 1e-3, "translation": 10.0}
+_LARGEST = {"timeshift_cam_imu": 1.0, "line_delay": LONGEST_LINE_DELAY, "translation": 10.0}
 
 # Defect of a rotation block accepted, max |R^T R - I| (det R > 0): a camchain a user
 # rounded to 4 decimals is off by up to ~3e-4, Kalibr's own output by ~1e-9; a scaled,
@@ -98,8 +99,8 @@ def _rigid(fn: str, where: str, value) -> Tensor:
 
 def _warn_unit(fn: str, where: str, key: str, value: float, depth: int = 1) -> None:
     """Warn (naming ``where``, the file and camera) where ``key``'s ``value`` exceeds
-    :data:`_LARGEST`: seconds that are milli-, micro- or nanoseconds (the first of
-    ``_checks.TIME_UNITS`` from the coarsest that brings it within the limit), metres that
+    :data:`_LARGEST`: seconds that are milli-, micro- or nanoseconds (``seconds_hint`` of
+    ``torch_dq._camera_values``), metres that
     are centimetres or millimetres (``depth``: the calls between ``read_camchain`` and
     here)."""
     limit = _LARGEST["translation" if key.startswith("T_") else key]
@@ -110,10 +111,8 @@ def _warn_unit(fn: str, where: str, key: str, value: float, depth: int = 1) -> N
         unit = f"{key}'s translation is {value:.4g} m, the camera that far from {frame}: " \
                f"centimetres or millimetres? Kalibr's transforms are in metres"
     else:
-        fit = [(n, f) for n, f in reversed(_checks.TIME_UNITS) if abs(value) * f <= limit]
-        guess = f" {fit[0][0]}? ({value:g} of them: {value * fit[0][1]:.3g} s)" if fit else ""
         unit = f"{key} = {value:g} s is over {limit:g} s ({'per row, ' * (key == 'line_delay')}" \
-               f"seconds in Kalibr's files):{guess}"
+               f"seconds in Kalibr's files):{seconds_hint(value, limit)}"
     warnings.warn(f"{fn}: {where}: {unit}", UserWarning, stacklevel=2 + depth)
 
 
