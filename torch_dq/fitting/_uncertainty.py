@@ -176,7 +176,7 @@ class Estimate:
         ``Summary`` (``torch_dq.fitting._problem``), the solution and the loop's
         ``History`` (``torch_dq.fitting._lm``)."""
         self._problem, self._ctrl, self._values = summary, ctrl, values
-        self._dtype = summary.trajectory.control_points.dtype  # the uncertainties' (API.md)
+        self._dtype = summary.trajectory.control_points.dtype  # the uncertainties' (Conventions)
         self.loss: Tensor = history.loss
         self.final_loss: Tensor = self.loss[-1]
         self.objective: Tensor = history.objective
