@@ -15,13 +15,24 @@ from torch import Tensor
 
 from . import _checks
 
-__all__ = ["FROM_KALIBR", "KALIBR", "kalibr_list", "normalised_hint", "numbers_list", "outside",
-           "width_height", "yaml_number"]
+__all__ = ["FROM_KALIBR", "KALIBR", "LONGEST_LINE_DELAY", "kalibr_list", "normalised_hint",
+           "numbers_list", "outside", "seconds_hint", "width_height", "yaml_number"]
 
 # Kalibr's (camera_model, distortion_model) of each model, and back.
 KALIBR = {"pinhole": ("pinhole", "none"), "pinhole-radtan": ("pinhole", "radtan"),
           "pinhole-equidistant": ("pinhole", "equidistant"), "double-sphere": ("ds", "none")}
 FROM_KALIBR = {names: model for model, names in KALIBR.items()}
+# A rolling shutter's delay per image row beyond any camera's (1 ms reads 480 rows in 0.48
+# s): a longer one is in another unit (microseconds?), warned of where it is read.
+LONGEST_LINE_DELAY = 1e-3
+
+
+def seconds_hint(value: float, limit: float) -> str:
+    """``" milliseconds? (5 of them: 0.005 s)"``: the coarsest unit of
+    ``_checks.TIME_UNITS`` that brings ``value`` (read as seconds) within ``limit``, or
+    ``""`` where none does."""
+    fit = [(n, f) for n, f in reversed(_checks.TIME_UNITS) if abs(value) * f <= limit]
+    return f" {fit[0][0]}? ({value:g} of them: {value * fit[0][1]:.3g} s)" if fit else ""
 
 
 def numbers_list(fn: str, name: str, value, count: int) -> list[float]:

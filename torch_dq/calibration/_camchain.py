@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from .. import _checks, dualquat
+from .._camera_values import LONGEST_LINE_DELAY, seconds_hint
 from ..camera import Camera
 from ._targets import load_yaml
 
@@ -56,6 +58,12 @@ class Camchain:
     line_delays: Tensor | None = None
 
 
+# Largest plausible values in Kalibr's units (seconds, metres): a camera-IMU clock offset
+# (Kalibr estimates milliseconds; camera_imu's bound is 0.1 s), a rolling shutter's delay
+# per row (1 ms reads 480 rows in 0.48 s) and a camera's distance from the IMU or from
+# the previous camera (a vehicle's rig). Beyond them a file is in another unit: warned.
+_LARGEST = {"timeshift_cam_imu": 1.0, "line_delay": LONGEST_LINE_DELAY, "translation": 10.0}
+
 # Defect of a rotation block accepted, max |R^T R - I| (det R > 0): a camchain a user
 # rounded to 4 decimals is off by up to ~3e-4, Kalibr's own output by ~1e-9; a scaled,
 # sheared or hand-edited matrix by far more. Accepted ones are projected onto the nearest
@@ -82,10 +90,30 @@ def _rigid(fn: str, where: str, value) -> Tensor:
         _checks.fail(fn, f"{where} is not a rigid transform (last row {T[3].tolist()}, "
                          f"|R^T R - I| up to {bad_rot:.2g} (accepted: "
                          f"{_ORTHONORMAL_ATOL:g}), det R {det:.6g})")
+    _warn_unit(fn, where.rsplit(".", 1)[0], where.rsplit(".", 1)[1], float(T[:3, 3].norm()), 2)
     U, _, Vh = torch.linalg.svd(R)  # det R > 0 and R near orthonormal: U Vh is a rotation
     T = T.clone()
     T[:3, :3] = U @ Vh
     return dualquat.normalize(dualquat.from_matrix(T))
+
+
+def _warn_unit(fn: str, where: str, key: str, value: float, depth: int = 1) -> None:
+    """Warn (naming ``where``, the file and camera) where ``key``'s ``value`` exceeds
+    :data:`_LARGEST`: seconds that are milli-, micro- or nanoseconds (``seconds_hint`` of
+    ``torch_dq._camera_values``), metres that
+    are centimetres or millimetres (``depth``: the calls between ``read_camchain`` and
+    here)."""
+    limit = _LARGEST["translation" if key.startswith("T_") else key]
+    if abs(value) <= limit:
+        return
+    if key.startswith("T_"):
+        frame = "the IMU" if key == "T_cam_imu" else "the previous camera"
+        unit = f"{key}'s translation is {value:.4g} m, the camera that far from {frame}: " \
+               f"centimetres or millimetres? Kalibr's transforms are in metres"
+    else:
+        unit = f"{key} = {value:g} s is over {limit:g} s ({'per row, ' * (key == 'line_delay')}" \
+               f"seconds in Kalibr's files):{seconds_hint(value, limit)}"
+    warnings.warn(f"{fn}: {where}: {unit}", UserWarning, stacklevel=2 + depth)
 
 
 def _number(v):
@@ -114,7 +142,9 @@ def _line_delay(fn: str, where: str, entry: dict) -> float | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
         _checks.fail(fn, f"{where}: {keys[0]} must be a finite number >= 0 (per image row), "
                          f"got {v!r}")
-    return float(v) * (1e-9 if keys[0] == "line_delay_nanoseconds" else 1.0)
+    seconds = float(v) * (1e-9 if keys[0] == "line_delay_nanoseconds" else 1.0)
+    _warn_unit(fn, where, "line_delay", seconds, 2)
+    return seconds
 
 
 def read_camchain(path: str | os.PathLike[str]) -> Camchain:
@@ -151,6 +181,12 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
         TypeError: ``path`` is not a path.
         ImportError: PyYAML is not installed.
         OSError: the file cannot be opened.
+
+    Warns:
+        UserWarning: values that are not in Kalibr's units (naming the file, camera, key and
+        the likely unit): a ``timeshift_cam_imu`` over 1 s, a line delay over 1 ms per row
+        (milli-, micro- or nanoseconds), a transform's translation over 10 m (centimetres
+        or millimetres).
 
     Example:
         >>> import os, tempfile
@@ -198,8 +234,10 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
         rel = torch.stack(poses).narrow(0, 1, len(poses) - 1)
     ext = None
     if all("T_cam_imu" in e for e in entries):
-        ext = torch.stack([dualquat.inv(_rigid(fn, f"{file}: {k}.T_cam_imu", e["T_cam_imu"]))
-                           for k, e in zip(names, entries, strict=True)])
+        mounts = []  # a loop, not a comprehension: the warnings' stack levels (_warn_unit)
+        for k, e in zip(names, entries, strict=True):
+            mounts.append(dualquat.inv(_rigid(fn, f"{file}: {k}.T_cam_imu", e["T_cam_imu"])))
+        ext = torch.stack(mounts)
     shifts = None
     if all("timeshift_cam_imu" in e for e in entries):
         values = [_number(e["timeshift_cam_imu"]) for e in entries]
@@ -207,6 +245,8 @@ def read_camchain(path: str | os.PathLike[str]) -> Camchain:
                    and math.isfinite(v) for v in values):
             _checks.fail(fn, f"{file}: timeshift_cam_imu must be numbers (seconds), got "
                              f"{values}")
+        for k, v in zip(names, values, strict=True):
+            _warn_unit(fn, f"{file}: {k}", "timeshift_cam_imu", float(v))
         shifts = torch.tensor(values, dtype=torch.float64)
     topics = [e.get("rostopic") if isinstance(e.get("rostopic"), str) else None
               for e in entries]

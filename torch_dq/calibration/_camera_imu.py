@@ -51,7 +51,7 @@ from ..camera import Camera
 from ..fitting import Accel, Free, Gyro, Reprojections, estimate
 from ..nn import BSpline
 from . import _knot_spacing, _start
-from ._cameras import _cameras_data, _inside, _planar
+from ._cameras import _cameras_data, _distinct, _inside, _planar
 from ._imu_result import _FN, CameraImuCalibration, result
 from ._walk import WalkAccel, WalkGyro, segments
 
@@ -106,6 +106,7 @@ def _arguments(cameras, observations, imu):
                               (None, 3, 2), increasing=False)
         _units(i, cameras[i], ot, op, ou)
         obs.append((ot, op, ou))
+    _distinct(obs, _FN)
     return list(cameras), obs, (t, g, a)
 
 

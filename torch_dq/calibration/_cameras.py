@@ -171,6 +171,17 @@ def _observation(i: int, obs) -> tuple[Tensor, Tensor, Tensor]:
     return t, p, u
 
 
+def _distinct(obs: list, fn: str = _FN) -> None:
+    """Fail where two cameras' ``(times, points, pixels)`` are one: equal times and pixels,
+    which two cameras of a rig never see (one corners file given for both: their relative
+    pose came out the identity, without a word)."""
+    for j, (tj, _, uj) in enumerate(obs):
+        for i, (ti, _, ui) in enumerate(obs[:j]):
+            if ti.shape == tj.shape and torch.equal(ti, tj) and torch.equal(ui, uj):
+                _checks.fail(fn, f"observations[{j}] repeat observations[{i}] (the same times "
+                                 f"and pixels): one camera's corners given for two cameras?")
+
+
 def _planar(i: int, points: Tensor, fn: str = _FN) -> None:
     """Check that camera ``i``'s ``(N, 3)`` target points lie on the plane ``Z = 0`` (the
     closed-form starts are homographies of that plane) and span at most
@@ -229,6 +240,7 @@ def _arguments(observations, models, resolution, robust, robust_k, max_iteration
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 4:
         _checks.fail(_FN, f"expected min_points to be an int >= 4, got {min_points!r}")
     obs = [_observation(i, o) for i, o in enumerate(observations)]
+    _distinct(obs)
     for i, ((_, _, u), r) in enumerate(zip(obs, res, strict=True)):
         _inside(i, u, r)
     return obs, [str(m) for m in models], res

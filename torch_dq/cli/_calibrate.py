@@ -188,10 +188,17 @@ def _on_target(path, points, target, target_path) -> None:
     bad = (gap > tol).nonzero()
     if len(bad):
         i = int(bad[0])
-        why = next((f"the points are in {unit}, not metres: divide X_m, Y_m, Z_m by {k}"
-                    for unit, k in (("millimetres", 1000), ("centimetres", 100))
-                    if bool((torch.cdist(points / k, ref).amin(-1) <= tol).all())),
-                   "the corners were measured on another target, or --target is not it")
+        units = (("millimetres", 1000), ("centimetres", 100))
+        # the target's yaml in another unit first: points / k all lie near a large target's
+        # corner 0, which the second test alone took for corners in millimetres
+        why = next((f"the target's sizes are in {unit}, not metres (Kalibr's tagSize, "
+                    f"rowSpacingMeters, colSpacingMeters): divide them by {k} in {target_path}"
+                    for unit, k in units
+                    if bool((torch.cdist(points, ref / k).amin(-1) <= tol / k).all())), None)
+        why = why or next((f"the points are in {unit}, not metres: divide X_m, Y_m, Z_m by {k}"
+                           for unit, k in units
+                           if bool((torch.cdist(points / k, ref).amin(-1) <= tol).all())),
+                          "the corners were measured on another target, or --target is not it")
         raise UserError(f"{path}: the point {points[i].tolist()} (row {i + 1}) is not a "
                         f"corner of the target in {target_path} (nearest {float(gap[i]):.3g} "
                         f"m away; {len(bad)} of {len(points)} rows are off): {why}")

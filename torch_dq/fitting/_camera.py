@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, camera, dualquat
-from .._camera_values import normalised_hint, outside
+from .._camera_values import LONGEST_LINE_DELAY, normalised_hint, outside, seconds_hint
 from ..camera import _in_domain
 from ._charts import Pose, Scalar, Vector
 from ._nuisance import Slot
@@ -57,6 +57,23 @@ def _check_domain(fn: str, model: str, slot: Slot) -> None:
     if known is not None and not bool(_in_domain(model, list(known.unbind(-1))).all()):
         _checks.fail(fn, f"intrinsics outside the {model!r} model's domain (fu, fv > 0; the "
                          f"double sphere's xi > -1, alpha in [0, 1]): {known.tolist()}")
+
+
+def _check_line_delay(fn: str, slot: Slot, given, rows: int) -> None:
+    """Raise where the fixed line delay, or an estimate's start (a ``Free``'s), is below
+    zero; warn where it exceeds ``LONGEST_LINE_DELAY`` per row of the ``rows`` (another
+    unit: microseconds?)."""
+    known = slot.fixed if slot.free is None else slot.free.start
+    if known is None:
+        return
+    known = torch.as_tensor(known)
+    if not bool((known >= 0).all()):
+        _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {given!r}")
+    if bool((known > LONGEST_LINE_DELAY).any()):
+        v = float(known.max())
+        warnings.warn(f"{fn}: line_delay {v:g} s per row reads {rows} rows in {v * rows:.3g} s "
+                      f"(seconds per row expected):{seconds_hint(v, LONGEST_LINE_DELAY)}",
+                      UserWarning, stacklevel=3)
 
 
 def _intrinsics(fn: str, cam) -> tuple[str, Tensor]:
@@ -96,7 +113,7 @@ class Reprojections(Term):
 
     Residual ``(..., N, 2)``: predicted minus measured pixel over ``sigma``; zero for masked
     observations and for points without an image (``term.invalid`` counts them after
-    :func:`~torch_dq.fitting.estimate`).
+    :func:`~torch_dq.fitting.estimate`, which raises a ``ValueError`` where none is left).
 
     Raises:
         ValueError: shapes that do not match, points that are not finite, pixels (not
@@ -194,10 +211,7 @@ class Reprojections(Term):
         self._slots["line_delay"] = Slot(fn, "line_delay", Scalar(0.0, self.max_line_delay),
                                          line_delay)
         _check_domain(fn, self.model, self._slots["intrinsics"])
-        slot = self._slots["line_delay"]  # fixed, or a Free's start
-        known = slot.fixed if slot.free is None else slot.free.start
-        if known is not None and not bool((torch.as_tensor(known) >= 0).all()):
-            _checks.fail(fn, f"line_delay must be >= 0 (seconds per row), got {line_delay!r}")
+        _check_line_delay(fn, self._slots["line_delay"], line_delay, self.resolution[1])
         self.invalid: Tensor | None = None
 
     extrinsic = _nuisance("extrinsic", "The camera's pose on the body ``e`` ``(..., 8)``.")
@@ -288,12 +302,23 @@ class Reprojections(Term):
     def solved(self, trajectory) -> Tensor:
         r"""The observations with an image at the solution ``(..., N)`` bool (those counted by
         :attr:`~torch_dq.fitting.Estimate.chi2` and ``dof``); count those without
-        (``invalid (...)``, int64 per batch element) and warn when there are any; warn when
+        (``invalid (...)``, int64 per batch element) and warn when there are any (raise
+        where a batch element has none with an image: the term says nothing); warn when
         an estimated line delay meets too little motion: its information
         :math:`\sum_i (v_i |\dot u_i| / \sigma)^2` (``\dot u`` the predicted pixel velocity)
         leaves it a standard deviation above ``max_line_delay``."""
         valid = self.visible(trajectory)
         self.invalid = (self.mask & ~valid).sum(-1)
+        blind = ~valid.any(-1)  # a camera that sees nothing at the solution: no information
+        if bool(blind.any()):
+            i = tuple(int(v) for v in torch.nonzero(blind.reshape(blind.shape or (1,)))[0])
+            where = f" (batch element {list(i)})" if blind.dim() else ""
+            _checks.fail("fitting.estimate", f"every observation of Reprojections (camera "
+                         f"{self.model!r}){where} projects invalid at the solution (behind the "
+                         f"camera or outside the model's domain): the term carries no "
+                         f"information, and a result would ignore it; check the extrinsic (the "
+                         f"camera's pose on the body, p_body = e p_cam: Kalibr's T_imu_cam, not "
+                         f"T_cam_imu), the target's pose and the trajectory's start")
         n = int(self.invalid.sum())
         if n:
             warnings.warn(f"fitting.estimate: {n} observation(s) of Reprojections (camera "

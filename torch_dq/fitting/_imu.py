@@ -331,8 +331,9 @@ class Accel(_Imu):
         sigma: noise, a float or 3.
         bias: ``(3,)`` bias, fixed or estimated (start zero).
         gravity: a fixed ``(3,)`` world vector (default ``(0, 0, -9.81)``); a float
-            magnitude: its direction is estimated, started from the mean reading rotated to
-            world axes by the trajectory (:math:`g \approx -\overline{R f}`); or a
+            magnitude (or a 0-d tensor): its direction is estimated, started from the mean
+            reading rotated to world axes by the trajectory (:math:`g \approx
+            -\overline{R f}`); or a
             :class:`~torch_dq.fitting.Free` with a ``(3,)`` start (its norm is kept; the
             mean-reading direction replaces it where that explains the readings better,
             the bias absorbed: from a start far off, e.g. 90 deg, Gauss-Newton can end in
@@ -357,6 +358,8 @@ class Accel(_Imu):
         super().__init__(times, readings, sigma, bias,
                          Options(time_offset, max_time_offset, robust, robust_k, mask))
         self._magnitude: float | None = None
+        if isinstance(gravity, Tensor) and gravity.dim() == 0:  # a magnitude, as a float is
+            gravity = float(gravity)
         if isinstance(gravity, numbers.Real) and not isinstance(gravity, bool):
             if not (math.isfinite(gravity) and float(gravity) > 0):
                 _checks.fail(fn, f"a gravity magnitude must be positive and finite, got "

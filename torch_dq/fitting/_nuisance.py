@@ -137,8 +137,10 @@ class Slot:
         _checks.tensor(fn, name, value)
         shape = self.shape
         if tuple(value.shape[value.dim() - len(shape):]) != shape or value.dim() < len(shape):
+            matrix = shape == (8,) and tuple(value.shape[-2:]) == (4, 4)
+            hint = ": a 4 x 4 matrix? convert it with torch_dq.dualquat.from_matrix" * matrix
             _checks.fail(fn, f"expected {name} of shape (..., {', '.join(map(str, shape))}) "
-                             f"(batch first), got {_checks.shape_str(value.shape)}"
+                             f"(batch first), got {_checks.shape_str(value.shape)}{hint}"
                          if shape else f"expected a float or a tensor for {name}")
         if not bool(torch.isfinite(value).all()):
             _checks.fail(fn, f"{name} must be finite")

@@ -144,8 +144,8 @@ def _count(x: Tensor) -> str:
 
 
 def _number(x: Tensor) -> str:
-    """A 0-d tensor's value, or a batch's shape."""
-    return f"{float(x):.6g}" if x.dim() == 0 else f"<{tuple(x.shape)} tensor>"
+    """A 0-d tensor's value, or a batch's range and shape."""
+    return f"{float(x):.6g}" if x.dim() == 0 else f"{x.min():.6g} to {x.max():.6g} {tuple(x.shape)}"
 
 
 class Estimate:
@@ -178,6 +178,7 @@ class Estimate:
         ``Summary`` (``torch_dq.fitting._problem``), the solution and the loop's
         ``History`` (``torch_dq.fitting._lm``)."""
         self._problem, self._ctrl, self._values = summary, ctrl, values
+        self._dtype = summary.trajectory.control_points.dtype  # the uncertainties' (Conventions)
         self.loss: Tensor = history.loss
         self.final_loss: Tensor = self.loss[-1]
         self.objective: Tensor = history.objective
@@ -310,10 +311,10 @@ class Estimate:
 
     def _factor_scale(self) -> Tensor:
         r"""``(Bf,)`` :math:`\sqrt{\sum_t \chi^2_t / \sum_t \nu_t}`, pooled over every term
-        (``scaled=True``; see :meth:`cov`)."""
+        (``scaled=True``; see :meth:`cov`); inf below 0.5 dof (scipy's ``curve_fit``'s)."""
         chi2 = sum(self.chi2.values())
         dof = cast(Tensor, sum(self.dof.values()))
-        return (chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
+        return torch.where(dof < 0.5, torch.inf, chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
     def _far(self) -> dict:
         r"""Per term: ``(ratio, "above" | "below" | None)``, ``ratio`` the largest (above)
@@ -532,8 +533,11 @@ class Estimate:
                 nothing, as ``scaled=False`` does).
 
         Returns:
-            ``(..., k, k)``, ``k`` the sum of the sizes.
+            ``(..., k, k)``, ``k`` the sum of the sizes, in the trajectory's dtype.
         """
+        return self._cov(items, scaled).to(self._dtype)
+
+    def _cov(self, items: tuple, scaled: bool) -> Tensor:  # cov in float64
         for item in items:
             if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], str)):
                 _checks.fail("fitting.Estimate.cov", f"items must be (term, name) pairs, got "
@@ -575,7 +579,7 @@ class Estimate:
             _checks.fail(fn, f"observed=True is for a time_offset (the observed information of "
                              f"a sensor's clock), got name={name!r}")
         q = self._param(term, name)
-        C = self.cov((term, name), scaled=scaled).reshape(-1, q.dim, q.dim)
+        C = self._cov(((term, name),), scaled).reshape(-1, q.dim, q.dim)
         M = self._chart_map(q)
         if M is not None:  # gravity: from its 2-d chart to world axes
             finite = torch.isfinite(C).all(-1).all(-1)[:, None, None]
@@ -595,8 +599,8 @@ class Estimate:
                 s = self._observed(term, name, q, s, observed)
             if q.free.prior_std is None:  # with a prior, the std is the user's statement
                 _warn_unexcited(term, q.chart.high, torch.where(pinned, torch.nan, s))
-            return s.reshape(b)
-        return s.reshape(*b, s.shape[-1])
+            return s.reshape(b).to(self._dtype)
+        return s.reshape(*b, s.shape[-1]).to(self._dtype)
 
     def _observed(self, term, name: str, q, s: Tensor, observed: bool) -> Tensor:
         """A time offset's Gauss-Newton std ``s (Bf, 1)``, checked against the observed
@@ -669,8 +673,7 @@ class Estimate:
             std = std * self._factor_scale()[:, None, None]
         # a NaN time passes the domain check; its std is NaN, never a finite number
         std = torch.where(torch.isnan(t).reshape(Bf, T, 1), torch.nan, std)
-        return (std.reshape(*lead, -1, k) if not p.batch else std.reshape(*p.batch, T, k)
-                ).to(home)
+        return std.reshape(*(p.batch or lead), -1, k).to(home, self._dtype)
 
     def pose_std(self, t: Tensor, scaled: bool = False) -> Tensor:
         """``(..., T, 6)``: standard deviations of the pose at ``t``: the rotation ``delta``

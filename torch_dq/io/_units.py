@@ -71,12 +71,12 @@ def warn_imu_time_unit(fn: str, path, t: np.ndarray) -> None:
     if step < 0.5:
         return
     for name, scale in _checks.TIME_UNITS:
-        if 2e-4 <= step * scale <= 0.05:
+        if 2e-4 <= step * scale <= 0.05:  # time_unit='ns' for nanoseconds only (not ms)
+            fix = "pass time_unit='ns' or " if name == "nanoseconds" else ""
             warnings.warn(f"{fn}: {os.fspath(path)}: the times look like {name}, not "
                           f"seconds: read as seconds the samples lie {step:.3g} s apart "
-                          f"(median), {1 / (step * scale):.4g} Hz as {name}; pass "
-                          f"time_unit='ns' for nanoseconds or divide the times by "
-                          f"{1 / scale:.0e}", UserWarning, stacklevel=3)
+                          f"(median), {1 / (step * scale):.4g} Hz as {name}; {fix}divide "
+                          f"the times by {1 / scale:.0e}", UserWarning, stacklevel=3)
             return
 
 
