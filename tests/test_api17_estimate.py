@@ -180,9 +180,6 @@ def test_batch_summary_shows_the_numbers():
         assert [float(v) for v in found.groups()] == pytest.approx(sorted(chi2), rel=1e-5)
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason="fitting/_uncertainty.py (trust17's; "
-                   "at its 700-line limit): Estimate.cov() with no nuisance parameter "
-                   "estimated raises torch.cat's 'expected a non-empty list of Tensors'")
 def test_cov_of_nothing_estimated_is_empty():
     """``cov()`` is "every estimated parameter, in the order of ``parameters``": with none
     (``parameters == []``) that is the ``(0, 0)`` matrix, not torch's error."""

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from .. import _checks, curves, dualquat, quat
-from . import _robust
+from . import _chi2, _robust
 from ._banded import BandedCholesky
 from ._charts import Scalar
 from ._leverage import decouple, taken
@@ -49,10 +49,6 @@ from ._score import directions, warn_omitted
 __all__ = ["Estimate"]
 
 _FLOOR = 1e-12  # information below this fraction of the largest diagonal entry: none
-_Z999 = 3.2905  # the standard normal's 99.95 % quantile (two-sided 99.9 % band)
-_FAR = 1.5  # chi2/dof above which (and above the band) a term's sigmas are too small: the
-# standard deviations 20 % too small at least (2 let an accelerometer at 1.57 on knots too
-# far apart for it pass silently, its bias 2.4 std off along a weak direction)
 _UNEXCITED = 0.1  # a time offset's std above this fraction of its bound: barely excited
 _NEAR = 1e-2  # a Newton decrement within which the estimate is at the optimum (0.1 std of any
 # quantity): the observed information's check of a time offset's std is taken there only
@@ -128,14 +124,6 @@ def _drop_undetermined(band: Tensor, cn: Tensor,
     eye = torch.eye(band.shape[-1], dtype=band.dtype, device=band.device)
     band[:, :, 0] = torch.where(free[..., None, None], eye, band[:, :, 0])
     return band, cn, free
-
-
-def _band(nu: Tensor, z: float) -> Tensor:
-    r"""The chi-square distribution's quantile at the standard normal's ``z`` for ``nu``
-    degrees of freedom (Wilson and Hilferty's cube-root approximation):
-    :math:`\nu (1 - 2 / (9 \nu) + z \sqrt{2 / (9 \nu)})^3`."""
-    a = 2.0 / (9.0 * nu)
-    return nu * (1.0 - a + z * a.sqrt()).clamp_min(0.0) ** 3
 
 
 def _count(x: Tensor) -> str:
@@ -317,31 +305,8 @@ class Estimate:
         return torch.where(dof < 0.5, torch.inf, chi2 / dof.clamp_min(1.0)).sqrt().reshape(-1)
 
     def _far(self) -> dict:
-        r"""Per term: ``(ratio, "above" | "below" | None)``, ``ratio`` the largest (above)
-        or smallest (below) :math:`\chi^2 / \nu` over the batch.
-
-        Far above 1: :math:`\chi^2` beyond both ``_FAR = 1.5`` times :attr:`dof` and the
-        upper end of the two-sided 99.9 % band of the chi-square distribution with
-        :attr:`dof` degrees of freedom (its sigmas too small for its residuals, or, for an
-        IMU term, the knots too far apart for its readings). Far below 1: :math:`\chi^2`
-        below both :attr:`dof` over ``_FAR`` and the lower end of that band: its sigmas are
-        too large, its standard deviations too (the Wilson-Hilferty cube-root approximation
-        of the quantiles). The band is the chi-square distribution's with :attr:`dof`
-        degrees of freedom, which a term's :math:`\chi^2` has in the mean (a quadratic form
-        of the residuals whose eigenvalues are between 0 and 1: its variance at most that
-        distribution's, the band conservative)."""
-        dofs = self.dof
-        out: dict = {}
-        for term, c in self.chi2.items():
-            nu = dofs[term].clamp_min(1.0)
-            ratio = c / nu
-            if bool(((c > _band(nu, _Z999)) & (ratio > _FAR)).any()):
-                out[term] = (float(ratio.max()), "above")
-            elif bool(((c < _band(nu, -_Z999)) & (ratio < 1.0 / _FAR)).any()):
-                out[term] = (float(ratio.min()), "below")
-            else:
-                out[term] = (float(ratio.max()), None)
-        return out
+        """Per term: ``(ratio, "above" | "below" | None)`` (``fitting._chi2.far``)."""
+        return _chi2.far(self.chi2, self.dof)
 
     def summary(self) -> str:
         r"""A few lines: the steps and why they stopped, the final loss, and per term its
@@ -546,6 +511,8 @@ class Estimate:
         p = self._problem
         qs = [self._param(t, n, "fitting.Estimate.cov") for t, n in items] if items else p.params
         dev = self._U.device
+        if not qs:  # nothing estimated: the (0, 0) covariance
+            return self._U.new_zeros(*p.batch, 0, 0)
         cols = torch.cat([torch.arange(q.offset, q.offset + q.dim, device=dev) for q in qs])
         Bf = self._U.shape[0]
         E = torch.eye(p.m, dtype=self._U.dtype, device=dev)[cols].expand(Bf, -1, -1)
