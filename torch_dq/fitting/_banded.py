@@ -32,6 +32,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from .._kernels import banded_native, native
+
 __all__ = ["BandedCholesky"]
 
 _CHUNK = 1 << 10  # groups of a selected inverse or low-rank update at once (bounds their
@@ -210,18 +212,28 @@ class BandedCholesky:
 
     def __init__(self, band: Tensor, shift: Tensor | None = None) -> None:
         *batch, n, w, s, _ = band.shape
-        dev = band.device
         g = max(w - 1, 1)
         G = -(-n // g)
-        pad = G * g - n  # identity rows after the last block row (_grouped)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
+        self.levels: list[_Level] = []
+        self._factor: Tensor | None = None  # the compiled path's (banded_native)
+        self._source = band, shift  # for the reduction where the compiled path cannot serve
+        if native.enabled(band, *(() if shift is None else (shift,))):
+            self._factor, self.ok = banded_native.factor(band, shift, G * g * s)
+        else:
+            self.ok = self._reduce()
+
+    def _reduce(self) -> Tensor:
+        """The cyclic reduction's levels into ``levels`` (once); returns their ``ok``."""
+        band, shift = self._source
+        g, G, s = self.g, self.G, self.s
+        pad = G * g - self.n  # identity rows after the last block row (_grouped)
         # [D, E]: each level frees its input once read (memory)
         pair = [_grouped(band, g), _grouped(band, g, below=True)]
         if shift is not None:
             shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
             pair[0].diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
-        self.levels: list[_Level] = []
-        ok = torch.ones(batch, dtype=torch.bool, device=dev)
+        ok = torch.ones(self.batch, dtype=torch.bool, device=band.device)
         while pair[0].shape[-3]:
             level = _Level(pair)
             ok &= level.ok
@@ -229,11 +241,24 @@ class BandedCholesky:
             pair = [level.D, level.E]
             if level.D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
                 del level.D, level.E
-        self.ok = ok
+        return ok
+
+    def _compiled(self, *tensors: Tensor) -> Tensor | None:
+        """The compiled factor where it serves a call on ``tensors``, else None (the cyclic
+        reduction's levels then built on first need where the matrix was factored by the
+        compiled path: ``tensors`` of another dtype, or needing a gradient)."""
+        if self._factor is None or native.enabled(*tensors):
+            return self._factor
+        if not self.levels:
+            self._reduce()
+        return None
 
     def solve(self, rhs: Tensor) -> Tensor:
         """``A^-1 rhs`` for ``rhs (..., n, s, r)`` (batch broadcast with the matrix's)."""
         n, s, r = rhs.shape[-3:]
+        factor = self._compiled(rhs)
+        if factor is not None:
+            return banded_native.solve(factor, rhs)
         g, G = self.g, self.G
         b = self._groups(rhs)
         ys = []
@@ -249,6 +274,9 @@ class BandedCholesky:
         """Blocks of :math:`A^{-1}` of the grouped matrix: ``diag (..., G, g s, g s)`` and
         ``sub (..., G, g s, g s)`` (``sub[j]`` the block of groups ``(j + 1, j)``, the last
         one zero)."""
+        factor = self._compiled()
+        if factor is not None:
+            return banded_native.selected_inverse(factor, self.g * self.s)
         return self._inverse_from(0)
 
     def _inverse_from(self, first: int) -> tuple[Tensor, Tensor]:
@@ -270,7 +298,10 @@ class BandedCholesky:
         (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
         \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out. The finest
         level's diagonal blocks are taken ``_CHUNK`` groups at a time, as its selected
-        inverse makes them (their row sums kept, never the whole diagonal: memory)."""
+        inverse makes them (their row sums kept, never the whole diagonal: memory; on the
+        compiled path, ``_trace_compiled``, the whole selected inverse)."""
+        if self._compiled(*bands, *(x for x in (U, V) if x is not None)) is not None:
+            return self._trace_compiled(bands, U, V)
         g, G, top = self.g, self.G, self.levels[0]
         ne = top.C.shape[-3]
         diag, sub = self._inverse_from(1)  # the odd groups' blocks
@@ -303,6 +334,24 @@ class BandedCholesky:
             below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(fine_sub[..., :-1, :, :])
             out.append((rs * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
             del below  # before the next band's (memory)
+        return out
+
+    def _trace_compiled(self, bands: list[Tensor], U: Tensor | None,
+                        V: Tensor | None) -> list[Tensor]:
+        """``trace_products`` from the compiled path's whole selected inverse."""
+        g, G = self.g, self.G
+        diag, sub = self.selected_inverse()
+        if U is not None and V is not None:
+            Ug, Vg = self._groups(U), self._groups(V)
+            diag = diag + Ug @ Vg.mT
+            sub[..., :-1, :, :] += Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT
+        rows = torch.arange(G * g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
+        out = []
+        for band in bands:
+            on = _grouped(band, g).mul_(diag).sum(-1)
+            below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(sub[..., :-1, :, :])
+            out.append((on * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
         return out
 
     def _groups(self, x: Tensor) -> Tensor:
