@@ -25,6 +25,15 @@ matrix. The selected inverse (Takahashi's recursion, from the coarsest level bac
 :math:`\Sigma_{ii} = D_i^{-1} - D_i^{-1} (E_i \Sigma_{i-1,i} + E_{i+1}^T \Sigma_{i+1,i})`)
 gives the blocks of :math:`A^{-1}` inside the band of the grouped matrix (the covariance of
 every ``g + 1`` consecutive block rows) without forming the dense inverse.
+
+Where the compiled kernels may run (``torch_dq._kernels.native.enabled``: float64 on the
+CPU, nothing needing a gradient) the matrix is factored instead by a sequential scalar
+banded Cholesky in C (``torch_dq._kernels.banded_native``: LAPACK ``dpbtf2``'s
+factorisation, :math:`O(n s (w s)^2)` flops in one pass, the batch looped over), solved by
+substitution, and its selected inverse taken by Takahashi's recursion on that factor, in the
+same grouped layout; the cyclic reduction is the reference the tests compare it with, runs
+everywhere else, and is built on first need where a call on a compiled factor is not for the
+C (a right-hand side needing a gradient).
 """
 
 from __future__ import annotations
@@ -197,8 +206,8 @@ class _Level:
 
 
 class BandedCholesky:
-    """Block cyclic reduction of a symmetric positive definite block-banded matrix (module
-    doc).
+    """Cholesky factorisation of a symmetric positive definite block-banded matrix: block
+    cyclic reduction, or the compiled sequential banded Cholesky (module doc).
 
     Args:
         band: ``(..., n, w, s, s)`` upper band (blocks past the last row are ignored).
@@ -217,15 +226,16 @@ class BandedCholesky:
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
         self.levels: list[_Level] = []
         self._factor: Tensor | None = None  # the compiled path's (banded_native)
-        self._source = band, shift  # for the reduction where the compiled path cannot serve
+        self._source: tuple[Tensor, Tensor | None] | None = None  # its matrix (the reduction
+        # of it where the compiled factor cannot serve a call)
         if native.enabled(band, *(() if shift is None else (shift,))):
             self._factor, self.ok = banded_native.factor(band, shift, G * g * s)
+            self._source = band, shift
         else:
-            self.ok = self._reduce()
+            self.ok = self._reduce(band, shift)
 
-    def _reduce(self) -> Tensor:
-        """The cyclic reduction's levels into ``levels`` (once); returns their ``ok``."""
-        band, shift = self._source
+    def _reduce(self, band: Tensor, shift: Tensor | None) -> Tensor:
+        """The cyclic reduction's levels into ``levels``; returns their ``ok``."""
         g, G, s = self.g, self.G, self.s
         pad = G * g - self.n  # identity rows after the last block row (_grouped)
         # [D, E]: each level frees its input once read (memory)
@@ -247,10 +257,10 @@ class BandedCholesky:
         """The compiled factor where it serves a call on ``tensors``, else None (the cyclic
         reduction's levels then built on first need where the matrix was factored by the
         compiled path: ``tensors`` of another dtype, or needing a gradient)."""
-        if self._factor is None or native.enabled(*tensors):
+        if self._source is None or native.enabled(*tensors):
             return self._factor
         if not self.levels:
-            self._reduce()
+            self._reduce(*self._source)
         return None
 
     def solve(self, rhs: Tensor) -> Tensor:
@@ -305,8 +315,7 @@ class BandedCholesky:
         g, G, top = self.g, self.G, self.levels[0]
         ne = top.C.shape[-3]
         diag, sub = self._inverse_from(1)  # the odd groups' blocks
-        rows = torch.arange(G * g, device=diag.device) < self.n
-        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
+        real = self._real(diag)
         fine_sub = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
         fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
         Ug, Vg = (None, None) if U is None or V is None else (self._groups(x) for x in (U, V))
@@ -345,14 +354,18 @@ class BandedCholesky:
             Ug, Vg = self._groups(U), self._groups(V)
             diag = diag + Ug @ Vg.mT
             sub[..., :-1, :, :] += Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT
-        rows = torch.arange(G * g, device=diag.device) < self.n
-        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
+        real = self._real(diag)
         out = []
         for band in bands:
             on = _grouped(band, g).mul_(diag).sum(-1)
             below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(sub[..., :-1, :, :])
             out.append((on * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
         return out
+
+    def _real(self, like: Tensor) -> Tensor:
+        """``(G, g s)``: 1 on the grouped matrix's rows, 0 on its identity rows past ``n``."""
+        rows = torch.arange(self.G * self.g, device=like.device) < self.n
+        return rows.repeat_interleave(self.s).reshape(self.G, -1).to(like.dtype)
 
     def _groups(self, x: Tensor) -> Tensor:
         """``x (..., n, s, r)`` as ``(..., G, g s, r)``, zero rows past ``n``."""
