@@ -35,14 +35,21 @@ def _switch(on: bool) -> None:
 
 def _counted(stats: dict[str, collections.Counter]) -> None:
     """Count and time ``BandedCholesky``'s public calls per method and matrix shape into
-    ``stats[flag]`` (``flag`` the current setting: ``stats["on"]``)."""
+    ``stats[flag]`` and ``stats["n" + flag]`` (``flag`` the current setting: ``stats["on"]``;
+    a call inside another counted call left out)."""
     cls = _banded.BandedCholesky
     for name in METHODS:
         fn = getattr(cls, name)
 
         def timed(self, *a, _fn=fn, _name=name, **k):
             t = time.process_time()
-            out = _fn(self, *a, **k)
+            stats["depth"] += 1
+            try:
+                out = _fn(self, *a, **k)
+            finally:
+                stats["depth"] -= 1
+            if stats["depth"]:  # inside another counted call (trace_products' selected
+                return out  # inverse): its time is the caller's
             if _name == "__init__":
                 shift = a[1] if len(a) > 1 else k.get("shift")
                 self._key = (tuple(a[0].shape), "shift" if shift is not None else "")
@@ -95,6 +102,7 @@ def main() -> None:
         print(f"  {name:17s} compiled {min(ops['1'][name]):6.2f}  reduction "
               f"{min(ops['0'][name]):6.2f}")
     stats: dict = {k: collections.Counter() for k in ("1", "0", "n1", "n0")}
+    stats["on"], stats["depth"] = "1", 0
     _counted(stats)
     kept: list = []
     sigmas = bg._sigmas
