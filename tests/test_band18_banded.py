@@ -120,6 +120,16 @@ def test_trace_products_match_numpy(monkeypatch, n, w):
     assert _rel(plain, np.einsum("bij,bji->b", dense, inv + U @ V.transpose(0, 2, 1))) < 1e-12
     alone, = chol.trace_products([bM])
     assert _rel(alone, np.einsum("bij,bji->b", M, inv)) < 1e-12
+    past = bM.clone()
+    for d in range(1, w):  # the blocks past the last row are ignored, NaN too
+        past[:, n - d:, d] = float("nan")
+    assert _rel(chol.trace_products([past])[0], alone) < 1e-15
+    # the inverse's blocks inside the band, as the band's layout
+    Zb = banded_native.band_inverse(chol._factor, n, w, s).numpy()
+    for k in range(n):
+        for d in range(min(w, n - k)):
+            blk = inv[:, k * s:(k + 1) * s, (k + d) * s:(k + d + 1) * s]
+            assert _rel(Zb[:, k, d], blk) < 1e-12
     assert _rel(alone, _reference(band, None, monkeypatch).trace_products([bM])[0]) < 1e-12
 
 

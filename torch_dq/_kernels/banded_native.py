@@ -22,7 +22,7 @@ from torch import Tensor
 
 from . import native
 
-__all__ = ["factor", "selected_inverse", "solve"]
+__all__ = ["band_inverse", "factor", "selected_inverse", "solve"]
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 
@@ -34,7 +34,7 @@ def _functions() -> tuple[ctypes._CFuncPtr, ...]:  # type: ignore[name-defined]
     fac, sol, inv = lib.tdq_band_factor, lib.tdq_band_solve, lib.tdq_band_selected_inverse
     fac.argtypes = [_P, _P, _I, _I, _I, _I, _I, _P, _P]
     sol.argtypes = [_P, _I, _I, _I, _I, _I, _P]
-    inv.argtypes = [_P, _I, _I, _I, _I, _P, _P]
+    inv.argtypes = [_P, _I, _I, _I, _I, _P, _P, _I, _I, _I, _P]
     fac.restype, sol.restype, inv.restype = None, None, ctypes.c_int
     return fac, sol, inv
 
@@ -72,10 +72,26 @@ def selected_inverse(U: Tensor, b: int) -> tuple[Tensor, Tensor]:
     """The blocks of :math:`A^{-1}` of the grouped matrix (groups of ``b = g s`` rows):
     ``diag (*batch, G, b, b)`` and ``sub (*batch, G, b, b)`` (``sub[j]`` groups
     ``(j + 1, j)``, the last one zero), as ``BandedCholesky.selected_inverse``'s."""
-    *batch, N, q = U.shape
-    G = N // b
-    diag, sub = U.new_empty(*batch, G, b, b), U.new_empty(*batch, G, b, b)
-    if _functions()[2](native.address(U), int(torch.Size(batch).numel()), N, q - 1, b,
-                       native.address(diag), native.address(sub)):
-        raise MemoryError("torch_dq: no memory for the compiled selected inverse's buffer")
+    *batch, N, _ = U.shape
+    diag, sub = U.new_empty(*batch, N // b, b, b), U.new_empty(*batch, N // b, b, b)
+    _inverse(U, b, diag, sub, (0, 0, 0), None)
     return diag, sub
+
+
+def band_inverse(U: Tensor, n: int, w: int, s: int) -> Tensor:
+    """The blocks of :math:`A^{-1}` inside the matrix's band, ``(*batch, n, w, s, s)`` as
+    the band (block ``(k, k + d)`` at ``[..., k, d]``; zero past the last block row): the
+    recursion to the band's width only."""
+    out = U.new_empty(*U.shape[:-2], n, w, s, s)
+    _inverse(U, 0, None, None, (n, w, s), out)
+    return out
+
+
+def _inverse(U: Tensor, b: int, diag: Tensor | None, sub: Tensor | None,
+             nws: tuple[int, int, int], band: Tensor | None) -> None:
+    """``tdq_band_selected_inverse`` into the given outputs (None: not wanted)."""
+    *batch, N, q = U.shape
+    if _functions()[2](native.address(U), int(torch.Size(batch).numel()), N, q - 1, b,
+                       *(None if x is None else native.address(x) for x in (diag, sub)),
+                       *nws, None if band is None else native.address(band)):
+        raise MemoryError("torch_dq: no memory for the compiled selected inverse's buffer")

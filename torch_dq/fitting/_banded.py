@@ -309,13 +309,15 @@ class BandedCholesky:
         \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out. The finest
         level's diagonal blocks are taken ``_CHUNK`` groups at a time, as its selected
         inverse makes them (their row sums kept, never the whole diagonal: memory; on the
-        compiled path, ``_trace_compiled``, the whole selected inverse)."""
-        if self._compiled(*bands, *(x for x in (U, V) if x is not None)) is not None:
-            return self._trace_compiled(bands, U, V)
+        compiled path, ``_trace_compiled``, the inverse's blocks inside the band)."""
+        factor = self._compiled(*bands, *(x for x in (U, V) if x is not None))
+        if factor is not None:
+            return self._trace_compiled(factor, bands, U, V)
         g, G, top = self.g, self.G, self.levels[0]
         ne = top.C.shape[-3]
         diag, sub = self._inverse_from(1)  # the odd groups' blocks
-        real = self._real(diag)
+        rows = torch.arange(G * g, device=diag.device) < self.n
+        real = rows.repeat_interleave(self.s).reshape(G, g * self.s).to(diag.dtype)
         fine_sub = diag.new_empty(*diag.shape[:-3], G, *diag.shape[-2:])
         fine_sub[..., 2 * ne - 1:, :, :] = 0.0  # past the last group
         Ug, Vg = (None, None) if U is None or V is None else (self._groups(x) for x in (U, V))
@@ -345,27 +347,26 @@ class BandedCholesky:
             del below  # before the next band's (memory)
         return out
 
-    def _trace_compiled(self, bands: list[Tensor], U: Tensor | None,
+    def _trace_compiled(self, factor: Tensor, bands: list[Tensor], U: Tensor | None,
                         V: Tensor | None) -> list[Tensor]:
-        """``trace_products`` from the compiled path's whole selected inverse."""
-        g, G = self.g, self.G
-        diag, sub = self.selected_inverse()
+        """``trace_products`` on the compiled path: the inverse's blocks inside the band
+        (``banded_native.band_inverse``) plus the update's, times each band's blocks
+        (those of ``d > 0`` twice: the lower band's too)."""
+        n, s = self.n, self.s
+        w = factor.shape[-1] // s
+        Z = banded_native.band_inverse(factor, n, w, s)
         if U is not None and V is not None:
-            Ug, Vg = self._groups(U), self._groups(V)
-            diag = diag + Ug @ Vg.mT
-            sub[..., :-1, :, :] += Ug[..., 1:, :, :] @ Vg[..., :-1, :, :].mT
-        real = self._real(diag)
+            for d in range(min(w, n)):
+                Z[..., :n - d, d, :, :] += U[..., :n - d, :, :] @ V[..., d:, :, :].mT
+        twice = torch.full((w,), 2.0, dtype=Z.dtype, device=Z.device)
+        twice[0] = 1.0
+        past = (torch.arange(n)[:, None] + torch.arange(w)) >= n  # blocks past the last row
         out = []
         for band in bands:
-            on = _grouped(band, g).mul_(diag).sum(-1)
-            below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(sub[..., :-1, :, :])
-            out.append((on * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
+            wb = band.shape[-3]
+            per = (band * Z[..., :wb, :, :]).sum((-1, -2)).masked_fill_(past[:, :wb], 0.0)
+            out.append((per * twice[:wb]).sum((-1, -2)))
         return out
-
-    def _real(self, like: Tensor) -> Tensor:
-        """``(G, g s)``: 1 on the grouped matrix's rows, 0 on its identity rows past ``n``."""
-        rows = torch.arange(self.G * self.g, device=like.device) < self.n
-        return rows.repeat_interleave(self.s).reshape(self.G, -1).to(like.dtype)
 
     def _groups(self, x: Tensor) -> Tensor:
         """``x (..., n, s, r)`` as ``(..., G, g s, r)``, zero rows past ``n``."""

@@ -187,30 +187,53 @@ static void inverse_row(const double *U, int64_t N, int64_t p, int64_t P, double
     Zi[i] = (inv - dot(Ui + i + 1, Zi + i + 1, kmax - i)) * inv;
 }
 
-/* The blocks of A^-1 of the grouped matrix (groups of b = g s rows, G = N / b of them):
- * diag (B, G, b, b) and sub (B, G, b, b) (sub[j] groups (j + 1, j), sub[G - 1] zero).
- * Returns 0, or -1 where the buffer could not be allocated. */
-int tdq_band_selected_inverse(const double *U, int64_t B, int64_t N, int64_t p, int64_t b,
-                              double *diag, double *sub)
+/* Copy the blocks of A^-1 whose first row is i out of the buffer Z: where b > 0 and i % b
+ * == 0 the grouped matrix's diag[i / b] and sub[i / b] (b x b each, sub zero for the last
+ * group); where s > 0, i % s == 0 and i < n s the band's blocks (i / s, i / s + d), d < w
+ * (w s x s, zero past the last block row). */
+static void emit(const double *Z, int64_t P, int64_t N, int64_t i, int64_t b, double *diag,
+                 double *sub, int64_t n, int64_t w, int64_t s, double *band)
 {
-    const int64_t P = 2 * b - 1, R = P + 1, W = 2 * P + 1, G = N / b;
-    double *Z = malloc((size_t)(R * W) * sizeof(double));
+    const int64_t R = P + 1, W = 2 * P + 1;
+    if (b > 0 && i % b == 0) {
+        const int64_t j = i / b;
+        for (int64_t a = 0; a < b; a++)
+            for (int64_t c = 0; c < b; c++) {
+                diag[(j * b + a) * b + c] = Z[((i + a) % R) * W + c - a + P];
+                sub[(j * b + a) * b + c] = i + b < N ? Z[((i + b + a) % R) * W + c - a - b + P]
+                                                     : 0.0;
+            }
+    }
+    if (s > 0 && i % s == 0 && i < n * s) {
+        const int64_t k = i / s;
+        for (int64_t d = 0; d < w; d++)
+            for (int64_t a = 0; a < s; a++)
+                for (int64_t c = 0; c < s; c++)
+                    band[((k * w + d) * s + a) * s + c] =
+                        k + d < n ? Z[((i + a) % R) * W + d * s + c - a + P] : 0.0;
+    }
+}
+
+/* Blocks of A^-1 for B elements of the factor U (B, N, p + 1): where b > 0 those of the
+ * grouped matrix (groups of b = g s rows, G = N / b): diag (B, G, b, b), sub (B, G, b, b)
+ * (sub[j] groups (j + 1, j)); where s > 0 those inside the band of n block rows of s,
+ * band (B, n, w, s, s) as the matrix's (block (k, k + d) at [k, d]). The recursion runs to
+ * P = 2 b - 1 off the diagonal for the first, p for the second alone. Returns 0, or -1 where
+ * the buffer could not be allocated. */
+int tdq_band_selected_inverse(const double *U, int64_t B, int64_t N, int64_t p, int64_t b,
+                              double *diag, double *sub, int64_t n, int64_t w, int64_t s,
+                              double *band)
+{
+    const int64_t P = b > 0 ? 2 * b - 1 : p, W = 2 * P + 1;
+    double *Z = malloc((size_t)((P + 1) * W) * sizeof(double));
     if (!Z)
         return -1;
     for (int64_t e = 0; e < B; e++) {
         const double *Ue = U + e * N * (p + 1);
-        double *De = diag + e * G * b * b, *Se = sub + e * G * b * b;
         for (int64_t i = N - 1; i >= 0; i--) {
             inverse_row(Ue, N, p, P, Z, i);
-            if (i % b)
-                continue;
-            const int64_t j = i / b;
-            for (int64_t a = 0; a < b; a++)
-                for (int64_t c = 0; c < b; c++) {
-                    De[(j * b + a) * b + c] = Z[((i + a) % R) * W + c - a + P];
-                    Se[(j * b + a) * b + c] = j < G - 1 ? Z[((i + b + a) % R) * W + c - a - b + P]
-                                                        : 0.0;
-                }
+            emit(Z, P, N, i, b, b > 0 ? diag + e * N * b : NULL, b > 0 ? sub + e * N * b : NULL,
+                 n, w, s, s > 0 ? band + e * n * w * s * s : NULL);
         }
     }
     free(Z);
