@@ -1,8 +1,8 @@
 """The banded Cholesky factorisation, its solves and its selected inverse in compiled C
-(private): ``csrc/banded.c``, a sequential scalar banded Cholesky (LAPACK ``dpbtrf``'s
-factor, row by row) and Takahashi's recursion on it, looping in C over the batch, behind
+(private): ``csrc/banded.c``, a sequential scalar banded Cholesky (LAPACK ``dpbtf2``'s
+order) and Takahashi's recursion on it, looping in C over the batch, behind
 ``torch_dq.fitting._banded.BandedCholesky`` (whose block cyclic reduction is the reference
-and runs where :func:`torch_dq._kernels.native.enabled` does not hold; the tests compare
+and runs where ``torch_dq._kernels.native.enabled`` does not hold; the tests compare
 both, ``tests/test_band18_banded.py``).
 
 The factor of a matrix of ``n`` block rows of size ``s`` and band width ``w`` blocks is

@@ -8,8 +8,7 @@
  * rows (g = max(w - 1, 1), G = ceil(n / g): the grouping of the PyTorch path). Its scalar
  * bandwidth is p = w s - 1, and the factor A = U^T U (U = L^T upper) is stored by rows,
  * U(j, i) = U[j (p + 1) + i - j] for j <= i <= j + p (LAPACK dpbtrf's upper factor, scipy's
- * cholesky_banded's; computed a column at a time, each earlier row's contribution one
- * contiguous axpy along that row).
+ * cholesky_banded's), computed in place of the matrix's rows in dpbtf2's order (factor_one).
  *
  * A batch element whose matrix is not numerically positive definite (a pivot that is not
  * > 0, NaN included: LAPACK's test) gets ok = 0 and the identity as its factor (results
