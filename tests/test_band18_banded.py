@@ -209,3 +209,14 @@ def test_dispatch_and_gradient_fallback(monkeypatch):
     assert torch.equal(rhs.detach(), before)  # a single column's view is dense: not reused
     assert _rel(x.numpy().reshape(14), np.linalg.solve(dense, rhs.detach().numpy().ravel())) \
         < 1e-12
+
+
+def test_right_hand_sides_broadcast_over_the_matrix_batch():
+    """One matrix, a batch of right-hand sides (the factor broadcast), against numpy."""
+    rng = np.random.default_rng(8)
+    band, dense = _spd(rng, (), 9, 3, 4)
+    rhs = rng.standard_normal((3, 9, 4, 2))
+    x = BandedCholesky(band).solve(torch.from_numpy(rhs))
+    assert x.shape == (3, 9, 4, 2)
+    want = np.linalg.solve(dense, rhs.reshape(3, 36, 2))
+    assert _rel(x.numpy().reshape(3, 36, 2), want) < 1e-12
