@@ -42,6 +42,7 @@ def _problem(rng, n, w, batch=2):
 def test_trace_products_in_chunks_match_numpy(monkeypatch, chunk, n, w):
     """trace(M (A^-1 + U V^T)) for every chunk size of the update (G odd and even)."""
     monkeypatch.setattr(_banded, "_CHUNK", chunk)
+    monkeypatch.setenv("TORCH_DQ_NATIVE", "0")  # the cyclic reduction's chunks
     rng = np.random.default_rng(7 * n + w)
     A, M, U, V, bA, bM = _problem(rng, n, w)
     chol = BandedCholesky(bA)
@@ -62,6 +63,7 @@ def test_selected_inverse_blocks_match_numpy(monkeypatch, chunk, n, w):
     rows; the rows past n and the last sub-diagonal block left out) against numpy, the
     even groups of a level ``chunk`` at a time."""
     monkeypatch.setattr(_banded, "_CHUNK", chunk)
+    monkeypatch.setenv("TORCH_DQ_NATIVE", "0")  # the cyclic reduction's chunks
     rng = np.random.default_rng(n + 100 * w)
     A, *_, bA, _ = _problem(rng, n, w)
     chol = BandedCholesky(bA)

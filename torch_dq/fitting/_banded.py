@@ -25,12 +25,23 @@ matrix. The selected inverse (Takahashi's recursion, from the coarsest level bac
 :math:`\Sigma_{ii} = D_i^{-1} - D_i^{-1} (E_i \Sigma_{i-1,i} + E_{i+1}^T \Sigma_{i+1,i})`)
 gives the blocks of :math:`A^{-1}` inside the band of the grouped matrix (the covariance of
 every ``g + 1`` consecutive block rows) without forming the dense inverse.
+
+Where the compiled kernels may run (``torch_dq._kernels.native.enabled``: float64 on the
+CPU, nothing needing a gradient) the matrix is factored instead by a sequential scalar
+banded Cholesky in C (``torch_dq._kernels.banded_native``: LAPACK ``dpbtf2``'s
+factorisation, :math:`O(n s (w s)^2)` flops in one pass, the batch looped over), solved by
+substitution, and its selected inverse taken by Takahashi's recursion on that factor, in the
+same grouped layout; the cyclic reduction is the reference the tests compare it with, runs
+everywhere else, and is built on first need where a call on a compiled factor is not for the
+C (a right-hand side needing a gradient).
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+from .._kernels import banded_native, native
 
 __all__ = ["BandedCholesky"]
 
@@ -195,8 +206,8 @@ class _Level:
 
 
 class BandedCholesky:
-    """Block cyclic reduction of a symmetric positive definite block-banded matrix (module
-    doc).
+    """Cholesky factorisation of a symmetric positive definite block-banded matrix: block
+    cyclic reduction, or the compiled sequential banded Cholesky (module doc).
 
     Args:
         band: ``(..., n, w, s, s)`` upper band (blocks past the last row are ignored).
@@ -210,18 +221,29 @@ class BandedCholesky:
 
     def __init__(self, band: Tensor, shift: Tensor | None = None) -> None:
         *batch, n, w, s, _ = band.shape
-        dev = band.device
         g = max(w - 1, 1)
         G = -(-n // g)
-        pad = G * g - n  # identity rows after the last block row (_grouped)
         self.n, self.s, self.g, self.G, self.batch = n, s, g, G, tuple(batch)
+        self.levels: list[_Level] = []
+        self._factor: Tensor | None = None  # the compiled path's (banded_native)
+        self._source: tuple[Tensor, Tensor | None] | None = None  # its matrix (the reduction
+        # of it where the compiled factor cannot serve a call)
+        if native.enabled(band, *(() if shift is None else (shift,))):
+            self._factor, self.ok = banded_native.factor(band, shift, G * g * s)
+            self._source = band, shift
+        else:
+            self.ok = self._reduce(band, shift)
+
+    def _reduce(self, band: Tensor, shift: Tensor | None) -> Tensor:
+        """The cyclic reduction's levels into ``levels``; returns their ``ok``."""
+        g, G, s = self.g, self.G, self.s
+        pad = G * g - self.n  # identity rows after the last block row (_grouped)
         # [D, E]: each level frees its input once read (memory)
         pair = [_grouped(band, g), _grouped(band, g, below=True)]
         if shift is not None:
             shift = torch.cat((shift, shift.new_zeros(*shift.shape[:-2], pad, s)), -2)
             pair[0].diagonal(dim1=-2, dim2=-1).add_(shift.reshape(*shift.shape[:-2], G, g * s))
-        self.levels: list[_Level] = []
-        ok = torch.ones(batch, dtype=torch.bool, device=dev)
+        ok = torch.ones(self.batch, dtype=torch.bool, device=band.device)
         while pair[0].shape[-3]:
             level = _Level(pair)
             ok &= level.ok
@@ -229,11 +251,24 @@ class BandedCholesky:
             pair = [level.D, level.E]
             if level.D.shape[-3]:  # the next level's input, not kept (memory; the last one is)
                 del level.D, level.E
-        self.ok = ok
+        return ok
+
+    def _compiled(self, *tensors: Tensor) -> Tensor | None:
+        """The compiled factor where it serves a call on ``tensors``, else None (the cyclic
+        reduction's levels then built on first need where the matrix was factored by the
+        compiled path: ``tensors`` of another dtype, or needing a gradient)."""
+        if self._source is None or native.enabled(*tensors):
+            return self._factor
+        if not self.levels:
+            self._reduce(*self._source)
+        return None
 
     def solve(self, rhs: Tensor) -> Tensor:
         """``A^-1 rhs`` for ``rhs (..., n, s, r)`` (batch broadcast with the matrix's)."""
         n, s, r = rhs.shape[-3:]
+        factor = self._compiled(rhs)
+        if factor is not None:
+            return banded_native.solve(factor, rhs)
         g, G = self.g, self.G
         b = self._groups(rhs)
         ys = []
@@ -249,6 +284,9 @@ class BandedCholesky:
         """Blocks of :math:`A^{-1}` of the grouped matrix: ``diag (..., G, g s, g s)`` and
         ``sub (..., G, g s, g s)`` (``sub[j]`` the block of groups ``(j + 1, j)``, the last
         one zero)."""
+        factor = self._compiled()
+        if factor is not None:
+            return banded_native.selected_inverse(factor, self.g * self.s)
         return self._inverse_from(0)
 
     def _inverse_from(self, first: int) -> tuple[Tensor, Tensor]:
@@ -270,7 +308,11 @@ class BandedCholesky:
         (computed once for all), :math:`\sum_j \langle M_{jj}, \Sigma_{jj} \rangle + 2
         \langle M_{j+1,j}, \Sigma_{j+1,j} \rangle`, the rows past ``n`` left out. The finest
         level's diagonal blocks are taken ``_CHUNK`` groups at a time, as its selected
-        inverse makes them (their row sums kept, never the whole diagonal: memory)."""
+        inverse makes them (their row sums kept, never the whole diagonal: memory; on the
+        compiled path, ``_trace_compiled``, the inverse's blocks inside the band)."""
+        factor = self._compiled(*bands, *(x for x in (U, V) if x is not None))
+        if factor is not None:
+            return self._trace_compiled(factor, bands, U, V)
         g, G, top = self.g, self.G, self.levels[0]
         ne = top.C.shape[-3]
         diag, sub = self._inverse_from(1)  # the odd groups' blocks
@@ -303,6 +345,27 @@ class BandedCholesky:
             below = _grouped(band, g, below=True)[..., 1:G, :, :].mul_(fine_sub[..., :-1, :, :])
             out.append((rs * real).sum((-1, -2)) + 2.0 * below.sum((-1, -2, -3)))
             del below  # before the next band's (memory)
+        return out
+
+    def _trace_compiled(self, factor: Tensor, bands: list[Tensor], U: Tensor | None,
+                        V: Tensor | None) -> list[Tensor]:
+        """``trace_products`` on the compiled path: the inverse's blocks inside the band
+        (``banded_native.band_inverse``) plus the update's, times each band's blocks
+        (those of ``d > 0`` twice: the lower band's too)."""
+        n, s = self.n, self.s
+        w = factor.shape[-1] // s
+        Z = banded_native.band_inverse(factor, n, w, s)
+        if U is not None and V is not None:
+            for d in range(min(w, n)):
+                Z[..., :n - d, d, :, :] += U[..., :n - d, :, :] @ V[..., d:, :, :].mT
+        twice = torch.full((w,), 2.0, dtype=Z.dtype, device=Z.device)
+        twice[0] = 1.0
+        past = (torch.arange(n)[:, None] + torch.arange(w)) >= n  # blocks past the last row
+        out = []
+        for band in bands:
+            wb = band.shape[-3]
+            per = (band * Z[..., :wb, :, :]).sum((-1, -2)).masked_fill_(past[:, :wb], 0.0)
+            out.append((per * twice[:wb]).sum((-1, -2)))
         return out
 
     def _groups(self, x: Tensor) -> Tensor:
