@@ -415,7 +415,7 @@ class Linearization:
         within the curve), the window's points ``(..., N, w, 8)`` (``span_points``) and each
         span's offsets in it ``(..., N, support)``."""
         n, sup = self.spans.n, self.spans.support
-        f0 = torch.stack(firsts).amin(0)
+        f0 = firsts[0] if len(firsts) == 1 else torch.stack(firsts).amin(0)  # (no copy)
         f0 = torch.minimum(f0, torch.full_like(f0, n - w))
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
         return f0, span_points(ctrl, f0, w), offs
