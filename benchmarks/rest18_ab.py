@@ -4,7 +4,8 @@ system and one trial cost at the start, and a whole ``estimate`` + ``std`` of bo
 then the largest relative differences of the systems' blocks and of the biases and their
 standard deviations between the two. ``--change``: ``memo`` (the samples' bases kept per
 estimate, ``KnotDomain.bases(memo=)``), ``rows`` (the inertial rows whitened as the row
-builders write them, into the group's stacked rows) or ``all``. Off is the code before
+builders write them, into the group's stacked rows), ``tables`` (the span tables from each
+pair of control points once) or ``all``. Off is the code before
 rest18, restored by patching the functions it replaced.
 
     python benchmarks/rest18_ab.py --repeats 10 --change all
@@ -24,7 +25,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_gtsam as bg
 import native_ab as nab
 
-from torch_dq import _time
+from torch_dq import _time, nn
+from torch_dq._curve import aligned_chain
 from torch_dq.fitting import _imu, _linearize
 
 
@@ -40,7 +42,14 @@ def _patches(change: str) -> list[tuple[object, str, object, object]]:
         scale = scale.reshape(*scale.shape, *[1] * event)
         return rows.mul_(scale) if event == 2 else rows * scale
 
+    def tables_off(self, ctrl):  # before rest18: per span and step
+        p = self.degree
+        spans = aligned_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)
+        return nn._span_parts(spans.reshape(-1, p + 1, 8)).unflatten(-1, spans.shape[:-2])
+
     out = []
+    if change in ("tables", "all"):
+        out.append((nn.BSpline, "span_vjp_tables", tables_off, nn.BSpline.span_vjp_tables))
     if change in ("memo", "all"):
         out.append((_time.KnotDomain, "bases", bases_off, bases))
     if change in ("rows", "all"):
@@ -59,7 +68,7 @@ def _rel(a, b) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=10)
-    ap.add_argument("--change", choices=("memo", "rows", "all"), default="all")
+    ap.add_argument("--change", choices=("memo", "rows", "tables", "all"), default="all")
     args = ap.parse_args()
     torch.set_num_threads(1)
     bg.CLOCK = 1

@@ -532,12 +532,13 @@ class BSpline(Curve):
 
     def span_vjp_tables(self, ctrl: Tensor) -> Tensor | None:
         # (80, p, ..., n - p): every span of the sign-aligned chain (span_points'
-        # representatives)
+        # representatives), step j of span u the parts of the pair (u + j, u + j + 1): each
+        # pair's once (p times fewer than per span and step), then laid out per span
         if self.form != "cumulative":
             return None
-        p = self.degree
-        spans = aligned_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)  # (..., n - p, p + 1, 8)
-        return _span_parts(spans.reshape(-1, p + 1, 8)).unflatten(-1, spans.shape[:-2])
+        pairs = aligned_chain(ctrl).unfold(-2, 2, 1).movedim(-1, -2)  # (..., n - 1, 2, 8)
+        parts = _span_parts(pairs.reshape(-1, 2, 8)).view(80, *pairs.shape[:-2])
+        return parts.unfold(-1, self.degree, 1).movedim(-1, 1).contiguous()
 
     def acceleration_jumps(self) -> str | None:
         p, form = self.degree, self.form
