@@ -5,8 +5,8 @@ then the largest relative differences of the systems' blocks and of the biases a
 standard deviations between the two. ``--change``: ``memo`` (the samples' bases kept per
 estimate, ``KnotDomain.bases(memo=)``), ``rows`` (the inertial rows whitened as the row
 builders write them, into the group's stacked rows), ``tables`` (the span tables from each
-pair of control points once) or ``all``. Off is the code before
-rest18, restored by patching the functions it replaced.
+pair of control points once), ``residuals`` (the inertial residuals compiled) or ``all``.
+Off is the code before rest18, restored by patching the functions it replaced.
 
     python benchmarks/rest18_ab.py --repeats 10 --change all
 """
@@ -48,6 +48,8 @@ def _patches(change: str) -> list[tuple[object, str, object, object]]:
         return nn._span_parts(spans.reshape(-1, p + 1, 8)).unflatten(-1, spans.shape[:-2])
 
     out = []
+    if change in ("residuals", "all"):
+        out.append((_imu, "imu_residuals", lambda *args: None, _imu.imu_residuals))
     if change in ("tables", "all"):
         out.append((nn.BSpline, "span_vjp_tables", tables_off, nn.BSpline.span_vjp_tables))
     if change in ("memo", "all"):
@@ -68,7 +70,8 @@ def _rel(a, b) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=10)
-    ap.add_argument("--change", choices=("memo", "rows", "tables", "all"), default="all")
+    ap.add_argument("--change", default="all",
+                    choices=("memo", "rows", "tables", "residuals", "all"))
     args = ap.parse_args()
     torch.set_num_threads(1)
     bg.CLOCK = 1

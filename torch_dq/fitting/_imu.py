@@ -19,7 +19,7 @@ from torch import Tensor
 from .. import _checks, curves, dualquat, quat
 from .._kinematics import body_field
 from ._charts import Direction, Vector
-from ._imu_jacobians import accel_rows, gyro_rows
+from ._imu_jacobians import accel_rows, gyro_rows, imu_residuals
 from ._nuisance import Slot
 from ._terms import (
     Options,
@@ -138,6 +138,9 @@ class Gyro(_Imu):
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
+        compiled = imu_residuals(x, dx, None, None, p["bias"], self.readings)
+        if compiled is not None:
+            return compiled
         w = body_field(x, dx, None, 0)  # kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
@@ -409,6 +412,9 @@ class Accel(_Imu):
 
     def _residual(self, ev, p):
         x, dx, ddx = ev[0][:3]
+        compiled = imu_residuals(x, dx, ddx, p["gravity"], p["bias"], self.readings)
+        if compiled is not None:
+            return compiled
         a = body_field(x, dx, ddx, 3)  # kinematics(..., frame="body").linear_acceleration
         q = x[..., :4]  # the rotation (dualquat.to_rt's, without its translation)
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))

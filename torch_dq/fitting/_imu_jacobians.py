@@ -41,7 +41,7 @@ from torch import Tensor
 
 from .._kernels import native
 
-__all__ = ["accel_rows", "gyro_rows"]
+__all__ = ["accel_rows", "gyro_rows", "imu_residuals"]
 
 # q e_j for the pure unit quaternions e_j: component c of row j is SIGN[j, c] q[INDEX[j, c]]
 _INDEX = ((1, 0, 3, 2), (2, 3, 0, 1), (3, 2, 1, 0))
@@ -161,6 +161,26 @@ def _target(out: Tensor | None, lead: torch.Size, orders: int) -> Tensor | None:
     return base if base.is_contiguous() else None
 
 
+def imu_residuals(x: Tensor, dx: Tensor, ddx: Tensor | None, gravity: Tensor | None,
+                  bias: Tensor, readings: Tensor) -> Tensor | None:
+    r"""``(..., N, 3)``: the inertial residuals before whitening by the compiled loop
+    (``csrc/imu_rows.c``), from ``x``, ``dx`` (and ``ddx``) ``(..., N, 8)``: the
+    gyroscope's :math:`2\,\mathrm{vec}(r^* \dot r) + b - y` (``ddx`` None) or the
+    accelerometer's :math:`R^T (\ddot t - g) + b - y`, ``bias`` ``(..., 1, 3)``, ``readings``
+    ``(..., N, 3)`` and ``gravity`` broadcasting; None where the compiled kernels do not
+    apply (the terms' PyTorch code, the reference, then runs)."""
+    args = (x, dx, ddx, gravity, bias, readings)
+    given = [v for v in args if v is not None]
+    if not native.enabled(*given):
+        return None
+    lead = torch.broadcast_shapes(*(v.shape[:-1] for v in given))
+    held = [None if v is None else _samples(v.expand(*lead, v.shape[-1])) for v in args]
+    out = x.new_empty(*lead, 3)
+    _library().tdq_imu_residuals(lead.numel(), *(a for v in held for a in _at(v)),
+                                 native.address(out))
+    return out
+
+
 def _view(rows: Tensor, orders: int) -> Tensor:
     """``(..., N, 3, orders, 8)``: the first ``orders`` orders of component-major ``rows (3,
     O, 8, ..., N)``, as the builders return them."""
@@ -192,13 +212,15 @@ def _at(x: Tensor | None) -> tuple[ctypes.c_void_p | None, int]:
 
 @cache
 def _library() -> ctypes.CDLL:
-    """The compiled library, ``tdq_gyro_rows``' and ``tdq_accel_rows``' argument types
-    declared."""
+    """The compiled library, ``tdq_gyro_rows``', ``tdq_accel_rows``' and
+    ``tdq_imu_residuals``' argument types declared."""
     lib = native.library()
     if lib is None:
         raise RuntimeError("the compiled kernels are not available")
     p, i = ctypes.c_void_p, ctypes.c_int64
     lib.tdq_gyro_rows.argtypes = [i, p, i, p, i, p, i, p]
     lib.tdq_accel_rows.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, p]
+    lib.tdq_imu_residuals.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, i, p]
     lib.tdq_gyro_rows.restype = lib.tdq_accel_rows.restype = None
+    lib.tdq_imu_residuals.restype = None
     return lib

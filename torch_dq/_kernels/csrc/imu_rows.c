@@ -138,3 +138,53 @@ void tdq_accel_rows(int64_t S, const double *x, int64_t sx, const double *dx, in
         store(buf + 72 * BLOCK, 9, 9, 0, B, toward, S, s0);
     }
 }
+
+/* o = a b^* (quaternions) */
+static void mul_conj(const double *a, const double *b, double *o)
+{
+    o[0] = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    o[1] = -a[0] * b[1] + a[1] * b[0] - a[2] * b[3] + a[3] * b[2];
+    o[2] = -a[0] * b[2] + a[1] * b[3] + a[2] * b[0] - a[3] * b[1];
+    o[3] = -a[0] * b[3] - a[1] * b[2] + a[2] * b[1] + a[3] * b[0];
+}
+
+/* vec(r^* (0, u) r) = R^T u for a unit r */
+static void rotate_back(const double *r, const double *u, double *f)
+{
+    const double w = r[0], x = r[1], y = r[2], z = r[3];
+    f[0] = (1.0 - 2.0 * (y * y + z * z)) * u[0] + 2.0 * (x * y + w * z) * u[1]
+           + 2.0 * (x * z - w * y) * u[2];
+    f[1] = 2.0 * (x * y - w * z) * u[0] + (1.0 - 2.0 * (x * x + z * z)) * u[1]
+           + 2.0 * (y * z + w * x) * u[2];
+    f[2] = 2.0 * (x * z + w * y) * u[0] + 2.0 * (y * z - w * x) * u[1]
+           + (1.0 - 2.0 * (x * x + y * y)) * u[2];
+}
+
+/* The inertial residuals before whitening, (S, 3) contiguous: gyroscope 2 vec(r^* dr) + b - y
+ * (body rate), accelerometer (ddx given) R^T (2 vec(ddd r^* + 2 dd dr^* + d ddr^*) - g) + b - y
+ * (specific force); b, y, g rows of 3 with sample strides sb, sy, sg. */
+void tdq_imu_residuals(int64_t S, const double *x, int64_t sx, const double *dx, int64_t sdx,
+                       const double *ddx, int64_t sddx, const double *g, int64_t sg,
+                       const double *b, int64_t sb, const double *y, int64_t sy, double *out)
+{
+    for (int64_t s = 0; s < S; s++) {
+        const double *r = x + s * sx, *rd = dx + s * sdx, *bs = b + s * sb, *ys = y + s * sy;
+        double f[3];
+        if (!ddx) { /* 2 vec(r^* dr) = 2 (r_0 dr_v - dr_0 r_v - r_v x dr_v) */
+            f[0] = 2.0 * (r[0] * rd[1] - r[1] * rd[0] - (r[2] * rd[3] - r[3] * rd[2]));
+            f[1] = 2.0 * (r[0] * rd[2] - r[2] * rd[0] - (r[3] * rd[1] - r[1] * rd[3]));
+            f[2] = 2.0 * (r[0] * rd[3] - r[3] * rd[0] - (r[1] * rd[2] - r[2] * rd[1]));
+        } else {
+            const double *d = r + 4, *dd = rd + 4, *rdd = ddx + s * sddx, *ddd = rdd + 4;
+            const double *gs = g + s * sg;
+            double a[4], t[4], u[3];
+            mul_conj(ddd, r, a);
+            mul_conj(dd, rd, t);
+            for (int i = 1; i < 4; i++) a[i] += 2.0 * t[i];
+            mul_conj(d, rdd, t);
+            for (int i = 0; i < 3; i++) u[i] = 2.0 * (a[i + 1] + t[i + 1]) - gs[i];
+            rotate_back(r, u, f);
+        }
+        for (int i = 0; i < 3; i++) out[3 * s + i] = f[i] + bs[i] - ys[i];
+    }
+}
