@@ -27,8 +27,9 @@ code's formulas (:mod:`torch_dq._kinematics`); the Jacobians chained through the
 then the same (``tests/test_term_jacobians.py`` compares them).
 
 Where the compiled kernels run (``torch_dq._kernels.native``), the rows are computed sample
-by sample in C (``csrc/imu_rows.c``: the same formulas, no per-component temporaries); the
-PyTorch code here is the reference they are tested against.
+by sample in C (``csrc/imu_rows.c``: the same formulas, no per-component temporaries), and
+so are the residuals themselves (:func:`imu_residuals`, for the terms' ``_residual``); the
+PyTorch code here and in the terms is the reference they are tested against.
 """
 
 from __future__ import annotations
