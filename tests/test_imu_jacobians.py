@@ -67,7 +67,9 @@ def test_the_closed_form_builds_the_reverse_pass_system(batch, rest, gravity, mo
         assert float(b.abs().max()) > 0
         torch.testing.assert_close(a, b, rtol=0, atol=1e-12 * float(b.abs().max()))
     for a, b in zip(closed.residuals, generic.residuals, strict=True):
-        torch.testing.assert_close(a, b, rtol=0, atol=0)
+        # the closed form's residuals by the compiled loop where built (rest18), the reverse
+        # pass's by the PyTorch code (autograd): the same to rounding, not to the bit
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-14 * float(b.abs().max()))
 
 
 def test_the_rows_vanish_where_masked_and_at_rest():

@@ -163,8 +163,7 @@ class Curve(torch.nn.Module, abc.ABC):
         """Poses at admitted relative times ``rel`` (:meth:`KnotDomain.admit`)."""
 
     @abc.abstractmethod
-    def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int,
-                           ) -> tuple[Tensor, ...]:
+    def _curve_derivatives(self, ctrl: Tensor, rel: Tensor, order: int) -> tuple[Tensor, ...]:
         """Poses and time derivatives to ``order`` at admitted relative times ``rel``."""
 
     @abc.abstractmethod
@@ -195,7 +194,7 @@ class Curve(torch.nn.Module, abc.ABC):
         """
 
     def span_derivatives(self, ctrl: Tensor, local: Tensor, first: Tensor, order: int,
-                         ) -> tuple[Tensor, ...]:
+                         memo: dict | None = None) -> tuple[Tensor, ...]:
         r""":meth:`evaluate_span` of every sample at once, the span points read from the
         shared control points ``ctrl (..., n, 8)`` (``torch_dq._curve.span_points``): what the
         estimation's costs and linearisation points evaluate (its Jacobians differentiate
@@ -208,22 +207,23 @@ class Curve(torch.nn.Module, abc.ABC):
             local: ``(..., N)`` local times (:meth:`local_times`).
             first: ``(..., N)`` int64 spans (:meth:`support`).
             order: highest time derivative, 0 to 3.
+            memo: a dict for what depends on the times and knots alone, kept between calls.
 
         Returns:
             ``order + 1`` tensors ``(..., N, 8)``.
         """
-        return self.evaluate_span(span_points(ctrl, first, self.span_size), local, first,
-                                  order)
+        return self.evaluate_span(span_points(ctrl, first, self.span_size), local, first, order)
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
                  pose: Tensor, second: slice | None = None, tables: Tensor | None = None,
-                 ) -> Tensor | None:
+                 memo: dict | None = None) -> Tensor | None:
         r"""Closed-form vector-Jacobian products of :meth:`evaluate_span` (arguments as
         there; a span's samples share its points), ``(..., k, w, 6)`` for right steps
         :math:`c_j \exp(\delta_j)` of the points, from ``cotangents (..., k, O, 8)`` of the
         pose ``pose (..., 8)`` and its time derivatives ``0 .. O - 1 <= 2`` (of order 2 the
         rows ``second`` alone nonzero, None: all); ``tables``: :meth:`span_vjp_tables` of
-        the points' curve, or None. None where the layer has none: reverse passes then."""
+        the points' curve, or None; ``memo``: :meth:`span_derivatives`'. None where the
+        layer has none: reverse passes then."""
         return None
 
     def span_vjp_tables(self, ctrl: Tensor) -> Tensor | None:

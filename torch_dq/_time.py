@@ -494,12 +494,24 @@ class KnotDomain:
         return r - self.degree, self.bases(rel, r)[0].contiguous()
 
     def bases(self, rel: Tensor, r: Tensor, order: int = 0, *, cumulative: bool = False,
-              ) -> list[Tensor]:
+              memo: dict | None = None) -> list[Tensor]:
         """The basis of span ``r`` (from :meth:`span`) at relative times ``rel`` and its time
         derivatives up to ``order``, plain or cumulative (:func:`span_bases`), computed in
-        ``rel``'s dtype: ``order + 1`` tensors ``(..., T, p + 1)`` or ``(..., T, p)``."""
+        ``rel``'s dtype: ``order + 1`` tensors ``(..., T, p + 1)`` or ``(..., T, p)``.
+        ``memo``: a dict kept between calls (the estimation's, one per curve) that holds the
+        last result per order, form and shape; a call with equal ``rel``, ``r`` and knots
+        (compared element by element) and nothing differentiated returns it (not to be
+        modified) instead of computing it again."""
         knots, flat_r = self.flat(r, rel.dtype)
-        return span_bases(knots, flat_r, rel, self.degree, order, cumulative=cumulative)
+        if memo is None or rel.requires_grad or knots.requires_grad:
+            return span_bases(knots, flat_r, rel, self.degree, order, cumulative=cumulative)
+        key = ("bases", self.degree, order, cumulative, rel.dtype, rel.device, rel.shape)
+        args, hit = memo.get(key, ((), None))
+        if hit is None or not all(a.shape == b.shape and torch.equal(a, b)
+                                  for a, b in zip(args, (rel, flat_r, knots), strict=True)):
+            hit = span_bases(knots, flat_r, rel, self.degree, order, cumulative=cumulative)
+            memo[key] = (tuple(x.clone() for x in (rel, flat_r, knots)), hit)
+        return hit
 
     def greville(self) -> Tensor:
         """Greville abscissae ``mean(knots[j + 1 .. j + p])``, ``(..., n)`` relative, float64."""

@@ -481,7 +481,7 @@ class BSpline(Curve):
         return tuple(d.reshape(*lead, 8) for d in out)
 
     def span_derivatives(self, ctrl: Tensor, local: Tensor, first: Tensor, order: int,
-                         ) -> tuple[Tensor, ...]:
+                         memo: dict | None = None) -> tuple[Tensor, ...]:
         # the form's own evaluation at the given spans: the cumulative form's span tables
         # are built once per span, not once per sample
         r = first + self.degree
@@ -493,7 +493,7 @@ class BSpline(Curve):
             # (torch_dq._cumulative_lie) where they apply; the public curve functions keep the
             # span tables whatever a batch holds (a non-unit element would switch the path,
             # and the rounding, of its neighbours)
-            weights = self.time_model.bases(rel, r, order, cumulative=True)
+            weights = self.time_model.bases(rel, r, order, cumulative=True, memo=memo)
             aligned, at = aligned_chain(ctrl), r
             if not batch and r.numel():  # one curve: the points its times read (a part of a
                 a, b = torch.stack(torch.aminmax(r)).tolist()  # long record reads a stretch)
@@ -505,7 +505,7 @@ class BSpline(Curve):
 
     def span_vjp(self, points: Tensor, local: Tensor, first: Tensor, cotangents: Tensor,
                  pose: Tensor, second: slice | None = None, tables: Tensor | None = None,
-                 ) -> Tensor | None:
+                 memo: dict | None = None) -> Tensor | None:
         # the cumulative form's in its Lie algebra (torch_dq._cumulative_lie), the span
         # quantities once per distinct span (or the curve's, tables); the other forms' by
         # reverse passes
@@ -517,7 +517,7 @@ class BSpline(Curve):
         first = first.expand(lead[len(lead) - first.dim():])
         r = first + p
         rel, r = (self.time_model.span_bounds(r)[0] + local).expand(lead), r.expand(lead)
-        weights = self.time_model.bases(rel, r, O - 1, cumulative=True)
+        weights = self.time_model.bases(rel, r, O - 1, cumulative=True, memo=memo)
         N, n = (lead[-1] if lead else 1), self.n_ctrl - p  # spans
         key = first.expand(lead).reshape(-1) + n * torch.arange(
             math.prod(lead), device=first.device).div(N, rounding_mode="floor")
@@ -532,12 +532,13 @@ class BSpline(Curve):
 
     def span_vjp_tables(self, ctrl: Tensor) -> Tensor | None:
         # (80, p, ..., n - p): every span of the sign-aligned chain (span_points'
-        # representatives)
+        # representatives), step j of span u the parts of the pair (u + j, u + j + 1): each
+        # pair's once (p times fewer than per span and step), then laid out per span
         if self.form != "cumulative":
             return None
-        p = self.degree
-        spans = aligned_chain(ctrl).unfold(-2, p + 1, 1).movedim(-1, -2)  # (..., n - p, p + 1, 8)
-        return _span_parts(spans.reshape(-1, p + 1, 8)).unflatten(-1, spans.shape[:-2])
+        pairs = aligned_chain(ctrl).unfold(-2, 2, 1).movedim(-1, -2)  # (..., n - 1, 2, 8)
+        parts = _span_parts(pairs.reshape(-1, 2, 8)).view(80, *pairs.shape[:-2])
+        return parts.unfold(-1, self.degree, 1).movedim(-1, 1).contiguous()
 
     def acceleration_jumps(self) -> str | None:
         p, form = self.degree, self.form

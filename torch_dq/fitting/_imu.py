@@ -19,7 +19,7 @@ from torch import Tensor
 from .. import _checks, curves, dualquat, quat
 from .._kinematics import body_field
 from ._charts import Direction, Vector
-from ._imu_jacobians import accel_rows, gyro_rows
+from ._imu_jacobians import accel_rows, gyro_rows, imu_residuals
 from ._nuisance import Slot
 from ._terms import (
     Options,
@@ -70,15 +70,21 @@ class _Imu(Term):
 
     bias = _nuisance("bias", "The bias ``(..., 3)`` (body axes), added to the ideal reading.")
 
-    def _whitened(self, rows: Tensor, event: int, fresh: bool = False) -> Tensor:
-        """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero
-        (``fresh``: ``rows`` an array of the caller's own, scaled in place where the
-        product keeps their shape: no second array of their size)."""
+    _rows_into = True  # residual_jacobians writes its rows into out (Term._rows_into)
+
+    def _whitened(self, rows: Tensor, event: int) -> Tensor:
+        """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero."""
         scale = self.mask[..., None].to(rows.dtype) / self.sigma.to(rows.dtype)
-        scale = scale.reshape(*scale.shape, *[1] * event)
-        if fresh and _checks.broadcast_shapes(rows.shape, scale.shape) == rows.shape:
-            return rows.mul_(scale)
-        return rows * scale
+        return rows * scale.reshape(*scale.shape, *[1] * event)
+
+    def _scale(self, x: Tensor) -> Tensor | None:
+        """The whitening ``(..., N, 3)`` (mask over sigmas) for the closed-form row builders,
+        which multiply as they write (no second pass over the rows), where it broadcasts
+        into the samples' shape ``x.shape[:-1]``; None where the masks' batch is wider
+        (:meth:`_whitened` after)."""
+        scale = self.mask[..., None].to(x.dtype) / self.sigma.to(x.dtype)
+        lead = x.shape[:-1]
+        return scale if _checks.broadcast_shapes(lead, scale.shape[:-1]) == lead else None
 
     def _steps(self, names: list[str], p: dict[str, Tensor], toward: dict[str, Tensor],
                ) -> list[Tensor] | None:
@@ -132,19 +138,25 @@ class Gyro(_Imu):
 
     def _residual(self, ev, p):
         x, dx = ev[0][:2]
+        compiled = imu_residuals(x, dx, None, None, p["bias"], self.readings)
+        if compiled is not None:
+            return compiled
         w = body_field(x, dx, None, 0)  # kinematics(x, dx, frame="body").angular_velocity
         return w + p["bias"] - self.readings.to(w.dtype)
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
                            nuisance: list[str], r: Tensor | None = None,
-                           ) -> tuple[Tensor, list[Tensor]] | None:
-        """Closed form (``torch_dq.fitting._imu_jacobians.gyro_rows``)."""
+                           out: Tensor | None = None) -> tuple[Tensor, list[Tensor]] | None:
+        """Closed form (``torch_dq.fitting._imu_jacobians.gyro_rows``; the rows written into
+        ``out`` where given, as there)."""
         x, dx = derivs[0][:2]
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
         steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3)})
         if steps is None:
             return None
-        rows = self._whitened(gyro_rows(x, dx), 2, fresh=True)
+        scale = self._scale(x)
+        rows = gyro_rows(x, dx, scale, out)
+        rows = rows if scale is not None else self._whitened(rows, 2)
         return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
     def values(self, trajectory, ctrl: Tensor | None = None) -> dict[str, Tensor]:
@@ -403,6 +415,9 @@ class Accel(_Imu):
 
     def _residual(self, ev, p):
         x, dx, ddx = ev[0][:3]
+        compiled = imu_residuals(x, dx, ddx, p["gravity"], p["bias"], self.readings)
+        if compiled is not None:
+            return compiled
         a = body_field(x, dx, ddx, 3)  # kinematics(..., frame="body").linear_acceleration
         q = x[..., :4]  # the rotation (dualquat.to_rt's, without its translation)
         g = quat.rotate(quat.conj(q), p["gravity"].expand(*q.shape[:-1], 3))
@@ -410,17 +425,19 @@ class Accel(_Imu):
 
     def residual_jacobians(self, derivs: list[tuple[Tensor, ...]], p: dict[str, Tensor],
                            nuisance: list[str], r: Tensor | None = None,
-                           ) -> tuple[Tensor, list[Tensor]] | None:
-        """Closed form (``torch_dq.fitting._imu_jacobians.accel_rows``)."""
+                           out: Tensor | None = None) -> tuple[Tensor, list[Tensor]] | None:
+        """Closed form (``torch_dq.fitting._imu_jacobians.accel_rows``; ``out`` as
+        :meth:`Gyro.residual_jacobians`)."""
         x, dx, ddx = derivs[0][:3]
         gravity = p["gravity"].to(x.dtype)
-        rows, toward_g = accel_rows(x, dx, ddx, gravity)
+        scale = self._scale(x)
+        rows, toward_g = accel_rows(x, dx, ddx, gravity, scale, out)
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
         steps = self._steps(nuisance, p, {"bias": eye.expand(*x.shape[:-1], 3, 3),
                                           "gravity": toward_g})
         if steps is None:
             return None
-        rows = self._whitened(rows, 2, fresh=True)
+        rows = rows if scale is not None else self._whitened(rows, 2)
         return self.residuals(derivs, p) if r is None else r, [rows, *steps]
 
 

@@ -27,8 +27,9 @@ code's formulas (:mod:`torch_dq._kinematics`); the Jacobians chained through the
 then the same (``tests/test_term_jacobians.py`` compares them).
 
 Where the compiled kernels run (``torch_dq._kernels.native``), the rows are computed sample
-by sample in C (``csrc/imu_rows.c``: the same formulas, no per-component temporaries); the
-PyTorch code here is the reference they are tested against.
+by sample in C (``csrc/imu_rows.c``: the same formulas, no per-component temporaries), and
+so are the residuals themselves (:func:`imu_residuals`, for the terms' ``_residual``); the
+PyTorch code here and in the terms is the reference they are tested against.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from torch import Tensor
 
 from .._kernels import native
 
-__all__ = ["accel_rows", "gyro_rows"]
+__all__ = ["accel_rows", "gyro_rows", "imu_residuals"]
 
 # q e_j for the pure unit quaternions e_j: component c of row j is SIGN[j, c] q[INDEX[j, c]]
 _INDEX = ((1, 0, 3, 2), (2, 3, 0, 1), (3, 2, 1, 0))
@@ -55,22 +56,28 @@ def _times_units(q: Tensor, scale: Tensor | float) -> Tensor:
     return q[..., index] * (scale * q.new_tensor(_SIGN))
 
 
-def gyro_rows(x: Tensor, dx: Tensor) -> Tensor:
+def gyro_rows(x: Tensor, dx: Tensor, scale: Tensor | None = None,
+              out: Tensor | None = None) -> Tensor:
     r"""``(..., N, 3, 2, 8)``: the body rate's rows with respect to ``x`` and ``dx`` ``(...,
     N, 8)`` (module doc: :math:`\partial_{\dot r} = 2 r e_j`, :math:`\partial_r = 2 C(e_j
-    \dot r^*) = -2 \dot r e_j`; the dual parts and the sigmas left to the caller: zero,
-    1); component-major in memory (``(3, 2, 8, ...)`` permuted, as :func:`accel_rows`)."""
-    if native.enabled(x, dx):
-        out = x.new_empty(3, 2, 8, *x.shape[:-1])
-        S = out[0, 0, 0].numel()
-        xs, dxs = _samples(x), _samples(dx)
-        _library().tdq_gyro_rows(S, *_at(xs), *_at(dxs), native.address(out))
-        return out.movedim((0, 1, 2), (-3, -2, -1))
-    out = x.new_zeros(3, 2, 8, *x.shape[:-1]).movedim((0, 1, 2), (-3, -2, -1))
+    \dot r^*) = -2 \dot r e_j`; the dual parts zero), row ``j`` times ``scale[..., j]``
+    (``(..., N, 3)``, the whitening's mask / sigma; None: 1); component-major in memory
+    (``(3, 2, 8, ...)`` permuted, as :func:`accel_rows`); written into orders 0 and 1 of
+    ``out`` where it is given (:func:`_target`) and returned as a view of it."""
+    lead, into = x.shape[:-1], _target(out, x.shape[:-1], 2)
+    if native.enabled(x, dx, *_given(scale)):
+        O = 2 if into is None else into.shape[1]
+        rows = x.new_empty(3, 2, 8, *lead) if into is None else into
+        xs, dxs, ws = _samples(x), _samples(dx), _scales(scale, lead)
+        _library().tdq_gyro_rows(lead.numel(), *_at(xs), *_at(dxs), *_at(ws), O,
+                                 native.address(rows))
+        return _view(rows, 2)
+    rows = x.new_zeros(3, 2, 8, *lead).movedim((0, 1, 2), (-3, -2, -1))
     q = torch.stack((dx[..., :4], x[..., :4]), -2)  # (..., N, 2, 4)
-    scale = x.new_tensor([-2.0, 2.0])[:, None, None]
-    out[..., :4] = _times_units(q, scale).transpose(-3, -2)
-    return out
+    twice = x.new_tensor([-2.0, 2.0])[:, None, None]
+    rows[..., :4] = _times_units(q, twice).transpose(-3, -2)
+    rows = rows if scale is None else rows.mul_(scale[..., None, None])
+    return rows if into is None else _view(into, 2).copy_(rows)
 
 
 def _rotation(r: Tensor) -> Tensor:
@@ -94,23 +101,30 @@ def _vec_conj(a: Tensor, b: Tensor) -> Tensor:
         b[1:], a[0], value=-1.0)
 
 
-def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Tensor, Tensor]:
+def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor,
+               scale: Tensor | None = None, out: Tensor | None = None,
+               ) -> tuple[Tensor, Tensor]:
     r"""``(..., N, 3, 3, 8)``: the specific force's rows with respect to ``x``, ``dx``,
-    ``ddx`` ``(..., N, 8)``, and ``(..., N, 3, 3)``: with respect to gravity ``(..., N, 3)``
-    (world axes; module doc; the sigmas left to the caller). With :math:`H = (0, h)` pure
+    ``ddx`` ``(..., N, 8)``, row ``j`` times ``scale[..., j]`` (as :func:`gyro_rows`, and
+    ``out`` as there: orders 0 to 2), and
+    ``(..., N, 3, 3)``: with respect to gravity ``(..., N, 3)`` (world axes; module doc;
+    unscaled). With :math:`H = (0, h)` pure
     (:math:`C(a^* H) = -H a`, :math:`C(e_j r^* U) = U r e_j`) every row is :math:`H` times
     one of ``Q`` below, :math:`(-h \cdot q_v,\ q_0 h + h \times q_v)`, in component-major
     rows (``(3, 6, 4, N)``, returned as a permuted view: the span's vector-Jacobian
     products read them component-major), and :math:`\partial_r` adds :math:`-2 U r e_j`."""
-    lead = x.shape[:-1]
-    if native.enabled(x, dx, ddx, gravity):
+    lead, into = x.shape[:-1], _target(out, x.shape[:-1], 3)
+    if native.enabled(x, dx, ddx, gravity, *_given(scale)):
         S = lead.numel()
-        rows, toward = x.new_empty(72, S), x.new_empty(3, 3, S)
-        g = _samples(gravity.expand(*lead, 3))
-        _library().tdq_accel_rows(S, *_at(_samples(x)), *_at(_samples(dx)),
-                                  *_at(_samples(ddx)), *_at(g), native.address(rows),
-                                  native.address(toward))
-        return rows.T.view(*lead, 3, 3, 8), toward.permute(2, 0, 1).reshape(*lead, 3, 3)
+        rows = x.new_empty(3, 3, 8, *lead) if into is None else into
+        toward = x.new_empty(3, 3, S)
+        held: list[Tensor | None] = [_samples(v) for v in (x, dx, ddx,
+                                                           gravity.expand(*lead, 3))]
+        held.append(_scales(scale, lead))  # the arrays held until the call returns
+        _library().tdq_accel_rows(S, *(a for v in held for a in _at(v)), rows.shape[1],
+                                  native.address(rows), native.address(toward))
+        return (_view(rows, 3),
+                toward.permute(2, 0, 1).reshape(*lead, 3, 3))
     X = torch.cat((x, dx, ddx), -1).reshape(-1, 24).T.contiguous()
     r, d, rd, dd, rdd, ddd = X.view(6, 4, -1)
     h = _rotation(r)  # (3 i, 3 j, N): h_j = 2 R e_j
@@ -132,8 +146,56 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor) -> tuple[Ten
     torch.sum(p[1:], 0, out=p[0]).neg_()
     torch.linalg.cross(u, r[1:], dim=0, out=p[1:]).addcmul_(u, r[0])
     out[:, :, 0] += _times_units(p.T, -2.0).permute(2, 1, 0)
-    return (rows.view(72, -1).T.view(*lead, 3, 3, 8),
+    rows = rows.view(72, -1).T.view(*lead, 3, 3, 8)
+    rows = rows if scale is None else rows.mul_(scale[..., None, None])
+    return (rows if into is None else _view(into, 3).copy_(rows),
             (-0.5 * h).permute(2, 1, 0).reshape(*lead, 3, 3))
+
+
+def _target(out: Tensor | None, lead: torch.Size, orders: int) -> Tensor | None:
+    """``out (..., N, 3, O, 8)``, ``O >= orders``, as the ``(3, O, 8, ...)`` array it is a
+    permuted view of (the rows' component-major layout, the samples' stride 1), or None
+    where it is None or not so (the rows then in an array of their own)."""
+    if out is None or out.shape[:-3] != lead or out.shape[-3] != 3 or out.shape[-2] < orders:
+        return None
+    base = out.movedim((-3, -2, -1), (0, 1, 2))
+    return base if base.is_contiguous() else None
+
+
+def imu_residuals(x: Tensor, dx: Tensor, ddx: Tensor | None, gravity: Tensor | None,
+                  bias: Tensor, readings: Tensor) -> Tensor | None:
+    r"""``(..., N, 3)``: the inertial residuals before whitening by the compiled loop
+    (``csrc/imu_rows.c``), from ``x``, ``dx`` (and ``ddx``) ``(..., N, 8)``: the
+    gyroscope's :math:`2\,\mathrm{vec}(r^* \dot r) + b - y` (``ddx`` None) or the
+    accelerometer's :math:`R^T (\ddot t - g) + b - y`, ``bias`` ``(..., 1, 3)``, ``readings``
+    ``(..., N, 3)`` and ``gravity`` broadcasting; None where the compiled kernels do not
+    apply (the terms' PyTorch code, the reference, then runs)."""
+    args = (x, dx, ddx, gravity, bias, readings)
+    given = [v for v in args if v is not None]
+    if not native.enabled(*given):
+        return None
+    lead = torch.broadcast_shapes(*(v.shape[:-1] for v in given))
+    held = [None if v is None else _samples(v.expand(*lead, v.shape[-1])) for v in args]
+    out = x.new_empty(*lead, 3)
+    _library().tdq_imu_residuals(lead.numel(), *(a for v in held for a in _at(v)),
+                                 native.address(out))
+    return out
+
+
+def _view(rows: Tensor, orders: int) -> Tensor:
+    """``(..., N, 3, orders, 8)``: the first ``orders`` orders of component-major ``rows (3,
+    O, 8, ..., N)``, as the builders return them."""
+    return rows[:, :orders].movedim((0, 1, 2), (-3, -2, -1))
+
+
+def _given(scale: Tensor | None) -> tuple[Tensor, ...]:
+    """``scale`` as the tensors ``native.enabled`` checks (none where None)."""
+    return () if scale is None else (scale,)
+
+
+def _scales(scale: Tensor | None, lead: torch.Size) -> Tensor | None:
+    """The rows' scales ``(..., N, 3)`` as ``(S, 3)`` rows for :func:`_at` (None: None)."""
+    return None if scale is None else _samples(scale.expand(*lead, 3))
 
 
 def _samples(x: Tensor) -> Tensor:
@@ -142,20 +204,24 @@ def _samples(x: Tensor) -> Tensor:
     return x if x.stride(-1) == 1 else x.contiguous()
 
 
-def _at(x: Tensor) -> tuple[ctypes.c_void_p, int]:
-    """The address of ``(S, c)`` rows of unit component stride and their sample stride."""
-    return ctypes.c_void_p(x.data_ptr()), x.stride(0)
+def _at(x: Tensor | None) -> tuple[ctypes.c_void_p | None, int]:
+    """The address of ``(S, c)`` rows of unit component stride and their sample stride (None:
+    a null pointer). The caller holds ``x`` until the call returns (a copy of
+    :func:`_samples` lives no longer)."""
+    return (None, 0) if x is None else (ctypes.c_void_p(x.data_ptr()), x.stride(0))
 
 
 @cache
 def _library() -> ctypes.CDLL:
-    """The compiled library, ``tdq_gyro_rows``' and ``tdq_accel_rows``' argument types
-    declared."""
+    """The compiled library, ``tdq_gyro_rows``', ``tdq_accel_rows``' and
+    ``tdq_imu_residuals``' argument types declared."""
     lib = native.library()
     if lib is None:
         raise RuntimeError("the compiled kernels are not available")
     p, i = ctypes.c_void_p, ctypes.c_int64
-    lib.tdq_gyro_rows.argtypes = [i, p, i, p, i, p]
-    lib.tdq_accel_rows.argtypes = [i, p, i, p, i, p, i, p, i, p, p]
+    lib.tdq_gyro_rows.argtypes = [i, p, i, p, i, p, i, p]
+    lib.tdq_accel_rows.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, p]
+    lib.tdq_imu_residuals.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, i, p]
     lib.tdq_gyro_rows.restype = lib.tdq_accel_rows.restype = None
+    lib.tdq_imu_residuals.restype = None
     return lib

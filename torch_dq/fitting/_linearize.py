@@ -381,13 +381,15 @@ class Linearization:
         rates = [term.time_rates() for term in terms]
         timed = [[name for name in est if name in rt] for est, rt in zip(ests, rates,
                                                                          strict=True)]
+        L = len(derivs)
+        rows, parts = _row_buffer(terms, top + 1, derivs)  # the closed forms write there
         jac = [self._residual_jacobians(i, term, v, [x for x in est if x not in tm],
                                         [d[..., :term.order + 1, :] for d in derivs],
-                                        gathered.shape[:-2], r)
-               for i, term, v, est, tm, r in zip(group, terms, vals, ests, timed,
-                                                 _or_none(residuals, len(terms)), strict=True)]
-        L = len(derivs)
-        Jd = [_stacked([J[l] for _, J in jac], top + 1) for l in range(L)]
+                                        gathered.shape[:-2], r, o)
+               for i, term, v, est, tm, r, o in zip(group, terms, vals, ests, timed,
+                                                    _or_none(residuals, len(terms)), parts,
+                                                    strict=True)]
+        Jd = [_stacked([J[l] for _, J in jac], top + 1, rows) for l in range(L)]
         Jc, Jt = self._through_spans(gathered, offs, times, firsts, Jd, top,
                                      bool(timed[0]) and not rated, shared,
                                      [d[..., 0, :] for d in derivs],
@@ -413,21 +415,22 @@ class Linearization:
         within the curve), the window's points ``(..., N, w, 8)`` (``span_points``) and each
         span's offsets in it ``(..., N, support)``."""
         n, sup = self.spans.n, self.spans.support
-        f0 = torch.stack(firsts).amin(0)
+        f0 = firsts[0] if len(firsts) == 1 else torch.stack(firsts).amin(0)  # (no copy)
         f0 = torch.minimum(f0, torch.full_like(f0, n - w))
         offs = [(f - f0)[..., None] + torch.arange(sup, device=f.device) for f in firsts]
         return f0, span_points(ctrl, f0, w), offs
 
     def _residual_jacobians(self, i: int, term, vals: dict[str, Tensor], nuisance: list[str],
                             derivs: list[Tensor], shape: torch.Size, r: Tensor | None = None,
-                            ) -> tuple[Tensor, list[Tensor]]:
+                            out: Tensor | None = None) -> tuple[Tensor, list[Tensor]]:
         """Residuals of ``term`` (term ``i`` or a part) and their Jacobians with respect to
         the span derivatives ``derivs (..., N, order + 1, 8)`` and to the chart steps of its
         ``nuisance`` parameters (the term's closed form, which takes the residuals ``r``
-        where known; else ``sample_jacobians``: one reverse pass over ``k`` copies)."""
-        L = len(derivs)
+        where known, and writes its rows into ``out`` where given: ``Term._rows_into``; else
+        ``sample_jacobians``: one reverse pass over ``k`` copies)."""
+        L, kw = len(derivs), {} if out is None else {"out": out}
         closed = term.residual_jacobians([d.unbind(-2) for d in derivs], term.per_sample(vals),
-                                         nuisance, r)
+                                         nuisance, r, **kw)
         if closed is not None:
             return closed
         slots = term.slots()
@@ -626,19 +629,36 @@ def _weights(term, r: Tensor, robust: bool = True) -> Tensor:
     return wt * term.mask.to(wt.dtype)
 
 
-def _stacked(Js: list[Tensor], O: int) -> Tensor:
+def _row_buffer(terms: tuple, O: int, derivs: list[Tensor],
+                ) -> tuple[Tensor | None, list[Tensor | None]]:
+    """An empty ``(..., N, sum k_j, O, 8)`` for :func:`_stacked` (component-major, the
+    samples' shape that of ``derivs[0] (..., N, o, 8)``) and per term its rows there, where
+    several terms read one times list and one writes its rows into it (``Term._rows_into``:
+    no copy); else None and Nones."""
+    if len(derivs) > 1 or len(terms) == 1 or not any(term._rows_into for term in terms):
+        return None, [None] * len(terms)
+    rows = derivs[0].new_empty(sum(term.dim for term in terms), O, 8,
+                               *derivs[0].shape[:-2]).movedim((0, 1, 2), (-3, -2, -1))
+    at = rows.split([term.dim for term in terms], -3)
+    return rows, [x if term._rows_into else None for x, term in zip(at, terms, strict=True)]
+
+
+def _stacked(Js: list[Tensor], O: int, rows: Tensor | None = None) -> Tensor:
     """The rows ``Js`` (each ``(..., N, k_j, o_j, 8)``, ``o_j <= O``) of a group's terms as one
     ``(..., N, sum k_j, O, 8)``, the orders a term does not read zero; component-major in
     memory (``(sum k_j, O, 8, ..., N)`` permuted: the layout the span's vector-Jacobian
-    products read, and the closed-form rows' own, so each copy here is a row copy)."""
+    products read, and the closed-form rows' own, so each copy here is a row copy). In
+    ``rows`` (:func:`_row_buffer`) where given: the rows a term wrote there are not copied."""
     if len(Js) == 1 and Js[0].shape[-2] == O:
         return Js[0]
     lead = torch.broadcast_shapes(*(J.shape[:-3] for J in Js))
-    out = Js[0].new_empty(sum(J.shape[-3] for J in Js), O, 8, *lead).movedim(
-        (0, 1, 2), (-3, -2, -1))
+    out = rows if rows is not None and rows.shape[:-3] == lead else Js[0].new_empty(
+        sum(J.shape[-3] for J in Js), O, 8, *lead).movedim((0, 1, 2), (-3, -2, -1))
     a = 0
     for J in Js:
-        out[..., a:a + J.shape[-3], :J.shape[-2], :] = J
+        at = out[..., a:a + J.shape[-3], :J.shape[-2], :]
+        if (J.data_ptr(), J.shape, J.stride()) != (at.data_ptr(), at.shape, at.stride()):
+            at.copy_(J)  # not written in place by the term
         out[..., a:a + J.shape[-3], J.shape[-2]:, :] = 0.0
         a += J.shape[-3]
     return out

@@ -33,13 +33,16 @@ class SpanEvaluator:
 
     Attributes:
         n: number of control points; support: control points per span
-            (:attr:`~torch_dq.nn.Curve.span_size`); device: the control points' device.
+            (:attr:`~torch_dq.nn.Curve.span_size`); device: the control points' device;
+        memo: what the layer keeps between the evaluator's calls (its ``memo``: the bases of
+            the samples' times, computed once per estimate, not once per system and cost).
     """
 
     def __init__(self, trajectory) -> None:
         self.trajectory = trajectory
         self.n, self.support = trajectory.n_ctrl, trajectory.span_size
         self.device = trajectory.control_points.device
+        self.memo: dict = {}
 
     def since_origin(self, t: Tensor, shift: Tensor | float = 0.0) -> Tensor:
         r"""The samples' times ``t (..., N)`` moved by ``shift`` (``(..., N)`` or
@@ -76,7 +79,8 @@ class SpanEvaluator:
         control points the spans are of, None: from ``points``), or None (no closed form:
         reverse passes)."""
         local = self.trajectory.local_times(t, first, True)
-        return self.trajectory.span_vjp(points, local, first, cotangents, pose, second, tables)
+        return self.trajectory.span_vjp(points, local, first, cotangents, pose, second, tables,
+                                        memo=self.memo)
 
     def tables(self, ctrl: Tensor) -> Tensor | None:
         """The layer's :meth:`~torch_dq.nn.Curve.span_vjp_tables` of the control points
@@ -91,7 +95,8 @@ class SpanEvaluator:
         (:meth:`~torch_dq.nn.Curve.span_derivatives`): the costs and the linearisation
         points, without per-sample copies."""
         traj = self.trajectory
-        return traj.span_derivatives(ctrl, traj.local_times(t, first, True), first, order)
+        return traj.span_derivatives(ctrl, traj.local_times(t, first, True), first, order,
+                                     memo=self.memo)
 
     def time_rate(self, t: Tensor, first: Tensor) -> Tensor:
         r"""``d local / d t`` ``(...)`` of :meth:`~torch_dq.nn.Curve.local_times` at ``t``

@@ -202,6 +202,9 @@ class Term(torch.nn.Module):
     dim = 0
     order = 0
     _fn = "fitting.Term"
+    #: whether :meth:`residual_jacobians` takes ``out=``: an ``(..., N, k, O, 8)`` view of a
+    #: group's stacked rows (``torch_dq.fitting._linearize``) its rows may be written into
+    _rows_into = False
 
     if TYPE_CHECKING:  # buffers (registered in __init__ and the subclasses)
         mask: Tensor

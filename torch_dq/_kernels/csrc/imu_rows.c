@@ -3,9 +3,11 @@
  * whose docstrings state the formulas; called from there through ctypes).
  *
  * Inputs per sample s: the pose x and its derivatives dx, ddx (8 each, unit stride, sample
- * stride given), gravity g (3). Outputs are component-major (sample fastest, S per row):
- * gyro rows (3 j, 2 order, 8), accel rows (3 j, 3 order, 8) and the accelerometer's rows
- * toward gravity (3 j, 3 axis). */
+ * stride given), gravity g (3), the rows' scales w (3, one per residual component j: the
+ * whitening mask / sigma; NULL: 1). Outputs are component-major (sample fastest, S per row):
+ * gyro rows (3 j, 2 order, 8) and accel rows (3 j, 3 order, 8), row j times w[j], both in
+ * an array of O >= 2 (3) orders per j (the rows of a group's terms stacked; the higher
+ * orders' rows not written), and the accelerometer's rows toward gravity (3 j, 3 axis). */
 #include <stdint.h>
 #include <string.h>
 
@@ -16,16 +18,20 @@ static const double SIGN[3][4] = {{-1.0, 1.0, 1.0, -1.0}, {-1.0, -1.0, 1.0, 1.0}
 
 #define BLOCK 32 /* samples computed into a local buffer, then written row by row */
 
-/* Copy rows (R, B) of a block's buffer to rows (R, S) of the output from sample s0. */
-static void store(const double *buf, int64_t R, int64_t B, double *rows, int64_t S, int64_t s0)
+/* Copy rows (R, B) of a block's buffer to rows (R + gap R / per, S) of the output from
+ * sample s0: after every `per` rows `gap` rows are skipped (the orders of the output's j
+ * beyond the builder's). */
+static void store(const double *buf, int64_t R, int64_t per, int64_t gap, int64_t B,
+                  double *rows, int64_t S, int64_t s0)
 {
     for (int64_t k = 0; k < R; k++)
-        memcpy(rows + k * S + s0, buf + k * BLOCK, sizeof(double) * (size_t)B);
+        memcpy(rows + (k + k / per * gap) * S + s0, buf + k * BLOCK, sizeof(double) * (size_t)B);
 }
 
-/* rows (48, S): -2 dr e_j (order 0, real), 2 r e_j (order 1, real), the dual parts zero. */
+/* rows (3 j, O order, 8, S): -2 dr e_j (order 0, real), 2 r e_j (order 1, real), the dual
+ * parts zero; times w[j] (sample stride sw) where w is given. */
 void tdq_gyro_rows(int64_t S, const double *x, int64_t sx, const double *dx, int64_t sdx,
-                   double *rows)
+                   const double *w, int64_t sw, int64_t O, double *rows)
 {
     double buf[48 * BLOCK];
     memset(buf, 0, sizeof(buf));
@@ -36,11 +42,12 @@ void tdq_gyro_rows(int64_t S, const double *x, int64_t sx, const double *dx, int
             const double scale[2] = {-2.0, 2.0};
             for (int j = 0; j < 3; j++)
                 for (int o = 0; o < 2; o++)
-                    for (int c = 0; c < 4; c++)
-                        buf[((j * 2 + o) * 8 + c) * BLOCK + t] =
-                            q[o][INDEX[j][c]] * (scale[o] * SIGN[j][c]);
+                    for (int c = 0; c < 4; c++) {
+                        const double v = q[o][INDEX[j][c]] * (scale[o] * SIGN[j][c]);
+                        buf[((j * 2 + o) * 8 + c) * BLOCK + t] = w ? v * w[(s0 + t) * sw + j] : v;
+                    }
         }
-        store(buf, 48, B, rows, S, s0);
+        store(buf, 48, 16, 8 * (O - 2), B, rows, S, s0);
     }
 }
 
@@ -55,7 +62,7 @@ static void vec_conj(const double *a, const double *b, double *v)
 /* Sample (r + e d, its derivatives, gravity gs)'s accelerometer rows: (3 j, 6 b, 4 c) in
  * buf[((j * 6 + b) * 4 + c) * BLOCK], then toward (3 j, 3 i) in buf[(72 + 3 j + i) BLOCK]. */
 static void accel_sample(const double *r, const double *rd, const double *rdd,
-                         const double *gs, double *buf)
+                         const double *gs, const double *ws, double *buf)
 {
     const double *d = r + 4, *dd = rd + 4, *ddd = rdd + 4;
     double P[4][4], h[3][3]; /* h[i][j]: component i of h_j */
@@ -106,7 +113,7 @@ static void accel_sample(const double *r, const double *rd, const double *rdd,
     for (int j = 0; j < 3; j++)
         for (int b = 0; b < 6; b++)
             for (int c = 0; c < 4; c++)
-                buf[((j * 6 + b) * 4 + c) * BLOCK] = out[j][b][c];
+                buf[((j * 6 + b) * 4 + c) * BLOCK] = ws ? out[j][b][c] * ws[j] : out[j][b][c];
     for (int j = 0; j < 3; j++)
         for (int i = 0; i < 3; i++)
             buf[(72 + j * 3 + i) * BLOCK] = -0.5 * h[i][j];
@@ -115,18 +122,69 @@ static void accel_sample(const double *r, const double *rd, const double *rdd,
 /* rows (72, S): block b of (3 j, 6 b, 4 c) is H_j times Q_b, Q = (-ddd, rdd, -2 dd, 2 rd,
  * -d, r) (b = 2 order + dual), H_j = (0, h_j), h_j = 2 R e_j; the real part of order 0
  * adds -2 U r e_j, U = (0, u), u = 2 vec(ddd r^* + 2 dd rd^* + d rdd^*) - g. toward (9, S):
- * (j, i) = -h_j[i] / 2. */
+ * (j, i) = -h_j[i] / 2. Row j of rows times w[j] (sample stride sw) where w is given; rows
+ * (3 j, O order, 8, S). */
 void tdq_accel_rows(int64_t S, const double *x, int64_t sx, const double *dx, int64_t sdx,
                     const double *ddx, int64_t sddx, const double *g, int64_t sg,
-                    double *rows, double *toward)
+                    const double *w, int64_t sw, int64_t O, double *rows, double *toward)
 {
     double buf[81 * BLOCK];
     for (int64_t s0 = 0; s0 < S; s0 += BLOCK) {
         const int64_t B = S - s0 < BLOCK ? S - s0 : BLOCK;
         for (int64_t t = 0; t < B; t++)
             accel_sample(x + (s0 + t) * sx, dx + (s0 + t) * sdx, ddx + (s0 + t) * sddx,
-                         g + (s0 + t) * sg, buf + t);
-        store(buf, 72, B, rows, S, s0);
-        store(buf + 72 * BLOCK, 9, B, toward, S, s0);
+                         g + (s0 + t) * sg, w ? w + (s0 + t) * sw : NULL, buf + t);
+        store(buf, 72, 24, 8 * (O - 3), B, rows, S, s0);
+        store(buf + 72 * BLOCK, 9, 9, 0, B, toward, S, s0);
+    }
+}
+
+/* o = a b^* (quaternions) */
+static void mul_conj(const double *a, const double *b, double *o)
+{
+    o[0] = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    o[1] = -a[0] * b[1] + a[1] * b[0] - a[2] * b[3] + a[3] * b[2];
+    o[2] = -a[0] * b[2] + a[1] * b[3] + a[2] * b[0] - a[3] * b[1];
+    o[3] = -a[0] * b[3] - a[1] * b[2] + a[2] * b[1] + a[3] * b[0];
+}
+
+/* vec(r^* (0, u) r) = R^T u for a unit r */
+static void rotate_back(const double *r, const double *u, double *f)
+{
+    const double w = r[0], x = r[1], y = r[2], z = r[3];
+    f[0] = (1.0 - 2.0 * (y * y + z * z)) * u[0] + 2.0 * (x * y + w * z) * u[1]
+           + 2.0 * (x * z - w * y) * u[2];
+    f[1] = 2.0 * (x * y - w * z) * u[0] + (1.0 - 2.0 * (x * x + z * z)) * u[1]
+           + 2.0 * (y * z + w * x) * u[2];
+    f[2] = 2.0 * (x * z + w * y) * u[0] + 2.0 * (y * z - w * x) * u[1]
+           + (1.0 - 2.0 * (x * x + y * y)) * u[2];
+}
+
+/* The inertial residuals before whitening, (S, 3) contiguous: gyroscope 2 vec(r^* dr) + b - y
+ * (body rate), accelerometer (ddx given) R^T (2 vec(ddd r^* + 2 dd dr^* + d ddr^*) - g) + b - y
+ * (specific force); b, y, g rows of 3 with sample strides sb, sy, sg. */
+void tdq_imu_residuals(int64_t S, const double *x, int64_t sx, const double *dx, int64_t sdx,
+                       const double *ddx, int64_t sddx, const double *g, int64_t sg,
+                       const double *b, int64_t sb, const double *y, int64_t sy, double *out)
+{
+    for (int64_t s = 0; s < S; s++) {
+        const double *r = x + s * sx, *rd = dx + s * sdx, *bs = b + s * sb, *ys = y + s * sy;
+        double f[3];
+        if (!ddx) { /* 2 vec(r^* dr) = 2 (r_0 dr_v - dr_0 r_v - r_v x dr_v) */
+            f[0] = 2.0 * (r[0] * rd[1] - r[1] * rd[0] - (r[2] * rd[3] - r[3] * rd[2]));
+            f[1] = 2.0 * (r[0] * rd[2] - r[2] * rd[0] - (r[3] * rd[1] - r[1] * rd[3]));
+            f[2] = 2.0 * (r[0] * rd[3] - r[3] * rd[0] - (r[1] * rd[2] - r[2] * rd[1]));
+        } else {
+            const double *d = r + 4, *dd = rd + 4, *rdd = ddx + s * sddx, *ddd = rdd + 4;
+            const double *gs = g + s * sg;
+            double a[4], t[4], u[3];
+            mul_conj(ddd, r, a);
+            mul_conj(dd, rd, t);
+            for (int i = 1; i < 4; i++) a[i] += 2.0 * t[i];
+            mul_conj(d, rdd, t);
+            for (int i = 0; i < 3; i++) u[i] = 2.0 * (a[i + 1] + t[i + 1]) - gs[i];
+            rotate_back(r, u, f);
+        }
+        for (int i = 0; i < 3; i++) out[3 * s + i] = f[i] + bs[i] - ys[i];
     }
 }
