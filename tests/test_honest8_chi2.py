@@ -15,7 +15,7 @@ from scipy.stats import chi2 as chi2_dist
 
 import torch_dq.dualquat as dq
 from torch_dq.fitting import Gyro, Poses, estimate
-from torch_dq.fitting._uncertainty import _band
+from torch_dq.fitting._chi2 import band as _band
 from torch_dq.nn import BSpline
 
 F64 = torch.float64
