@@ -21,6 +21,7 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_gtsam as bg
+import native_ab as nab
 
 from torch_dq._kernels import native
 from torch_dq.fitting import _banded
@@ -104,13 +105,7 @@ def main() -> None:
     stats: dict = {k: collections.Counter() for k in ("1", "0", "n1", "n0")}
     stats["on"], stats["depth"] = "1", 0
     _counted(stats)
-    kept: list = []
-    sigmas = bg._sigmas
-
-    def record(est, std, truth):
-        kept.append((np.array(est), np.array(std)))
-        return sigmas(est, std, truth)
-    bg._sigmas = record
+    kept = nab.recorded()
     total: dict[str, list] = {"1": [], "0": []}
     out: dict[str, list] = {}
     bg.torch_dq_run(bg.make_job(10.0))

@@ -60,6 +60,19 @@ def _alone(job: dict, repeats: int) -> None:
           f"mean {np.mean(cpu):.3f} s, min {min(cpu):.3f} s of {repeats} (process CPU)")
 
 
+def recorded() -> list:
+    """A list that every later ``bench_gtsam`` run appends its ``(estimates, stds)`` to
+    (``bench_gtsam._sigmas`` wrapped; shared by the session's A/B scripts)."""
+    kept: list = []
+    sigmas = bg._sigmas
+
+    def record(est, std, truth):
+        kept.append((np.array(est), np.array(std)))
+        return sigmas(est, std, truth)
+    bg._sigmas = record
+    return kept
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=6)
@@ -72,13 +85,7 @@ def main() -> None:
         _alone(job, args.repeats)
         return
     problem, ctrl, values, w = _system_inputs(job)
-    kept: list = []
-    sigmas = bg._sigmas
-
-    def record(est, std, truth):
-        kept.append((np.array(est), np.array(std)))
-        return sigmas(est, std, truth)
-    bg._sigmas = record
+    kept = recorded()
     bg.torch_dq_run(bg.make_job(10.0))  # warm
     times: dict[str, dict[str, list[float]]] = {f: {"system": [], "estimate": []} for f in "10"}
     out: dict[str, tuple] = {}

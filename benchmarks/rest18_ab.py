@@ -78,13 +78,7 @@ def main() -> None:
     job = bg._job(60.0)
     problem, ctrl, values, w = nab._system_inputs(job)
     patches = _patches(args.change)
-    kept: list = []
-    sigmas = bg._sigmas
-
-    def record(est, std, truth):
-        kept.append((np.array(est), np.array(std)))
-        return sigmas(est, std, truth)
-    bg._sigmas = record
+    kept = nab.recorded()
     bg.torch_dq_run(bg.make_job(10.0))  # warm
     times = {m: {"system": [], "cost": [], "estimate": []} for m in ("off", "on")}
     out: dict[str, tuple] = {}

@@ -5,6 +5,7 @@ bias and gravity broadcast, the Gyro / Accel terms' whitened residuals."""
 
 import pytest
 import torch
+from test_asm17_imu_rows import _conj, _qmul  # the products written once, there
 
 import torch_dq.dualquat as dq
 from torch_dq._kernels import native
@@ -14,16 +15,6 @@ from torch_dq.fitting._imu_jacobians import imu_residuals
 F64 = torch.float64
 pytestmark = pytest.mark.skipif(native.library() is None,
                                 reason="the compiled kernels are not built (or TORCH_DQ_NATIVE=0)")
-
-
-def _qmul(a, b):
-    a0, av, b0, bv = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
-    return torch.cat((a0 * b0 - (av * bv).sum(-1, keepdim=True),
-                      a0 * bv + b0 * av + torch.linalg.cross(av, bv)), -1)
-
-
-def _conj(a):
-    return torch.cat((a[..., :1], -a[..., 1:]), -1)
 
 
 def _inputs(lead, seed):

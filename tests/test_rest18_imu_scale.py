@@ -6,32 +6,12 @@ wider batch of masks (whitened after) against the same reference."""
 
 import pytest
 import torch
+from test_asm17_imu_rows import _accel, _gyro  # the residuals written once, there
 
 from torch_dq._kernels import native
 from torch_dq.fitting._imu_jacobians import accel_rows, gyro_rows
 
 F64 = torch.float64
-
-
-def _qmul(a, b):
-    a0, av, b0, bv = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
-    return torch.cat((a0 * b0 - (av * bv).sum(-1, keepdim=True),
-                      a0 * bv + b0 * av + torch.linalg.cross(av, bv)), -1)
-
-
-def _conj(a):
-    return torch.cat((a[..., :1], -a[..., 1:]), -1)
-
-
-def _gyro(x, dx):
-    return 2.0 * _qmul(_conj(x[:4]), dx[:4])[1:]
-
-
-def _accel(x, dx, ddx, g):
-    r, d, rd, dd, rdd, ddd = x[:4], x[4:], dx[:4], dx[4:], ddx[:4], ddx[4:]
-    S = _qmul(ddd, _conj(r)) + 2.0 * _qmul(dd, _conj(rd)) + _qmul(d, _conj(rdd))
-    U = torch.cat((torch.zeros(1, dtype=F64), 2.0 * S[1:] - g))
-    return _qmul(_qmul(_conj(r), U), r)[1:]
 
 
 def _reference(x, dx, ddx, grav, lead):
