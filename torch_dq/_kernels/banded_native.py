@@ -15,7 +15,6 @@ entries ``U(j, j .. j + p)`` (LAPACK ``dpbtrf``'s upper band, a row per column).
 from __future__ import annotations
 
 import ctypes
-from functools import cache
 
 import torch
 from torch import Tensor
@@ -27,16 +26,10 @@ __all__ = ["band_inverse", "factor", "selected_inverse", "solve"]
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 
 
-@cache
-def _functions() -> tuple[ctypes._CFuncPtr, ...]:  # type: ignore[name-defined]
-    lib = native.library()
-    assert lib is not None  # native.enabled() held
-    fac, sol, inv = lib.tdq_band_factor, lib.tdq_band_solve, lib.tdq_band_selected_inverse
-    fac.argtypes = [_P, _P, _I, _I, _I, _I, _I, _P, _P]
-    sol.argtypes = [_P, _I, _I, _I, _I, _I, _P]
-    inv.argtypes = [_P, _I, _I, _I, _I, _P, _P, _I, _I, _I, _P]
-    fac.restype, sol.restype, inv.restype = None, None, ctypes.c_int
-    return fac, sol, inv
+_FACTOR = ("tdq_band_factor", (_P, _P, _I, _I, _I, _I, _I, _P, _P))
+_SOLVE = ("tdq_band_solve", (_P, _I, _I, _I, _I, _I, _P))
+_INVERSE = ("tdq_band_selected_inverse", (_P, _I, _I, _I, _I, _P, _P, _I, _I, _I, _P),
+            ctypes.c_int)
 
 
 def factor(band: Tensor, shift: Tensor | None, rows: int) -> tuple[Tensor, Tensor]:
@@ -50,9 +43,9 @@ def factor(band: Tensor, shift: Tensor | None, rows: int) -> tuple[Tensor, Tenso
         shift = shift.expand(*batch, n, s).contiguous()
     U = band.new_empty(*batch, rows, w * s)
     ok = torch.empty(batch, dtype=torch.uint8)
-    _functions()[0](native.address(band), None if shift is None else native.address(shift),
-                    int(torch.Size(batch).numel()), n, w, s, rows, native.address(U),
-                    native.address(ok))
+    native.function(*_FACTOR)(
+        native.address(band), None if shift is None else native.address(shift),
+        int(torch.Size(batch).numel()), n, w, s, rows, native.address(U), native.address(ok))
     return U, ok.bool()
 
 
@@ -63,8 +56,8 @@ def solve(U: Tensor, rhs: Tensor) -> Tensor:
     batch = torch.broadcast_shapes(U.shape[:-2], torch.Size(rb))
     Ub = U.expand(*batch, *U.shape[-2:]).contiguous()
     x = rhs.expand(*batch, n, s, r).clone(memory_format=torch.contiguous_format)
-    _functions()[1](native.address(Ub), int(batch.numel()), U.shape[-2], U.shape[-1] - 1,
-                    n * s, r, native.address(x))
+    native.function(*_SOLVE)(native.address(Ub), int(batch.numel()), U.shape[-2],
+                             U.shape[-1] - 1, n * s, r, native.address(x))
     return x
 
 
@@ -91,7 +84,7 @@ def _inverse(U: Tensor, b: int, diag: Tensor | None, sub: Tensor | None,
              nws: tuple[int, int, int], band: Tensor | None) -> None:
     """``tdq_band_selected_inverse`` into the given outputs (None: not wanted)."""
     *batch, N, q = U.shape
-    if _functions()[2](native.address(U), int(torch.Size(batch).numel()), N, q - 1, b,
+    if native.function(*_INVERSE)(native.address(U), int(torch.Size(batch).numel()), N, q - 1, b,
                        *(None if x is None else native.address(x) for x in (diag, sub)),
                        *nws, None if band is None else native.address(band)):
         raise MemoryError("torch_dq: no memory for the compiled selected inverse's buffer")

@@ -37,15 +37,8 @@ def applies(steps: int, *tensors: Tensor) -> bool:
     return steps <= MAX_STEPS and native.enabled(*tensors)
 
 
-@cache
-def _functions() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr]:  # type: ignore[name-defined]
-    lib = native.library()
-    assert lib is not None  # applies() held
-    vjp_c, der_c = lib.tdq_lie_vjp, lib.tdq_lie_derivatives
-    vjp_c.argtypes = [_P, _I, _I, _P, _I, _P, _I, _P, _P, _I, _P, _P, _P, _P]
-    der_c.argtypes = [_P, _P, _P, _I, _I, _P, _I, _P, _P]
-    vjp_c.restype, der_c.restype = ctypes.c_int, None
-    return vjp_c, der_c
+_VJP = ("tdq_lie_vjp", (_P, _I, _I, _P, _I, _P, _I, _P, _P, _I, _P, _P, _P, _P), ctypes.c_int)
+_DERIVATIVES = ("tdq_lie_derivatives", (_P, _P, _P, _I, _I, _P, _I, _P, _P))
 
 
 @cache
@@ -74,7 +67,7 @@ def vjp(span: Tensor, inverse: Tensor, weights: list[Tensor], cot: Tensor, pose:
                  for i in range(k))
     out = cot.new_empty(S, k, p + 1, 6)
     table = _even_table()
-    failed = _functions()[0](
+    failed = native.function(*_VJP)(
         native.address(span), p, U, native.address(inverse), S, native.address(lam), O,
         ctypes.c_void_p(cot.data_ptr()), strides, k, native.address(pose), rows,
         native.address(table), native.address(out))
@@ -92,7 +85,7 @@ def derivatives(ctrl: Tensor, first: Tensor, twists: Tensor, weights: list[Tenso
     lam = torch.stack(weights)  # (O, p, N)
     out = ctrl.new_empty(len(weights), N, 8)
     table = _even_table()
-    _functions()[1](native.address(ctrl), native.address(first), native.address(twists), p, N,
-                    native.address(lam), len(weights), native.address(table),
-                    native.address(out))
+    native.function(*_DERIVATIVES)(
+        native.address(ctrl), native.address(first), native.address(twists), p, N,
+        native.address(lam), len(weights), native.address(table), native.address(out))
     return list(out.unbind(0))

@@ -15,12 +15,14 @@ from __future__ import annotations
 import ctypes
 import importlib.util
 import os
+from collections.abc import Callable
 from functools import cache
+from typing import Any
 
 import torch
 from torch import Tensor
 
-__all__ = ["address", "enabled", "library"]
+__all__ = ["address", "enabled", "function", "library"]
 
 
 @cache
@@ -39,6 +41,18 @@ def library() -> ctypes.CDLL | None:
     if os.environ.get("TORCH_DQ_NATIVE", "1") == "0":
         return None
     return _load()
+
+
+@cache
+def function(name: str, argtypes: tuple, restype: type | None = None) -> Callable[..., Any]:
+    """The compiled function ``name`` with its argument and result types declared (once per
+    name; call it only where :func:`enabled` held: raises where the library is not there)."""
+    lib = library()
+    if lib is None:
+        raise RuntimeError(f"torch_dq: {name}: the compiled kernels are not available")
+    f = getattr(lib, name)
+    f.argtypes, f.restype = list(argtypes), restype
+    return f
 
 
 def enabled(*tensors: Tensor) -> bool:

@@ -72,17 +72,20 @@ class _Imu(Term):
 
     _rows_into = True  # residual_jacobians writes its rows into out (Term._rows_into)
 
+    def _inverse_sigmas(self, dtype: torch.dtype) -> Tensor:
+        """The whitening ``(..., N, 3)``: the mask over the sigmas (masked rows zero)."""
+        return self.mask[..., None].to(dtype) / self.sigma.to(dtype)
+
     def _whitened(self, rows: Tensor, event: int) -> Tensor:
         """Jacobian ``rows (..., N, 3, *event)`` divided by the sigmas, masked rows zero."""
-        scale = self.mask[..., None].to(rows.dtype) / self.sigma.to(rows.dtype)
+        scale = self._inverse_sigmas(rows.dtype)
         return rows * scale.reshape(*scale.shape, *[1] * event)
 
     def _scale(self, x: Tensor) -> Tensor | None:
-        """The whitening ``(..., N, 3)`` (mask over sigmas) for the closed-form row builders,
-        which multiply as they write (no second pass over the rows), where it broadcasts
-        into the samples' shape ``x.shape[:-1]``; None where the masks' batch is wider
-        (:meth:`_whitened` after)."""
-        scale = self.mask[..., None].to(x.dtype) / self.sigma.to(x.dtype)
+        """:meth:`_inverse_sigmas` for the closed-form row builders, which multiply as they
+        write (no second pass over the rows), where it broadcasts into the samples' shape
+        ``x.shape[:-1]``; None where the masks' batch is wider (:meth:`_whitened` after)."""
+        scale = self._inverse_sigmas(x.dtype)
         lead = x.shape[:-1]
         return scale if _checks.broadcast_shapes(lead, scale.shape[:-1]) == lead else None
 

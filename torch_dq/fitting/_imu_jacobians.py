@@ -35,7 +35,6 @@ PyTorch code here and in the terms is the reference they are tested against.
 from __future__ import annotations
 
 import ctypes
-from functools import cache
 
 import torch
 from torch import Tensor
@@ -43,6 +42,12 @@ from torch import Tensor
 from .._kernels import native
 
 __all__ = ["accel_rows", "gyro_rows", "imu_residuals"]
+
+# the compiled functions (csrc/imu_rows.c): names and argument types
+_p, _i = ctypes.c_void_p, ctypes.c_int64
+_GYRO = ("tdq_gyro_rows", (_i, _p, _i, _p, _i, _p, _i, _p))
+_ACCEL = ("tdq_accel_rows", (_i, _p, _i, _p, _i, _p, _i, _p, _i, _p, _i, _p, _p))
+_RESIDUALS = ("tdq_imu_residuals", (_i, _p, _i, _p, _i, _p, _i, _p, _i, _p, _i, _p, _i, _p))
 
 # q e_j for the pure unit quaternions e_j: component c of row j is SIGN[j, c] q[INDEX[j, c]]
 _INDEX = ((1, 0, 3, 2), (2, 3, 0, 1), (3, 2, 1, 0))
@@ -69,7 +74,7 @@ def gyro_rows(x: Tensor, dx: Tensor, scale: Tensor | None = None,
         O = 2 if into is None else into.shape[1]
         rows = x.new_empty(3, 2, 8, *lead) if into is None else into
         xs, dxs, ws = _samples(x), _samples(dx), _scales(scale, lead)
-        _library().tdq_gyro_rows(lead.numel(), *_at(xs), *_at(dxs), *_at(ws), O,
+        native.function(*_GYRO)(lead.numel(), *_at(xs), *_at(dxs), *_at(ws), O,
                                  native.address(rows))
         return _view(rows, 2)
     rows = x.new_zeros(3, 2, 8, *lead).movedim((0, 1, 2), (-3, -2, -1))
@@ -121,7 +126,7 @@ def accel_rows(x: Tensor, dx: Tensor, ddx: Tensor, gravity: Tensor,
         held: list[Tensor | None] = [_samples(v) for v in (x, dx, ddx,
                                                            gravity.expand(*lead, 3))]
         held.append(_scales(scale, lead))  # the arrays held until the call returns
-        _library().tdq_accel_rows(S, *(a for v in held for a in _at(v)), rows.shape[1],
+        native.function(*_ACCEL)(S, *(a for v in held for a in _at(v)), rows.shape[1],
                                   native.address(rows), native.address(toward))
         return (_view(rows, 3),
                 toward.permute(2, 0, 1).reshape(*lead, 3, 3))
@@ -177,7 +182,7 @@ def imu_residuals(x: Tensor, dx: Tensor, ddx: Tensor | None, gravity: Tensor | N
     lead = torch.broadcast_shapes(*(v.shape[:-1] for v in given))
     held = [None if v is None else _samples(v.expand(*lead, v.shape[-1])) for v in args]
     out = x.new_empty(*lead, 3)
-    _library().tdq_imu_residuals(lead.numel(), *(a for v in held for a in _at(v)),
+    native.function(*_RESIDUALS)(lead.numel(), *(a for v in held for a in _at(v)),
                                  native.address(out))
     return out
 
@@ -209,19 +214,3 @@ def _at(x: Tensor | None) -> tuple[ctypes.c_void_p | None, int]:
     a null pointer). The caller holds ``x`` until the call returns (a copy of
     :func:`_samples` lives no longer)."""
     return (None, 0) if x is None else (ctypes.c_void_p(x.data_ptr()), x.stride(0))
-
-
-@cache
-def _library() -> ctypes.CDLL:
-    """The compiled library, ``tdq_gyro_rows``', ``tdq_accel_rows``' and
-    ``tdq_imu_residuals``' argument types declared."""
-    lib = native.library()
-    if lib is None:
-        raise RuntimeError("the compiled kernels are not available")
-    p, i = ctypes.c_void_p, ctypes.c_int64
-    lib.tdq_gyro_rows.argtypes = [i, p, i, p, i, p, i, p]
-    lib.tdq_accel_rows.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, p]
-    lib.tdq_imu_residuals.argtypes = [i, p, i, p, i, p, i, p, i, p, i, p, i, p]
-    lib.tdq_gyro_rows.restype = lib.tdq_accel_rows.restype = None
-    lib.tdq_imu_residuals.restype = None
-    return lib

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import ctypes
 from dataclasses import dataclass
-from functools import cache
 
 import torch
 from torch import Tensor
@@ -115,9 +114,9 @@ class _Normal:
         index = [x.to(torch.int64).contiguous() for x in (rel, local, gcols)]
         sets = [self, *self.own[term:term + 1]] if term >= 0 else [self]
         out = [x.data_ptr() for acc in sets for x in (acc.band, acc.gc, acc.cn, acc.nn, acc.gn)]
-        if _library().tdq_normal_add(*(native.address(x) for x in (dims, *index)),
-                                     (ctypes.c_void_p * 10)(*out),
-                                     *(ctypes.c_void_p(x.data_ptr()) for x in (Jc, Jn, r, wt))):
+        add = native.function("tdq_normal_add", (ctypes.c_void_p,) * 9, ctypes.c_int)
+        if add(*(native.address(x) for x in (dims, *index)), (ctypes.c_void_p * 10)(*out),
+               *(ctypes.c_void_p(x.data_ptr()) for x in (Jc, Jn, r, wt))):
             raise MemoryError("_Normal.add_samples: no memory for a window's accumulator")
 
     def _add_consecutive(self, f: int, block: Tensor, gcols: Tensor) -> bool:
@@ -152,18 +151,6 @@ class _Normal:
         gc = self.gc.reshape(self.Bf, self.n + self.w, 6)[:, :self.n]
         return System(band, cn, nn, gc, self.gn.reshape(self.Bf, self.m), rs, weights,
                       [o.blocks() for o in self.own])
-
-
-@cache
-def _library() -> ctypes.CDLL:
-    """The compiled library, ``tdq_normal_add``'s argument types declared (the rows by
-    address, not ``native.address``: they are read by their strides)."""
-    lib = native.library()
-    if lib is None:
-        raise RuntimeError("the compiled kernels are not available")
-    lib.tdq_normal_add.argtypes = [ctypes.c_void_p] * 9
-    lib.tdq_normal_add.restype = ctypes.c_int
-    return lib
 
 
 def _window_normal(keys: Tensor, Y: Tensor) -> tuple[Tensor, Tensor]:
