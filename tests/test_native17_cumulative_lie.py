@@ -10,6 +10,7 @@ import math
 import mpmath as mp
 import pytest
 import torch
+from test_perf9_cumulative_lie import assert_vjp_matches_differences
 
 import torch_dq.dualquat as dq
 from torch_dq import _cumulative_lie, _numerics
@@ -136,24 +137,7 @@ def test_vjp_against_central_differences(order):
     local = spline.local_times(t, first)
     ctrl = spline.control_points.detach()
     pts = torch.stack([ctrl[f:f + 5] for f in first.tolist()])
-    g = torch.Generator().manual_seed(12)
-    cot = torch.randn(len(t), 2, order + 1, 8, generator=g, dtype=F64)
-    with torch.no_grad():
-        pose = spline.span_derivatives(ctrl, local, first, 0)[0]
-    G = spline.span_vjp(pts, local, first, cot, pose)
-    h = 1e-5
-    for i in range(5):
-        e = torch.randn(6, generator=g, dtype=F64)
-
-        def moved(s, i=i, e=e):
-            p = pts.clone()
-            p[:, i] = dq.mul(p[:, i], dq.exp(s * e))
-            out = spline.evaluate_span(p.requires_grad_(), local, first, order)
-            return torch.stack([x.detach() for x in out], -2)
-
-        ref = ((moved(h) - moved(-h)) / (2 * h))[:, None].mul(cot).sum((-1, -2))
-        got = (G[:, :, i] * e).sum(-1)
-        assert float((got - ref).abs().max()) < 1e-7 * float(ref.abs().max()), i
+    assert_vjp_matches_differences(spline, first, local, ctrl, pts, order, 12)
 
 
 def _mp_exp(xi: list) -> list:

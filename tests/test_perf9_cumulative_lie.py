@@ -219,15 +219,23 @@ def test_span_vjp_against_central_differences(order):
     tables' evaluation (a graph forces them) along random right steps ``c_i Exp(h e)`` of
     each control point, at generic times of a spline 20 m from the origin."""
     spline = _spline(seed=3)
-    t, first, local, ctrl, pts = span_samples(spline, 7)
-    g = torch.Generator().manual_seed(4)
-    cot = torch.randn(len(t), 2, order + 1, 8, generator=g, dtype=F64)
+    _, first, local, ctrl, pts = span_samples(spline, 7)
+    assert_vjp_matches_differences(spline, first, local, ctrl, pts, order, 4)
+
+
+def assert_vjp_matches_differences(spline, first, local, ctrl, pts, order: int, seed: int):
+    """``spline.span_vjp`` of random cotangents against central differences (``h = 1e-5``)
+    of ``evaluate_span`` along random right steps of each of the span points ``pts (N, w,
+    8)`` (rows 2, orders up to ``order``), to 1e-7 of the largest."""
+    g = torch.Generator().manual_seed(seed)
+    N, w = pts.shape[:2]
+    cot = torch.randn(N, 2, order + 1, 8, generator=g, dtype=F64)
     with torch.no_grad():
         pose = spline.span_derivatives(ctrl, local, first, 0)[0]
     G = spline.span_vjp(pts, local, first, cot, pose)
-    assert G.shape == (len(t), 2, 4, 6)
+    assert G.shape == (N, 2, w, 6)
     h = 1e-5
-    for i in range(4):
+    for i in range(w):
         e = torch.randn(6, generator=g, dtype=F64)
 
         def moved(s, i=i, e=e):
